@@ -1,0 +1,104 @@
+"""The result of a calibration: the paper's X and Y, named frames, statistics.
+
+Covariance convention (used everywhere in handeye): a 6-vector
+``[delta_rotvec (rad), delta_t (m)]`` with ``R_true = Exp(delta_rotvec) @ R_est``
+and ``t_true = t_est + delta_t``; ``cov`` is its 6x6 covariance for the
+*camera* transform (``T_base_cam`` eye-to-hand, ``T_flange_cam`` eye-in-hand).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+
+@dataclass(frozen=True)
+class Residuals:
+    """Per-sample residuals of ``A_i X = Y B_i`` at the solution.
+
+    Attributes
+    ----------
+    translation : ndarray, shape (N,)
+        Norm of the translation residual per sample, m (for point data: the
+        distance between the measured and predicted marker point in the
+        camera frame).
+    rotation : ndarray, shape (N,), or None
+        Rotation residual angle per sample, rad (None for point-only data).
+    """
+
+    translation: np.ndarray
+    rotation: np.ndarray | None = None
+
+    @property
+    def rms_translation(self) -> float:
+        return float(np.sqrt(np.mean(self.translation**2)))
+
+    @property
+    def max_translation(self) -> float:
+        return float(np.max(self.translation))
+
+    @property
+    def rms_rotation(self) -> float | None:
+        return None if self.rotation is None else float(np.sqrt(np.mean(self.rotation**2)))
+
+
+@dataclass(frozen=True)
+class CalibrationResult:
+    """Solution of ``A_i X = Y B_i`` (paper eq. 1) and how much to trust it.
+
+    ``X`` and ``Y`` are the paper's unknowns. Eye-to-hand: ``X = T_flange_marker``,
+    ``Y = T_base_cam``. Eye-in-hand: ``X = T_flange_cam``, ``Y = T_base_marker``.
+    A point-only method (YKronT', XKronT) recovers only the translation of the
+    marker-side transform and reports identity for its rotation
+    (``x_rotation_known`` / ``marker_rotation_known`` is False).
+    """
+
+    method: str
+    setup: str
+    X: np.ndarray
+    Y: np.ndarray
+    n_samples: int
+    residuals: Residuals
+    cov: np.ndarray | None = None
+    marker_rotation_known: bool = True
+    inliers: np.ndarray | None = None
+    converged: bool = True
+    iterations: int = 0
+    info: dict = field(default_factory=dict)
+
+    @property
+    def T_base_cam(self) -> np.ndarray:
+        self._require("eye_to_hand", "T_base_cam")
+        return self.Y
+
+    @property
+    def T_flange_marker(self) -> np.ndarray:
+        self._require("eye_to_hand", "T_flange_marker")
+        return self.X
+
+    @property
+    def T_flange_cam(self) -> np.ndarray:
+        self._require("eye_in_hand", "T_flange_cam")
+        return self.X
+
+    @property
+    def T_base_marker(self) -> np.ndarray:
+        self._require("eye_in_hand", "T_base_marker")
+        return self.Y
+
+    @property
+    def camera_transform(self) -> np.ndarray:
+        """``T_base_cam`` (eye-to-hand) or ``T_flange_cam`` (eye-in-hand)."""
+        return self.Y if self.setup == "eye_to_hand" else self.X
+
+    @property
+    def rejected(self) -> np.ndarray:
+        """Indices of samples rejected as outliers (empty if none or not robust)."""
+        if self.inliers is None:
+            return np.zeros(0, dtype=int)
+        return np.flatnonzero(~self.inliers)
+
+    def _require(self, setup: str, name: str) -> None:
+        if self.setup != setup:
+            raise AttributeError(f"{name} is defined for setup={setup!r}, this result is {self.setup!r}")

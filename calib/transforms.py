@@ -1,0 +1,172 @@
+"""Rigid-transform helpers: pure functions over numpy arrays.
+
+Convention: ``T_a_b`` (4x4, metres) is the pose of frame b in frame a, so
+``p_a = T_a_b @ p_b``. Stacks are ``(N, 4, 4)``. Quaternions are scalar-last
+``(x, y, z, w)`` as in ROS and scipy; rotation vectors are axis * angle in rad.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from scipy.spatial.transform import Rotation
+
+from calib.errors import CalibrationError
+
+ROTATION_ATOL = 1e-6
+
+
+def check_transforms(T, name: str = "T", *, atol: float = ROTATION_ATOL) -> np.ndarray:
+    """Validate a stack of rigid transforms.
+
+    Parameters
+    ----------
+    T : array_like, shape (N, 4, 4)
+    name : str
+        Used in the error message.
+
+    Returns
+    -------
+    T : ndarray, shape (N, 4, 4), float64
+
+    Raises
+    ------
+    CalibrationError
+        On a wrong shape, NaN/inf, a non-orthonormal or reflecting rotation,
+        or a last row other than ``[0, 0, 0, 1]``; the message names the first
+        bad index.
+    """
+    T = np.asarray(T, dtype=float)
+    if T.ndim != 3 or T.shape[1:] != (4, 4):
+        raise CalibrationError(f"{name} must have shape (N, 4, 4), got {T.shape}")
+    finite = np.isfinite(T).all(axis=(1, 2))
+    if not finite.all():
+        raise CalibrationError(f"{name}[{int(np.argmin(finite))}] contains NaN or inf")
+    bottom_ok = np.all(np.abs(T[:, 3] - [0, 0, 0, 1]) <= atol, axis=1)
+    if not bottom_ok.all():
+        raise CalibrationError(f"{name}[{int(np.argmin(bottom_ok))}] last row is not [0, 0, 0, 1]")
+    R = T[:, :3, :3]
+    orth_err = np.abs(R @ R.transpose(0, 2, 1) - np.eye(3)).max(axis=(1, 2))
+    det = np.linalg.det(R)
+    rot_ok = (orth_err <= max(atol, 1e-9) * 10) & (np.abs(det - 1) <= atol * 10)
+    if not rot_ok.all():
+        i = int(np.argmin(rot_ok))
+        raise CalibrationError(
+            f"{name}[{i}] rotation is not a proper rotation "
+            f"(|R R^T - I| = {orth_err[i]:.2e}, det = {det[i]:.6f})"
+        )
+    return T
+
+
+def check_transform(T, name: str = "T", *, atol: float = ROTATION_ATOL) -> np.ndarray:
+    """Validate one rigid transform, shape (4, 4). See `check_transforms`."""
+    T = np.asarray(T, dtype=float)
+    if T.shape != (4, 4):
+        raise CalibrationError(f"{name} must have shape (4, 4), got {T.shape}")
+    return check_transforms(T[None], name, atol=atol)[0]
+
+
+def check_points(p, name: str = "points") -> np.ndarray:
+    """Validate a stack of 3D points, shape (N, 3), finite."""
+    p = np.asarray(p, dtype=float)
+    if p.ndim != 2 or p.shape[1] != 3:
+        raise CalibrationError(f"{name} must have shape (N, 3), got {p.shape}")
+    finite = np.isfinite(p).all(axis=1)
+    if not finite.all():
+        raise CalibrationError(f"{name}[{int(np.argmin(finite))}] contains NaN or inf")
+    return p
+
+
+def make_transform(R, t) -> np.ndarray:
+    """Build 4x4 transform(s) from rotation(s) (..., 3, 3) and translation(s) (..., 3)."""
+    R = np.asarray(R, dtype=float)
+    t = np.asarray(t, dtype=float)
+    T = np.zeros(R.shape[:-2] + (4, 4))
+    T[..., :3, :3] = R
+    T[..., :3, 3] = t
+    T[..., 3, 3] = 1.0
+    return T
+
+
+def invert(T) -> np.ndarray:
+    """Inverse of rigid transform(s) (..., 4, 4), exact (no general matrix inverse)."""
+    T = np.asarray(T, dtype=float)
+    Rt = np.swapaxes(T[..., :3, :3], -1, -2)
+    return make_transform(Rt, -np.einsum("...ij,...j->...i", Rt, T[..., :3, 3]))
+
+
+def transform_points(T, p) -> np.ndarray:
+    """Apply transform(s) (..., 4, 4) to point(s) (..., 3)."""
+    T = np.asarray(T, dtype=float)
+    return np.einsum("...ij,...j->...i", T[..., :3, :3], p) + T[..., :3, 3]
+
+
+def project_to_so3(M) -> np.ndarray:
+    """Nearest rotation matrix (Frobenius norm) to M (..., 3, 3), via SVD."""
+    U, _, Vt = np.linalg.svd(np.asarray(M, dtype=float))
+    D = np.ones(U.shape[:-1])
+    D[..., -1] = np.sign(np.linalg.det(U @ Vt))
+    return (U * D[..., None, :]) @ Vt
+
+
+def from_rotvec_translation(rotvec, t) -> np.ndarray:
+    """Transform(s) from rotation vector(s) (..., 3) in rad and translation(s) (..., 3) in m."""
+    rotvec = np.asarray(rotvec, dtype=float)
+    R = Rotation.from_rotvec(rotvec.reshape(-1, 3)).as_matrix().reshape(rotvec.shape[:-1] + (3, 3))
+    return make_transform(R, t)
+
+
+def to_rotvec_translation(T) -> tuple[np.ndarray, np.ndarray]:
+    """Rotation vector(s) (..., 3) in rad and translation(s) (..., 3) in m of transform(s)."""
+    T = np.asarray(T, dtype=float)
+    rv = Rotation.from_matrix(T[..., :3, :3].reshape(-1, 3, 3)).as_rotvec()
+    return rv.reshape(T.shape[:-2] + (3,)), T[..., :3, 3].copy()
+
+
+def from_ur_pose(pose) -> np.ndarray:
+    """Transform(s) from UR pose vector(s) ``[x, y, z, rx, ry, rz]`` (m, rotation vector in rad)."""
+    pose = np.asarray(pose, dtype=float)
+    return from_rotvec_translation(pose[..., 3:6], pose[..., 0:3])
+
+
+def to_ur_pose(T) -> np.ndarray:
+    """UR pose vector(s) ``[x, y, z, rx, ry, rz]`` of transform(s) (..., 4, 4)."""
+    rv, t = to_rotvec_translation(T)
+    return np.concatenate([t, rv], axis=-1)
+
+
+def from_xyz_quat(xyz, quat_xyzw) -> np.ndarray:
+    """Transform(s) from translation(s) (..., 3) and scalar-last quaternion(s) (..., 4)."""
+    q = np.asarray(quat_xyzw, dtype=float)
+    R = Rotation.from_quat(q.reshape(-1, 4)).as_matrix().reshape(q.shape[:-1] + (3, 3))
+    return make_transform(R, xyz)
+
+
+def to_xyz_quat(T) -> tuple[np.ndarray, np.ndarray]:
+    """Translation(s) (..., 3) and scalar-last unit quaternion(s) (..., 4), w >= 0."""
+    T = np.asarray(T, dtype=float)
+    q = Rotation.from_matrix(T[..., :3, :3].reshape(-1, 3, 3)).as_quat()
+    q *= np.where(q[:, 3:4] < 0, -1.0, 1.0)
+    return T[..., :3, 3].copy(), q.reshape(T.shape[:-2] + (4,))
+
+
+def rotation_angle(R) -> np.ndarray:
+    """Rotation angle(s) in rad of rotation matrix (matrices) (..., 3, 3)."""
+    R = np.asarray(R, dtype=float)
+    c = (np.trace(R, axis1=-2, axis2=-1) - 1.0) / 2.0
+    return np.arccos(np.clip(c, -1.0, 1.0))
+
+
+def pose_error(T_est, T_true) -> tuple[np.ndarray, np.ndarray]:
+    """Rotation error (rad) and translation error (m) between transform(s) (..., 4, 4)."""
+    T_est = np.asarray(T_est, dtype=float)
+    T_true = np.asarray(T_true, dtype=float)
+    dR = np.swapaxes(T_true[..., :3, :3], -1, -2) @ T_est[..., :3, :3]
+    return rotation_angle(dR), np.linalg.norm(T_est[..., :3, 3] - T_true[..., :3, 3], axis=-1)
+
+
+def random_rotations(n: int, max_angle: float, rng: np.random.Generator) -> np.ndarray:
+    """``n`` rotations (n, 3, 3) about uniform random axes, angles uniform in [0, max_angle] rad."""
+    axes = rng.normal(size=(n, 3))
+    axes /= np.linalg.norm(axes, axis=1, keepdims=True)
+    angles = rng.uniform(0.0, max_angle, size=n)
+    return Rotation.from_rotvec(axes * angles[:, None]).as_matrix()
