@@ -1,0 +1,355 @@
+"""The session store: the contract between recording and replay.
+
+A session is a directory (layout documented in ``docs/session-format.md``)::
+
+    session.json     format name + version, setup, frames, config, intrinsics, created
+    samples.jsonl    one JSON object per line, appended and fsync'ed as taken
+    frames/          NNNNNN_color.png (8-bit BGR) and NNNNNN_depth.png (16-bit, mm)
+
+Each line of ``samples.jsonl`` has a ``kind``: ``"sample"`` (an accepted
+measurement), ``"skip"`` (a frame or pose that gave no measurement, with the
+reason) or ``"event"`` (alarm, stop, note). Frames are written before the line
+that names them, so a line never points at a missing file; a run killed
+mid-write leaves at most a torn last line, which `read_session` ignores with a
+warning. Poses and points alone make a valid session (frames are optional), so
+other programs can write sessions for ``handeye replay``.
+"""
+
+from __future__ import annotations
+
+import datetime as _dt
+import json
+import logging
+import os
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from calib.errors import SessionError
+from calib.observation import SETUPS, Observation
+
+log = logging.getLogger(__name__)
+
+FORMAT_NAME = "handeye-session"
+FORMAT_VERSION = 1
+
+FRAMES = {
+    "eye_to_hand": {
+        "A": "T_base_flange", "B": "T_cam_marker", "X": "T_flange_marker", "Y": "T_base_cam",
+        "equation": "T_base_flange @ T_flange_marker = T_base_cam @ T_cam_marker",
+    },
+    "eye_in_hand": {
+        "A": "T_base_flange", "B": "T_cam_marker", "X": "T_flange_cam", "Y": "T_base_marker",
+        "equation": "T_base_flange @ T_flange_cam @ T_cam_marker = T_base_marker",
+    },
+}
+
+
+def _fsync_write(path: Path, data: bytes) -> None:
+    """Write a whole file durably (tmp + fsync + rename) so readers never see half of it."""
+    tmp = path.with_name(path.name + ".tmp")
+    with open(tmp, "wb") as f:
+        f.write(data)
+        f.flush()
+        os.fsync(f.fileno())
+    os.replace(tmp, path)
+
+
+def _jsonable(x):
+    if isinstance(x, np.ndarray):
+        return x.tolist()
+    if isinstance(x, (np.floating, np.integer)):
+        return x.item()
+    if isinstance(x, dict):
+        return {str(k): _jsonable(v) for k, v in x.items()}
+    if isinstance(x, (list, tuple)):
+        return [_jsonable(v) for v in x]
+    return x
+
+
+def _array(value, shape, what: str, line_no: int):
+    if value is None:
+        return None
+    a = np.asarray(value, dtype=float)
+    if a.shape != shape:
+        raise SessionError(f"samples.jsonl line {line_no}: {what} must have shape {shape}, got {a.shape}")
+    return a
+
+
+@dataclass
+class Session:
+    """A session read back from disk.
+
+    Attributes
+    ----------
+    path : Path
+    header : dict
+        ``session.json`` as written (format, version, setup, frames, config, ...).
+    observations : list[Observation]
+        Accepted samples in recorded order.
+    skipped : list[dict]
+        ``{"index", "t", "reason", ...}`` of every skipped frame or pose.
+    events : list[dict]
+        Alarms, stops and notes, in order.
+    """
+
+    path: Path
+    header: dict
+    observations: list[Observation] = field(default_factory=list)
+    skipped: list[dict] = field(default_factory=list)
+    events: list[dict] = field(default_factory=list)
+
+    @property
+    def setup(self) -> str:
+        return self.header["setup"]
+
+    @property
+    def truth(self) -> dict:
+        """True transforms (4x4 arrays) recorded by simulated sources, else empty."""
+        return {k: np.asarray(v, dtype=float) for k, v in (self.header.get("truth") or {}).items()}
+
+    def load_frames(self, obs: Observation) -> tuple[np.ndarray | None, np.ndarray | None]:
+        """Color (H, W, 3) uint8 BGR and depth (H, W) float32 m of a sample, or None if not stored."""
+        import cv2  # only needed when frames are asked for
+
+        color = depth = None
+        if obs.meta.get("color"):
+            color = cv2.imread(str(self.path / obs.meta["color"]), cv2.IMREAD_COLOR)
+        if obs.meta.get("depth"):
+            d = cv2.imread(str(self.path / obs.meta["depth"]), cv2.IMREAD_UNCHANGED)
+            depth = None if d is None else d.astype(np.float32) / 1000.0
+        return color, depth
+
+
+class SessionWriter:
+    """Append samples to a session directory, durably, one at a time.
+
+    Use as a context manager. ``SessionWriter.create(root, setup, ...)`` makes a
+    new timestamped directory; ``SessionWriter.resume(path)`` continues an
+    existing one (sample indices continue after the last recorded one).
+    """
+
+    def __init__(self, path: Path, header: dict, next_index: int = 0):
+        self.path = Path(path)
+        self.header = header
+        self.next_index = next_index
+        self.n_samples = 0
+        self._lines = open(self.path / "samples.jsonl", "ab")
+
+    @classmethod
+    def create(
+        cls,
+        root: str | Path,
+        setup: str,
+        *,
+        config: dict | None = None,
+        intrinsics: dict | None = None,
+        truth: dict | None = None,
+        name: str | None = None,
+        source: str = "handeye",
+    ) -> "SessionWriter":
+        """Create ``root/<name or UTC timestamp>_<setup>/`` with ``session.json``.
+
+        Parameters
+        ----------
+        setup : {"eye_to_hand", "eye_in_hand"}
+        config : dict, optional
+            The configuration used, stored verbatim.
+        intrinsics : dict, optional
+            ``width, height, fx, fy, cx, cy, dist`` of the color camera.
+        truth : dict of (4, 4) arrays, optional
+            Known true transforms (simulated cells), e.g. ``T_base_cam``.
+        """
+        if setup not in SETUPS:
+            raise SessionError(f"setup must be one of {list(SETUPS)}, got {setup!r}")
+        now = _dt.datetime.now(_dt.timezone.utc)
+        path = Path(root) / (name or f"{now:%Y%m%d-%H%M%S-%f}_{setup}")
+        try:
+            path.mkdir(parents=True, exist_ok=False)
+        except FileExistsError:
+            raise SessionError(f"session directory already exists: {path}") from None
+        (path / "frames").mkdir()
+        header = {
+            "format": FORMAT_NAME,
+            "version": FORMAT_VERSION,
+            "setup": setup,
+            "frames": FRAMES[setup],
+            "units": {"translation": "m", "rotation": "rad", "time": "s", "depth_png": "mm"},
+            "created": now.isoformat(),
+            "source": source,
+            "intrinsics": intrinsics,
+            "truth": _jsonable(truth) if truth else None,
+            "config": _jsonable(config) if config else None,
+        }
+        _fsync_write(path / "session.json", json.dumps(header, indent=2).encode())
+        return cls(path, header)
+
+    @classmethod
+    def resume(cls, path: str | Path) -> "SessionWriter":
+        """Reopen an existing session for appending; indices continue after the last one."""
+        session = read_session(path)
+        last = [o.index for o in session.observations] + [s["index"] for s in session.skipped if "index" in s]
+        _drop_torn_tail(Path(path) / "samples.jsonl")
+        w = cls(Path(path), session.header, next_index=max(last, default=-1) + 1)
+        w.n_samples = len(session.observations)
+        return w
+
+    def _append(self, record: dict) -> None:
+        self._lines.write((json.dumps(_jsonable(record)) + "\n").encode())
+        self._lines.flush()
+        os.fsync(self._lines.fileno())
+
+    def _write_frames(self, index: int, color, depth) -> dict:
+        import cv2
+
+        files = {}
+        if color is not None:
+            name = f"frames/{index:06d}_color.png"
+            ok, buf = cv2.imencode(".png", color)
+            if not ok:
+                raise SessionError(f"could not encode color frame {index}")
+            _fsync_write(self.path / name, buf.tobytes())
+            files["color"] = name
+        if depth is not None:
+            name = f"frames/{index:06d}_depth.png"
+            mm = np.clip(np.nan_to_num(np.asarray(depth) * 1000.0), 0, 65535).round().astype(np.uint16)
+            ok, buf = cv2.imencode(".png", mm)
+            if not ok:
+                raise SessionError(f"could not encode depth frame {index}")
+            _fsync_write(self.path / name, buf.tobytes())
+            files["depth"] = name
+        return files
+
+    def add_sample(self, obs: Observation, *, color=None, depth=None) -> Observation:
+        """Record an accepted sample (frames first, then its line). Returns it with its index and file names.
+
+        ``obs.index`` is replaced by the session's next index.
+        """
+        index = self.next_index
+        files = self._write_frames(index, color, depth)
+        meta = {**obs.meta, **files}
+        self._append({
+            "kind": "sample",
+            "index": index,
+            "t": float(obs.t),
+            "T_base_flange": obs.T_base_flange,
+            "point_cam": obs.point_cam,
+            "point_cov": obs.point_cov,
+            "T_cam_marker": obs.T_cam_marker,
+            "pose_cov": obs.pose_cov,
+            "meta": meta,
+        })
+        self.next_index += 1
+        self.n_samples += 1
+        return Observation(index, obs.t, obs.T_base_flange, obs.point_cam, obs.point_cov,
+                           obs.T_cam_marker, obs.pose_cov, meta)
+
+    def add_skip(self, t: float, reason: str, *, T_base_flange=None, color=None, depth=None, **extra) -> int:
+        """Record a frame or pose that produced no sample, with the reason (never dropped silently)."""
+        index = self.next_index
+        files = self._write_frames(index, color, depth)
+        self._append({"kind": "skip", "index": index, "t": float(t), "reason": reason,
+                      "T_base_flange": T_base_flange, **files, **extra})
+        self.next_index += 1
+        return index
+
+    def add_event(self, t: float, event: str, **data) -> None:
+        """Record an alarm, stop or note (``event`` is a short name like ``"alarm"``)."""
+        self._append({"kind": "event", "t": float(t), "event": event, **data})
+
+    def close(self) -> None:
+        if not self._lines.closed:
+            self._lines.close()
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        self.close()
+        return False
+
+
+def _drop_torn_tail(path: Path) -> None:
+    """Truncate a torn (unterminated) last line so appends start on a fresh line."""
+    data = path.read_bytes()
+    if data and not data.endswith(b"\n"):
+        with open(path, "r+b") as f:
+            f.truncate(data.rfind(b"\n") + 1)
+
+
+def read_session(path: str | Path) -> Session:
+    """Read a session directory written by `SessionWriter` or another program.
+
+    Raises
+    ------
+    SessionError
+        If ``session.json`` is missing, of another format or a newer version,
+        or a line other than the last is not valid JSON or has bad shapes.
+        A torn last line (a run killed mid-write) is ignored with a warning.
+    """
+    path = Path(path)
+    try:
+        header = json.loads((path / "session.json").read_text(encoding="utf-8"))
+    except FileNotFoundError:
+        raise SessionError(f"not a session (no session.json): {path}") from None
+    except json.JSONDecodeError as e:
+        raise SessionError(f"{path / 'session.json'}: invalid JSON: {e}") from None
+    if header.get("format") != FORMAT_NAME:
+        raise SessionError(f"{path}: format is {header.get('format')!r}, expected {FORMAT_NAME!r}")
+    version = header.get("version")
+    if not isinstance(version, int) or version > FORMAT_VERSION or version < 1:
+        raise SessionError(f"{path}: unsupported session version {version!r} (this handeye reads <= {FORMAT_VERSION})")
+    if header.get("setup") not in SETUPS:
+        raise SessionError(f"{path}: setup must be one of {list(SETUPS)}, got {header.get('setup')!r}")
+
+    session = Session(path, header)
+    lines_path = path / "samples.jsonl"
+    if not lines_path.exists():
+        return session
+    raw = lines_path.read_bytes().split(b"\n")
+    # A file ending with "\n" splits into a final empty chunk; anything else there is a torn write.
+    if raw and raw[-1] == b"":
+        raw.pop()
+        torn_tail = False
+    else:
+        torn_tail = bool(raw)
+    for i, line in enumerate(raw, start=1):
+        if not line.strip():
+            continue
+        try:
+            rec = json.loads(line)
+        except json.JSONDecodeError as e:
+            if torn_tail and i == len(raw):
+                log.warning("%s: ignoring torn last line %d (run interrupted mid-write)", lines_path, i)
+                break
+            raise SessionError(f"{lines_path} line {i}: invalid JSON: {e}") from None
+        kind = rec.get("kind", "sample")
+        if kind == "sample":
+            session.observations.append(_observation(rec, i))
+        elif kind == "skip":
+            session.skipped.append(rec)
+        elif kind == "event":
+            session.events.append(rec)
+        else:
+            raise SessionError(f"{lines_path} line {i}: unknown kind {kind!r}")
+    return session
+
+
+def _observation(rec: dict, line_no: int) -> Observation:
+    for key in ("index", "t", "T_base_flange"):
+        if key not in rec:
+            raise SessionError(f"samples.jsonl line {line_no}: missing {key!r}")
+    obs = Observation(
+        index=int(rec["index"]),
+        t=float(rec["t"]),
+        T_base_flange=_array(rec["T_base_flange"], (4, 4), "T_base_flange", line_no),
+        point_cam=_array(rec.get("point_cam"), (3,), "point_cam", line_no),
+        point_cov=_array(rec.get("point_cov"), (3, 3), "point_cov", line_no),
+        T_cam_marker=_array(rec.get("T_cam_marker"), (4, 4), "T_cam_marker", line_no),
+        pose_cov=_array(rec.get("pose_cov"), (6, 6), "pose_cov", line_no),
+        meta=rec.get("meta") or {},
+    )
+    if obs.point_cam is None and obs.T_cam_marker is None:
+        raise SessionError(f"samples.jsonl line {line_no}: a sample needs point_cam or T_cam_marker")
+    return obs
