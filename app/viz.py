@@ -25,6 +25,7 @@ from pathlib import Path
 
 import numpy as np
 
+from app.pipeline import sigma
 from calib import transforms as tf
 
 log = logging.getLogger(__name__)
@@ -176,10 +177,3 @@ class Viz:
         self.close()
         return False
 
-
-def sigma(cov: np.ndarray) -> tuple[float, float]:
-    """Worst-axis 1-sigma (deg, mm) of a 6x6 ``[rotvec, t]`` covariance (calib.result convention)."""
-    cov = np.asarray(cov, dtype=float)
-    s_rot = float(np.sqrt(max(np.linalg.eigvalsh(cov[:3, :3]).max(), 0.0)))
-    s_t = float(np.sqrt(max(np.linalg.eigvalsh(cov[3:, 3:]).max(), 0.0)))
-    return float(np.rad2deg(s_rot)), s_t * 1e3

@@ -1,0 +1,216 @@
+"""Passive monitoring: sample while something else moves the robot, watch for a moved camera.
+
+Read-only: this module never commands a motion. Eye-to-hand (static camera,
+``Y = T_base_cam``) it detects a bumped camera; eye-in-hand (``X =
+T_flange_cam``) a camera that slipped on the flange. Each accepted sample
+feeds the online estimator and change detector (``calib.online``); on an
+alarm the run logs it, records an event in the session, shows it in rerun,
+runs the optional hook command, and re-estimates from the samples taken after
+the move once there are enough.
+"""
+
+from __future__ import annotations
+
+import logging
+import os
+import shlex
+import subprocess
+import threading
+import time
+from collections import deque
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Callable
+
+import numpy as np
+
+from app.calibrate import take_sample
+from app.config import MonitorConfig
+from app.pipeline import Measurement
+from app.session import SessionWriter
+from app.viz import Viz
+from calib import transforms as tf
+from calib.errors import CalibrationError
+from calib.observation import Observation
+from calib.result import CalibrationResult
+from drivers.camera.base import Camera, RGBDFrame
+from drivers.robot.base import Robot
+
+log = logging.getLogger(__name__)
+
+
+@dataclass
+class Alarm:
+    """A detected camera move: when, after which sample, and the detector's figures."""
+
+    t: float
+    sample_index: int
+    info: dict
+
+
+@dataclass
+class MonitorReport:
+    """What a monitoring run saw.
+
+    Attributes
+    ----------
+    session : Path
+    n_samples, n_skipped : int
+    alarms : list[Alarm]
+    reestimate : CalibrationResult or None
+        Solved from the samples after the last alarm (None if too few).
+    elapsed_s : float
+    """
+
+    session: Path
+    n_samples: int
+    n_skipped: int
+    alarms: list[Alarm] = field(default_factory=list)
+    reestimate: CalibrationResult | None = None
+    elapsed_s: float = 0.0
+
+
+def is_diverse(T: np.ndarray, recent, min_translation_m: float, min_rotation_deg: float) -> bool:
+    """True if ``T`` differs from every recent pose by >= the translation OR the rotation threshold."""
+    if len(recent) == 0:
+        return True
+    rot, trans = tf.pose_error(np.array(recent), np.broadcast_to(T, (len(recent), 4, 4)))
+    close = (trans < min_translation_m) & (np.rad2deg(rot) < min_rotation_deg)
+    return not bool(close.any())
+
+
+def run_hook(command: str, env: dict) -> None:
+    """Run the alarm hook (no shell; arguments split like a shell would). Failures are logged, not raised."""
+    if not command:
+        return
+    try:
+        done = subprocess.run(shlex.split(command), env={**os.environ, **env}, timeout=30,
+                              capture_output=True, text=True)
+    except (OSError, subprocess.TimeoutExpired) as e:
+        log.error("alarm hook %r failed: %s", command, e)
+        return
+    if done.returncode != 0:
+        log.error("alarm hook %r exited %d: %s", command, done.returncode, done.stderr.strip()[:200])
+
+
+def run_monitor(
+    robot: Robot,
+    camera: Camera,
+    measure: Callable[[RGBDFrame], Measurement],
+    online,
+    solve: Callable[..., CalibrationResult],
+    writer: SessionWriter,
+    cfg: MonitorConfig,
+    setup: str,
+    viz: Viz,
+    *,
+    stop: threading.Event | None = None,
+    save_frames: bool = True,
+    on_sample: Callable[[Observation], None] | None = None,
+) -> MonitorReport:
+    """Passive run until ``cfg.max_samples``, ``cfg.duration_s``, ``stop`` or Ctrl-C.
+
+    Parameters
+    ----------
+    robot : Robot connected read-only (this function only reads it).
+    camera : Camera
+    measure : callable(RGBDFrame) -> Measurement (raises ExtractionError to skip).
+    online : calib.online estimator with ``update(T_base_flange, point_cam, point_cov)``
+        returning an update with ``alarm`` (bool).
+    solve : callable(observations, *, final) -> CalibrationResult, for the re-estimate.
+    writer : SessionWriter
+    cfg : MonitorConfig
+    setup : {"eye_to_hand", "eye_in_hand"}
+    stop : threading.Event, optional
+        Set from another thread to end the run.
+    on_sample : callable, optional
+        Called with each accepted sample (progress display).
+    """
+    t0 = time.monotonic()
+    report = MonitorReport(writer.path, 0, 0)
+    recent: deque = deque(maxlen=max(cfg.diversity_window, 1))
+    after_alarm: list[Observation] = []
+    still_since: float | None = None
+    tried_this_stop = False
+    try:
+        while True:
+            if stop is not None and stop.is_set():
+                break
+            if cfg.duration_s and time.monotonic() - t0 >= cfg.duration_s:
+                break
+            if cfg.max_samples and report.n_samples >= cfg.max_samples:
+                break
+            state = robot.read()
+            if not state.is_still:
+                still_since, tried_this_stop = None, False
+                time.sleep(cfg.poll_s)
+                continue
+            if still_since is None:
+                still_since = state.t_host
+            # One attempt per standstill: the pose cannot change until the robot moves again.
+            if tried_this_stop or state.t_host - still_since < cfg.still_s:
+                time.sleep(cfg.poll_s)
+                continue
+            tried_this_stop = True
+            if cfg.diversity_window and not is_diverse(state.T_base_flange, recent,
+                                                       cfg.min_translation_m, cfg.min_rotation_deg):
+                writer.add_skip(state.t_host, "near-duplicate of a recent pose", T_base_flange=state.T_base_flange)
+                report.n_skipped += 1
+                continue
+            obs = take_sample(robot, camera, measure, writer, viz, not_before=still_since, save_frames=save_frames)
+            if obs is None:
+                report.n_skipped += 1
+                continue
+            # A frame exposed while the robot was moving again would pair a blurred marker with a wrong pose.
+            if not robot.read().is_still:
+                writer.add_event(obs.t, "moved_during_capture", sample_index=obs.index)
+            recent.append(obs.T_base_flange)
+            report.n_samples += 1
+            if on_sample is not None:
+                on_sample(obs)
+            update = online.update(obs.T_base_flange, obs.point_cam, obs.point_cov)
+            estimate = getattr(update, "estimate", None)
+            viz.sample(obs, getattr(estimate, "camera_transform", None))
+            drift = getattr(update, "drift", None)
+            if drift is not None:
+                viz.drift(obs.t, *drift)
+            if getattr(update, "alarm", False):
+                _raise_alarm(report, obs, update, writer, viz, cfg)
+                after_alarm = []
+                continue
+            if report.alarms:
+                after_alarm.append(obs)
+                # Re-solve every reestimate_samples new samples: cheap, and improves as they accrue.
+                if len(after_alarm) % cfg.reestimate_samples == 0:
+                    report.reestimate = _reestimate(after_alarm, solve, writer, viz) or report.reestimate
+    except KeyboardInterrupt:
+        log.warning("monitor interrupted; %d samples kept in %s", report.n_samples, writer.path)
+        writer.add_event(time.time(), "interrupted", n_samples=report.n_samples)
+    report.elapsed_s = time.monotonic() - t0
+    return report
+
+
+def _raise_alarm(report: MonitorReport, obs: Observation, update, writer: SessionWriter, viz: Viz,
+                 cfg: MonitorConfig) -> None:
+    info = {k: v for k, v in getattr(update, "info", {}).items() if isinstance(v, (int, float, str, bool))}
+    alarm = Alarm(obs.t, obs.index, info)
+    report.alarms.append(alarm)
+    text = f"ALARM: camera moved (detected at sample {obs.index}) {info}"
+    log.warning(text)
+    writer.add_event(obs.t, "alarm", sample_index=obs.index, **info)
+    viz.event(obs.t, text, "ERROR")
+    run_hook(cfg.alarm_hook, {"HANDEYE_EVENT": "camera_moved", "HANDEYE_SESSION": str(writer.path),
+                              "HANDEYE_SAMPLE": str(obs.index)})
+
+
+def _reestimate(samples: list[Observation], solve, writer: SessionWriter, viz: Viz) -> CalibrationResult | None:
+    try:
+        res = solve(samples, final=True)
+    except CalibrationError as e:
+        log.info("re-estimate after the move not possible yet: %s", e)
+        return None
+    writer.add_event(samples[-1].t, "reestimate", n_samples=len(samples),
+                     T_camera=res.camera_transform.tolist(), method=res.method)
+    viz.estimate(samples[-1].t, res, samples)
+    log.info("re-estimated the camera from %d samples after the move", len(samples))
+    return res

@@ -1,0 +1,135 @@
+"""Glue between the app and the calib library: measurement, solving, prediction.
+
+Eye-to-hand: ``X = T_flange_marker``, ``Y = T_base_cam``. Eye-in-hand:
+``X = T_flange_cam``, ``Y = T_base_marker``. ``A = T_base_flange``,
+``B = T_cam_marker`` (paper eq. 1, ``A_i X = Y B_i``).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from calib import transforms as tf
+from calib.result import CalibrationResult
+
+
+@dataclass
+class Measurement:
+    """What the extraction step got from one frame (camera frame, metres).
+
+    Attributes
+    ----------
+    point_cam : ndarray (3,)
+        Marker center.
+    point_cov : ndarray (3, 3) or None
+    T_cam_marker : ndarray (4, 4) or None
+    pose_cov : ndarray (6, 6) or None
+    pixel : tuple(float, float) or None
+        Marker center in the image (for display).
+    meta : dict
+        JSON-serialisable extras (marker id, corner count, ...).
+    """
+
+    point_cam: np.ndarray
+    point_cov: np.ndarray | None = None
+    T_cam_marker: np.ndarray | None = None
+    pose_cov: np.ndarray | None = None
+    pixel: tuple[float, float] | None = None
+    meta: dict = field(default_factory=dict)
+
+
+def sigma(cov: np.ndarray) -> tuple[float, float]:
+    """Worst-axis 1-sigma of a 6x6 ``[rotvec, t]`` covariance (calib.result convention).
+
+    Returns
+    -------
+    (deg, mm) : tuple of float
+    """
+    cov = np.asarray(cov, dtype=float)
+    if cov.shape != (6, 6):
+        raise ValueError(f"cov must have shape (6, 6), got {cov.shape}")
+    s_rot = float(np.sqrt(max(np.linalg.eigvalsh(cov[:3, :3]).max(), 0.0)))
+    s_t = float(np.sqrt(max(np.linalg.eigvalsh(cov[3:, 3:]).max(), 0.0)))
+    return float(np.rad2deg(s_rot)), s_t * 1e3
+
+
+def predicted_point(setup: str, estimate: CalibrationResult, T_base_flange: np.ndarray) -> np.ndarray:
+    """Marker center in the camera frame predicted for a flange pose, shape (3,).
+
+    Eye-to-hand: ``Y^-1 A t_X`` (only X's translation is needed, which point-only
+    methods recover). Eye-in-hand: ``(A X)^-1 t_Y``.
+    """
+    if setup == "eye_to_hand":
+        return tf.transform_points(tf.invert(estimate.Y) @ T_base_flange, estimate.X[:3, 3])
+    return tf.transform_points(tf.invert(T_base_flange @ estimate.X), estimate.Y[:3, 3])
+
+
+def predicted_pixel(setup: str, estimate: CalibrationResult, T_base_flange: np.ndarray,
+                    intrinsics, margin_px: int = 0) -> tuple[float, float] | None:
+    """Pixel of the marker center predicted for a flange pose, or None if it leaves the image.
+
+    "Leaves" means behind the camera or within ``margin_px`` of the border.
+    """
+    p = predicted_point(setup, estimate, T_base_flange)
+    if p[2] <= 0.05:
+        return None
+    u = intrinsics.fx * p[0] / p[2] + intrinsics.cx
+    v = intrinsics.fy * p[1] / p[2] + intrinsics.cy
+    if not (margin_px <= u <= intrinsics.width - margin_px and margin_px <= v <= intrinsics.height - margin_px):
+        return None
+    return float(u), float(v)
+
+
+def observations_to_arrays(observations, *, points: bool) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
+    """Stack samples into the solver inputs.
+
+    Returns
+    -------
+    A : ndarray (N, 4, 4)
+        ``T_base_flange``.
+    B : ndarray (N, 3) or (N, 4, 4)
+        Marker centers ``point_cam`` if ``points`` else ``T_cam_marker``.
+    point_cov : ndarray (N, 3, 3) or None
+        Only when every sample has one.
+
+    Raises
+    ------
+    InsufficientDataError
+        If a sample lacks what the method needs.
+    """
+    from calib.errors import InsufficientDataError
+
+    A = np.array([o.T_base_flange for o in observations]).reshape(-1, 4, 4)
+    key = "point_cam" if points else "T_cam_marker"
+    missing = [o.index for o in observations if getattr(o, key) is None]
+    if missing:
+        raise InsufficientDataError(f"samples {missing[:5]} have no {key} (needed by this solver)")
+    if points:
+        B = np.array([o.point_cam for o in observations]).reshape(-1, 3)
+    else:
+        B = np.array([o.T_cam_marker for o in observations]).reshape(-1, 4, 4)
+    covs = [o.point_cov for o in observations]
+    point_cov = np.array(covs) if covs and all(c is not None for c in covs) else None
+    return A, B, point_cov
+
+
+def is_point_method(method: str) -> bool:
+    """Whether a solver uses only the marker centers (the paper's ...T' methods and XKronT)."""
+    return method.endswith("T'") or method == "XKronT"
+
+
+def solve_observations(method: str, observations, setup: str, *, refine: bool = False,
+                       robust: bool = False, rng: np.random.Generator | None = None) -> CalibrationResult:
+    """Solve ``A_i X = Y B_i`` (paper eq. 1) for a list of samples with a named solver.
+
+    Point methods (YKronT', YQuatT', XKronT) get the depth-lifted marker centers
+    with their covariances; the others get the marker poses ``T_cam_marker``.
+    """
+    from calib import solve
+
+    points = is_point_method(method)
+    A, B, point_cov = observations_to_arrays(observations, points=points)
+    return solve(method, A, B, setup=setup, refine=refine, robust=robust,
+                 point_cov=point_cov if points else None, rng=rng)
