@@ -1,0 +1,200 @@
+"""Compose devices, session store, solvers and rerun into the four runs.
+
+Library entry points that return results (the CLI only parses arguments and
+prints): `calibrate`, `monitor`, `replay_source`, `demo`. Every output names
+its setup: eye-to-hand (``X = T_flange_marker``, ``Y = T_base_cam``) or
+eye-in-hand (``X = T_flange_cam``, ``Y = T_base_marker``).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import logging
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from app import devices
+from app.calibrate import RunReport, run_calibration
+from app.config import CalibrateConfig, Config
+from app.monitor import MonitorReport, run_monitor
+from app.pipeline import sigma, solve_observations
+from app.replay import format_table, replay
+from app.session import SessionWriter, read_session
+from app.viz import Viz
+from calib import transforms as tf
+from calib.errors import HandeyeError, InsufficientDataError, SessionError
+
+log = logging.getLogger(__name__)
+
+
+@dataclass
+class CalibrationOutput:
+    """An active run and where its outputs went."""
+
+    report: RunReport
+    setup: str
+    method: str
+    files: dict
+    truth: np.ndarray | None = None
+
+
+def make_viz(cfg: Config, session: Path) -> Viz:
+    """rerun recording saved as ``<session>/recording.rrd`` (no-op if disabled)."""
+    return Viz(cfg.setup, session / "recording.rrd", viewer=cfg.viz.viewer, enabled=cfg.viz.enabled,
+               log_images=cfg.viz.log_images)
+
+
+def make_solve(cal: CalibrateConfig, setup: str, rng: np.random.Generator):
+    """``solve(observations, *, final)``: fast unrefined estimates while running, the configured one at the end."""
+
+    def solve(observations, *, final: bool):
+        return solve_observations(cal.method, observations, setup,
+                                  refine=cal.refine and final, robust=cal.robust and final, rng=rng)
+
+    return solve
+
+
+def _camera_truth(setup: str, truth: dict) -> np.ndarray | None:
+    key = "T_base_cam" if setup == "eye_to_hand" else "T_flange_cam"
+    return None if key not in truth else np.asarray(truth[key], dtype=float)
+
+
+def calibrate(cfg: Config, *, progress: bool = True) -> CalibrationOutput:
+    """Active calibration with the configured robot and camera (the caller confirmed motion).
+
+    Returns
+    -------
+    CalibrationOutput
+        The run report (result, session path, counts) and the files written.
+    """
+    from tqdm import tqdm
+
+    rng = np.random.default_rng(cfg.calibrate.seed)
+    with devices.open_robot(cfg, read_only=False) as robot, devices.open_camera(cfg, robot) as camera:
+        truth = devices.truth(cfg, camera)
+        writer = SessionWriter.create(cfg.session.root, cfg.setup, config=cfg.to_dict(),
+                                      intrinsics=dataclasses.asdict(camera.intrinsics), truth=truth)
+        with writer, make_viz(cfg, writer.path) as viz:
+            T_true = _camera_truth(cfg.setup, truth)
+            if T_true is not None:
+                viz.truth(T_true)
+            bar = tqdm(total=cfg.calibrate.samples, desc="samples", unit="sample", disable=not progress)
+            with bar:
+                report = run_calibration(robot, camera, devices.make_measure(cfg), make_solve(cfg.calibrate, cfg.setup, rng),
+                                         writer, cfg.calibrate, cfg.setup, rng, viz,
+                                         save_frames=cfg.session.save_frames, progress=bar)
+    files = devices.write_result(report.result, writer.path, cfg.setup) if report.result is not None else {}
+    return CalibrationOutput(report, cfg.setup, cfg.calibrate.method, files, _camera_truth(cfg.setup, truth))
+
+
+def reference_estimate(path: Path, method: str):
+    """Calibration from a previous session's samples (the monitor's reference)."""
+    session = read_session(path)
+    return solve_observations(method, session.observations, session.setup, refine=True)
+
+
+def monitor(cfg: Config, *, reference: Path | None = None, stop=None, progress: bool = True) -> MonitorReport:
+    """Passive monitoring with a read-only robot connection (never moves the robot)."""
+    from tqdm import tqdm
+
+    rng = np.random.default_rng(cfg.calibrate.seed)
+    ref = reference_estimate(reference, cfg.monitor.method) if reference is not None else None
+    if ref is not None and ref.setup != cfg.setup:
+        raise SessionError(f"reference session is {ref.setup}, config is {cfg.setup}")
+    with devices.open_robot(cfg, read_only=True) as robot, devices.open_camera(cfg, robot) as camera:
+        truth = devices.truth(cfg, camera)
+        writer = SessionWriter.create(cfg.session.root, cfg.setup, config=cfg.to_dict(),
+                                      intrinsics=dataclasses.asdict(camera.intrinsics), truth=truth,
+                                      source="handeye monitor")
+        online = devices.make_online(cfg, ref)
+        solve = make_solve(dataclasses.replace(cfg.calibrate, method=cfg.monitor.method), cfg.setup, rng)
+        with writer, make_viz(cfg, writer.path) as viz, \
+                tqdm(desc="samples", unit="sample", disable=not progress) as bar:
+            return run_monitor(robot, camera, devices.make_measure(cfg), online, solve, writer, cfg.monitor,
+                               cfg.setup, viz, stop=stop, save_frames=cfg.session.save_frames,
+                               on_sample=lambda obs: bar.update(1))
+
+
+def all_methods() -> list[str]:
+    from calib import METHODS
+
+    return list(METHODS)
+
+
+def replay_source(source: Path, methods: list[str], *, refine: bool = False, robust: bool = False,
+                  setup: str | None = None, rng: np.random.Generator | None = None) -> str:
+    """Re-solve a session directory or an imported file with each method; returns the markdown table."""
+    if not Path(source).exists():
+        raise SessionError(f"{source}: no such file or directory")
+    if (Path(source) / "session.json").exists():
+        session = read_session(source)
+        observations, file_setup, truth = session.observations, session.setup, session.truth
+    else:
+        observations, file_setup, truth = devices.import_observations(Path(source), setup)
+    setup = setup or file_setup
+    if not observations:
+        raise InsufficientDataError(f"{source}: no samples to replay")
+    if methods == ["all"]:
+        methods = all_methods()
+    rows = replay(observations, setup, methods, refine=refine, robust=robust,
+                  truth=_camera_truth(setup, truth), rng=rng)
+    if all(r.result is None for r in rows):
+        raise HandeyeError(f"no solver succeeded on {source}: " + "; ".join(f"{r.method}: {r.error}" for r in rows))
+    return f"{source} ({setup}, {len(observations)} samples)\n\n" + format_table(rows, setup)
+
+
+def demo(cfg: Config, *, progress: bool = True) -> CalibrationOutput:
+    """Start the simulated UR controller, calibrate against the rendered camera, compare with the truth."""
+    with devices.simulated_robot(cfg):
+        return calibrate(cfg, progress=progress)
+
+
+def _pose_line(T: np.ndarray) -> str:
+    xyz, q = tf.to_xyz_quat(T)
+    return (f"xyz [mm] = {np.array2string(xyz * 1e3, precision=2)}  "
+            f"quat (x,y,z,w) = {np.array2string(q, precision=5)}")
+
+
+def print_calibration_summary(out: CalibrationOutput) -> None:
+    r = out.report
+    cam = "T_base_cam" if out.setup == "eye_to_hand" else "T_flange_cam"
+    print(f"\nsession: {r.session}")
+    print(f"setup: {out.setup}   solver: {out.method}   samples: {r.n_samples}   skipped: {r.n_skipped}   "
+          f"stopped by: {r.stopped_by}   time: {r.elapsed_s:.1f} s")
+    if r.result is None:
+        print("no calibration: too few samples")
+        return
+    res = r.result
+    rows = [("estimate " + cam, _pose_line(res.camera_transform))]
+    if out.truth is not None:
+        rows.append(("truth    " + cam, _pose_line(out.truth)))
+    for name, line in rows:
+        print(f"  {name}: {line}")
+    print()
+    print("| quantity | value |\n|---|---|")
+    print(f"| residual RMS [mm] | {res.residuals.rms_translation * 1e3:.2f} |")
+    print(f"| residual max [mm] | {res.residuals.max_translation * 1e3:.2f} |")
+    if res.cov is not None:
+        s_deg, s_mm = sigma(res.cov)
+        print(f"| 1-sigma [mm] | {s_mm:.2f} |\n| 1-sigma [deg] | {s_deg:.3f} |")
+    if out.truth is not None:
+        rot, trans = tf.pose_error(res.camera_transform, out.truth)
+        print(f"| error vs truth [mm] | {trans * 1e3:.2f} |\n| error vs truth [deg] | {np.rad2deg(rot):.3f} |")
+    for kind, path in out.files.items():
+        print(f"| {kind} | {path} |")
+
+
+def print_monitor_summary(report: MonitorReport) -> None:
+    print(f"\nsession: {report.session}")
+    print(f"samples: {report.n_samples}   skipped: {report.n_skipped}   alarms: {len(report.alarms)}   "
+          f"time: {report.elapsed_s:.1f} s")
+    for a in report.alarms:
+        print(f"  ALARM camera moved at sample {a.sample_index} ({time.strftime('%H:%M:%S', time.localtime(a.t))})")
+    if report.reestimate is not None:
+        print(f"  re-estimate after the move: {_pose_line(report.reestimate.camera_transform)}")
+
+
+print_demo_summary = print_calibration_summary
