@@ -1,0 +1,89 @@
+"""App helpers that need no devices: pose sampling, diversity, marker prediction, config validation."""
+
+import dataclasses
+
+import numpy as np
+import pytest
+
+from app.calibrate import random_pose
+from app.config import CalibrateConfig, Config, config_from_dict
+from app.monitor import is_diverse
+from app.pipeline import predicted_pixel, predicted_point, sigma
+from calib import transforms as tf
+from calib.errors import ConfigError
+from calib.result import CalibrationResult, Residuals
+from calib.simulate import realistic_cell
+from drivers.camera.base import CameraIntrinsics
+
+
+def test_random_pose_within_box_and_tilt():
+    cfg = CalibrateConfig(translation_range_m=0.1, tilt_deg=20.0)
+    rng = np.random.default_rng(3)
+    start = tf.make_transform(tf.random_rotations(1, np.pi, rng)[0], [0.5, 0.2, 0.4])
+    poses = np.array([random_pose(start, cfg, rng) for _ in range(200)])
+    assert np.all(np.abs(poses[:, :3, 3] - start[:3, 3]) <= 0.1)
+    rot, _ = tf.pose_error(poses, np.broadcast_to(start, poses.shape))
+    assert np.rad2deg(rot).max() <= 20.0 + 1e-9
+    assert np.rad2deg(rot).max() > 15.0  # the range is actually used
+    # seeded: same rng seed, same poses
+    a = random_pose(start, cfg, np.random.default_rng(7))
+    b = random_pose(start, cfg, np.random.default_rng(7))
+    np.testing.assert_array_equal(a, b)
+
+
+def test_is_diverse():
+    T = np.eye(4)
+    near = tf.make_transform(np.eye(3), [0.01, 0, 0])
+    far = tf.make_transform(np.eye(3), [0.05, 0, 0])
+    tilted = tf.from_rotvec_translation([0, np.deg2rad(8), 0], [0.0, 0, 0])
+    assert is_diverse(T, [], 0.03, 5.0)
+    assert not is_diverse(near, [T], 0.03, 5.0)
+    assert is_diverse(far, [T], 0.03, 5.0)
+    assert is_diverse(tilted, [T], 0.03, 5.0)
+
+
+@pytest.mark.parametrize("setup", ["eye_to_hand", "eye_in_hand"])
+def test_predicted_point_matches_truth(setup):
+    d = realistic_cell(5, np.random.default_rng(0), setup=setup, sigma_lateral=1e-12, sigma_depth=1e-12,
+                       pose_noise=(0.0, 0.0))
+    res = CalibrationResult("YKronT'", setup, d.X, d.Y, 5, Residuals(np.zeros(5)))
+    for A, B in zip(d.A_true, d.B_true):
+        np.testing.assert_allclose(predicted_point(setup, res, A), B[:3, 3], atol=1e-9)
+    K = CameraIntrinsics(640, 480, 525.0, 525.0, 320.0, 240.0)
+    px = predicted_pixel(setup, res, d.A_true[0], K)
+    p = d.B_true[0][:3, 3]
+    assert px == pytest.approx((525 * p[0] / p[2] + 320, 525 * p[1] / p[2] + 240))
+    # far off to the side: the marker leaves the image
+    away = d.A_true[0].copy()
+    away[:3, 3] += 5.0 * (d.Y[:3, 0] if setup == "eye_to_hand" else -away[:3, 0])
+    assert predicted_pixel(setup, res, away, K) is None
+
+
+def test_sigma_worst_axis():
+    cov = np.diag([np.deg2rad(0.1) ** 2, 0, 0, 1e-6, 4e-6, 0])
+    s_deg, s_mm = sigma(cov)
+    assert s_deg == pytest.approx(0.1) and s_mm == pytest.approx(2.0)
+
+
+@pytest.mark.parametrize("data, match", [
+    ({"setup": "sideways"}, "setup"),
+    ({"robot": {"host": "x"}}, "robot.backend"),
+    ({"calibrate": {"samples": 2}}, "calibrate.samples"),
+    ({"calibrate": {"min_samples": 30}}, "calibrate.min_samples"),
+    ({"calibrate": {"refine": "yes"}}, "calibrate.refine"),
+    ({"monitor": {"poll_s": 0}}, "monitor.poll_s"),
+    ({"viz": {"enabled": 1}}, "viz.enabled"),
+    ({"session": {"root": ""}}, "session.root"),
+    ({"bogus": 1}, "'bogus'"),
+    ({"viz": {"colour": True}}, "viz.colour"),
+])
+def test_config_errors_name_the_field(data, match):
+    with pytest.raises(ConfigError, match=match):
+        config_from_dict(data)
+
+
+def test_config_sections_roundtrip():
+    cfg = config_from_dict({"setup": "eye_in_hand", "calibrate": {"samples": 5, "min_samples": 4}})
+    assert cfg.setup == "eye_in_hand" and cfg.calibrate.samples == 5
+    assert dataclasses.asdict(config_from_dict(cfg.to_dict())) == cfg.to_dict()
+    assert Config().calibrate.method == "YKronT'"
