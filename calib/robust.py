@@ -1,0 +1,179 @@
+"""Outlier-robust hand-eye calibration: LMedS over small subsets, chi-square inliers, final fit.
+
+Gross outliers (a wrong depth, a detection of the wrong marker) break any
+least-squares solver. `robust_solve` wraps a closed-form solver of either
+setup (eye-to-hand ``X = T_flange_marker``, ``Y = T_base_cam``; eye-in-hand
+``X = T_flange_cam``, ``Y = T_base_marker``; paper eq. 1 ``A_i X = Y B_i``):
+
+1. Least median of squares (Rousseeuw 1984): fit random subsets of
+   ``min_samples`` samples and keep the hypothesis whose median Mahalanobis
+   point residual (paper eq. 5 in the camera frame, as in `calib.refine`) is
+   smallest. Valid up to 50% outliers; the number of subsets adapts to the
+   inlier fraction seen so far (RANSAC's stopping rule).
+2. Robust scale from the median, inliers = squared Mahalanobis residual below
+   the chi-square quantile `INLIER_QUANTILE` (3 dof; 6 with a rotation
+   residual for pose data) times that scale.
+3. Final fit on the inliers, re-classify, repeat until the inlier set is stable.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Callable
+
+import numpy as np
+from scipy.stats import chi2
+
+from calib import refine as rf
+from calib.errors import CalibrationError, InsufficientDataError
+from calib.result import CalibrationResult
+
+#: Chi-square quantile below which a sample counts as an inlier.
+INLIER_QUANTILE = 0.99
+#: Probability that at least one subset is outlier-free when the search stops.
+CONFIDENCE = 0.999
+
+
+def _squared_distances(result: CalibrationResult, A, B, W_t, setup: str) -> np.ndarray:
+    """Squared Mahalanobis residual per sample (N,) of a hypothesis and its degrees of freedom.
+
+    Translation: whitened camera-frame point residual (3 dof). Pose data whose
+    hypothesis knows the marker rotation add the rotation residual normalised
+    by a robust (median) estimate of its own scale (3 more dof).
+    """
+    C, K, M = rf._split(result.X, result.Y, A, setup)
+    p = B if B.ndim == 2 else B[:, :3, 3]
+    r = rf._point_residuals(C, K[:3, 3], M, p)[0]
+    d2 = np.sum(np.einsum("nij,nj->ni", W_t, r) ** 2, axis=1)
+    if B.ndim == 3 and result.marker_rotation_known:
+        e2 = np.sum(rf._rotation_residuals(C, K, M, B[:, :3, :3])[0] ** 2, axis=1)
+        e2_scale = max(np.median(e2) / chi2.ppf(0.5, 3), 1e-18)
+        return d2 + e2 / e2_scale, 6
+    return d2, 3
+
+
+def _trials_needed(inlier_fraction: float, m: int, confidence: float) -> float:
+    good = inlier_fraction**m
+    if good >= 1.0:
+        return 1.0
+    if good <= 0.0:
+        return np.inf
+    return np.log(1.0 - confidence) / np.log(1.0 - good)
+
+
+def robust_solve(
+    solve_fn: Callable[[np.ndarray, np.ndarray], CalibrationResult],
+    A,
+    B,
+    *,
+    setup: str,
+    point_cov=None,
+    rng: np.random.Generator,
+    min_samples: int | None = None,
+    max_trials: int = 1000,
+    max_refits: int = 5,
+) -> CalibrationResult:
+    """Calibrate with a closed-form solver despite up to 50% gross outliers.
+
+    Parameters
+    ----------
+    solve_fn : callable ``(A, B) -> CalibrationResult``
+        A closed-form method bound to ``setup``, e.g.
+        ``lambda A, B: solve("YKronT'", A, B, setup=setup)``. It may raise a
+        `calib.errors.CalibrationError` on a degenerate subset (the subset is
+        skipped).
+    A : array_like, shape (N, 4, 4)
+        ``T_base_flange``.
+    B : array_like, shape (N, 3) or (N, 4, 4)
+        Marker center in the camera frame, or ``T_cam_marker``.
+    setup : {"eye_to_hand", "eye_in_hand"}
+    point_cov : array_like, shape (3, 3) or (N, 3, 3), optional
+        Marker center covariance, m^2. Without it the depth model of
+        `calib.noise` gives the shape; the scale is always estimated robustly
+        (and never below the given covariance).
+    rng : numpy.random.Generator
+        Draws the subsets; required so runs are reproducible.
+    min_samples : int, optional
+        Subset size; default 6 for points (YKronT' has 15 linear unknowns,
+        5 samples determine them, one more steadies them) and 4 for poses.
+    max_trials : int
+        Upper bound on subsets tried.
+    max_refits : int
+        Upper bound on final fit / re-classification rounds.
+
+    Returns
+    -------
+    CalibrationResult
+        ``solve_fn``'s fit on the inliers, with ``method`` suffixed ``"+LMedS"``,
+        ``inliers`` (bool (N,)) so that ``result.rejected`` lists the outliers,
+        ``n_samples = N``, and ``info["robust"]`` (trials, scale, threshold).
+        ``residuals`` and ``cov`` are those of the inlier fit.
+
+    Raises
+    ------
+    InsufficientDataError
+        Fewer than ``min_samples + 1`` samples, or no subset could be solved.
+    CalibrationError
+        Bad shapes or values (see `calib.refine.check_measurements`).
+    """
+    rf.check_setup(setup)
+    A, B = rf.check_measurements(A, B)
+    if not isinstance(rng, np.random.Generator):
+        raise CalibrationError("rng must be a numpy.random.Generator")
+    n = len(A)
+    m = min_samples if min_samples is not None else (6 if B.ndim == 2 else 4)
+    if n < m + 1:
+        raise InsufficientDataError(f"robust estimation needs at least {m + 1} samples, got {n}")
+    W_t, given = rf._point_weights(B, point_cov)
+
+    best, best_med, best_dof, trials, needed = None, np.inf, 3, 0, float(max_trials)
+    while trials < min(needed, max_trials):
+        trials += 1
+        idx = rng.choice(n, size=m, replace=False)
+        try:
+            hyp = solve_fn(A[idx], B[idx])
+            d2, dof = _squared_distances(hyp, A, B, W_t, setup)
+        except CalibrationError:
+            continue
+        med = float(np.median(d2))
+        if med < best_med:
+            best, best_med, best_dof = hyp, med, dof
+            # Inlier fraction implied by this hypothesis sets how many subsets are enough.
+            scale = _scale(med, dof, n, m, given)
+            frac = float(np.mean(d2 <= chi2.ppf(INLIER_QUANTILE, dof) * scale))
+            needed = _trials_needed(frac, m, CONFIDENCE)
+    if best is None:
+        raise InsufficientDataError(f"no subset of {m} samples could be solved in {trials} trials")
+
+    scale = _scale(best_med, best_dof, n, m, given)
+    threshold = chi2.ppf(INLIER_QUANTILE, best_dof) * scale
+    d2, _ = _squared_distances(best, A, B, W_t, setup)
+    inliers = d2 <= threshold
+    for _ in range(max_refits):
+        if inliers.sum() < m:
+            raise InsufficientDataError(f"only {int(inliers.sum())} inliers left, need {m}")
+        used = inliers
+        result = solve_fn(A[used], B[used])
+        d2, dof = _squared_distances(result, A, B, W_t, setup)
+        # Inliers of a full fit give an unbiased scale: their mean d2 is dof * scale.
+        scale = max(float(np.mean(d2[inliers])) / dof, 1.0) if given else float(np.mean(d2[inliers])) / dof
+        threshold = chi2.ppf(INLIER_QUANTILE, dof) * scale
+        inliers = d2 <= threshold
+        if np.array_equal(inliers, used):
+            break
+    return dataclasses.replace(
+        result,
+        method=f"{result.method}+LMedS",
+        n_samples=n,
+        inliers=used,
+        info={
+            **result.info,
+            "robust": {"trials": trials, "subset": m, "scale": scale, "threshold": float(threshold)},
+        },
+    )
+
+
+def _scale(median_d2: float, dof: int, n: int, m: int, given: bool) -> float:
+    """Robust variance factor from the median squared residual (Rousseeuw & Leroy 1987, finite-sample factor)."""
+    s = median_d2 / chi2.ppf(0.5, dof) * (1.0 + 5.0 / (n - m)) ** 2
+    return max(s, 1.0) if given else s
