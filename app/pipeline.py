@@ -82,54 +82,18 @@ def predicted_pixel(setup: str, estimate: CalibrationResult, T_base_flange: np.n
     return float(u), float(v)
 
 
-def observations_to_arrays(observations, *, points: bool) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
-    """Stack samples into the solver inputs.
-
-    Returns
-    -------
-    A : ndarray (N, 4, 4)
-        ``T_base_flange``.
-    B : ndarray (N, 3) or (N, 4, 4)
-        Marker centers ``point_cam`` if ``points`` else ``T_cam_marker``.
-    point_cov : ndarray (N, 3, 3) or None
-        Only when every sample has one.
-
-    Raises
-    ------
-    InsufficientDataError
-        If a sample lacks what the method needs.
-    """
-    from calib.errors import InsufficientDataError
-
-    A = np.array([o.T_base_flange for o in observations]).reshape(-1, 4, 4)
-    key = "point_cam" if points else "T_cam_marker"
-    missing = [o.index for o in observations if getattr(o, key) is None]
-    if missing:
-        raise InsufficientDataError(f"samples {missing[:5]} have no {key} (needed by this solver)")
-    if points:
-        B = np.array([o.point_cam for o in observations]).reshape(-1, 3)
-    else:
-        B = np.array([o.T_cam_marker for o in observations]).reshape(-1, 4, 4)
-    covs = [o.point_cov for o in observations]
-    point_cov = np.array(covs) if covs and all(c is not None for c in covs) else None
-    return A, B, point_cov
-
-
-def is_point_method(method: str) -> bool:
-    """Whether a solver uses only the marker centers (the paper's ...T' methods and XKronT)."""
-    return method.endswith("T'") or method == "XKronT"
-
 
 def solve_observations(method: str, observations, setup: str, *, refine: bool = False,
                        robust: bool = False, rng: np.random.Generator | None = None) -> CalibrationResult:
     """Solve ``A_i X = Y B_i`` (paper eq. 1) for a list of samples with a named solver.
 
-    Point methods (YKronT', YQuatT', XKronT) get the depth-lifted marker centers
-    with their covariances; the others get the marker poses ``T_cam_marker``.
+    Point methods (YKronT') get the depth-lifted marker centers ``point_cam``
+    with their covariances; the others the marker poses ``T_cam_marker``
+    (``calib.api.METHODS[...].needs``). Samples lacking that measurement are
+    left out.
     """
-    from calib import solve
+    from calib.api import observations_to_arrays, resolve_method, solve
 
-    points = is_point_method(method)
-    A, B, point_cov = observations_to_arrays(observations, points=points)
-    return solve(method, A, B, setup=setup, refine=refine, robust=robust,
-                 point_cov=point_cov if points else None, rng=rng)
+    info = resolve_method(method)
+    A, B, point_cov, _ = observations_to_arrays(observations, info.needs)
+    return solve(info.name, A, B, setup=setup, refine=refine, robust=robust, point_cov=point_cov, rng=rng)

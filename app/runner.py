@@ -119,7 +119,7 @@ def monitor(cfg: Config, *, reference: Path | None = None, stop=None, progress: 
 
 
 def all_methods() -> list[str]:
-    from calib import METHODS
+    from calib.api import METHODS
 
     return list(METHODS)
 
