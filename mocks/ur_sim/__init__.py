@@ -1,0 +1,174 @@
+"""Simulated Universal Robots controller speaking RTDE, dashboard and script ports.
+
+Run it in the foreground (until SIGINT/SIGTERM)::
+
+    python -m mocks.ur_sim --host 127.0.0.2 --model ur10 --controller 5.11
+
+and point the UR driver (``drivers.robot.ur.URRobot``) or any ur_rtde client
+at ``127.0.0.2``. It has to be a separate process: ur_rtde's constructors
+hold the GIL while they wait for the controller's answers.
+
+From Python (tests, demo), `launch` starts it as a subprocess and waits until
+the ports accept connections::
+
+    with launch("127.0.0.2", model="ur10", controller="5.11") as sim:
+        ...                       # drive it with ur_rtde / URRobot
+        sim.state()["T_base_flange"]   # ground truth
+        sim.protective_stop()     # fault injection, see mocks.ur_sim.server
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import logging
+import signal
+import socket
+import subprocess
+import sys
+import threading
+import time
+
+from calib.errors import DeviceError
+
+__all__ = ["main", "launch", "SimProcess"]
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Command line entry: run one simulated controller in the foreground; returns the exit code."""
+    from mocks.ur_sim.controller import SimController
+    from mocks.ur_sim.server import SimServer
+
+    ap = argparse.ArgumentParser(prog="python -m mocks.ur_sim", description=__doc__.splitlines()[0])
+    ap.add_argument("--host", default="127.0.0.1", help="address to bind (ports 29999, 30003, 30004)")
+    ap.add_argument("--model", default="ur10", help="ur3, ur5, ur10, ur3e, ur5e, ur10e, ur16e")
+    ap.add_argument("--controller", default="5.11", help="PolyScope version: 3.x = CB3 (125 Hz), 5.x = e-Series (500 Hz)")
+    ap.add_argument("--initial-q", type=float, nargs=6, metavar="Q", help="start joint positions, rad")
+    ap.add_argument("--tcp-offset", type=float, nargs=6, metavar="P", default=[0.0, 0.0, 0.1, 0.0, 0.0, 0.0],
+                    help="active TCP in the flange frame: x y z (m) rx ry rz (rad)")
+    ap.add_argument("-v", "--verbose", action="store_true")
+    args = ap.parse_args(argv)
+    logging.basicConfig(level=logging.INFO if args.verbose else logging.WARNING, format="ur_sim: %(message)s")
+    try:
+        ctl = SimController(args.model, args.controller, args.initial_q, args.tcp_offset)
+    except Exception as exc:  # bad model / version: one line, exit 2 like argparse
+        print(f"ur_sim: {exc}", file=sys.stderr)
+        return 2
+    server = SimServer(args.host, ctl)
+    try:
+        server.open_listeners()
+    except OSError as exc:
+        print(f"ur_sim: cannot bind {args.host}: {exc}", file=sys.stderr)
+        return 1
+
+    def _stop(*_):
+        server.stop_event.set()
+
+    if threading.current_thread() is threading.main_thread():
+        signal.signal(signal.SIGINT, _stop)
+        signal.signal(signal.SIGTERM, _stop)
+    print(f"ur_sim ready on {args.host}: {ctl.model} controller {'.'.join(map(str, ctl.version))} "
+          f"at {ctl.frequency:.0f} Hz", flush=True)
+    server.run()
+    return 0
+
+
+class SimProcess:
+    """Handle on a simulator subprocess started by `launch`.
+
+    Attributes
+    ----------
+    host : str
+    proc : subprocess.Popen
+    """
+
+    def __init__(self, host: str, proc: subprocess.Popen):
+        self.host, self.proc = host, proc
+
+    def command(self, line: str, timeout: float = 5.0) -> str:
+        """Send one dashboard line on a fresh connection and return the one-line answer."""
+        with socket.create_connection((self.host, 29999), timeout=timeout) as s:
+            f = s.makefile("rb")
+            f.readline()  # greeting
+            s.sendall(line.encode() + b"\n")
+            return f.readline().decode().strip()
+
+    def state(self) -> dict:
+        """Ground truth: q, T_base_flange, tcp_offset, command log, script uploads ..."""
+        return json.loads(self.command("sim state"))
+
+    def clear_log(self) -> None:
+        self.command("sim clear_log")
+
+    def protective_stop(self) -> None:
+        self.command("sim protective_stop")
+
+    def unlock_protective_stop(self) -> None:
+        self.command("unlock protective stop")
+
+    def drop(self, refuse_s: float = 0.0) -> None:
+        """Close every connection; refuse new ones for ``refuse_s`` seconds."""
+        self.command(f"sim drop {refuse_s}")
+
+    def freeze(self, seconds: float) -> None:
+        """Stop sending RTDE data for ``seconds`` while keeping the connections open."""
+        self.command(f"sim freeze {seconds}")
+
+    def set_q(self, q) -> None:
+        self.command("sim set_q " + " ".join(f"{x:.12g}" for x in q))
+
+    def stop(self, timeout: float = 5.0) -> int:
+        """SIGTERM the simulator and wait; returns its exit code."""
+        if self.proc.poll() is None:
+            self.proc.send_signal(signal.SIGTERM)
+            try:
+                self.proc.wait(timeout)
+            except subprocess.TimeoutExpired:
+                self.proc.kill()
+                self.proc.wait()
+        return self.proc.returncode
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        self.stop()
+        return False
+
+
+def launch(host: str = "127.0.0.1", model: str = "ur10", controller: str = "5.11", initial_q=None,
+           tcp_offset=None, timeout: float = 15.0) -> SimProcess:
+    """Start ``python -m mocks.ur_sim`` and wait until its ports accept connections.
+
+    Raises
+    ------
+    DeviceError
+        If the simulator exits or does not report ready within ``timeout`` s
+        (message includes its stderr, e.g. address already in use).
+    """
+    cmd = [sys.executable, "-m", "mocks.ur_sim", "--host", host, "--model", model, "--controller", controller]
+    if initial_q is not None:
+        cmd += ["--initial-q", *[f"{x:.12g}" for x in initial_q]]
+    if tcp_offset is not None:
+        cmd += ["--tcp-offset", *[f"{x:.12g}" for x in tcp_offset]]
+    proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    ready: list[str] = []
+    reader = threading.Thread(target=lambda: ready.append(proc.stdout.readline()), daemon=True)
+    reader.start()
+    reader.join(timeout)
+    if not ready or not ready[0].startswith("ur_sim ready"):
+        proc.kill()
+        _, err = proc.communicate()
+        raise DeviceError(f"simulated UR controller on {host} did not start: {err.strip() or 'timeout'}")
+    sim = SimProcess(host, proc)
+    # The ready line is printed after bind/listen; one dashboard round trip proves the loop runs.
+    deadline = time.monotonic() + timeout
+    while True:
+        try:
+            sim.command("robotmode", timeout=1.0)
+            return sim
+        except OSError:
+            if time.monotonic() > deadline:
+                sim.stop()
+                raise DeviceError(f"simulated UR controller on {host} does not answer on port 29999") from None
+            time.sleep(0.05)
