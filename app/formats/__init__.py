@@ -1,0 +1,116 @@
+"""Import samples from the tools users already have; export results for them.
+
+Import (both setups; every importer returns handeye's convention, ``A =
+T_base_flange``, ``B = T_cam_marker``, see `app.formats.common`)::
+
+    load(path, format=None, **options) -> ImportedSamples(observations, setup, meta)
+
+=========================  ===================================================
+format                     path
+=========================  ===================================================
+``easy_handeye2``          ``*.samples`` of easy_handeye2 (ROS 2)
+``easy_handeye``           YAML sample list of easy_handeye (ROS 1)
+``industrial_calibration`` ``cal_data.yaml`` (or its directory) with images and poses
+``pose_csv``               TOML manifest (or a directory with ``streams.toml``)
+                           naming two ``t,x,y,z,qx,qy,qz,qw`` CSV streams;
+                           the clock offset is estimated and reported in
+                           ``meta["clock_offset_s"]``
+=========================  ===================================================
+
+``format=None`` detects it from the file. Options: ``setup=`` for the easy_handeye
+formats when the file does not say; manifest overrides for ``pose_csv``.
+
+Export (`app.formats.export`)::
+
+    write_result(result, path, fmt="yaml", frames=None) -> Path
+
+``fmt`` in ``EXPORT_FORMATS``: ``yaml`` (the main result file: 4x4, xyz +
+quaternion, xyz + rpy in deg, 1-sigma in mm/deg, residuals, solver, setup,
+frames, a ``ros2 run tf2_ros static_transform_publisher`` command and a URDF
+``<origin>`` line), ``json`` (same content), ``easy_handeye`` (ROS 1
+calibration YAML), ``easy_handeye2`` (ROS 2 ``.calib``), ``urdf`` (fixed joint
+snippet), ``ros2_launch`` (Python launch file). ``frames`` names ``base``,
+``flange``, ``camera``, ``marker``. Also `result_to_dict`, `ros2_command`,
+`urdf_origin`.
+
+This package imports neither rerun nor drivers.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import yaml
+
+from calib.errors import SessionError
+
+from app.formats.common import DEFAULT_FRAMES, ImportedSamples
+from app.formats.export import EXPORT_FORMATS, result_to_dict, ros2_command, urdf_origin, write_result
+
+IMPORT_FORMATS = ("easy_handeye2", "easy_handeye", "industrial_calibration", "pose_csv")
+
+
+def detect_format(path) -> str:
+    """Name of the import format of ``path`` (one of `IMPORT_FORMATS`); `SessionError` if unknown."""
+    path = Path(path)
+    if path.is_dir():
+        if (path / "cal_data.yaml").exists():
+            return "industrial_calibration"
+        if (path / "streams.toml").exists():
+            return "pose_csv"
+        raise SessionError(f"{path}: directory holds neither cal_data.yaml nor streams.toml")
+    if path.suffix == ".toml":
+        return "pose_csv"
+    if path.suffix == ".samples":
+        return "easy_handeye2"
+    try:
+        data = yaml.safe_load(path.read_text())
+    except (OSError, yaml.YAMLError, UnicodeDecodeError) as e:
+        raise SessionError(f"{path}: cannot read ({e})") from e
+    if isinstance(data, dict):
+        if "target_finder" in data and "data" in data:
+            return "industrial_calibration"
+        samples = data.get("samples", data)
+        if isinstance(samples, list) and samples and isinstance(samples[0], dict):
+            return "easy_handeye2" if "tracking" in samples[0] else "easy_handeye"
+        if isinstance(samples, dict) and "hand_world_samples" in samples:
+            return "easy_handeye"
+    if isinstance(data, list) and data and isinstance(data[0], dict) and "optical" in data[0]:
+        return "easy_handeye"
+    raise SessionError(f"{path}: not a known sample format ({', '.join(IMPORT_FORMATS)})")
+
+
+def load(path, format: str | None = None, **options) -> ImportedSamples:
+    """Import samples from ``path`` (format detected if not given); see the module docstring."""
+    fmt = format or detect_format(path)
+    if fmt == "easy_handeye2":
+        from app.formats.easy_handeye import load_easy_handeye2
+
+        return load_easy_handeye2(path, **options)
+    if fmt == "easy_handeye":
+        from app.formats.easy_handeye import load_easy_handeye
+
+        return load_easy_handeye(path, **options)
+    if fmt == "industrial_calibration":
+        from app.formats.industrial import load_industrial_calibration
+
+        return load_industrial_calibration(path, **options)
+    if fmt == "pose_csv":
+        from app.formats.pose_csv import load_pose_streams
+
+        return load_pose_streams(path, **options)
+    raise SessionError(f"unknown import format {fmt!r} (use one of {IMPORT_FORMATS})")
+
+
+__all__ = [
+    "DEFAULT_FRAMES",
+    "EXPORT_FORMATS",
+    "IMPORT_FORMATS",
+    "ImportedSamples",
+    "detect_format",
+    "load",
+    "result_to_dict",
+    "ros2_command",
+    "urdf_origin",
+    "write_result",
+]

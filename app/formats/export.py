@@ -1,0 +1,277 @@
+"""Exporters of a `calib.result.CalibrationResult` into the formats other tools read.
+
+The exported transform is the *camera* transform: ``T_base_cam`` (parent =
+base frame, child = camera frame) for eye-to-hand, ``T_flange_cam`` (parent =
+flange frame, child = camera frame) for eye-in-hand. Units: metres and
+quaternions (x, y, z, w) as in ROS; degrees only where a field says ``_deg``.
+RPY is URDF's: fixed axes, roll about x, then pitch about y, then yaw about z
+(``R = Rz(yaw) Ry(pitch) Rx(roll)``).
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+
+import numpy as np
+import yaml
+from scipy.spatial.transform import Rotation
+
+from calib import transforms as tf
+from calib.errors import ConfigError
+from calib.result import CalibrationResult
+
+from app.formats.common import DEFAULT_FRAMES
+
+EXPORT_FORMATS = ("yaml", "json", "easy_handeye", "easy_handeye2", "urdf", "ros2_launch")
+RESULT_FORMAT = "handeye-result"
+RESULT_VERSION = 1
+
+_EQUATION = {
+    "eye_to_hand": "T_base_flange @ T_flange_marker = T_base_cam @ T_cam_marker",
+    "eye_in_hand": "T_base_flange @ T_flange_cam @ T_cam_marker = T_base_marker",
+}
+_NAMES = {"eye_to_hand": ("T_base_cam", "T_flange_marker"), "eye_in_hand": ("T_flange_cam", "T_base_marker")}
+
+
+def _frames(frames: dict | None) -> dict:
+    frames = {**DEFAULT_FRAMES, **(frames or {})}
+    unknown = set(frames) - set(DEFAULT_FRAMES)
+    if unknown:
+        raise ConfigError(f"frames: unknown keys {sorted(unknown)} (use {sorted(DEFAULT_FRAMES)})")
+    for k, v in frames.items():
+        if not isinstance(v, str) or not v or any(c.isspace() for c in v):
+            raise ConfigError(f"frames.{k} must be a non-empty name without spaces, got {v!r}")
+    return frames
+
+
+def _parent_child(setup: str, frames: dict) -> tuple[str, str]:
+    """(parent, child) frame names of the camera transform."""
+    return (frames["base"] if setup == "eye_to_hand" else frames["flange"]), frames["camera"]
+
+
+def _marker_parent_child(setup: str, frames: dict) -> tuple[str, str]:
+    """(parent, child) frame names of the marker-side transform."""
+    return (frames["flange"] if setup == "eye_to_hand" else frames["base"]), frames["marker"]
+
+
+def rpy_deg(T) -> np.ndarray:
+    """URDF roll, pitch, yaw (deg) of a transform's rotation."""
+    return np.rad2deg(Rotation.from_matrix(np.asarray(T)[:3, :3]).as_euler("xyz"))
+
+
+def _fmt(v: float) -> str:
+    return f"{v:.9g}"
+
+
+def _transform_dict(T, name: str, parent: str, child: str, cov=None) -> dict:
+    t, q = tf.to_xyz_quat(T)
+    d = {
+        "name": name,
+        "parent_frame": parent,
+        "child_frame": child,
+        "matrix": np.asarray(T).tolist(),
+        "translation_m": t.tolist(),
+        "quaternion_xyzw": q.tolist(),
+        "rpy_deg": rpy_deg(T).tolist(),
+    }
+    if cov is not None:
+        sd = np.sqrt(np.clip(np.diag(np.asarray(cov)), 0.0, None))
+        d["sigma_1"] = {
+            "rotation_deg": np.rad2deg(sd[:3]).tolist(),
+            "translation_mm": (sd[3:] * 1e3).tolist(),
+            "note": "1-sigma per axis from result.cov (rotation vector about base axes, translation)",
+        }
+    return d
+
+
+def ros2_command(result: CalibrationResult, frames: dict | None = None) -> str:
+    """``ros2 run tf2_ros static_transform_publisher ...`` for the camera transform (ROS 2 Humble+ flags)."""
+    frames = _frames(frames)
+    parent, child = _parent_child(result.setup, frames)
+    t, q = tf.to_xyz_quat(result.camera_transform)
+    args = " ".join(f"--{k} {_fmt(v)}" for k, v in zip(("x", "y", "z", "qx", "qy", "qz", "qw"), [*t, *q]))
+    return f"ros2 run tf2_ros static_transform_publisher {args} --frame-id {parent} --child-frame-id {child}"
+
+
+def urdf_origin(result: CalibrationResult) -> str:
+    """``<origin xyz=".." rpy=".."/>`` of the camera transform (rpy in rad, as URDF wants)."""
+    T = result.camera_transform
+    rpy = np.deg2rad(rpy_deg(T))
+    return (f'<origin xyz="{" ".join(_fmt(v) for v in T[:3, 3])}" '
+            f'rpy="{" ".join(_fmt(v) for v in rpy)}"/>')
+
+
+def result_to_dict(result: CalibrationResult, frames: dict | None = None) -> dict:
+    """The main result document (YAML/JSON): transforms, uncertainty, residuals, ready-to-paste lines.
+
+    Parameters
+    ----------
+    result : CalibrationResult
+    frames : dict, optional
+        Names for ``base``, ``flange``, ``camera``, ``marker``.
+
+    Returns
+    -------
+    dict
+        JSON-serialisable; ``camera_transform`` is ``T_base_cam``
+        (eye-to-hand) or ``T_flange_cam`` (eye-in-hand), with ``sigma_1``
+        (deg, mm) when the result has a covariance.
+    """
+    frames = _frames(frames)
+    setup = result.setup
+    cam_name, marker_name = _NAMES[setup]
+    marker_T = result.X if setup == "eye_to_hand" else result.Y
+    res = result.residuals
+    resid = {
+        "n_samples": int(result.n_samples),
+        "rms_translation_mm": res.rms_translation * 1e3,
+        "median_translation_mm": float(np.median(res.translation)) * 1e3,
+        "max_translation_mm": res.max_translation * 1e3,
+        "rms_rotation_deg": None if res.rms_rotation is None else math.degrees(res.rms_rotation),
+        "note": "per-sample residuals of A_i X = Y B_i (paper eq. 1); translation in the camera frame",
+    }
+    marker = _transform_dict(marker_T, marker_name, *_marker_parent_child(setup, frames))
+    marker["rotation_known"] = bool(result.marker_rotation_known)
+    return {
+        "format": RESULT_FORMAT,
+        "version": RESULT_VERSION,
+        "setup": setup,
+        "equation": _EQUATION[setup],
+        "solver": result.method,
+        "frames": frames,
+        "camera_transform": _transform_dict(result.camera_transform, cam_name, *_parent_child(setup, frames),
+                                            cov=result.cov),
+        "marker_transform": marker,
+        "residuals": resid,
+        "n_samples": int(result.n_samples),
+        "rejected_samples": result.rejected.tolist(),
+        "converged": bool(result.converged),
+        "iterations": int(result.iterations),
+        "ros2_static_transform_publisher": ros2_command(result, frames),
+        "urdf_origin": urdf_origin(result),
+    }
+
+
+def easy_handeye_dict(result: CalibrationResult, frames: dict | None = None, *, namespace: str = "handeye") -> dict:
+    """easy_handeye (ROS 1) calibration file: ``parameters`` + ``transformation`` {x..qw}.
+
+    easy_handeye publishes ``transformation`` from the effector (eye-on-hand)
+    or base (eye-on-base) frame to ``tracking_base_frame``, i.e. handeye's
+    camera transform.
+    """
+    frames = _frames(frames)
+    t, q = tf.to_xyz_quat(result.camera_transform)
+    return {
+        "parameters": {
+            "namespace": f"/{namespace}/", "move_group_namespace": "/", "move_group": "manipulator",
+            "eye_on_hand": result.setup == "eye_in_hand",
+            "robot_base_frame": frames["base"], "robot_effector_frame": frames["flange"],
+            "tracking_base_frame": frames["camera"], "tracking_marker_frame": frames["marker"],
+        },
+        "transformation": dict(zip(("x", "y", "z", "qx", "qy", "qz", "qw"), map(float, [*t, *q]))),
+    }
+
+
+def easy_handeye2_dict(result: CalibrationResult, frames: dict | None = None, *, name: str = "handeye") -> dict:
+    """easy_handeye2 ``.calib`` file: ``parameters`` + ``transform`` {translation, rotation}."""
+    frames = _frames(frames)
+    t, q = tf.to_xyz_quat(result.camera_transform)
+    return {
+        "parameters": {
+            "name": name, "calibration_type": "eye_in_hand" if result.setup == "eye_in_hand" else "eye_on_base",
+            "robot_base_frame": frames["base"], "robot_effector_frame": frames["flange"],
+            "tracking_base_frame": frames["camera"], "tracking_marker_frame": frames["marker"],
+            "freehand_robot_movement": True, "move_group_namespace": "/", "move_group": "manipulator",
+        },
+        "transform": {"translation": dict(zip("xyz", map(float, t))),
+                      "rotation": dict(zip("xyzw", map(float, q)))},
+    }
+
+
+def urdf_joint(result: CalibrationResult, frames: dict | None = None) -> str:
+    """A fixed URDF ``<joint>`` from the camera's parent frame to the camera frame."""
+    frames = _frames(frames)
+    parent, child = _parent_child(result.setup, frames)
+    cam_name = _NAMES[result.setup][0]
+    return (
+        f"<!-- handeye {result.setup}: {cam_name} by {result.method}, {result.n_samples} samples, "
+        f"residual RMS {result.residuals.rms_translation * 1e3:.2f} mm -->\n"
+        f'<joint name="{parent}_to_{child}_handeye" type="fixed">\n'
+        f'  <parent link="{parent}"/>\n'
+        f'  <child link="{child}"/>\n'
+        f"  {urdf_origin(result)}\n"
+        f"</joint>\n"
+    )
+
+
+def ros2_launch(result: CalibrationResult, frames: dict | None = None) -> str:
+    """A ROS 2 Python launch file starting ``static_transform_publisher`` with the camera transform."""
+    frames = _frames(frames)
+    parent, child = _parent_child(result.setup, frames)
+    t, q = tf.to_xyz_quat(result.camera_transform)
+    args = []
+    for k, v in zip(("x", "y", "z", "qx", "qy", "qz", "qw"), [*t, *q]):
+        args += [f"--{k}", _fmt(v)]
+    args += ["--frame-id", parent, "--child-frame-id", child]
+    arg_lines = "".join(f"                {json.dumps(a)},\n" for a in args)
+    return (
+        f'"""Publish the hand-eye calibration ({result.setup}, {_NAMES[result.setup][0]}, '
+        f'solver {result.method}) as a static transform."""\n'
+        "from launch import LaunchDescription\n"
+        "from launch_ros.actions import Node\n\n\n"
+        "def generate_launch_description():\n"
+        "    return LaunchDescription([\n"
+        "        Node(\n"
+        '            package="tf2_ros",\n'
+        '            executable="static_transform_publisher",\n'
+        '            name="handeye_static_transform",\n'
+        "            arguments=[\n"
+        f"{arg_lines}"
+        "            ],\n"
+        "        ),\n"
+        "    ])\n"
+    )
+
+
+def write_result(result: CalibrationResult, path, fmt: str = "yaml", frames: dict | None = None) -> Path:
+    """Write a calibration result in one of `EXPORT_FORMATS`.
+
+    Parameters
+    ----------
+    result : CalibrationResult
+    path : str or Path
+        Output file; parent directories are created.
+    fmt : {"yaml", "json", "easy_handeye", "easy_handeye2", "urdf", "ros2_launch"}
+        ``yaml``/``json``: the main result document (`result_to_dict`);
+        ``easy_handeye``: ROS 1 calibration YAML; ``easy_handeye2``: ROS 2
+        ``.calib`` YAML; ``urdf``: a fixed-joint snippet; ``ros2_launch``: a
+        Python launch file.
+    frames : dict, optional
+        Frame names (``base``, ``flange``, ``camera``, ``marker``).
+
+    Returns
+    -------
+    Path
+        The file written.
+    """
+    if fmt not in EXPORT_FORMATS:
+        raise ConfigError(f"fmt must be one of {EXPORT_FORMATS}, got {fmt!r}")
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    if fmt == "yaml":
+        text = (f"# handeye calibration result ({result.setup}); camera_transform = {_NAMES[result.setup][0]}\n"
+                + yaml.safe_dump(result_to_dict(result, frames), sort_keys=False, width=200))
+    elif fmt == "json":
+        text = json.dumps(result_to_dict(result, frames), indent=2) + "\n"
+    elif fmt == "easy_handeye":
+        text = yaml.safe_dump(easy_handeye_dict(result, frames), default_flow_style=False)
+    elif fmt == "easy_handeye2":
+        text = yaml.safe_dump(easy_handeye2_dict(result, frames), sort_keys=False)
+    elif fmt == "urdf":
+        text = urdf_joint(result, frames)
+    else:
+        text = ros2_launch(result, frames)
+    path.write_text(text)
+    return path

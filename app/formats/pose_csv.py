@@ -1,0 +1,251 @@
+"""Importer for two unsynchronised pose streams in CSV (robot and camera).
+
+Each CSV row is ``t, x, y, z, qx, qy, qz, qw`` (seconds, metres, scalar-last
+quaternion), the format of ethz-asl/hand_eye_calibration. A small TOML
+manifest names the two files and what they contain::
+
+    format = "pose_csv"
+    setup = "eye_in_hand"             # or "eye_to_hand"
+    robot = "hand.csv"                # rows are T_base_flange ...
+    robot_transform = "T_base_flange" # ... or "T_flange_base"
+    camera = "target.csv"
+    camera_transform = "T_marker_cam" # or "T_cam_marker" (what each row is)
+    clock_offset = "estimate"         # or seconds: t_robot = t_camera + offset
+    max_offset = 1.0                  # s, search range of the estimate
+    refine = true                     # refine by minimising the calibration residual
+    refine_method = "YKronT'"         # solver whose residual is minimised
+    max_gap = 0.1                     # s, camera samples across larger robot gaps are dropped
+    stride = 1                        # keep every n-th camera sample
+    [frames]                          # optional names for the exports
+    base = "base_link"
+
+The camera stream is kept as sampled; the robot stream is interpolated at each
+camera time shifted by the clock offset (SLERP + linear, `calib.timesync`).
+The offset is estimated by correlating the two streams' angular speeds and,
+with ``refine``, polished by minimising the RMS residual of a calibration on
+the paired samples (both setups).
+"""
+
+from __future__ import annotations
+
+import logging
+import tomllib
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from calib import timesync
+from calib import transforms as tf
+from calib.errors import ConfigError, HandeyeError, SessionError
+from calib.observation import SETUPS, Observation
+
+from app.formats.common import DEFAULT_FRAMES, ImportedSamples
+
+log = logging.getLogger(__name__)
+
+# Pairs used per residual evaluation while refining the offset: enough to
+# average the pose noise, few enough that ~25 solver calls take a second.
+REFINE_PAIRS = 300
+
+
+def read_pose_csv(path) -> tuple[np.ndarray, np.ndarray]:
+    """Read a ``t, x, y, z, qx, qy, qz, qw`` CSV into times and transforms.
+
+    Rows are sorted by time; rows repeating an earlier timestamp are dropped
+    (the ETH simulated hand stream publishes most poses twice) and counted in
+    the log. Lines starting with ``#`` and a non-numeric header line are skipped.
+
+    Returns
+    -------
+    t : ndarray, shape (N,)
+        Strictly increasing, s.
+    T : ndarray, shape (N, 4, 4)
+
+    Raises
+    ------
+    SessionError
+        Unreadable file, wrong column count, NaN, or a non-unit quaternion
+        (the message names the line).
+    """
+    path = Path(path)
+    try:
+        lines = path.read_text().splitlines()
+    except OSError as e:
+        raise SessionError(f"{path}: cannot read ({e})") from e
+    rows, line_nos = [], []
+    for no, line in enumerate(lines, start=1):
+        s = line.strip()
+        if not s or s.startswith("#"):
+            continue
+        parts = [p.strip() for p in s.replace(";", ",").split(",")]
+        try:
+            vals = [float(p) for p in parts]
+        except ValueError:
+            if not rows:  # a header
+                continue
+            raise SessionError(f"{path}:{no}: not numeric: {s[:80]!r}") from None
+        if len(vals) != 8:
+            raise SessionError(f"{path}:{no}: expected 8 columns (t, x, y, z, qx, qy, qz, qw), got {len(vals)}")
+        rows.append(vals)
+        line_nos.append(no)
+    if len(rows) < 2:
+        raise SessionError(f"{path}: fewer than 2 pose rows")
+    a = np.array(rows)
+    bad = ~np.isfinite(a).all(axis=1)
+    if bad.any():
+        raise SessionError(f"{path}:{line_nos[int(np.argmax(bad))]}: NaN or inf")
+    qn = np.linalg.norm(a[:, 4:8], axis=1)
+    bad = np.abs(qn - 1.0) > 1e-3
+    if bad.any():
+        i = int(np.argmax(bad))
+        raise SessionError(f"{path}:{line_nos[i]}: quaternion norm {qn[i]:.6f}, not 1")
+    order = np.argsort(a[:, 0], kind="stable")
+    a = a[order]
+    keep = np.r_[True, np.diff(a[:, 0]) > 0]
+    if not keep.all():
+        log.info("%s: dropped %d rows repeating an earlier timestamp", path, int((~keep).sum()))
+    a = a[keep]
+    return a[:, 0], tf.from_xyz_quat(a[:, 1:4], a[:, 4:8] / qn[order][keep, None])
+
+
+@dataclass
+class StreamsConfig:
+    """The manifest of a pose-stream pair (see the module docstring); paths relative to it."""
+
+    setup: str
+    robot: str
+    camera: str
+    robot_transform: str = "T_base_flange"
+    camera_transform: str = "T_cam_marker"
+    clock_offset: float | str = "estimate"
+    max_offset: float = 1.0
+    refine: bool = True
+    refine_method: str = "YKronT'"
+    refine_half_width: float = 0.05
+    max_gap: float = 0.1
+    stride: int = 1
+    frames: dict = field(default_factory=dict)
+    format: str = "pose_csv"
+
+    def __post_init__(self):
+        if self.setup not in SETUPS:
+            raise ConfigError(f"setup must be one of {SETUPS}, got {self.setup!r}")
+        if self.robot_transform not in ("T_base_flange", "T_flange_base"):
+            raise ConfigError(f"robot_transform must be 'T_base_flange' or 'T_flange_base', got {self.robot_transform!r}")
+        if self.camera_transform not in ("T_cam_marker", "T_marker_cam"):
+            raise ConfigError(f"camera_transform must be 'T_cam_marker' or 'T_marker_cam', got {self.camera_transform!r}")
+        if isinstance(self.clock_offset, str) and self.clock_offset != "estimate":
+            raise ConfigError(f"clock_offset must be 'estimate' or seconds, got {self.clock_offset!r}")
+        if isinstance(self.clock_offset, bool) or not isinstance(self.clock_offset, (int, float, str)):
+            raise ConfigError(f"clock_offset must be 'estimate' or seconds, got {self.clock_offset!r}")
+        for name in ("max_offset", "refine_half_width", "max_gap"):
+            if not getattr(self, name) > 0:
+                raise ConfigError(f"{name} must be > 0 s, got {getattr(self, name)!r}")
+        if not (isinstance(self.stride, int) and self.stride >= 1):
+            raise ConfigError(f"stride must be an integer >= 1, got {self.stride!r}")
+        if self.format != "pose_csv":
+            raise ConfigError(f"format must be 'pose_csv' in a pose-stream manifest, got {self.format!r}")
+        unknown = set(self.frames) - set(DEFAULT_FRAMES)
+        if unknown:
+            raise ConfigError(f"frames: unknown keys {sorted(unknown)} (use {sorted(DEFAULT_FRAMES)})")
+
+
+def read_manifest(path) -> StreamsConfig:
+    """Parse and validate a pose-stream TOML manifest; `ConfigError` names the bad field."""
+    path = Path(path)
+    try:
+        with open(path, "rb") as f:
+            data = tomllib.load(f)
+    except (OSError, tomllib.TOMLDecodeError) as e:
+        raise ConfigError(f"{path}: cannot read TOML ({e})") from e
+    try:
+        return StreamsConfig(**data)
+    except TypeError as e:
+        raise ConfigError(f"{path}: {e}") from e
+
+
+def residual_of_solve(method: str, setup: str):
+    """``f(A, B) -> RMS translation residual (m)`` of ``calib.solve(method)`` on paired poses.
+
+    Point methods get the marker origins ``B[:, :3, 3]``, pose methods the poses.
+    A solver failure (e.g. too few pairs at an offset) costs infinity.
+    """
+    from calib.api import solve
+
+    point = method.endswith("T'") or method == "XKronT"
+
+    def f(A, B) -> float:
+        if len(A) > REFINE_PAIRS:
+            keep = np.linspace(0, len(A) - 1, REFINE_PAIRS).round().astype(int)
+            A, B = A[keep], B[keep]
+        try:
+            res = solve(method, A, B[:, :3, 3] if point else B, setup=setup)
+        except HandeyeError:
+            return np.inf
+        return res.residuals.rms_translation
+
+    return f
+
+
+def load_pose_streams(path, **overrides) -> ImportedSamples:
+    """Pair a robot and a camera pose stream named by a TOML manifest.
+
+    Parameters
+    ----------
+    path : str or Path
+        The manifest (or a directory holding ``streams.toml``).
+    **overrides
+        Manifest fields to replace (e.g. ``clock_offset=0.0``, ``refine=False``).
+
+    Returns
+    -------
+    ImportedSamples
+        One observation per kept camera sample, ``t`` on the robot clock;
+        ``meta`` holds ``clock_offset_s`` (used), ``clock_offset_xcorr_s`` and
+        ``xcorr_score`` (angular-speed correlation), ``clock_offset_refined_s``
+        and ``refine_rms_mm`` if refined, and row counts.
+    """
+    path = Path(path)
+    if path.is_dir():
+        path = path / "streams.toml"
+    cfg = read_manifest(path)
+    if overrides:
+        cfg = StreamsConfig(**{**cfg.__dict__, **overrides})
+    t_a, A = read_pose_csv(path.parent / cfg.robot)
+    t_b, B = read_pose_csv(path.parent / cfg.camera)
+    if cfg.robot_transform == "T_flange_base":
+        A = tf.invert(A)
+    if cfg.camera_transform == "T_marker_cam":
+        B = tf.invert(B)
+    meta = {"format": "pose_csv", "source": str(path), "frames": {**DEFAULT_FRAMES, **cfg.frames},
+            "n_robot_rows": len(t_a), "n_camera_rows": len(t_b), "time": "robot clock, s"}
+    try:
+        if cfg.clock_offset == "estimate":
+            est = timesync.estimate_clock_offset(t_a, A, t_b, B, max_offset=cfg.max_offset)
+            offset = est.offset
+            meta.update(clock_offset_xcorr_s=est.offset, xcorr_score=est.score)
+            if cfg.refine:
+                cost = timesync.calibration_cost(t_a, A, t_b, B, residual_of_solve(cfg.refine_method, cfg.setup),
+                                                 max_gap=cfg.max_gap)
+                ref = timesync.refine_clock_offset(cost, offset, half_width=cfg.refine_half_width)
+                offset = ref.offset
+                meta.update(clock_offset_refined_s=ref.offset, refine_method=cfg.refine_method,
+                            refine_rms_mm=ref.score * 1e3, refine_rms_mm_at_xcorr=cost(est.offset) * 1e3)
+        else:
+            offset = float(cfg.clock_offset)
+        t, A_p, B_p, idx = timesync.pair_streams(t_a, A, t_b, B, offset, max_gap=cfg.max_gap)
+    except HandeyeError as e:
+        raise SessionError(f"{path}: {e}") from e
+    sel = slice(None, None, cfg.stride)
+    t, A_p, B_p, idx = t[sel], A_p[sel], B_p[sel], idx[sel]
+    if len(t) == 0:
+        raise SessionError(f"{path}: no camera sample overlaps the robot stream at offset {offset:+.3f} s")
+    meta.update(clock_offset_s=offset, n_paired=len(t))
+    log.info("%s: clock offset %+.4f s, %d of %d camera samples paired", path, offset, len(t), len(t_b))
+    obs = [
+        Observation(index=i, t=float(t[i] + offset), T_base_flange=A_p[i], point_cam=B_p[i, :3, 3].copy(),
+                    T_cam_marker=B_p[i], meta={"t_camera": float(t[i]), "camera_row": int(idx[i])})
+        for i in range(len(t))
+    ]
+    return ImportedSamples(obs, cfg.setup, meta)
