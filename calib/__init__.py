@@ -14,6 +14,7 @@ from calib.errors import (
 )
 from calib.observation import SETUPS, Observation
 from calib.result import CalibrationResult, Residuals
+from calib.api import METHODS, MethodInfo, observations_to_arrays, solve
 
 __all__ = [
     "SETUPS",
@@ -24,7 +25,11 @@ __all__ = [
     "ExtractionError",
     "HandeyeError",
     "InsufficientDataError",
+    "METHODS",
+    "MethodInfo",
     "MarkerNotFoundError",
     "Observation",
     "Residuals",
+    "observations_to_arrays",
+    "solve",
 ]

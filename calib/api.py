@@ -311,7 +311,7 @@ def observations_to_arrays(
         if kind == "points":
             covs.append(None if o.point_cov is None else np.asarray(o.point_cov, dtype=float))
         elif o.pose_cov is not None:
-            J = np.hstack([-solvers._skew(np.asarray(o.T_cam_marker, dtype=float)[:3, 3]), np.eye(3)])
+            J = np.hstack([-solvers.skew(np.asarray(o.T_cam_marker, dtype=float)[:3, 3]), np.eye(3)])
             covs.append(J @ np.asarray(o.pose_cov, dtype=float) @ J.T)
         else:
             covs.append(None)

@@ -42,11 +42,15 @@ from calib.errors import CalibrationError, DegenerateMotionError, InsufficientDa
 SETUPS = ("eye_to_hand", "eye_in_hand")
 
 #: A linear system is called degenerate when the singular value that must be
-#: non-zero for a unique solution falls below this fraction of the largest one.
-#: Good robot motions (+-5 deg and more about varied axes) stay above ~1e-2 with
-#: realistic noise; rotations about one axis or pure translations give ~1e-15
-#: noise-free and about the noise level (1e-4...1e-3) with noise.
-DEGENERACY_RTOL = 2e-3
+#: non-zero for a unique solution is below this fraction of the largest one
+#: (for the top-vector problems of eq. 17: the square root of the relative gap
+#: between the two largest values, which scales like the motion angle). Measured
+#: (see docs/solvers.md): good motions of +-5 deg and more about varied axes stay
+#: above ~3e-3 with realistic noise; rotations about one axis, pure translations
+#: or identical poses give ~1e-16 noise-free. Every solver also checks a system
+#: built from the robot poses alone (eq. 5/6), so marker noise cannot mask a
+#: degenerate motion set.
+DEGENERACY_RTOL = 1e-3
 
 _I3 = np.eye(3)
 
@@ -87,7 +91,7 @@ def _check_counts(n_a: int, n_b: int, minimum: int) -> None:
 # ------------------------------------------------------------ small helpers
 
 
-def _skew(v: np.ndarray) -> np.ndarray:
+def skew(v: np.ndarray) -> np.ndarray:
     """Cross-product matrices (..., 3, 3) of vectors (..., 3)."""
     S = np.zeros(v.shape[:-1] + (3, 3))
     S[..., 0, 1], S[..., 0, 2] = -v[..., 2], v[..., 1]
@@ -100,7 +104,7 @@ def quat_left(q: np.ndarray) -> np.ndarray:
     """``Q+(q)`` (..., 4, 4) with ``q p = Q+(q) p`` (Hamilton product, scalar-last), eq. 8."""
     v, w = q[..., :3], q[..., 3]
     M = np.empty(q.shape[:-1] + (4, 4))
-    M[..., :3, :3] = w[..., None, None] * _I3 + _skew(v)
+    M[..., :3, :3] = w[..., None, None] * _I3 + skew(v)
     M[..., :3, 3] = v
     M[..., 3, :3] = -v
     M[..., 3, 3] = w
@@ -111,7 +115,7 @@ def quat_right(q: np.ndarray) -> np.ndarray:
     """``Q-(q)`` (..., 4, 4) with ``p q = Q-(q) p`` (Hamilton product, scalar-last), eq. 8."""
     v, w = q[..., :3], q[..., 3]
     M = np.empty(q.shape[:-1] + (4, 4))
-    M[..., :3, :3] = w[..., None, None] * _I3 - _skew(v)
+    M[..., :3, :3] = w[..., None, None] * _I3 - skew(v)
     M[..., :3, 3] = v
     M[..., 3, :3] = -v
     M[..., 3, 3] = w
@@ -177,7 +181,8 @@ def _lstsq(M: np.ndarray, b: np.ndarray, what: str, A_robot: np.ndarray, check_i
 
 
 def _check_singular_values(s: np.ndarray, index: int, what: str, A_robot: np.ndarray) -> float:
-    ratio = float(s[index] / s[0]) if s[0] > 0 else 0.0
+    # An all-zero system (e.g. relative motions of identical poses) has no meaningful ratio.
+    ratio = float(s[index] / s[0]) if s[0] > 1e-9 else 0.0
     if not ratio >= DEGENERACY_RTOL:
         raise DegenerateMotionError(
             f"{diagnose_motion(A_robot)} (relative singular value {ratio:.1e} < {DEGENERACY_RTOL:g} in {what})"
@@ -187,10 +192,11 @@ def _check_singular_values(s: np.ndarray, index: int, what: str, A_robot: np.nda
 
 def _check_gap(top: float, second: float, what: str, A_robot: np.ndarray) -> None:
     """Eigen/singular-value gap test for the top-vector problems of eq. 17."""
-    gap = (top - second) / top if top > 0 else 0.0
+    # The gap grows like 1 - cos(angle / 2), i.e. quadratically: compare its square root.
+    gap = np.sqrt(max(top - second, 0.0) / top) if top > 1e-9 else 0.0
     if not gap >= DEGENERACY_RTOL:
         raise DegenerateMotionError(
-            f"{diagnose_motion(A_robot)} (relative gap of the two largest singular values "
+            f"{diagnose_motion(A_robot)} (sqrt of the relative gap of the two largest values "
             f"{gap:.1e} < {DEGENERACY_RTOL:g} in {what})"
         )
 
@@ -250,13 +256,24 @@ def _resign(qa: np.ndarray, qb: np.ndarray, qx: np.ndarray, qy: np.ndarray) -> t
 
 def _translation_xy(R_X, R_Y, A, B, A_robot) -> tuple[np.ndarray, np.ndarray]:
     """``t_X, t_Y`` from eq. 6: ``[R_A, -I][t_X; t_Y] = R_Y t_B - t_A`` (3N x 6 least squares)."""
+    b = np.einsum("ij,nj->ni", R_Y, B[:, :3, 3]) - A[:, :3, 3]
+    x = _lstsq(_robot_translation_system(A), b.reshape(-1), "eq. 6 (translations)", A_robot)
+    return x[:3], x[3:]
+
+
+def _robot_translation_system(A: np.ndarray) -> np.ndarray:
+    """``[R_A, -I]`` (3N x 6) of eq. 6: rank 6 iff the flange rotates about two non-parallel axes."""
     n = len(A)
     M = np.empty((n, 3, 6))
     M[:, :, :3] = A[:, :3, :3]
     M[:, :, 3:] = -_I3
-    b = np.einsum("ij,nj->ni", R_Y, B[:, :3, 3]) - A[:, :3, 3]
-    x = _lstsq(M.reshape(3 * n, 6), b.reshape(-1), "eq. 6 (translations)", A_robot)
-    return x[:3], x[3:]
+    return M.reshape(3 * n, 6)
+
+
+def _check_robot_excitation(A: np.ndarray) -> None:
+    """Degeneracy test on the robot poses alone (eq. 6), for solvers whose own system mixes in marker noise."""
+    s = np.linalg.svd(np.linalg.qr(_robot_translation_system(A), mode="r"), compute_uv=False)
+    _check_singular_values(s, -1, "eq. 6 (robot rotations)", A)
 
 
 def _translation_x_axxb(R_X, A_rel, B_rel, A_robot) -> np.ndarray:
@@ -321,12 +338,14 @@ def x_axis_rx(A: np.ndarray, B: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         return U @ D @ Vt
 
     R_X = procrustes(rb)
-    # Near 180 deg the log map may pick the opposite axis on one side; use the
-    # equivalent vector -(2 pi - angle) axis where it disagrees with the estimate.
-    flip = np.einsum("ni,ni->n", ra, rb @ R_X.T) < 0
+    # Near 180 deg noise can make the log map pick the opposite axis on one
+    # side; where the equivalent vector -(2 pi - angle) axis fits the first
+    # estimate better, use it (it never does for rotations far from 180 deg).
+    ang = np.linalg.norm(rb, axis=1, keepdims=True)
+    rb_alt = rb * (1.0 - 2.0 * np.pi / np.maximum(ang, 1e-12))
+    flip = np.linalg.norm(ra - rb_alt @ R_X.T, axis=1) < np.linalg.norm(ra - rb @ R_X.T, axis=1)
     if flip.any():
-        ang = np.linalg.norm(rb[flip], axis=1, keepdims=True)
-        rb[flip] *= 1.0 - 2.0 * np.pi / ang
+        rb[flip] = rb_alt[flip]
         R_X = procrustes(rb)
     return _finish_axxb(R_X, A, B, A_rel, B_rel)
 
@@ -438,8 +457,8 @@ def y_axis_r(A: np.ndarray, B: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         av, a0, bv, b0 = qa[:, :3], qa[:, 3], qb[:, :3], qb[:, 3]
         n = len(qa)
         M = np.empty((n, 3, 6))
-        M[:, :, :3] = (a0**2)[:, None, None] * _I3 + av[:, :, None] * av[:, None, :] + a0[:, None, None] * _skew(av)
-        M[:, :, 3:] = (a0[:, None, None] * _skew(bv) - (a0 * b0)[:, None, None] * _I3
+        M[:, :, :3] = (a0**2)[:, None, None] * _I3 + av[:, :, None] * av[:, None, :] + a0[:, None, None] * skew(av)
+        M[:, :, 3:] = (a0[:, None, None] * skew(bv) - (a0 * b0)[:, None, None] * _I3
                        - av[:, :, None] * bv[:, None, :])
         rhs = a0[:, None] * bv - b0[:, None] * av
         sol = _lstsq(M.reshape(3 * n, 6), rhs.reshape(-1), "Zhuang's reduced eq. 9", A)
@@ -553,6 +572,7 @@ def y_quat_t_prime(A: np.ndarray, B: np.ndarray) -> tuple[np.ndarray, np.ndarray
         t_Y = (quat_right(np.array([-qy[0], -qy[1], -qy[2], qy[3]])) @ u)[:3]
         return qy, t_Y
 
+    _check_robot_excitation(A)
     qy, t_Y = solve_y(qb)
     Y = tf.make_transform(_mat(qy), t_Y)
     X = _complete_x(Y, A, B)
