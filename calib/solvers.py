@@ -235,8 +235,10 @@ def _align_signs(qa: np.ndarray, qb: np.ndarray, same_angle: bool) -> tuple[np.n
     AX=XB: ``a`` and ``b`` have the same rotation angle, so scalar parts >= 0
     on both sides agree (except near 180 deg, fixed by `_resign`). AX=YB: align
     every ``a_i`` with ``a_0`` and every ``b_i`` with ``b_0``; since
-    ``q -> a x`` and ``q -> y b`` are isometries of R^4 this is consistent
-    whenever all rotations lie within 180 deg of the first one.
+    ``q -> q x`` and ``q -> y q`` are isometries of R^4,
+    ``a_i . a_0 = s_i s_0 (b_i . b_0)`` for ``a_i x = s_i y b_i``, so the signs
+    agree on exact data; noise can break this only for samples rotated about
+    180 deg from the first, which `_resign` repairs with the first estimate.
     """
     if same_angle:
         return qa * np.where(qa[:, 3:] < 0, -1.0, 1.0), qb * np.where(qb[:, 3:] < 0, -1.0, 1.0)
@@ -447,7 +449,9 @@ def y_axis_r(A: np.ndarray, B: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     ``(a_0^2 I + a_v a_v^T + a_0 [a_v]x) x' + (a_0 [b_v]x - a_0 b_0 I - a_v b_v^T) y'
     = a_0 b_v - b_0 a_v`` with ``x' = x_v / y_0``, ``y' = y_v / y_0``;
     ``x_0 / y_0`` follows from the scalar rows by least squares. Needs
-    ``R_Y`` away from a half-turn (``y_0 != 0``). Translations from eq. 6.
+    ``R_Y`` away from a half-turn (``y_0 != 0``), and degrades under noise when
+    the robot rotations are near half-turns (``a_0 ~ 0`` leaves one row per
+    sample). Translations from eq. 6.
     Eye-to-hand form; N >= 3 poses.
     """
     A, B = check_pose_pairs(A, B, 3)
