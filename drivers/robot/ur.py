@@ -1,0 +1,662 @@
+"""Universal Robots arm over RTDE (ur_rtde 1.6.5).
+
+Reads the flange pose ``T_base_flange`` (the controller's ``actual_TCP_pose``
+with the active TCP offset removed) into a ring buffer so that camera frames
+can be matched to the pose at their exposure time, and moves the flange with
+moveL / moveJ after checking every target, and the path to it, against the
+configured workspace box, tilt cone and joint limits.
+
+Which kinematics checks the limits: this module's own UR kinematics
+(`drivers.robot.ur_kinematics`, nominal DH parameters) — nothing is sent to
+the controller before a target passed, not even an IK query. A real robot's
+factory calibration shifts the flange by a few mm against the nominal model;
+that is far inside any sensible safety margin, and the pose used for
+calibration is always the controller's measured one.
+
+The TCP offset comes from the control interface (``getTCPOffset()``). ur_rtde
+1.6.5 cannot decode the RTDE output ``tcp_offset``, so in read-only mode
+(which never opens the control interface) it must be configured
+(``tcp_offset``), or `connect` fails.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import threading
+import time
+from dataclasses import dataclass, field, fields
+
+import numpy as np
+
+from calib.errors import ConfigError, ConnectionLostError, DeviceError, LimitViolationError, RobotStoppedError
+from calib.transforms import from_ur_pose, invert, pose_error, to_ur_pose
+from drivers.robot import ur_kinematics as kin
+from drivers.robot.base import Robot, RobotState
+from drivers.robot.buffer import ClockMapper, StateBuffer, interpolate_pose
+
+log = logging.getLogger(__name__)
+
+# UR safety modes (RTDE ``safety_mode``) that stop the arm.
+SAFETY_PROTECTIVE_STOP = 3
+SAFETY_EMERGENCY = {6: "system emergency stop", 7: "robot emergency stop"}
+SAFETY_STOPPED = {3: "protective stop", 5: "safeguard stop", 8: "safety violation", 9: "safety fault", **SAFETY_EMERGENCY}
+# safety_status_bits: 2 protective, 4 safeguard, 5-7 emergency stops, 8 violation, 9 fault, 10 stopped by safety.
+SAFETY_STOP_BITS = 0x7F4
+
+RTDE_VARIABLES = [
+    "timestamp",
+    "actual_q",
+    "actual_qd",
+    "actual_TCP_pose",
+    "robot_mode",
+    "safety_mode",
+    "safety_status_bits",
+    "runtime_state",
+]
+
+# ur_rtde's own bounds for moveL / moveJ arguments.
+MAX_TOOL_SPEED, MAX_TOOL_ACC = 3.0, 150.0
+MAX_JOINT_SPEED, MAX_JOINT_ACC = 3.14, 40.0
+
+
+def _vec(value, n: int, name: str) -> tuple[float, ...]:
+    try:
+        arr = np.asarray(value, dtype=float)
+    except (TypeError, ValueError):
+        raise ConfigError(f"URRobotConfig.{name} must be {n} numbers, got {value!r}") from None
+    if arr.shape != (n,) or not np.isfinite(arr).all():
+        raise ConfigError(f"URRobotConfig.{name} must be {n} finite numbers, got {value!r}")
+    return tuple(float(x) for x in arr)
+
+
+@dataclass
+class URRobotConfig:
+    """Configuration of a UR arm reached over RTDE (real robot or ``mocks.ur_sim``).
+
+    Units: SI (m, s, rad) except ``max_tilt_deg`` (degrees, labelled).
+
+    Attributes
+    ----------
+    host : str
+        Controller address.
+    model : str
+        UR model for the limit checks (``ur10``, ``ur5e`` ...).
+    read_only : bool
+        Never open the control interface (passive monitoring); `URRobot.move_to` raises.
+    frequency : float
+        RTDE output rate in Hz; -1 = controller default (125 Hz CB3, 500 Hz e-Series).
+    speed, acceleration : float
+        moveL tool speed (m/s) and acceleration (m/s^2).
+    joint_speed, joint_acceleration : float
+        moveJ leading-joint speed (rad/s) and acceleration (rad/s^2).
+    motion : str
+        Default motion of `URRobot.move_to`: ``"linear"`` (moveL) or ``"joint"`` (moveJ).
+    stop_deceleration : float
+        stopL deceleration (m/s^2) used by `URRobot.stop`.
+    settle_time : float
+        The arm counts as settled after its joint speeds stayed below
+        ``settle_speed`` (rad/s) for this long (s).
+    settle_speed : float
+    workspace_min, workspace_max : 3 floats or None
+        Box in the base frame (m) that the flange origin and the TCP must
+        stay in along every motion. Required unless ``read_only``.
+    tilt_reference : 3 floats
+        Direction in the base frame the flange z axis is compared with
+        (default straight down).
+    max_tilt_deg : float
+        Largest allowed angle (deg) between flange z and ``tilt_reference``.
+    joint_min, joint_max : 6 floats
+        Joint limits, rad.
+    tcp_offset : 6 floats or None
+        Active TCP as UR pose ``[x, y, z, rx, ry, rz]`` in the flange frame.
+        None: ask the controller (not possible in read-only mode).
+    reach_tolerance : float
+        A move that settles farther (m) than this from its target raises.
+    reach_tolerance_deg : float
+        Same for the orientation, degrees.
+    frozen_timeout : float
+        No new controller timestamp for this long (s) means the stream froze
+        (`ConnectionLostError`).
+    connect_timeout : float
+        Seconds to wait for the first state after connecting.
+    move_timeout : float
+        Seconds a move may take before it is stopped and reported.
+    buffer_seconds : float
+        Length of the pose ring buffer for `URRobot.pose_at`, s.
+    path_step : float
+        Spacing (m of tool travel, or rad of the leading joint) of the
+        samples at which a motion path is checked against the limits.
+    """
+
+    host: str
+    model: str = "ur10"
+    read_only: bool = False
+    frequency: float = -1.0
+    speed: float = 0.1
+    acceleration: float = 0.5
+    joint_speed: float = 0.5
+    joint_acceleration: float = 1.0
+    motion: str = "linear"
+    stop_deceleration: float = 2.0
+    settle_time: float = 0.1
+    settle_speed: float = 0.002
+    workspace_min: tuple[float, float, float] | None = None
+    workspace_max: tuple[float, float, float] | None = None
+    tilt_reference: tuple[float, float, float] = (0.0, 0.0, -1.0)
+    max_tilt_deg: float = 60.0
+    joint_min: tuple[float, ...] = field(default_factory=lambda: tuple(kin.UR_JOINT_LIMITS[:, 0]))
+    joint_max: tuple[float, ...] = field(default_factory=lambda: tuple(kin.UR_JOINT_LIMITS[:, 1]))
+    tcp_offset: tuple[float, ...] | None = None
+    reach_tolerance: float = 0.005
+    reach_tolerance_deg: float = 1.0
+    frozen_timeout: float = 0.25
+    connect_timeout: float = 5.0
+    move_timeout: float = 60.0
+    buffer_seconds: float = 5.0
+    path_step: float = 0.01
+
+    def __post_init__(self):
+        if not isinstance(self.host, str) or not self.host.strip():
+            raise ConfigError(f"URRobotConfig.host must be a non-empty address, got {self.host!r}")
+        kin.geometry(self.model)
+        self.model = self.model.lower().replace("-", "")
+        if not isinstance(self.read_only, bool):
+            raise ConfigError(f"URRobotConfig.read_only must be true or false, got {self.read_only!r}")
+        if not (self.frequency == -1 or 0 < self.frequency <= 500):
+            raise ConfigError(f"URRobotConfig.frequency must be -1 or in (0, 500] Hz, got {self.frequency!r}")
+        for name, hi in (("speed", MAX_TOOL_SPEED), ("acceleration", MAX_TOOL_ACC), ("joint_speed", MAX_JOINT_SPEED),
+                         ("joint_acceleration", MAX_JOINT_ACC), ("stop_deceleration", MAX_TOOL_ACC)):
+            val = getattr(self, name)
+            if not isinstance(val, (int, float)) or not 0 < val <= hi:
+                raise ConfigError(f"URRobotConfig.{name} must be in (0, {hi}], got {val!r}")
+        if self.motion not in ("linear", "joint"):
+            raise ConfigError(f"URRobotConfig.motion must be 'linear' or 'joint', got {self.motion!r}")
+        for name in ("settle_time", "settle_speed", "reach_tolerance", "reach_tolerance_deg", "frozen_timeout",
+                     "connect_timeout", "move_timeout", "buffer_seconds", "path_step"):
+            val = getattr(self, name)
+            if not isinstance(val, (int, float)) or not math.isfinite(val) or val <= 0:
+                raise ConfigError(f"URRobotConfig.{name} must be a positive number, got {val!r}")
+        if (self.workspace_min is None) != (self.workspace_max is None):
+            raise ConfigError("URRobotConfig.workspace_min and workspace_max must be given together")
+        if self.workspace_min is None:
+            if not self.read_only:
+                raise ConfigError("URRobotConfig.workspace_min/workspace_max are required unless read_only is true")
+        else:
+            self.workspace_min = _vec(self.workspace_min, 3, "workspace_min")
+            self.workspace_max = _vec(self.workspace_max, 3, "workspace_max")
+            if not np.all(np.less(self.workspace_min, self.workspace_max)):
+                raise ConfigError(
+                    f"URRobotConfig.workspace_min {self.workspace_min} must be below workspace_max "
+                    f"{self.workspace_max} on every axis"
+                )
+        self.tilt_reference = _vec(self.tilt_reference, 3, "tilt_reference")
+        if np.linalg.norm(self.tilt_reference) < 1e-9:
+            raise ConfigError("URRobotConfig.tilt_reference must be a non-zero direction")
+        if not isinstance(self.max_tilt_deg, (int, float)) or not 0 < self.max_tilt_deg <= 180:
+            raise ConfigError(f"URRobotConfig.max_tilt_deg must be in (0, 180] degrees, got {self.max_tilt_deg!r}")
+        self.joint_min = _vec(self.joint_min, 6, "joint_min")
+        self.joint_max = _vec(self.joint_max, 6, "joint_max")
+        lim = kin.UR_JOINT_LIMITS
+        if not (np.all(np.less(self.joint_min, self.joint_max)) and np.all(np.greater_equal(self.joint_min, lim[:, 0]))
+                and np.all(np.less_equal(self.joint_max, lim[:, 1]))):
+            raise ConfigError(
+                f"URRobotConfig.joint_min/joint_max must satisfy -2pi <= joint_min < joint_max <= 2pi rad, "
+                f"got {self.joint_min} / {self.joint_max}"
+            )
+        if self.tcp_offset is not None:
+            self.tcp_offset = _vec(self.tcp_offset, 6, "tcp_offset")
+
+    @property
+    def max_tilt(self) -> float:
+        """Tilt limit in rad."""
+        return math.radians(self.max_tilt_deg)
+
+    @property
+    def joint_limits(self) -> np.ndarray:
+        """Joint limits, shape (6, 2), rad."""
+        return np.stack([self.joint_min, self.joint_max], axis=1)
+
+    @classmethod
+    def from_dict(cls, d: dict) -> "URRobotConfig":
+        """Build from a TOML table; unknown keys are an error naming the key."""
+        known = {f.name for f in fields(cls)}
+        unknown = sorted(set(d) - known)
+        if unknown:
+            raise ConfigError(f"URRobotConfig: unknown field(s) {unknown}; known: {sorted(known)}")
+        if "host" not in d:
+            raise ConfigError("URRobotConfig.host is required")
+        return cls(**d)
+
+
+class URRobot(Robot):
+    """A UR arm over RTDE; see the module docstring. Eye-to-hand or eye-in-hand alike:
+    it only provides ``T_base_flange`` (the paper's ``A_i``).
+
+    Parameters
+    ----------
+    config : URRobotConfig
+    """
+
+    def __init__(self, config: URRobotConfig):
+        if not isinstance(config, URRobotConfig):
+            raise ConfigError(f"URRobot needs a URRobotConfig, got {type(config).__name__}")
+        self.config = config
+        self._rtde_r = None
+        self._rtde_c = None
+        self._T_flange_tcp = np.eye(4)
+        self._buffer = StateBuffer(int(config.buffer_seconds * 500) + 1)
+        self._clock = ClockMapper(config.buffer_seconds)
+        self._poller: threading.Thread | None = None
+        self._stop_poll = threading.Event()
+        self._poll_error: Exception | None = None
+        self._last_ts = None
+        self._last_change = 0.0
+        self._safety_bits = 0
+        self._stop_requested = False
+
+    # ------------------------------------------------------------ connection
+    @property
+    def is_connected(self) -> bool:
+        return self._rtde_r is not None
+
+    @property
+    def T_flange_tcp(self) -> np.ndarray:
+        """Active TCP offset in use (4, 4)."""
+        return self._T_flange_tcp.copy()
+
+    def connect(self) -> None:
+        """Open RTDE receive (and, unless read-only, control) and start buffering states.
+
+        Raises
+        ------
+        ConfigError
+            Read-only without a configured ``tcp_offset``.
+        DeviceError
+            The controller cannot be reached, or sends no state within ``connect_timeout``.
+        """
+        if self.is_connected:
+            return
+        cfg = self.config
+        if cfg.read_only and cfg.tcp_offset is None:
+            raise ConfigError(
+                "URRobotConfig.tcp_offset is required in read_only mode: ur_rtde reads the active TCP only "
+                "through the control interface, which read-only mode never opens"
+            )
+        import rtde_receive  # vendor SDK, only needed once a UR is actually used
+
+        try:
+            self._rtde_r = rtde_receive.RTDEReceiveInterface(cfg.host, float(cfg.frequency), RTDE_VARIABLES)
+        except RuntimeError as exc:
+            self._rtde_r = None
+            raise DeviceError(f"cannot open RTDE receive on UR controller {cfg.host}: {exc}") from exc
+        try:
+            if not cfg.read_only:
+                import rtde_control
+
+                self._rtde_c = rtde_control.RTDEControlInterface(cfg.host, float(cfg.frequency))
+                tcp = np.asarray(self._rtde_c.getTCPOffset(), dtype=float)
+                if tcp.shape != (6,):
+                    raise DeviceError(f"UR controller {cfg.host} did not report its TCP offset")
+                if cfg.tcp_offset is not None and not np.allclose(tcp, cfg.tcp_offset, atol=1e-6):
+                    log.warning("configured tcp_offset %s differs from the controller's %s; using the controller's",
+                                cfg.tcp_offset, tcp.tolist())
+            else:
+                tcp = np.asarray(cfg.tcp_offset)
+            self._T_flange_tcp = from_ur_pose(tcp)
+            self._start_polling()
+        except Exception as exc:
+            self._close_interfaces()
+            if isinstance(exc, DeviceError):
+                raise
+            raise DeviceError(f"cannot open RTDE control on UR controller {cfg.host}: {exc}") from exc
+        self._check_model()
+
+    def _check_model(self) -> None:
+        # Nominal FK against the controller's pose: catches a wrong `model` (decimetres),
+        # tolerates the robot's factory calibration (millimetres).
+        st = self.read()
+        _, dt = pose_error(kin.forward(st.q, self.config.model), st.T_base_flange)
+        if dt > 0.01:
+            log.warning("UR at %s: nominal %s kinematics miss the measured flange pose by %.1f mm; wrong model?",
+                        self.config.host, self.config.model, dt * 1e3)
+
+    def disconnect(self) -> None:
+        """Stop buffering, stop the control script and close both interfaces (idempotent)."""
+        self._close_interfaces()
+
+    def _close_interfaces(self) -> None:
+        self._stop_poll.set()
+        if self._poller is not None:
+            self._poller.join(timeout=2.0)
+            self._poller = None
+        if self._rtde_c is not None:
+            try:
+                if self._rtde_c.isConnected() and self._rtde_c.isProgramRunning():
+                    self._rtde_c.stopScript()
+                self._rtde_c.disconnect()
+            except RuntimeError as exc:
+                log.warning("closing RTDE control on %s: %s", self.config.host, exc)
+            self._rtde_c = None
+        if self._rtde_r is not None:
+            try:
+                self._rtde_r.disconnect()
+            except RuntimeError as exc:
+                log.warning("closing RTDE receive on %s: %s", self.config.host, exc)
+            self._rtde_r = None
+
+    def reconnect(self) -> None:
+        """Close whatever is left of the connection and connect again (re-uploads the control script)."""
+        self._close_interfaces()
+        self.connect()
+
+    # --------------------------------------------------------------- reading
+    def _start_polling(self) -> None:
+        self._buffer.clear()
+        self._clock.reset()
+        self._poll_error = None
+        self._last_ts = None
+        self._stop_poll = threading.Event()
+        self._poller = threading.Thread(target=self._poll, name=f"ur-rtde-{self.config.host}", daemon=True)
+        self._poller.start()
+        deadline = time.monotonic() + self.config.connect_timeout
+        while self._buffer.latest is None:
+            if time.monotonic() > deadline or self._poll_error is not None:
+                raise DeviceError(
+                    f"no RTDE data from UR controller {self.config.host} within {self.config.connect_timeout} s"
+                    + (f": {self._poll_error}" if self._poll_error else "")
+                )
+            time.sleep(0.002)
+        self._last_change = time.monotonic()
+
+    def _sample(self) -> bool:
+        """Read one state if the controller timestamp moved; True if a new one was buffered."""
+        r = self._rtde_r
+        ts = r.getTimestamp()
+        if ts == self._last_ts:
+            return False
+        t_recv = time.time()
+        q = np.asarray(r.getActualQ())
+        qd = np.asarray(r.getActualQd())
+        tcp = np.asarray(r.getActualTCPPose())
+        robot_mode, safety_mode = r.getRobotMode(), r.getSafetyMode()
+        self._safety_bits = r.getSafetyStatusBits()
+        if r.getTimestamp() != ts:
+            return False  # a newer package arrived between the getters: read again, untorn
+        self._last_ts = ts
+        self._last_change = time.monotonic()
+        self._buffer.append(
+            RobotState(
+                t_host=self._clock.update(ts, t_recv),
+                t_controller=ts,
+                T_base_flange=from_ur_pose(tcp) @ invert(self._T_flange_tcp),
+                q=q,
+                qd=qd,
+                robot_mode=int(robot_mode),
+                safety_mode=int(safety_mode),
+            )
+        )
+        return True
+
+    def _poll(self) -> None:
+        period = 0.5 / (500.0 if self.config.frequency == -1 else self.config.frequency)
+        while not self._stop_poll.is_set():
+            try:
+                if not self._rtde_r.isConnected():
+                    self._poll_error = ConnectionLostError(f"RTDE connection to UR controller {self.config.host} dropped")
+                    return
+                self._sample()
+            except RuntimeError as exc:
+                self._poll_error = ConnectionLostError(f"RTDE read from UR controller {self.config.host} failed: {exc}")
+                return
+            time.sleep(period)
+
+    def _require_connected(self) -> None:
+        if not self.is_connected:
+            raise DeviceError(f"UR robot {self.config.host} is not connected; call connect()")
+
+    def read(self) -> RobotState:
+        """Latest state.
+
+        Raises
+        ------
+        ConnectionLostError
+            The RTDE connection dropped, or no new controller timestamp arrived
+            for ``frozen_timeout`` (frozen stream).
+        """
+        self._require_connected()
+        if self._poll_error is not None:
+            raise self._poll_error
+        if not self._rtde_r.isConnected():
+            raise ConnectionLostError(f"RTDE connection to UR controller {self.config.host} dropped")
+        age = time.monotonic() - self._last_change
+        if age > self.config.frozen_timeout:
+            # The poller may just have been starved of CPU: look once more ourselves.
+            try:
+                fresh = self._sample()
+            except RuntimeError as exc:
+                raise ConnectionLostError(f"RTDE read from UR controller {self.config.host} failed: {exc}") from exc
+            if not fresh:
+                raise ConnectionLostError(
+                    f"RTDE stream from UR controller {self.config.host} is frozen: no new controller timestamp "
+                    f"for {age * 1e3:.0f} ms (limit {self.config.frozen_timeout * 1e3:.0f} ms)"
+                )
+        return self._buffer.latest
+
+    def pose_at(self, t_host: float) -> np.ndarray:
+        """``T_base_flange`` (4, 4) at host time ``t_host`` (``time.time()`` clock).
+
+        Interpolated from the ring buffer (last ``buffer_seconds``): linear on
+        the translation, SLERP on the rotation. Sample times are the
+        controller timestamps mapped to the host clock (`ClockMapper`).
+
+        Raises
+        ------
+        DeviceError
+            ``t_host`` outside the buffered interval.
+        """
+        self._require_connected()
+        return self._buffer.pose_at(t_host)
+
+    def buffered_span(self) -> tuple[float, float] | None:
+        """(oldest, newest) host time in the pose buffer, or None if empty."""
+        return self._buffer.span()
+
+    # ---------------------------------------------------------------- limits
+    def _check_pose(self, T_base_flange: np.ndarray, what: str) -> None:
+        cfg = self.config
+        T_tcp = T_base_flange @ self._T_flange_tcp
+        lo, hi = np.asarray(cfg.workspace_min), np.asarray(cfg.workspace_max)
+        for label, p in (("flange", T_base_flange[:3, 3]), ("TCP", T_tcp[:3, 3])):
+            if np.any(p < lo) or np.any(p > hi):
+                raise LimitViolationError(
+                    f"{what}: {label} at {np.round(p * 1e3, 1).tolist()} mm is outside the workspace box "
+                    f"{np.round(lo * 1e3, 1).tolist()}..{np.round(hi * 1e3, 1).tolist()} mm"
+                )
+        ref = np.asarray(cfg.tilt_reference) / np.linalg.norm(cfg.tilt_reference)
+        tilt = math.acos(float(np.clip(T_base_flange[:3, 2] @ ref, -1.0, 1.0)))
+        if tilt > cfg.max_tilt:
+            raise LimitViolationError(
+                f"{what}: flange z axis is tilted {math.degrees(tilt):.1f} deg from {list(cfg.tilt_reference)} "
+                f"(max_tilt_deg = {cfg.max_tilt_deg})"
+            )
+
+    def check_target(self, T_base_flange, motion: str | None = None, q_start=None) -> np.ndarray:
+        """Check a move to ``T_base_flange`` against every configured limit, sending nothing.
+
+        The target and samples along the path (every ``path_step``) must keep
+        the flange origin and the TCP inside the workspace box and the flange
+        z axis inside the tilt cone; the joint solution (nominal IK nearest to
+        the start) must respect the joint limits, and a linear path must not
+        need a jump of the IK branch (singularity).
+
+        Parameters
+        ----------
+        T_base_flange : array_like, shape (4, 4)
+        motion : {"linear", "joint"} or None (config default)
+        q_start : array_like, shape (6,) or None
+            Start joints; None = the robot's current ones.
+
+        Returns
+        -------
+        q_target : ndarray, shape (6,)
+            Joint solution of the target, rad.
+
+        Raises
+        ------
+        LimitViolationError
+            With the first violated limit; also for a malformed target.
+        """
+        cfg = self.config
+        if cfg.workspace_min is None:
+            raise LimitViolationError("no workspace box is configured (workspace_min/workspace_max)")
+        motion = motion or cfg.motion
+        if motion not in ("linear", "joint"):
+            raise LimitViolationError(f"motion must be 'linear' or 'joint', got {motion!r}")
+        T = np.asarray(T_base_flange, dtype=float)
+        if T.shape != (4, 4) or not np.isfinite(T).all():
+            raise LimitViolationError(f"target T_base_flange must be a finite (4, 4) array, got shape {T.shape}")
+        R = T[:3, :3]
+        if np.abs(R @ R.T - np.eye(3)).max() > 1e-6 or abs(np.linalg.det(R) - 1) > 1e-6 or np.abs(T[3] - [0, 0, 0, 1]).max() > 1e-9:
+            raise LimitViolationError("target T_base_flange is not a rigid transform")
+        q0 = np.asarray(self.read().q if q_start is None else q_start, dtype=float)
+        limits = cfg.joint_limits
+        self._check_pose(T, "target")
+        q1 = kin.inverse_nearest(T, q0, cfg.model, limits)
+        if q1 is None:
+            raise LimitViolationError(
+                f"target: no {cfg.model.upper()} joint solution within joint_min/joint_max (unreachable pose)"
+            )
+        if motion == "joint":
+            n = max(1, math.ceil(np.max(np.abs(q1 - q0)) / cfg.path_step))
+            for s in np.linspace(0.0, 1.0, n + 1)[1:-1]:
+                self._check_pose(kin.forward(q0 + s * (q1 - q0), cfg.model), f"moveJ path at {s:.0%}")
+        else:
+            T0 = kin.forward(q0, cfg.model)
+            T0_tcp, T1_tcp = T0 @ self._T_flange_tcp, T @ self._T_flange_tcp
+            angle = pose_error(T0_tcp, T1_tcp)[0]
+            length = max(float(np.linalg.norm(T1_tcp[:3, 3] - T0_tcp[:3, 3])), 0.1 * float(angle))
+            n = max(1, math.ceil(length / cfg.path_step))
+            T_tcp_flange = invert(self._T_flange_tcp)
+            q = q0
+            for s in np.linspace(0.0, 1.0, n + 1)[1:]:
+                Ts = interpolate_pose(T0_tcp, T1_tcp, s) @ T_tcp_flange
+                self._check_pose(Ts, f"moveL path at {s:.0%}")
+                qs = kin.inverse_nearest(Ts, q, cfg.model, limits)
+                if qs is None or np.max(np.abs(qs - q)) > 0.5:
+                    raise LimitViolationError(
+                        f"moveL path at {s:.0%}: leaves the joint limits or passes a singularity; use motion='joint'"
+                    )
+                q = qs
+            q1 = q
+        return q1
+
+    # ---------------------------------------------------------------- motion
+    def _control(self):
+        self._require_connected()
+        if self.config.read_only or self._rtde_c is None:
+            raise DeviceError(f"UR robot {self.config.host} is read-only: it cannot move or stop the arm")
+        return self._rtde_c
+
+    def _raise_if_stopped(self, state: RobotState, doing: str) -> None:
+        if state.safety_mode in SAFETY_STOPPED or self._safety_bits & SAFETY_STOP_BITS:
+            what = SAFETY_STOPPED.get(state.safety_mode, f"safety stop (status bits {self._safety_bits:#x})")
+            raise RobotStoppedError(f"UR robot {self.config.host} is in {what} ({doing})")
+
+    def move_to(self, T_base_flange, motion: str | None = None) -> RobotState:
+        """Move the flange to ``T_base_flange`` (4, 4, m), blocking until settled.
+
+        ``motion="linear"`` sends moveL (``speed``, ``acceleration``) to the
+        TCP pose ``T_base_flange @ T_flange_tcp``; ``"joint"`` sends moveJ
+        (``joint_speed``, ``joint_acceleration``) to the checked joint
+        solution. Everything is checked first (`check_target`).
+
+        Returns
+        -------
+        RobotState
+            The settled state.
+
+        Raises
+        ------
+        LimitViolationError
+            Before anything is sent.
+        RobotStoppedError
+            Protective / emergency stop before or during the move.
+        ConnectionLostError
+            The stream dropped or froze.
+        DeviceError
+            Read-only mode; the control script is not running (after a stop:
+            call `reconnect`); timeout; stopped by `stop`; settled off target.
+        """
+        ctl = self._control()
+        cfg = self.config
+        motion = motion or cfg.motion
+        state = self.read()
+        self._raise_if_stopped(state, "before the move")
+        q_target = self.check_target(T_base_flange, motion, state.q)
+        T = np.asarray(T_base_flange, dtype=float)
+        if not ctl.isProgramRunning():
+            # A safety stop ends the script; its state package may trail the script flag by a cycle.
+            time.sleep(0.02)
+            self._raise_if_stopped(self.read(), "before the move")
+            raise DeviceError(
+                f"the ur_rtde control script is not running on {cfg.host} (after a protective stop?); call reconnect()"
+            )
+        self._stop_requested = False
+        if motion == "linear":
+            ok = ctl.moveL(to_ur_pose(T @ self._T_flange_tcp).tolist(), cfg.speed, cfg.acceleration, True)
+        else:
+            ok = ctl.moveJ(q_target.tolist(), cfg.joint_speed, cfg.joint_acceleration, True)
+        if not ok:
+            self._raise_if_stopped(self.read(), "the controller refused the move")
+            raise DeviceError(f"UR controller {cfg.host} refused the {motion} move")
+        state = self._wait_settled(ctl, motion)
+        rot, dist = pose_error(state.T_base_flange, T)
+        if dist > cfg.reach_tolerance or math.degrees(rot) > cfg.reach_tolerance_deg:
+            raise DeviceError(
+                f"UR robot {cfg.host} settled {dist * 1e3:.1f} mm / {math.degrees(rot):.2f} deg from the target"
+            )
+        return state
+
+    def move_joints(self, q) -> RobotState:
+        """moveJ to joint positions ``q`` (6,) rad, checked like `move_to` (FK gives the target pose)."""
+        q = kin.check_q(q, "q")
+        if q.shape != (6,):
+            raise LimitViolationError(f"q must have shape (6,), got {q.shape}")
+        if np.any(q < self.config.joint_limits[:, 0]) or np.any(q > self.config.joint_limits[:, 1]):
+            raise LimitViolationError(f"q {np.round(q, 4).tolist()} is outside joint_min/joint_max")
+        return self.move_to(kin.forward(q, self.config.model), motion="joint")
+
+    def _wait_settled(self, ctl, motion: str) -> RobotState:
+        cfg = self.config
+        deadline = time.monotonic() + cfg.move_timeout
+        still_since = None
+        while True:
+            state = self.read()
+            self._raise_if_stopped(state, f"during the {motion} move")
+            if self._stop_requested:
+                raise DeviceError(f"{motion} move on {cfg.host} was interrupted by stop()")
+            running = ctl.getAsyncOperationProgressEx().isAsyncOperationRunning()
+            now = time.monotonic()
+            if not running and np.max(np.abs(state.qd)) < cfg.settle_speed:
+                still_since = still_since or now
+                if now - still_since >= cfg.settle_time:
+                    return state
+            else:
+                still_since = None
+            if now > deadline:
+                self.stop()
+                raise DeviceError(f"{motion} move on {cfg.host} did not settle within move_timeout={cfg.move_timeout} s")
+            time.sleep(0.002)
+
+    def stop(self) -> None:
+        """Decelerate (stopL at ``stop_deceleration``) and stop any motion now.
+
+        Raises
+        ------
+        DeviceError
+            In read-only mode (nothing could be stopped from here).
+        """
+        ctl = self._control()
+        self._stop_requested = True
+        ctl.stopL(self.config.stop_deceleration, False)

@@ -1,0 +1,55 @@
+"""Shared helpers for the UR driver tests: each test module launches its own
+simulated controller on its own 127.0.3.x address (module-scoped, because every
+ur_rtde disconnect sleeps 0.5 s)."""
+
+import numpy as np
+import pytest
+
+from drivers.robot.ur import URRobot, URRobotConfig
+from mocks.ur_sim import launch
+
+# An unusual TCP so that forgetting to remove it shows up in every pose check.
+SIM_TCP = (0.01, -0.02, 0.15, 0.1, -0.2, 0.3)
+# UR10, flange pointing down in front of the base.
+START_Q = (0.0, -1.2, 1.6, -1.97, -1.5708, 0.0)
+
+
+def robot_config(host: str, **kw) -> URRobotConfig:
+    base = dict(
+        host=host,
+        model="ur10",
+        speed=0.25,
+        acceleration=1.2,
+        joint_speed=1.0,
+        joint_acceleration=2.0,
+        workspace_min=(-1.3, -1.0, 0.0),
+        workspace_max=(1.3, 1.0, 1.2),
+        max_tilt_deg=45.0,
+    )
+    base.update(kw)
+    return URRobotConfig(**base)
+
+
+@pytest.fixture(scope="module")
+def sim_factory():
+    """Launch simulators for this module; all are stopped at module end."""
+    sims = []
+
+    def make(host, controller="5.11", **kw):
+        sim = launch(host, model="ur10", controller=controller, initial_q=START_Q, tcp_offset=SIM_TCP, **kw)
+        sims.append(sim)
+        return sim
+
+    yield make
+    for sim in sims:
+        sim.stop()
+
+
+def connect_robot(cfg) -> URRobot:
+    robot = URRobot(cfg)
+    robot.connect()
+    return robot
+
+
+def truth_flange(sim) -> np.ndarray:
+    return np.array(sim.state()["T_base_flange"])
