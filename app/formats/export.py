@@ -35,6 +35,18 @@ _EQUATION = {
 _NAMES = {"eye_to_hand": ("T_base_cam", "T_flange_marker"), "eye_in_hand": ("T_flange_cam", "T_base_marker")}
 
 
+class _Dumper(yaml.SafeDumper):
+    """Lists of numbers on one line (``[x, y, z]``), everything else in block style."""
+
+
+def _represent_list(dumper, data):
+    flow = all(isinstance(v, (int, float)) for v in data)
+    return dumper.represent_sequence("tag:yaml.org,2002:seq", data, flow_style=flow)
+
+
+_Dumper.add_representer(list, _represent_list)
+
+
 def _frames(frames: dict | None) -> dict:
     frames = {**DEFAULT_FRAMES, **(frames or {})}
     unknown = set(frames) - set(DEFAULT_FRAMES)
@@ -81,7 +93,7 @@ def _transform_dict(T, name: str, parent: str, child: str, cov=None) -> dict:
         d["sigma_1"] = {
             "rotation_deg": np.rad2deg(sd[:3]).tolist(),
             "translation_mm": (sd[3:] * 1e3).tolist(),
-            "note": "1-sigma per axis from result.cov (rotation vector about base axes, translation)",
+            "note": "1-sigma per axis from result.cov (left rotation vector and translation, in the parent frame)",
         }
     return d
 
@@ -215,7 +227,7 @@ def ros2_launch(result: CalibrationResult, frames: dict | None = None) -> str:
     for k, v in zip(("x", "y", "z", "qx", "qy", "qz", "qw"), [*t, *q]):
         args += [f"--{k}", _fmt(v)]
     args += ["--frame-id", parent, "--child-frame-id", child]
-    arg_lines = "".join(f"                {json.dumps(a)},\n" for a in args)
+    arg_lines = "".join(f"                {json.dumps(a)}, {json.dumps(b)},\n" for a, b in zip(args[::2], args[1::2]))
     return (
         f'"""Publish the hand-eye calibration ({result.setup}, {_NAMES[result.setup][0]}, '
         f'solver {result.method}) as a static transform."""\n'
@@ -262,7 +274,7 @@ def write_result(result: CalibrationResult, path, fmt: str = "yaml", frames: dic
     path.parent.mkdir(parents=True, exist_ok=True)
     if fmt == "yaml":
         text = (f"# handeye calibration result ({result.setup}); camera_transform = {_NAMES[result.setup][0]}\n"
-                + yaml.safe_dump(result_to_dict(result, frames), sort_keys=False, width=200))
+                + yaml.dump(result_to_dict(result, frames), Dumper=_Dumper, sort_keys=False, width=1000))
     elif fmt == "json":
         text = json.dumps(result_to_dict(result, frames), indent=2) + "\n"
     elif fmt == "easy_handeye":

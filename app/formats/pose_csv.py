@@ -28,6 +28,7 @@ the paired samples (both setups).
 
 from __future__ import annotations
 
+import gzip
 import logging
 import tomllib
 from dataclasses import dataclass, field
@@ -54,7 +55,8 @@ def read_pose_csv(path) -> tuple[np.ndarray, np.ndarray]:
 
     Rows are sorted by time; rows repeating an earlier timestamp are dropped
     (the ETH simulated hand stream publishes most poses twice) and counted in
-    the log. Lines starting with ``#`` and a non-numeric header line are skipped.
+    the log. Lines starting with ``#`` and a non-numeric header line are
+    skipped; a ``.gz`` file is decompressed.
 
     Returns
     -------
@@ -70,8 +72,12 @@ def read_pose_csv(path) -> tuple[np.ndarray, np.ndarray]:
     """
     path = Path(path)
     try:
-        lines = path.read_text().splitlines()
-    except OSError as e:
+        if path.suffix == ".gz":
+            with gzip.open(path, "rt") as f:
+                lines = f.read().splitlines()
+        else:
+            lines = path.read_text().splitlines()
+    except (OSError, EOFError) as e:
         raise SessionError(f"{path}: cannot read ({e})") from e
     rows, line_nos = [], []
     for no, line in enumerate(lines, start=1):
