@@ -47,9 +47,10 @@ SETUPS = ("eye_to_hand", "eye_in_hand")
 #: between the two largest values, which scales like the motion angle). Measured
 #: (see docs/solvers.md): good motions of +-5 deg and more about varied axes stay
 #: above ~3e-3 with realistic noise; rotations about one axis, pure translations
-#: or identical poses give ~1e-16 noise-free. Every solver also checks a system
-#: built from the robot poses alone (eq. 5/6), so marker noise cannot mask a
-#: degenerate motion set.
+#: or identical poses give ~1e-16 noise-free. Every solver first checks the
+#: system ``[R_A, -I]`` of eq. 6 built from the robot poses alone, so marker
+#: noise cannot mask a degenerate motion set (robot rotation noise of 0.01 deg
+#: on a degenerate set gives ~1e-4 there and is still caught).
 DEGENERACY_RTOL = 1e-3
 
 _I3 = np.eye(3)
@@ -328,6 +329,7 @@ def x_axis_rx(A: np.ndarray, B: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     X, Y : ndarray, shape (4, 4)
     """
     A, B = check_pose_pairs(A, B, 3)
+    _check_robot_excitation(A)
     A_rel, B_rel = _relative_motions(A, B)
     ra = Rotation.from_matrix(A_rel[:, :3, :3]).as_rotvec()
     rb = Rotation.from_matrix(B_rel[:, :3, :3]).as_rotvec()
@@ -362,6 +364,7 @@ def x_quat_r_star(A: np.ndarray, B: np.ndarray) -> tuple[np.ndarray, np.ndarray]
     form; N >= 3 poses (N, 4, 4) each.
     """
     A, B = check_pose_pairs(A, B, 3)
+    _check_robot_excitation(A)
     A_rel, B_rel = _relative_motions(A, B)
     qa, qb = _align_signs(_quat(A_rel[:, :3, :3]), _quat(B_rel[:, :3, :3]), same_angle=True)
 
@@ -387,6 +390,7 @@ def x_kron_r_star(A: np.ndarray, B: np.ndarray) -> tuple[np.ndarray, np.ndarray]
     averaging. Eye-to-hand form; N >= 3 poses.
     """
     A, B = check_pose_pairs(A, B, 3)
+    _check_robot_excitation(A)
     A_rel, B_rel = _relative_motions(A, B)
     K = np.einsum("nij,nkl->ikjl", B_rel[:, :3, :3], A_rel[:, :3, :3]).reshape(9, 9)
     w, V = np.linalg.eigh((K + K.T) / 2.0)
@@ -404,6 +408,7 @@ def x_kron_rt(A: np.ndarray, B: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     form; N >= 3 poses.
     """
     A, B = check_pose_pairs(A, B, 3)
+    _check_robot_excitation(A)
     A_rel, B_rel = _relative_motions(A, B)
     m = len(A_rel)
     M = np.zeros((m, 12, 12))
@@ -427,6 +432,7 @@ def x_kron_t(A: np.ndarray, B: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     N >= 5 poses (12 unknowns, 3 rows per pair).
     """
     A, B = check_pose_pairs(A, B, 5)
+    _check_robot_excitation(A)
     A_rel, B_rel = _relative_motions(A, B)
     m = len(A_rel)
     M = np.empty((m, 3, 12))
@@ -455,6 +461,7 @@ def y_axis_r(A: np.ndarray, B: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     Eye-to-hand form; N >= 3 poses.
     """
     A, B = check_pose_pairs(A, B, 3)
+    _check_robot_excitation(A)
     qa, qb = _align_signs(_quat(A[:, :3, :3]), _quat(B[:, :3, :3]), same_angle=False)
 
     def solve_xy(qa, qb):
@@ -489,6 +496,7 @@ def y_quat_r_star(A: np.ndarray, B: np.ndarray) -> tuple[np.ndarray, np.ndarray]
     Translations from eq. 6. Eye-to-hand form; N >= 3 poses.
     """
     A, B = check_pose_pairs(A, B, 3)
+    _check_robot_excitation(A)
     qa, qb = _align_signs(_quat(A[:, :3, :3]), _quat(B[:, :3, :3]), same_angle=False)
 
     def top(qb):
@@ -516,6 +524,7 @@ def y_kron_rt(A: np.ndarray, B: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     eq. 6 with ``R_Y`` fixed. Eye-to-hand form; N >= 3 poses.
     """
     A, B = check_pose_pairs(A, B, 3)
+    _check_robot_excitation(A)
     n = len(A)
     M = np.zeros((n, 12, 24))
     M[:, :9, :9] = _kron_I_left(A[:, :3, :3])
@@ -545,6 +554,7 @@ def y_quat_t_prime(A: np.ndarray, B: np.ndarray) -> tuple[np.ndarray, np.ndarray
     the average of ``A_i^-1 Y B_i``. Eye-to-hand form; N >= 3 poses.
     """
     A, B = check_pose_pairs(A, B, 3)
+    _check_robot_excitation(A)
     n = len(A)
     qa, qb = _align_signs(_quat(A[:, :3, :3]), _quat(B[:, :3, :3]), same_angle=False)
     tA = np.concatenate([A[:, :3, 3], np.zeros((n, 1))], axis=1)
@@ -576,7 +586,6 @@ def y_quat_t_prime(A: np.ndarray, B: np.ndarray) -> tuple[np.ndarray, np.ndarray
         t_Y = (quat_right(np.array([-qy[0], -qy[1], -qy[2], qy[3]])) @ u)[:3]
         return qy, t_Y
 
-    _check_robot_excitation(A)
     qy, t_Y = solve_y(qb)
     Y = tf.make_transform(_mat(qy), t_Y)
     X = _complete_x(Y, A, B)
