@@ -8,8 +8,10 @@ setup (eye-to-hand ``X = T_flange_marker``, ``Y = T_base_cam``; eye-in-hand
 1. Least median of squares (Rousseeuw 1984): fit random subsets of
    ``min_samples`` samples and keep the hypothesis whose median Mahalanobis
    point residual (paper eq. 5 in the camera frame, as in `calib.refine`) is
-   smallest. Valid up to 50% outliers; the number of subsets adapts to the
-   inlier fraction seen so far (RANSAC's stopping rule).
+   smallest. Valid up to 50% outliers; the number of subsets is RANSAC's
+   ``log(1 - CONFIDENCE) / log(1 - (1 - eps)^m)`` for a design outlier
+   fraction ``eps`` (not adapted to the data: a contaminated hypothesis
+   inflates the robust scale and would make any data-driven count stop early).
 2. Robust scale from the median, inliers = squared Mahalanobis residual below
    the chi-square quantile `INLIER_QUANTILE` (3 dof; 6 with a rotation
    residual for pose data) times that scale.
@@ -56,8 +58,6 @@ def _trials_needed(inlier_fraction: float, m: int, confidence: float) -> float:
     good = inlier_fraction**m
     if good >= 1.0:
         return 1.0
-    if good <= 0.0:
-        return np.inf
     return np.log(1.0 - confidence) / np.log(1.0 - good)
 
 
@@ -70,6 +70,7 @@ def robust_solve(
     point_cov=None,
     rng: np.random.Generator,
     min_samples: int | None = None,
+    max_outlier_fraction: float = 0.4,
     max_trials: int = 1000,
     max_refits: int = 5,
 ) -> CalibrationResult:
@@ -96,6 +97,10 @@ def robust_solve(
     min_samples : int, optional
         Subset size; default 6 for points (YKronT' has 15 linear unknowns,
         5 samples determine them, one more steadies them) and 4 for poses.
+    max_outlier_fraction : float
+        Design outlier fraction in [0, 0.5): sets the number of subsets so
+        that one is outlier-free with probability `CONFIDENCE` (0.4 and 6
+        samples: 147 subsets).
     max_trials : int
         Upper bound on subsets tried.
     max_refits : int
@@ -126,7 +131,10 @@ def robust_solve(
         raise InsufficientDataError(f"robust estimation needs at least {m + 1} samples, got {n}")
     W_t, given = rf._point_weights(B, point_cov)
 
-    best, best_med, best_dof, trials, needed = None, np.inf, 3, 0, float(max_trials)
+    if not 0.0 <= max_outlier_fraction < 0.5:
+        raise CalibrationError(f"max_outlier_fraction must be in [0, 0.5), got {max_outlier_fraction}")
+    needed = int(np.ceil(_trials_needed(1.0 - max_outlier_fraction, m, CONFIDENCE)))
+    best, best_med, best_dof, trials = None, np.inf, 3, 0
     while trials < min(needed, max_trials):
         trials += 1
         idx = rng.choice(n, size=m, replace=False)
@@ -138,10 +146,6 @@ def robust_solve(
         med = float(np.median(d2))
         if med < best_med:
             best, best_med, best_dof = hyp, med, dof
-            # Inlier fraction implied by this hypothesis sets how many subsets are enough.
-            scale = _scale(med, dof, n, m, given)
-            frac = float(np.mean(d2 <= chi2.ppf(INLIER_QUANTILE, dof) * scale))
-            needed = _trials_needed(frac, m, CONFIDENCE)
     if best is None:
         raise InsufficientDataError(f"no subset of {m} samples could be solved in {trials} trials")
 
