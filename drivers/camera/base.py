@@ -45,6 +45,8 @@ class RGBDFrame:
     truth : dict
         Ground truth from simulated sources (e.g. ``T_cam_marker``); empty
         for real cameras.
+    meta : dict
+        Source details worth logging (device timestamps, file names).
     """
 
     color: np.ndarray
@@ -53,6 +55,7 @@ class RGBDFrame:
     intrinsics: CameraIntrinsics
     index: int = 0
     truth: dict = field(default_factory=dict)
+    meta: dict = field(default_factory=dict)
 
 
 class Camera(abc.ABC):

@@ -1,0 +1,214 @@
+"""A simulated RGB-D camera that renders the marker at the robot's current pose.
+
+Selected by ``[camera] backend = "rendered"``. The config holds the *true*
+mounting the calibration should recover:
+
+- eye-to-hand (static camera, marker on the flange): ``T_base_cam`` (= Y) and
+  ``T_flange_marker`` (= X);
+- eye-in-hand (camera on the flange, static marker): ``T_flange_cam`` (= X)
+  and ``T_base_marker`` (= Y).
+
+Every ``read()`` asks ``flange_pose_source()`` for the current
+``T_base_flange`` (the app wires it to the robot driver), renders there with
+`mocks.render.scene.MarkerSceneRenderer`, and puts the truth
+(``T_cam_marker``, ``point_cam``, ``T_base_flange``, ``X``, ``Y``, ``setup``)
+in ``RGBDFrame.truth``.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy.spatial.transform import Rotation
+
+from calib import transforms as tf
+from calib.errors import CalibrationError, ConfigError, DeviceError
+from calib.observation import SETUPS
+from calib.vision.markers import get_dictionary
+from drivers.camera.base import Camera, CameraIntrinsics, RGBDFrame
+from drivers.camera.intrinsics import check_intrinsics
+from mocks.render.scene import MarkerSceneRenderer, RenderNoise
+
+
+def _look_at(eye, target, up=(0.0, 0.0, 1.0)) -> np.ndarray:
+    """``T_base_cam`` of an optical frame (z forward, y down) at ``eye`` looking at ``target``."""
+    z = np.asarray(target, float) - eye
+    z /= np.linalg.norm(z)
+    x = np.cross(z, up)
+    x /= np.linalg.norm(x)
+    return tf.make_transform(np.column_stack([x, np.cross(z, x), z]), eye)
+
+
+# Default cell = calib.simulate.realistic_cell: flange start 0.9 m in front of the
+# base, camera 0.7 m to the side and above, looking at it.
+_P0 = np.array([0.9, 0.1, 0.5])
+_DEFAULT_T_BASE_CAM = _look_at(_P0 + [-0.2, -0.7, 0.35], _P0)
+# The marker plate sits 12 mm in front of the flange face, shifted and turned so X is not trivial.
+_DEFAULT_T_FLANGE_MARKER = tf.make_transform(Rotation.from_euler("z", 30, degrees=True).as_matrix(), [0.02, -0.01, 0.012])
+# Eye-in-hand: camera 5 cm off the flange axis looking along it; marker flat on the table below the start pose.
+_DEFAULT_T_FLANGE_CAM = tf.make_transform(np.eye(3), [0.0, 0.05, 0.02])
+_DEFAULT_T_BASE_MARKER = tf.make_transform(np.eye(3), [0.9, 0.1, 0.0])
+
+
+def _mat(default: np.ndarray):
+    return field(default_factory=lambda: default.tolist())
+
+
+@dataclass
+class RenderedCameraConfig:
+    """``[camera]`` table for ``backend = "rendered"``.
+
+    Attributes
+    ----------
+    setup : str
+        ``"eye_to_hand"`` or ``"eye_in_hand"``.
+    T_base_cam, T_flange_marker : 4x4 nested lists
+        True mounting, eye-to-hand (m).
+    T_flange_cam, T_base_marker : 4x4 nested lists
+        True mounting, eye-in-hand (m).
+    dictionary, marker_id, marker_size, plate_size
+        The marker (default DICT_4X4_50 id 0, 5 cm on an 8 cm plate, as in the paper's setup).
+    width, height, fx, fy, cx, cy
+        Pinhole intrinsics (Xtion-like VGA by default), no distortion.
+    noise : RenderNoise or dict
+        Sensor model; see `mocks.render.scene.RenderNoise`.
+    seed : int
+        Seed of the per-frame noise.
+    draw_flange, draw_floor : bool
+        Add the flange cylinder (eye-to-hand) / a floor plane at base z = 0.
+    """
+
+    backend: str = "rendered"
+    setup: str = "eye_to_hand"
+    T_base_cam: list = _mat(_DEFAULT_T_BASE_CAM)
+    T_flange_marker: list = _mat(_DEFAULT_T_FLANGE_MARKER)
+    T_flange_cam: list = _mat(_DEFAULT_T_FLANGE_CAM)
+    T_base_marker: list = _mat(_DEFAULT_T_BASE_MARKER)
+    dictionary: str = "DICT_4X4_50"
+    marker_id: int = 0
+    marker_size: float = 0.05
+    plate_size: float = 0.08
+    width: int = 640
+    height: int = 480
+    fx: float = 570.0
+    fy: float = 570.0
+    cx: float = 319.5
+    cy: float = 239.5
+    noise: RenderNoise = field(default_factory=RenderNoise)
+    seed: int = 0
+    draw_flange: bool = True
+    draw_floor: bool = True
+
+    def __post_init__(self):
+        if self.backend != "rendered":
+            raise ConfigError(f"camera.backend must be 'rendered' for RenderedCameraConfig, got {self.backend!r}")
+        if self.setup not in SETUPS:
+            raise ConfigError(f"camera.setup must be one of {list(SETUPS)}, got {self.setup!r}")
+        for name in ("T_base_cam", "T_flange_marker", "T_flange_cam", "T_base_marker"):
+            try:
+                tf.check_transform(getattr(self, name), f"camera.{name}")
+            except (CalibrationError, ValueError) as e:
+                raise ConfigError(str(e)) from None
+        get_dictionary(self.dictionary)
+        if isinstance(self.marker_id, bool) or not isinstance(self.marker_id, int) or self.marker_id < 0:
+            raise ConfigError(f"camera.marker_id must be an integer >= 0, got {self.marker_id!r}")
+        for name in ("marker_size", "plate_size"):
+            v = getattr(self, name)
+            if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v) or v <= 0:
+                raise ConfigError(f"camera.{name} must be a finite number > 0 (m), got {v!r}")
+        if self.plate_size < 1.2 * self.marker_size:
+            raise ConfigError(f"camera.plate_size must be >= 1.2 x marker_size, got {self.plate_size!r}")
+        check_intrinsics(self.intrinsics, "camera")
+        if isinstance(self.noise, dict):
+            try:
+                self.noise = RenderNoise(**self.noise)
+            except TypeError as e:
+                raise ConfigError(f"camera.noise: {e}") from None
+        if isinstance(self.seed, bool) or not isinstance(self.seed, int):
+            raise ConfigError(f"camera.seed must be an integer, got {self.seed!r}")
+
+    @property
+    def intrinsics(self) -> CameraIntrinsics:
+        return CameraIntrinsics(self.width, self.height, float(self.fx), float(self.fy), float(self.cx), float(self.cy))
+
+    @property
+    def X(self) -> np.ndarray:
+        """The paper's X: ``T_flange_marker`` (eye-to-hand) or ``T_flange_cam`` (eye-in-hand)."""
+        return np.array(self.T_flange_marker if self.setup == "eye_to_hand" else self.T_flange_cam, float)
+
+    @property
+    def Y(self) -> np.ndarray:
+        """The paper's Y: ``T_base_cam`` (eye-to-hand) or ``T_base_marker`` (eye-in-hand)."""
+        return np.array(self.T_base_cam if self.setup == "eye_to_hand" else self.T_base_marker, float)
+
+
+class RenderedCamera(Camera):
+    """Renders the configured marker at ``flange_pose_source()`` on every `read`.
+
+    Parameters
+    ----------
+    config : RenderedCameraConfig
+    flange_pose_source : callable () -> ndarray (4, 4)
+        Current ``T_base_flange``.
+    """
+
+    def __init__(self, config: RenderedCameraConfig, flange_pose_source: Callable[[], np.ndarray]):
+        if not callable(flange_pose_source):
+            raise ConfigError("the rendered camera needs a flange_pose_source callable returning T_base_flange")
+        self.config = config
+        self._source = flange_pose_source
+        self._renderer: MarkerSceneRenderer | None = None
+        self._rng: np.random.Generator | None = None
+        self._index = 0
+
+    def connect(self) -> None:
+        c = self.config
+        self._renderer = MarkerSceneRenderer(c.intrinsics, c.dictionary, c.marker_id, c.marker_size, c.plate_size,
+                                             c.noise)
+        self._rng = np.random.default_rng(c.seed)
+        self._index = 0
+
+    def disconnect(self) -> None:
+        self._renderer = None
+
+    @property
+    def is_connected(self) -> bool:
+        return self._renderer is not None
+
+    @property
+    def intrinsics(self) -> CameraIntrinsics:
+        return self.config.intrinsics
+
+    def read(self) -> RGBDFrame:
+        """Render at the current flange pose (eye-to-hand or eye-in-hand as configured)."""
+        if self._renderer is None:
+            raise DeviceError("rendered camera is not connected")
+        t = time.time()
+        try:
+            T_base_flange = tf.check_transform(self._source(), "T_base_flange")
+        except CalibrationError as e:
+            raise DeviceError(f"rendered camera got a bad flange pose: {e}") from None
+        c = self.config
+        X, Y = c.X, c.Y
+        if c.setup == "eye_to_hand":
+            T_cam_base = tf.invert(Y)
+            T_cam_flange = T_cam_base @ T_base_flange
+            T_cam_marker = T_cam_flange @ X
+        else:
+            T_cam_base = tf.invert(T_base_flange @ X)
+            T_cam_flange = None  # the camera rides on the flange: it cannot see it
+            T_cam_marker = T_cam_base @ Y
+        color, depth, truth = self._renderer.render(
+            T_cam_marker,
+            self._rng,
+            T_cam_flange=T_cam_flange if c.draw_flange else None,
+            T_cam_base=T_cam_base if c.draw_floor else None,
+        )
+        truth.update(T_base_flange=T_base_flange, X=X, Y=Y, setup=c.setup)
+        frame = RGBDFrame(color, depth, t, c.intrinsics, self._index, truth, {"source": "rendered"})
+        self._index += 1
+        return frame
