@@ -59,14 +59,14 @@ class ImportedSamples:
         return np.array([o.T_cam_marker for o in self.observations]).reshape(-1, 4, 4)
 
 
-def read_yaml(path: Path) -> dict:
-    """YAML mapping from ``path``; `SessionError` naming the file if unreadable or not a mapping."""
+def read_yaml(path: Path, *, allow_list: bool = False) -> dict | list:
+    """YAML mapping (or, with ``allow_list``, list) from ``path``; `SessionError` naming the file otherwise."""
     try:
         with open(path) as f:
             data = yaml.safe_load(f)
     except (OSError, yaml.YAMLError) as e:
         raise SessionError(f"{path}: cannot read YAML ({e})") from e
-    if not isinstance(data, dict):
+    if not isinstance(data, dict) and not (allow_list and isinstance(data, list)):
         raise SessionError(f"{path}: expected a YAML mapping at the top level, got {type(data).__name__}")
     return data
 

@@ -127,7 +127,9 @@ def load_easy_handeye(path, *, setup: str | None = None) -> ImportedSamples:
     ImportedSamples
     """
     path = Path(path)
-    data = read_yaml(path)
+    data = read_yaml(path, allow_list=True)
+    if isinstance(data, list):
+        data = {"samples": data}
     params = data.get("parameters") or {}
     eye_on_hand = params.get("eye_on_hand", data.get("eye_on_hand"))
     kind = None if eye_on_hand is None else ("eye_in_hand" if eye_on_hand else "eye_on_base")
