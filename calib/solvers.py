@@ -170,15 +170,18 @@ def _relative_motions(A: np.ndarray, B: np.ndarray) -> tuple[np.ndarray, np.ndar
 
 
 def _lstsq(M: np.ndarray, b: np.ndarray, what: str, A_robot: np.ndarray, check_index: int = -1) -> np.ndarray:
-    """Least squares ``M x = b`` via QR; raise DegenerateMotionError if M is rank deficient.
+    """Least squares ``M x = b``; raise DegenerateMotionError if M is rank deficient.
 
+    Solved through the normal equations (at most 24 unknowns): one BLAS
+    product and a small eigen-decomposition, which also gives the singular
+    values of M (square roots of the eigenvalues) for the degeneracy test.
     ``check_index`` selects the singular value (sorted descending) that must be
     non-zero relative to the largest one (-1: full column rank).
     """
-    Q, Rm = np.linalg.qr(M)
-    s = np.linalg.svd(Rm, compute_uv=False)
+    w, V = np.linalg.eigh(M.T @ M)
+    s = np.sqrt(np.clip(w[::-1], 0.0, None))
     _check_singular_values(s, check_index, what, A_robot)
-    return np.linalg.solve(Rm, Q.T @ b)
+    return V @ ((V.T @ (M.T @ b)) / w)
 
 
 def _check_singular_values(s: np.ndarray, index: int, what: str, A_robot: np.ndarray) -> float:
@@ -275,7 +278,8 @@ def _robot_translation_system(A: np.ndarray) -> np.ndarray:
 
 def _check_robot_excitation(A: np.ndarray) -> None:
     """Degeneracy test on the robot poses alone (eq. 6), for solvers whose own system mixes in marker noise."""
-    s = np.linalg.svd(np.linalg.qr(_robot_translation_system(A), mode="r"), compute_uv=False)
+    M = _robot_translation_system(A)
+    s = np.sqrt(np.clip(np.linalg.eigvalsh(M.T @ M)[::-1], 0.0, None))
     _check_singular_values(s, -1, "eq. 6 (robot rotations)", A)
 
 
@@ -614,8 +618,8 @@ def y_kron_t_prime(A: np.ndarray, p: np.ndarray, setup: str = "eye_to_hand") -> 
     Returns the full ``X`` (the camera on the flange) and ``t_Y``; the marker
     rotation ``R_Y`` is unknown (identity).
 
-    In both cases the system is built vectorised and solved by QR least
-    squares, the 3x3 block is reorthonormalised (SVD projection) and the two
+    In both cases the system is built vectorised and solved by least squares
+    (normal equations, 15 unknowns), the 3x3 block is reorthonormalised (SVD projection) and the two
     translations are re-solved with it fixed (the paper's second step).
 
     Parameters
