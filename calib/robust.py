@@ -31,7 +31,7 @@ from calib.errors import CalibrationError, InsufficientDataError
 from calib.result import CalibrationResult
 
 #: Chi-square quantile below which a sample counts as an inlier.
-INLIER_QUANTILE = 0.99
+INLIER_QUANTILE = 0.999
 #: Probability that at least one subset is outlier-free when the search stops.
 CONFIDENCE = 0.999
 

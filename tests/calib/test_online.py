@@ -1,0 +1,151 @@
+"""Online calibrator and change detector (calib.online)."""
+
+import numpy as np
+import pytest
+from scipy.spatial.transform import Rotation
+
+from calib import simulate
+from calib import transforms as tf
+from calib.errors import CalibrationError, ConfigError
+from calib.online import ChangeDetector, DetectorConfig, OnlineCalibrator, OnlineConfig
+from calib.refine import nees
+
+
+def moved_stream(n_before, n_after, bump, rng):
+    """Realistic eye-to-hand cell whose camera moves by ``bump`` (T_camold_camnew) after ``n_before`` samples."""
+    d = simulate.realistic_cell(n_before + n_after, rng)
+    noise = d.points - d.B_true[:, :3, 3]
+    pts = d.points.copy()
+    pts[n_before:] = tf.transform_points(tf.invert(bump), d.B_true[n_before:, :3, 3]) + noise[n_before:]
+    return d, pts
+
+
+def run(cal, A, pts, cov):
+    return [cal.update(A[i], pts[i], cov[i]) for i in range(len(A))]
+
+
+@pytest.mark.parametrize("setup", ["eye_to_hand", "eye_in_hand"])
+def test_converges_to_truth_with_honest_covariance(setup):
+    rng = np.random.default_rng(41)
+    d = simulate.realistic_cell(600, rng, setup=setup)
+    cal = OnlineCalibrator(OnlineConfig(setup=setup))
+    ups = run(cal, d.A, d.points, d.point_cov)
+    assert ups[5].camera_transform is None and ups[-1].camera_transform is not None
+    truth = d.Y if setup == "eye_to_hand" else d.X
+    rot, t = tf.pose_error(cal.camera_transform, truth)
+    assert rot < np.deg2rad(0.1) and t < 0.002
+    assert nees(cal.camera_transform, truth, cal.cov) < 22.5  # chi-square(6) 99.9%
+    res = cal.result()
+    assert res.method == "YKronT'+online" and res.n_samples == 600
+    assert not any(u.alarm for u in ups)
+
+
+def test_nees_over_many_streams():
+    rng = np.random.default_rng(42)
+    values = []
+    for _ in range(25):
+        d = simulate.realistic_cell(150, rng)
+        cal = OnlineCalibrator()
+        run(cal, d.A, d.points, d.point_cov)
+        values.append(nees(cal.camera_transform, d.Y, cal.cov))
+    assert 4.0 < np.mean(values) < 8.5
+
+
+def test_state_size_does_not_grow():
+    rng = np.random.default_rng(43)
+    d = simulate.realistic_cell(400, rng)
+    cal = OnlineCalibrator(OnlineConfig(forgetting=0.995))
+    run(cal, d.A[:50], d.points[:50], d.point_cov[:50])
+    size = cal.state_size
+    run(cal, d.A[50:], d.points[50:], d.point_cov[50:])
+    assert cal.state_size == size
+
+
+@pytest.mark.parametrize("kind", ["translation", "rotation"])
+def test_detects_camera_bump_within_20_samples(kind):
+    rng = np.random.default_rng(44 if kind == "translation" else 45)
+    for _ in range(5):
+        axis = rng.normal(size=3)
+        axis /= np.linalg.norm(axis)
+        if kind == "translation":
+            bump = tf.make_transform(np.eye(3), 0.01 * axis)
+        else:
+            bump = tf.make_transform(Rotation.from_rotvec(np.deg2rad(0.5) * axis).as_matrix(), np.zeros(3))
+        d, pts = moved_stream(200, 20, bump, rng)
+        ups = run(OnlineCalibrator(), d.A, pts, d.point_cov)
+        assert not any(u.alarm for u in ups[:200])
+        assert any(u.alarm for u in ups[200:])
+
+
+def test_no_false_alarm_on_long_unchanged_stream():
+    rng = np.random.default_rng(46)
+    d = simulate.realistic_cell(3000, rng)
+    cal = OnlineCalibrator(OnlineConfig(forgetting=0.999))
+    ups = run(cal, d.A, d.points, d.point_cov)
+    assert not any(u.alarm for u in ups)
+    stats = np.array([u.statistic for u in ups[100:]])
+    # Chi-square(6) while nothing changes: mean 6.
+    assert 4.5 < stats.mean() < 7.5
+
+
+def test_relearns_after_alarm():
+    rng = np.random.default_rng(47)
+    bump = tf.make_transform(np.eye(3), [0.0, 0.03, 0.0])
+    d, pts = moved_stream(150, 250, bump, rng)
+    cal = OnlineCalibrator()
+    ups = run(cal, d.A, pts, d.point_cov)
+    assert sum(u.alarm for u in ups) == 1
+    rot, t = tf.pose_error(cal.camera_transform, d.Y @ bump)
+    assert t < 0.003 and rot < np.deg2rad(0.2)
+
+
+def test_default_noise_model_without_point_cov():
+    rng = np.random.default_rng(48)
+    d = simulate.realistic_cell(300, rng)
+    cal = OnlineCalibrator()
+    for i in range(300):
+        cal.update(d.A[i], d.points[i])
+    assert tf.pose_error(cal.camera_transform, d.Y)[1] < 0.003
+    assert cal.result().info["noise_scale"] > 0
+
+
+def test_bad_samples_raise_and_leave_state_alone():
+    rng = np.random.default_rng(49)
+    d = simulate.realistic_cell(40, rng)
+    cal = OnlineCalibrator()
+    run(cal, d.A, d.points, d.point_cov)
+    before = cal.camera_transform
+    bad = d.A[0].copy()
+    bad[0, 0] = np.nan
+    with pytest.raises(CalibrationError, match="NaN"):
+        cal.update(bad, d.points[0], d.point_cov[0])
+    with pytest.raises(CalibrationError, match="shape"):
+        cal.update(d.A[0], d.points[0][:2])
+    with pytest.raises(CalibrationError, match="rigid"):
+        cal.update(2 * d.A[0], d.points[0])
+    np.testing.assert_array_equal(cal.camera_transform, before)
+    assert cal.n_samples == 40
+    cal.reset()
+    assert cal.camera_transform is None and cal.n_samples == 0
+
+
+def test_config_validation_names_the_field():
+    with pytest.raises(ConfigError, match="forgetting"):
+        OnlineConfig(forgetting=1.5)
+    with pytest.raises(ConfigError, match="setup"):
+        OnlineConfig(setup="eye_on_hand")
+    with pytest.raises(ConfigError, match="bootstrap"):
+        OnlineConfig(bootstrap=3)
+    with pytest.raises(ConfigError, match="window"):
+        DetectorConfig(window=1)
+
+
+def test_detector_alone_is_chi_square_under_no_change():
+    rng = np.random.default_rng(50)
+    det = ChangeDetector(DetectorConfig(window=10))
+    stats = []
+    for _ in range(2000):
+        H = rng.normal(size=(3, 6))
+        det.update(rng.normal(size=3), np.eye(3), H)
+        stats.append(det.statistic)
+    assert 5.5 < np.mean(stats[10:]) < 6.5
