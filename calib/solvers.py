@@ -293,7 +293,7 @@ def _translation_x_axxb(R_X, A_rel, B_rel, A_robot) -> np.ndarray:
 
 def _complete_y(X: np.ndarray, A: np.ndarray, B: np.ndarray) -> np.ndarray:
     """``Y`` as the least-squares average of ``A_i X B_i^-1``: chordal-mean rotation, mean translation."""
-    R_Y = tf.project_to_so3(np.einsum("nij,jk,nlk->il", A[:, :3, :3], X[:3, :3], B[:, :3, :3]))
+    R_Y = tf.project_to_so3((A[:, :3, :3] @ X[:3, :3] @ np.swapaxes(B[:, :3, :3], 1, 2)).sum(axis=0))
     t_Y = np.mean(A[:, :3, :3] @ X[:3, 3] + A[:, :3, 3] - B[:, :3, 3] @ R_Y.T, axis=0)
     return tf.make_transform(R_Y, t_Y)
 
@@ -301,7 +301,7 @@ def _complete_y(X: np.ndarray, A: np.ndarray, B: np.ndarray) -> np.ndarray:
 def _complete_x(Y: np.ndarray, A: np.ndarray, B: np.ndarray) -> np.ndarray:
     """``X`` as the least-squares average of ``A_i^-1 Y B_i`` (eq. 5 with ``R_Y, t_Y`` fixed)."""
     R_At = np.swapaxes(A[:, :3, :3], 1, 2)
-    R_X = tf.project_to_so3(np.einsum("nij,jk,nkl->il", R_At, Y[:3, :3], B[:, :3, :3]))
+    R_X = tf.project_to_so3((R_At @ (Y[:3, :3] @ B[:, :3, :3])).sum(axis=0))
     t_X = np.mean(np.einsum("nij,nj->ni", R_At, B[:, :3, 3] @ Y[:3, :3].T + Y[:3, 3] - A[:, :3, 3]), axis=0)
     return tf.make_transform(R_X, t_X)
 
@@ -373,7 +373,7 @@ def x_quat_r_star(A: np.ndarray, B: np.ndarray) -> tuple[np.ndarray, np.ndarray]
     qa, qb = _align_signs(_quat(A_rel[:, :3, :3]), _quat(B_rel[:, :3, :3]), same_angle=True)
 
     def top(qb):
-        K = np.einsum("nji,njk->ik", quat_right(qb), quat_left(qa))
+        K = np.tensordot(quat_right(qb), quat_left(qa), axes=([0, 1], [0, 1]))
         w, V = np.linalg.eigh((K + K.T) / 2.0)
         _check_gap(w[-1], w[-2], "eq. 17 (quaternion K)", A)
         return V[:, -1]
@@ -396,7 +396,9 @@ def x_kron_r_star(A: np.ndarray, B: np.ndarray) -> tuple[np.ndarray, np.ndarray]
     A, B = check_pose_pairs(A, B, 3)
     _check_robot_excitation(A)
     A_rel, B_rel = _relative_motions(A, B)
-    K = np.einsum("nij,nkl->ikjl", B_rel[:, :3, :3], A_rel[:, :3, :3]).reshape(9, 9)
+    m = len(A_rel)
+    K = (B_rel[:, :3, :3].reshape(m, 9).T @ A_rel[:, :3, :3].reshape(m, 9)).reshape(3, 3, 3, 3)
+    K = K.transpose(0, 2, 1, 3).reshape(9, 9)
     w, V = np.linalg.eigh((K + K.T) / 2.0)
     _check_gap(w[-1], w[-2], "eq. 17 (Kronecker K)", A)
     return _finish_axxb(_scaled_rotation(_unvec(V[:, -1])), A, B, A_rel, B_rel)
@@ -504,7 +506,7 @@ def y_quat_r_star(A: np.ndarray, B: np.ndarray) -> tuple[np.ndarray, np.ndarray]
     qa, qb = _align_signs(_quat(A[:, :3, :3]), _quat(B[:, :3, :3]), same_angle=False)
 
     def top(qb):
-        K = np.einsum("nji,njk->ik", quat_right(qb), quat_left(qa))
+        K = np.tensordot(quat_right(qb), quat_left(qa), axes=([0, 1], [0, 1]))
         U, s, Vt = np.linalg.svd(K)
         _check_gap(s[0], s[1], "eq. 17 (quaternion K)", A)
         return Vt[0], U[:, 0]
@@ -570,9 +572,11 @@ def y_quat_t_prime(A: np.ndarray, B: np.ndarray) -> tuple[np.ndarray, np.ndarray
         M[:, :, :4] = left
         M[:, :, 4:8] = np.eye(4)
         M[:, :, 8:] = -np.swapaxes(quat_right(qb), 1, 2) @ quat_left(qa)
-        _, s, Vt = np.linalg.svd(M.reshape(4 * n, 12), full_matrices=False)
-        _check_singular_values(s, 9, "eq. 19 (nullity must be 2)", A)
-        v1, v2 = Vt[-1], Vt[-2]
+        # Right singular vectors from the 12 x 12 Gram matrix (eigenvalues = squared singular values).
+        M = M.reshape(4 * n, 12)
+        w, V = np.linalg.eigh(M.T @ M)
+        _check_singular_values(np.sqrt(np.clip(w[::-1], 0.0, None)), 9, "eq. 19 (nullity must be 2)", A)
+        v1, v2 = V[:, 0], V[:, 1]
         y1, y2, u1, u2 = v1[:4], v2[:4], v1[4:8], v2[4:8]
         # Quadratic form in (l1, l2) of u . y; its zero set is two lines.
         Q = np.array([[u1 @ y1, (u1 @ y2 + u2 @ y1) / 2.0], [(u1 @ y2 + u2 @ y1) / 2.0, u2 @ y2]])
