@@ -129,11 +129,20 @@ def confirm_motion(yes_move: bool, *, stdin=None) -> None:
         raise HandeyeError("robot motion not confirmed; nothing moved")
 
 
-def cmd_calibrate(args) -> int:
+def _load(args):
+    """Config file (or the embedded simulated cell) + CLI overrides, every section validated."""
+    from app import devices
     from app.config import load_config
-    from app.runner import calibrate, print_calibration_summary
 
     cfg = _apply_overrides(load_config(args.config), args)
+    devices.validate(cfg)
+    return cfg
+
+
+def cmd_calibrate(args) -> int:
+    from app.runner import calibrate, print_calibration_summary
+
+    cfg = _load(args)
     confirm_motion(args.yes_move)
     out = calibrate(cfg)
     print_calibration_summary(out)
@@ -141,10 +150,9 @@ def cmd_calibrate(args) -> int:
 
 
 def cmd_monitor(args) -> int:
-    from app.config import load_config
     from app.runner import monitor, print_monitor_summary
 
-    cfg = _apply_overrides(load_config(args.config), args)
+    cfg = _load(args)
     report = monitor(cfg, reference=args.reference)
     print_monitor_summary(report)
     return EXIT_ALARM if report.alarms else 0
@@ -160,10 +168,9 @@ def cmd_replay(args) -> int:
 
 
 def cmd_demo(args) -> int:
-    from app.config import load_config
     from app.runner import demo, print_demo_summary
 
-    cfg = _apply_overrides(load_config(args.config), args)
+    cfg = _load(args)
     out = demo(cfg)
     print_demo_summary(out)
     return 0 if out.report.result is not None else 1

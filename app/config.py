@@ -26,6 +26,8 @@ from calib.observation import SETUPS
 # Solver names as in the paper; checked against calib.METHODS when the solver
 # layer is imported (app.pipeline), here only for shape.
 DEFAULT_METHOD = "YKronT'"
+# Result formats of app.formats.write_result (kept literal: config must load without the exporters).
+EXPORTS = ("yaml", "json", "easy_handeye", "easy_handeye2", "urdf", "ros2_launch")
 
 
 def _positive(obj, name: str, *, allow_zero: bool = False) -> None:
@@ -142,15 +144,22 @@ class MonitorConfig:
 
 @dataclass
 class SessionConfig:
-    """``[session]``: where sessions (samples, frames, result, .rrd) are written."""
+    """``[session]``: where sessions (samples, frames, result, .rrd) are written.
+
+    ``exports`` lists the result files written into the session at the end of
+    a run (formats of `app.formats.write_result`).
+    """
 
     SECTION = "session"
     root: str = "sessions"
     save_frames: bool = True
+    exports: list = field(default_factory=lambda: list(EXPORTS))
 
     def __post_init__(self):
         _string(self, "root", allow_empty=False)
         _boolean(self, "save_frames")
+        if not isinstance(self.exports, list) or any(e not in EXPORTS for e in self.exports):
+            raise ConfigError(f"session.exports must be a list of {list(EXPORTS)}, got {self.exports!r}")
 
 
 @dataclass
@@ -168,27 +177,37 @@ class VizConfig:
         _boolean(self, "log_images")
 
 
-@dataclass
-class SimConfig:
-    """``[sim]``: the simulated UR controller the demo starts (``mocks.ur_sim``)."""
-
-    SECTION = "sim"
-    host: str = "127.0.0.2"
-    model: str = "ur10"
-    controller: str = "5.11"
-
-    def __post_init__(self):
-        _string(self, "host", allow_empty=False)
-        _string(self, "model", allow_empty=False)
-        _string(self, "controller", allow_empty=False)
+# The simulated cell (config/sim.toml): a UR10 simulator (mocks.ur_sim, started by the
+# robot driver itself and driven through the real ur_rtde client) holding the
+# flange 0.9 m in front of the base with the marker facing the rendered camera,
+# whose true pose is the rendered camera's default (calib.simulate.realistic_cell).
+SIM_START_Q = [0.367792, -3.559685, 1.448735, -1.704477, -0.767569, 0.521542]
 
 
 def _default_robot() -> dict:
-    return {"backend": "ur", "host": "127.0.0.2"}
+    return {
+        "type": "ur_sim",
+        "host": "127.0.0.2",
+        "model": "ur10",
+        "controller": "3.15",
+        "initial_q": list(SIM_START_Q),
+        "sim_tcp_offset": [0.0, 0.0, 0.1, 0.0, 0.0, 0.0],
+        "tcp_offset": [0.0, 0.0, 0.1, 0.0, 0.0, 0.0],
+        "speed": 0.5,
+        "acceleration": 2.0,
+        "workspace_min": [0.65, -0.15, 0.25],
+        "workspace_max": [1.15, 0.35, 0.75],
+        "tilt_reference": [-0.2476, -0.8666, 0.4333],
+        "max_tilt_deg": 45.0,
+    }
 
 
 def _default_camera() -> dict:
-    return {"backend": "rendered"}
+    return {"backend": "rendered", "setup": "eye_to_hand"}
+
+
+def _default_marker() -> dict:
+    return {"kind": "aruco", "dictionary": "DICT_4X4_50", "marker_id": 0, "marker_size": 0.05}
 
 
 @dataclass
@@ -204,12 +223,11 @@ class Config:
     setup: str = "eye_to_hand"
     robot: dict = field(default_factory=_default_robot)
     camera: dict = field(default_factory=_default_camera)
-    marker: dict = field(default_factory=dict)
+    marker: dict = field(default_factory=_default_marker)
     calibrate: CalibrateConfig = field(default_factory=CalibrateConfig)
     monitor: MonitorConfig = field(default_factory=MonitorConfig)
     session: SessionConfig = field(default_factory=SessionConfig)
     viz: VizConfig = field(default_factory=VizConfig)
-    sim: SimConfig = field(default_factory=SimConfig)
 
     def __post_init__(self):
         if self.setup not in SETUPS:
@@ -217,10 +235,11 @@ class Config:
         for name in ("robot", "camera", "marker"):
             if not isinstance(getattr(self, name), dict):
                 raise ConfigError(f"[{name}] must be a table, got {getattr(self, name)!r}")
-        for name in ("robot", "camera"):
-            backend = getattr(self, name).get("backend")
-            if not isinstance(backend, str) or not backend:
-                raise ConfigError(f"{name}.backend must be a non-empty string, got {backend!r}")
+        backend = self.camera.get("backend")
+        if not isinstance(backend, str) or not backend:
+            raise ConfigError(f"camera.backend must be a non-empty string, got {backend!r}")
+        if "setup" in self.camera and self.camera["setup"] != self.setup:
+            raise ConfigError(f"camera.setup ({self.camera['setup']!r}) must match setup ({self.setup!r})")
 
     def to_dict(self) -> dict:
         """Plain-data form (for ``session.json``): the config that was actually used."""
@@ -256,7 +275,7 @@ def config_from_dict(data: dict) -> Config:
             raise ConfigError(f"unknown key {key!r} (known: {', '.join(sorted(_SECTIONS))})")
         ftype = _SECTIONS[key].type
         sub = {"CalibrateConfig": CalibrateConfig, "MonitorConfig": MonitorConfig,
-               "SessionConfig": SessionConfig, "VizConfig": VizConfig, "SimConfig": SimConfig}.get(ftype)
+               "SessionConfig": SessionConfig, "VizConfig": VizConfig}.get(ftype)
         kwargs[key] = _build(sub, value, key) if sub is not None else value
     return Config(**kwargs)
 

@@ -1,16 +1,73 @@
 """Build the parts a run needs from a `Config`: robot, camera, extraction, online estimator, outputs.
 
 The only place the app knows the other layers' config classes; each section
-(``[robot]``, ``[camera]``, ``[marker]``) is validated by its owner's
-dataclass, which rejects unknown keys naming them.
+(``[robot]``, ``[camera]``, ``[marker]``, ``[monitor.online]``) is validated
+by its owner's dataclass, which rejects unknown keys naming them.
 """
 
 from __future__ import annotations
+
+import dataclasses
+from pathlib import Path
 
 import numpy as np
 
 from app.config import Config
 from app.pipeline import Measurement
+from calib.errors import ConfigError
+
+#: Result files written into the session directory, by export format.
+RESULT_FILES = {
+    "yaml": "result.yaml",
+    "json": "result.json",
+    "easy_handeye": "easy_handeye.yaml",
+    "easy_handeye2": "handeye.calib",
+    "urdf": "handeye.urdf.xacro",
+    "ros2_launch": "handeye.launch.py",
+}
+
+
+def validate(cfg: Config) -> None:
+    """Validate the sections owned by the device, vision and online layers (raises ConfigError naming the field)."""
+    from calib.vision.extract import TargetConfig
+    from drivers.camera.factory import camera_config_from_dict
+    from drivers.robot.factory import robot_config_from_dict
+
+    robot_config_from_dict(cfg.robot)
+    camera_config_from_dict(cfg.camera)
+    TargetConfig.from_dict(cfg.marker)
+    online_config(cfg)
+
+
+def open_robot(cfg: Config, *, read_only: bool):
+    """The configured robot (not yet connected; use as a context manager).
+
+    ``read_only=True`` (monitor) forces the driver's read-only mode: it then
+    refuses every motion command.
+    """
+    from drivers.robot.factory import make_robot, robot_config_from_dict
+
+    rc = robot_config_from_dict(cfg.robot)
+    if read_only:
+        rc = dataclasses.replace(rc, read_only=True)
+    return make_robot(rc)
+
+
+def open_camera(cfg: Config, robot):
+    """The configured camera; a rendered camera sees the marker at the robot's current flange pose."""
+    from drivers.camera.factory import make_camera
+
+    return make_camera(cfg.camera, lambda: robot.read().T_base_flange)
+
+
+def truth(camera) -> dict:
+    """True transforms of a simulated camera (``T_base_cam``/``T_flange_marker`` eye-to-hand,
+    ``T_flange_cam``/``T_base_marker`` eye-in-hand); empty for real cameras."""
+    c = getattr(camera, "config", None)
+    if getattr(c, "backend", None) != "rendered":
+        return {}
+    names = ("T_base_cam", "T_flange_marker") if c.setup == "eye_to_hand" else ("T_flange_cam", "T_base_marker")
+    return {n: np.asarray(getattr(c, n), dtype=float) for n in names}
 
 
 def make_measure(cfg: Config):
@@ -30,3 +87,60 @@ def make_measure(cfg: Config):
                            meta={"marker_kind": m.kind, "extract": info})
 
     return measure
+
+
+def online_config(cfg: Config):
+    """`calib.online.OnlineConfig` from ``[monitor.online]`` (setup taken from the config)."""
+    from calib.online import DetectorConfig, OnlineConfig
+
+    data = dict(cfg.monitor.online)
+    known = {f.name for f in dataclasses.fields(OnlineConfig)} - {"setup"}
+    for key in data:
+        if key not in known:
+            raise ConfigError(f"unknown key monitor.online.{key} (known: {', '.join(sorted(known))})")
+    if isinstance(data.get("detector"), dict):
+        dknown = {f.name for f in dataclasses.fields(DetectorConfig)}
+        for key in data["detector"]:
+            if key not in dknown:
+                raise ConfigError(f"unknown key monitor.online.detector.{key} (known: {', '.join(sorted(dknown))})")
+        try:
+            data["detector"] = DetectorConfig(**data["detector"])
+        except ConfigError as e:
+            raise ConfigError(f"monitor.online.detector: {e}") from None
+    try:
+        return OnlineConfig(setup=cfg.setup, **data)
+    except ConfigError as e:
+        raise ConfigError(f"monitor.online: {e}") from None
+
+
+def make_online(cfg: Config):
+    """A fresh `calib.online.OnlineCalibrator` for the monitor."""
+    from calib.online import OnlineCalibrator
+
+    return OnlineCalibrator(online_config(cfg))
+
+
+def write_result(result, session: Path, formats) -> dict:
+    """Write the result in each export format into the session directory; returns ``{format: path}``."""
+    from app.formats import write_result as export
+
+    return {fmt: export(result, Path(session) / RESULT_FILES[fmt], fmt) for fmt in formats}
+
+
+def import_observations(path: Path, setup: str | None):
+    """Samples from another tool's files (easy_handeye, industrial_calibration, pose-stream CSV).
+
+    Returns
+    -------
+    observations : list[Observation]
+    setup : str
+    truth : dict
+        Always empty (imported data has no ground truth).
+    """
+    from app.formats import detect_format, load
+
+    fmt = detect_format(path)
+    # Only the easy_handeye files may leave the setup open; the others state it.
+    options = {"setup": setup} if setup is not None and fmt.startswith("easy_handeye") else {}
+    imported = load(path, fmt, **options)
+    return imported.observations, imported.setup, {}

@@ -79,6 +79,11 @@ def is_diverse(T: np.ndarray, recent, min_translation_m: float, min_rotation_deg
     return not bool(close.any())
 
 
+def _same_pose(T1: np.ndarray, T2: np.ndarray, *, mm: float = 1.0, deg: float = 0.2) -> bool:
+    rot, trans = tf.pose_error(T1, T2)
+    return bool(trans < mm * 1e-3 and rot < np.deg2rad(deg))
+
+
 def run_hook(command: str, env: dict) -> None:
     """Run the alarm hook (no shell; arguments split like a shell would). Failures are logged, not raised."""
     if not command:
@@ -115,8 +120,8 @@ def run_monitor(
     robot : Robot connected read-only (this function only reads it).
     camera : Camera
     measure : callable(RGBDFrame) -> Measurement (raises ExtractionError to skip).
-    online : calib.online estimator with ``update(T_base_flange, point_cam, point_cov)``
-        returning an update with ``alarm`` (bool).
+    online : calib.online.OnlineCalibrator
+        ``update(T_base_flange, point_cam, point_cov) -> OnlineUpdate`` (estimate, cov, alarm).
     solve : callable(observations, *, final) -> CalibrationResult, for the re-estimate.
     writer : SessionWriter
     cfg : MonitorConfig
@@ -131,7 +136,9 @@ def run_monitor(
     recent: deque = deque(maxlen=max(cfg.diversity_window, 1))
     after_alarm: list[Observation] = []
     still_since: float | None = None
-    tried_this_stop = False
+    still_pose: np.ndarray | None = None
+    tried_pose: np.ndarray | None = None
+    reference: np.ndarray | None = None
     try:
         while True:
             if stop is not None and stop.is_set():
@@ -141,42 +148,43 @@ def run_monitor(
             if cfg.max_samples and report.n_samples >= cfg.max_samples:
                 break
             state = robot.read()
-            if not state.is_still:
-                still_since, tried_this_stop = None, False
+            T = state.T_base_flange
+            # A standstill is a pose held with zero joint speed; a new pose (even one reached
+            # between two reads) starts a new standstill.
+            if not state.is_still or still_pose is None or not _same_pose(T, still_pose):
+                still_since, still_pose = (state.t_host, T) if state.is_still else (None, None)
                 time.sleep(cfg.poll_s)
                 continue
-            if still_since is None:
-                still_since = state.t_host
-            # One attempt per standstill: the pose cannot change until the robot moves again.
-            if tried_this_stop or state.t_host - still_since < cfg.still_s:
+            # One attempt per standstill: the view cannot change until the robot moves.
+            if (tried_pose is not None and _same_pose(T, tried_pose)) or state.t_host - still_since < cfg.still_s:
                 time.sleep(cfg.poll_s)
                 continue
-            tried_this_stop = True
-            if cfg.diversity_window and not is_diverse(state.T_base_flange, recent,
-                                                       cfg.min_translation_m, cfg.min_rotation_deg):
-                writer.add_skip(state.t_host, "near-duplicate of a recent pose", T_base_flange=state.T_base_flange)
+            tried_pose = T
+            if cfg.diversity_window and not is_diverse(T, recent, cfg.min_translation_m, cfg.min_rotation_deg):
+                writer.add_skip(state.t_host, "near-duplicate of a recent pose", T_base_flange=T)
                 report.n_skipped += 1
                 continue
             obs = take_sample(robot, camera, measure, writer, viz, not_before=still_since, save_frames=save_frames)
             if obs is None:
                 report.n_skipped += 1
                 continue
-            # A frame exposed while the robot was moving again would pair a blurred marker with a wrong pose.
-            if not robot.read().is_still:
+            if not _same_pose(robot.read().T_base_flange, T):
+                # The robot left during the exposure: frame and interpolated pose may disagree.
                 writer.add_event(obs.t, "moved_during_capture", sample_index=obs.index)
             recent.append(obs.T_base_flange)
             report.n_samples += 1
             if on_sample is not None:
                 on_sample(obs)
             update = online.update(obs.T_base_flange, obs.point_cam, obs.point_cov)
-            estimate = getattr(update, "estimate", None)
-            viz.sample(obs, getattr(estimate, "camera_transform", None))
-            drift = getattr(update, "drift", None)
-            if drift is not None:
-                viz.drift(obs.t, *drift)
-            if getattr(update, "alarm", False):
+            viz.sample(obs, update.camera_transform)
+            if update.camera_transform is not None:
+                if reference is None:
+                    reference = update.camera_transform
+                rot, trans = tf.pose_error(update.camera_transform, reference)
+                viz.drift(obs.t, float(trans) * 1e3, float(np.rad2deg(rot)))
+            if update.alarm:
                 _raise_alarm(report, obs, update, writer, viz, cfg)
-                after_alarm = []
+                after_alarm, reference = [], None
                 continue
             if report.alarms:
                 after_alarm.append(obs)
@@ -192,10 +200,10 @@ def run_monitor(
 
 def _raise_alarm(report: MonitorReport, obs: Observation, update, writer: SessionWriter, viz: Viz,
                  cfg: MonitorConfig) -> None:
-    info = {k: v for k, v in getattr(update, "info", {}).items() if isinstance(v, (int, float, str, bool))}
+    info = {"statistic": float(update.statistic), "n_samples": int(update.n_samples)}
     alarm = Alarm(obs.t, obs.index, info)
     report.alarms.append(alarm)
-    text = f"ALARM: camera moved (detected at sample {obs.index}) {info}"
+    text = f"ALARM: camera moved (detected at sample {obs.index}, GLR statistic {update.statistic:.1f})"
     log.warning(text)
     writer.add_event(obs.t, "alarm", sample_index=obs.index, **info)
     viz.event(obs.t, text, "ERROR")

@@ -25,7 +25,7 @@ from app.replay import format_table, replay
 from app.session import SessionWriter, read_session
 from app.viz import Viz
 from calib import transforms as tf
-from calib.errors import HandeyeError, InsufficientDataError, SessionError
+from calib.errors import ConfigError, HandeyeError, InsufficientDataError, SessionError
 
 log = logging.getLogger(__name__)
 
@@ -74,7 +74,7 @@ def calibrate(cfg: Config, *, progress: bool = True) -> CalibrationOutput:
 
     rng = np.random.default_rng(cfg.calibrate.seed)
     with devices.open_robot(cfg, read_only=False) as robot, devices.open_camera(cfg, robot) as camera:
-        truth = devices.truth(cfg, camera)
+        truth = devices.truth(camera)
         writer = SessionWriter.create(cfg.session.root, cfg.setup, config=cfg.to_dict(),
                                       intrinsics=dataclasses.asdict(camera.intrinsics), truth=truth)
         with writer, make_viz(cfg, writer.path) as viz:
@@ -86,30 +86,31 @@ def calibrate(cfg: Config, *, progress: bool = True) -> CalibrationOutput:
                 report = run_calibration(robot, camera, devices.make_measure(cfg), make_solve(cfg.calibrate, cfg.setup, rng),
                                          writer, cfg.calibrate, cfg.setup, rng, viz,
                                          save_frames=cfg.session.save_frames, progress=bar)
-    files = devices.write_result(report.result, writer.path, cfg.setup) if report.result is not None else {}
+    files = devices.write_result(report.result, writer.path, cfg.session.exports) if report.result is not None else {}
     return CalibrationOutput(report, cfg.setup, cfg.calibrate.method, files, _camera_truth(cfg.setup, truth))
 
 
-def reference_estimate(path: Path, method: str):
-    """Calibration from a previous session's samples (the monitor's reference)."""
-    session = read_session(path)
-    return solve_observations(method, session.observations, session.setup, refine=True)
-
-
 def monitor(cfg: Config, *, reference: Path | None = None, stop=None, progress: bool = True) -> MonitorReport:
-    """Passive monitoring with a read-only robot connection (never moves the robot)."""
+    """Passive monitoring with a read-only robot connection (never moves the robot).
+
+    ``reference``: a previous session (same setup) whose samples prime the
+    online estimator, so change detection starts with the first new sample
+    instead of after the estimator's bootstrap and warm-up.
+    """
     from tqdm import tqdm
 
     rng = np.random.default_rng(cfg.calibrate.seed)
-    ref = reference_estimate(reference, cfg.monitor.method) if reference is not None else None
-    if ref is not None and ref.setup != cfg.setup:
-        raise SessionError(f"reference session is {ref.setup}, config is {cfg.setup}")
+    online = devices.make_online(cfg)
+    if reference is not None:
+        ref = read_session(reference)
+        if ref.setup != cfg.setup:
+            raise SessionError(f"reference session {reference} is {ref.setup}, the config is {cfg.setup}")
+        for obs in ref.observations:
+            online.update(obs.T_base_flange, obs.point_cam, obs.point_cov)
     with devices.open_robot(cfg, read_only=True) as robot, devices.open_camera(cfg, robot) as camera:
-        truth = devices.truth(cfg, camera)
         writer = SessionWriter.create(cfg.session.root, cfg.setup, config=cfg.to_dict(),
-                                      intrinsics=dataclasses.asdict(camera.intrinsics), truth=truth,
+                                      intrinsics=dataclasses.asdict(camera.intrinsics), truth=devices.truth(camera),
                                       source="handeye monitor")
-        online = devices.make_online(cfg, ref)
         solve = make_solve(dataclasses.replace(cfg.calibrate, method=cfg.monitor.method), cfg.setup, rng)
         with writer, make_viz(cfg, writer.path) as viz, \
                 tqdm(desc="samples", unit="sample", disable=not progress) as bar:
@@ -147,9 +148,18 @@ def replay_source(source: Path, methods: list[str], *, refine: bool = False, rob
 
 
 def demo(cfg: Config, *, progress: bool = True) -> CalibrationOutput:
-    """Start the simulated UR controller, calibrate against the rendered camera, compare with the truth."""
-    with devices.simulated_robot(cfg):
-        return calibrate(cfg, progress=progress)
+    """Calibrate the simulated cell: the UR simulator (started by the robot driver, driven
+    through the real ur_rtde client) and the rendered camera, whose true pose is known.
+
+    Raises
+    ------
+    ConfigError
+        If the config names real hardware: the demo moves without asking.
+    """
+    if cfg.robot.get("type") != "ur_sim" or cfg.camera.get("backend") != "rendered":
+        raise ConfigError("demo runs only the simulated cell (robot.type = 'ur_sim', camera.backend = 'rendered'); "
+                          "use 'handeye calibrate' for hardware")
+    return calibrate(cfg, progress=progress)
 
 
 def _pose_line(T: np.ndarray) -> str:
