@@ -169,18 +169,16 @@ def _relative_motions(A: np.ndarray, B: np.ndarray) -> tuple[np.ndarray, np.ndar
     return tf.invert(A[1:]) @ A[:-1], tf.invert(B[1:]) @ B[:-1]
 
 
-def _lstsq(M: np.ndarray, b: np.ndarray, what: str, A_robot: np.ndarray, check_index: int = -1) -> np.ndarray:
-    """Least squares ``M x = b``; raise DegenerateMotionError if M is rank deficient.
+def _lstsq(M: np.ndarray, b: np.ndarray, what: str, A_robot: np.ndarray) -> np.ndarray:
+    """Least squares ``M x = b``; raise DegenerateMotionError unless M has full column rank.
 
     Solved through the normal equations (at most 24 unknowns): one BLAS
     product and a small eigen-decomposition, which also gives the singular
     values of M (square roots of the eigenvalues) for the degeneracy test.
-    ``check_index`` selects the singular value (sorted descending) that must be
-    non-zero relative to the largest one (-1: full column rank).
     """
     w, V = np.linalg.eigh(M.T @ M)
     s = np.sqrt(np.clip(w[::-1], 0.0, None))
-    _check_singular_values(s, check_index, what, A_robot)
+    _check_singular_values(s, -1, what, A_robot)
     return V @ ((V.T @ (M.T @ b)) / w)
 
 
