@@ -67,7 +67,8 @@ def test_sigma_worst_axis():
 
 @pytest.mark.parametrize("data, match", [
     ({"setup": "sideways"}, "setup"),
-    ({"robot": {"host": "x"}}, "robot.backend"),
+    ({"camera": {"setup": "eye_to_hand"}}, "camera.backend"),
+    ({"setup": "eye_in_hand"}, "camera.setup"),
     ({"calibrate": {"samples": 2}}, "calibrate.samples"),
     ({"calibrate": {"min_samples": 30}}, "calibrate.min_samples"),
     ({"calibrate": {"refine": "yes"}}, "calibrate.refine"),
@@ -83,7 +84,8 @@ def test_config_errors_name_the_field(data, match):
 
 
 def test_config_sections_roundtrip():
-    cfg = config_from_dict({"setup": "eye_in_hand", "calibrate": {"samples": 5, "min_samples": 4}})
+    cfg = config_from_dict({"setup": "eye_in_hand", "camera": {"backend": "rendered", "setup": "eye_in_hand"},
+                            "calibrate": {"samples": 5, "min_samples": 4}})
     assert cfg.setup == "eye_in_hand" and cfg.calibrate.samples == 5
     assert dataclasses.asdict(config_from_dict(cfg.to_dict())) == cfg.to_dict()
     assert Config().calibrate.method == "YKronT'"
