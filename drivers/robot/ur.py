@@ -399,7 +399,7 @@ class URRobot(Robot):
         return True
 
     def _poll(self) -> None:
-        period = 0.5 / (500.0 if self.config.frequency == -1 else self.config.frequency)
+        period = 0.25 / (500.0 if self.config.frequency == -1 else self.config.frequency)
         while not self._stop_poll.is_set():
             try:
                 if not self._rtde_r.isConnected():
@@ -481,7 +481,7 @@ class URRobot(Robot):
                 f"(max_tilt_deg = {cfg.max_tilt_deg})"
             )
 
-    def check_target(self, T_base_flange, motion: str | None = None, q_start=None) -> np.ndarray:
+    def check_target(self, T_base_flange, motion: str | None = None, q_start=None, q_target=None) -> np.ndarray:
         """Check a move to ``T_base_flange`` against every configured limit, sending nothing.
 
         The target and samples along the path (every ``path_step``) must keep
@@ -496,6 +496,9 @@ class URRobot(Robot):
         motion : {"linear", "joint"} or None (config default)
         q_start : array_like, shape (6,) or None
             Start joints; None = the robot's current ones.
+        q_target : array_like, shape (6,) or None
+            For ``motion="joint"``: the joint solution to use (must be within
+            the joint limits); None = the nominal IK solution nearest ``q_start``.
 
         Returns
         -------
@@ -522,7 +525,12 @@ class URRobot(Robot):
         q0 = np.asarray(self.read().q if q_start is None else q_start, dtype=float)
         limits = cfg.joint_limits
         self._check_pose(T, "target")
-        q1 = kin.inverse_nearest(T, q0, cfg.model, limits)
+        if q_target is not None:
+            q1 = kin.check_q(q_target, "q_target")
+            if np.any(q1 < limits[:, 0]) or np.any(q1 > limits[:, 1]):
+                raise LimitViolationError(f"target q {np.round(q1, 4).tolist()} is outside joint_min/joint_max")
+        else:
+            q1 = kin.inverse_nearest(T, q0, cfg.model, limits)
         if q1 is None:
             raise LimitViolationError(
                 f"target: no {cfg.model.upper()} joint solution within joint_min/joint_max (unreachable pose)"
@@ -563,13 +571,14 @@ class URRobot(Robot):
             what = SAFETY_STOPPED.get(state.safety_mode, f"safety stop (status bits {self._safety_bits:#x})")
             raise RobotStoppedError(f"UR robot {self.config.host} is in {what} ({doing})")
 
-    def move_to(self, T_base_flange, motion: str | None = None) -> RobotState:
+    def move_to(self, T_base_flange, motion: str | None = None, *, q_target=None) -> RobotState:
         """Move the flange to ``T_base_flange`` (4, 4, m), blocking until settled.
 
         ``motion="linear"`` sends moveL (``speed``, ``acceleration``) to the
         TCP pose ``T_base_flange @ T_flange_tcp``; ``"joint"`` sends moveJ
         (``joint_speed``, ``joint_acceleration``) to the checked joint
-        solution. Everything is checked first (`check_target`).
+        solution (or ``q_target``, see `check_target`). Everything is checked
+        first (`check_target`).
 
         Returns
         -------
@@ -593,7 +602,7 @@ class URRobot(Robot):
         motion = motion or cfg.motion
         state = self.read()
         self._raise_if_stopped(state, "before the move")
-        q_target = self.check_target(T_base_flange, motion, state.q)
+        q_target = self.check_target(T_base_flange, motion, state.q, q_target)
         T = np.asarray(T_base_flange, dtype=float)
         if not ctl.isProgramRunning():
             # A safety stop ends the script; its state package may trail the script flag by a cycle.
@@ -619,13 +628,14 @@ class URRobot(Robot):
         return state
 
     def move_joints(self, q) -> RobotState:
-        """moveJ to joint positions ``q`` (6,) rad, checked like `move_to` (FK gives the target pose)."""
-        q = kin.check_q(q, "q")
+        """moveJ to joint positions ``q`` (6,) rad, checked like `move_to` (target pose by nominal FK)."""
+        try:
+            q = kin.check_q(q, "q")
+        except DeviceError as exc:
+            raise LimitViolationError(str(exc)) from None
         if q.shape != (6,):
             raise LimitViolationError(f"q must have shape (6,), got {q.shape}")
-        if np.any(q < self.config.joint_limits[:, 0]) or np.any(q > self.config.joint_limits[:, 1]):
-            raise LimitViolationError(f"q {np.round(q, 4).tolist()} is outside joint_min/joint_max")
-        return self.move_to(kin.forward(q, self.config.model), motion="joint")
+        return self.move_to(kin.forward(q, self.config.model), motion="joint", q_target=q)
 
     def _wait_settled(self, ctl, motion: str) -> RobotState:
         cfg = self.config

@@ -18,6 +18,7 @@ UR-10 arms", 2013): up to 8 solutions, each verified by forward kinematics.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -135,6 +136,17 @@ def _inv(T: np.ndarray) -> np.ndarray:
     return out
 
 
+def _dh1(theta: float, d: float, a: float, alpha: float) -> np.ndarray:
+    """One standard-DH link transform; scalar math because IK runs every control tick."""
+    ct, st = math.cos(theta), math.sin(theta)
+    ca, sa = math.cos(alpha), math.sin(alpha)
+    return np.array([[ct, -st * ca, st * sa, a * ct], [st, ct * ca, -ct * sa, a * st], [0.0, sa, ca, d], [0, 0, 0, 1.0]])
+
+
+def _clip1(x: float) -> float:
+    return -1.0 if x < -1.0 else 1.0 if x > 1.0 else x
+
+
 def inverse_all(T_base_flange, model: str | URGeometry, *, tol: float = 1e-7) -> np.ndarray:
     """All closed-form IK solutions of one flange pose, each wrapped to (-pi, pi].
 
@@ -156,45 +168,36 @@ def inverse_all(T_base_flange, model: str | URGeometry, *, tol: float = 1e-7) ->
     T = np.asarray(T_base_flange, dtype=float)
     if T.shape != (4, 4) or not np.isfinite(T).all():
         raise DeviceError(f"T_base_flange must be a finite (4, 4) array, got shape {T.shape}")
-    d, a = g.d, g.a
-    p05 = T @ np.array([0.0, 0.0, -d[5], 1.0])
-    r = np.hypot(p05[0], p05[1])
-    if r < abs(d[3]):
+    d1, a2, a3, d4, d5, d6 = g.d1, g.a2, g.a3, g.d4, g.d5, g.d6
+    (nx, ox, ax, px), (ny, oy, ay, py) = T[0].tolist(), T[1].tolist()
+    p05x, p05y = px - d6 * ax, py - d6 * ay
+    r = math.hypot(p05x, p05y)
+    if r < abs(d4):
         return np.zeros((0, 6))
-    psi = np.arctan2(p05[1], p05[0])
-    phi = np.arccos(np.clip(d[3] / r, -1.0, 1.0))
-    T60 = _inv(T)
+    psi = math.atan2(p05y, p05x)
+    phi = math.acos(_clip1(d4 / r))
     sols = []
-    for q1 in (psi + phi + np.pi / 2, psi - phi + np.pi / 2):
-        s1, c1 = np.sin(q1), np.cos(q1)
-        c5 = (T[0, 3] * s1 - T[1, 3] * c1 - d[3]) / d[5]
+    for q1 in (psi + phi + math.pi / 2, psi - phi + math.pi / 2):
+        s1, c1 = math.sin(q1), math.cos(q1)
+        c5 = (px * s1 - py * c1 - d4) / d6
         if abs(c5) > 1.0 + 1e-9:
             continue
-        for q5 in (np.arccos(np.clip(c5, -1, 1)), -np.arccos(np.clip(c5, -1, 1))):
-            s5 = np.sin(q5)
-            if abs(s5) < 1e-9:
-                q6 = 0.0
-            else:
-                q6 = np.arctan2(
-                    (-T60[1, 0] * s1 + T60[1, 1] * c1) / s5,
-                    (T60[0, 0] * s1 - T60[0, 1] * c1) / s5,
-                )
-            T01 = _dh(np.array(q1), d[0], a[0], _ALPHA[0])
-            T45 = _dh(np.array(q5), d[4], a[4], _ALPHA[4])
-            T56 = _dh(np.array(q6), d[5], a[5], _ALPHA[5])
-            T14 = _inv(T01) @ T @ _inv(T45 @ T56)
-            p13 = T14 @ np.array([0.0, -d[3], 0.0, 1.0])
-            n13 = np.hypot(p13[0], p13[1])
-            c3 = (n13**2 - a[1] ** 2 - a[2] ** 2) / (2 * a[1] * a[2])
+        T01_inv = _inv(_dh1(q1, d1, 0.0, math.pi / 2))
+        for q5 in (math.acos(_clip1(c5)), -math.acos(_clip1(c5))):
+            s5 = math.sin(q5)
+            # T60 entries are the transposed rotation of T: T60[1,0] = ox, T60[0,1] = ny.
+            q6 = 0.0 if abs(s5) < 1e-9 else math.atan2((-ox * s1 + oy * c1) / s5, (nx * s1 - ny * c1) / s5)
+            T14 = T01_inv @ T @ _inv(_dh1(q5, d5, 0.0, -math.pi / 2) @ _dh1(q6, d6, 0.0, 0.0))
+            x13 = T14[0, 3] - d4 * T14[0, 1]  # T14 @ [0, -d4, 0, 1]
+            y13 = T14[1, 3] - d4 * T14[1, 1]
+            n13 = math.hypot(x13, y13)
+            c3 = (n13 * n13 - a2 * a2 - a3 * a3) / (2 * a2 * a3)
             if abs(c3) > 1.0 + 1e-9:
                 continue
-            for q3 in (np.arccos(np.clip(c3, -1, 1)), -np.arccos(np.clip(c3, -1, 1))):
-                q2 = -np.arctan2(p13[1], -p13[0]) + np.arcsin(np.clip(a[2] * np.sin(q3) / n13, -1, 1))
-                T12 = _dh(np.array(q2), d[1], a[1], _ALPHA[1])
-                T23 = _dh(np.array(q3), d[2], a[2], _ALPHA[2])
-                T34 = _inv(T12 @ T23) @ T14
-                q4 = np.arctan2(T34[1, 0], T34[0, 0])
-                sols.append([q1, q2, q3, q4, q5, q6])
+            for q3 in (math.acos(_clip1(c3)), -math.acos(_clip1(c3))):
+                q2 = -math.atan2(y13, -x13) + math.asin(_clip1(a3 * math.sin(q3) / n13))
+                T34 = _inv(_dh1(q2, 0.0, a2, 0.0) @ _dh1(q3, 0.0, a3, 0.0)) @ T14
+                sols.append([q1, q2, q3, math.atan2(T34[1, 0], T34[0, 0]), q5, q6])
     if not sols:
         return np.zeros((0, 6))
     q = np.angle(np.exp(1j * np.asarray(sols)))  # wrap to (-pi, pi]
@@ -215,16 +218,16 @@ def inverse_nearest(T_base_flange, q_near, model: str | URGeometry, limits=UR_JO
     """
     q_near = check_q(q_near, "q_near")
     limits = np.asarray(limits, dtype=float)
-    best, best_cost = None, np.inf
-    for q in inverse_all(T_base_flange, model):
-        # Each joint: the 2-pi multiple nearest q_near among those inside the limits.
-        cand = q[None, :] + 2 * np.pi * np.arange(-2, 3)[:, None]
-        ok = (cand >= limits[:, 0]) & (cand <= limits[:, 1])
-        if not ok.any(axis=0).all():
-            continue
-        dist = np.where(ok, np.abs(cand - q_near), np.inf)
-        shifted = cand[np.argmin(dist, axis=0), np.arange(6)]
-        cost = np.max(np.abs(shifted - q_near))
-        if cost < best_cost:
-            best, best_cost = shifted, cost
-    return best
+    q = inverse_all(T_base_flange, model)
+    if len(q) == 0:
+        return None
+    # Each joint of each solution: the 2-pi multiple nearest q_near among those inside the limits.
+    cand = q[None] + 2 * np.pi * np.arange(-2, 3)[:, None, None]  # (5, K, 6)
+    ok = (cand >= limits[:, 0]) & (cand <= limits[:, 1])
+    dist = np.where(ok, np.abs(cand - q_near), np.inf)
+    k = np.argmin(dist, axis=0)  # (K, 6) best shift per joint
+    cost = np.take_along_axis(dist, k[None], axis=0)[0].max(axis=1)  # (K,)
+    i = int(np.argmin(cost))
+    if not np.isfinite(cost[i]):
+        return None
+    return np.take_along_axis(cand[:, i], k[i][None], axis=0)[0]
