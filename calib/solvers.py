@@ -132,11 +132,6 @@ def _mat(q: np.ndarray) -> np.ndarray:
     return Rotation.from_quat(q).as_matrix()
 
 
-def _vec(R: np.ndarray) -> np.ndarray:
-    """Column-major vec of (..., 3, 3) -> (..., 9)."""
-    return np.swapaxes(R, -1, -2).reshape(R.shape[:-2] + (9,))
-
-
 def _unvec(v: np.ndarray) -> np.ndarray:
     return v.reshape(3, 3).T
 
@@ -258,10 +253,10 @@ def _resign(qa: np.ndarray, qb: np.ndarray, qx: np.ndarray, qy: np.ndarray) -> t
 # ----------------------------------------------------- translation back-ends
 
 
-def _translation_xy(R_X, R_Y, A, B, A_robot) -> tuple[np.ndarray, np.ndarray]:
+def _translation_xy(R_X, R_Y, A, B) -> tuple[np.ndarray, np.ndarray]:
     """``t_X, t_Y`` from eq. 6: ``[R_A, -I][t_X; t_Y] = R_Y t_B - t_A`` (3N x 6 least squares)."""
     b = np.einsum("ij,nj->ni", R_Y, B[:, :3, 3]) - A[:, :3, 3]
-    x = _lstsq(_robot_translation_system(A), b.reshape(-1), "eq. 6 (translations)", A_robot)
+    x = _lstsq(_robot_translation_system(A), b.reshape(-1), "eq. 6 (translations)", A)
     return x[:3], x[3:]
 
 
@@ -488,7 +483,7 @@ def y_axis_r(A: np.ndarray, B: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     if changed:
         qx, qy = solve_xy(qa, qb)
     R_X, R_Y = _mat(qx), _mat(qy)
-    t_X, t_Y = _translation_xy(R_X, R_Y, A, B, A)
+    t_X, t_Y = _translation_xy(R_X, R_Y, A, B)
     return tf.make_transform(R_X, t_X), tf.make_transform(R_Y, t_Y)
 
 
@@ -514,7 +509,7 @@ def y_quat_r_star(A: np.ndarray, B: np.ndarray) -> tuple[np.ndarray, np.ndarray]
     if changed:
         qx, qy = top(qb)
     R_X, R_Y = _mat(qx), _mat(qy)
-    t_X, t_Y = _translation_xy(R_X, R_Y, A, B, A)
+    t_X, t_Y = _translation_xy(R_X, R_Y, A, B)
     return tf.make_transform(R_X, t_X), tf.make_transform(R_Y, t_Y)
 
 
@@ -540,7 +535,7 @@ def y_kron_rt(A: np.ndarray, B: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     b[:, 9:] = A[:, :3, 3]
     x = _lstsq(M.reshape(12 * n, 24), b.reshape(-1), "eq. 16 + 13 (Li)", A)
     R_X, R_Y = tf.project_to_so3(_unvec(x[:9])), tf.project_to_so3(_unvec(x[9:18]))
-    t_X, t_Y = _translation_xy(R_X, R_Y, A, B, A)
+    t_X, t_Y = _translation_xy(R_X, R_Y, A, B)
     return tf.make_transform(R_X, t_X), tf.make_transform(R_Y, t_Y)
 
 
