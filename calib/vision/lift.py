@@ -23,10 +23,14 @@ from dataclasses import dataclass
 
 import cv2
 import numpy as np
-from scipy.spatial.transform import Rotation
 
 from calib import transforms as tf
 from calib.errors import ConfigError, DepthError, MarkerNotFoundError
+
+
+def _rotvec_to_matrix(rv) -> np.ndarray:
+    # cv2.Rodrigues instead of scipy's Rotation: ~100x less call overhead, and this runs per frame.
+    return cv2.Rodrigues(np.asarray(rv, dtype=np.float64).reshape(3, 1))[0]
 
 
 def skew(v) -> np.ndarray:
@@ -138,7 +142,7 @@ def solve_pnp(image_points, object_points, K: np.ndarray, dist, *, square: bool)
         raise MarkerNotFoundError("PnP failed on the detected corners (degenerate geometry)")
     out = []
     for rv, t, e in zip(rvecs, tvecs, np.ravel(errs)):
-        T = tf.from_rotvec_translation(rv.ravel(), t.ravel())
+        T = tf.make_transform(_rotvec_to_matrix(rv), t.ravel())
         if T[2, 3] > 0:
             out.append((T, float(e)))
     if not out:
@@ -357,7 +361,7 @@ def refine_pose_with_depth(
     n = plane.normal if plane.normal @ z_pnp > 0 else -plane.normal
     axis = np.cross(z_pnp, n)
     s, c = np.linalg.norm(axis), float(z_pnp @ n)
-    R_align = np.eye(3) if s < 1e-12 else Rotation.from_rotvec(axis / s * np.arctan2(s, c)).as_matrix()
+    R_align = np.eye(3) if s < 1e-12 else _rotvec_to_matrix(axis / s * np.arctan2(s, c))
     R = R_align @ T_pnp[:3, :3]
     t = p_center - R @ center_target
     S = skew(n)

@@ -187,8 +187,17 @@ class OpenNI2Camera(Camera):
                 log.warning("OpenNI2 camera: frame sync not available (%s); pairing by timestamp only", e)
         self._depth = dev.create_depth_stream()
         self._color = dev.create_color_stream()
-        self._depth.set_video_mode(self._video_mode(self._depth, ni.PIXEL_FORMAT_DEPTH_1_MM))
-        self._color.set_video_mode(self._video_mode(self._color, ni.PIXEL_FORMAT_RGB888))
+        for stream, fmt in ((self._depth, ni.PIXEL_FORMAT_DEPTH_1_MM), (self._color, ni.PIXEL_FORMAT_RGB888)):
+            mode = self._video_mode(stream, fmt)
+            cur = stream.get_video_mode()
+            # Some drivers (e.g. the dummy device) cannot set a mode; fine if it is the one we want already.
+            if (cur.resolutionX, cur.resolutionY, cur.fps, cur.pixelFormat) != (
+                mode.resolutionX, mode.resolutionY, mode.fps, mode.pixelFormat
+            ):
+                try:
+                    stream.set_video_mode(mode)
+                except Exception as e:
+                    raise DeviceError(f"OpenNI2 camera: cannot set video mode {mode}: {e}") from None
         self._intr = self._load_intrinsics()
         self._depth.start()
         self._color.start()

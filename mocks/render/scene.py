@@ -230,7 +230,7 @@ class MarkerSceneRenderer:
         facing = float(R[:, 2] @ t) < 0  # marker z axis points back at the camera
         if facing:
             proj_px = self.intr.fx * self.plate_size / t[2]
-            n = int(np.clip(2 ** np.ceil(np.log2(max(proj_px, 1.0) * 2)), 64, 2048))
+            n = int(np.clip(2 ** np.ceil(np.log2(max(proj_px, 1.0))), 64, 2048))
             tex = self._texture(n)
             s = self.plate_size / n
             # Texture pixel centers (i, j) -> marker plane (x right, y up), then into the image.
