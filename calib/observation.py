@@ -32,7 +32,7 @@ class Observation:
         Robot flange pose in the base frame at time ``t`` (m).
     point_cam : ndarray, shape (3,), or None
         Marker center in the camera frame (m); the only input the point-only
-        solvers (YKronT', XKronT) need.
+        solver YKronT' needs.
     point_cov : ndarray, shape (3, 3), or None
         Covariance of ``point_cam`` (m^2).
     T_cam_marker : ndarray, shape (4, 4), or None

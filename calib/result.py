@@ -49,9 +49,9 @@ class CalibrationResult:
 
     ``X`` and ``Y`` are the paper's unknowns. Eye-to-hand: ``X = T_flange_marker``,
     ``Y = T_base_cam``. Eye-in-hand: ``X = T_flange_cam``, ``Y = T_base_marker``.
-    A point-only method (YKronT', XKronT) recovers only the translation of the
+    The point-only method (YKronT') recovers only the translation of the
     marker-side transform and reports identity for its rotation
-    (``x_rotation_known`` / ``marker_rotation_known`` is False).
+    (``marker_rotation_known`` is False).
     """
 
     method: str

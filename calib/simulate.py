@@ -188,8 +188,11 @@ def realistic_cell(
 
     points_true = B_true[:, :3, 3]
     cov = point_covariance(points_true, sigma_lateral, sigma_depth)
-    L = np.linalg.cholesky(cov)
-    points = points_true + np.einsum("nij,nj->ni", L, rng.normal(size=(n, 3)))
+    # Split white noise into its along-ray and across-ray parts (no Cholesky: sigmas may be zero).
+    ray = points_true / np.linalg.norm(points_true, axis=1, keepdims=True)
+    white = rng.normal(size=(n, 3))
+    along = np.sum(white * ray, axis=1, keepdims=True) * ray
+    points = points_true + sigma_depth * along + sigma_lateral * (white - along)
 
     def gaussian_noise(sig):
         rv = rng.normal(scale=sig[0], size=(n, 3)) if sig[0] > 0 else np.zeros((n, 3))

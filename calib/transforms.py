@@ -153,7 +153,10 @@ def rotation_angle(R) -> np.ndarray:
     """Rotation angle(s) in rad of rotation matrix (matrices) (..., 3, 3)."""
     R = np.asarray(R, dtype=float)
     c = (np.trace(R, axis1=-2, axis2=-1) - 1.0) / 2.0
-    return np.arccos(np.clip(c, -1.0, 1.0))
+    # atan2 of sine and cosine keeps precision at small angles, where arccos loses half the digits.
+    skew = np.stack([R[..., 2, 1] - R[..., 1, 2], R[..., 0, 2] - R[..., 2, 0], R[..., 1, 0] - R[..., 0, 1]], axis=-1)
+    s = np.linalg.norm(skew, axis=-1) / 2.0
+    return np.arctan2(s, c)
 
 
 def pose_error(T_est, T_true) -> tuple[np.ndarray, np.ndarray]:
