@@ -1,6 +1,8 @@
 """industrial_calibration importer: layout, skips and errors (real images from tests/data/circle_grid)."""
 
 import shutil
+import subprocess
+import sys
 from pathlib import Path
 
 import cv2
@@ -79,9 +81,6 @@ def test_errors_name_the_field_or_file(small_set):
 
 
 def test_formats_import_neither_rerun_nor_drivers():
-    import subprocess
-    import sys
-
     code = ("import sys, app.formats, app.formats.industrial, app.formats.pose_csv, app.formats.easy_handeye; "
             "print(sorted({m.split('.')[0] for m in sys.modules} & {'rerun', 'drivers', 'mocks'}))")
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout
