@@ -136,6 +136,13 @@ class SimProcess:
         return False
 
 
+def _die_with_parent() -> None:
+    # Linux prctl(PR_SET_PDEATHSIG, SIGTERM): a crashed test run leaves no simulator holding the ports.
+    import ctypes
+
+    ctypes.CDLL("libc.so.6", use_errno=True).prctl(1, signal.SIGTERM)
+
+
 def launch(host: str = "127.0.0.1", model: str = "ur10", controller: str = "5.11", initial_q=None,
            tcp_offset=None, timeout: float = 15.0) -> SimProcess:
     """Start ``python -m mocks.ur_sim`` and wait until its ports accept connections.
@@ -151,7 +158,8 @@ def launch(host: str = "127.0.0.1", model: str = "ur10", controller: str = "5.11
         cmd += ["--initial-q", *[f"{x:.12g}" for x in initial_q]]
     if tcp_offset is not None:
         cmd += ["--tcp-offset", *[f"{x:.12g}" for x in tcp_offset]]
-    proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                            preexec_fn=_die_with_parent if sys.platform == "linux" else None)
     ready: list[str] = []
     reader = threading.Thread(target=lambda: ready.append(proc.stdout.readline()), daemon=True)
     reader.start()

@@ -336,12 +336,13 @@ class SimServer:
 
     def drop_all(self, refuse_s: float) -> None:
         """Fault: every connection drops; the ports refuse connections for ``refuse_s``."""
+        # refuse_until first: the control loop reopens closed listeners once it has passed.
+        self.refuse_until = time.monotonic() + refuse_s
+        self.close_listeners()
         with self.conns_lock:
             conns = list(self.conns)
-        self.close_listeners()
         for c in conns:
             c.close()
-        self.refuse_until = time.monotonic() + refuse_s
 
     # ------------------------------------------------------------ dashboard
     def _serve_dashboard(self, conn: Connection) -> None:

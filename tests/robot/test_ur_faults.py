@@ -1,0 +1,92 @@
+"""Faults injected in the simulated controller (127.0.3.2) surface as the
+documented errors through ur_rtde and URRobot, and reconnect() recovers."""
+
+import threading
+import time
+
+import numpy as np
+import pytest
+
+from calib.errors import ConnectionLostError, DeviceError, RobotStoppedError
+from tests.robot.conftest import START_Q, connect_robot, robot_config
+
+HOST = "127.0.3.2"
+
+
+@pytest.fixture(scope="module")
+def sim(sim_factory):
+    return sim_factory(HOST, controller="5.11")
+
+
+@pytest.fixture(scope="module")
+def robot(sim):
+    r = connect_robot(robot_config(HOST))
+    yield r
+    r.disconnect()
+
+
+def _moved(robot, dx=0.05):
+    T = robot.read().T_base_flange.copy()
+    T[0, 3] += dx
+    return T
+
+
+def test_protective_stop_during_a_move_raises_robot_stopped_then_recovers(robot, sim):
+    target = _moved(robot, 0.3)
+    timer = threading.Timer(0.4, sim.protective_stop)
+    timer.start()
+    with pytest.raises(RobotStoppedError, match="protective stop"):
+        robot.move_to(target)
+    timer.join()
+    st = robot.read()
+    assert st.safety_mode == 3 and st.is_still
+    # still stopped: refused without sending anything
+    sim.clear_log()
+    with pytest.raises(RobotStoppedError):
+        robot.move_to(target)
+    assert sim.state()["commands"] == []
+    sim.unlock_protective_stop()
+    time.sleep(0.05)  # let the next state package arrive
+    with pytest.raises(DeviceError, match="reconnect"):
+        robot.move_to(target)  # the safety stop ended the control script
+    robot.reconnect()
+    st = robot.move_to(target)
+    np.testing.assert_allclose(st.T_base_flange, target, atol=1e-6)
+
+
+def test_emergency_stop_raises_robot_stopped(robot, sim):
+    sim.command("sim emergency_stop")
+    time.sleep(0.05)
+    try:
+        with pytest.raises(RobotStoppedError, match="emergency"):
+            robot.move_to(_moved(robot))
+    finally:
+        sim.command("sim release")
+    robot.reconnect()
+
+
+def test_dropped_connection_raises_connection_lost_then_reconnects(robot, sim):
+    sim.drop(refuse_s=0.5)
+    time.sleep(0.1)
+    with pytest.raises(ConnectionLostError, match="dropped"):
+        robot.read()
+    with pytest.raises(ConnectionLostError):
+        robot.move_to(_moved(robot))
+    time.sleep(0.5)
+    robot.reconnect()
+    t0 = robot.read().t_controller
+    time.sleep(0.1)
+    assert robot.read().t_controller > t0
+
+
+def test_frozen_stream_raises_connection_lost_then_reconnects(robot, sim):
+    robot.read()
+    sim.freeze(0.6)
+    time.sleep(0.4)  # > frozen_timeout (0.25 s), < ur_rtde's own 2.5 s read deadline
+    with pytest.raises(ConnectionLostError, match="frozen"):
+        robot.read()
+    time.sleep(0.3)
+    robot.reconnect()
+    st = robot.move_to(_moved(robot))
+    assert st.is_still
+    np.testing.assert_allclose(robot.read().q[3:], START_Q[3:], atol=0.5)
