@@ -65,13 +65,13 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--samples", type=int, help="number of samples (default from the config)")
     p.add_argument("--seed", type=int, help="seed of the random poses")
 
-    p = sub.add_parser("sim-robot", help="run the simulated UR controller (RTDE) in the foreground")
-    p.add_argument("args", nargs=argparse.REMAINDER, help="arguments for mocks.ur_sim (--host, --model, --controller)")
+    sub.add_parser("sim-robot", help="run the simulated UR controller (RTDE) in the foreground; "
+                   "other arguments go to mocks.ur_sim (--host 127.0.0.x, --model ur10, --controller 5.11)")
 
-    p = sub.add_parser("bench", help="run the benchmarks (markdown tables, PNGs in out/bench/)")
+    p = sub.add_parser("bench", help="run the benchmarks (markdown tables, PNGs in out/bench/); "
+                       "other arguments go to bench.solvers")
     p.add_argument("--vision", action="store_true", help="also run the vision benchmark")
     p.add_argument("--robot", action="store_true", help="also run the robot benchmark")
-    p.add_argument("args", nargs=argparse.REMAINDER, help="arguments for bench.solvers")
     return parser
 
 
@@ -179,13 +179,13 @@ def cmd_demo(args) -> int:
 def cmd_sim_robot(args) -> int:
     from mocks import ur_sim
 
-    return int(ur_sim.main(args.args) or 0)
+    return int(ur_sim.main(args.extra) or 0)
 
 
 def cmd_bench(args) -> int:
     from bench import solvers
 
-    rc = int(solvers.main(args.args) or 0)
+    rc = int(solvers.main(args.extra) or 0)
     if args.vision:
         from bench import vision
 
@@ -197,13 +197,19 @@ def cmd_bench(args) -> int:
     return rc
 
 
+# Commands whose unknown arguments are handed on to the program they delegate to.
+PASSTHROUGH = ("sim-robot", "bench")
+
 COMMANDS = {"calibrate": cmd_calibrate, "monitor": cmd_monitor, "replay": cmd_replay, "demo": cmd_demo,
             "sim-robot": cmd_sim_robot, "bench": cmd_bench}
 
 
 def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
-    args = parser.parse_args(argv)
+    args, extra = parser.parse_known_args(argv)
+    if extra and args.command not in PASSTHROUGH:
+        parser.error(f"unrecognized arguments: {' '.join(extra)}")
+    args.extra = extra
     logging.basicConfig(level=logging.WARNING - 10 * min(args.verbose, 2),
                         format="%(asctime)s %(levelname)s %(name)s: %(message)s")
     t0 = time.monotonic()
