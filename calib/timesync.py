@@ -225,6 +225,7 @@ def estimate_clock_offset(
         raise InsufficientDataError("stream b does not rotate: its angular speed carries no timing information")
     # Stream a once on a grid widened by the lag range; each lag is then a slice.
     grid_a = grid[0] + np.arange(-n_lag, len(grid) + n_lag) * resolution
+    # By construction inside stream a's span; the clip only absorbs floating-point rounding at the ends.
     grid_a = np.clip(grid_a, t_a[0], t_a[-1])
     sa_all = angular_speed(t_a, T_a, grid_a, baseline=baseline)
     lags = np.arange(-n_lag, n_lag + 1)

@@ -87,6 +87,21 @@ def test_easy_handeye_files(result, tmp_path):
     _close(tf.from_xyz_quat([t["x"], t["y"], t["z"]], [r["x"], r["y"], r["z"], r["w"]]), result)
 
 
+def test_easy_handeye_parameter_names_match_the_tools(result, tmp_path):
+    """The tools build their parameter classes with **parameters: every key must be one of their fields."""
+    ros1 = yaml.safe_load(write_result(result, tmp_path / "eh.yaml", fmt="easy_handeye").read_text())
+    # easy_handeye HandeyeCalibrationParameters.__init__ arguments (IFL-CAMP/easy_handeye).
+    assert set(ros1["parameters"]) == {"namespace", "move_group_namespace", "move_group", "eye_on_hand",
+                                       "robot_base_frame", "robot_effector_frame", "tracking_base_frame",
+                                       "tracking_marker_frame"}
+    ros2 = yaml.safe_load(write_result(result, tmp_path / "eh.calib", fmt="easy_handeye2").read_text())
+    # easy_handeye2 HandeyeCalibrationParameters dataclass fields, as in its tests/data/*.calib.
+    assert set(ros2["parameters"]) == {"name", "calibration_type", "robot_base_frame", "robot_effector_frame",
+                                       "tracking_base_frame", "tracking_marker_frame", "freehand_robot_movement",
+                                       "move_group_namespace", "move_group"}
+    assert set(ros2["transform"]) == {"translation", "rotation"}
+
+
 def test_urdf_joint(result, tmp_path):
     root = ET.parse(write_result(result, tmp_path / "j.urdf", fmt="urdf", frames=FRAMES)).getroot()
     assert root.tag == "joint" and root.get("type") == "fixed"
