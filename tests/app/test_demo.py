@@ -1,0 +1,73 @@
+"""The full loop on the simulated cell: real ur_rtde client -> mocks.ur_sim, rendered frames, YKronT'."""
+
+import numpy as np
+import pytest
+
+from app import devices
+from app.config import Config, load_config
+from app.runner import calibrate, demo
+from app.session import read_session
+from calib import transforms as tf
+from calib.errors import ConfigError
+
+pytestmark = pytest.mark.slow
+
+
+def test_sim_toml_is_the_embedded_default():
+    assert load_config("config/sim.toml") == Config()
+
+
+def test_demo_recovers_true_camera_pose(sim_config):
+    """Reduced sample count; the shipped demo takes 20 (see docs/usage.md for its figures)."""
+    cfg = sim_config("127.0.4.1", samples=12)
+    out = demo(cfg, progress=False)
+    res = out.report.result
+    assert out.report.n_samples == 12 and res.method.startswith("YKronT'") and res.setup == "eye_to_hand"
+    rot, trans = tf.pose_error(res.T_base_cam, out.truth)
+    assert trans < 3e-3 and np.rad2deg(rot) < 0.2, (trans, np.rad2deg(rot))
+    # everything was recorded: samples, frames, result files, rerun recording
+    session = read_session(out.report.session)
+    assert len(session.observations) == 12
+    color, depth = session.load_frames(session.observations[0])
+    assert color.shape == (480, 640, 3) and depth.max() > 0.3
+    np.testing.assert_allclose(session.truth["T_base_cam"], out.truth)
+    for name in ("result.yaml", "result.json", "handeye.calib", "recording.rrd"):
+        assert (out.report.session / name).stat().st_size > 0, name
+    assert "T_base_cam" in (out.report.session / "result.yaml").read_text()
+
+
+def test_demo_refuses_hardware_config():
+    cfg = load_config("config/ur10_xtion_eye_to_hand.toml")
+    with pytest.raises(ConfigError, match="simulated cell"):
+        demo(cfg)
+
+
+def test_eye_in_hand_config_runs_on_the_simulator(sim_config):
+    cfg = sim_config("127.0.4.2", base=load_config("config/eye_in_hand.toml"), samples=8, min_samples=6)
+    out = calibrate(dataclasses_replace_viz_off(cfg), progress=False)
+    res = out.report.result
+    assert res is not None and res.setup == "eye_in_hand"
+    rot, trans = tf.pose_error(res.T_flange_cam, out.truth)
+    assert trans < 5e-3 and np.rad2deg(rot) < 0.5, (trans, np.rad2deg(rot))
+
+
+def test_hardware_config_runs_against_simulators(sim_config):
+    """The UR10 + Xtion config with its robot and camera swapped for the simulated ones:
+    every other section (marker, calibrate with robust + target sigma, session, viz) as shipped."""
+    hw = load_config("config/ur10_xtion_eye_to_hand.toml")
+    devices.validate(hw)
+    sim = load_config(None)
+    import dataclasses
+
+    cfg = dataclasses.replace(hw, robot=sim.robot, camera=sim.camera)
+    cfg = sim_config("127.0.4.3", base=cfg, samples=10, min_samples=8, settle_s=0.05)
+    out = calibrate(dataclasses_replace_viz_off(cfg), progress=False)
+    assert out.report.result is not None and out.report.n_samples >= 8
+    rot, trans = tf.pose_error(out.report.result.T_base_cam, out.truth)
+    assert trans < 5e-3 and np.rad2deg(rot) < 0.5
+
+
+def dataclasses_replace_viz_off(cfg):
+    import dataclasses
+
+    return dataclasses.replace(cfg, viz=dataclasses.replace(cfg.viz, enabled=False))
