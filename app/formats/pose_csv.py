@@ -209,7 +209,8 @@ def load_pose_streams(path, **overrides) -> ImportedSamples:
         One observation per kept camera sample, ``t`` on the robot clock;
         ``meta`` holds ``clock_offset_s`` (used), ``clock_offset_xcorr_s`` and
         ``xcorr_score`` (angular-speed correlation), ``clock_offset_refined_s``
-        and ``refine_rms_mm`` if refined, and row counts.
+        and ``refine_rms_mm`` if refined, row counts and ``n_paired`` (camera
+        samples inside the robot stream, before ``stride``).
     """
     path = Path(path)
     if path.is_dir():
@@ -242,11 +243,11 @@ def load_pose_streams(path, **overrides) -> ImportedSamples:
         t, A_p, B_p, idx = timesync.pair_streams(t_a, A, t_b, B, offset, max_gap=cfg.max_gap)
     except HandeyeError as e:
         raise SessionError(f"{path}: {e}") from e
-    sel = slice(None, None, cfg.stride)
-    t, A_p, B_p, idx = t[sel], A_p[sel], B_p[sel], idx[sel]
     if len(t) == 0:
         raise SessionError(f"{path}: no camera sample overlaps the robot stream at offset {offset:+.3f} s")
     meta.update(clock_offset_s=offset, n_paired=len(t))
+    sel = slice(None, None, cfg.stride)
+    t, A_p, B_p, idx = t[sel], A_p[sel], B_p[sel], idx[sel]
     log.info("%s: clock offset %+.4f s, %d of %d camera samples paired", path, offset, len(t), len(t_b))
     obs = [
         Observation(index=i, t=float(t[i] + offset), T_base_flange=A_p[i], point_cam=B_p[i, :3, 3].copy(),

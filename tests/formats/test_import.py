@@ -154,11 +154,15 @@ def test_pose_streams_offset_estimated_and_reported(tmp_path):
     # Noise-free streams: only interpolation error remains once paired at the right offset.
     assert res.residuals.rms_translation < 5e-4
     assert np.linalg.norm(res.X[:3, 3] - X[:3, 3]) < 2e-3
+    thinned = load(tmp_path, stride=4, refine=False)
+    assert len(thinned.observations) == -(-thinned.meta["n_paired"] // 4)    # every 4th paired sample
     # A fixed offset skips estimation; a wrong one shows in the residual.
     wrong = load(tmp_path, clock_offset=0.0)
     assert "clock_offset_xcorr_s" not in wrong.meta and wrong.meta["clock_offset_s"] == 0.0
     res0 = solve("YKronT'", wrong.A, [o.point_cam for o in wrong.observations], setup="eye_in_hand")
     assert res0.residuals.rms_translation > 5 * res.residuals.rms_translation
+    with pytest.raises(SessionError, match="no camera sample overlaps"):
+        load(tmp_path, clock_offset=1000.0)
 
 
 def test_pose_csv_errors_name_line_and_field(tmp_path):
