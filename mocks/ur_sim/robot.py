@@ -10,6 +10,8 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+import numpy as np
+
 from calib.errors import ConfigError
 from drivers.robot.ur import URRobot, URRobotConfig
 from mocks.ur_sim import SimProcess, launch
@@ -40,10 +42,19 @@ class URSimRobotConfig(URRobotConfig):
             parse_version(self.controller)
         except ValueError as exc:
             raise ConfigError(f"URSimRobotConfig.controller: {exc}") from None
-        if self.initial_q is not None and len(self.initial_q) != 6:
-            raise ConfigError(f"URSimRobotConfig.initial_q must be 6 joint angles (rad), got {self.initial_q!r}")
-        if len(self.sim_tcp_offset) != 6:
-            raise ConfigError(f"URSimRobotConfig.sim_tcp_offset must be 6 numbers, got {self.sim_tcp_offset!r}")
+        if self.initial_q is not None:
+            self.initial_q = _six(self.initial_q, "initial_q")
+        self.sim_tcp_offset = _six(self.sim_tcp_offset, "sim_tcp_offset")
+
+
+def _six(value, name: str) -> tuple[float, ...]:
+    try:
+        arr = np.asarray(value, dtype=float)
+    except (TypeError, ValueError):
+        arr = np.zeros(0)
+    if arr.shape != (6,) or not np.isfinite(arr).all():
+        raise ConfigError(f"URSimRobotConfig.{name} must be 6 finite numbers, got {value!r}")
+    return tuple(float(x) for x in arr)
 
 
 class URSimRobot(URRobot):

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from calib.errors import ConnectionLostError, DeviceError, RobotStoppedError
-from tests.robot.conftest import START_Q, connect_robot, robot_config
+from .conftest import START_Q, connect_robot, robot_config
 
 HOST = "127.0.3.2"
 

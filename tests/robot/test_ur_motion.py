@@ -10,7 +10,7 @@ import pytest
 from calib.errors import DeviceError, LimitViolationError
 from calib.transforms import from_ur_pose, make_transform, pose_error
 from drivers.robot import ur_kinematics as kin
-from tests.robot.conftest import SIM_TCP, START_Q, connect_robot, robot_config, truth_flange
+from .conftest import SIM_TCP, START_Q, connect_robot, robot_config, truth_flange
 
 HOST = "127.0.3.1"
 

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from calib.errors import DeviceError
-from tests.robot.conftest import SIM_TCP, connect_robot, robot_config, truth_flange
+from .conftest import SIM_TCP, connect_robot, robot_config, truth_flange
 
 HOST = "127.0.3.3"
 
