@@ -85,11 +85,15 @@ def take_sample(
     *,
     not_before: float,
     save_frames: bool = True,
+    check: Callable[[], str | None] | None = None,
 ) -> Observation | None:
     """Capture one time-synchronised sample and record it (or its skip reason).
 
     The robot pose is interpolated at the frame's exposure time
     (``robot.pose_at(frame.t)``), not read after the fact.
+
+    ``check``, if given, is called after the measurement; a returned string is
+    a reason to skip the sample (e.g. the robot moved during the exposure).
 
     Returns
     -------
@@ -102,12 +106,14 @@ def take_sample(
     color, depth = (frame.color, frame.depth) if save_frames else (None, None)
     try:
         m = measure(frame)
+        reason = check() if check is not None else None
     except ExtractionError as e:
-        log.info("frame %d skipped: %s", frame.index, e)
+        reason = str(e)
+    if reason is not None:
+        log.info("frame %d skipped: %s", frame.index, reason)
         viz.frame(frame.t, frame.color, frame.depth, frame.intrinsics)
-        viz.event(frame.t, f"skip: {e}", "WARN")
-        writer.add_skip(frame.t, str(e), T_base_flange=T_base_flange, color=color, depth=depth,
-                        error=type(e).__name__)
+        viz.event(frame.t, f"skip: {reason}", "WARN")
+        writer.add_skip(frame.t, reason, T_base_flange=T_base_flange, color=color, depth=depth)
         return None
     viz.frame(frame.t, frame.color, frame.depth, frame.intrinsics, marker_px=m.pixel)
     meta = {"frame_index": frame.index, **m.meta}

@@ -164,13 +164,13 @@ def run_monitor(
                 writer.add_skip(state.t_host, "near-duplicate of a recent pose", T_base_flange=T)
                 report.n_skipped += 1
                 continue
-            obs = take_sample(robot, camera, measure, writer, viz, not_before=still_since, save_frames=save_frames)
+            # The robot may leave during the exposure: frame and interpolated pose could then disagree.
+            obs = take_sample(robot, camera, measure, writer, viz, not_before=still_since, save_frames=save_frames,
+                              check=lambda T=T: None if _same_pose(robot.read().T_base_flange, T)
+                              else "robot moved during the capture")
             if obs is None:
                 report.n_skipped += 1
                 continue
-            if not _same_pose(robot.read().T_base_flange, T):
-                # The robot left during the exposure: frame and interpolated pose may disagree.
-                writer.add_event(obs.t, "moved_during_capture", sample_index=obs.index)
             recent.append(obs.T_base_flange)
             report.n_samples += 1
             if on_sample is not None:

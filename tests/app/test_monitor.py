@@ -1,0 +1,80 @@
+"""monitor: passive sampling through a read-only robot connection flags a bumped camera."""
+
+import dataclasses
+import threading
+import time
+
+import numpy as np
+import pytest
+
+from app import devices
+from app.calibrate import random_pose
+from app.monitor import run_monitor
+from app.runner import make_solve, make_viz
+from app.session import SessionWriter, read_session
+from calib import transforms as tf
+from calib.errors import DeviceError
+from drivers.robot import ur_kinematics as kin
+
+pytestmark = pytest.mark.slow
+
+BUMP_AT = 16  # samples before the camera is knocked
+
+
+def _mover(sim, start_T, start_q, cal_cfg, stop, rng):
+    """Someone else's program moving the robot: jump to a random pose every few tenths of a second."""
+    while not stop.is_set():
+        q = kin.inverse_nearest(random_pose(start_T, cal_cfg, rng), start_q, "ur10")
+        if q is not None:
+            sim.set_q(q)
+        stop.wait(0.35)
+
+
+def test_monitor_flags_camera_bump(sim_config, tmp_path):
+    cfg = sim_config("127.0.4.5")
+    cfg = dataclasses.replace(cfg, monitor=dataclasses.replace(
+        cfg.monitor, still_s=0.05, poll_s=0.01, max_samples=BUMP_AT + 14, duration_s=90.0, reestimate_samples=8,
+        alarm_hook=f"touch {tmp_path / 'hook-ran'}",
+        online={"bootstrap": 6, "warmup": 4, "detector": {"window": 6}}))
+    rng = np.random.default_rng(5)
+    stop = threading.Event()
+    with devices.open_robot(cfg, read_only=True) as robot, devices.open_camera(cfg, robot) as camera:
+        with pytest.raises(DeviceError):  # read-only really means read-only
+            robot.move_to(robot.read().T_base_flange)
+        T_true = np.array(camera.config.T_base_cam)
+        # 1 cm and 1 degree: a camera knocked on its tripod.
+        T_bumped = tf.from_rotvec_translation([0.0, np.deg2rad(1.0), 0.0], [0.01, 0.0, 0.0]) @ T_true
+        n_seen = []
+
+        def on_sample(obs):
+            n_seen.append(obs.index)
+            if len(n_seen) == BUMP_AT:
+                camera.config.T_base_cam = T_bumped.tolist()
+
+        mover = threading.Thread(target=_mover, args=(robot.sim, robot.read().T_base_flange,
+                                                      np.array(cfg.robot["initial_q"]), cfg.calibrate, stop, rng))
+        mover.start()
+        try:
+            writer = SessionWriter.create(cfg.session.root, cfg.setup, truth=devices.truth(camera))
+            with writer, make_viz(cfg, writer.path) as viz:
+                report = run_monitor(robot, camera, devices.make_measure(cfg), devices.make_online(cfg),
+                                     make_solve(cfg.calibrate, cfg.setup, rng), writer, cfg.monitor, cfg.setup,
+                                     viz, on_sample=on_sample)
+        finally:
+            stop.set()
+            mover.join()
+
+    assert len(report.alarms) == 1, report.alarms
+    alarm = report.alarms[0]
+    first_after_bump = n_seen[BUMP_AT]  # session index of the first sample rendered with the bumped camera
+    assert first_after_bump <= alarm.sample_index <= first_after_bump + 6
+    assert (tmp_path / "hook-ran").exists()
+    # re-estimated from post-move samples only: finds the bumped camera, not the old one
+    assert report.reestimate is not None
+    rot, trans = tf.pose_error(report.reestimate.T_base_cam, T_bumped)
+    assert trans < 4e-3 and np.rad2deg(rot) < 0.4, (trans, np.rad2deg(rot))
+    session = read_session(report.session)
+    assert [e["event"] for e in session.events][:1] == ["alarm"]
+    assert any(e["event"] == "reestimate" for e in session.events)
+    assert len(session.observations) == report.n_samples
+    assert (report.session / "recording.rrd").exists()
