@@ -72,6 +72,12 @@ def check_stream(t, T, name: str = "stream") -> tuple[np.ndarray, np.ndarray]:
     return t, T
 
 
+def _gap_free(tq: np.ndarray, t: np.ndarray, max_gap: float) -> np.ndarray:
+    """Whether each query time's two neighbouring samples are at most ``max_gap`` apart."""
+    hi = np.clip(np.searchsorted(t, tq, side="left"), 1, len(t) - 1)
+    return (t[hi] - t[hi - 1]) <= max_gap
+
+
 def interpolate_poses(t_query, t, T, *, max_gap: float | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Poses of a stream at other times: SLERP rotation, linear translation.
 
@@ -100,8 +106,7 @@ def interpolate_poses(t_query, t, T, *, max_gap: float | None = None) -> tuple[n
         raise CalibrationError(f"t_query must be finite with shape (M,), got shape {tq.shape}")
     valid = (tq >= t[0]) & (tq <= t[-1])
     if max_gap is not None:
-        hi = np.clip(np.searchsorted(t, tq, side="left"), 1, len(t) - 1)
-        valid &= (t[hi] - t[hi - 1]) <= max_gap
+        valid &= _gap_free(tq, t, max_gap)
     out = np.broadcast_to(np.eye(4), (len(tq), 4, 4)).copy()
     if valid.any():
         tv = tq[valid]
@@ -111,7 +116,7 @@ def interpolate_poses(t_query, t, T, *, max_gap: float | None = None) -> tuple[n
     return out, valid
 
 
-def angular_speed(t, T, grid, *, baseline: float) -> np.ndarray:
+def angular_speed(t, T, grid, *, baseline: float, max_gap: float | None = None) -> np.ndarray:
     """Angular speed of a stream on a uniform time grid, over a finite baseline.
 
     Parameters
@@ -124,6 +129,10 @@ def angular_speed(t, T, grid, *, baseline: float) -> np.ndarray:
     baseline : float
         Time span (s) over which the rotation angle is measured; rounded to a
         whole number of grid steps (at least one).
+    max_gap : float, optional
+        Where either end of a baseline falls into a gap of the stream longer
+        than this (s), the speed is NaN: interpolating across a dropout would
+        invent a smooth motion.
 
     Returns
     -------
@@ -143,7 +152,11 @@ def angular_speed(t, T, grid, *, baseline: float) -> np.ndarray:
     if not valid.all():
         raise CalibrationError("angular_speed: grid extends outside the stream's time span")
     R = T_g[:, :3, :3]
-    return tf.rotation_angle(np.swapaxes(R[:-m], -1, -2) @ R[m:]) / (m * step)
+    omega = tf.rotation_angle(np.swapaxes(R[:-m], -1, -2) @ R[m:]) / (m * step)
+    if max_gap is not None:
+        ok = _gap_free(grid, t, max_gap)
+        omega[~(ok[:-m] & ok[m:])] = np.nan
+    return omega
 
 
 @dataclass(frozen=True)
@@ -167,7 +180,8 @@ class ClockOffset:
 
 
 def estimate_clock_offset(
-    t_a, T_a, t_b, T_b, *, max_offset: float = 1.0, resolution: float = 0.005, baseline: float = 0.3
+    t_a, T_a, t_b, T_b, *, max_offset: float = 1.0, resolution: float = 0.005, baseline: float = 0.3,
+    max_gap: float | None = None,
 ) -> ClockOffset:
     """Clock offset between two streams by correlating their angular speeds.
 
@@ -191,6 +205,9 @@ def estimate_clock_offset(
         Span (s) of the finite difference giving the angular speed. On the
         ETH robot_arm recording (30 Hz camera poses) 0.3 s lifts the peak
         correlation from 0.1 (frame-to-frame) to 0.97.
+    max_gap : float, optional
+        Leave out of the correlation the baselines that touch a gap longer
+        than this (s) in either stream (e.g. marker out of view).
 
     Returns
     -------
@@ -219,23 +236,26 @@ def estimate_clock_offset(
             f"streams overlap for {max(hi - lo, 0.0):.3f} s after allowing +-{max_offset} s of offset; "
             f"need more than {2 * baseline:.2f} s"
         )
-    sb = angular_speed(t_b, T_b, grid, baseline=baseline)
-    sb = sb - sb.mean()
-    if np.linalg.norm(sb) < 1e-12:
+    sb = angular_speed(t_b, T_b, grid, baseline=baseline, max_gap=max_gap)
+    vb = np.isfinite(sb)
+    if vb.sum() < 10 or np.nanstd(sb) < 1e-12:
         raise InsufficientDataError("stream b does not rotate: its angular speed carries no timing information")
     # Stream a once on a grid widened by the lag range; each lag is then a slice.
     grid_a = grid[0] + np.arange(-n_lag, len(grid) + n_lag) * resolution
     # By construction inside stream a's span; the clip only absorbs floating-point rounding at the ends.
     grid_a = np.clip(grid_a, t_a[0], t_a[-1])
-    sa_all = angular_speed(t_a, T_a, grid_a, baseline=baseline)
+    sa_all = angular_speed(t_a, T_a, grid_a, baseline=baseline, max_gap=max_gap)
     lags = np.arange(-n_lag, n_lag + 1)
-    scores = np.empty(len(lags))
-    nb = np.linalg.norm(sb)
+    scores = np.full(len(lags), -1.0)
     for i, lag in enumerate(lags):
         sa = sa_all[lag + n_lag : lag + n_lag + len(sb)]
-        sa = sa - sa.mean()
-        na = np.linalg.norm(sa)
-        scores[i] = float(sa @ sb / (na * nb)) if na > 1e-12 else -1.0
+        v = vb & np.isfinite(sa)
+        if v.sum() < 10:
+            continue
+        x, y = sa[v] - sa[v].mean(), sb[v] - sb[v].mean()
+        denom = np.linalg.norm(x) * np.linalg.norm(y)
+        if denom > 1e-12:
+            scores[i] = float(x @ y / denom)
     i = int(np.argmax(scores))
     offset = lags[i] * resolution
     if 0 < i < len(lags) - 1:

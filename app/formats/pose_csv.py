@@ -228,7 +228,7 @@ def load_pose_streams(path, **overrides) -> ImportedSamples:
             "n_robot_rows": len(t_a), "n_camera_rows": len(t_b), "time": "robot clock, s"}
     try:
         if cfg.clock_offset == "estimate":
-            est = timesync.estimate_clock_offset(t_a, A, t_b, B, max_offset=cfg.max_offset)
+            est = timesync.estimate_clock_offset(t_a, A, t_b, B, max_offset=cfg.max_offset, max_gap=cfg.max_gap)
             offset = est.offset
             meta.update(clock_offset_xcorr_s=est.offset, xcorr_score=est.score)
             if cfg.refine:

@@ -90,3 +90,17 @@ def test_bad_streams_are_named():
     t = np.arange(200) * 0.05
     with pytest.raises(InsufficientDataError, match="does not rotate"):
         ts.estimate_clock_offset(t, still, t, still, max_offset=0.5)
+
+
+def test_dropouts_are_left_out_of_the_correlation():
+    rng = np.random.default_rng(9)
+    t_a, A, t_b, B, *_ = _streams(rng, 0.25, noise_rad=np.deg2rad(0.3))
+    # The marker is out of view for 0.8 s every 4 s.
+    keep = (t_b % 4.0) > 0.8
+    t_b, B = t_b[keep], B[keep]
+    grid = np.arange(1.0, 9.0, 0.01)
+    w = ts.angular_speed(t_b, B, grid, baseline=0.3, max_gap=0.1)
+    assert np.isnan(w).any() and np.isfinite(w).sum() > len(w) // 2
+    assert np.isnan(w[(grid[:-30] % 4.0) < 0.75]).all()
+    est = ts.estimate_clock_offset(t_a, A, t_b, B, max_offset=1.0, max_gap=0.1)
+    assert est.offset == pytest.approx(0.25, abs=0.01)

@@ -122,8 +122,10 @@ def test_eth_simulated_streams_have_no_offset():
 def test_eth_prime_sense_vicon_streams():
     imp = load(DATA / "ethz" / "prime_sense_1")
     m = imp.meta
-    assert m["xcorr_score"] > 0.85                                    # 0.913
-    assert m["clock_offset_s"] == pytest.approx(0.023, abs=0.008)     # +0.0228 s (xcorr 0.0259)
+    # The camera stream has 110 dropouts > 0.1 s (up to 0.7 s), left out of the correlation.
+    assert m["xcorr_score"] > 0.93                                    # 0.962 (0.913 with dropouts interpolated)
+    assert m["clock_offset_xcorr_s"] == pytest.approx(0.0216, abs=0.005)
+    assert m["clock_offset_s"] == pytest.approx(0.0228, abs=0.005)    # refined: +0.0228 s
     res = solve_observations("YKronT'", imp.observations, imp.setup)
     assert res.residuals.rms_translation < 0.015                      # 12.31 mm
     pose = solve_observations("YKronRT", imp.observations, imp.setup)
