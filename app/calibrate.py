@@ -22,7 +22,14 @@ from app.pipeline import Measurement, predicted_pixel, sigma
 from app.session import SessionWriter
 from app.viz import Viz
 from calib import transforms as tf
-from calib.errors import CalibrationError, ExtractionError, LimitViolationError
+from calib.errors import (
+    CalibrationError,
+    ConnectionLostError,
+    DeviceError,
+    ExtractionError,
+    LimitViolationError,
+    RobotStoppedError,
+)
 from calib.observation import Observation
 from calib.result import CalibrationResult
 from drivers.camera.base import Camera, RGBDFrame
@@ -76,6 +83,24 @@ def _capture(camera: Camera, not_before: float, tries: int = 10) -> RGBDFrame:
     return frame
 
 
+def pose_at_frame(robot: Robot, t: float, timeout: float = 0.5) -> np.ndarray:
+    """``robot.pose_at(t)``, waiting up to ``timeout`` s for the robot states around ``t`` to arrive.
+
+    A frame stamped at ``t`` often reaches us before the robot state that
+    follows it (a controller tick is 2-8 ms); interpolation needs both sides.
+    """
+    deadline = time.monotonic() + timeout
+    while True:
+        try:
+            return robot.pose_at(t)
+        except (ConnectionLostError, RobotStoppedError):
+            raise
+        except DeviceError:
+            if time.monotonic() > deadline:
+                raise
+            time.sleep(0.005)
+
+
 def take_sample(
     robot: Robot,
     camera: Camera,
@@ -101,7 +126,7 @@ def take_sample(
         None when the frame gave no measurement (recorded as a skip).
     """
     frame = _capture(camera, not_before)
-    T_base_flange = robot.pose_at(frame.t)
+    T_base_flange = pose_at_frame(robot, frame.t)
     viz.robot(frame.t, T_base_flange)
     color, depth = (frame.color, frame.depth) if save_frames else (None, None)
     try:
