@@ -146,6 +146,13 @@ def cmd_calibrate(args) -> int:
     confirm_motion(args.yes_move)
     out = calibrate(cfg)
     print_calibration_summary(out)
+    return _exit_code(out)
+
+
+def _exit_code(out) -> int:
+    """130 after Ctrl-C (samples kept), 1 without a calibration, else 0."""
+    if out.report.stopped_by == "interrupted":
+        return 130
     return 0 if out.report.result is not None else 1
 
 
@@ -173,7 +180,7 @@ def cmd_demo(args) -> int:
     cfg = _load(args)
     out = demo(cfg)
     print_demo_summary(out)
-    return 0 if out.report.result is not None else 1
+    return _exit_code(out)
 
 
 def cmd_sim_robot(args) -> int:
