@@ -19,7 +19,7 @@ import yaml
 from scipy.spatial.transform import Rotation
 
 from calib import transforms as tf
-from calib.errors import ConfigError
+from calib.errors import CalibrationError, ConfigError
 from calib.result import CalibrationResult
 
 from app.formats.common import DEFAULT_FRAMES
@@ -56,6 +56,27 @@ def _frames(frames: dict | None) -> dict:
         if not isinstance(v, str) or not v or any(c.isspace() for c in v):
             raise ConfigError(f"frames.{k} must be a non-empty name without spaces, got {v!r}")
     return frames
+
+
+def check_result(result) -> CalibrationResult:
+    """Validate what the exporters rely on: a `CalibrationResult` of a known setup with rigid X, Y.
+
+    Raises
+    ------
+    CalibrationError
+        Naming the bad attribute.
+    """
+    if not isinstance(result, CalibrationResult):
+        raise CalibrationError(f"result must be a CalibrationResult, got {type(result).__name__}")
+    if result.setup not in _NAMES:
+        raise CalibrationError(f"result.setup must be one of {sorted(_NAMES)}, got {result.setup!r}")
+    tf.check_transform(result.X, "result.X")
+    tf.check_transform(result.Y, "result.Y")
+    if result.cov is not None:
+        cov = np.asarray(result.cov, dtype=float)
+        if cov.shape != (6, 6) or not np.isfinite(cov).all():
+            raise CalibrationError(f"result.cov must be a finite (6, 6) matrix, got shape {cov.shape}")
+    return result
 
 
 def _parent_child(setup: str, frames: dict) -> tuple[str, str]:
@@ -100,6 +121,7 @@ def _transform_dict(T, name: str, parent: str, child: str, cov=None) -> dict:
 
 def ros2_command(result: CalibrationResult, frames: dict | None = None) -> str:
     """``ros2 run tf2_ros static_transform_publisher ...`` for the camera transform (ROS 2 Humble+ flags)."""
+    check_result(result)
     frames = _frames(frames)
     parent, child = _parent_child(result.setup, frames)
     t, q = tf.to_xyz_quat(result.camera_transform)
@@ -109,6 +131,7 @@ def ros2_command(result: CalibrationResult, frames: dict | None = None) -> str:
 
 def urdf_origin(result: CalibrationResult) -> str:
     """``<origin xyz=".." rpy=".."/>`` of the camera transform (rpy in rad, as URDF wants)."""
+    check_result(result)
     T = result.camera_transform
     rpy = np.deg2rad(rpy_deg(T))
     return (f'<origin xyz="{" ".join(_fmt(v) for v in T[:3, 3])}" '
@@ -131,6 +154,7 @@ def result_to_dict(result: CalibrationResult, frames: dict | None = None) -> dic
         (eye-to-hand) or ``T_flange_cam`` (eye-in-hand), with ``sigma_1``
         (deg, mm) when the result has a covariance.
     """
+    check_result(result)
     frames = _frames(frames)
     setup = result.setup
     cam_name, marker_name = _NAMES[setup]
@@ -173,6 +197,7 @@ def easy_handeye_dict(result: CalibrationResult, frames: dict | None = None, *, 
     or base (eye-on-base) frame to ``tracking_base_frame``, i.e. handeye's
     camera transform.
     """
+    check_result(result)
     frames = _frames(frames)
     t, q = tf.to_xyz_quat(result.camera_transform)
     return {
@@ -188,6 +213,7 @@ def easy_handeye_dict(result: CalibrationResult, frames: dict | None = None, *, 
 
 def easy_handeye2_dict(result: CalibrationResult, frames: dict | None = None, *, name: str = "handeye") -> dict:
     """easy_handeye2 ``.calib`` file: ``parameters`` + ``transform`` {translation, rotation}."""
+    check_result(result)
     frames = _frames(frames)
     t, q = tf.to_xyz_quat(result.camera_transform)
     return {
@@ -204,6 +230,7 @@ def easy_handeye2_dict(result: CalibrationResult, frames: dict | None = None, *,
 
 def urdf_joint(result: CalibrationResult, frames: dict | None = None) -> str:
     """A fixed URDF ``<joint>`` from the camera's parent frame to the camera frame."""
+    check_result(result)
     frames = _frames(frames)
     parent, child = _parent_child(result.setup, frames)
     cam_name = _NAMES[result.setup][0]
@@ -220,6 +247,7 @@ def urdf_joint(result: CalibrationResult, frames: dict | None = None) -> str:
 
 def ros2_launch(result: CalibrationResult, frames: dict | None = None) -> str:
     """A ROS 2 Python launch file starting ``static_transform_publisher`` with the camera transform."""
+    check_result(result)
     frames = _frames(frames)
     parent, child = _parent_child(result.setup, frames)
     t, q = tf.to_xyz_quat(result.camera_transform)
@@ -268,6 +296,7 @@ def write_result(result: CalibrationResult, path, fmt: str = "yaml", frames: dic
     Path
         The file written.
     """
+    check_result(result)
     if fmt not in EXPORT_FORMATS:
         raise ConfigError(f"fmt must be one of {EXPORT_FORMATS}, got {fmt!r}")
     path = Path(path)

@@ -1,6 +1,7 @@
 """Exported files parse back (YAML/JSON load, URDF via ElementTree, launch file via ast) to the result."""
 
 import ast
+import dataclasses
 import json
 import shlex
 import xml.etree.ElementTree as ET
@@ -14,7 +15,7 @@ from app.formats import EXPORT_FORMATS, result_to_dict, write_result
 from calib import simulate
 from calib import transforms as tf
 from calib.api import solve
-from calib.errors import ConfigError
+from calib.errors import CalibrationError, ConfigError
 
 FRAMES = {"base": "base_link", "flange": "tool0", "camera": "cam_optical", "marker": "target"}
 
@@ -131,4 +132,8 @@ def test_bad_export_arguments(result, tmp_path):
         write_result(result, tmp_path / "x.yaml", frames={"camera": "my camera"})
     with pytest.raises(ConfigError, match="unknown keys"):
         write_result(result, tmp_path / "x.yaml", frames={"world": "w"})
+    with pytest.raises(CalibrationError, match="result.Y"):
+        write_result(dataclasses.replace(result, Y=np.full((4, 4), np.nan)), tmp_path / "x.yaml")
+    with pytest.raises(CalibrationError, match="CalibrationResult"):
+        write_result({"X": np.eye(4)}, tmp_path / "x.yaml")
     assert set(EXPORT_FORMATS) == {"yaml", "json", "easy_handeye", "easy_handeye2", "urdf", "ros2_launch"}
