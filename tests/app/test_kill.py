@@ -49,3 +49,28 @@ def test_sigkill_mid_run_then_replay(tmp_path, capsys):
     assert main(["replay", str(session_dir), "-m", "YKronT'", "-m", "YQuatT'"]) == 0
     out = capsys.readouterr().out
     assert f"eye_to_hand, {n} samples" in out and "| YKronT' |" in out and "err [mm]" in out
+
+
+def test_ctrl_c_stops_and_keeps_samples(tmp_path):
+    cfg = tmp_path / "sim.toml"
+    cfg.write_text(Path("config/sim.toml").read_text().replace('host = "127.0.0.2"', 'host = "127.0.4.6"'))
+    root = tmp_path / "sessions"
+    proc = subprocess.Popen([sys.executable, "-m", "app.cli", "calibrate", "--yes-move", "-c", str(cfg),
+                             "--session-root", str(root), "--no-viz", "--no-frames"],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, start_new_session=True)
+    try:
+        deadline = time.monotonic() + 60
+        while _sample_lines(root) < 2:
+            assert proc.poll() is None and time.monotonic() < deadline
+            time.sleep(0.05)
+        proc.send_signal(signal.SIGINT)  # what Ctrl-C at the terminal sends
+        out, err = proc.communicate(timeout=60)
+    finally:
+        if proc.poll() is None:
+            os.killpg(proc.pid, signal.SIGKILL)
+            proc.wait()
+    assert proc.returncode == 130, err
+    assert "stopped by: interrupted" in out
+    session = read_session(next(root.iterdir()))
+    assert len(session.observations) >= 2
+    assert session.events[-1]["event"] == "interrupted"
