@@ -26,6 +26,7 @@ import numpy as np
 from calib.errors import ConfigError, DeviceError
 
 _ALPHA = np.array([np.pi / 2, 0.0, 0.0, np.pi / 2, -np.pi / 2, 0.0])
+_ALPHA_T = tuple(_ALPHA.tolist())
 
 
 @dataclass(frozen=True)
@@ -126,6 +127,16 @@ def forward(q, model: str | URGeometry) -> np.ndarray:
     for i in range(6):
         T = T @ _dh(flat[:, i], g.d[i], g.a[i], _ALPHA[i])
     return T.reshape(q.shape[:-1] + (4, 4))
+
+
+def forward_one(q, model: str | URGeometry) -> np.ndarray:
+    """`forward` of a single joint vector (6,), without validation: the simulator's per-tick path."""
+    g = model if isinstance(model, URGeometry) else geometry(model)
+    d, a = (g.d1, 0.0, 0.0, g.d4, g.d5, g.d6), (0.0, g.a2, g.a3, 0.0, 0.0, 0.0)
+    T = _dh1(float(q[0]), d[0], a[0], _ALPHA_T[0])
+    for i in range(1, 6):
+        T = T @ _dh1(float(q[i]), d[i], a[i], _ALPHA_T[i])
+    return T
 
 
 def _inv(T: np.ndarray) -> np.ndarray:

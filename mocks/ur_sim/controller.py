@@ -18,11 +18,13 @@ as ``unsupported`` and acknowledged without effect.
 
 from __future__ import annotations
 
+import math
 import re
 import threading
 import time
 
 import numpy as np
+from scipy.spatial.transform import Rotation
 
 from calib.transforms import from_ur_pose, invert, to_ur_pose
 from drivers.robot import ur_kinematics as kin
@@ -52,6 +54,16 @@ CMD_NAMES = {
 }
 MOTION_CMDS = {1, 2, 3, 4}
 N_REGISTERS = 48
+
+
+def _rotvec(R: np.ndarray) -> np.ndarray:
+    """UR rotation vector of a rotation matrix; plain math except near 180 deg (scipy)."""
+    c = (R[0, 0] + R[1, 1] + R[2, 2] - 1.0) / 2.0
+    th = math.acos(min(1.0, max(-1.0, c)))
+    if th > math.pi - 1e-3:
+        return Rotation.from_matrix(R).as_rotvec()
+    v = np.array([R[2, 1] - R[1, 2], R[0, 2] - R[2, 0], R[1, 0] - R[0, 1]])
+    return v * (0.5 if th < 1e-9 else th / (2.0 * math.sin(th)))
 
 
 def parse_version(text: str) -> tuple[int, int, int, int]:
@@ -113,7 +125,9 @@ class SimController:
         self.pending_done = False
         self.async_count = 0
         self.async_op = 0
-        self._T_tcp_prev = self.T_base_tcp
+        self.geometry = kin.geometry(self.model)
+        self._tcp_speed = np.zeros(6)
+        self._refresh()
 
     # ------------------------------------------------------------------ state
     @property
@@ -123,11 +137,25 @@ class SimController:
 
     @property
     def T_base_flange(self) -> np.ndarray:
-        return kin.forward(self.q, self.model)
+        return self._T_flange.copy()
 
     @property
     def T_base_tcp(self) -> np.ndarray:
-        return self.T_base_flange @ self.T_flange_tcp
+        return self._T_tcp.copy()
+
+    def _refresh(self, T_tcp_prev: np.ndarray | None = None) -> None:
+        """Recompute the cached kinematic state after ``q`` changed (once per tick)."""
+        self._T_flange = kin.forward_one(self.q, self.geometry)
+        self._T_tcp = self._T_flange @ self.T_flange_tcp
+        self._tcp_pose = np.concatenate([self._T_tcp[:3, 3], _rotvec(self._T_tcp[:3, :3])])
+        if T_tcp_prev is None:
+            self._tcp_speed = np.zeros(6)
+        else:
+            lin = (self._T_tcp[:3, 3] - T_tcp_prev[:3, 3]) / self.dt
+            dR = self._T_tcp[:3, :3] @ T_tcp_prev[:3, :3].T
+            # one tick turns by far less than a degree: the small-angle vee is exact enough
+            ang = 0.5 * np.array([dR[2, 1] - dR[1, 2], dR[0, 2] - dR[2, 0], dR[1, 0] - dR[0, 1]]) / self.dt
+            self._tcp_speed = np.concatenate([lin, ang])
 
     @property
     def safety_status_bits(self) -> int:
@@ -146,26 +174,21 @@ class SimController:
         return RUNTIME_PLAYING if self.script_running else RUNTIME_STOPPED
 
     def snapshot(self) -> dict:
-        """Values of the RTDE output variables this simulator provides (name -> value)."""
-        tcp = to_ur_pose(self.T_base_tcp)
-        T_prev = self._T_tcp_prev
-        T_now = self.T_base_tcp
-        lin = (T_now[:3, 3] - T_prev[:3, 3]) / self.dt
-        ang = to_ur_pose(T_now @ invert(T_prev))[3:] / self.dt
-        speed = np.concatenate([lin, ang])
-        s = {
+        """Values of the RTDE output variables this simulator provides, except registers (see `register`)."""
+        tcp, speed = self._tcp_pose, self._tcp_speed
+        return {
             "timestamp": self.timestamp,
-            "actual_q": self.q.copy(),
-            "target_q": self.q.copy(),
-            "actual_qd": self.qd.copy(),
-            "target_qd": self.qd.copy(),
+            "actual_q": self.q,
+            "target_q": self.q,
+            "actual_qd": self.qd,
+            "target_qd": self.qd,
             "actual_TCP_pose": tcp,
             "target_TCP_pose": tcp,
             "actual_TCP_speed": speed,
             "target_TCP_speed": speed,
-            "tcp_offset": self.tcp_offset.copy(),
+            "tcp_offset": self.tcp_offset,
             "robot_mode": ROBOT_MODE_RUNNING,
-            "joint_mode": [253] * 6,
+            "joint_mode": (253,) * 6,
             "safety_mode": self.safety_mode,
             "safety_status": self.safety_mode,
             "safety_status_bits": self.safety_status_bits,
@@ -177,15 +200,19 @@ class SimController:
             "actual_main_voltage": 48.0,
             "actual_robot_voltage": 48.0,
             "actual_robot_current": 0.5,
-            "joint_temperatures": [30.0] * 6,
+            "joint_temperatures": (30.0,) * 6,
             "payload": 0.0,
         }
-        for i in range(N_REGISTERS):
-            s[f"output_int_register_{i}"] = int(self.out_int[i])
-            s[f"output_double_register_{i}"] = float(self.out_double[i])
-            s[f"input_int_register_{i}"] = int(self.in_int[i])
-            s[f"input_double_register_{i}"] = float(self.in_double[i])
-        return s
+
+    REGISTER_BANKS = ("output_int_register_", "output_double_register_", "input_int_register_",
+                      "input_double_register_")
+
+    def register(self, name: str):
+        """Current value of an RTDE register variable (``output_int_register_3`` ...), or None."""
+        for bank, arr in zip(self.REGISTER_BANKS, (self.out_int, self.out_double, self.in_int, self.in_double)):
+            if name.startswith(bank):
+                return arr[int(name[len(bank):])].item()
+        return None
 
     # -------------------------------------------------------------- registers
     def write_inputs(self, values: dict) -> None:
@@ -274,6 +301,7 @@ class SimController:
         # A safety stop freezes the arm where it is and stops the program.
         self.motion = None
         self.qd = np.zeros(6)
+        self._tcp_speed = np.zeros(6)
         self.stop_script("safety stop")
 
     # ---------------------------------------------------------------- motions
@@ -289,7 +317,7 @@ class SimController:
             return
         qd = self.qd.copy()
         if linear:
-            v_tcp = float(np.linalg.norm(self.snapshot()["actual_TCP_speed"][:3]))
+            v_tcp = float(np.linalg.norm(self._tcp_speed[:3]))
             duration = v_tcp / (decel or 1.2) if v_tcp > 1e-6 else np.max(np.abs(qd)) / 4.0
         else:
             duration = np.max(np.abs(qd)) / (decel or 4.0)
@@ -350,7 +378,6 @@ class SimController:
     def tick(self) -> None:
         """Advance one control cycle: script protocol, then arm motion."""
         with self.lock:
-            self._T_tcp_prev = self.T_base_tcp
             self.ticks += 1
             if self.script_running:
                 cmd = self._in_i(0)
@@ -368,7 +395,9 @@ class SimController:
 
     def _advance(self) -> None:
         if self.motion is None:
-            self.qd = np.zeros(6)
+            if self.qd.any():
+                self.qd = np.zeros(6)
+                self._tcp_speed = np.zeros(6)
             return
         t = self.timestamp - self.motion_t0
         q = self.motion.q_at(t)
@@ -380,10 +409,10 @@ class SimController:
             return
         self.qd = (q - self.q) / self.dt
         self.q = q
+        self._refresh(self._T_tcp)
         if t >= self.motion.duration:
             finished = self.motion
             self.motion = None
-            self.qd = np.zeros(6)
             if self.motion_async and finished.kind != "stop":
                 self._async_progress(False)
             if self.pending_done and self.script_running:
@@ -397,7 +426,7 @@ class SimController:
             if self.motion is not None:
                 raise ValueError("cannot set q while the arm moves")
             self.q = kin.check_q(q).copy()
-            self._T_tcp_prev = self.T_base_tcp
+            self._refresh()
 
     def state(self) -> dict:
         """Ground truth for tests and the demo (JSON-serialisable)."""

@@ -8,8 +8,10 @@ acceleration, cruise, constant deceleration) like the UR controller's
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
-from scipy.spatial.transform import Rotation, Slerp
+from scipy.spatial.transform import Rotation
 
 from drivers.robot import ur_kinematics as kin
 
@@ -64,42 +66,71 @@ class JointMotion:
         return self.q0 + s * self.dq
 
 
-class LinearMotion:
-    """``movel``: the TCP moves on a straight line (SLERP on orientation).
+def rotvec_to_matrix(w) -> np.ndarray:
+    """Rodrigues' formula, (3,) rad -> (3, 3); plain math because it runs every control tick."""
+    wx, wy, wz = float(w[0]), float(w[1]), float(w[2])
+    th = math.sqrt(wx * wx + wy * wy + wz * wz)
+    if th < 1e-12:
+        return np.eye(3)
+    kx, ky, kz = wx / th, wy / th, wz / th
+    c, s_, v = math.cos(th), math.sin(th), 1.0 - math.cos(th)
+    return np.array([
+        [c + kx * kx * v, kx * ky * v - kz * s_, kx * kz * v + ky * s_],
+        [ky * kx * v + kz * s_, c + ky * ky * v, ky * kz * v - kx * s_],
+        [kz * kx * v - ky * s_, kz * ky * v + kx * s_, c + kz * kz * v],
+    ])
 
-    Joint positions come from the analytic IK nearest to the previous tick,
-    so the arm keeps its configuration; `q_at` returns None when the path
-    leaves the reachable set or the joint limits (the controller then raises
-    a protective stop, as a real one does).
+
+class LinearMotion:
+    """``movel``: the TCP moves on a straight line (constant-axis rotation, i.e. SLERP).
+
+    Joint positions come from the analytic IK at knots every `KNOT_DT` of
+    motion time, each solved nearest to the previous knot so the arm keeps its
+    configuration, and are interpolated linearly in between (the TCP then
+    leaves the line by micrometres). `q_at` returns None when the path
+    leaves the reachable set or the joint limits; the controller then raises
+    a protective stop, as a real one does.
     """
 
     kind = "movel"
+    KNOT_DT = 0.01
 
     def __init__(self, q0, T_base_tcp1, v: float, a: float, model: str, T_flange_tcp: np.ndarray, limits):
         self.model, self.limits = model, limits
         self.T_tcp_flange = np.linalg.inv(T_flange_tcp)
         T0 = kin.forward(q0, model) @ T_flange_tcp
-        self.p0, self.p1 = T0[:3, 3], np.asarray(T_base_tcp1)[:3, 3]
-        rots = Rotation.from_matrix(np.stack([T0[:3, :3], np.asarray(T_base_tcp1)[:3, :3]]))
-        self.slerp = Slerp([0.0, 1.0], rots)
-        angle = float(np.linalg.norm((rots[0].inv() * rots[1]).as_rotvec()))
-        self.length = max(float(np.linalg.norm(self.p1 - self.p0)), ROTATION_LEVER_M * angle)
+        T1 = np.asarray(T_base_tcp1, dtype=float)
+        self.p0, self.p1, self.R0 = T0[:3, 3], T1[:3, 3], T0[:3, :3]
+        self.w = Rotation.from_matrix(self.R0.T @ T1[:3, :3]).as_rotvec()  # rotation in the start TCP frame
+        self.length = max(float(np.linalg.norm(self.p1 - self.p0)), ROTATION_LEVER_M * float(np.linalg.norm(self.w)))
         self.v, self.a = v, a
         self.duration = trapezoid_duration(self.length, v, a)
-        self.q_prev = np.asarray(q0, dtype=float)
+        n = max(1, math.ceil(self.duration / self.KNOT_DT))
+        self.knot_t = np.linspace(0.0, self.duration, n + 1)
+        self.knots = [np.asarray(q0, dtype=float)]
 
-    def q_at(self, t: float) -> np.ndarray | None:
+    def pose_at(self, t: float) -> np.ndarray:
+        """``T_base_flange`` on the straight TCP path at motion time ``t``."""
         s = 1.0 if self.length == 0.0 else trapezoid_position(t, self.length, self.v, self.a) / self.length
         T = np.eye(4)
-        T[:3, :3] = self.slerp([s]).as_matrix()[0]
+        T[:3, :3] = self.R0 @ rotvec_to_matrix(s * self.w)
         T[:3, 3] = self.p0 + s * (self.p1 - self.p0)
-        q = kin.inverse_nearest(T @ self.T_tcp_flange, self.q_prev, self.model, self.limits)
-        # A jump of more than ~0.5 rad in one tick means the IK switched branch
-        # (singularity): a real arm cannot follow that either.
-        if q is None or np.max(np.abs(q - self.q_prev)) > 0.5:
-            return None
-        self.q_prev = q
-        return q
+        return T @ self.T_tcp_flange
+
+    def q_at(self, t: float) -> np.ndarray | None:
+        if self.duration == 0.0:
+            return self.knots[0].copy()
+        t = min(max(t, 0.0), self.duration)
+        k = min(int(t / self.knot_t[1]), len(self.knot_t) - 2)
+        while len(self.knots) <= k + 1:
+            q = kin.inverse_nearest(self.pose_at(self.knot_t[len(self.knots)]), self.knots[-1], self.model, self.limits)
+            # A jump of more than ~0.5 rad between knots means the IK switched branch
+            # (singularity): a real arm cannot follow that either.
+            if q is None or np.max(np.abs(q - self.knots[-1])) > 0.5:
+                return None
+            self.knots.append(q)
+        f = (t - self.knot_t[k]) / (self.knot_t[k + 1] - self.knot_t[k])
+        return self.knots[k] + f * (self.knots[k + 1] - self.knots[k])
 
 
 class BrakeMotion:

@@ -185,6 +185,9 @@ class RTDEConnection(Connection):
         self.out_names: list[str] = []
         self.out_struct: struct.Struct | None = None
         self.out_every = 1
+        self.out_vector: list[bool] = []
+        self.out_register: list[bool] = []
+        self.last_sent = -(10**9)
         self.in_recipes: dict[int, tuple[list[str], struct.Struct]] = {}
         self.next_in_id = 1
         self.started = False
@@ -217,6 +220,8 @@ class RTDEConnection(Connection):
             if "NOT_FOUND" not in types:
                 self.out_names = names
                 self.out_struct = struct.Struct(">B" + "".join(TYPE_FMT[t] for t in types))
+                self.out_vector = [_width(t) > 1 for t in types]
+                self.out_register = [ctl.register(n) is not None for n in names]
                 freq = min(max(freq, 1.0), ctl.frequency)
                 self.out_every = max(1, int(round(ctl.frequency / freq)))
             self.send(_frame(O, struct.pack(">B", 1 if "NOT_FOUND" not in types else 0) + ",".join(types).encode()))
@@ -253,14 +258,16 @@ class RTDEConnection(Connection):
 
     def push(self, tick: int, snapshot: dict) -> None:
         """Send one data package if this client subscribed and is due at ``tick``."""
-        if not self.started or self.out_struct is None or tick % self.out_every:
+        if not self.started or self.out_struct is None or tick - self.last_sent < self.out_every:
             return
+        self.last_sent = tick
+        ctl = self.server.controller
         flat: list = [1]
-        for n in self.out_names:
-            val = snapshot.get(n)
+        for name, vector, register in zip(self.out_names, self.out_vector, self.out_register):
+            val = ctl.register(name) if register else snapshot.get(name)
             if val is None:
-                val = _zero(OUTPUT_TYPES[n])
-            if isinstance(val, (list, tuple, np.ndarray)):
+                val = _zero(OUTPUT_TYPES[name])
+            if vector:
                 flat.extend(val)
             else:
                 flat.append(val)
@@ -453,11 +460,20 @@ class SimServer:
 
     # ---------------------------------------------------------- control loop
     def run(self) -> None:
-        """Tick until `stop_event` is set (SIGINT/SIGTERM in `mocks.ur_sim.main`)."""
+        """Tick until `stop_event` is set (SIGINT/SIGTERM in `mocks.ur_sim.main`).
+
+        Controller time stays locked to the wall clock: when the process was
+        starved, the missed ticks are simulated at once and only the newest
+        state is sent (a real controller also skips packages it cannot send).
+        """
         ctl = self.controller
-        next_t = time.perf_counter()
+        t0 = time.perf_counter() - ctl.ticks * ctl.dt
         while not self.stop_event.is_set():
-            ctl.tick()
+            due = int((time.perf_counter() - t0) / ctl.dt) - ctl.ticks
+            for _ in range(min(max(due, 1), 50)):
+                ctl.tick()
+            if due > 50:  # hopelessly behind (suspended process): drop the backlog
+                t0 = time.perf_counter() - ctl.ticks * ctl.dt
             now_m = time.monotonic()
             if not self.listeners and now_m >= self.refuse_until:
                 self.open_listeners()
@@ -467,14 +483,11 @@ class SimServer:
                 if rtde:
                     with ctl.lock:
                         snap = ctl.snapshot()
-                    for c in rtde:
-                        c.push(ctl.ticks, snap)
-            next_t += ctl.dt
-            delay = next_t - time.perf_counter()
+                        for c in rtde:
+                            c.push(ctl.ticks, snap)
+            delay = t0 + (ctl.ticks + 1) * ctl.dt - time.perf_counter()
             if delay > 0:
                 time.sleep(delay)
-            elif delay < -0.1:  # fell far behind (machine overloaded): do not burst
-                next_t = time.perf_counter()
         self.close_listeners()
         with self.conns_lock:
             conns = list(self.conns)

@@ -1,9 +1,14 @@
 """Shared helpers for the UR driver tests: each test module launches its own
-simulated controller on its own 127.0.3.x address (module-scoped, because every
-ur_rtde disconnect sleeps 0.5 s)."""
+simulated controller (module-scoped, because every ur_rtde disconnect sleeps
+0.5 s) on its own loopback address, derived from the process id so that
+concurrent runs of the suite do not collide."""
+
+import os
 
 import numpy as np
 import pytest
+
+from calib.errors import DeviceError
 
 from drivers.robot.ur import URRobot, URRobotConfig
 from mocks.ur_sim import launch
@@ -30,13 +35,26 @@ def robot_config(host: str, **kw) -> URRobotConfig:
     return URRobotConfig(**base)
 
 
+def free_host(slot: int) -> str:
+    """A loopback address for this test process: concurrent runs of the suite must not share ports."""
+    pid = os.getpid()
+    return f"127.{(pid >> 8) % 250 + 1}.{pid % 256}.{slot}"
+
+
 @pytest.fixture(scope="module")
 def sim_factory():
-    """Launch simulators for this module; all are stopped at module end."""
+    """Launch simulators for this module (``make(slot, controller)``); stopped at module end."""
     sims = []
 
-    def make(host, controller="5.11", **kw):
-        sim = launch(host, model="ur10", controller=controller, initial_q=START_Q, tcp_offset=SIM_TCP, **kw)
+    def make(slot, controller="5.11"):
+        for attempt in range(5):
+            try:
+                sim = launch(free_host(slot + 10 * attempt), model="ur10", controller=controller,
+                             initial_q=START_Q, tcp_offset=SIM_TCP)
+                break
+            except DeviceError as exc:
+                if "in use" not in str(exc) or attempt == 4:
+                    raise
         sims.append(sim)
         return sim
 

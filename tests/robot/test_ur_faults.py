@@ -1,4 +1,4 @@
-"""Faults injected in the simulated controller (127.0.3.2) surface as the
+"""Faults injected in the simulated controller surface as the
 documented errors through ur_rtde and URRobot, and reconnect() recovers."""
 
 import threading
@@ -10,17 +10,16 @@ import pytest
 from calib.errors import ConnectionLostError, DeviceError, RobotStoppedError
 from .conftest import START_Q, connect_robot, robot_config
 
-HOST = "127.0.3.2"
 
 
 @pytest.fixture(scope="module")
 def sim(sim_factory):
-    return sim_factory(HOST, controller="5.11")
+    return sim_factory(2, controller="5.11")
 
 
 @pytest.fixture(scope="module")
 def robot(sim):
-    r = connect_robot(robot_config(HOST))
+    r = connect_robot(robot_config(sim.host))
     yield r
     r.disconnect()
 

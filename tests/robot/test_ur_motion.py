@@ -1,5 +1,5 @@
 """The real ur_rtde RTDEReceiveInterface / RTDEControlInterface, through URRobot,
-against the simulated e-Series UR10 controller on 127.0.3.1."""
+against the simulated e-Series UR10 controller."""
 
 import threading
 import time
@@ -12,18 +12,17 @@ from calib.transforms import from_ur_pose, make_transform, pose_error
 from drivers.robot import ur_kinematics as kin
 from .conftest import SIM_TCP, START_Q, connect_robot, robot_config, truth_flange
 
-HOST = "127.0.3.1"
 
 
 @pytest.fixture(scope="module")
 def sim(sim_factory):
-    return sim_factory(HOST, controller="5.11")
+    return sim_factory(1, controller="5.11")
 
 
 @pytest.fixture(scope="module")
 def robot(sim):
     # y >= -0.8 m: a half turn of the base (radius 0.88 m) must leave the box on its way
-    r = connect_robot(robot_config(HOST, workspace_min=(-1.3, -0.8, 0.0)))
+    r = connect_robot(robot_config(sim.host, workspace_min=(-1.3, -0.8, 0.0)))
     yield r
     r.disconnect()
 

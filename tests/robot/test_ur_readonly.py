@@ -1,4 +1,4 @@
-"""Read-only monitoring of a simulated CB3 (PolyScope 3.15, 125 Hz) UR10 on 127.0.3.3:
+"""Read-only monitoring of a simulated CB3 (PolyScope 3.15, 125 Hz) UR10:
 the control interface is never opened."""
 
 import time
@@ -9,17 +9,16 @@ import pytest
 from calib.errors import DeviceError
 from .conftest import SIM_TCP, connect_robot, robot_config, truth_flange
 
-HOST = "127.0.3.3"
 
 
 @pytest.fixture(scope="module")
 def sim(sim_factory):
-    return sim_factory(HOST, controller="3.15")
+    return sim_factory(3, controller="3.15")
 
 
 @pytest.fixture(scope="module")
 def robot(sim):
-    r = connect_robot(robot_config(HOST, read_only=True, tcp_offset=SIM_TCP))
+    r = connect_robot(robot_config(sim.host, read_only=True, tcp_offset=SIM_TCP))
     yield r
     r.disconnect()
 

@@ -1,5 +1,5 @@
-"""The simulated controller on the wire (raw sockets, no ur_rtde), on 127.0.3.4,
-and its controller model in-process."""
+"""The simulated controller on the wire (raw sockets, no ur_rtde) and its
+controller model in-process."""
 
 import socket
 import struct
@@ -11,17 +11,16 @@ from drivers.robot import ur_kinematics as kin
 from mocks.ur_sim.controller import SimController
 from mocks.ur_sim.motion import trapezoid_duration
 
-HOST = "127.0.3.4"
 
 
 @pytest.fixture(scope="module")
 def sim(sim_factory):
-    return sim_factory(HOST, controller="5.11")
+    return sim_factory(4, controller="5.11")
 
 
 class RTDE:
-    def __init__(self):
-        self.s = socket.create_connection((HOST, 30004), timeout=2.0)
+    def __init__(self, host):
+        self.s = socket.create_connection((host, 30004), timeout=2.0)
 
     def request(self, kind: str, payload: bytes = b""):
         self.s.sendall(struct.pack(">HB", len(payload) + 3, ord(kind)) + payload)
@@ -39,7 +38,7 @@ class RTDE:
 
 
 def test_rtde_handshake_recipes_and_data(sim):
-    c = RTDE()
+    c = RTDE(sim.host)
     assert c.request("V", struct.pack(">H", 2)) == ("V", b"\x01")
     kind, body = c.request("v")
     assert kind == "v" and struct.unpack(">IIII", body)[:2] == (5, 11)
@@ -51,7 +50,7 @@ def test_rtde_handshake_recipes_and_data(sim):
     assert body[0] == 1 and body[1:].decode() == "INT32,DOUBLE"
     kind, body = c.request("I", b"input_int_register_0")
     assert body[0] == 2  # ids count up per connection
-    other = RTDE()
+    other = RTDE(sim.host)
     other.request("V", struct.pack(">H", 2))
     kind, body = other.request("I", b"input_int_register_0,input_int_register_5")
     assert body[0] == 0 and body[1:].decode() == "IN_USE,INT32"
@@ -78,7 +77,7 @@ def test_dashboard_answers_and_script_upload_starts_the_protocol(sim):
     assert sim.command("is in remote control") == "true"
     assert sim.command("frobnicate").startswith("could not understand")
     uploads = sim.state()["script_uploads"]
-    with socket.create_connection((HOST, 30003)) as s:
+    with socket.create_connection((sim.host, 30003)) as s:
         s.sendall(b"def rtde_control():\n    global reg_offset_int = 0\n    textmsg(1)\nend\n")
     for _ in range(100):
         st = sim.state()
