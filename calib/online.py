@@ -37,6 +37,7 @@ from __future__ import annotations
 import math
 from collections import deque
 from dataclasses import dataclass
+from typing import NamedTuple
 
 import numpy as np
 from scipy.linalg.lapack import dposv
@@ -215,9 +216,8 @@ class OnlineConfig:
             self.detector = DetectorConfig()
 
 
-@dataclass(frozen=True)
-class OnlineUpdate:
-    """What one `OnlineCalibrator.update` learnt.
+class OnlineUpdate(NamedTuple):
+    """What one `OnlineCalibrator.update` learnt (a NamedTuple: cheap to build at every sample).
 
     Attributes
     ----------
@@ -252,7 +252,7 @@ class OnlineCalibrator:
 
     See the module docstring. State is O(1) in the number of samples: a
     bootstrap buffer of at most ``4 * bootstrap`` samples (used only until the
-    first solve succeeds), the estimate, a 9x9 covariance matrix, two
+    first solve succeeds), the estimate, two 9x9 matrices, two
     scalars for the noise scale, and the detector's fixed window.
     """
 
@@ -267,6 +267,7 @@ class OnlineCalibrator:
         self._C = None
         self._tK = None
         self._P = None
+        self._I2 = None
         self._n = 0
         self._filtered = 0
         self._scale_sum = 0.0
@@ -283,7 +284,7 @@ class OnlineCalibrator:
     def state_size(self) -> int:
         """Floats held in the state (bounded, independent of the stream length)."""
         buf = len(self._buffer) * (16 + 3 + 9)
-        return buf + (0 if self._P is None else 16 + 3 + 81) + self.detector._Fg.size
+        return buf + (0 if self._P is None else 16 + 3 + 81 + 81) + self.detector._Fg.size
 
     def _noise_scale(self) -> float:
         # Given covariances are trusted; the default model's scale comes from the NIS.
@@ -342,7 +343,9 @@ class OnlineCalibrator:
             C, K, M = rf._split(res.X, res.Y, As, self.config.setup)
             problem = rf._Problem(M, ps, rf._whitener(covs))
             self._C, self._tK = C, K[:3, 3].copy()
-            self._P = np.linalg.inv(rf._information(problem, C, K))
+            info = rf._information(problem, C, K)
+            self._P = np.linalg.inv(info)
+            self._I2 = info
             self._buffer.clear()
             return OnlineUpdate(self._n, self._C.copy(), self.cov, None, None, 0.0, False)
         return OnlineUpdate(self._n, None, None, None, None, 0.0, False)
@@ -395,6 +398,10 @@ class OnlineCalibrator:
             # Rounding slowly breaks the symmetry of the rank-3 downdates.
             P = 0.5 * (P + P.T)
         self._P = P
+        if lam != 1.0:
+            # Information weighted by lam^2: the sandwich P I2 P is the error covariance of
+            # the exponentially weighted estimate of a constant camera (P alone is ~2x too big).
+            self._I2 = (lam * lam) * self._I2 + J.T @ _inv3(Sigma) @ J
         delta = K @ r
         C = np.empty((4, 4))
         C[:3, :3] = _exp(delta[:3]) @ R_C
@@ -419,7 +426,10 @@ class OnlineCalibrator:
         """Covariance (6, 6) of the camera transform, marker translation marginalised."""
         if self._P is None:
             return None
-        return self._noise_scale() * self._P[:6, :6]
+        if self.config.forgetting == 1.0:
+            return self._noise_scale() * self._P[:6, :6]
+        P6 = self._P[:6] @ self._I2 @ self._P[:, :6]
+        return self._noise_scale() * 0.5 * (P6 + P6.T)
 
     def result(self) -> CalibrationResult | None:
         """The current estimate as a `CalibrationResult` (method ``"YKronT'+online"``), or None.

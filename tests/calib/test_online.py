@@ -40,12 +40,13 @@ def test_converges_to_truth_with_honest_covariance(setup):
     assert not any(u.alarm for u in ups)
 
 
-def test_nees_over_many_streams():
+@pytest.mark.parametrize("forgetting", [1.0, 0.98])
+def test_nees_over_many_streams(forgetting):
     rng = np.random.default_rng(42)
     values = []
     for _ in range(25):
         d = simulate.realistic_cell(150, rng)
-        cal = OnlineCalibrator()
+        cal = OnlineCalibrator(OnlineConfig(forgetting=forgetting))
         run(cal, d.A, d.points, d.point_cov)
         values.append(nees(cal.camera_transform, d.Y, cal.cov))
     assert 4.0 < np.mean(values) < 8.5
