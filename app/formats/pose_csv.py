@@ -30,6 +30,7 @@ from __future__ import annotations
 
 import gzip
 import logging
+import re
 import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -45,13 +46,16 @@ from app.formats.common import DEFAULT_FRAMES, ImportedSamples
 
 log = logging.getLogger(__name__)
 
+# Commas (ETH), semicolons or whitespace (TUM trajectory files) between fields.
+_SEPARATORS = re.compile(r"\s*[,;]\s*|\s+")
+
 # Pairs used per residual evaluation while refining the offset: enough to
 # average the pose noise, few enough that ~25 solver calls take a second.
 REFINE_PAIRS = 300
 
 
 def read_pose_csv(path) -> tuple[np.ndarray, np.ndarray]:
-    """Read a ``t, x, y, z, qx, qy, qz, qw`` CSV into times and transforms.
+    """Read a ``t, x, y, z, qx, qy, qz, qw`` CSV (or the same whitespace-separated, as TUM) into times and transforms.
 
     Rows are sorted by time; rows repeating an earlier timestamp are dropped
     (the ETH simulated hand stream publishes most poses twice) and counted in
@@ -84,7 +88,7 @@ def read_pose_csv(path) -> tuple[np.ndarray, np.ndarray]:
         s = line.strip()
         if not s or s.startswith("#"):
             continue
-        parts = [p.strip() for p in s.replace(";", ",").split(",")]
+        parts = _SEPARATORS.split(s)
         try:
             vals = [float(p) for p in parts]
         except ValueError:

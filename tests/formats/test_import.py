@@ -165,6 +165,18 @@ def test_pose_streams_offset_estimated_and_reported(tmp_path):
         load(tmp_path, clock_offset=1000.0)
 
 
+def test_pose_csv_separators(tmp_path):
+    T = tf.from_xyz_quat([[0.1, 0.2, 0.3], [0.4, 0.5, 0.6]], [[0, 0, 0, 1], [0, 0, np.sin(0.1), np.cos(0.1)]])
+    (tmp_path / "tum.txt").write_text("# timestamp tx ty tz qx qy qz qw\n"
+                                      "1.0 0.1 0.2 0.3 0 0 0 1\n2.0\t0.4 0.5 0.6 0 0 %r %r\n" % (float(np.sin(0.1)), float(np.cos(0.1))))
+    (tmp_path / "semi.csv").write_text("t;x;y;z;qx;qy;qz;qw\n1.0; 0.1; 0.2; 0.3; 0; 0; 0; 1\n"
+                                       "2.0; 0.4; 0.5; 0.6; 0; 0; %r; %r\n" % (float(np.sin(0.1)), float(np.cos(0.1))))
+    for name in ("tum.txt", "semi.csv"):
+        t, T_read = read_pose_csv(tmp_path / name)
+        np.testing.assert_allclose(t, [1.0, 2.0])
+        np.testing.assert_allclose(T_read, T, atol=1e-12)
+
+
 def test_pose_csv_errors_name_line_and_field(tmp_path):
     (tmp_path / "short.csv").write_text("0, 0, 0, 0, 0, 0, 1\n1, 0, 0, 0, 0, 0, 0, 1\n")
     with pytest.raises(SessionError, match=r"short.csv:1: expected 8 columns"):
