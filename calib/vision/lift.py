@@ -131,17 +131,23 @@ def solve_pnp(image_points, object_points, K: np.ndarray, dist, *, square: bool)
         If PnP fails (degenerate corners).
     """
     flag = cv2.SOLVEPNP_IPPE_SQUARE if square else cv2.SOLVEPNP_IPPE
-    ok, rvecs, tvecs, errs = cv2.solvePnPGeneric(
-        np.ascontiguousarray(object_points, dtype=np.float64),
-        np.ascontiguousarray(image_points, dtype=np.float64).reshape(-1, 1, 2),
-        K,
-        np.asarray(dist, dtype=np.float64),
-        flags=flag,
-    )
-    if not ok or len(rvecs) == 0:
+    obj = np.ascontiguousarray(object_points, dtype=np.float64)
+    img = np.ascontiguousarray(image_points, dtype=np.float64).reshape(-1, 1, 2)
+    dist = np.asarray(dist, dtype=np.float64)
+    ok, rvecs, tvecs, errs = cv2.solvePnPGeneric(obj, img, K, dist, flags=flag)
+    def finite(ok, rvecs, tvecs, errs):
+        if not ok:
+            return []
+        return [(rv, t, e) for rv, t, e in zip(rvecs, tvecs, np.ravel(errs)) if np.isfinite(rv).all() and np.isfinite(t).all()]
+
+    sols = finite(*cv2.solvePnPGeneric(obj, img, K, dist, flags=flag))
+    if not sols:
+        # IPPE returns NaN for an exactly fronto-parallel view; the iterative solver does not.
+        sols = finite(*cv2.solvePnPGeneric(obj, img, K, dist, flags=cv2.SOLVEPNP_ITERATIVE))
+    if not sols:
         raise MarkerNotFoundError("PnP failed on the detected corners (degenerate geometry)")
     out = []
-    for rv, t, e in zip(rvecs, tvecs, np.ravel(errs)):
+    for rv, t, e in sols:
         T = tf.make_transform(_rotvec_to_matrix(rv), t.ravel())
         if T[2, 3] > 0:
             out.append((T, float(e)))
