@@ -293,7 +293,7 @@ def _min_samples(points: bool) -> int:
 
 
 def _prepare(X, Y, A, B, setup, point_cov):
-    """Validated problem at (X, Y): returns problem, C, K, whether the point covariance was given."""
+    """Validated problem at (X, Y): returns problem, C, K, whether the point covariance was given, A, B."""
     check_setup(setup)
     A, B = check_measurements(A, B)
     X = tf.check_transform(X, "X")
@@ -306,7 +306,7 @@ def _prepare(X, Y, A, B, setup, point_cov):
     problem = _Problem(M, B, W_t)
     if not points:
         K = tf.make_transform(_marker_rotation(C, M, B[:, :3, :3]), K[:3, 3])
-    return problem, C, K, given
+    return problem, C, K, given, A, B
 
 
 def _variance_factor(cost: float, dof: int, given: bool) -> float:
@@ -361,7 +361,7 @@ def covariance(X, Y, A, B, *, setup: str, point_cov=None) -> np.ndarray:
     ------
     CalibrationError, InsufficientDataError, DegenerateMotionError
     """
-    problem, C, K, given = _prepare(X, Y, A, B, setup, point_cov)
+    problem, C, K, given, _, _ = _prepare(X, Y, A, B, setup, point_cov)
     if problem.points:
         cost = problem.whitened_residual_only(C, K)[0]
         factor = _variance_factor(cost, 3 * len(problem.p) - 9, given)
@@ -437,7 +437,11 @@ def residuals(X, Y, A, B, *, setup: str) -> Residuals:
     """
     check_setup(setup)
     A, B = check_measurements(A, B)
-    C, K, M = _split(tf.check_transform(X, "X"), tf.check_transform(Y, "Y"), A, setup)
+    return _residuals(tf.check_transform(X, "X"), tf.check_transform(Y, "Y"), A, B, setup)
+
+
+def _residuals(X, Y, A, B, setup) -> Residuals:
+    C, K, M = _split(X, Y, A, setup)
     p = B if B.ndim == 2 else B[:, :3, 3]
     r = _point_residuals(C, K[:3, 3], M, p)[0]
     rot = None
@@ -488,7 +492,7 @@ def refine(initial: CalibrationResult, A, B, *, point_cov=None, max_iterations: 
     if not isinstance(initial, CalibrationResult):
         raise CalibrationError(f"initial must be a CalibrationResult, got {type(initial).__name__}")
     setup = initial.setup
-    problem, C, K, given = _prepare(initial.X, initial.Y, A, B, setup, point_cov)
+    problem, C, K, given, A, B = _prepare(initial.X, initial.Y, A, B, setup, point_cov)
     if problem.points:
         initial_cost = problem.whitened_residual_only(C, K)[0]
         C, K, cost, iters, converged = _levenberg_marquardt(problem, C, K, max_iterations=max_iterations)
@@ -513,14 +517,13 @@ def refine(initial: CalibrationResult, A, B, *, point_cov=None, max_iterations: 
         info = {"cost": cost, "initial_cost": initial_cost, "sigma_rotation": sigma_rot, "translation_scale": scale_t}
         rotation_known = True
     X, Y = _join(C, K, setup)
-    A, B = check_measurements(A, B)
     return dataclasses.replace(
         initial,
         method=f"{initial.method}+ML",
         X=X,
         Y=Y,
         n_samples=len(A),
-        residuals=residuals(X, Y, A, B, setup=setup),
+        residuals=_residuals(X, Y, A, B, setup),
         cov=cov,
         marker_rotation_known=rotation_known,
         converged=converged,
