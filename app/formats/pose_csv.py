@@ -210,7 +210,9 @@ def load_pose_streams(path, **overrides) -> ImportedSamples:
     Returns
     -------
     ImportedSamples
-        One observation per kept camera sample, ``t`` on the robot clock;
+        One observation per kept camera sample, ``t`` on the robot clock
+        (``meta``: ``t_camera``, and ``camera_sample``, the index in the
+        time-sorted, de-duplicated camera stream);
         ``meta`` holds ``clock_offset_s`` (used), ``clock_offset_xcorr_s`` and
         ``xcorr_score`` (angular-speed correlation), ``clock_offset_refined_s``
         and ``refine_rms_mm`` if refined, row counts and ``n_paired`` (camera
@@ -250,12 +252,12 @@ def load_pose_streams(path, **overrides) -> ImportedSamples:
     if len(t) == 0:
         raise SessionError(f"{path}: no camera sample overlaps the robot stream at offset {offset:+.3f} s")
     meta.update(clock_offset_s=offset, n_paired=len(t))
+    log.info("%s: clock offset %+.4f s, %d of %d camera samples paired", path, offset, len(t), len(t_b))
     sel = slice(None, None, cfg.stride)
     t, A_p, B_p, idx = t[sel], A_p[sel], B_p[sel], idx[sel]
-    log.info("%s: clock offset %+.4f s, %d of %d camera samples paired", path, offset, len(t), len(t_b))
     obs = [
         Observation(index=i, t=float(t[i] + offset), T_base_flange=A_p[i], point_cam=B_p[i, :3, 3].copy(),
-                    T_cam_marker=B_p[i], meta={"t_camera": float(t[i]), "camera_row": int(idx[i])})
+                    T_cam_marker=B_p[i], meta={"t_camera": float(t[i]), "camera_sample": int(idx[i])})
         for i in range(len(t))
     ]
     return ImportedSamples(obs, cfg.setup, meta)
