@@ -220,6 +220,9 @@ def estimate_clock_offset(
     InsufficientDataError
         If the streams overlap too little for the searched offsets, or stream
         b does not rotate (its speed signal is flat).
+    CalibrationError
+        If the best lag is at the edge of ``[-max_offset, max_offset]`` (the
+        true offset may lie outside).
     """
     t_a, T_a = check_stream(t_a, T_a, "stream a")
     t_b, T_b = check_stream(t_b, T_b, "stream b")
@@ -257,12 +260,17 @@ def estimate_clock_offset(
         if denom > 1e-12:
             scores[i] = float(x @ y / denom)
     i = int(np.argmax(scores))
+    if i in (0, len(lags) - 1):
+        raise CalibrationError(
+            f"the angular speeds correlate best at the edge of the search range ({lags[i] * resolution:+.3f} s): "
+            f"the clock offset may be larger than max_offset = {max_offset} s"
+        )
+    y0, y1, y2 = scores[i - 1 : i + 2]
+    curv = y0 - 2 * y1 + y2
     offset = lags[i] * resolution
-    if 0 < i < len(lags) - 1:
-        y0, y1, y2 = scores[i - 1 : i + 2]
-        curv = y0 - 2 * y1 + y2
-        if curv < 0:
-            offset += 0.5 * resolution * (y0 - y2) / curv
+    if curv < 0:
+        # Vertex of the parabola through the peak and its neighbours.
+        offset += 0.5 * resolution * (y0 - y2) / curv
     return ClockOffset(float(offset), float(scores[i]), "angular-speed-xcorr")
 
 

@@ -49,6 +49,9 @@ log = logging.getLogger(__name__)
 # Commas (ETH), semicolons or whitespace (TUM trajectory files) between fields.
 _SEPARATORS = re.compile(r"\s*[,;]\s*|\s+")
 
+# Below this peak correlation the offset estimate is doubtful (the ETH sets reach 0.96-1.0).
+LOW_CORRELATION = 0.5
+
 # Pairs used per residual evaluation while refining the offset: enough to
 # average the pose noise, few enough that ~25 solver calls take a second.
 REFINE_PAIRS = 300
@@ -237,6 +240,9 @@ def load_pose_streams(path, **overrides) -> ImportedSamples:
             est = timesync.estimate_clock_offset(t_a, A, t_b, B, max_offset=cfg.max_offset, max_gap=cfg.max_gap)
             offset = est.offset
             meta.update(clock_offset_xcorr_s=est.offset, xcorr_score=est.score)
+            if est.score < LOW_CORRELATION:
+                log.warning("%s: the two streams' angular speeds correlate poorly (%.2f at %+.3f s): "
+                            "check that they show the same motion, or give clock_offset", path, est.score, offset)
             if cfg.refine:
                 cost = timesync.calibration_cost(t_a, A, t_b, B, residual_of_solve(cfg.refine_method, cfg.setup),
                                                  max_gap=cfg.max_gap)

@@ -55,6 +55,14 @@ def test_offset_found_from_angular_speed(offset):
     assert est.score > 0.9
 
 
+def test_offset_beyond_the_search_range_is_reported():
+    rng = np.random.default_rng(7)
+    # Just outside the range the correlation still rises towards the edge; far outside it need not.
+    t_a, A, t_b, B, *_ = _streams(rng, 0.45)
+    with pytest.raises(CalibrationError, match="larger than max_offset = 0.3"):
+        ts.estimate_clock_offset(t_a, A, t_b, B, max_offset=0.3)
+
+
 def test_refined_offset_minimises_the_given_cost():
     rng = np.random.default_rng(3)
     offset = 0.21
