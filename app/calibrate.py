@@ -240,6 +240,10 @@ def run_calibration(
                 stopped_by = "samples"
                 break
         robot.move_to(start)
+    except DeviceError as e:
+        # Leave the reason in the session next to the samples it kept, then report it.
+        writer.add_event(time.time(), "device_error", error=str(e), n_samples=len(observations))
+        raise
     except KeyboardInterrupt:
         robot.stop()
         stopped_by = "interrupted"

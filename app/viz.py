@@ -2,6 +2,7 @@
 
 Entity tree (base frame = ``world``, metres, z up)::
 
+    world/base                   robot base axes
     world/flange                 robot flange pose (axes)
     world/camera                 estimated camera pose: T_base_cam (eye-to-hand)
     world/flange/camera          ... or T_flange_cam (eye-in-hand)
@@ -68,6 +69,7 @@ class Viz:
             else:
                 self._rec.save(str(rrd_path))
         self._rec.log("world", rr.ViewCoordinates.RIGHT_HAND_Z_UP, static=True)
+        self._rec.log("world/base", rr.TransformAxes3D(0.2), static=True)
         self._rec.log("events", rr.TextLog(f"setup: {setup}"), static=True)
         self._cam_path = "world/camera" if setup == "eye_to_hand" else "world/flange/camera"
         self._measured: list[np.ndarray] = []

@@ -89,3 +89,14 @@ def test_config_sections_roundtrip():
     assert cfg.setup == "eye_in_hand" and cfg.calibrate.samples == 5
     assert dataclasses.asdict(config_from_dict(cfg.to_dict())) == cfg.to_dict()
     assert Config().calibrate.method == "YKronT'"
+
+
+def test_stop_on_predicted_uncertainty():
+    from app.calibrate import _precise_enough
+
+    cov = np.diag([np.deg2rad(0.03) ** 2] * 3 + [(0.4e-3) ** 2] * 3)
+    res = CalibrationResult("YKronT'", "eye_to_hand", np.eye(4), np.eye(4), 10, Residuals(np.zeros(10)), cov=cov)
+    assert _precise_enough(res, CalibrateConfig(target_sigma_mm=0.5, target_sigma_deg=0.05))
+    assert not _precise_enough(res, CalibrateConfig(target_sigma_mm=0.3, target_sigma_deg=0.05))
+    assert not _precise_enough(res, CalibrateConfig(target_sigma_mm=0.5, target_sigma_deg=0.02))
+    assert not _precise_enough(res, CalibrateConfig())  # targets 0 = off
