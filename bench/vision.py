@@ -73,8 +73,10 @@ def run(frames_per_bin: int, seed: int) -> tuple[list[dict], dict]:
             rot_p.append(tf.pose_error(m.T_cam_marker_pnp, T)[0])
             mp = extract(color, None, INTR, TargetConfig(use_depth=False))
             err_pnp.append(np.linalg.norm(mp.point_cam - truth["point_cam"]))
+        if not err:  # every frame of the bin skipped
+            err = nees = rot_d = rot_p = err_pnp = [np.nan]
         rows.append({
-            "bin": f"{lo:.1f}-{hi:.1f}", "z": (lo + hi) / 2, "n": len(err), "skipped": len(skips),
+            "bin": f"{lo:.1f}-{hi:.1f}", "z": (lo + hi) / 2, "n": frames_per_bin - len(skips), "skipped": len(skips),
             "med_mm": 1e3 * np.median(err), "p95_mm": 1e3 * np.percentile(err, 95),
             "nees": np.mean(nees), "nees_med": np.median(nees),
             "rot_d_deg": np.rad2deg(np.median(rot_d)), "rot_p_deg": np.rad2deg(np.median(rot_p)),
@@ -103,6 +105,7 @@ def _plot(rows: list[dict], out: Path) -> Path:
     ax1.legend(fontsize=8)
     ax1.grid(alpha=0.3)
     all_nees = np.concatenate([r["nees_all"] for r in rows])
+    all_nees = all_nees[np.isfinite(all_nees)]
     ax2.hist(np.clip(all_nees, 0, 20), bins=40, density=True, alpha=0.7, label="NEES (clipped at 20)")
     from scipy.stats import chi2
 
@@ -146,6 +149,7 @@ def main(argv: list[str] | None = None) -> int:
     sel = [r for r in rows if 0.5 <= r["z"] <= 1.0]
     err = np.concatenate([r["err"] for r in sel])
     nees = np.concatenate([r["nees_all"] for r in sel])
+    err, nees = err[np.isfinite(err)], nees[np.isfinite(nees)]
     print(f"\n0.5-1.0 m overall: median {1e3 * np.median(err):.2f} mm, 95 % {1e3 * np.percentile(err, 95):.2f} mm, "
           f"NEES mean {nees.mean():.2f} (chi2(3): 3), median {np.median(nees):.2f} (chi2(3): 2.37), n = {len(err)}")
     reasons = sorted({s for r in rows for s in r["reasons"]})
