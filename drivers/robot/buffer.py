@@ -68,13 +68,15 @@ class StateBuffer:
 
     Parameters
     ----------
-    maxlen : int
-        Number of samples kept (seconds x stream rate).
+    seconds : float
+        States older than this (host time) behind the newest one are dropped,
+        whatever the stream rate (125 Hz CB3, 500 Hz e-Series).
     """
 
-    def __init__(self, maxlen: int):
-        self._states: collections.deque[RobotState] = collections.deque(maxlen=maxlen)
-        self._times: collections.deque[float] = collections.deque(maxlen=maxlen)
+    def __init__(self, seconds: float):
+        self.seconds = seconds
+        self._states: collections.deque[RobotState] = collections.deque()
+        self._times: collections.deque[float] = collections.deque()
         self._lock = threading.Lock()
 
     def __len__(self) -> int:
@@ -91,6 +93,9 @@ class StateBuffer:
                 return  # same or older sample (re-read), keep times strictly increasing
             self._states.append(state)
             self._times.append(state.t_host)
+            while self._times[0] < state.t_host - self.seconds:
+                self._states.popleft()
+                self._times.popleft()
 
     @property
     def latest(self) -> RobotState | None:

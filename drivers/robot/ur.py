@@ -245,7 +245,7 @@ class URRobot(Robot):
         self._rtde_r = None
         self._rtde_c = None
         self._T_flange_tcp = np.eye(4)
-        self._buffer = StateBuffer(int(config.buffer_seconds * 500) + 1)
+        self._buffer = StateBuffer(config.buffer_seconds)
         self._clock = ClockMapper(config.buffer_seconds)
         self._poller: threading.Thread | None = None
         self._stop_poll = threading.Event()
@@ -426,7 +426,7 @@ class URRobot(Robot):
         """
         self._require_connected()
         if self._poll_error is not None:
-            raise self._poll_error
+            raise ConnectionLostError(str(self._poll_error))
         if not self._rtde_r.isConnected():
             raise ConnectionLostError(f"RTDE connection to UR controller {self.config.host} dropped")
         age = time.monotonic() - self._last_change

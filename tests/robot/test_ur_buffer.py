@@ -13,7 +13,7 @@ def _state(t, T):
 
 
 def test_pose_at_interpolates_linear_and_slerp_and_refuses_outside():
-    buf = StateBuffer(10)
+    buf = StateBuffer(5.0)
     T0 = make_transform(np.eye(3), [0.0, 0.0, 0.0])
     T1 = make_transform(Rotation.from_euler("z", 90, degrees=True).as_matrix(), [1.0, 2.0, 0.0])
     buf.append(_state(10.0, T0))
@@ -28,11 +28,12 @@ def test_pose_at_interpolates_linear_and_slerp_and_refuses_outside():
         buf.pose_at(9.0)
 
 
-def test_ring_buffer_keeps_only_the_newest_samples():
-    buf = StateBuffer(3)
-    for t in range(5):
+def test_ring_buffer_keeps_only_the_last_seconds():
+    buf = StateBuffer(2.0)
+    for t in np.arange(0.0, 5.01, 0.5):
         buf.append(_state(float(t), np.eye(4)))
-    assert buf.span() == (2.0, 4.0) and len(buf) == 3
+    buf.append(_state(4.0, np.eye(4)))  # stale re-read: ignored
+    assert buf.span() == (3.0, 5.0) and len(buf) == 5
 
 
 def test_clock_mapper_removes_poll_jitter():
