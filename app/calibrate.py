@@ -162,6 +162,7 @@ def run_calibration(
     *,
     save_frames: bool = True,
     progress=None,
+    initial: list[Observation] | None = None,
 ) -> RunReport:
     """Active run: random poses, one sample each, until enough or precise enough.
 
@@ -181,6 +182,9 @@ def run_calibration(
     viz : Viz
     progress : tqdm-like, optional
         ``update(1)`` per sample.
+    initial : list[Observation], optional
+        Samples already in a resumed session; they count towards ``cfg.samples``
+        and give the first estimate.
 
     Returns
     -------
@@ -190,13 +194,21 @@ def run_calibration(
     """
     t0 = time.monotonic()
     start = robot.read().T_base_flange
-    observations: list[Observation] = []
+    observations: list[Observation] = list(initial or [])
     estimate: CalibrationResult | None = None
+    if len(observations) >= cfg.min_samples:
+        try:
+            estimate = solve(observations, final=False)
+        except CalibrationError as e:
+            log.info("no estimate from the %d resumed samples: %s", len(observations), e)
     n_skipped = 0
     stopped_by = "max_attempts"
     intrinsics = camera.intrinsics
     try:
         for attempt in range(cfg.max_attempts):
+            if len(observations) >= cfg.samples:
+                stopped_by = "samples"
+                break
             target = random_pose(start, cfg, rng)
             if estimate is not None:
                 px = predicted_pixel(setup, estimate, target, intrinsics, cfg.image_margin_px)
@@ -236,9 +248,6 @@ def run_calibration(
                         break
             else:
                 viz.sample(obs, None)
-            if len(observations) >= cfg.samples:
-                stopped_by = "samples"
-                break
         robot.move_to(start)
     except DeviceError as e:
         # Leave the reason in the session next to the samples it kept, then report it.

@@ -42,6 +42,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--samples", type=int, help="number of samples (overrides calibrate.samples)")
     p.add_argument("--seed", type=int, help="seed of the random poses (overrides calibrate.seed)")
     p.add_argument("--method", help="solver, paper name (overrides calibrate.method), e.g. \"YKronT'\"")
+    p.add_argument("--resume", type=Path, help="continue this session (e.g. after a crash or Ctrl-C)")
 
     p = sub.add_parser("monitor", help="passive: sample while the robot works, alarm when the camera moved")
     _common(p)
@@ -144,7 +145,7 @@ def cmd_calibrate(args) -> int:
 
     cfg = _load(args)
     confirm_motion(args.yes_move)
-    out = calibrate(cfg)
+    out = calibrate(cfg, resume=args.resume)
     print_calibration_summary(out)
     return _exit_code(out)
 

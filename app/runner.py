@@ -42,9 +42,12 @@ class CalibrationOutput:
 
 
 def make_viz(cfg: Config, session: Path) -> Viz:
-    """rerun recording saved as ``<session>/recording.rrd`` (no-op if disabled)."""
-    return Viz(cfg.setup, session / "recording.rrd", viewer=cfg.viz.viewer, enabled=cfg.viz.enabled,
-               log_images=cfg.viz.log_images)
+    """rerun recording saved as ``<session>/recording.rrd`` (``recording-2.rrd`` ... when resumed; no-op if disabled)."""
+    path, n = session / "recording.rrd", 1
+    while path.exists():
+        n += 1
+        path = session / f"recording-{n}.rrd"
+    return Viz(cfg.setup, path, viewer=cfg.viz.viewer, enabled=cfg.viz.enabled, log_images=cfg.viz.log_images)
 
 
 def make_solve(cal: CalibrateConfig, setup: str, rng: np.random.Generator):
@@ -62,8 +65,11 @@ def _camera_truth(setup: str, truth: dict) -> np.ndarray | None:
     return None if key not in truth else np.asarray(truth[key], dtype=float)
 
 
-def calibrate(cfg: Config, *, progress: bool = True) -> CalibrationOutput:
+def calibrate(cfg: Config, *, resume: Path | None = None, progress: bool = True) -> CalibrationOutput:
     """Active calibration with the configured robot and camera (the caller confirmed motion).
+
+    ``resume``: a session (same setup) to continue; its samples count towards
+    ``calibrate.samples`` and new ones are appended to it.
 
     Returns
     -------
@@ -72,20 +78,31 @@ def calibrate(cfg: Config, *, progress: bool = True) -> CalibrationOutput:
     """
     from tqdm import tqdm
 
-    rng = np.random.default_rng(cfg.calibrate.seed)
+    initial = []
+    if resume is not None:
+        previous = read_session(resume)
+        if previous.setup != cfg.setup:
+            raise SessionError(f"session {resume} is {previous.setup}, the config is {cfg.setup}")
+        initial = previous.observations
+    # A resumed run must not replay the poses it already visited.
+    rng = np.random.default_rng([cfg.calibrate.seed, len(initial)])
     with devices.open_robot(cfg, read_only=False) as robot, devices.open_camera(cfg, robot) as camera:
         truth = devices.truth(camera)
-        writer = SessionWriter.create(cfg.session.root, cfg.setup, config=cfg.to_dict(),
-                                      intrinsics=dataclasses.asdict(camera.intrinsics), truth=truth)
+        if resume is not None:
+            writer = SessionWriter.resume(resume)
+        else:
+            writer = SessionWriter.create(cfg.session.root, cfg.setup, config=cfg.to_dict(),
+                                          intrinsics=dataclasses.asdict(camera.intrinsics), truth=truth)
         with writer, make_viz(cfg, writer.path) as viz:
             T_true = _camera_truth(cfg.setup, truth)
             if T_true is not None:
                 viz.truth(T_true)
-            bar = tqdm(total=cfg.calibrate.samples, desc="samples", unit="sample", disable=not progress)
+            bar = tqdm(total=cfg.calibrate.samples, initial=len(initial), desc="samples", unit="sample",
+                       disable=not progress)
             with bar:
                 report = run_calibration(robot, camera, devices.make_measure(cfg), make_solve(cfg.calibrate, cfg.setup, rng),
                                          writer, cfg.calibrate, cfg.setup, rng, viz,
-                                         save_frames=cfg.session.save_frames, progress=bar)
+                                         save_frames=cfg.session.save_frames, progress=bar, initial=initial)
     files = devices.write_result(report.result, writer.path, cfg.session.exports) if report.result is not None else {}
     return CalibrationOutput(report, cfg.setup, cfg.calibrate.method, files, _camera_truth(cfg.setup, truth))
 

@@ -1,5 +1,6 @@
 """A session killed mid-run (SIGKILL, no cleanup) keeps every sample taken and replays."""
 
+import dataclasses
 import os
 import signal
 import subprocess
@@ -10,6 +11,7 @@ from pathlib import Path
 import pytest
 
 from app.cli import main
+from app.runner import calibrate
 from app.session import read_session
 
 pytestmark = pytest.mark.slow
@@ -22,7 +24,7 @@ def _sample_lines(root: Path) -> int:
     return files[0].read_bytes().count(b'"kind": "sample"')
 
 
-def test_sigkill_mid_run_then_replay(tmp_path, capsys):
+def test_sigkill_mid_run_then_replay_and_resume(tmp_path, capsys, sim_config):
     cfg = tmp_path / "sim.toml"
     cfg.write_text(Path("config/sim.toml").read_text().replace('host = "127.0.0.2"', 'host = "127.0.4.4"'))
     root = tmp_path / "sessions"
@@ -49,6 +51,15 @@ def test_sigkill_mid_run_then_replay(tmp_path, capsys):
     assert main(["replay", str(session_dir), "-m", "YKronT'", "-m", "YQuatT'"]) == 0
     out = capsys.readouterr().out
     assert f"eye_to_hand, {n} samples" in out and "| YKronT' |" in out and "err [mm]" in out
+
+    # ... and the killed session can be resumed: two more samples, appended with fresh indices.
+    cfg2 = sim_config("127.0.4.4", samples=n + 2, min_samples=6)
+    cfg2 = dataclasses.replace(cfg2, viz=dataclasses.replace(cfg2.viz, enabled=False))
+    resumed = calibrate(cfg2, resume=session_dir, progress=False)
+    assert resumed.report.session == session_dir and resumed.report.n_samples == n + 2
+    indices = [o.index for o in read_session(session_dir).observations]
+    assert len(indices) == n + 2 and indices == sorted(set(indices))
+    assert (session_dir / "result.yaml").exists()
 
 
 def test_ctrl_c_stops_and_keeps_samples(tmp_path):
