@@ -21,7 +21,6 @@ from __future__ import annotations
 import math
 import re
 import threading
-import time
 
 import numpy as np
 from scipy.spatial.transform import Rotation
@@ -107,7 +106,6 @@ class SimController:
         self.T_flange_tcp = from_ur_pose(self.tcp_offset)
         self.lock = threading.RLock()
         self.ticks = 0
-        self.t_start = time.time()
         self.safety_mode = SAFETY_NORMAL
         self.script_running = False
         self.script_uploads = 0
@@ -305,7 +303,7 @@ class SimController:
         self.stop_script("safety stop")
 
     # ---------------------------------------------------------------- motions
-    def _start_motion(self, motion, cmd: int, asynchronous: bool) -> None:
+    def _start_motion(self, motion, asynchronous: bool) -> None:
         self.motion, self.motion_t0, self.motion_async = motion, self.timestamp, asynchronous
         if asynchronous:
             self._async_progress(True)
@@ -354,7 +352,7 @@ class SimController:
                 motion = JointMotion(self.q, target, v, a)
             else:
                 motion = LinearMotion(self.q, from_ur_pose(target), v, a, self.model, self.T_flange_tcp, self.limits)
-            self._start_motion(motion, cmd, asynchronous)
+            self._start_motion(motion, asynchronous)
         elif cmd in (33, 34):
             self._stop_motion(decel=float(self._in_d(0)[0]) or None, linear=cmd == 33)
         elif cmd == 40:

@@ -30,8 +30,6 @@ import struct
 import threading
 import time
 
-import numpy as np
-
 from mocks.ur_sim.controller import SimController
 
 log = logging.getLogger("ur_sim")
