@@ -1,5 +1,6 @@
 """extract() on rendered RGB-D frames: accuracy, honest covariance, and bad frames skipped with a reason."""
 
+import cv2
 import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
@@ -57,6 +58,11 @@ def test_depth_refined_pose_beats_pnp_rotation(rendered_results):
         rot_p.append(tf.pose_error(m.T_cam_marker_pnp, T)[0])
         assert m.pose_cov.shape == (6, 6) and m.pose_cov_pnp.shape == (6, 6)
         assert np.all(np.linalg.eigvalsh(m.pose_cov) > 0)
+        # Covariance convention of calib.result: R_true = Exp(d) R_est, t_true = t_est + dt.
+        d = cv2.Rodrigues(T[:3, :3] @ m.T_cam_marker[:3, :3].T)[0].ravel()
+        e = np.r_[d, T[:3, 3] - m.T_cam_marker[:3, 3]]
+        pose_nees.append(e @ np.linalg.solve(m.pose_cov, e))
+    assert 3.0 < np.mean(pose_nees) < 12.0, pose_nees  # chi2(6): mean 6
     assert np.median(rot_d) < np.median(rot_p)
     assert np.median(rot_d) < np.deg2rad(1.5)
 

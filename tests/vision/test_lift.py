@@ -26,7 +26,8 @@ SQUARE = np.array([[290.0, 210.0], [350.0, 210.0], [350.0, 270.0], [290.0, 270.0
 
 def test_fit_recovers_plane_and_center_covariance_is_honest():
     rng = np.random.default_rng(0)
-    noise = DepthNoiseModel(k=1.7e-3, sigma_0=0.0, k_sys=0.0)
+    # Independent pixel noise here, so no credit limit for correlated pixels.
+    noise = DepthNoiseModel(k=1.7e-3, sigma_0=0.0, k_sys=0.0, max_independent_pixels=1e9)
     z_true = _plane_depth(N_TRUE, D_TRUE)
     rows, cols = polygon_pixels(SQUARE, z_true.shape, 1.0)
     xy_c = np.array([0.01, -0.02])
@@ -50,6 +51,14 @@ def test_fit_recovers_plane_and_center_covariance_is_honest():
     assert 0.8 < z_err.std() / z_sig < 1.25
     assert abs(z_err.mean()) < 3 * z_sig / np.sqrt(len(z_err))
     assert np.isfinite(nees).all()
+
+
+def test_correlated_pixels_limit_the_credit():
+    z = _plane_depth(N_TRUE, D_TRUE)
+    rows, cols = polygon_pixels(SQUARE, z.shape, 1.0)
+    free = fit_plane(z, rows, cols, K, DIST, DepthNoiseModel(max_independent_pixels=1e9))
+    capped = fit_plane(z, rows, cols, K, DIST, DepthNoiseModel(max_independent_pixels=200))
+    np.testing.assert_allclose(capped.cov, free.cov * free.n_inliers / 200)
 
 
 def test_systematic_and_lateral_terms_enter_the_covariance():
