@@ -305,11 +305,11 @@ class URRobot(Robot):
                 tcp = np.asarray(cfg.tcp_offset)
             self._T_flange_tcp = from_ur_pose(tcp)
             self._start_polling()
-        except Exception as exc:
+        except BaseException as exc:
             self._close_interfaces()
-            if isinstance(exc, DeviceError):
-                raise
-            raise DeviceError(f"cannot open RTDE control on UR controller {cfg.host}: {exc}") from exc
+            if isinstance(exc, RuntimeError):  # what ur_rtde's C++ exceptions become
+                raise DeviceError(f"cannot open RTDE control on UR controller {cfg.host}: {exc}") from exc
+            raise
         self._check_model()
 
     def _check_model(self) -> None:
@@ -357,7 +357,8 @@ class URRobot(Robot):
         self._poll_error = None
         self._last_ts = None
         self._stop_poll = threading.Event()
-        self._poller = threading.Thread(target=self._poll, name=f"ur-rtde-{self.config.host}", daemon=True)
+        self._poller = threading.Thread(target=self._poll, args=(self._stop_poll,), name=f"ur-rtde-{self.config.host}",
+                                        daemon=True)
         self._poller.start()
         deadline = time.monotonic() + self.config.connect_timeout
         while self._buffer.latest is None:
@@ -398,9 +399,11 @@ class URRobot(Robot):
         )
         return True
 
-    def _poll(self) -> None:
+    def _poll(self, stop: threading.Event) -> None:
+        # Poll at 4x the stream rate: ur_rtde keeps only the newest package, so a slower
+        # poller would miss states.
         period = 0.25 / (500.0 if self.config.frequency == -1 else self.config.frequency)
-        while not self._stop_poll.is_set():
+        while not stop.is_set():
             try:
                 if not self._rtde_r.isConnected():
                     self._poll_error = ConnectionLostError(f"RTDE connection to UR controller {self.config.host} dropped")
@@ -433,7 +436,7 @@ class URRobot(Robot):
         if age > self.config.frozen_timeout:
             # The poller may just have been starved of CPU: look once more ourselves.
             try:
-                fresh = self._sample()
+                fresh = self._sample() or self._rtde_r.getTimestamp() != self._last_ts  # torn read = fresh
             except RuntimeError as exc:
                 raise ConnectionLostError(f"RTDE read from UR controller {self.config.host} failed: {exc}") from exc
             if not fresh:
