@@ -14,7 +14,7 @@ from calib.errors import ConfigError, ConnectionLostError, DeviceError
 from calib.vision.extract import TargetConfig, extract
 from drivers.camera.base import CameraIntrinsics, RGBDFrame
 from drivers.camera.factory import camera_config_from_dict, make_camera
-from drivers.camera.intrinsics import load_intrinsics, save_intrinsics
+from drivers.camera.intrinsics import load_intrinsics
 from mocks.recorded import RecordingWriter
 from mocks.render.camera import RenderedCameraConfig
 
