@@ -80,6 +80,8 @@ def _capture(camera: Camera, not_before: float, tries: int = 10) -> RGBDFrame:
         frame = camera.read()
         if frame.t >= not_before:
             return frame
+    log.warning("no frame newer than %.3f s in %d reads (camera clock behind the robot's?); using frame %d at %.3f s",
+                not_before, tries, frame.index, frame.t)
     return frame
 
 
@@ -226,8 +228,10 @@ def run_calibration(
                 n_skipped += 1
                 continue
             time.sleep(cfg.settle_s)
-            obs = take_sample(robot, camera, measure, writer, viz,
-                              not_before=max(state.t_host, time.time() - 1e-3), save_frames=save_frames)
+            # Only a frame exposed after the arm settled (plus settle_s for the plate to stop
+            # vibrating) pairs with a still pose; older frames queued during the motion are dropped.
+            obs = take_sample(robot, camera, measure, writer, viz, not_before=state.t_host + cfg.settle_s,
+                              save_frames=save_frames)
             if obs is None:
                 n_skipped += 1
                 continue
