@@ -139,9 +139,10 @@ def main(argv: list[str] | None = None) -> int:
     print("## Extraction time per 640x480 frame (one core, thread CPU time)\n")
     print("| step | median ms | 95 % ms |")
     print("|---|---|---|")
-    for name, key in (("detect (ArUco, subpixel)", "detect_ms"), ("extract = detect + PnP + depth plane + center",
-                                                                    "extract_ms"), ("render (mock, for reference)",
-                                                                                    "render_ms")):
+    steps = (("detect (ArUco, subpixel)", "detect_ms"),
+             ("extract = detect + PnP + depth plane + center", "extract_ms"),
+             ("render (mock, for reference)", "render_ms"))
+    for name, key in steps:
         v = timing[key]
         print(f"| {name} | {np.median(v):.2f} | {np.percentile(v, 95):.2f} |")
     print("\n## 3D marker center vs distance (rendered, 5 cm marker, tilt up to ~40 deg)\n")
@@ -149,8 +150,9 @@ def main(argv: list[str] | None = None) -> int:
           "pose NEES mean (6) | rot depth-refined deg | rot PnP deg | PnP-only center mm |")
     print("|---|---|---|---|---|---|---|---|---|---|---|")
     for r in rows:
-        print(f"| {r['bin']} | {r['n']} | {r['skipped']} | {r['med_mm']:.2f} | {r['p95_mm']:.2f} | {r['nees']:.2f} | "
-              f"{r['nees_med']:.2f} | {r['pose_nees']:.2f} | {r['rot_d_deg']:.2f} | {r['rot_p_deg']:.2f} | {r['pnp_med_mm']:.1f} |")
+        print(f"| {r['bin']} | {r['n']} | {r['skipped']} | {r['med_mm']:.2f} | {r['p95_mm']:.2f} | "
+              f"{r['nees']:.2f} | {r['nees_med']:.2f} | {r['pose_nees']:.2f} | {r['rot_d_deg']:.2f} | "
+              f"{r['rot_p_deg']:.2f} | {r['pnp_med_mm']:.1f} |")
     sel = [r for r in rows if 0.5 <= r["z"] <= 1.0]
     err = np.concatenate([r["err"] for r in sel])
     nees = np.concatenate([r["nees_all"] for r in sel])

@@ -122,7 +122,8 @@ class TargetConfig:
             v = getattr(self, name)
             if not isinstance(v, (int, float)) or not 0 <= v <= 1:
                 raise ConfigError(f"marker.{name} must be in [0, 1], got {v!r}")
-        if isinstance(self.min_depth_pixels, bool) or not isinstance(self.min_depth_pixels, int) or self.min_depth_pixels < 3:
+        mdp = self.min_depth_pixels
+        if isinstance(mdp, bool) or not isinstance(mdp, int) or mdp < 3:
             raise ConfigError(f"marker.min_depth_pixels must be an integer >= 3, got {self.min_depth_pixels!r}")
         if self.depth_roi_scale > 1:
             raise ConfigError(f"marker.depth_roi_scale must be <= 1, got {self.depth_roi_scale!r}")

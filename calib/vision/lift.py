@@ -144,15 +144,22 @@ def solve_pnp(image_points, object_points, K: np.ndarray, dist, *, square: bool)
     img = np.ascontiguousarray(image_points, dtype=np.float64).reshape(-1, 1, 2)
     dist = np.asarray(dist, dtype=np.float64)
     ok, rvecs, tvecs, errs = cv2.solvePnPGeneric(obj, img, K, dist, flags=flag)
-    def finite(ok, rvecs, tvecs, errs):
+    def run(method):
+        try:
+            ok, rvecs, tvecs, errs = cv2.solvePnPGeneric(obj, img, K, dist, flags=method)
+        except cv2.error:  # collinear or too few points: a degenerate detection, not a bug
+            return []
         if not ok:
             return []
-        return [(rv, t, e) for rv, t, e in zip(rvecs, tvecs, np.ravel(errs)) if np.isfinite(rv).all() and np.isfinite(t).all()]
+        return [
+            (rv, t, e) for rv, t, e in zip(rvecs, tvecs, np.ravel(errs))
+            if np.isfinite(rv).all() and np.isfinite(t).all()
+        ]
 
-    sols = finite(*cv2.solvePnPGeneric(obj, img, K, dist, flags=flag))
+    sols = run(flag)
     if not sols:
         # IPPE returns NaN for an exactly fronto-parallel view; the iterative solver does not.
-        sols = finite(*cv2.solvePnPGeneric(obj, img, K, dist, flags=cv2.SOLVEPNP_ITERATIVE))
+        sols = run(cv2.SOLVEPNP_ITERATIVE)
     if not sols:
         raise MarkerNotFoundError("PnP failed on the detected corners (degenerate geometry)")
     out = []

@@ -50,7 +50,9 @@ def camera_config_from_dict(data: dict):
     known = {f.name for f in dataclasses.fields(cls)}
     for key in data:
         if key not in known:
-            raise ConfigError(f"unknown key camera.{key} for backend {data['backend']!r} (known: {', '.join(sorted(known))})")
+            raise ConfigError(
+                f"unknown key camera.{key} for backend {data['backend']!r} (known: {', '.join(sorted(known))})"
+            )
     return cls(**data)
 
 

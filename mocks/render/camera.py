@@ -48,7 +48,9 @@ def _look_at(eye, target, up=(0.0, 0.0, 1.0)) -> np.ndarray:
 _P0 = np.array([0.9, 0.1, 0.5])
 _DEFAULT_T_BASE_CAM = _look_at(_P0 + [-0.2, -0.7, 0.35], _P0)
 # The marker plate sits 12 mm in front of the flange face, shifted and turned so X is not trivial.
-_DEFAULT_T_FLANGE_MARKER = tf.make_transform(Rotation.from_euler("z", 30, degrees=True).as_matrix(), [0.02, -0.01, 0.012])
+_DEFAULT_T_FLANGE_MARKER = tf.make_transform(
+    Rotation.from_euler("z", 30, degrees=True).as_matrix(), [0.02, -0.01, 0.012]
+)
 # Eye-in-hand: camera 5 cm off the flange axis looking along it; the 4 mm plate lies
 # on the floor (base z = 0) below the start pose, face up.
 _DEFAULT_T_FLANGE_CAM = tf.make_transform(np.eye(3), [0.0, 0.05, 0.02])

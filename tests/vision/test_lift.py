@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 from calib import transforms as tf
-from calib.errors import DepthError
+from calib.errors import DepthError, MarkerNotFoundError
 from calib.vision.lift import DepthNoiseModel, fit_plane, intersect_ray, pnp_covariance, polygon_pixels, solve_pnp
 from calib.vision.markers import marker_object_points
 
@@ -119,3 +119,10 @@ def test_pnp_candidates_and_covariance():
     assert cov.shape == (6, 6) and np.all(np.linalg.eigvalsh(cov) > 0)
     # The range of a 5 cm marker at 0.6 m is far less certain than its lateral position.
     assert cov[5, 5] > 10 * cov[3, 3]
+
+
+def test_collinear_corners_are_a_skip_not_a_crash():
+    obj = np.array([[0, 0, 0], [0.04, 0, 0], [0.08, 0, 0], [0.12, 0, 0.0]])
+    img = np.array([[100, 100], [140, 100], [180, 100], [220, 100.0]])
+    with pytest.raises(MarkerNotFoundError, match="degenerate"):
+        solve_pnp(img, obj, K, DIST, square=False)
