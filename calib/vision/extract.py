@@ -162,7 +162,9 @@ class MarkerMeasurement:
     """What one frame says about the target, in the camera frame.
 
     Same for eye-to-hand and eye-in-hand (it is always the target seen from
-    the camera: the paper's ``B_i = T_cam_marker`` and its translation).
+    the camera: the paper's ``B_i = T_cam_marker`` in ``A_i X = Y B_i``
+    (eq. 1), and its translation ``t_B``, all that the equation of translation
+    ``R_Y t_B + t_Y - R_A t_X = t_A`` solved by YKronT' / YQuatT' needs).
 
     Attributes
     ----------

@@ -255,7 +255,12 @@ class OpenNI2Camera(Camera):
         return stream.read_frame()
 
     def read(self) -> RGBDFrame:
-        """Next depth + color pair whose device timestamps differ by at most ``max_skew_ms``."""
+        """Next depth + color pair whose device timestamps differ by at most ``max_skew_ms``.
+
+        ``RGBDFrame.t`` is the host time at which the pair was received (the
+        exposure is a roughly constant latency earlier, left to the time-offset
+        estimation); the device timestamps (us) are in ``meta``.
+        """
         if self._device is None:
             raise DeviceError("OpenNI2 camera is not connected")
         c = self.config
