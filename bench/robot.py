@@ -110,7 +110,7 @@ def plot(stamps: dict, move_rows: dict, out: Path) -> None:
     out.mkdir(parents=True, exist_ok=True)
     fig, ax = plt.subplots(figsize=(6, 3.5))
     for label, s in stamps.items():
-        ax.hist(np.diff(s) * 1e3, bins=np.arange(0, 20.5, 0.5), alpha=0.6, label=label)
+        ax.hist(np.diff(s) * 1e3, bins=np.arange(0.25, 20.3, 0.5), alpha=0.6, label=label)
     ax.set_xlabel("interval between states seen by the client (controller clock, ms)")
     ax.set_ylabel("count")
     ax.set_yscale("log")

@@ -287,12 +287,18 @@ class SimServer:
 
     # ---------------------------------------------------------- connections
     def open_listeners(self) -> None:
-        for port in (PORT_DASHBOARD, PORT_SCRIPT, PORT_RTDE):
-            ls = socket.socket(socket.AF_INET, socket.SOCK_STREAM)
-            ls.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
-            ls.bind((self.host, port))
-            ls.listen(8)
-            self.listeners[port] = ls
+        """Bind and listen on the three UR ports (all or none; OSError if one cannot be bound)."""
+        try:
+            for port in (PORT_DASHBOARD, PORT_SCRIPT, PORT_RTDE):
+                ls = socket.socket(socket.AF_INET, socket.SOCK_STREAM)
+                ls.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+                self.listeners[port] = ls
+                ls.bind((self.host, port))
+                ls.listen(8)
+        except OSError:
+            self.close_listeners()
+            raise
+        for port, ls in self.listeners.items():
             threading.Thread(target=self._accept, args=(ls, port), daemon=True).start()
 
     def close_listeners(self) -> None:
@@ -474,7 +480,11 @@ class SimServer:
                 t0 = time.perf_counter() - ctl.ticks * ctl.dt
             now_m = time.monotonic()
             if not self.listeners and now_m >= self.refuse_until:
-                self.open_listeners()
+                try:
+                    self.open_listeners()
+                except OSError as exc:  # e.g. another process took the address meanwhile: retry
+                    log.warning("cannot reopen the ports on %s: %s", self.host, exc)
+                    self.refuse_until = now_m + 0.5
             if now_m >= self.freeze_until:
                 with self.conns_lock:
                     rtde = [c for c in self.conns if isinstance(c, RTDEConnection) and c.started]
