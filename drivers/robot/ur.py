@@ -38,9 +38,8 @@ from drivers.robot.buffer import ClockMapper, StateBuffer, interpolate_pose
 log = logging.getLogger(__name__)
 
 # UR safety modes (RTDE ``safety_mode``) that stop the arm.
-SAFETY_PROTECTIVE_STOP = 3
-SAFETY_EMERGENCY = {6: "system emergency stop", 7: "robot emergency stop"}
-SAFETY_STOPPED = {3: "protective stop", 5: "safeguard stop", 8: "safety violation", 9: "safety fault", **SAFETY_EMERGENCY}
+SAFETY_STOPPED = {3: "protective stop", 5: "safeguard stop", 6: "system emergency stop", 7: "robot emergency stop",
+                  8: "safety violation", 9: "safety fault"}
 # safety_status_bits: 2 protective, 4 safeguard, 5-7 emergency stops, 8 violation, 9 fault, 10 stopped by safety.
 SAFETY_STOP_BITS = 0x7F4
 

@@ -48,11 +48,6 @@ class URGeometry:
     def a(self) -> np.ndarray:
         return np.array([0.0, self.a2, self.a3, 0.0, 0.0, 0.0])
 
-    @property
-    def reach(self) -> float:
-        """Upper bound on the flange distance from the shoulder axis, m."""
-        return abs(self.a2) + abs(self.a3) + self.d4 + self.d5 + self.d6
-
 
 # Universal Robots, "DH parameters for calculations of kinematics and dynamics".
 UR_MODELS: dict[str, URGeometry] = {
