@@ -108,17 +108,25 @@ class DetectorConfig:
     Attributes
     ----------
     window : int
-        Innovations in the sliding GLR window (>= 3).
+        Innovations in the short sliding GLR window (>= 3): reacts within a
+        few samples to a clear move.
+    long_window : int or None
+        A second, longer window (> ``window``) for small moves the short one
+        cannot resolve (e.g. a rotation about the optical axis); None disables it.
     false_alarm_rate : float
-        Per-sample probability of a false alarm on an unchanged cell, in (0, 0.1).
+        Per-sample probability of a false alarm on an unchanged cell, in
+        (0, 0.1), split evenly between the two windows.
     """
 
     window: int = 20
+    long_window: int | None = 100
     false_alarm_rate: float = 1e-7
 
     def __post_init__(self):
         if not isinstance(self.window, int) or self.window < 3:
             raise ConfigError(f"window must be an int >= 3, got {self.window!r}")
+        if self.long_window is not None and (not isinstance(self.long_window, int) or self.long_window <= self.window):
+            raise ConfigError(f"long_window must be None or an int > window ({self.window}), got {self.long_window!r}")
         if not 0.0 < self.false_alarm_rate < 0.1:
             raise ConfigError(f"false_alarm_rate must be in (0, 0.1), got {self.false_alarm_rate!r}")
 
@@ -129,50 +137,65 @@ class ChangeDetector:
     Feed it the innovation ``r`` (3,) of each new point predicted from the
     current estimate, its inverse covariance ``S^-1`` (3, 3) and the Jacobian ``H`` (3, 6)
     of the predicted point w.r.t. the camera transform perturbation
-    (`calib.result` convention). The statistic is chi-square(6) while the
-    camera stays put; a moved camera makes the innovations line up with ``H``.
+    (`calib.result` convention). Over each window the statistic
+    ``g^T F^-1 g`` is chi-square(6) while the camera stays put; a moved camera
+    makes the innovations line up with ``H``. ``statistics`` holds the
+    (short, long) window values, ``statistic`` the larger; both share one threshold.
     """
 
     def __init__(self, config: DetectorConfig | None = None):
         self.config = config or DetectorConfig()
-        self.threshold = float(chi2.ppf(1.0 - self.config.false_alarm_rate, 6))
-        self._Fg = np.zeros((self.config.window, 6, 7))
+        windows = 1 if self.config.long_window is None else 2
+        self.threshold = float(chi2.ppf(1.0 - self.config.false_alarm_rate / windows, 6))
+        self._size = self.config.long_window or self.config.window
+        self._Fg = np.zeros((self._size, 6, 7))
         self._Hr = np.empty((3, 7))
         self.reset()
 
     def reset(self) -> None:
         """Forget all innovations."""
         self._Fg[:] = 0.0
-        self._Fg_sum = np.zeros((6, 7))
+        self._short = np.zeros((6, 7))
+        self._long = np.zeros((6, 7))
         self._count = 0
         self.statistic = 0.0
+        self.statistics = (0.0, 0.0)
 
     def update(self, r: np.ndarray, S_inv: np.ndarray, H: np.ndarray) -> bool:
         """Add one innovation ``r`` (3,) with inverse covariance ``S_inv`` (3, 3) and Jacobian ``H`` (3, 6).
 
-        Returns True if the window's GLR statistic exceeds the threshold.
+        Returns True if a window's GLR statistic exceeds the threshold.
         """
-        # [H^T S^-1 H | H^T S^-1 r] in one product; the window sums are kept
-        # by adding the new and subtracting the slot it overwrites.
+        # [H^T S^-1 H | H^T S^-1 r] in one product; window sums are kept by
+        # adding the newest and subtracting the one that leaves the window.
         Hr = self._Hr
         Hr[:, :6] = H
         Hr[:, 6] = r
         Fg = H.T @ S_inv @ Hr
-        k = self._count % self.config.window
-        self._Fg_sum += Fg - self._Fg[k]
-        self._Fg[k] = Fg
-        self._count += 1
+        cfg, n, size = self.config, self._count, self._size
+        self._short += Fg - self._Fg[(n - cfg.window) % size] if n >= cfg.window else Fg
+        if cfg.long_window is not None:
+            self._long += Fg - self._Fg[n % size]
+        self._Fg[n % size] = Fg
+        self._count = n + 1
         if self._count < 3:
             # Two points cannot yet separate six pose parameters.
-            self.statistic = 0.0
             return False
-        F = self._Fg_sum[:, :6]
-        g = self._Fg_sum[:, 6]
-        # A tiny ridge keeps a rank-deficient window (robot standing still) solvable;
-        # g lies in the range of F then, so the statistic is unaffected.
-        _, x, info = dposv(F + (1e-9 * (F[0, 0] + F[3, 3])) * _I6, g)
-        self.statistic = float(g @ x) if info == 0 else 0.0
+        short = _glr(self._short)
+        long = _glr(self._long) if cfg.long_window is not None and self._count > cfg.window else 0.0
+        self.statistics = (short, long)
+        self.statistic = max(short, long)
         return self.statistic > self.threshold
+
+
+def _glr(Fg):
+    """``g^T F^-1 g`` of a window sum ``[F | g]`` (6, 7)."""
+    F = Fg[:, :6]
+    g = Fg[:, 6]
+    # A tiny ridge keeps a rank-deficient window (robot standing still) solvable;
+    # g lies in the range of F then, so the statistic is unaffected.
+    _, x, info = dposv(F + (1e-9 * (F[0, 0] + F[3, 3])) * _I6, g)
+    return float(g @ x) if info == 0 else 0.0
 
 
 @dataclass
@@ -284,7 +307,7 @@ class OnlineCalibrator:
     def state_size(self) -> int:
         """Floats held in the state (bounded, independent of the stream length)."""
         buf = len(self._buffer) * (16 + 3 + 9)
-        return buf + (0 if self._P is None else 16 + 3 + 81 + 81) + self.detector._Fg.size
+        return buf + (0 if self._P is None else 16 + 3 + 81 + 81) + self.detector._Fg.size + 2 * 42
 
     def _noise_scale(self) -> float:
         # Given covariances are trusted; the default model's scale comes from the NIS.

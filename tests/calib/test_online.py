@@ -82,11 +82,14 @@ def test_no_false_alarm_on_long_unchanged_stream():
     rng = np.random.default_rng(46)
     d = simulate.realistic_cell(3000, rng)
     cal = OnlineCalibrator(OnlineConfig(forgetting=0.999))
-    ups = run(cal, d.A, d.points, d.point_cov)
-    assert not any(u.alarm for u in ups)
-    stats = np.array([u.statistic for u in ups[100:]])
-    # Chi-square(6) while nothing changes: mean 6.
-    assert 4.5 < stats.mean() < 7.5
+    short, long = [], []
+    for i in range(len(d.A)):
+        assert not cal.update(d.A[i], d.points[i], d.point_cov[i]).alarm
+        short.append(cal.detector.statistics[0])
+        long.append(cal.detector.statistics[1])
+    # Chi-square(6) in each window while nothing changes: mean 6.
+    assert 4.5 < np.mean(short[200:]) < 7.5
+    assert 4.5 < np.mean(long[200:]) < 7.5
 
 
 def test_relearns_after_alarm():
@@ -139,14 +142,17 @@ def test_config_validation_names_the_field():
         OnlineConfig(bootstrap=3)
     with pytest.raises(ConfigError, match="window"):
         DetectorConfig(window=1)
+    with pytest.raises(ConfigError, match="long_window"):
+        DetectorConfig(window=20, long_window=10)
 
 
 def test_detector_alone_is_chi_square_under_no_change():
     rng = np.random.default_rng(50)
-    det = ChangeDetector(DetectorConfig(window=10))
+    det = ChangeDetector(DetectorConfig(window=10, long_window=50))
     stats = []
     for _ in range(2000):
         H = rng.normal(size=(3, 6))
         det.update(rng.normal(size=3), np.eye(3), H)
-        stats.append(det.statistic)
-    assert 5.5 < np.mean(stats[10:]) < 6.5
+        stats.append(det.statistics)
+    stats = np.array(stats[50:])
+    assert np.all((5.5 < stats.mean(axis=0)) & (stats.mean(axis=0) < 6.5))
