@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import logging
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Callable
 
@@ -52,6 +52,8 @@ class RunReport:
     stopped_by : str
         ``"samples"``, ``"target_sigma"``, ``"max_attempts"`` or ``"interrupted"``.
     elapsed_s : float
+    skip_reasons : dict
+        ``{reason: count}`` of this run's skips.
     """
 
     result: CalibrationResult | None
@@ -60,6 +62,7 @@ class RunReport:
     n_skipped: int
     stopped_by: str
     elapsed_s: float
+    skip_reasons: dict = field(default_factory=dict)
 
 
 def random_pose(T_start: np.ndarray, cfg: CalibrateConfig, rng: np.random.Generator) -> np.ndarray:
@@ -272,7 +275,8 @@ def run_calibration(
         except CalibrationError as e:
             log.error("final solve failed: %s", e)
             writer.add_event(time.time(), "solve_failed", error=str(e))
-    return RunReport(result, writer.path, len(observations), n_skipped, stopped_by, time.monotonic() - t0)
+    return RunReport(result, writer.path, len(observations), n_skipped, stopped_by, time.monotonic() - t0,
+                     dict(writer.skip_reasons))
 
 
 def _precise_enough(estimate: CalibrationResult, cfg: CalibrateConfig) -> bool:

@@ -191,8 +191,12 @@ def print_calibration_summary(out: CalibrationOutput) -> None:
     print(f"\nsession: {r.session}")
     print(f"setup: {out.setup}   solver: {out.method}   samples: {r.n_samples}   skipped: {r.n_skipped}   "
           f"stopped by: {r.stopped_by}   time: {r.elapsed_s:.1f} s")
+    reasons = sorted(r.skip_reasons.items(), key=lambda kv: -kv[1])[:3]
+    if reasons:
+        print("most frequent skips: " + "; ".join(f"{n}x {why}" for why, n in reasons))
     if r.result is None:
-        print("no calibration: too few samples")
+        print(f"no calibration: {r.n_samples} samples are too few (every skip and its reason is in "
+              f"{r.session / 'samples.jsonl'})")
         return
     res = r.result
     rows = [("estimate " + cam, _pose_line(res.camera_transform))]

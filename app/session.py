@@ -21,6 +21,7 @@ import datetime as _dt
 import json
 import logging
 import os
+from collections import Counter
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -135,6 +136,7 @@ class SessionWriter:
         self.header = header
         self.next_index = next_index
         self.n_samples = 0
+        self.skip_reasons: Counter[str] = Counter()  # of this writer's run, for the summary
         self._lines = open(self.path / "samples.jsonl", "ab")
 
     @classmethod
@@ -249,6 +251,7 @@ class SessionWriter:
         """Record a frame or pose that produced no sample, with the reason (never dropped silently)."""
         index = self.next_index
         files = self._write_frames(index, color, depth)
+        self.skip_reasons[reason] += 1
         self._append({"kind": "skip", "index": index, "t": float(t), "reason": reason,
                       "T_base_flange": T_base_flange, **files, **extra})
         self.next_index += 1
