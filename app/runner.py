@@ -149,6 +149,8 @@ def replay_source(source: Path, methods: list[str], *, refine: bool = False, rob
         raise SessionError(f"{source}: no such file or directory")
     if (Path(source) / "session.json").exists():
         session = read_session(source)
+        if setup is not None and setup != session.setup:
+            raise SessionError(f"{source} is an {session.setup} session; --setup {setup} contradicts it")
         observations, file_setup, truth = session.observations, session.setup, session.truth
     else:
         observations, file_setup, truth = devices.import_observations(Path(source), setup)
