@@ -5,18 +5,22 @@ can run continuously while the robot works. This module makes it recursive:
 
 - `OnlineCalibrator` buffers the first ``bootstrap`` samples, solves them with
   YKronT' (paper eq. 20) and refines them (`calib.refine`), then runs an
-  information-form extended Kalman filter over the camera transform (6 dof)
+  extended Kalman filter (recursive least squares with forgetting, in
+  covariance form) over the camera transform (6 dof)
   and the marker-side translation (3 dof) on the equation of translation
   (paper eq. 5) in the camera frame. Each update is a fixed amount of work
   on 9x9 matrices (constant time and memory); old information fades with the
   ``forgetting`` factor ``lambda`` (effective memory ``1 / (1 - lambda)``
   samples; 1 keeps everything).
-- `ChangeDetector` tests, over a sliding window of the last ``window``
-  innovations (predicted before each sample is fused, so they are white with
-  known covariance when nothing changed), the generalised likelihood ratio of
-  "the camera moved by some 6-dof delta": ``g^T F^-1 g`` with
-  ``F = sum H^T S^-1 H``, ``g = sum H^T S^-1 r``, which is chi-square with 6 dof
-  before a change. It alarms above the ``1 - false_alarm_rate`` quantile.
+- `ChangeDetector` tests, over sliding windows of the last ``window`` (20)
+  and ``long_window`` (100) innovations (predicted before each sample is
+  fused, so they are white with known covariance when nothing changed), the
+  generalised likelihood ratio of "the camera moved by some 6-dof delta":
+  ``g^T F^-1 g`` with ``F = sum H^T S^-1 H``, ``g = sum H^T S^-1 r``, which is
+  chi-square with 6 dof before a change. It alarms above the
+  ``1 - false_alarm_rate / 2`` quantile. The short window flags clear moves
+  (1 cm, 0.5 deg about most axes) within a few samples; the long one catches
+  moves the points barely show, such as a small rotation about the optical axis.
 
 Setups: eye-to-hand (``X = T_flange_marker``, ``Y = T_base_cam``) and
 eye-in-hand (``X = T_flange_cam``, ``Y = T_base_marker``); the "camera
