@@ -71,3 +71,20 @@ def dataclasses_replace_viz_off(cfg):
     import dataclasses
 
     return dataclasses.replace(cfg, viz=dataclasses.replace(cfg.viz, enabled=False))
+
+
+def test_targets_outside_the_workspace_are_skipped_not_sent(sim_config):
+    """A box much smaller than the sampling range: out-of-box targets are skipped (reason recorded),
+    and every pose the robot actually took stays inside the box."""
+    import dataclasses
+
+    lo, hi = np.array([0.8, -0.05, 0.42]), np.array([1.0, 0.2, 0.62])
+    cfg = sim_config("127.0.4.11", samples=5, min_samples=5)
+    cfg = dataclasses.replace(cfg, robot={**cfg.robot, "workspace_min": lo.tolist(), "workspace_max": hi.tolist()},
+                              viz=dataclasses.replace(cfg.viz, enabled=False),
+                              session=dataclasses.replace(cfg.session, save_frames=False))
+    out = calibrate(cfg, progress=False)
+    assert out.report.n_samples == 5
+    assert any(reason.startswith("limit:") for reason in out.report.skip_reasons)
+    A = np.array([o.T_base_flange for o in read_session(out.report.session).observations])
+    assert np.all(A[:, :3, 3] >= lo - 1e-3) and np.all(A[:, :3, 3] <= hi + 1e-3)
