@@ -20,6 +20,7 @@ the ports accept connections::
 from __future__ import annotations
 
 import argparse
+import collections
 import json
 import logging
 import signal
@@ -80,10 +81,21 @@ class SimProcess:
     ----------
     host : str
     proc : subprocess.Popen
+    log_tail : deque of str
+        The simulator's last output lines (warnings go to stderr).
     """
 
     def __init__(self, host: str, proc: subprocess.Popen):
         self.host, self.proc = host, proc
+        # Drain the pipes so a chatty simulator never blocks on a full pipe; keep the
+        # last lines of stderr for diagnostics.
+        self.log_tail: collections.deque[str] = collections.deque(maxlen=50)
+        for stream in (proc.stdout, proc.stderr):
+            threading.Thread(target=self._drain, args=(stream,), daemon=True).start()
+
+    def _drain(self, stream) -> None:
+        for line in stream:
+            self.log_tail.append(line.rstrip())
 
     def command(self, line: str, timeout: float = 5.0) -> str:
         """Send one dashboard line on a fresh connection and return the one-line answer."""
