@@ -88,7 +88,7 @@ def _capture(camera: Camera, not_before: float, tries: int = 10) -> RGBDFrame:
     return frame
 
 
-def pose_at_frame(robot: Robot, t: float, timeout: float = 0.5) -> np.ndarray:
+def pose_at_frame(robot: Robot, t: float, timeout: float = 1.0) -> np.ndarray:
     """``robot.pose_at(t)``, waiting up to ``timeout`` s for the robot states around ``t`` to arrive.
 
     A frame stamped at ``t`` often reaches us before the robot state that
