@@ -1,5 +1,5 @@
 # Two entry points: `make demo` and `make test`. Both build .venv/ first and
-# install the system libraries the Python wheels need (open3d: libusb-1.0).
+# install the system libraries the Python wheels need.
 PYTHON ?= python3.11
 VENV   := .venv
 BIN    := $(VENV)/bin
@@ -19,17 +19,23 @@ bench: $(STAMP)
 
 venv: $(STAMP)
 
+# libusb-1.0-0: open3d. libopenni2-0: the OpenNI2 camera driver (its dummy device is tested).
+SYSLIBS := libusb-1.0.so.0:libusb-1.0-0 libOpenNI2.so.0:libopenni2-0
+
 sysdeps:
-	@if ! ldconfig -p | grep -q 'libusb-1.0.so.0'; then \
-		echo "installing libusb-1.0-0 (needed by open3d)"; \
-		$(SUDO) apt-get update -qq && $(SUDO) apt-get install -y -qq libusb-1.0-0; \
+	@missing=""; for pair in $(SYSLIBS); do \
+		ldconfig -p | grep -q "$${pair%%:*}" || missing="$$missing $${pair#*:}"; \
+	done; \
+	if [ -n "$$missing" ]; then \
+		echo "installing system libraries:$$missing"; \
+		$(SUDO) apt-get update -qq && $(SUDO) apt-get install -y -qq $$missing; \
 	fi
 
 $(STAMP): pyproject.toml | sysdeps
 	@command -v $(PYTHON) >/dev/null || { echo "need $(PYTHON) (set PYTHON=...)"; exit 1; }
 	$(PYTHON) -m venv $(VENV)
 	$(BIN)/python -m pip install -q --upgrade pip
-	$(BIN)/python -m pip install -q -e '.[test]'
+	$(BIN)/python -m pip install -q -e '.[test,openni]'
 	touch $(STAMP)
 
 clean:
