@@ -48,3 +48,14 @@ def test_inconsistent_point_cov_is_inflated():
     honest = covariance(d.X, d.Y, d.A, d.points, setup="eye_to_hand", point_cov=d.point_cov)
     tiny = covariance(d.X, d.Y, d.A, d.points, setup="eye_to_hand", point_cov=d.point_cov / 100)
     assert 0.3 < np.trace(tiny) / np.trace(honest) < 3
+
+
+def test_pose_covariance_ignores_a_placeholder_marker_rotation():
+    """A point-only estimate (identity R_X) on pose data: the nuisance rotation is re-estimated."""
+    rng = np.random.default_rng(25)
+    d = simulate.realistic_cell(60, rng)
+    X_placeholder = d.X.copy()
+    X_placeholder[:3, :3] = np.eye(3)
+    a = covariance(d.X, d.Y, d.A, d.B, setup="eye_to_hand")
+    b = covariance(X_placeholder, d.Y, d.A, d.B, setup="eye_to_hand")
+    np.testing.assert_allclose(b, a, rtol=0.05, atol=1e-12)
