@@ -451,10 +451,6 @@ def x_kron_t(A: np.ndarray, B: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 _HALF_TURNS = np.array([[0.0, 0.0, 0.0, 1.0], [1.0, 0.0, 0.0, 0.0], [0.0, 1.0, 0.0, 0.0], [0.0, 0.0, 1.0, 0.0]])
 
 
-def _conj(q: np.ndarray) -> np.ndarray:
-    return q * np.array([-1.0, -1.0, -1.0, 1.0])
-
-
 def _zhuang_system(qa: np.ndarray, qb: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Zhuang's reduced eq. 9 (see `y_axis_r`): ``M [x_v / y_0; y_v / y_0] = rhs``, M (3N, 6), rhs (3N,)."""
     av, a0, bv, b0 = qa[:, :3], qa[:, 3], qb[:, :3], qb[:, 3]
