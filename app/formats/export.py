@@ -229,7 +229,11 @@ def easy_handeye2_dict(result: CalibrationResult, frames: dict | None = None, *,
 
 
 def urdf_joint(result: CalibrationResult, frames: dict | None = None) -> str:
-    """A fixed URDF ``<joint>`` from the camera's parent frame to the camera frame."""
+    """A xacro file holding one fixed ``<joint>`` from the camera's parent frame to the camera frame.
+
+    The ``<robot>`` root makes it a valid ``<xacro:include>`` for an existing
+    robot description, which must define both links.
+    """
     check_result(result)
     frames = _frames(frames)
     parent, child = _parent_child(result.setup, frames)
@@ -237,11 +241,13 @@ def urdf_joint(result: CalibrationResult, frames: dict | None = None) -> str:
     return (
         f"<!-- handeye {result.setup}: {cam_name} by {result.method}, {result.n_samples} samples, "
         f"residual RMS {result.residuals.rms_translation * 1e3:.2f} mm -->\n"
-        f'<joint name="{parent}_to_{child}_handeye" type="fixed">\n'
-        f'  <parent link="{parent}"/>\n'
-        f'  <child link="{child}"/>\n'
-        f"  {urdf_origin(result)}\n"
-        f"</joint>\n"
+        f'<robot xmlns:xacro="http://www.ros.org/wiki/xacro" name="handeye_calibration">\n'
+        f'  <joint name="{parent}_to_{child}_handeye" type="fixed">\n'
+        f'    <parent link="{parent}"/>\n'
+        f'    <child link="{child}"/>\n'
+        f"    {urdf_origin(result)}\n"
+        f"  </joint>\n"
+        f"</robot>\n"
     )
 
 
@@ -286,7 +292,7 @@ def write_result(result: CalibrationResult, path, fmt: str = "yaml", frames: dic
     fmt : {"yaml", "json", "easy_handeye", "easy_handeye2", "urdf", "ros2_launch"}
         ``yaml``/``json``: the main result document (`result_to_dict`);
         ``easy_handeye``: ROS 1 calibration YAML; ``easy_handeye2``: ROS 2
-        ``.calib`` YAML; ``urdf``: a fixed-joint snippet; ``ros2_launch``: a
+        ``.calib`` YAML; ``urdf``: a xacro include with the fixed joint; ``ros2_launch``: a
         Python launch file.
     frames : dict, optional
         Frame names (``base``, ``flange``, ``camera``, ``marker``).

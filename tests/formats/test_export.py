@@ -104,8 +104,10 @@ def test_easy_handeye_parameter_names_match_the_tools(result, tmp_path):
 
 
 def test_urdf_joint(result, tmp_path):
-    root = ET.parse(write_result(result, tmp_path / "j.urdf", fmt="urdf", frames=FRAMES)).getroot()
-    assert root.tag == "joint" and root.get("type") == "fixed"
+    robot = ET.parse(write_result(result, tmp_path / "j.urdf.xacro", fmt="urdf", frames=FRAMES)).getroot()
+    assert robot.tag == "robot"
+    root = robot.find("joint")
+    assert root.get("type") == "fixed"
     assert root.find("parent").get("link") == _parent(result)
     assert root.find("child").get("link") == "cam_optical"
     o = root.find("origin")
