@@ -134,8 +134,8 @@ def import_observations(path: Path, setup: str | None):
     -------
     observations : list[Observation]
     setup : str
-    truth : dict
-        Always empty (imported data has no ground truth).
+    meta : dict
+        What the importer found out (e.g. ``clock_offset_s`` of pose streams).
     """
     from app.formats import detect_format, load
 
@@ -143,4 +143,4 @@ def import_observations(path: Path, setup: str | None):
     # Only the easy_handeye files may leave the setup open; the others state it.
     options = {"setup": setup} if setup is not None and fmt.startswith("easy_handeye") else {}
     imported = load(path, fmt, **options)
-    return imported.observations, imported.setup, {}
+    return imported.observations, imported.setup, imported.meta

@@ -152,8 +152,10 @@ def replay_source(source: Path, methods: list[str], *, refine: bool = False, rob
         if setup is not None and setup != session.setup:
             raise SessionError(f"{source} is an {session.setup} session; --setup {setup} contradicts it")
         observations, file_setup, truth = session.observations, session.setup, session.truth
+        header = ""
     else:
-        observations, file_setup, truth = devices.import_observations(Path(source), setup)
+        observations, file_setup, meta = devices.import_observations(Path(source), setup)
+        truth, header = {}, _import_summary(meta)
     setup = setup or file_setup
     if not observations:
         raise InsufficientDataError(f"{source}: no samples to replay")
@@ -163,7 +165,20 @@ def replay_source(source: Path, methods: list[str], *, refine: bool = False, rob
                   truth=_camera_truth(setup, truth), rng=rng)
     if all(r.result is None for r in rows):
         raise HandeyeError(f"no solver succeeded on {source}: " + "; ".join(f"{r.method}: {r.error}" for r in rows))
-    return f"{source} ({setup}, {len(observations)} samples)\n\n" + format_table(rows, setup)
+    return f"{source} ({setup}, {len(observations)} samples)\n{header}\n" + format_table(rows, setup)
+
+
+def _import_summary(meta: dict) -> str:
+    """What an importer measured that the table does not show (the streams' clock offset)."""
+    if "clock_offset_s" not in meta:
+        return ""
+    line = f"clock offset (t_robot = t_camera + offset): {meta['clock_offset_s'] * 1e3:+.1f} ms"
+    if "xcorr_score" in meta:
+        line += f" (angular-speed correlation {meta['xcorr_score']:.2f}"
+        if "refine_rms_mm" in meta:
+            line += f", refined on the residual: RMS {meta['refine_rms_mm']:.2f} mm"
+        line += ")"
+    return line + "\n"
 
 
 def demo(cfg: Config, *, progress: bool = True) -> CalibrationOutput:
