@@ -174,7 +174,8 @@ def _closed_form(info: MethodInfo, A: np.ndarray, B: np.ndarray, setup: str) -> 
     else:
         # Eye-in-hand A X B = Y is eq. 1 with B inverted: A X = Y B^-1.
         X, Y = info.function(A, B if setup == "eye_to_hand" else tf.invert(B))
-    trans, rot = solvers.residuals(X, Y, A, B, setup, rotation=info.marker_rotation_known)
+    # A and B were validated by the caller; X and Y come from a solver.
+    trans, rot = solvers._residuals(X, Y, A, B, setup, info.marker_rotation_known)
     return CalibrationResult(
         method=info.name,
         setup=setup,
@@ -202,7 +203,7 @@ def solve(
 
     Pipeline: validate -> closed form (or ``calib.robust.robust_solve`` around
     it) -> ``calib.refine.refine`` on the inliers if asked -> covariance of
-    the camera transform (``calib.refine.covariance``).
+    the camera transform, of the estimator actually returned (see Returns).
 
     Parameters
     ----------
@@ -232,7 +233,14 @@ def solve(
     -------
     CalibrationResult
         ``X``, ``Y`` (4x4), residuals per sample, ``cov`` (6x6, camera
-        transform, rotation vector rad then translation m).
+        transform, rotation vector rad then translation m) and
+        ``info["cov_kind"]``: "fisher" (refined: inverse Fisher information,
+        `calib.refine.covariance`), "delta-analytic" (closed-form YKronT':
+        first-order covariance of the estimator, `calib.refine.kron_t_prime_covariance`),
+        "delta-numerical" (other closed forms up to `DELTA_METHOD_MAX_SAMPLES`
+        samples, `calib.refine.delta_method_covariance`) or
+        "fisher-optimistic" (other closed forms above that: the ML
+        covariance, smaller than the closed form's true error).
 
     Raises
     ------
@@ -267,10 +275,38 @@ def solve(
 
         refined = refine_fn(result, A_in, B_in, point_cov=cov_in)
         result = dataclasses.replace(refined, inliers=result.inliers)
-    from calib.refine import covariance
+    cov, kind = _covariance(info, result, A_in, B_in, setup, cov_in, refined=refine)
+    return dataclasses.replace(result, cov=cov, info={**result.info, "cov_kind": kind})
 
-    cov = covariance(result.X, result.Y, A_in, B_in, setup=setup, point_cov=cov_in)
-    return dataclasses.replace(result, cov=cov)
+
+#: Above this many samples a closed form from poses gets the ML (Fisher)
+#: covariance instead of the numerical delta method, whose 6N re-solves would
+#: cost seconds; it is then over-confident (``info["cov_kind"]`` says so).
+DELTA_METHOD_MAX_SAMPLES = 100
+
+
+def _covariance(info: MethodInfo, result: CalibrationResult, A, B, setup, point_cov, *, refined: bool):
+    """Covariance of the camera transform of ``result`` and how it was obtained (``info["cov_kind"]``).
+
+    An ML estimate gets the inverse Fisher information ("fisher"). A closed
+    form is less efficient, so it gets the first-order covariance of the
+    estimator itself: analytic for YKronT' ("delta-analytic"), numerical for
+    the pose-based methods up to `DELTA_METHOD_MAX_SAMPLES` ("delta-numerical"),
+    else the Fisher one, labelled "fisher-optimistic".
+    """
+    from calib import refine as rf
+
+    if refined:
+        return rf.covariance(result.X, result.Y, A, B, setup=setup, point_cov=point_cov), "fisher"
+    if info.needs == "points":
+        return rf.kron_t_prime_covariance(result.X, result.Y, A, B, setup=setup, point_cov=point_cov), "delta-analytic"
+    if len(A) <= DELTA_METHOD_MAX_SAMPLES:
+        def estimator(A_sub, B_sub):
+            return info.function(A_sub, B_sub if setup == "eye_to_hand" else tf.invert(B_sub))
+
+        cov = rf.delta_method_covariance(estimator, result.X, result.Y, A, B, setup=setup, point_cov=point_cov)
+        return cov, "delta-numerical"
+    return rf.covariance(result.X, result.Y, A, B, setup=setup, point_cov=point_cov), "fisher-optimistic"
 
 
 def observations_to_arrays(

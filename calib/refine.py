@@ -41,6 +41,8 @@ CHI2_REJECT = 0.999
 #: Smallest eigenvalue ratio of the Fisher information before we call the motions degenerate.
 MIN_INFORMATION_RATIO = 1e-14
 
+_I3 = np.eye(3)
+
 
 # --------------------------------------------------------------------------- checks
 
@@ -370,6 +372,191 @@ def covariance(X, Y, A, B, *, setup: str, point_cov=None) -> np.ndarray:
     problem.sigma_rot = sigma_rot
     problem.W_t = problem.W_t / np.sqrt(scale_t)
     return _camera_block(_information(problem, C, K))
+
+
+def kron_t_prime_covariance(X, Y, A, B, *, setup: str, point_cov=None) -> np.ndarray:
+    """First-order covariance (6, 6) of the closed-form YKronT' estimate of the camera transform.
+
+    The covariance of the estimator itself (delta method / sandwich), not of
+    the ML estimate: YKronT' is unweighted least squares and so less efficient,
+    and `covariance` (inverse Fisher information) would be over-confident for
+    it. Each marker point ``p_i`` is perturbed by ``dp_i`` (covariance
+    ``Sigma_i``) and the perturbation is propagated analytically through the
+    three steps of `calib.solvers.y_kron_t_prime`:
+
+    1. the 3N x 15 least squares of eq. 20, ``M x = b`` with
+       ``x = [vec(Q); t_1; t_2]``: ``dx = -(M^T M)^-1 sum_i M_i^T E_i dp_i``,
+       ``E_i = Q`` (eye-to-hand) or ``R_Ai Q`` (eye-in-hand), the residual
+       term being second order;
+    2. the projection ``R = polar(Q)`` onto SO(3): with ``Q = R P``,
+       ``delta = R (tr(P) I - P)^-1 vex(R^T dQ - dQ^T R)`` (left perturbation);
+    3. the re-solve of the two translations with ``R`` fixed (the 3N x 6
+       system ``T2 t = c``): ``dt = (T2^T T2)^-1 sum_i T2_i^T dc_i``, with
+       ``dc_i = -R dp_i + [R p_i]x delta`` (eye-to-hand) or
+       ``-R_Ai R dp_i + R_Ai [R p_i]x delta`` (eye-in-hand).
+
+    Then ``cov = sum_i J_i Sigma_i J_i^T``. ``Sigma_i`` is ``point_cov``
+    (trusted unless the chi-square test at `CHI2_REJECT` rejects it at the
+    estimate, then scaled by the a posteriori variance factor) or the depth
+    model of `calib.noise` scaled from the residuals, as in `covariance`.
+    Robot poses are taken as exact.
+
+    Parameters
+    ----------
+    X, Y : array_like, shape (4, 4)
+        The YKronT' estimate. Eye-to-hand: ``X = T_flange_marker``,
+        ``Y = T_base_cam`` (camera); eye-in-hand: ``X = T_flange_cam``
+        (camera), ``Y = T_base_marker``.
+    A : array_like, shape (N, 4, 4)
+        ``T_base_flange``.
+    B : array_like, shape (N, 3) or (N, 4, 4)
+        Marker center in the camera frame (m); of a pose only the translation is used.
+    setup : {"eye_to_hand", "eye_in_hand"}
+    point_cov : array_like, shape (3, 3) or (N, 3, 3), optional
+        Marker center covariance, m^2.
+
+    Returns
+    -------
+    cov : ndarray, shape (6, 6)
+        ``[delta_rotvec (rad), delta_t (m)]`` of the camera transform (`calib.result`).
+
+    Raises
+    ------
+    CalibrationError, InsufficientDataError, DegenerateMotionError
+    """
+    p = np.asarray(B, dtype=float)
+    p = p[:, :3, 3] if p.ndim == 3 else p
+    problem, C, K, given, A, _ = _prepare(X, Y, A, p, setup, point_cov)
+    n = len(A)
+    cov_p = check_point_cov(point_cov, n)
+    if cov_p is None:
+        cov_p = default_point_cov(p)
+    factor = _variance_factor(problem.whitened_residual_only(C, K)[0], 3 * n - 9, given)
+
+    R_A, t_A = A[:, :3, :3], A[:, :3, 3]
+    # Step 1: the system of eq. 20 exactly as `calib.solvers._y_kron_t_prime` builds it.
+    M = np.empty((n, 3, 15))
+    T2 = np.empty((n, 3, 6))
+    if setup == "eye_to_hand":
+        M[:, :, :9] = (p[:, None, :, None] * _I3[None, :, None, :]).reshape(n, 3, 9)
+        M[:, :, 9:12] = _I3
+        M[:, :, 12:] = -R_A
+        rhs = t_A
+        T2[:, :, :3] = _I3
+        T2[:, :, 3:] = -R_A
+    else:
+        M[:, :, :9] = (R_A[:, :, None, :] * p[:, None, :, None]).reshape(n, 3, 9)
+        M[:, :, 9:12] = R_A
+        M[:, :, 12:] = -_I3
+        rhs = -t_A
+        T2[:, :, :3] = R_A
+        T2[:, :, 3:] = -_I3
+    Mf = M.reshape(3 * n, 15)
+    H_inv = np.linalg.inv(Mf.T @ Mf)
+    Q = (H_inv @ (Mf.T @ rhs.reshape(-1)))[:9].reshape(3, 3).T       # unvec, column-major
+    E = Q if setup == "eye_to_hand" else R_A @ Q
+    L = np.swapaxes(M, 1, 2) @ E                                      # (N, 15, 3)
+    # Step 2: derivative of the polar factor, one column per entry of vec(Q).
+    R = tf.project_to_so3(Q)
+    P = R.T @ Q
+    P = 0.5 * (P + P.T)
+    dQ = np.zeros((9, 3, 3))
+    dQ[np.arange(9), np.arange(9) % 3, np.arange(9) // 3] = 1.0       # vec is column-major
+    K_skew = R.T @ dQ - np.swapaxes(dQ, 1, 2) @ R
+    k = np.stack([K_skew[:, 2, 1], K_skew[:, 0, 2], K_skew[:, 1, 0]], axis=1)   # (9, 3)
+    D = R @ np.linalg.solve(np.trace(P) * _I3 - P, k.T)                # (3, 9): d delta / d vec(Q)
+    J_rot = -(D @ H_inv[:9]) @ L                                      # (N, 3, 3): d delta / d p_i
+    # Step 3: translations re-solved with R fixed.
+    Rp = p @ R.T
+    if setup == "eye_to_hand":
+        F, G = -R, _skew(Rp)
+    else:
+        F, G = -R_A @ R, R_A @ _skew(Rp)
+    T2t = np.swapaxes(T2, 1, 2)
+    T2f = T2.reshape(3 * n, 6)
+    H2_inv = np.linalg.inv(T2f.T @ T2f)[:3]                           # the camera translation is t[:3]
+    S = np.einsum("nij,njk->ik", T2t, G)                              # (6, 3)
+    J_t = H2_inv @ (T2t @ F + S @ J_rot)                              # (N, 3, 3)
+    J = np.concatenate([J_rot, J_t], axis=1)                          # (N, 6, 3)
+    cov = factor * np.einsum("nij,njk,nlk->il", J, cov_p, J)
+    return 0.5 * (cov + cov.T)
+
+
+def delta_method_covariance(estimator, X, Y, A, B, *, setup: str, point_cov=None, step: float = 1e-3) -> np.ndarray:
+    """Numerical first-order covariance (6, 6) of any closed-form estimator from marker poses.
+
+    The sandwich ``sum_i J_i Sigma_i J_i^T`` of the estimator ``(A, B) ->
+    camera transform`` itself (delta method), with ``J_i`` by forward
+    differences: each sample's marker pose ``B_i`` (``T_cam_marker``) is moved
+    along the 6 principal directions of its noise, ``step`` standard
+    deviations at a time, and the closed form is re-run (6N runs). The noise
+    model is the one of `refine` for pose data: rotation noise
+    ``R_B Exp(e)``, ``e ~ N(0, sigma_rot^2 I)``, and translation noise of
+    covariance ``s * Sigma_i`` (``point_cov`` or the depth model of
+    `calib.noise`), with ``sigma_rot`` and ``s`` estimated from the residuals
+    of the ML fit started at ``(X, Y)`` (the closed form's own residuals would
+    count its estimation error as noise). Robot poses are taken as exact.
+
+    Setups: eye-to-hand ``X = T_flange_marker``, ``Y = T_base_cam``
+    (camera); eye-in-hand ``X = T_flange_cam`` (camera), ``Y = T_base_marker``.
+
+    Parameters
+    ----------
+    estimator : callable
+        ``estimator(A, B) -> (X, Y)``, the closed form (e.g. YQuatT', paper eq. 19).
+    X, Y : array_like, shape (4, 4)
+        Its estimate on the unperturbed data.
+    A : array_like, shape (N, 4, 4)
+        ``T_base_flange``.
+    B : array_like, shape (N, 4, 4)
+        ``T_cam_marker``.
+    setup : {"eye_to_hand", "eye_in_hand"}
+    point_cov : array_like, shape (3, 3) or (N, 3, 3), optional
+        Covariance of the marker translation, m^2 (its scale is re-estimated).
+    step : float
+        Finite-difference step in noise standard deviations.
+
+    Returns
+    -------
+    cov : ndarray, shape (6, 6)
+        ``[delta_rotvec (rad), delta_t (m)]`` of the camera transform (`calib.result`).
+
+    Raises
+    ------
+    CalibrationError, InsufficientDataError, DegenerateMotionError
+    """
+    problem, C, K, _, A, B = _prepare(X, Y, A, B, setup, point_cov)
+    if problem.points:
+        raise CalibrationError("delta_method_covariance needs marker poses B of shape (N, 4, 4)")
+    W0 = problem.W_t
+    for _ in range(2):
+        sigma_rot, scale_t = _pose_noise(problem, C, K, W0)
+        problem.sigma_rot, problem.W_t = sigma_rot, W0 / np.sqrt(scale_t)
+        C, K = _levenberg_marquardt(problem, C, K, max_iterations=50)[:2]
+    sigma_rot, scale_t = _pose_noise(problem, C, K, W0)
+    cov_t = check_point_cov(point_cov, len(B))
+    if cov_t is None:
+        cov_t = default_point_cov(B[:, :3, 3])
+    L_t = np.linalg.cholesky(scale_t * cov_t)                          # (N, 3, 3) noise directions
+    rot_steps = _so3_exp(np.eye(3) * (step * sigma_rot))               # (3, 3, 3)
+
+    base = _split(*estimator(A, B), A, setup)[0]
+    base_inv_R, base_t = base[:3, :3].T, base[:3, 3]
+    J = np.empty((len(B), 6, 6))
+    B_pert = B.copy()
+    for i in range(len(B)):
+        for k in range(6):
+            if k < 3:
+                B_pert[i, :3, :3] = B[i, :3, :3] @ rot_steps[k]
+            else:
+                B_pert[i, :3, 3] = B[i, :3, 3] + step * L_t[i, :, k - 3]
+            cam = _split(*estimator(A, B_pert), A, setup)[0]
+            J[i, :3, k] = _so3_log((cam[:3, :3] @ base_inv_R)[None])[0]
+            J[i, 3:, k] = cam[:3, 3] - base_t
+            B_pert[i] = B[i]
+    J /= step
+    cov = np.einsum("nij,nkj->ik", J, J)
+    return 0.5 * (cov + cov.T)
 
 
 def cramer_rao_bound(X, Y, A, point_cov, *, setup: str) -> tuple[float, float, np.ndarray]:
