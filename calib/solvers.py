@@ -473,6 +473,12 @@ def _zhuang_solve(qa: np.ndarray, qb: np.ndarray, A_robot: np.ndarray) -> tuple[
     return qx / np.linalg.norm(qx), qy / np.linalg.norm(qy)
 
 
+#: YAxisR picks its pre-rotations on at most this many samples (evenly spaced):
+#: the choice needs only the rough conditioning, and 16 systems over all of N
+#: samples would cost more than the solve itself.
+ZHUANG_FRAME_SAMPLES = 64
+
+
 def _zhuang_frames(qa: np.ndarray, qb: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Flange and camera pre-rotations ``d``, ``c`` (from `_HALF_TURNS`) giving the best-conditioned reduced system.
 
@@ -481,6 +487,8 @@ def _zhuang_frames(qa: np.ndarray, qb: np.ndarray) -> tuple[np.ndarray, np.ndarr
     a small least singular value relative to the largest, so the pair that
     maximises that ratio keeps ``y'_0`` and the ``a'_0`` away from zero.
     """
+    keep = np.unique(np.linspace(0, len(qa) - 1, min(len(qa), ZHUANG_FRAME_SAMPLES)).astype(int))
+    qa, qb = qa[keep], qb[keep]
     best, best_ratio = (_HALF_TURNS[0], _HALF_TURNS[0]), -1.0
     for d in _HALF_TURNS:
         qa_d = qa @ quat_right(d).T
@@ -512,7 +520,8 @@ def y_axis_r(A: np.ndarray, B: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     ``a'_i = a_i d``, ``b'_i = c b_i`` so that ``a'_i x' = y' b'_i`` with
     ``x' = d* x``, ``y' = y c*``; ``d`` and ``c`` are chosen among the identity
     and the half-turns about x, y, z (16 pairs) to make the reduced system
-    best conditioned, which puts ``|y'_0|`` at 1/2 or more. The solution is
+    best conditioned (see `_zhuang_frames`), which keeps ``|y'_0|`` and the
+    ``|a'_0|`` well away from 0. The solution is
     rotated back: ``x = d x'``, ``y = y' c``. Translations from eq. 6.
     Eye-to-hand form; N >= 3 poses.
 
@@ -753,21 +762,29 @@ def residuals(X, Y, A, B, setup: str, *, rotation: bool = True) -> tuple[np.ndar
     X = tf.check_transform(X, "X")
     Y = tf.check_transform(Y, "Y")
     A = tf.check_transforms(A, "A")
-    poses = np.ndim(B) == 3
-    B = tf.check_transforms(B, "B") if poses else tf.check_points(B, "points")
+    B = tf.check_transforms(B, "B") if np.ndim(B) == 3 else tf.check_points(B, "points")
     _check_counts(len(A), len(B), 1)
+    return _residuals(X, Y, A, B, setup, rotation)
+
+
+def _residuals(X, Y, A, B, setup: str, rotation: bool) -> tuple[np.ndarray, np.ndarray | None]:
+    """`residuals` for validated inputs, vectorised without stacked 3x3 products (they dominate at large N)."""
+    n = len(A)
+    poses = B.ndim == 3
     p = B[:, :3, 3] if poses else B
-    R_A, t_A = A[:, :3, :3], A[:, :3, 3]
     if setup == "eye_to_hand":
-        r = R_A @ X[:3, 3] + t_A - p @ Y[:3, :3].T - Y[:3, 3]
+        # [R_A | t_A] [t_X; 1] as one matrix-vector product over the (4N, 4) stack.
+        r = (A.reshape(4 * n, 4) @ np.append(X[:3, 3], 1.0)).reshape(n, 4)[:, :3] - p @ Y[:3, :3].T - Y[:3, 3]
     else:
-        r = np.einsum("nij,nj->ni", R_A, p @ X[:3, :3].T + X[:3, 3]) + t_A - Y[:3, 3]
-    trans = np.linalg.norm(r, axis=1)
+        q = p @ X[:3, :3].T + X[:3, 3]
+        r = np.einsum("nij,nj->ni", A[:, :3, :3], q) + A[:, :3, 3] - Y[:3, 3]
+    trans = np.sqrt(np.einsum("ni,ni->n", r, r))
     if not (poses and rotation):
         return trans, None
-    R_B = B[:, :3, :3]
-    if setup == "eye_to_hand":
-        dR = R_A @ X[:3, :3] @ np.swapaxes(Y[:3, :3] @ R_B, 1, 2)
-    else:
-        dR = R_A @ X[:3, :3] @ R_B @ Y[:3, :3].T
-    return trans, tf.rotation_angle(dR)
+    # The angle is invariant under conjugation, so use R_Y^T dR R_Y = P R_B^T (eye-to-hand) or
+    # P R_B (eye-in-hand) with P = R_Y^T R_A R_X, in the (3, 3, N) layout of cheap einsums.
+    R_A = np.ascontiguousarray(A[:, :3, :3].transpose(1, 2, 0))
+    R_B = np.ascontiguousarray(B[:, :3, :3].transpose(1, 2, 0))
+    P = np.einsum("iln,lj->ijn", np.einsum("ki,kln->iln", Y[:3, :3], R_A), X[:3, :3])
+    dR = np.einsum("ikn,jkn->ijn" if setup == "eye_to_hand" else "ikn,kjn->ijn", P, R_B)
+    return trans, tf.rotation_angle(dR.transpose(2, 0, 1))

@@ -14,6 +14,10 @@ from calib.errors import CalibrationError
 
 ROTATION_ATOL = 1e-6
 
+_I3 = np.eye(3)
+#: Positions of the rotation block in a row-major flattened 4x4 transform.
+_ROTATION_ENTRIES = [0, 1, 2, 4, 5, 6, 8, 9, 10]
+
 
 def check_transforms(T, name: str = "T", *, atol: float = ROTATION_ATOL) -> np.ndarray:
     """Validate a stack of rigid transforms.
@@ -38,15 +42,20 @@ def check_transforms(T, name: str = "T", *, atol: float = ROTATION_ATOL) -> np.n
     T = np.asarray(T, dtype=float)
     if T.ndim != 3 or T.shape[1:] != (4, 4):
         raise CalibrationError(f"{name} must have shape (N, 4, 4), got {T.shape}")
-    finite = np.isfinite(T).all(axis=(1, 2))
+    # Entry-major layout (16, N): every check below is elementwise work on
+    # contiguous rows, several times cheaper than stacked 3x3 products and
+    # determinants (this runs on every solver input).
+    c = np.ascontiguousarray(T.reshape(len(T), 16).T)
+    finite = np.isfinite(c).all(axis=0)
     if not finite.all():
         raise CalibrationError(f"{name}[{int(np.argmin(finite))}] contains NaN or inf")
-    bottom_ok = np.all(np.abs(T[:, 3] - [0, 0, 0, 1]) <= atol, axis=1)
+    bottom_ok = (np.abs(c[12:15]) <= atol).all(axis=0) & (np.abs(c[15] - 1.0) <= atol)
     if not bottom_ok.all():
         raise CalibrationError(f"{name}[{int(np.argmin(bottom_ok))}] last row is not [0, 0, 0, 1]")
-    R = T[:, :3, :3]
-    orth_err = np.abs(R @ R.transpose(0, 2, 1) - np.eye(3)).max(axis=(1, 2))
-    det = np.linalg.det(R)
+    R = c[_ROTATION_ENTRIES].reshape(3, 3, -1)  # R[i, j, n]
+    orth_err = np.abs((np.einsum("ikn,jkn->ijn", R, R) - _I3[:, :, None]).reshape(9, -1)).max(axis=0)
+    det = (R[0, 0] * (R[1, 1] * R[2, 2] - R[1, 2] * R[2, 1]) - R[0, 1] * (R[1, 0] * R[2, 2] - R[1, 2] * R[2, 0])
+           + R[0, 2] * (R[1, 0] * R[2, 1] - R[1, 1] * R[2, 0]))
     rot_ok = (orth_err <= max(atol, 1e-9) * 10) & (np.abs(det - 1) <= atol * 10)
     if not rot_ok.all():
         i = int(np.argmin(rot_ok))
@@ -152,10 +161,10 @@ def to_xyz_quat(T) -> tuple[np.ndarray, np.ndarray]:
 def rotation_angle(R) -> np.ndarray:
     """Rotation angle(s) in rad of rotation matrix (matrices) (..., 3, 3)."""
     R = np.asarray(R, dtype=float)
-    c = (np.trace(R, axis1=-2, axis2=-1) - 1.0) / 2.0
+    c = (R[..., 0, 0] + R[..., 1, 1] + R[..., 2, 2] - 1.0) / 2.0
     # atan2 of sine and cosine keeps precision at small angles, where arccos loses half the digits.
-    skew = np.stack([R[..., 2, 1] - R[..., 1, 2], R[..., 0, 2] - R[..., 2, 0], R[..., 1, 0] - R[..., 0, 1]], axis=-1)
-    s = np.linalg.norm(skew, axis=-1) / 2.0
+    s = np.sqrt((R[..., 2, 1] - R[..., 1, 2]) ** 2 + (R[..., 0, 2] - R[..., 2, 0]) ** 2
+                + (R[..., 1, 0] - R[..., 0, 1]) ** 2) / 2.0
     return np.arctan2(s, c)
 
 
