@@ -385,9 +385,10 @@ def kron_t_prime_covariance(X, Y, A, B, *, setup: str, point_cov=None) -> np.nda
     three steps of `calib.solvers.y_kron_t_prime`:
 
     1. the 3N x 15 least squares of eq. 20, ``M x = b`` with
-       ``x = [vec(Q); t_1; t_2]``: ``dx = -(M^T M)^-1 sum_i M_i^T E_i dp_i``,
-       ``E_i = Q`` (eye-to-hand) or ``R_Ai Q`` (eye-in-hand), the residual
-       term being second order;
+       ``x = [vec(Q); t_1; t_2]``:
+       ``dx = (M^T M)^-1 sum_i (dM_i^T e_i - M_i^T E_i dp_i)``, ``e = b - M x``,
+       ``E_i = Q`` (eye-to-hand) or ``R_Ai Q`` (eye-in-hand) (the residual
+       term is second order in the noise but keeps the Jacobian exact);
     2. the projection ``R = polar(Q)`` onto SO(3): with ``Q = R P``,
        ``delta = R (tr(P) I - P)^-1 vex(R^T dQ - dQ^T R)`` (left perturbation);
     3. the re-solve of the two translations with ``R`` fixed (the 3N x 6
@@ -453,9 +454,18 @@ def kron_t_prime_covariance(X, Y, A, B, *, setup: str, point_cov=None) -> np.nda
         T2[:, :, 3:] = -_I3
     Mf = M.reshape(3 * n, 15)
     H_inv = np.linalg.inv(Mf.T @ Mf)
-    Q = (H_inv @ (Mf.T @ rhs.reshape(-1)))[:9].reshape(3, 3).T       # unvec, column-major
-    E = Q if setup == "eye_to_hand" else R_A @ Q
-    L = np.swapaxes(M, 1, 2) @ E                                      # (N, 15, 3)
+    x = H_inv @ (Mf.T @ rhs.reshape(-1))
+    Q = x[:9].reshape(3, 3).T                                         # unvec, column-major
+    e = rhs - M @ x                                                   # (N, 3) residuals of eq. 20
+    if setup == "eye_to_hand":
+        E, u = Q, e
+    else:
+        E, u = R_A @ Q, np.einsum("nji,nj->ni", R_A, e)
+    # d(M_i^T e_i) through M_i: (dp^T kron R)^T e = vec(R^T e dp^T), entry 3c + r = u_r dp_c.
+    N_res = np.zeros((n, 15, 3))
+    for c in range(3):
+        N_res[:, 3 * c:3 * c + 3, c] = u
+    L = np.swapaxes(M, 1, 2) @ E - N_res                              # (N, 15, 3)
     # Step 2: derivative of the polar factor, one column per entry of vec(Q).
     R = tf.project_to_so3(Q)
     P = R.T @ Q
