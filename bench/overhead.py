@@ -16,11 +16,11 @@ for _var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
     os.environ.setdefault(_var, "1")
 
 import argparse  # noqa: E402
-import time  # noqa: E402
 from pathlib import Path  # noqa: E402
 
 import numpy as np  # noqa: E402
 
+from bench.solvers import _median_time  # noqa: E402
 from calib import simulate, solvers  # noqa: E402
 from calib import transforms as tf  # noqa: E402
 from calib.api import METHODS, closed_form, solve  # noqa: E402
@@ -29,14 +29,9 @@ COUNTS = (10, 100, 1000)
 
 
 def median_ms(fn, repeats: int) -> float:
-    """Median wall time of ``fn()`` in ms over ``repeats`` calls (after one warm-up call)."""
+    """Median wall time of ``fn()`` in ms over ``repeats`` calls, after one warm-up call."""
     fn()
-    times = []
-    for _ in range(repeats):
-        t0 = time.perf_counter()
-        fn()
-        times.append(time.perf_counter() - t0)
-    return 1e3 * float(np.median(times))
+    return _median_time(fn, repeats)
 
 
 def measure(repeats: int, rng: np.random.Generator) -> tuple[dict, dict]:
