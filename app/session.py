@@ -29,6 +29,7 @@ import numpy as np
 
 from calib.errors import SessionError
 from calib.observation import SETUPS, Observation
+from drivers.camera.depth import depth_from_mm, depth_to_mm
 
 log = logging.getLogger(__name__)
 
@@ -119,7 +120,7 @@ class Session:
             color = cv2.imread(str(self.path / obs.meta["color"]), cv2.IMREAD_COLOR)
         if obs.meta.get("depth"):
             d = cv2.imread(str(self.path / obs.meta["depth"]), cv2.IMREAD_UNCHANGED)
-            depth = None if d is None else d.astype(np.float32) / 1000.0
+            depth = None if d is None else depth_from_mm(d)
         return color, depth
 
 
@@ -215,8 +216,7 @@ class SessionWriter:
             files["color"] = name
         if depth is not None:
             name = f"frames/{index:06d}_depth.png"
-            mm = np.clip(np.nan_to_num(np.asarray(depth) * 1000.0), 0, 65535).round().astype(np.uint16)
-            ok, buf = cv2.imencode(".png", mm)
+            ok, buf = cv2.imencode(".png", depth_to_mm(depth))
             if not ok:
                 raise SessionError(f"could not encode depth frame {index}")
             _fsync_write(self.path / name, buf.tobytes())

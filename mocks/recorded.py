@@ -28,6 +28,7 @@ import numpy as np
 
 from calib.errors import ConfigError, ConnectionLostError, DeviceError
 from drivers.camera.base import Camera, CameraIntrinsics, RGBDFrame
+from drivers.camera.depth import depth_from_mm, depth_to_mm
 from drivers.camera.intrinsics import load_intrinsics, save_intrinsics
 
 FIELDS = ["index", "t", "color", "depth"]
@@ -132,8 +133,7 @@ class RecordedCamera(Camera):
             due = self._t0_wall + (t - float(self._rows[0]["t"]))
             time.sleep(max(0.0, due - time.time()))
         self._pos += 1
-        depth = depth_mm.astype(np.float32) / 1000.0
-        return RGBDFrame(color, depth, t, self._intr, index, {}, {"color": row["color"], "depth": row["depth"]})
+        return RGBDFrame(color, depth_from_mm(depth_mm), t, self._intr, index, {}, {"color": row["color"], "depth": row["depth"]})
 
 
 class RecordingWriter:
@@ -162,8 +162,7 @@ class RecordingWriter:
     def write(self, frame: RGBDFrame) -> None:
         """Append one frame (depth rounded to mm, clipped to 65.535 m)."""
         name = f"{self.count:06d}.png"
-        depth = np.nan_to_num(np.asarray(frame.depth, dtype=float), nan=0.0)
-        depth_mm = np.clip(np.round(depth * 1000.0), 0, 65535).astype(np.uint16)
+        depth_mm = depth_to_mm(frame.depth)
         if not (cv2.imwrite(str(self.root / "color" / name), frame.color)
                 and cv2.imwrite(str(self.root / "depth" / name), depth_mm)):
             raise DeviceError(f"cannot write frame {name} into {self.root}")

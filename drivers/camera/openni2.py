@@ -26,6 +26,7 @@ import numpy as np
 
 from calib.errors import ConfigError, ConnectionLostError, DeviceError
 from drivers.camera.base import Camera, CameraIntrinsics, RGBDFrame
+from drivers.camera.depth import depth_from_mm
 from drivers.camera.intrinsics import load_intrinsics
 
 log = logging.getLogger(__name__)
@@ -287,7 +288,7 @@ class OpenNI2Camera(Camera):
             raise ConnectionLostError(f"OpenNI2 camera: {e}") from None
         frame = RGBDFrame(
             color=np.ascontiguousarray(rgb[..., ::-1]),
-            depth=depth_mm.astype(np.float32) / 1000.0,
+            depth=depth_from_mm(depth_mm),
             t=t,
             intrinsics=self._intr,
             index=self._index,
