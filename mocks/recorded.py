@@ -133,7 +133,8 @@ class RecordedCamera(Camera):
             due = self._t0_wall + (t - float(self._rows[0]["t"]))
             time.sleep(max(0.0, due - time.time()))
         self._pos += 1
-        return RGBDFrame(color, depth_from_mm(depth_mm), t, self._intr, index, {}, {"color": row["color"], "depth": row["depth"]})
+        return RGBDFrame(color, depth_from_mm(depth_mm), t, self._intr, index, {},
+                         {"color": row["color"], "depth": row["depth"]})
 
 
 class RecordingWriter:
