@@ -178,3 +178,12 @@ def test_y_axis_r_accuracy_on_paper_experiment_1():
         d = simulate.paper_setup(70, np.random.default_rng(1000 + seed))
         err.append(np.rad2deg(tf.pose_error(closed_form("YAxisR", d.A, d.B).Y, d.Y)[0]))
     assert np.mean(err) < 20.0 and np.max(err) < 40.0, err
+
+
+def test_rotation_residual_eye_in_hand_is_angle_of_equation_of_rotation():
+    """Eye-in-hand A X B = Y: the residual is the angle of R_A R_X R_B R_Y^T (computed via a conjugate)."""
+    d = simulate.realistic_cell(15, np.random.default_rng(2), setup="eye_in_hand")
+    est = closed_form("YKronRT", d.A, d.B, setup="eye_in_hand")
+    expected = tf.rotation_angle(d.A[:, :3, :3] @ est.X[:3, :3] @ d.B[:, :3, :3] @ est.Y[:3, :3].T)
+    np.testing.assert_allclose(est.residuals.rotation, expected, atol=1e-12)
+    assert est.residuals.rotation.max() > 1e-3

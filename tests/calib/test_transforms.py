@@ -75,3 +75,25 @@ def test_check_points_names_index():
     p[2, 1] = np.inf
     with pytest.raises(CalibrationError, match=r"B\[2\]"):
         tf.check_points(p, "B")
+
+
+def test_check_transforms_names_first_bad_index_in_a_stack(rng):
+    T = random_T(6, rng)
+    assert tf.check_transforms(T, "A") is not None
+    bad = T.copy()
+    bad[4, :3, :3] *= 1.001  # scaled rotation
+    bad[5, 0, 0] = -bad[5, 0, 0]
+    with pytest.raises(CalibrationError, match=r"A\[4\] rotation is not a proper rotation"):
+        tf.check_transforms(bad, "A")
+    bad[2, 3, 1] = 0.1
+    with pytest.raises(CalibrationError, match=r"A\[2\] last row"):
+        tf.check_transforms(bad, "A")
+    reflected = T.copy()
+    reflected[3, :3, :3] = -reflected[3, :3, :3]
+    with pytest.raises(CalibrationError, match=r"A\[3\].*det = -1"):
+        tf.check_transforms(reflected, "A")
+
+
+def test_rotation_angle_small_and_half_turn():
+    R = tf.from_rotvec_translation(np.array([[1e-9, 0, 0], [0, 0, np.pi], [0, 2.0, 0]]), np.zeros((3, 3)))[:, :3, :3]
+    np.testing.assert_allclose(tf.rotation_angle(R), [1e-9, np.pi, 2.0], rtol=1e-9)
