@@ -452,13 +452,18 @@ _HALF_TURNS = np.array([[0.0, 0.0, 0.0, 1.0], [1.0, 0.0, 0.0, 0.0], [0.0, 1.0, 0
 
 
 def _zhuang_system(qa: np.ndarray, qb: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Zhuang's reduced eq. 9 (see `y_axis_r`): ``M [x_v / y_0; y_v / y_0] = rhs``, M (3N, 6), rhs (3N,)."""
-    av, a0, bv, b0 = qa[:, :3], qa[:, 3], qb[:, :3], qb[:, 3]
-    n = len(qa)
-    M = np.empty((n, 3, 6))
-    M[:, :, :3] = (a0**2)[:, None, None] * _I3 + av[:, :, None] * av[:, None, :] + a0[:, None, None] * skew(av)
-    M[:, :, 3:] = a0[:, None, None] * skew(bv) - (a0 * b0)[:, None, None] * _I3 - av[:, :, None] * bv[:, None, :]
-    return M.reshape(3 * n, 6), (a0[:, None] * bv - b0[:, None] * av).reshape(-1)
+    """Zhuang's reduced eq. 9 (see `y_axis_r`): ``M [x_v / y_0; y_v / y_0] = rhs``.
+
+    ``qa``, ``qb`` (..., N, 4) with broadcastable leading axes (several frame
+    choices at once); returns M (..., 3N, 6) and rhs (..., 3N).
+    """
+    av, a0, bv, b0 = qa[..., :3], qa[..., 3, None, None], qb[..., :3], qb[..., 3, None, None]
+    lead = np.broadcast_shapes(qa.shape[:-1], qb.shape[:-1])
+    M = np.empty(lead + (3, 6))
+    M[..., :3] = a0**2 * _I3 + av[..., :, None] * av[..., None, :] + a0 * skew(av)
+    M[..., 3:] = a0 * skew(bv) - a0 * b0 * _I3 - av[..., :, None] * bv[..., None, :]
+    rhs = a0[..., 0] * bv - b0[..., 0] * av
+    return M.reshape(lead[:-1] + (3 * lead[-1], 6)), np.broadcast_to(rhs, lead + (3,)).reshape(lead[:-1] + (-1,))
 
 
 def _zhuang_solve(qa: np.ndarray, qb: np.ndarray, A_robot: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -489,16 +494,14 @@ def _zhuang_frames(qa: np.ndarray, qb: np.ndarray) -> tuple[np.ndarray, np.ndarr
     """
     keep = np.unique(np.linspace(0, len(qa) - 1, min(len(qa), ZHUANG_FRAME_SAMPLES)).astype(int))
     qa, qb = qa[keep], qb[keep]
-    best, best_ratio = (_HALF_TURNS[0], _HALF_TURNS[0]), -1.0
-    for d in _HALF_TURNS:
-        qa_d = qa @ quat_right(d).T
-        for c in _HALF_TURNS:
-            M, _ = _zhuang_system(qa_d, qb @ quat_left(c).T)
-            w = np.linalg.eigvalsh(M.T @ M)
-            ratio = w[0] / w[-1] if w[-1] > 0 else 0.0
-            if ratio > best_ratio:
-                best, best_ratio = (d, c), ratio
-    return best
+    # All 16 systems at once: axis 0 indexes d, axis 1 indexes c.
+    qa_d = np.einsum("nj,dij->dni", qa, quat_right(_HALF_TURNS))[:, None]
+    qb_c = np.einsum("nj,cij->cni", qb, quat_left(_HALF_TURNS))[None]
+    M, _ = _zhuang_system(qa_d, qb_c)
+    w = np.linalg.eigvalsh(np.swapaxes(M, -1, -2) @ M)
+    ratio = w[..., 0] / np.maximum(w[..., -1], 1e-300)  # an all-zero system rates 0
+    d, c = np.unravel_index(int(np.argmax(ratio)), ratio.shape)
+    return _HALF_TURNS[d], _HALF_TURNS[c]
 
 
 def y_axis_r(A: np.ndarray, B: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
