@@ -32,8 +32,8 @@ from scipy.stats import chi2
 from calib import transforms as tf
 from calib.errors import CalibrationError, DegenerateMotionError, InsufficientDataError
 from calib.noise import default_point_cov
-from calib.observation import SETUPS
 from calib.result import CalibrationResult, Residuals
+from calib.solvers import check_setup
 
 #: A given ``point_cov`` is trusted unless the residuals reject it at this level;
 #: then the covariance is inflated by the a posteriori variance factor.
@@ -45,13 +45,6 @@ _I3 = np.eye(3)
 
 
 # --------------------------------------------------------------------------- checks
-
-
-def check_setup(setup: str) -> str:
-    """Return ``setup`` if it is one of `calib.observation.SETUPS`, else raise CalibrationError."""
-    if setup not in SETUPS:
-        raise CalibrationError(f"setup must be one of {SETUPS}, got {setup!r}")
-    return setup
 
 
 def check_measurements(A, B) -> tuple[np.ndarray, np.ndarray]:

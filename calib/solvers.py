@@ -38,8 +38,7 @@ from scipy.spatial.transform import Rotation
 
 from calib import transforms as tf
 from calib.errors import CalibrationError, DegenerateMotionError, InsufficientDataError
-
-SETUPS = ("eye_to_hand", "eye_in_hand")
+from calib.observation import SETUPS
 
 #: A linear system is called degenerate when the singular value that must be
 #: non-zero for a unique solution is below this fraction of the largest one
