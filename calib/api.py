@@ -106,19 +106,6 @@ def resolve_method(method: str) -> MethodInfo:
     raise CalibrationError(f"unknown method {method!r}; valid: {', '.join(METHODS)}")
 
 
-def _check_point_cov(point_cov, n: int) -> np.ndarray | None:
-    if point_cov is None:
-        return None
-    cov = np.asarray(point_cov, dtype=float)
-    if cov.shape == (3, 3):
-        cov = np.broadcast_to(cov, (n, 3, 3)).copy()
-    if cov.shape != (n, 3, 3):
-        raise CalibrationError(f"point_cov must have shape (3, 3) or ({n}, 3, 3), got {cov.shape}")
-    if not np.isfinite(cov).all():
-        raise CalibrationError("point_cov contains NaN or inf")
-    return cov
-
-
 def _check_inputs(info: MethodInfo, A, B) -> tuple[np.ndarray, np.ndarray]:
     A = tf.check_transforms(A, "A")
     B_arr = np.asarray(B, dtype=float)
@@ -255,7 +242,9 @@ def solve(
     info = resolve_method(method)
     solvers.check_setup(setup)
     A, B = _check_inputs(info, A, B)
-    cov_p = _check_point_cov(point_cov, len(A))
+    from calib.refine import check_point_cov
+
+    cov_p = check_point_cov(point_cov, len(A))
 
     def solve_fn(A_sub, B_sub):
         return _closed_form(info, A_sub, B_sub, setup)
