@@ -107,25 +107,16 @@ def resolve_method(method: str) -> MethodInfo:
 
 
 def _check_inputs(info: MethodInfo, A, B) -> tuple[np.ndarray, np.ndarray]:
-    A = tf.check_transforms(A, "A")
-    B_arr = np.asarray(B, dtype=float)
-    if B_arr.ndim == 3:
-        B_arr = tf.check_transforms(B_arr, "B")
-    elif B_arr.ndim == 2:
-        if info.needs == "poses":
-            point_methods = ", ".join(m.name for m in METHODS.values() if m.needs == "points")
-            raise CalibrationError(
-                f"{info.name} needs marker poses B of shape (N, 4, 4), got points {B_arr.shape}; "
-                f"point-only methods: {point_methods}"
-            )
-        B_arr = tf.check_points(B_arr, "B")
-    else:
-        raise CalibrationError(f"B must have shape (N, 4, 4) or (N, 3), got {B_arr.shape}")
-    if len(A) != len(B_arr):
-        raise CalibrationError(f"A and B must have the same number of samples, got {len(A)} and {len(B_arr)}")
+    if info.needs == "poses" and np.ndim(B) == 2:
+        point_methods = ", ".join(m.name for m in METHODS.values() if m.needs == "points")
+        raise CalibrationError(
+            f"{info.name} needs marker poses B of shape (N, 4, 4), got points {np.shape(B)}; "
+            f"point-only methods: {point_methods}"
+        )
+    A, B = solvers.check_measurements(A, B)
     if len(A) < info.min_samples:
         raise InsufficientDataError(f"{info.name} needs at least {info.min_samples} samples, got {len(A)}")
-    return A, B_arr
+    return A, B
 
 
 def closed_form(method: str, A, B, *, setup: str = "eye_to_hand") -> CalibrationResult:

@@ -33,7 +33,7 @@ from calib import transforms as tf
 from calib.errors import CalibrationError, DegenerateMotionError, InsufficientDataError
 from calib.noise import default_point_cov
 from calib.result import CalibrationResult, Residuals
-from calib.solvers import check_setup
+from calib.solvers import check_measurements, check_setup
 
 #: A given ``point_cov`` is trusted unless the residuals reject it at this level;
 #: then the covariance is inflated by the a posteriori variance factor.
@@ -45,21 +45,6 @@ _I3 = np.eye(3)
 
 
 # --------------------------------------------------------------------------- checks
-
-
-def check_measurements(A, B) -> tuple[np.ndarray, np.ndarray]:
-    """Validate robot poses ``A`` (N, 4, 4) and marker measurements ``B`` (N, 3) or (N, 4, 4)."""
-    A = tf.check_transforms(A, "A")
-    B = np.asarray(B, dtype=float)
-    if B.ndim == 2:
-        B = tf.check_points(B, "B")
-    elif B.ndim == 3:
-        B = tf.check_transforms(B, "B")
-    else:
-        raise CalibrationError(f"B must have shape (N, 3) or (N, 4, 4), got {B.shape}")
-    if len(A) != len(B):
-        raise CalibrationError(f"A and B must have the same length, got {len(A)} and {len(B)}")
-    return A, B
 
 
 def check_point_cov(point_cov, n: int) -> np.ndarray | None:

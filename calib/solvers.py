@@ -81,6 +81,21 @@ def check_point_pairs(A, p, minimum: int) -> tuple[np.ndarray, np.ndarray]:
     return A, p
 
 
+def check_measurements(A, B) -> tuple[np.ndarray, np.ndarray]:
+    """Validate robot poses ``A`` (N, 4, 4) and marker measurements ``B`` (N, 3) or (N, 4, 4)."""
+    A = tf.check_transforms(A, "A")
+    B = np.asarray(B, dtype=float)
+    if B.ndim == 2:
+        B = tf.check_points(B, "B")
+    elif B.ndim == 3:
+        B = tf.check_transforms(B, "B")
+    else:
+        raise CalibrationError(f"B must have shape (N, 4, 4) or (N, 3), got {B.shape}")
+    if len(A) != len(B):
+        raise CalibrationError(f"A and B must have the same number of samples, got {len(A)} and {len(B)}")
+    return A, B
+
+
 def _check_counts(n_a: int, n_b: int, minimum: int) -> None:
     if n_a != n_b:
         raise CalibrationError(f"A and B must have the same number of samples, got {n_a} and {n_b}")
@@ -763,9 +778,7 @@ def residuals(X, Y, A, B, setup: str, *, rotation: bool = True) -> tuple[np.ndar
     check_setup(setup)
     X = tf.check_transform(X, "X")
     Y = tf.check_transform(Y, "Y")
-    A = tf.check_transforms(A, "A")
-    B = tf.check_transforms(B, "B") if np.ndim(B) == 3 else tf.check_points(B, "points")
-    _check_counts(len(A), len(B), 1)
+    A, B = check_measurements(A, B)
     return _residuals(X, Y, A, B, setup, rotation)
 
 
