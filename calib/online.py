@@ -61,31 +61,36 @@ LONG_STRIDE = 4
 
 
 def _inv3(S):
-    """Inverse of a 3x3 matrix by cofactors (np.linalg.inv's overhead dominates at this size)."""
-    (a, b, c), (d, e, f), (g, h, i) = S.tolist()
-    co = np.array([[e * i - f * h, c * h - b * i, b * f - c * e],
-                   [f * g - d * i, a * i - c * g, c * d - a * f],
-                   [d * h - e * g, b * g - a * h, a * e - b * d]])
-    return co / (a * co[0, 0] + b * co[1, 0] + c * co[2, 0])
+    """Inverse of a symmetric 3x3 matrix (nested lists) by cofactors, as nested lists.
+
+    Plain float arithmetic: at this size each numpy call costs more than the maths.
+    """
+    (a, b, c), (_, e, f), (_, _, i) = S
+    c00, c01, c02 = e * i - f * f, c * f - b * i, b * f - c * e
+    c11, c12, c22 = a * i - c * c, b * c - a * f, a * e - b * b
+    k = 1.0 / (a * c00 + b * c01 + c * c02)
+    return [[k * c00, k * c01, k * c02], [k * c01, k * c11, k * c12], [k * c02, k * c12, k * c22]]
 
 
-def _exp(v):
-    """Rodrigues' formula in scalars; scipy's Rotation costs more than a whole filter update."""
-    x, y, z = v.tolist()
+def _exp(x, y, z):
+    """Rodrigues' formula in scalars (nested lists); scipy's Rotation costs more than a whole filter update."""
     th = math.sqrt(x * x + y * y + z * z)
     if th < 1e-9:
         a, b = 1.0, 0.5
     else:
         a, b = math.sin(th) / th, (1.0 - math.cos(th)) / (th * th)
-    return np.array([
+    return [
         [1.0 - b * (y * y + z * z), b * x * y - a * z, b * x * z + a * y],
         [b * x * y + a * z, 1.0 - b * (x * x + z * z), b * y * z - a * x],
         [b * x * z - a * y, b * y * z + a * x, 1.0 - b * (x * x + y * y)],
-    ])
+    ]
 
 
 def _check_sample(T_base_flange, point_cam, point_cov):
-    """Validate one sample; the per-sample budget (< 50 us) rules out the generic stack checks."""
+    """Validate one sample; the per-sample budget (< 50 us) rules out the generic stack checks.
+
+    Returns the arrays and ``T_base_flange`` as nested lists (the filter works on those).
+    """
     A = np.asarray(T_base_flange, dtype=float)
     p = np.asarray(point_cam, dtype=float)
     if A.shape != (4, 4):
@@ -94,17 +99,26 @@ def _check_sample(T_base_flange, point_cam, point_cov):
         raise CalibrationError(f"point_cam must have shape (3,), got {p.shape}")
     # NaN/inf is caught by the caller: it propagates into the NIS (filter) or
     # the batch checks (bootstrap) before any state changes.
-    R = A[:3, :3]
-    if A[3].tolist() != [0.0, 0.0, 0.0, 1.0] or np.abs(R @ R.T - _I3).max() > 1e-5:
+    a = A.tolist()
+    (r00, r01, r02, _), (r10, r11, r12, _), (r20, r21, r22, _), last = a
+    deviation = max(abs(r00 * r00 + r01 * r01 + r02 * r02 - 1.0), abs(r10 * r10 + r11 * r11 + r12 * r12 - 1.0),
+                    abs(r20 * r20 + r21 * r21 + r22 * r22 - 1.0), abs(r00 * r10 + r01 * r11 + r02 * r12),
+                    abs(r00 * r20 + r01 * r21 + r02 * r22), abs(r10 * r20 + r11 * r21 + r12 * r22))
+    finite = math.isfinite(r00 + r01 + r02 + r10 + r11 + r12 + r20 + r21 + r22)
+    if last != [0.0, 0.0, 0.0, 1.0] or (finite and deviation > 1e-5):
         raise CalibrationError("T_base_flange is not a rigid transform (rotation or last row)")
     if point_cov is None:
-        return A, p, None
+        return A, a, p, None
     S = np.asarray(point_cov, dtype=float)
     if S.shape != (3, 3):
         raise CalibrationError(f"point_cov must have shape (3, 3), got {S.shape}")
-    if not min(S[0, 0], S[1, 1], S[2, 2]) > 0:
+    (s00, s01, s02), (s10, s11, s12), (s20, s21, s22) = S.tolist()
+    # The filter reads only the upper triangle, so check every entry here.
+    if not math.isfinite(s00 + s01 + s02 + s10 + s11 + s12 + s20 + s21 + s22):
+        raise CalibrationError("point_cov contains NaN or inf")
+    if not min(s00, s11, s22) > 0:
         raise CalibrationError("point_cov must have a positive diagonal")
-    return A, p, S
+    return A, a, p, S
 
 
 @dataclass
@@ -153,16 +167,18 @@ class ChangeDetector:
         self.config = config or DetectorConfig()
         windows = 1 if self.config.long_window is None else 2
         self.threshold = float(chi2.ppf(1.0 - self.config.false_alarm_rate / windows, 6))
-        self._size = self.config.long_window or self.config.window
-        self._Fg = np.zeros((self._size, 6, 7))
-        self._Hr = np.empty((3, 7))
+        # Running sums of the per-sample H^T S^-1 [H | . | r] (F = [:, :6], g = [:, -1]; the calibrator
+        # fills the middle columns with marker-side terms the test ignores) over the last
+        # size samples: a window sum is one difference, not an add and a subtract per window.
+        # Unwritten slots are zero, i.e. the sum before the first sample.
+        self._size = (self.config.long_window or self.config.window) + 1
+        self._cum = np.zeros((self._size, 6, 10))
+        self._Hr = np.zeros((3, 10))
         self.reset()
 
     def reset(self) -> None:
         """Forget all innovations."""
-        self._Fg[:] = 0.0
-        self._short = np.zeros((6, 7))
-        self._long = np.zeros((6, 7))
+        self._cum[:] = 0.0
         self._count = 0
         self.statistic = 0.0
         self.statistics = (0.0, 0.0)
@@ -172,40 +188,40 @@ class ChangeDetector:
 
         Returns True if a window's GLR statistic exceeds the threshold.
         """
-        # [H^T S^-1 H | H^T S^-1 r] in one product; window sums are kept by
-        # adding the newest and subtracting the one that leaves the window.
+        # [H^T S^-1 H | H^T S^-1 r] in one product.
         Hr = self._Hr
         Hr[:, :6] = H
-        Hr[:, 6] = r
-        Fg = H.T @ S_inv @ Hr
-        cfg, n, size = self.config, self._count, self._size
-        self._short += Fg - self._Fg[(n - cfg.window) % size] if n >= cfg.window else Fg
-        if cfg.long_window is not None:
-            self._long += Fg - self._Fg[n % size]
-        self._Fg[n % size] = Fg
+        Hr[:, 9] = r
+        return self._push(H.T @ S_inv @ Hr)
+
+    def _push(self, Fg: np.ndarray) -> bool:
+        """`update` from the sample's ``[H^T S^-1 H | . | H^T S^-1 r]`` (6, 10), which the calibrator builds itself."""
+        cfg, n, size, cum = self.config, self._count, self._size, self._cum
+        slot = n % size
+        now = np.add(cum[slot - 1], Fg, out=cum[slot])        # slot - 1 = -1 wraps to the last slot
         self._count = n + 1
         if self._count < 3:
             # Two points cannot yet separate six pose parameters.
             return False
-        short = _glr(self._short)
+        short = _glr(now - cum[(n - cfg.window) % size])
         long = self.statistics[1]
         # The long window is for slow, small moves: testing it every LONG_STRIDE samples
         # delays those alarms a little and saves a 6x6 solve per sample.
         if cfg.long_window is not None and self._count > cfg.window and self._count % LONG_STRIDE == 0:
-            long = _glr(self._long)
+            long = _glr(now - cum[(n - cfg.long_window) % size])
         self.statistics = (short, long)
         self.statistic = max(short, long)
         return self.statistic > self.threshold
 
 
 def _glr(Fg):
-    """``g^T F^-1 g`` of a window sum ``[F | g]`` (6, 7)."""
+    """``g^T F^-1 g`` of a window sum ``[F | . | g]`` (6, 10)."""
     F = Fg[:, :6]
-    g = Fg[:, 6]
+    g = Fg[:, 9]
     # A tiny ridge keeps a rank-deficient window (robot standing still) solvable;
     # g lies in the range of F then, so the statistic is unaffected.
-    _, x, info = dposv(F + (1e-9 * (F[0, 0] + F[3, 3])) * _I6, g)
-    return float(g @ x) if info == 0 else 0.0
+    _, x, info = dposv(F + (1e-9 * (Fg.item(0, 0) + Fg.item(3, 3))) * _I6, g)
+    return float(g.dot(x)) if info == 0 else 0.0
 
 
 @dataclass
@@ -297,8 +313,8 @@ class OnlineCalibrator:
     def reset(self) -> None:
         """Drop everything learnt; the next samples bootstrap again."""
         self._buffer = deque(maxlen=4 * self.config.bootstrap)
-        self._C = None
-        self._tK = None
+        # The estimate: columns of R_C, t_C and t_K as float tuples (the filter's arithmetic is on floats).
+        self._cols = self._tC = self._tK = None
         self._P = None
         self._I2 = None
         self._n = 0
@@ -317,7 +333,7 @@ class OnlineCalibrator:
     def state_size(self) -> int:
         """Floats held in the state (bounded, independent of the stream length)."""
         buf = len(self._buffer) * (16 + 3 + 9)
-        return buf + (0 if self._P is None else 16 + 3 + 81 + 81) + self.detector._Fg.size + 2 * 42
+        return buf + (0 if self._P is None else 16 + 3 + 81 + 81) + self.detector._cum.size
 
     def _noise_scale(self) -> float:
         # Given covariances are trusted; the default model's scale comes from the NIS.
@@ -347,13 +363,13 @@ class OnlineCalibrator:
         CalibrationError
             Malformed input (the sample is not fused).
         """
-        A, p, Sigma = _check_sample(T_base_flange, point_cam, point_cov)
+        A, a, p, Sigma = _check_sample(T_base_flange, point_cam, point_cov)
         if Sigma is None:
             Sigma = default_point_cov(p[None])[0]
             self._given_cov = False
-        if self._C is None:
+        if self._cols is None:
             return self._bootstrap(A, p, Sigma)
-        return self._filter(A, p, Sigma)
+        return self._filter(a, p, Sigma)
 
     def _bootstrap(self, A, p, Sigma) -> OnlineUpdate:
         if not math.isfinite(float(A.sum() + p.sum() + Sigma.sum())):
@@ -375,43 +391,62 @@ class OnlineCalibrator:
                 return OnlineUpdate(self._n, None, None, None, None, 0.0, False)
             C, K, M = rf._split(res.X, res.Y, As, self.config.setup)
             problem = rf._Problem(M, ps, rf._whitener(covs))
-            self._C, self._tK = C, K[:3, 3].copy()
+            self._cols = [tuple(c) for c in C[:3, :3].T.tolist()]
+            self._tC, self._tK = tuple(C[:3, 3].tolist()), tuple(K[:3, 3].tolist())
             info = rf._information(problem, C, K)
             self._P = np.linalg.inv(info)
             self._I2 = info
             self._buffer.clear()
-            return OnlineUpdate(self._n, self._C.copy(), self.cov, None, None, 0.0, False)
+            return OnlineUpdate(self._n, self.camera_transform, self.cov, None, None, 0.0, False)
         return OnlineUpdate(self._n, None, None, None, None, 0.0, False)
 
-    def _filter(self, A, p, Sigma) -> OnlineUpdate:
+    def _filter(self, a, p, Sigma) -> OnlineUpdate:
         # Covariance form of the information filter with forgetting (recursive
-        # least squares): one 3x3 inverse per sample, no 9x9 solve. Written for
-        # few numpy calls, since each costs about a microsecond at this size.
+        # least squares): one 3x3 inverse per sample, no 9x9 solve. Each numpy
+        # call costs a microsecond or more at this size, so everything 3x3 is
+        # plain float arithmetic and numpy only sees the 9x9 products.
         cfg = self.config
         lam = cfg.forgetting
+        (m00, m01, m02, m03), (m10, m11, m12, m13), (m20, m21, m22, m23) = a[0], a[1], a[2]
         if cfg.setup == "eye_to_hand":
-            R_M, t_M = A[:3, :3], A[:3, 3]
+            t0, t1, t2 = m03, m13, m23
         else:
-            R_M = A[:3, :3].T
-            t_M = -R_M @ A[:3, 3]
-        R_C, t_C = self._C[:3, :3], self._C[:3, 3]
-        RCt = R_C.T
-        w = R_M @ self._tK + (t_M - t_C)
-        r = p - RCt @ w
-        x, y, z = w.tolist()
-        # d(predicted point)/d[dC, tC, tK] = R_C^T [ [w]x, -I, R_M ]  (refine._point_residuals)
-        G = np.array([[0.0, -z, y, -1.0, 0.0, 0.0], [z, 0.0, -x, 0.0, -1.0, 0.0], [-y, x, 0.0, 0.0, 0.0, -1.0]])
-        J = RCt @ np.concatenate((G, R_M), axis=1)
+            # M = A^-1: transpose the rotation in place of the names.
+            m01, m02, m10, m12, m20, m21 = m10, m20, m01, m21, m02, m12
+            t0 = -(m00 * m03 + m01 * m13 + m02 * m23)
+            t1 = -(m10 * m03 + m11 * m13 + m12 * m23)
+            t2 = -(m20 * m03 + m21 * m13 + m22 * m23)
+        (k0, k1, k2), (u0, u1, u2) = self._tK, self._tC
+        w0 = m00 * k0 + m01 * k1 + m02 * k2 + t0 - u0
+        w1 = m10 * k0 + m11 * k1 + m12 * k2 + t1 - u1
+        w2 = m20 * k0 + m21 * k1 + m22 * k2 + t2 - u2
+        # Row j of d(predicted point)/d[dC, tC, tK] = R_C^T [[w]x, -I, R_M] (refine._point_residuals)
+        # is [c_j x w, -c_j, c_j^T R_M], c_j the j-th column of R_C; the innovation r_j ends the row.
+        rows = []
+        for (c0, c1, c2), pj in zip(self._cols, p.tolist()):
+            rows += [c1 * w2 - c2 * w1, c2 * w0 - c0 * w2, c0 * w1 - c1 * w0, -c0, -c1, -c2,
+                     c0 * m00 + c1 * m10 + c2 * m20, c0 * m01 + c1 * m11 + c2 * m21, c0 * m02 + c1 * m12 + c2 * m22,
+                     pj - (c0 * w0 + c1 * w1 + c2 * w2)]
+        r0, r1, r2 = rows[9], rows[19], rows[29]
+        Jr = np.array(rows).reshape(3, 10)               # [H (camera) | J_tK | r]
+        J, r = Jr[:, :9], Jr[:, 9]
         P = self._P if lam == 1.0 else self._P / lam
-        JP = J @ P
-        JPJ = JP @ J.T
-        K_inv = _inv3(Sigma + JPJ)
+        JP = J.dot(P)
+        (q00, q01, q02), (_, q11, q12), (_, _, q22) = JP.dot(J.T).tolist()
+        (s00, s01, s02), (_, s11, s12), (_, _, s22) = Sigma.tolist()
+        K_inv = _inv3(((s00 + q00, s01 + q01, s02 + q02), (0, s11 + q11, s12 + q12), (0, 0, s22 + q22)))
         # The prediction uses the information before forgetting (lam * P).
-        S_inv = K_inv if lam == 1.0 else _inv3(Sigma + lam * JPJ)
+        if lam == 1.0:
+            S_inv = K_inv
+        else:
+            S_inv = _inv3(((s00 + lam * q00, s01 + lam * q01, s02 + lam * q02), (0, s11 + lam * q11, s12 + lam * q12),
+                           (0, 0, s22 + lam * q22)))
         scale = self._noise_scale()
         if scale != 1.0:
-            S_inv = S_inv / scale
-        nis = float(r @ S_inv @ r)
+            S_inv = [[v / scale for v in row] for row in S_inv]
+        (a00, a01, a02), (_, a11, a12), (_, _, a22) = S_inv
+        nis = (a00 * r0 * r0 + a11 * r1 * r1 + a22 * r2 * r2
+               + 2.0 * (a01 * r0 * r1 + a02 * r0 * r2 + a12 * r1 * r2))
         if not math.isfinite(nis):
             raise CalibrationError("T_base_flange, point_cam or point_cov contains NaN or inf")
         if not self._given_cov:
@@ -421,12 +456,15 @@ class OnlineCalibrator:
 
         alarm = False
         statistic = 0.0
+        K_inv = np.array(K_inv)
         if self._filtered >= cfg.warmup:
-            alarm = self.detector.update(r, S_inv, J[:, :6])
+            # H^T S^-1 [H | J_tK | r]: the detector reads [F | g] from its first 6 and last columns.
+            S_inv = K_inv if S_inv is K_inv else np.array(S_inv)
+            alarm = self.detector._push(Jr[:, :6].T.dot(S_inv.dot(Jr)))
             statistic = self.detector.statistic
 
-        K = JP.T @ K_inv
-        P = P - K @ JP
+        K = JP.T.dot(K_inv)
+        P -= K.dot(JP)                                   # in place: P is self._P or a fresh P / lam
         if self._filtered % 64 == 0:
             # Rounding slowly breaks the symmetry of the rank-3 downdates.
             P = 0.5 * (P + P.T)
@@ -434,17 +472,18 @@ class OnlineCalibrator:
         if lam != 1.0:
             # Information weighted by lam^2: the sandwich P I2 P is the error covariance of
             # the exponentially weighted estimate of a constant camera (P alone is ~2x too big).
-            self._I2 = (lam * lam) * self._I2 + J.T @ _inv3(Sigma) @ J
-        delta = K @ r
-        C = np.empty((4, 4))
-        C[:3, :3] = _exp(delta[:3]) @ R_C
-        C[:3, 3] = t_C + delta[3:6]
-        C[3] = (0.0, 0.0, 0.0, 1.0)
-        self._C = C
-        self._tK = self._tK + delta[6:]
+            self._I2 *= lam * lam
+            self._I2 += J.T.dot(np.array(_inv3(Sigma.tolist())).dot(J))
+        d0, d1, d2, d3, d4, d5, d6, d7, d8 = K.dot(r).tolist()
+        (e00, e01, e02), (e10, e11, e12), (e20, e21, e22) = _exp(d0, d1, d2)
+        # R_C <- Exp(d) R_C, column by column.
+        self._cols = [(e00 * c0 + e01 * c1 + e02 * c2, e10 * c0 + e11 * c1 + e12 * c2, e20 * c0 + e21 * c1 + e22 * c2)
+                      for c0, c1, c2 in self._cols]
+        self._tC = (u0 + d3, u1 + d4, u2 + d5)
+        self._tK = (k0 + d6, k1 + d7, k2 + d8)
         self._n += 1
         self._filtered += 1
-        upd = OnlineUpdate(self._n, C.copy(), self.cov, r, nis, statistic, alarm)
+        upd = OnlineUpdate(self._n, self.camera_transform, self.cov, r, nis, statistic, alarm)
         if alarm and cfg.reset_on_alarm:
             self.reset()
         return upd
@@ -452,7 +491,11 @@ class OnlineCalibrator:
     @property
     def camera_transform(self) -> np.ndarray | None:
         """``T_base_cam`` (eye-to-hand) or ``T_flange_cam`` (eye-in-hand), or None while bootstrapping."""
-        return None if self._C is None else self._C.copy()
+        if self._cols is None:
+            return None
+        (a0, a1, a2), (b0, b1, b2), (c0, c1, c2) = self._cols
+        t0, t1, t2 = self._tC
+        return np.array(((a0, b0, c0, t0), (a1, b1, c1, t1), (a2, b2, c2, t2), (0.0, 0.0, 0.0, 1.0)))
 
     @property
     def cov(self) -> np.ndarray | None:
@@ -461,7 +504,7 @@ class OnlineCalibrator:
             return None
         if self.config.forgetting == 1.0:
             return self._noise_scale() * self._P[:6, :6]
-        P6 = self._P[:6] @ self._I2 @ self._P[:, :6]
+        P6 = self._P[:6].dot(self._I2).dot(self._P[:, :6])
         return self._noise_scale() * 0.5 * (P6 + P6.T)
 
     def result(self) -> CalibrationResult | None:
@@ -470,10 +513,10 @@ class OnlineCalibrator:
         The marker-side rotation is unknown (identity, ``marker_rotation_known``
         False); per-sample residuals are not kept, so ``residuals`` is empty.
         """
-        if self._C is None:
+        if self._cols is None:
             return None
-        K = tf.make_transform(_I3, self._tK)
-        X, Y = rf._join(self._C.copy(), K, self.config.setup)
+        K = tf.make_transform(_I3, np.array(self._tK))
+        X, Y = rf._join(self.camera_transform, K, self.config.setup)
         return CalibrationResult(
             method="YKronT'+online",
             setup=self.config.setup,

@@ -156,3 +156,45 @@ def test_detector_alone_is_chi_square_under_no_change():
         stats.append(det.statistics)
     stats = np.array(stats[50:])
     assert np.all((5.5 < stats.mean(axis=0)) & (stats.mean(axis=0) < 6.5))
+
+
+@pytest.mark.parametrize("long_window", [None, 30])
+def test_detector_window_sums_match_brute_force(long_window):
+    """The running-sum windows give exactly the GLR of the last `window` / `long_window` innovations."""
+    rng = np.random.default_rng(51)
+    cfg = DetectorConfig(window=8, long_window=long_window)
+    det = ChangeDetector(cfg)
+    Hs, rs, Ss = [], [], []
+
+    def brute(w):
+        F = sum(H.T @ S @ H for H, S in zip(Hs[-w:], Ss[-w:]))
+        g = sum(H.T @ S @ r for H, S, r in zip(Hs[-w:], Ss[-w:], rs[-w:]))
+        return g @ np.linalg.solve(F, g)
+
+    for k in range(120):
+        H, r = rng.normal(size=(3, 6)), rng.normal(size=3) + (0.5 if k > 60 else 0.0)
+        S_inv = np.linalg.inv(np.diag(rng.uniform(0.5, 2.0, size=3)))
+        Hs.append(H), rs.append(r), Ss.append(S_inv)
+        det.update(r, S_inv, H)
+        if k >= 2:
+            assert det.statistics[0] == pytest.approx(brute(cfg.window), rel=1e-6)
+        if long_window is not None and k + 1 > cfg.window and (k + 1) % 4 == 0:
+            assert det.statistics[1] == pytest.approx(brute(long_window), rel=1e-6)
+
+
+@pytest.mark.parametrize("where", ["rotation inf", "translation nan", "point nan", "cov nan", "cov lower nan"])
+def test_non_finite_sample_in_the_filter_raises_and_leaves_state_alone(where):
+    rng = np.random.default_rng(52)
+    d = simulate.realistic_cell(40, rng, setup="eye_in_hand")
+    cal = OnlineCalibrator(OnlineConfig(setup="eye_in_hand", forgetting=0.99))
+    run(cal, d.A, d.points, d.point_cov)
+    before, cov_before = cal.camera_transform, cal.cov
+    A, p, S = d.A[0].copy(), d.points[0].copy(), d.point_cov[0].copy()
+    {"rotation inf": lambda: A.__setitem__((1, 2), np.inf), "translation nan": lambda: A.__setitem__((0, 3), np.nan),
+     "point nan": lambda: p.__setitem__(2, np.nan), "cov nan": lambda: S.__setitem__((0, 1), np.nan),
+     "cov lower nan": lambda: S.__setitem__((2, 1), np.nan)}[where]()
+    with pytest.raises(CalibrationError, match="NaN or inf"):
+        cal.update(A, p, S)
+    np.testing.assert_array_equal(cal.camera_transform, before)
+    np.testing.assert_array_equal(cal.cov, cov_before)
+    assert cal.n_samples == 40
