@@ -558,7 +558,7 @@ def _config(quick: bool, tiny: bool, seed: int) -> dict:
                    n_quiet=2000, time_counts=(10, 100, 1000), time_repeats=(5, 3, 2))
     else:
         cfg = dict(counts=list(range(5, 71, 5)), rounds1=30, levels=list(np.linspace(0, 1, 11)), rounds2=40,
-                   n_noise=30, n_real=80, rounds_real=30, trials_eff=300, eff_counts=(30, 80), trials_nees=60,
+                   n_noise=30, n_real=80, rounds_real=30, trials_eff=300, eff_counts=(30, 80), trials_nees=150,
                    n_nees=30, trials_rob=20,
                    trials_onl=20, n_quiet=10000, time_counts=(10, 100, 1000), time_repeats=(30, 10, 5))
     if tiny:

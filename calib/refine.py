@@ -463,10 +463,12 @@ def kron_t_prime_covariance(X, Y, A, B, *, setup: str, point_cov=None) -> np.nda
     T2t = np.swapaxes(T2, 1, 2)
     T2f = T2.reshape(3 * n, 6)
     H2_inv = np.linalg.inv(T2f.T @ T2f)[:3]                           # the camera translation is t[:3]
-    S = np.einsum("nij,njk->ik", T2t, G)                              # (6, 3)
+    S = T2f.T @ G.reshape(3 * n, 3)                                   # sum_i T2_i^T G_i, (6, 3)
     J_t = H2_inv @ (T2t @ F + S @ J_rot)                              # (N, 3, 3)
     J = np.concatenate([J_rot, J_t], axis=1)                          # (N, 6, 3)
-    cov = factor * np.einsum("nij,njk,nlk->il", J, cov_p, J)
+    # sum_i J_i Sigma_i J_i^T as one (6 x 3N) (3N x 6) product.
+    JS = np.swapaxes(J @ cov_p, 0, 1).reshape(6, 3 * n)
+    cov = factor * (JS @ np.swapaxes(J, 0, 1).reshape(6, 3 * n).T)
     return 0.5 * (cov + cov.T)
 
 
