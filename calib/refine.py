@@ -18,7 +18,11 @@ scale of the translation covariance are estimated from the residuals.
 
 Perturbations follow `calib.result`: ``R = Exp(d) R_est``, ``t = t_est + dt``
 for both ``C`` and ``K``. `covariance` returns the 6x6 block of ``C`` of the
-inverse Fisher information, i.e. with the marker-side unknowns marginalised.
+inverse Fisher information, i.e. with the marker-side unknowns marginalised:
+the covariance of the ML estimate. A closed-form estimate is less efficient;
+`kron_t_prime_covariance` (YKronT', analytic) and `delta_method_covariance`
+(any closed form from poses, numerical) give the first-order covariance of
+the closed-form estimator itself.
 """
 
 from __future__ import annotations
