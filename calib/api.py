@@ -23,11 +23,13 @@ from typing import Callable, Sequence
 
 import numpy as np
 
+from calib import refine as rf
 from calib import solvers
 from calib import transforms as tf
 from calib.errors import CalibrationError, InsufficientDataError
 from calib.observation import Observation
 from calib.result import CalibrationResult, Residuals
+from calib.robust import robust_solve
 
 
 @dataclass(frozen=True)
@@ -233,16 +235,12 @@ def solve(
     info = resolve_method(method)
     solvers.check_setup(setup)
     A, B = _check_inputs(info, A, B)
-    from calib.refine import check_point_cov
-
-    cov_p = check_point_cov(point_cov, len(A))
+    cov_p = rf.check_point_cov(point_cov, len(A))
 
     def solve_fn(A_sub, B_sub):
         return _closed_form(info, A_sub, B_sub, setup)
 
     if robust:
-        from calib.robust import robust_solve
-
         result = robust_solve(solve_fn, A, B, setup=setup, point_cov=cov_p,
                               rng=rng if rng is not None else np.random.default_rng(0))
     else:
@@ -251,9 +249,7 @@ def solve(
     A_in, B_in = A[inl], B[inl]
     cov_in = None if cov_p is None else cov_p[inl]
     if refine:
-        from calib.refine import refine as refine_fn
-
-        refined = refine_fn(result, A_in, B_in, point_cov=cov_in)
+        refined = rf.refine(result, A_in, B_in, point_cov=cov_in)
         result = dataclasses.replace(refined, inliers=result.inliers)
     cov, kind = _covariance(info, result, A_in, B_in, setup, cov_in, refined=refine)
     return dataclasses.replace(result, cov=cov, info={**result.info, "cov_kind": kind})
@@ -274,8 +270,6 @@ def _covariance(info: MethodInfo, result: CalibrationResult, A, B, setup, point_
     the pose-based methods up to `DELTA_METHOD_MAX_SAMPLES` ("delta-numerical"),
     else the Fisher one, labelled "fisher-optimistic".
     """
-    from calib import refine as rf
-
     if refined:
         return rf.covariance(result.X, result.Y, A, B, setup=setup, point_cov=point_cov), "fisher"
     if info.needs == "points":
