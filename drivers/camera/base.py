@@ -7,6 +7,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from drivers.device import Device
+
 
 @dataclass(frozen=True)
 class CameraIntrinsics:
@@ -58,18 +60,8 @@ class RGBDFrame:
     meta: dict = field(default_factory=dict)
 
 
-class Camera(abc.ABC):
+class Camera(Device):
     """An RGB-D source. Use as a context manager: ``with make_camera(cfg) as cam: ...``."""
-
-    @abc.abstractmethod
-    def connect(self) -> None: ...
-
-    @abc.abstractmethod
-    def disconnect(self) -> None: ...
-
-    @property
-    @abc.abstractmethod
-    def is_connected(self) -> bool: ...
 
     @property
     @abc.abstractmethod
@@ -78,11 +70,3 @@ class Camera(abc.ABC):
     @abc.abstractmethod
     def read(self) -> RGBDFrame:
         """Next frame; raises ConnectionLostError when the source stops delivering."""
-
-    def __enter__(self):
-        self.connect()
-        return self
-
-    def __exit__(self, *exc):
-        self.disconnect()
-        return False

@@ -7,6 +7,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from drivers.device import Device
+
 
 @dataclass(frozen=True)
 class RobotState:
@@ -43,18 +45,8 @@ class RobotState:
         return bool(np.max(np.abs(self.qd)) < 1e-3)
 
 
-class Robot(abc.ABC):
+class Robot(Device):
     """A robot arm. Use as a context manager: ``with make_robot(cfg) as robot: ...``."""
-
-    @abc.abstractmethod
-    def connect(self) -> None: ...
-
-    @abc.abstractmethod
-    def disconnect(self) -> None: ...
-
-    @property
-    @abc.abstractmethod
-    def is_connected(self) -> bool: ...
 
     @abc.abstractmethod
     def read(self) -> RobotState:
@@ -77,11 +69,3 @@ class Robot(abc.ABC):
     @abc.abstractmethod
     def stop(self) -> None:
         """Decelerate and stop any motion now."""
-
-    def __enter__(self):
-        self.connect()
-        return self
-
-    def __exit__(self, *exc):
-        self.disconnect()
-        return False

@@ -1,0 +1,27 @@
+"""What every device has in common: a connection, used as a context manager."""
+
+from __future__ import annotations
+
+import abc
+
+
+class Device(abc.ABC):
+    """A device with a connection. ``with make_robot(cfg) as robot:`` connects and always disconnects."""
+
+    @abc.abstractmethod
+    def connect(self) -> None: ...
+
+    @abc.abstractmethod
+    def disconnect(self) -> None: ...
+
+    @property
+    @abc.abstractmethod
+    def is_connected(self) -> bool: ...
+
+    def __enter__(self):
+        self.connect()
+        return self
+
+    def __exit__(self, *exc):
+        self.disconnect()
+        return False
