@@ -231,24 +231,13 @@ def experiment_nees_methods(rng, trials, n):
             for m, v in rows.items()}
 
 
-def _corrupt(points, fraction, rng):
-    n = len(points)
-    k = int(round(fraction * n))
-    bad = rng.choice(n, size=k, replace=False)
-    out = points.copy()
-    half = k // 2
-    out[bad[:half]] *= rng.uniform(1.05, 1.3, size=(half, 1))                       # wrong depth
-    out[bad[half:]] += rng.uniform(0.05, 0.2, size=(k - half, 3)) * rng.choice([-1, 1], size=(k - half, 3))  # wrong marker
-    return out, bad
-
-
 def experiment_robust(rng, trials, n=60):
     rows = []
     for fraction in (0.0, 0.1, 0.2, 0.3):
         err, ref, found, n_bad, false_rej, times = [], [], 0, 0, 0, []
         for _ in range(trials):
             d = simulate.realistic_cell(n, rng)
-            pts, bad = _corrupt(d.points, fraction, rng)
+            pts, bad = simulate.with_gross_outliers(d.points, fraction, rng)
             t0 = time.perf_counter()
             res = solve("YKronT'", d.A, pts, robust=True, point_cov=d.point_cov, rng=rng)
             times.append(time.perf_counter() - t0)
@@ -268,10 +257,7 @@ def experiment_robust(rng, trials, n=60):
 
 def _moved_stream(n_before, n_after, bump, rng):
     d = simulate.realistic_cell(n_before + n_after, rng)
-    noise = d.points - d.B_true[:, :3, 3]
-    pts = d.points.copy()
-    pts[n_before:] = tf.transform_points(tf.invert(bump), d.B_true[n_before:, :3, 3]) + noise[n_before:]
-    return d, pts
+    return d, simulate.moved_camera_points(d, n_before, bump)
 
 
 def experiment_online(rng, trials, n_quiet):

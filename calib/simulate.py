@@ -203,3 +203,36 @@ def realistic_cell(
     B[:, :3, 3] = points                              # one translation noise model for poses and points
     A = A_true @ gaussian_noise(robot_noise)
     return SimulatedData(A, B, points, cov, X, Y, A_true, B_true, setup)
+
+
+def with_gross_outliers(points: np.ndarray, fraction: float, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
+    """Replace ``fraction`` of the points by gross outliers: half a wrong depth, half a wrong marker.
+
+    Wrong depth scales the point along its ray by 1.05-1.3; a wrong marker
+    shifts it by 5-20 cm per axis.
+
+    Returns
+    -------
+    points : ndarray, shape (N, 3)
+    bad : ndarray of int
+        Sorted indices of the corrupted samples.
+    """
+    n = len(points)
+    k = int(round(fraction * n))
+    bad = rng.choice(n, size=k, replace=False)
+    out = points.copy()
+    half = k // 2
+    out[bad[:half]] *= rng.uniform(1.05, 1.3, size=(half, 1))
+    out[bad[half:]] += rng.uniform(0.05, 0.2, size=(k - half, 3)) * rng.choice([-1, 1], size=(k - half, 3))
+    return out, np.sort(bad)
+
+
+def moved_camera_points(data: SimulatedData, n_before: int, bump: np.ndarray) -> np.ndarray:
+    """Points of an eye-to-hand ``data`` whose camera moves by ``bump`` (T_camold_camnew) after ``n_before`` samples.
+
+    Each sample keeps its own measurement noise, so only the move differs.
+    """
+    noise = data.points - data.B_true[:, :3, 3]
+    points = data.points.copy()
+    points[n_before:] = tf.transform_points(tf.invert(bump), data.B_true[n_before:, :3, 3]) + noise[n_before:]
+    return points

@@ -14,10 +14,7 @@ from calib.refine import nees
 def moved_stream(n_before, n_after, bump, rng):
     """Realistic eye-to-hand cell whose camera moves by ``bump`` (T_camold_camnew) after ``n_before`` samples."""
     d = simulate.realistic_cell(n_before + n_after, rng)
-    noise = d.points - d.B_true[:, :3, 3]
-    pts = d.points.copy()
-    pts[n_before:] = tf.transform_points(tf.invert(bump), d.B_true[n_before:, :3, 3]) + noise[n_before:]
-    return d, pts
+    return d, simulate.moved_camera_points(d, n_before, bump)
 
 
 def run(cal, A, pts, cov):

@@ -10,18 +10,6 @@ from calib.errors import CalibrationError, InsufficientDataError
 from calib.robust import robust_solve
 
 
-def corrupt(points, fraction, rng):
-    """Replace ``fraction`` of the points by gross outliers: half wrong depth, half a wrong marker."""
-    n = len(points)
-    k = int(round(fraction * n))
-    bad = rng.choice(n, size=k, replace=False)
-    out = points.copy()
-    half = k // 2
-    out[bad[:half]] *= rng.uniform(1.05, 1.3, size=(half, 1))
-    out[bad[half:]] += rng.uniform(0.05, 0.2, size=(k - half, 3)) * rng.choice([-1, 1], size=(k - half, 3))
-    return out, np.sort(bad)
-
-
 @pytest.mark.parametrize("setup,fraction", [("eye_to_hand", 0.3), ("eye_in_hand", 0.3), ("eye_to_hand", 0.1)])
 def test_outliers_leave_error_within_ten_percent(setup, fraction):
     """Reference: the same solver on the samples that were not corrupted."""
@@ -30,7 +18,7 @@ def test_outliers_leave_error_within_ten_percent(setup, fraction):
     n_bad_total = 0
     for _ in range(20):
         d = simulate.realistic_cell(60, rng, setup=setup)
-        pts, bad = corrupt(d.points, fraction, rng)
+        pts, bad = simulate.with_gross_outliers(d.points, fraction, rng)
         res = solve("YKronT'", d.A, pts, setup=setup, robust=True, point_cov=d.point_cov, rng=rng)
         good = np.setdiff1d(np.arange(60), bad)
         clean = solve("YKronT'", d.A[good], pts[good], setup=setup, point_cov=d.point_cov[good])
@@ -69,7 +57,7 @@ def test_pose_data_with_wrong_marker_outliers():
 def test_refine_on_inliers_composes():
     rng = np.random.default_rng(34)
     d = simulate.realistic_cell(60, rng)
-    pts, bad = corrupt(d.points, 0.2, rng)
+    pts, bad = simulate.with_gross_outliers(d.points, 0.2, rng)
     res = solve("YKronT'", d.A, pts, robust=True, refine=True, point_cov=d.point_cov, rng=rng)
     assert res.method == "YKronT'+LMedS+ML"
     assert set(bad) <= set(res.rejected)
