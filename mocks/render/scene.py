@@ -192,7 +192,6 @@ class MarkerSceneRenderer:
             ``depth_bias_eps`` (this frame's systematic error coefficient, 1/m).
         """
         T_cam_marker = tf.check_transform(T_cam_marker, "T_cam_marker")
-        w, h = self.intr.width, self.intr.height
         scene = o3d.t.geometry.RaycastingScene()
         poses = {_PLATE: T_cam_marker}
         if T_cam_flange is not None:
