@@ -4,6 +4,7 @@ simulated controller (module-scoped, because every ur_rtde disconnect sleeps
 concurrent runs of the suite do not collide."""
 
 import os
+import time
 
 import numpy as np
 import pytest
@@ -71,3 +72,13 @@ def connect_robot(cfg) -> URRobot:
 
 def truth_flange(sim) -> np.ndarray:
     return np.array(sim.state()["T_base_flange"])
+
+
+def controller_stamps(robot, seconds: float, poll: float) -> np.ndarray:
+    """Distinct controller timestamps the driver delivered while polled for ``seconds``."""
+    t_end = time.time() + seconds
+    stamps = []
+    while time.time() < t_end:
+        stamps.append(robot.read().t_controller)
+        time.sleep(poll)
+    return np.unique(stamps)

@@ -10,7 +10,7 @@ import pytest
 from calib.errors import DeviceError, LimitViolationError
 from calib.transforms import from_ur_pose, make_transform, pose_error
 from drivers.robot import ur_kinematics as kin
-from .conftest import SIM_TCP, START_Q, connect_robot, robot_config, truth_flange
+from .conftest import SIM_TCP, controller_stamps, START_Q, connect_robot, robot_config, truth_flange
 
 
 
@@ -37,12 +37,7 @@ def home(robot, sim):
 
 
 def test_stream_rate_is_500_hz_for_e_series(robot):
-    t_end = time.time() + 1.0
-    stamps = []
-    while time.time() < t_end:
-        stamps.append(robot.read().t_controller)
-        time.sleep(0.0005)
-    stamps = np.unique(stamps)
+    stamps = controller_stamps(robot, 1.0, poll=0.0005)
     # the controller stamps 2 ms apart; the client sees (nearly) every package
     assert np.median(np.diff(stamps)) == pytest.approx(0.002, abs=1e-9)
     assert stamps[-1] - stamps[0] == pytest.approx(1.0, abs=0.05)

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from calib.errors import DeviceError
-from .conftest import SIM_TCP, connect_robot, robot_config, truth_flange
+from .conftest import SIM_TCP, controller_stamps, connect_robot, robot_config, truth_flange
 
 
 
@@ -34,12 +34,7 @@ def test_read_only_never_opens_the_control_interface(robot, sim):
 
 
 def test_cb3_streams_at_125_hz_and_pose_matches_truth(robot, sim):
-    t_end = time.time() + 1.0
-    stamps = []
-    while time.time() < t_end:
-        stamps.append(robot.read().t_controller)
-        time.sleep(0.001)
-    stamps = np.unique(stamps)
+    stamps = controller_stamps(robot, 1.0, poll=0.001)
     assert np.median(np.diff(stamps)) == pytest.approx(0.008, abs=1e-9)
     assert len(stamps) > 0.7 * 125
     np.testing.assert_allclose(robot.read().T_base_flange, truth_flange(sim), atol=1e-9)
