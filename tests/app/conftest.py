@@ -1,6 +1,6 @@
 """Shared fixtures for the app tests that run the simulated cell.
 
-Each test gets its own loopback address (127.0.4.x) for the UR simulator, so
+Each test gets its own loopback address (the `loopback` fixture) for the UR simulator, so
 tests never collide on the RTDE/dashboard ports.
 """
 

@@ -63,18 +63,18 @@ def test_usage_error_exits_2():
     assert e.value.code == 2
 
 
-def test_unreachable_robot_is_one_line(tmp_path, capsys):
+def test_unreachable_robot_is_one_line(tmp_path, capsys, loopback):
     p = tmp_path / "c.toml"
-    p.write_text('[robot]\ntype = "ur"\nhost = "127.0.4.99"\nworkspace_min = [0.6, -0.2, 0.2]\n'
+    p.write_text(f'[robot]\ntype = "ur"\nhost = "{loopback(99)}"\nworkspace_min = [0.6, -0.2, 0.2]\n'
                  'workspace_max = [1.2, 0.4, 0.8]\nconnect_timeout = 1.0\n[camera]\nbackend = "rendered"\n')
     line = _one_line_error(capsys, main(["calibrate", "--yes-move", "-c", str(p), "--session-root", str(tmp_path)]))
-    assert "127.0.4.99" in line
+    assert loopback(99) in line
 
 
-def test_wrong_marker_id_skips_every_frame_with_reason(tmp_path, capsys):
+def test_wrong_marker_id_skips_every_frame_with_reason(tmp_path, capsys, loopback):
     """The camera shows marker 0, the config asks for 7: every frame is skipped and says why; exit 1."""
     p = tmp_path / "c.toml"
-    text = open("config/sim.toml").read().replace('host = "127.0.0.2"', 'host = "127.0.4.10"')
+    text = open("config/sim.toml").read().replace('host = "127.0.0.2"', f'host = "{loopback(10)}"')
     p.write_text(text.replace("marker_id = 0", "marker_id = 7").replace("max_attempts = 200", "max_attempts = 3"))
     assert main(["calibrate", "--yes-move", "-c", str(p), "--session-root", str(tmp_path), "--no-viz"]) == 1
     out = capsys.readouterr().out

@@ -17,9 +17,9 @@ def test_sim_toml_is_the_embedded_default():
     assert load_config("config/sim.toml") == Config()
 
 
-def test_demo_recovers_true_camera_pose(sim_config):
+def test_demo_recovers_true_camera_pose(sim_config, loopback):
     """Reduced sample count; the shipped demo takes 20 (see docs/usage.md for its figures)."""
-    cfg = sim_config("127.0.4.1", samples=12)
+    cfg = sim_config(loopback(1), samples=12)
     out = demo(cfg, progress=False)
     res = out.report.result
     assert out.report.n_samples == 12 and res.method.startswith("YKronT'") and res.setup == "eye_to_hand"
@@ -42,8 +42,8 @@ def test_demo_refuses_hardware_config():
         demo(cfg)
 
 
-def test_eye_in_hand_config_runs_on_the_simulator(sim_config):
-    cfg = sim_config("127.0.4.2", base=load_config("config/eye_in_hand.toml"), samples=8, min_samples=6)
+def test_eye_in_hand_config_runs_on_the_simulator(sim_config, loopback):
+    cfg = sim_config(loopback(2), base=load_config("config/eye_in_hand.toml"), samples=8, min_samples=6)
     out = calibrate(dataclasses_replace_viz_off(cfg), progress=False)
     res = out.report.result
     assert res is not None and res.setup == "eye_in_hand"
@@ -51,7 +51,7 @@ def test_eye_in_hand_config_runs_on_the_simulator(sim_config):
     assert trans < 5e-3 and np.rad2deg(rot) < 0.5, (trans, np.rad2deg(rot))
 
 
-def test_hardware_config_runs_against_simulators(sim_config):
+def test_hardware_config_runs_against_simulators(sim_config, loopback):
     """The UR10 + Xtion config with its robot and camera swapped for the simulated ones:
     every other section (marker, calibrate with robust + target sigma, session, viz) as shipped."""
     hw = load_config("config/ur10_xtion_eye_to_hand.toml")
@@ -60,7 +60,7 @@ def test_hardware_config_runs_against_simulators(sim_config):
     import dataclasses
 
     cfg = dataclasses.replace(hw, robot=sim.robot, camera=sim.camera)
-    cfg = sim_config("127.0.4.3", base=cfg, samples=10, min_samples=8, settle_s=0.05)
+    cfg = sim_config(loopback(3), base=cfg, samples=10, min_samples=8, settle_s=0.05)
     out = calibrate(dataclasses_replace_viz_off(cfg), progress=False)
     assert out.report.result is not None and out.report.n_samples >= 8
     rot, trans = tf.pose_error(out.report.result.T_base_cam, out.truth)
@@ -73,13 +73,13 @@ def dataclasses_replace_viz_off(cfg):
     return dataclasses.replace(cfg, viz=dataclasses.replace(cfg.viz, enabled=False))
 
 
-def test_targets_outside_the_workspace_are_skipped_not_sent(sim_config):
+def test_targets_outside_the_workspace_are_skipped_not_sent(sim_config, loopback):
     """A box much smaller than the sampling range: out-of-box targets are skipped (reason recorded),
     and every pose the robot actually took stays inside the box."""
     import dataclasses
 
     lo, hi = np.array([0.8, -0.05, 0.42]), np.array([1.0, 0.2, 0.62])
-    cfg = sim_config("127.0.4.11", samples=5, min_samples=5)
+    cfg = sim_config(loopback(11), samples=5, min_samples=5)
     cfg = dataclasses.replace(cfg, robot={**cfg.robot, "workspace_min": lo.tolist(), "workspace_max": hi.tolist()},
                               viz=dataclasses.replace(cfg.viz, enabled=False),
                               session=dataclasses.replace(cfg.session, save_frames=False))

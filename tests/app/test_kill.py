@@ -24,9 +24,9 @@ def _sample_lines(root: Path) -> int:
     return files[0].read_bytes().count(b'"kind": "sample"')
 
 
-def test_sigkill_mid_run_then_replay_and_resume(tmp_path, capsys, sim_config):
+def test_sigkill_mid_run_then_replay_and_resume(tmp_path, capsys, sim_config, loopback):
     cfg = tmp_path / "sim.toml"
-    cfg.write_text(Path("config/sim.toml").read_text().replace('host = "127.0.0.2"', 'host = "127.0.4.4"'))
+    cfg.write_text(Path("config/sim.toml").read_text().replace('host = "127.0.0.2"', f'host = "{loopback(4)}"'))
     root = tmp_path / "sessions"
     # Own process group: the kill takes the simulator subprocess the run started down with it.
     proc = subprocess.Popen([sys.executable, "-m", "app.cli", "demo", "-c", str(cfg), "--samples", "40",
@@ -53,7 +53,7 @@ def test_sigkill_mid_run_then_replay_and_resume(tmp_path, capsys, sim_config):
     assert f"eye_to_hand, {n} samples" in out and "| YKronT' |" in out and "err [mm]" in out
 
     # ... and the killed session can be resumed: two more samples, appended with fresh indices.
-    cfg2 = sim_config("127.0.4.4", samples=n + 2, min_samples=6)
+    cfg2 = sim_config(loopback(4), samples=n + 2, min_samples=6)
     cfg2 = dataclasses.replace(cfg2, viz=dataclasses.replace(cfg2.viz, enabled=False))
     resumed = calibrate(cfg2, resume=session_dir, progress=False)
     assert resumed.report.session == session_dir and resumed.report.n_samples == n + 2
@@ -62,9 +62,9 @@ def test_sigkill_mid_run_then_replay_and_resume(tmp_path, capsys, sim_config):
     assert (session_dir / "result.yaml").exists()
 
 
-def test_ctrl_c_stops_and_keeps_samples(tmp_path):
+def test_ctrl_c_stops_and_keeps_samples(tmp_path, loopback):
     cfg = tmp_path / "sim.toml"
-    cfg.write_text(Path("config/sim.toml").read_text().replace('host = "127.0.0.2"', 'host = "127.0.4.6"'))
+    cfg.write_text(Path("config/sim.toml").read_text().replace('host = "127.0.0.2"', f'host = "{loopback(6)}"'))
     root = tmp_path / "sessions"
     proc = subprocess.Popen([sys.executable, "-m", "app.cli", "calibrate", "--yes-move", "-c", str(cfg),
                              "--session-root", str(root), "--no-viz", "--no-frames"],

@@ -29,8 +29,8 @@ def _mover(sim, start_T, start_q, cal_cfg, stop, rng):
         stop.wait(0.35)
 
 
-def test_monitor_flags_camera_bump(sim_config, tmp_path):
-    cfg = sim_config("127.0.4.5")
+def test_monitor_flags_camera_bump(sim_config, tmp_path, loopback):
+    cfg = sim_config(loopback(5))
     cfg = dataclasses.replace(cfg, monitor=dataclasses.replace(
         cfg.monitor, still_s=0.05, poll_s=0.01, max_samples=BUMP_AT + 14, duration_s=90.0, reestimate_samples=8,
         alarm_hook=f"touch {tmp_path / 'hook-ran'}",

@@ -3,7 +3,6 @@ simulated controller (module-scoped, because every ur_rtde disconnect sleeps
 0.5 s) on its own loopback address, derived from the process id so that
 concurrent runs of the suite do not collide."""
 
-import os
 import time
 
 import numpy as np
@@ -13,6 +12,7 @@ from calib.errors import DeviceError
 
 from drivers.robot.ur import URRobot, URRobotConfig
 from mocks.ur_sim import launch
+from tests.conftest import process_net
 
 # An unusual TCP so that forgetting to remove it shows up in every pose check.
 SIM_TCP = (0.01, -0.02, 0.15, 0.1, -0.2, 0.3)
@@ -38,8 +38,7 @@ def robot_config(host: str, **kw) -> URRobotConfig:
 
 def free_host(slot: int) -> str:
     """A loopback address for this test process: concurrent runs of the suite must not share ports."""
-    pid = os.getpid()
-    return f"127.{(pid >> 8) % 250 + 1}.{pid % 256}.{slot}"
+    return f"{process_net()}.{slot}"
 
 
 @pytest.fixture(scope="module")

@@ -40,10 +40,10 @@ def test_moving_robot_needs_a_workspace_box_and_a_sane_one():
     assert URRobotConfig(host="10.0.0.2", read_only=True).workspace_min is None
 
 
-def test_factory_builds_from_toml_tables_without_connecting():
+def test_factory_builds_from_toml_tables_without_connecting(loopback):
     robot = make_robot({"type": "ur", "host": "10.0.0.2", "read_only": True, "tcp_offset": [0, 0, 0.1, 0, 0, 0]})
     assert isinstance(robot, URRobot) and not robot.is_connected
-    sim = make_robot({"type": "ur_sim", "host": "127.0.3.9", "controller": "3.15", **BOX})
+    sim = make_robot({"type": "ur_sim", "host": loopback(98), "controller": "3.15", **BOX})
     assert isinstance(sim, URSimRobot) and sim.config.controller == "3.15"
     with pytest.raises(ConfigError, match="robot.type"):
         robot_config_from_dict({"type": "kuka", "host": "x"})
@@ -61,7 +61,7 @@ def test_read_only_without_tcp_offset_fails_clearly_before_any_io():
         robot.read()
 
 
-def test_simulator_cli_rejects_bad_arguments(capsys):
-    assert sim_main(["--host", "127.0.3.9", "--model", "ur99"]) == 2
-    assert sim_main(["--host", "127.0.3.9", "--controller", "7.0"]) == 2
+def test_simulator_cli_rejects_bad_arguments(capsys, loopback):
+    assert sim_main(["--host", loopback(98), "--model", "ur99"]) == 2
+    assert sim_main(["--host", loopback(98), "--controller", "7.0"]) == 2
     assert "ur99" in capsys.readouterr().err

@@ -1,0 +1,19 @@
+"""Fixtures shared by every test folder."""
+
+import os
+
+import pytest
+
+
+def process_net() -> str:
+    """A loopback /24 of this test process (``127.a.b``), derived from its pid, so that
+    concurrent runs of the suite (CI, several checkouts) never share simulator ports."""
+    pid = os.getpid()
+    return f"127.{(pid >> 8) % 250 + 1}.{pid % 256}"
+
+
+@pytest.fixture
+def loopback():
+    """``loopback(n)`` -> this process's address ``n`` for a simulated controller (n < 100;
+    the robot tests' own simulators use the lower slots, so these start at .100)."""
+    return lambda n: f"{process_net()}.{100 + n}"
