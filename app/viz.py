@@ -26,7 +26,6 @@ from pathlib import Path
 
 import numpy as np
 
-from app.pipeline import sigma
 from calib import transforms as tf
 from calib.setup import Setup, check_setup
 
@@ -147,10 +146,10 @@ class Viz:
         self._rec.log("world/samples/measured", rr.Points3D(measured, radii=0.004, colors=[0, 160, 255]))
         self._rec.log("world/samples/predicted", rr.Points3D(predicted, radii=0.003, colors=[255, 160, 0]))
         self._rec.log("residuals/translation_mm", rr.Scalars(result.residuals.rms_translation * 1e3))
-        if result.cov is not None:
-            s_deg, s_mm = sigma(result.cov)
-            self._rec.log("uncertainty/sigma_mm", rr.Scalars(s_mm))
-            self._rec.log("uncertainty/sigma_deg", rr.Scalars(s_deg))
+        if result.sigma is not None:
+            s_rot, s_t = result.sigma
+            self._rec.log("uncertainty/sigma_mm", rr.Scalars(s_t * 1e3))
+            self._rec.log("uncertainty/sigma_deg", rr.Scalars(float(np.rad2deg(s_rot))))
 
     def drift(self, t: float, translation_mm: float, rotation_deg: float) -> None:
         """Online estimate vs. the reference calibration."""

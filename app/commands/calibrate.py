@@ -1,4 +1,4 @@
-"""Active calibration: move the robot through random poses and sample each one.
+"""``handeye calibrate``: move the robot through random poses, sample each one, solve.
 
 Works for both setups. Eye-to-hand: static camera, marker on the flange,
 ``T_base_flange @ T_flange_marker = T_base_cam @ T_cam_marker``. Eye-in-hand:
@@ -9,6 +9,8 @@ T_cam_marker = T_base_marker``. Either way the paper's ``A_i X = Y B_i``
 
 from __future__ import annotations
 
+import argparse
+import dataclasses
 import logging
 import time
 from dataclasses import dataclass, field
@@ -17,20 +19,45 @@ from typing import Callable
 
 import numpy as np
 
-from app.config import CalibrateConfig
-from app.pipeline import Measurement, predicted_pixel, sigma
-from app.session import SessionWriter
+from app import devices
+from app.acquire import take_sample
+from app.commands.common import add_run_options, confirm_motion, load_config_args, pose_line
+from app.config import CalibrateConfig, Config
+from app.errors import SessionError
+from app.session import SessionWriter, read_session
 from app.viz import Viz
 from calib import transforms as tf
-from calib.errors import CalibrationError, ExtractionError
-from drivers.errors import ConnectionLostError, DeviceError, LimitViolationError, RobotStoppedError
+from calib.errors import CalibrationError
 from calib.observation import Observation
+from calib.predict import predicted_pixel
 from calib.result import CalibrationResult
 from calib.setup import Setup
+from calib.vision.extract import MarkerMeasurement
 from drivers.camera.base import Camera, RGBDFrame
+from drivers.errors import DeviceError, LimitViolationError
 from drivers.robot.base import Robot
 
 log = logging.getLogger(__name__)
+
+NAME = "calibrate"
+HELP = "active run: move the robot through random poses and calibrate"
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    add_run_options(p)
+    p.add_argument("--yes-move", action="store_true", help="allow robot motion without the confirmation prompt")
+    p.add_argument("--samples", type=int, help="number of samples (overrides calibrate.samples)")
+    p.add_argument("--seed", type=int, help="seed of the random poses (overrides calibrate.seed)")
+    p.add_argument("--method", help="solver, paper name (overrides calibrate.method), e.g. \"YKronT'\"")
+    p.add_argument("--resume", type=Path, help="continue this session (e.g. after a crash or Ctrl-C)")
+
+
+def run(args) -> int:
+    cfg = load_config_args(args)
+    confirm_motion(args.yes_move)
+    out = calibrate(cfg, resume=args.resume)
+    print_calibration_summary(out)
+    return exit_code(out)
 
 
 @dataclass
@@ -60,6 +87,60 @@ class RunReport:
     skip_reasons: dict = field(default_factory=dict)
 
 
+@dataclass
+class CalibrationOutput:
+    """An active run and where its outputs went."""
+
+    report: RunReport
+    setup: Setup
+    method: str
+    files: dict
+    truth: np.ndarray | None = None
+
+
+def calibrate(cfg: Config, *, resume: Path | None = None, progress: bool = True) -> CalibrationOutput:
+    """Active calibration with the configured robot and camera (the caller confirmed motion).
+
+    ``resume``: a session (same setup) to continue; its samples count towards
+    ``calibrate.samples`` and new ones are appended to it.
+
+    Returns
+    -------
+    CalibrationOutput
+        The run report (result, session path, counts) and the files written.
+    """
+    from tqdm import tqdm
+
+    initial = []
+    if resume is not None:
+        previous = read_session(resume)
+        if previous.setup != cfg.setup:
+            raise SessionError(f"session {resume} is {previous.setup}, the config is {cfg.setup}")
+        initial = previous.observations
+    # A resumed run must not replay the poses it already visited.
+    rng = np.random.default_rng([cfg.calibrate.seed, len(initial)])
+    with devices.open_robot(cfg, read_only=False) as robot, devices.open_camera(cfg, robot) as camera:
+        truth = devices.truth(camera)
+        if resume is not None:
+            writer = SessionWriter.resume(resume)
+        else:
+            writer = SessionWriter.create(cfg.session.root, cfg.setup, config=cfg.to_dict(),
+                                          intrinsics=dataclasses.asdict(camera.intrinsics), truth=truth)
+        with writer, devices.make_viz(cfg, writer.path) as viz:
+            T_true = devices.camera_truth(cfg.setup, truth)
+            if T_true is not None:
+                viz.truth(T_true)
+            bar = tqdm(total=cfg.calibrate.samples, initial=len(initial), desc="samples", unit="sample",
+                       disable=not progress)
+            with bar:
+                report = run_calibration(robot, camera, devices.make_measure(cfg),
+                                         devices.make_solve(cfg.calibrate, cfg.setup, rng), writer, cfg.calibrate,
+                                         rng, viz, save_frames=cfg.session.save_frames, progress=bar,
+                                         initial=initial)
+    files = devices.write_result(report.result, writer.path, cfg.session.exports) if report.result is not None else {}
+    return CalibrationOutput(report, cfg.setup, cfg.calibrate.method, files, devices.camera_truth(cfg.setup, truth))
+
+
 def random_pose(T_start: np.ndarray, cfg: CalibrateConfig, rng: np.random.Generator) -> np.ndarray:
     """A flange pose around ``T_start``: each axis offset uniform in +-range, tilt <= cfg.tilt_deg.
 
@@ -72,91 +153,13 @@ def random_pose(T_start: np.ndarray, cfg: CalibrateConfig, rng: np.random.Genera
     return tf.make_transform(R @ T_start[:3, :3], T_start[:3, 3] + dt)
 
 
-def _capture(camera: Camera, not_before: float, tries: int = 10) -> RGBDFrame:
-    """First frame exposed after ``not_before`` (drops frames buffered during the motion)."""
-    for _ in range(tries):
-        frame = camera.read()
-        if frame.t >= not_before:
-            return frame
-    log.warning("no frame newer than %.3f s in %d reads (camera clock behind the robot's?); using frame %d at %.3f s",
-                not_before, tries, frame.index, frame.t)
-    return frame
-
-
-def pose_at_frame(robot: Robot, t: float, timeout: float = 1.0) -> np.ndarray:
-    """``robot.pose_at(t)``, waiting up to ``timeout`` s for the robot states around ``t`` to arrive.
-
-    A frame stamped at ``t`` often reaches us before the robot state that
-    follows it (a controller tick is 2-8 ms); interpolation needs both sides.
-    """
-    deadline = time.monotonic() + timeout
-    while True:
-        try:
-            return robot.pose_at(t)
-        except (ConnectionLostError, RobotStoppedError):
-            raise
-        except DeviceError:
-            if time.monotonic() > deadline:
-                raise
-            time.sleep(0.005)
-
-
-def take_sample(
-    robot: Robot,
-    camera: Camera,
-    measure: Callable[[RGBDFrame], Measurement],
-    writer: SessionWriter,
-    viz: Viz,
-    *,
-    not_before: float,
-    save_frames: bool = True,
-    check: Callable[[], str | None] | None = None,
-) -> Observation | None:
-    """Capture one time-synchronised sample and record it (or its skip reason).
-
-    The robot pose is interpolated at the frame's exposure time
-    (``robot.pose_at(frame.t)``), not read after the fact.
-
-    ``check``, if given, is called after the measurement; a returned string is
-    a reason to skip the sample (e.g. the robot moved during the exposure).
-
-    Returns
-    -------
-    Observation or None
-        None when the frame gave no measurement (recorded as a skip).
-    """
-    frame = _capture(camera, not_before)
-    T_base_flange = pose_at_frame(robot, frame.t)
-    viz.robot(frame.t, T_base_flange)
-    color, depth = (frame.color, frame.depth) if save_frames else (None, None)
-    try:
-        m = measure(frame)
-        reason = check() if check is not None else None
-    except ExtractionError as e:
-        reason = str(e)
-    if reason is not None:
-        log.info("frame %d skipped: %s", frame.index, reason)
-        viz.frame(frame.t, frame.color, frame.depth, frame.intrinsics)
-        viz.event(frame.t, f"skip: {reason}", "WARN")
-        writer.add_skip(frame.t, reason, T_base_flange=T_base_flange, color=color, depth=depth)
-        return None
-    viz.frame(frame.t, frame.color, frame.depth, frame.intrinsics, marker_px=m.pixel)
-    meta = {"frame_index": frame.index, **m.meta}
-    if frame.truth:
-        meta["truth"] = {k: np.asarray(v).tolist() for k, v in frame.truth.items()}
-    obs = Observation(writer.next_index, frame.t, T_base_flange, m.point_cam, m.point_cov,
-                      m.T_cam_marker, m.pose_cov, meta)
-    return writer.add_sample(obs, color=color, depth=depth)
-
-
 def run_calibration(
     robot: Robot,
     camera: Camera,
-    measure: Callable[[RGBDFrame], Measurement],
+    measure: Callable[[RGBDFrame], MarkerMeasurement],
     solve: Callable[..., CalibrationResult],
     writer: SessionWriter,
     cfg: CalibrateConfig,
-    setup: Setup,
     rng: np.random.Generator,
     viz: Viz,
     *,
@@ -169,14 +172,13 @@ def run_calibration(
     Parameters
     ----------
     robot, camera : connected devices (the robot must allow motion).
-    measure : callable(RGBDFrame) -> Measurement
+    measure : callable(RGBDFrame) -> MarkerMeasurement
         Marker extraction; raises ExtractionError to skip a frame.
     solve : callable(observations, *, final) -> CalibrationResult
         The solver to use (``final=True`` for the last, refined solve).
     writer : SessionWriter
         Every sample and skip is appended and flushed as taken.
     cfg : CalibrateConfig
-    setup : {"eye_to_hand", "eye_in_hand"}
     rng : numpy.random.Generator
         Source of the random poses (seeded from config/CLI).
     viz : Viz
@@ -211,7 +213,7 @@ def run_calibration(
                 break
             target = random_pose(start, cfg, rng)
             if estimate is not None:
-                px = predicted_pixel(setup, estimate, target, intrinsics, cfg.image_margin_px)
+                px = predicted_pixel(estimate, target, intrinsics, cfg.image_margin_px)
                 if px is None:
                     # Not worth a motion: the marker would leave the image (or face away).
                     log.debug("pose %d skipped: marker predicted outside the image", attempt)
@@ -276,7 +278,47 @@ def run_calibration(
 
 def _precise_enough(estimate: CalibrationResult, cfg: CalibrateConfig) -> bool:
     """Predicted 1-sigma of the camera transform below both targets (a target of 0 disables this)."""
-    if estimate.cov is None or cfg.target_sigma_mm <= 0 or cfg.target_sigma_deg <= 0:
+    if estimate.sigma is None or cfg.target_sigma_mm <= 0 or cfg.target_sigma_deg <= 0:
         return False
-    s_deg, s_mm = sigma(estimate.cov)
-    return s_mm <= cfg.target_sigma_mm and s_deg <= cfg.target_sigma_deg
+    s_rot, s_t = estimate.sigma
+    return s_t * 1e3 <= cfg.target_sigma_mm and np.rad2deg(s_rot) <= cfg.target_sigma_deg
+
+
+def exit_code(out: CalibrationOutput) -> int:
+    """130 after Ctrl-C (samples kept), 1 without a calibration, else 0."""
+    if out.report.stopped_by == "interrupted":
+        return 130
+    return 0 if out.report.result is not None else 1
+
+
+def print_calibration_summary(out: CalibrationOutput) -> None:
+    r = out.report
+    cam = Setup(out.setup).camera_name
+    print(f"\nsession: {r.session}")
+    print(f"setup: {out.setup}   solver: {out.method}   samples: {r.n_samples}   skipped: {r.n_skipped}   "
+          f"stopped by: {r.stopped_by}   time: {r.elapsed_s:.1f} s")
+    reasons = sorted(r.skip_reasons.items(), key=lambda kv: -kv[1])[:3]
+    if reasons:
+        print("most frequent skips: " + "; ".join(f"{n}x {why}" for why, n in reasons))
+    if r.result is None:
+        print(f"no calibration: {r.n_samples} samples are too few (every skip and its reason is in "
+              f"{r.session / 'samples.jsonl'})")
+        return
+    res = r.result
+    rows = [("estimate " + cam, pose_line(res.camera_transform))]
+    if out.truth is not None:
+        rows.append(("truth    " + cam, pose_line(out.truth)))
+    for name, line in rows:
+        print(f"  {name}: {line}")
+    print()
+    print("| quantity | value |\n|---|---|")
+    print(f"| residual RMS [mm] | {res.residuals.rms_translation * 1e3:.2f} |")
+    print(f"| residual max [mm] | {res.residuals.max_translation * 1e3:.2f} |")
+    if res.sigma is not None:
+        s_rot, s_t = res.sigma
+        print(f"| 1-sigma [mm] | {s_t * 1e3:.2f} |\n| 1-sigma [deg] | {np.rad2deg(s_rot):.3f} |")
+    if out.truth is not None:
+        rot, trans = tf.pose_error(res.camera_transform, out.truth)
+        print(f"| error vs truth [mm] | {trans * 1e3:.2f} |\n| error vs truth [deg] | {np.rad2deg(rot):.3f} |")
+    for kind, path in out.files.items():
+        print(f"| {kind} | {path} |")
