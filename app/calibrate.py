@@ -19,6 +19,7 @@ import numpy as np
 
 from app.config import CalibrateConfig
 from app.pipeline import Measurement, predicted_pixel, sigma
+from app.progress import show_sigma
 from app.session import SessionWriter
 from app.viz import Viz
 from calib import transforms as tf
@@ -245,6 +246,7 @@ def run_calibration(
                 else:
                     viz.sample(obs, estimate.camera_transform)
                     viz.estimate(obs.t, estimate, observations)
+                    show_sigma(progress, estimate.cov)
                     if _precise_enough(estimate, cfg):
                         stopped_by = "target_sigma"
                         break
@@ -267,6 +269,7 @@ def run_calibration(
         try:
             result = solve(observations, final=True)
             viz.estimate(observations[-1].t, result, observations)
+            viz.result(observations[-1].t, result)
         except CalibrationError as e:
             log.error("final solve failed: %s", e)
             writer.add_event(time.time(), "solve_failed", error=str(e))

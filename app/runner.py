@@ -21,6 +21,7 @@ from app.calibrate import RunReport, run_calibration
 from app.config import CalibrateConfig, Config
 from app.monitor import MonitorReport, run_monitor
 from app.pipeline import sigma, solve_observations
+from app.progress import progress_bar
 from app.replay import format_table, replay
 from app.session import SessionWriter, read_session
 from app.viz import Viz
@@ -41,6 +42,7 @@ class CalibrationOutput:
     method: str
     files: dict
     truth: np.ndarray | None = None
+    recording: Path | None = None
 
 
 def make_viz(cfg: Config, session: Path) -> Viz:
@@ -49,7 +51,8 @@ def make_viz(cfg: Config, session: Path) -> Viz:
     while path.exists():
         n += 1
         path = session / f"recording-{n}.rrd"
-    return Viz(cfg.setup, path, viewer=cfg.viz.viewer, enabled=cfg.viz.enabled, log_images=cfg.viz.log_images)
+    return Viz(cfg.setup, path, viewer=cfg.viz.viewer, viewer_bind=cfg.viz.viewer_bind, enabled=cfg.viz.enabled,
+               log_images=cfg.viz.log_images)
 
 
 def make_solve(cal: CalibrateConfig, setup: Setup, rng: np.random.Generator):
@@ -78,8 +81,6 @@ def calibrate(cfg: Config, *, resume: Path | None = None, progress: bool = True)
     CalibrationOutput
         The run report (result, session path, counts) and the files written.
     """
-    from tqdm import tqdm
-
     initial = []
     if resume is not None:
         previous = read_session(resume)
@@ -96,17 +97,17 @@ def calibrate(cfg: Config, *, resume: Path | None = None, progress: bool = True)
             writer = SessionWriter.create(cfg.session.root, cfg.setup, config=cfg.to_dict(),
                                           intrinsics=dataclasses.asdict(camera.intrinsics), truth=truth)
         with writer, make_viz(cfg, writer.path) as viz:
+            recording = viz.rrd_path
             T_true = _camera_truth(cfg.setup, truth)
             if T_true is not None:
                 viz.truth(T_true)
-            bar = tqdm(total=cfg.calibrate.samples, initial=len(initial), desc="samples", unit="sample",
-                       disable=not progress)
-            with bar:
+            with progress_bar(total=cfg.calibrate.samples, initial=len(initial), enabled=progress) as bar:
                 report = run_calibration(robot, camera, devices.make_measure(cfg), make_solve(cfg.calibrate, cfg.setup, rng),
                                          writer, cfg.calibrate, cfg.setup, rng, viz,
                                          save_frames=cfg.session.save_frames, progress=bar, initial=initial)
     files = devices.write_result(report.result, writer.path, cfg.session.exports) if report.result is not None else {}
-    return CalibrationOutput(report, cfg.setup, cfg.calibrate.method, files, _camera_truth(cfg.setup, truth))
+    return CalibrationOutput(report, cfg.setup, cfg.calibrate.method, files, _camera_truth(cfg.setup, truth),
+                             recording)
 
 
 def monitor(cfg: Config, *, reference: Path | None = None, stop=None, progress: bool = True) -> MonitorReport:
@@ -116,8 +117,6 @@ def monitor(cfg: Config, *, reference: Path | None = None, stop=None, progress: 
     online estimator, so change detection starts with the first new sample
     instead of after the estimator's bootstrap and warm-up.
     """
-    from tqdm import tqdm
-
     rng = np.random.default_rng(cfg.calibrate.seed)
     online = devices.make_online(cfg)
     if reference is not None:
@@ -131,8 +130,7 @@ def monitor(cfg: Config, *, reference: Path | None = None, stop=None, progress: 
                                       intrinsics=dataclasses.asdict(camera.intrinsics), truth=devices.truth(camera),
                                       source="handeye monitor")
         solve = make_solve(dataclasses.replace(cfg.calibrate, method=cfg.monitor.method), cfg.setup, rng)
-        with writer, make_viz(cfg, writer.path) as viz, \
-                tqdm(desc="samples", unit="sample", disable=not progress) as bar:
+        with writer, make_viz(cfg, writer.path) as viz, progress_bar(enabled=progress) as bar:
             return run_monitor(robot, camera, devices.make_measure(cfg), online, solve, writer, cfg.monitor,
                                cfg.setup, viz, stop=stop, save_frames=cfg.session.save_frames,
                                on_sample=lambda obs: bar.update(1))
@@ -235,6 +233,19 @@ def print_calibration_summary(out: CalibrationOutput) -> None:
         print(f"| error vs truth [mm] | {trans * 1e3:.2f} |\n| error vs truth [deg] | {np.rad2deg(rot):.3f} |")
     for kind, path in out.files.items():
         print(f"| {kind} | {path} |")
+    print_next_steps(out)
+
+
+def print_next_steps(out: CalibrationOutput) -> None:
+    """How to look at the run (rerun) and use its result (ROS 2), as commands to paste."""
+    from app.formats import ros2_command
+    from app.viz import open_command
+
+    print()
+    if out.recording is not None and out.recording.exists():
+        print(f"open the recording:  {open_command(out.recording)}")
+    if out.report.result is not None:
+        print(f"publish in ROS 2:    {ros2_command(out.report.result)}")
 
 
 def print_monitor_summary(report: MonitorReport) -> None:
