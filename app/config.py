@@ -164,16 +164,22 @@ class SessionConfig:
 
 @dataclass
 class VizConfig:
-    """``[viz]``: rerun logging (an ``.rrd`` beside the session; live viewer on request)."""
+    """``[viz]``: rerun logging (an ``.rrd`` beside the session; live viewer on request).
+
+    ``viewer_bind`` is the address the live viewer listens on: loopback, so
+    the recording is not served to the network, unless set otherwise.
+    """
 
     SECTION = "viz"
     enabled: bool = True
     viewer: bool = False
+    viewer_bind: str = "127.0.0.1"
     log_images: bool = True
 
     def __post_init__(self):
         _boolean(self, "enabled")
         _boolean(self, "viewer")
+        _string(self, "viewer_bind", allow_empty=False)
         _boolean(self, "log_images")
 
 

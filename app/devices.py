@@ -112,7 +112,8 @@ def make_viz(cfg: Config, session: Path) -> Viz:
     while path.exists():
         n += 1
         path = session / f"recording-{n}.rrd"
-    return Viz(cfg.setup, path, viewer=cfg.viz.viewer, enabled=cfg.viz.enabled, log_images=cfg.viz.log_images)
+    return Viz(cfg.setup, path, viewer=cfg.viz.viewer, viewer_bind=cfg.viz.viewer_bind, enabled=cfg.viz.enabled,
+               log_images=cfg.viz.log_images)
 
 
 def online_config(cfg: Config):

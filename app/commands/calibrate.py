@@ -24,6 +24,7 @@ from app.acquire import take_sample
 from app.commands.common import add_run_options, confirm_motion, load_config_args, pose_line
 from app.config import CalibrateConfig, Config
 from app.errors import SessionError
+from app.progress import progress_bar, show_sigma
 from app.session import SessionWriter, read_session
 from app.viz import Viz
 from calib import transforms as tf
@@ -96,6 +97,7 @@ class CalibrationOutput:
     method: str
     files: dict
     truth: np.ndarray | None = None
+    recording: Path | None = None
 
 
 def calibrate(cfg: Config, *, resume: Path | None = None, progress: bool = True) -> CalibrationOutput:
@@ -109,8 +111,6 @@ def calibrate(cfg: Config, *, resume: Path | None = None, progress: bool = True)
     CalibrationOutput
         The run report (result, session path, counts) and the files written.
     """
-    from tqdm import tqdm
-
     initial = []
     if resume is not None:
         previous = read_session(resume)
@@ -127,18 +127,18 @@ def calibrate(cfg: Config, *, resume: Path | None = None, progress: bool = True)
             writer = SessionWriter.create(cfg.session.root, cfg.setup, config=cfg.to_dict(),
                                           intrinsics=dataclasses.asdict(camera.intrinsics), truth=truth)
         with writer, devices.make_viz(cfg, writer.path) as viz:
+            recording = viz.rrd_path
             T_true = devices.camera_truth(cfg.setup, truth)
             if T_true is not None:
                 viz.truth(T_true)
-            bar = tqdm(total=cfg.calibrate.samples, initial=len(initial), desc="samples", unit="sample",
-                       disable=not progress)
-            with bar:
+            with progress_bar(total=cfg.calibrate.samples, initial=len(initial), enabled=progress) as bar:
                 report = run_calibration(robot, camera, devices.make_measure(cfg),
                                          devices.make_solve(cfg.calibrate, cfg.setup, rng), writer, cfg.calibrate,
                                          rng, viz, save_frames=cfg.session.save_frames, progress=bar,
                                          initial=initial)
     files = devices.write_result(report.result, writer.path, cfg.session.exports) if report.result is not None else {}
-    return CalibrationOutput(report, cfg.setup, cfg.calibrate.method, files, devices.camera_truth(cfg.setup, truth))
+    return CalibrationOutput(report, cfg.setup, cfg.calibrate.method, files, devices.camera_truth(cfg.setup, truth),
+                             recording)
 
 
 def random_pose(T_start: np.ndarray, cfg: CalibrateConfig, rng: np.random.Generator) -> np.ndarray:
@@ -247,6 +247,7 @@ def run_calibration(
                 else:
                     viz.sample(obs, estimate.camera_transform)
                     viz.estimate(obs.t, estimate, observations)
+                    show_sigma(progress, estimate)
                     if _precise_enough(estimate, cfg):
                         stopped_by = "target_sigma"
                         break
@@ -269,6 +270,7 @@ def run_calibration(
         try:
             result = solve(observations, final=True)
             viz.estimate(observations[-1].t, result, observations)
+            viz.result(observations[-1].t, result)
         except CalibrationError as e:
             log.error("final solve failed: %s", e)
             writer.add_event(time.time(), "solve_failed", error=str(e))
@@ -322,3 +324,16 @@ def print_calibration_summary(out: CalibrationOutput) -> None:
         print(f"| error vs truth [mm] | {trans * 1e3:.2f} |\n| error vs truth [deg] | {np.rad2deg(rot):.3f} |")
     for kind, path in out.files.items():
         print(f"| {kind} | {path} |")
+    print_next_steps(out)
+
+
+def print_next_steps(out: CalibrationOutput) -> None:
+    """How to look at the run (rerun) and use its result (ROS 2), as commands to paste."""
+    from app.formats import ros2_command
+    from app.viz import open_command
+
+    print()
+    if out.recording is not None and out.recording.exists():
+        print(f"open the recording:  {open_command(out.recording)}")
+    if out.report.result is not None:
+        print(f"publish in ROS 2:    {ros2_command(out.report.result)}")

@@ -19,6 +19,7 @@ def add_run_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("--session-root", type=Path, help="directory for sessions (overrides session.root)")
     p.add_argument("--no-viz", action="store_true", help="disable rerun logging")
     p.add_argument("--viewer", action="store_true", help="open a live rerun viewer")
+    p.add_argument("--viewer-bind", help="address the live viewer listens on (default 127.0.0.1, loopback only)")
     p.add_argument("--no-frames", action="store_true", help="do not store color/depth PNGs in the session")
 
 
@@ -44,6 +45,8 @@ def apply_overrides(cfg, args):
         viz["enabled"] = False
     if getattr(args, "viewer", False):
         viz["viewer"] = True
+    if getattr(args, "viewer_bind", None) is not None:
+        viz["viewer_bind"] = args.viewer_bind
     ses = {}
     if getattr(args, "session_root", None) is not None:
         ses["root"] = str(args.session_root)

@@ -31,6 +31,7 @@ from app.acquire import take_sample
 from app.commands.common import add_run_options, load_config_args, pose_line
 from app.config import Config, MonitorConfig
 from app.errors import SessionError
+from app.progress import progress_bar
 from app.session import SessionWriter, read_session
 from app.viz import Viz
 from calib import transforms as tf
@@ -100,8 +101,6 @@ def monitor(cfg: Config, *, reference: Path | None = None, stop=None, progress: 
     online estimator, so change detection starts with the first new sample
     instead of after the estimator's bootstrap and warm-up.
     """
-    from tqdm import tqdm
-
     rng = np.random.default_rng(cfg.calibrate.seed)
     online = devices.make_online(cfg)
     if reference is not None:
@@ -115,8 +114,7 @@ def monitor(cfg: Config, *, reference: Path | None = None, stop=None, progress: 
                                       intrinsics=dataclasses.asdict(camera.intrinsics), truth=devices.truth(camera),
                                       source="handeye monitor")
         solve = devices.make_solve(dataclasses.replace(cfg.calibrate, method=cfg.monitor.method), cfg.setup, rng)
-        with writer, devices.make_viz(cfg, writer.path) as viz, \
-                tqdm(desc="samples", unit="sample", disable=not progress) as bar:
+        with writer, devices.make_viz(cfg, writer.path) as viz, progress_bar(enabled=progress) as bar:
             return run_monitor(robot, camera, devices.make_measure(cfg), online, solve, writer, cfg.monitor,
                                viz, stop=stop, save_frames=cfg.session.save_frames,
                                on_sample=lambda obs: bar.update(1))
