@@ -28,6 +28,7 @@ import numpy as np
 
 from app.pipeline import sigma
 from calib import transforms as tf
+from calib.setup import Setup, check_setup
 
 log = logging.getLogger(__name__)
 
@@ -48,9 +49,9 @@ class Viz:
         Log color and depth images (large recordings; off for long monitors).
     """
 
-    def __init__(self, setup: str, rrd_path: Path | None = None, *, viewer: bool = False,
+    def __init__(self, setup: Setup, rrd_path: Path | None = None, *, viewer: bool = False,
                  enabled: bool = True, log_images: bool = True):
-        self.setup = setup
+        self.setup = check_setup(setup)
         self.enabled = enabled
         self.log_images = log_images
         self._rec = None
@@ -71,7 +72,7 @@ class Viz:
         self._rec.log("world", rr.ViewCoordinates.RIGHT_HAND_Z_UP, static=True)
         self._rec.log("world/base", rr.TransformAxes3D(0.2), static=True)
         self._rec.log("events", rr.TextLog(f"setup: {setup}"), static=True)
-        self._cam_path = "world/camera" if setup == "eye_to_hand" else "world/flange/camera"
+        self._cam_path = "world/flange/camera" if self.setup.camera_on_flange else "world/camera"
         self._measured: list[np.ndarray] = []
 
     def _time(self, t: float, index: int | None = None) -> None:
@@ -88,7 +89,7 @@ class Viz:
         """True camera transform of a simulated cell (static)."""
         if not self.enabled:
             return
-        path = "world/camera_truth" if self.setup == "eye_to_hand" else "world/flange/camera_truth"
+        path = "world/flange/camera_truth" if self.setup.camera_on_flange else "world/camera_truth"
         self._transform(path, T_camera_true, static=True)
 
     def robot(self, t: float, T_base_flange: np.ndarray) -> None:
@@ -121,7 +122,7 @@ class Viz:
         self._time(obs.t, obs.index)
         self._transform("world/flange", obs.T_base_flange)
         if T_camera is not None and obs.point_cam is not None:
-            T_base_cam = T_camera if self.setup == "eye_to_hand" else obs.T_base_flange @ T_camera
+            T_base_cam = T_camera if self.setup == Setup.EYE_TO_HAND else obs.T_base_flange @ T_camera
             self._measured.append(tf.transform_points(T_base_cam, obs.point_cam))
             self._rec.log("world/samples/measured",
                           self._rr.Points3D(np.array(self._measured), radii=0.004, colors=[0, 160, 255]))
@@ -134,7 +135,7 @@ class Viz:
         self._time(t, result.n_samples)
         self._transform(self._cam_path, result.camera_transform)
         A = np.array([o.T_base_flange for o in observations])
-        if self.setup == "eye_to_hand":
+        if self.setup == Setup.EYE_TO_HAND:
             predicted = tf.transform_points(A @ result.X, np.zeros(3))
             T_base_cams = np.broadcast_to(result.Y, A.shape)
         else:

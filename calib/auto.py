@@ -28,7 +28,6 @@ import numpy as np
 from scipy.stats import chi2
 
 from calib import model
-from calib import solvers
 from calib import transforms as tf
 from calib.errors import CalibrationError, InsufficientDataError
 from calib.result import CalibrationResult, Residuals

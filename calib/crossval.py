@@ -21,7 +21,8 @@ import numpy as np
 
 from calib import model
 from calib.errors import CalibrationError, InsufficientDataError
-from calib.solvers import check_measurements, check_setup
+from calib.setup import Setup, check_setup
+from calib.solvers import check_measurements
 
 
 @dataclass(frozen=True)
@@ -107,7 +108,7 @@ def _prediction(result, A_train, B_train, A_test, setup, point_cov_train):
     return pred, J, cov, levels
 
 
-def cross_validate(method: str, A, B, *, setup: str = "eye_to_hand", folds: int | None = None,
+def cross_validate(method: str, A, B, *, setup: str = Setup.EYE_TO_HAND, folds: int | None = None,
                    rng: np.random.Generator | None = None, **solve_kwargs) -> CrossValidation:
     """Held-out prediction error of the marker point for ``calib.solve(method, ...)``.
 
@@ -143,7 +144,7 @@ def cross_validate(method: str, A, B, *, setup: str = "eye_to_hand", folds: int 
 
     if not (isinstance(method, str) and method.strip().lower() == AUTO):
         resolve_method(method)
-    check_setup(setup)
+    setup = check_setup(setup)
     A, B = check_measurements(A, B)
     n = len(A)
     if n < 3:

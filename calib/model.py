@@ -57,6 +57,7 @@ import numpy as np
 from calib import transforms as tf
 from calib.errors import CalibrationError, DegenerateMotionError
 from calib.noise import default_point_cov
+from calib.setup import Setup
 
 #: Names of the camera nuisance parameters, in parameter-vector order.
 CAMERA_PARAMS = ("depth_scale", "depth_offset", "focal_scale")
@@ -75,14 +76,14 @@ _I3 = np.eye(3)
 
 def split(X, Y, A, setup: str):
     """Camera transform ``C``, marker-side transform ``K`` and per-sample ``M_i`` (module docstring)."""
-    if setup == "eye_to_hand":
+    if setup == Setup.EYE_TO_HAND:
         return Y, X, A
     return X, Y, tf.invert(A)
 
 
 def join(C, K, setup: str):
     """``(X, Y)`` from the camera transform ``C`` and the marker-side transform ``K``."""
-    return (K, C) if setup == "eye_to_hand" else (C, K)
+    return (K, C) if setup == Setup.EYE_TO_HAND else (C, K)
 
 
 # --------------------------------------------------------------------------- camera correction
@@ -203,7 +204,7 @@ def robot_cofactor(C, K, M, setup: str) -> np.ndarray:
     """
     R_C = C[:3, :3]
     lever = M[:, :3, :3] @ K[:3, 3]
-    if setup != "eye_to_hand":
+    if setup != Setup.EYE_TO_HAND:
         lever = lever + M[:, :3, 3]
     # [l]x [l]x^T = |l|^2 I - l l^T
     rho2 = ROBOT_ROTATION_PER_M**2

@@ -27,9 +27,10 @@ import numpy as np
 from scipy.stats import chi2
 
 from calib import model
-from calib.solvers import check_measurements, check_setup
+from calib.solvers import check_measurements
 from calib.errors import CalibrationError, InsufficientDataError
 from calib.result import CalibrationResult
+from calib.setup import check_setup
 
 #: Chi-square quantile below which a sample counts as an inlier.
 INLIER_QUANTILE = 0.999
@@ -122,7 +123,7 @@ def robust_solve(
     CalibrationError
         Bad shapes or values (see `calib.solvers.check_measurements`).
     """
-    check_setup(setup)
+    setup = check_setup(setup)
     A, B = check_measurements(A, B)
     if not isinstance(rng, np.random.Generator):
         raise CalibrationError("rng must be a numpy.random.Generator")

@@ -23,6 +23,7 @@ import numpy as np
 from calib import solvers
 from calib import transforms as tf
 from calib.errors import CalibrationError
+from calib.setup import Setup
 
 #: Tolerance on the flip's angle and on its axis being the board normal, rad.
 ANGLE_TOL = np.deg2rad(15.0)
@@ -36,7 +37,7 @@ _SUBSET = 4
 
 def _discrepancy(X, Y, A, B, setup):
     """``F_i`` (N, 4, 4) with ``B_i = (predicted B_i) F_i``."""
-    if setup == "eye_to_hand":
+    if setup == Setup.EYE_TO_HAND:
         pred = tf.invert(Y) @ A @ X
     else:
         pred = tf.invert(A @ X) @ Y
@@ -44,7 +45,7 @@ def _discrepancy(X, Y, A, B, setup):
 
 
 def _fit(A, B, setup):
-    Bs = B if setup == "eye_to_hand" else tf.invert(B)
+    Bs = B if setup == Setup.EYE_TO_HAND else tf.invert(B)
     return solvers.y_quat_t_prime(A, Bs)
 
 
