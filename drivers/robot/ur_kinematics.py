@@ -134,6 +134,36 @@ def forward_one(q, model: str | URGeometry) -> np.ndarray:
     return T
 
 
+# The three singularities of the UR geometry, as distances from them (see `singularity_margins`).
+SINGULARITIES = ("wrist", "elbow", "shoulder")
+# Below these margins a controller cannot follow a straight TCP line (joint speeds blow up):
+# the simulated controller protective-stops there, like a real one. The driver refuses paths
+# that come closer than `SINGULARITY_REFUSE` (larger, so that its samples between the
+# controller's own cannot hide a dip below `SINGULARITY_STOP`).
+SINGULARITY_STOP = np.array([0.05, 0.05, 0.03])  # |sin q5|, |sin q3|, m
+SINGULARITY_REFUSE = np.array([0.12, 0.12, 0.08])
+
+
+def singularity_margins(q, model: str | URGeometry) -> np.ndarray:
+    """How far joint vector ``q`` (6,) is from each UR singularity, in the order of `SINGULARITIES`.
+
+    - wrist: ``|sin q5|`` (joint 4 and 6 axes align at 0);
+    - elbow: ``|sin q3|`` (arm stretched or folded at 0);
+    - shoulder: ``sqrt(r^2 - d4^2)`` (m), where ``r`` is the horizontal distance of the
+      wrist point (flange minus ``d6`` along its z axis) from the base z axis; at 0 the
+      wrist point lies on the plane of the joint 1 and 2 axes and the two shoulder
+      solutions of the IK merge.
+
+    Returns
+    -------
+    margins : ndarray, shape (3,)
+    """
+    g = model if isinstance(model, URGeometry) else geometry(model)
+    T = forward_one(q, g)
+    px, py = T[0, 3] - g.d6 * T[0, 2], T[1, 3] - g.d6 * T[1, 2]
+    return np.array([abs(math.sin(q[4])), abs(math.sin(q[2])), math.sqrt(max(px * px + py * py - g.d4 * g.d4, 0.0))])
+
+
 def _inv(T: np.ndarray) -> np.ndarray:
     R = T[:3, :3].T
     out = np.eye(4)
