@@ -19,19 +19,15 @@ import numpy as np
 
 from app.config import CalibrateConfig
 from app.pipeline import Measurement, predicted_pixel, sigma
+from app.progress import show_sigma
 from app.session import SessionWriter
 from app.viz import Viz
 from calib import transforms as tf
-from calib.errors import (
-    CalibrationError,
-    ConnectionLostError,
-    DeviceError,
-    ExtractionError,
-    LimitViolationError,
-    RobotStoppedError,
-)
+from calib.errors import CalibrationError, ExtractionError
+from drivers.errors import ConnectionLostError, DeviceError, LimitViolationError, RobotStoppedError
 from calib.observation import Observation
 from calib.result import CalibrationResult
+from calib.setup import Setup
 from drivers.camera.base import Camera, RGBDFrame
 from drivers.robot.base import Robot
 
@@ -161,7 +157,7 @@ def run_calibration(
     solve: Callable[..., CalibrationResult],
     writer: SessionWriter,
     cfg: CalibrateConfig,
-    setup: str,
+    setup: Setup,
     rng: np.random.Generator,
     viz: Viz,
     *,
@@ -250,6 +246,7 @@ def run_calibration(
                 else:
                     viz.sample(obs, estimate.camera_transform)
                     viz.estimate(obs.t, estimate, observations)
+                    show_sigma(progress, estimate.cov)
                     if _precise_enough(estimate, cfg):
                         stopped_by = "target_sigma"
                         break
@@ -272,6 +269,7 @@ def run_calibration(
         try:
             result = solve(observations, final=True)
             viz.estimate(observations[-1].t, result, observations)
+            viz.result(observations[-1].t, result)
         except CalibrationError as e:
             log.error("final solve failed: %s", e)
             writer.add_event(time.time(), "solve_failed", error=str(e))

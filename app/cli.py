@@ -16,6 +16,7 @@ from pathlib import Path
 import numpy as np
 
 from calib.errors import HandeyeError
+from calib.setup import Setup
 
 log = logging.getLogger("handeye")
 
@@ -27,6 +28,7 @@ def _common(p: argparse.ArgumentParser) -> None:
     p.add_argument("--session-root", type=Path, help="directory for sessions (overrides session.root)")
     p.add_argument("--no-viz", action="store_true", help="disable rerun logging")
     p.add_argument("--viewer", action="store_true", help="open a live rerun viewer")
+    p.add_argument("--viewer-bind", help="address the live viewer listens on (default 127.0.0.1, loopback only)")
     p.add_argument("--no-frames", action="store_true", help="do not store color/depth PNGs in the session")
 
 
@@ -58,7 +60,7 @@ def build_parser() -> argparse.ArgumentParser:
                    help="solver (repeatable); default YKronT' and YQuatT'; 'all' for every solver")
     p.add_argument("--refine", action="store_true", help="refine each solution (nonlinear least squares)")
     p.add_argument("--robust", action="store_true", help="reject outliers")
-    p.add_argument("--setup", choices=["eye_to_hand", "eye_in_hand"], help="setup of an imported file")
+    p.add_argument("--setup", choices=[s.value for s in Setup], help="setup of an imported file")
     p.add_argument("--seed", type=int, default=0, help="seed for randomised (robust) solvers")
 
     p = sub.add_parser("demo", help="simulated UR10 + rendered camera: calibrate and compare to the truth")
@@ -98,6 +100,8 @@ def _apply_overrides(cfg, args):
         viz["enabled"] = False
     if getattr(args, "viewer", False):
         viz["viewer"] = True
+    if getattr(args, "viewer_bind", None) is not None:
+        viz["viewer_bind"] = args.viewer_bind
     ses = {}
     if getattr(args, "session_root", None) is not None:
         ses["root"] = str(args.session_root)

@@ -21,11 +21,14 @@ from app.calibrate import RunReport, run_calibration
 from app.config import CalibrateConfig, Config
 from app.monitor import MonitorReport, run_monitor
 from app.pipeline import sigma, solve_observations
+from app.progress import progress_bar
 from app.replay import format_table, replay
 from app.session import SessionWriter, read_session
 from app.viz import Viz
 from calib import transforms as tf
-from calib.errors import ConfigError, HandeyeError, InsufficientDataError, SessionError
+from calib.setup import Setup
+from app.errors import ConfigError, SessionError
+from calib.errors import HandeyeError, InsufficientDataError
 
 log = logging.getLogger(__name__)
 
@@ -35,10 +38,11 @@ class CalibrationOutput:
     """An active run and where its outputs went."""
 
     report: RunReport
-    setup: str
+    setup: Setup
     method: str
     files: dict
     truth: np.ndarray | None = None
+    recording: Path | None = None
 
 
 def make_viz(cfg: Config, session: Path) -> Viz:
@@ -47,10 +51,11 @@ def make_viz(cfg: Config, session: Path) -> Viz:
     while path.exists():
         n += 1
         path = session / f"recording-{n}.rrd"
-    return Viz(cfg.setup, path, viewer=cfg.viz.viewer, enabled=cfg.viz.enabled, log_images=cfg.viz.log_images)
+    return Viz(cfg.setup, path, viewer=cfg.viz.viewer, viewer_bind=cfg.viz.viewer_bind, enabled=cfg.viz.enabled,
+               log_images=cfg.viz.log_images)
 
 
-def make_solve(cal: CalibrateConfig, setup: str, rng: np.random.Generator):
+def make_solve(cal: CalibrateConfig, setup: Setup, rng: np.random.Generator):
     """``solve(observations, *, final)``: fast unrefined estimates while running, the configured one at the end."""
 
     def solve(observations, *, final: bool):
@@ -60,8 +65,8 @@ def make_solve(cal: CalibrateConfig, setup: str, rng: np.random.Generator):
     return solve
 
 
-def _camera_truth(setup: str, truth: dict) -> np.ndarray | None:
-    key = "T_base_cam" if setup == "eye_to_hand" else "T_flange_cam"
+def _camera_truth(setup: Setup, truth: dict) -> np.ndarray | None:
+    key = Setup(setup).camera_name
     return None if key not in truth else np.asarray(truth[key], dtype=float)
 
 
@@ -76,8 +81,6 @@ def calibrate(cfg: Config, *, resume: Path | None = None, progress: bool = True)
     CalibrationOutput
         The run report (result, session path, counts) and the files written.
     """
-    from tqdm import tqdm
-
     initial = []
     if resume is not None:
         previous = read_session(resume)
@@ -94,17 +97,17 @@ def calibrate(cfg: Config, *, resume: Path | None = None, progress: bool = True)
             writer = SessionWriter.create(cfg.session.root, cfg.setup, config=cfg.to_dict(),
                                           intrinsics=dataclasses.asdict(camera.intrinsics), truth=truth)
         with writer, make_viz(cfg, writer.path) as viz:
+            recording = viz.rrd_path
             T_true = _camera_truth(cfg.setup, truth)
             if T_true is not None:
                 viz.truth(T_true)
-            bar = tqdm(total=cfg.calibrate.samples, initial=len(initial), desc="samples", unit="sample",
-                       disable=not progress)
-            with bar:
+            with progress_bar(total=cfg.calibrate.samples, initial=len(initial), enabled=progress) as bar:
                 report = run_calibration(robot, camera, devices.make_measure(cfg), make_solve(cfg.calibrate, cfg.setup, rng),
                                          writer, cfg.calibrate, cfg.setup, rng, viz,
                                          save_frames=cfg.session.save_frames, progress=bar, initial=initial)
     files = devices.write_result(report.result, writer.path, cfg.session.exports) if report.result is not None else {}
-    return CalibrationOutput(report, cfg.setup, cfg.calibrate.method, files, _camera_truth(cfg.setup, truth))
+    return CalibrationOutput(report, cfg.setup, cfg.calibrate.method, files, _camera_truth(cfg.setup, truth),
+                             recording)
 
 
 def monitor(cfg: Config, *, reference: Path | None = None, stop=None, progress: bool = True) -> MonitorReport:
@@ -114,8 +117,6 @@ def monitor(cfg: Config, *, reference: Path | None = None, stop=None, progress: 
     online estimator, so change detection starts with the first new sample
     instead of after the estimator's bootstrap and warm-up.
     """
-    from tqdm import tqdm
-
     rng = np.random.default_rng(cfg.calibrate.seed)
     online = devices.make_online(cfg)
     if reference is not None:
@@ -129,8 +130,7 @@ def monitor(cfg: Config, *, reference: Path | None = None, stop=None, progress: 
                                       intrinsics=dataclasses.asdict(camera.intrinsics), truth=devices.truth(camera),
                                       source="handeye monitor")
         solve = make_solve(dataclasses.replace(cfg.calibrate, method=cfg.monitor.method), cfg.setup, rng)
-        with writer, make_viz(cfg, writer.path) as viz, \
-                tqdm(desc="samples", unit="sample", disable=not progress) as bar:
+        with writer, make_viz(cfg, writer.path) as viz, progress_bar(enabled=progress) as bar:
             return run_monitor(robot, camera, devices.make_measure(cfg), online, solve, writer, cfg.monitor,
                                cfg.setup, viz, stop=stop, save_frames=cfg.session.save_frames,
                                on_sample=lambda obs: bar.update(1))
@@ -143,7 +143,7 @@ def all_methods() -> list[str]:
 
 
 def replay_source(source: Path, methods: list[str], *, refine: bool = False, robust: bool = False,
-                  setup: str | None = None, rng: np.random.Generator | None = None) -> str:
+                  setup: Setup | None = None, rng: np.random.Generator | None = None) -> str:
     """Re-solve a session directory or an imported file with each method; returns the markdown table."""
     if not Path(source).exists():
         raise SessionError(f"{source}: no such file or directory")
@@ -204,7 +204,7 @@ def _pose_line(T: np.ndarray) -> str:
 
 def print_calibration_summary(out: CalibrationOutput) -> None:
     r = out.report
-    cam = "T_base_cam" if out.setup == "eye_to_hand" else "T_flange_cam"
+    cam = Setup(out.setup).camera_name
     print(f"\nsession: {r.session}")
     print(f"setup: {out.setup}   solver: {out.method}   samples: {r.n_samples}   skipped: {r.n_skipped}   "
           f"stopped by: {r.stopped_by}   time: {r.elapsed_s:.1f} s")
@@ -233,6 +233,19 @@ def print_calibration_summary(out: CalibrationOutput) -> None:
         print(f"| error vs truth [mm] | {trans * 1e3:.2f} |\n| error vs truth [deg] | {np.rad2deg(rot):.3f} |")
     for kind, path in out.files.items():
         print(f"| {kind} | {path} |")
+    print_next_steps(out)
+
+
+def print_next_steps(out: CalibrationOutput) -> None:
+    """How to look at the run (rerun) and use its result (ROS 2), as commands to paste."""
+    from app.formats import ros2_command
+    from app.viz import open_command
+
+    print()
+    if out.recording is not None and out.recording.exists():
+        print(f"open the recording:  {open_command(out.recording)}")
+    if out.report.result is not None:
+        print(f"publish in ROS 2:    {ros2_command(out.report.result)}")
 
 
 def print_monitor_summary(report: MonitorReport) -> None:
