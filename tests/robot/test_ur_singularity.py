@@ -4,7 +4,7 @@ with what the simulated controller executes (it protective-stops on such paths).
 import numpy as np
 import pytest
 
-from calib.errors import LimitViolationError
+from drivers.errors import LimitViolationError
 from drivers.robot import ur_kinematics as kin
 from drivers.robot.ur import URRobot
 from mocks.ur_sim.motion import LinearMotion
