@@ -26,7 +26,7 @@ def progress_bar(*, total: int | None = None, initial: int = 0, desc: str = "sam
 
 
 def show_sigma(bar, result) -> None:
-    """Put an estimate's worst-axis 1-sigma (mm, deg) beside the bar; no-op without a covariance."""
+    """Put the estimate's 1-sigma (`CalibrationResult.sigma`, in mm and deg) beside the bar; no-op without one."""
     if bar is None or result.sigma is None or not hasattr(bar, "set_postfix_str"):
         return
     s_rot, s_t = result.sigma

@@ -361,9 +361,9 @@ class Viz:
         self._log("residuals/translation_mm", rr.Scalars(result.residuals.rms_translation * 1e3))
         self._log("per_sample/residual_mm", rr.BarChart(np.asarray(result.residuals.translation) * 1e3))
         if result.sigma is not None:
-            s_rot, s_t = result.sigma
-            self._log("uncertainty/sigma_mm", rr.Scalars(s_t * 1e3))
-            self._log("uncertainty/sigma_deg", rr.Scalars(float(np.rad2deg(s_rot))))
+            s_deg, s_mm = _sigma_deg_mm(result)
+            self._log("uncertainty/sigma_mm", rr.Scalars(s_mm))
+            self._log("uncertainty/sigma_deg", rr.Scalars(s_deg))
 
     def result(self, t: float, result) -> None:
         """The final result: a line in the events and a markdown summary (``result``)."""
@@ -381,7 +381,7 @@ class Viz:
                 f"| solver | {result.method} |", f"| samples | {result.n_samples} |",
                 f"| residual RMS [mm] | {result.residuals.rms_translation * 1e3:.2f} |"]
         if result.sigma is not None:
-            s_deg, s_mm = float(np.rad2deg(result.sigma[0])), result.sigma[1] * 1e3
+            s_deg, s_mm = _sigma_deg_mm(result)
             line += f", 1-sigma {s_mm:.2f} mm / {s_deg:.3f} deg"
             rows.append(f"| 1-sigma [mm, deg] | {s_mm:.2f}, {s_deg:.3f} |")
         self._log("events", rr.TextLog(line, level="INFO"))
@@ -428,3 +428,9 @@ class Viz:
     def __exit__(self, *exc):
         self.close()
         return False
+
+
+def _sigma_deg_mm(result) -> tuple[float, float]:
+    """1-sigma of the camera transform at the edge units: (rotation deg, translation mm)."""
+    s_rot, s_t = result.sigma
+    return float(np.rad2deg(s_rot)), s_t * 1e3
