@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import argparse
-import dataclasses
 import sys
 from pathlib import Path
 
@@ -24,7 +23,9 @@ def add_run_options(p: argparse.ArgumentParser) -> None:
 
 
 def apply_overrides(cfg, args):
-    """Copy CLI overrides into the config, re-validating the touched sections."""
+    """The config with the CLI overrides, validated again (`ConfigError` names the field)."""
+    from app.config import config_from_dict
+
     cal = {}
     if getattr(args, "samples", None) is not None:
         cal["samples"] = args.samples
@@ -52,23 +53,17 @@ def apply_overrides(cfg, args):
         ses["root"] = str(args.session_root)
     if getattr(args, "no_frames", False):
         ses["save_frames"] = False
-    return dataclasses.replace(
-        cfg,
-        calibrate=dataclasses.replace(cfg.calibrate, **cal),
-        monitor=dataclasses.replace(cfg.monitor, **mon),
-        viz=dataclasses.replace(cfg.viz, **viz),
-        session=dataclasses.replace(cfg.session, **ses),
-    )
+    data = cfg.model_dump()
+    for section, changes in (("calibrate", cal), ("monitor", mon), ("viz", viz), ("session", ses)):
+        data[section].update(changes)
+    return config_from_dict(data, "command line")
 
 
 def load_config_args(args):
     """Config file (or the embedded simulated cell) + CLI overrides, every section validated."""
-    from app import devices
     from app.config import load_config
 
-    cfg = apply_overrides(load_config(args.config), args)
-    devices.validate(cfg)
-    return cfg
+    return apply_overrides(load_config(args.config), args)
 
 
 def confirm_motion(yes_move: bool, *, stdin=None) -> None:
