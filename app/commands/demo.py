@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 
+from app import devices
 from app.commands.calibrate import CalibrationOutput, calibrate, exit_code, print_calibration_summary
 from app.commands.common import add_run_options, load_config_args
 from app.config import Config
@@ -34,7 +35,7 @@ def demo(cfg: Config, *, progress: bool = True) -> CalibrationOutput:
     ConfigError
         If the config names real hardware: the demo moves without asking.
     """
-    if cfg.robot.get("type") != "ur_sim" or cfg.camera.get("backend") != "rendered":
-        raise ConfigError("demo runs only the simulated cell (robot.type = 'ur_sim', camera.backend = 'rendered'); "
+    if not devices.simulated(cfg):
+        raise ConfigError("demo runs only a simulated cell (a simulated robot.type and camera.backend); "
                           "use 'handeye calibrate' for hardware")
     return calibrate(cfg, progress=progress)
