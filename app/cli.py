@@ -75,6 +75,7 @@ def build_parser() -> argparse.ArgumentParser:
                        "other arguments go to bench.solvers")
     p.add_argument("--vision", action="store_true", help="also run the vision benchmark")
     p.add_argument("--robot", action="store_true", help="also run the robot benchmark")
+    p.add_argument("--faults", action="store_true", help="also run the robot fault campaign (bench.faults, minutes)")
     return parser
 
 
@@ -206,6 +207,10 @@ def cmd_bench(args) -> int:
         from bench import robot
 
         rc = rc or int(robot.main([]) or 0)
+    if args.faults:
+        from bench import faults
+
+        rc = rc or int(faults.main([]) or 0)
     return rc
 
 
