@@ -24,7 +24,7 @@ from app.errors import ConfigError
 from calib.setup import Setup, check_setup
 
 # Solver names as in the paper; checked against calib.METHODS when the solver
-# layer is imported (app.pipeline), here only for shape.
+# layer is imported (calib.api), here only for shape.
 DEFAULT_METHOD = "YKronT'"
 # Result formats of app.formats.write_result (kept literal: config must load without the exporters).
 EXPORTS = ("yaml", "json", "easy_handeye", "easy_handeye2", "urdf", "ros2_launch")
@@ -164,16 +164,22 @@ class SessionConfig:
 
 @dataclass
 class VizConfig:
-    """``[viz]``: rerun logging (an ``.rrd`` beside the session; live viewer on request)."""
+    """``[viz]``: rerun logging (an ``.rrd`` beside the session; live viewer on request).
+
+    ``viewer_bind`` is the address the live viewer listens on: loopback, so
+    the recording is not served to the network, unless set otherwise.
+    """
 
     SECTION = "viz"
     enabled: bool = True
     viewer: bool = False
+    viewer_bind: str = "127.0.0.1"
     log_images: bool = True
 
     def __post_init__(self):
         _boolean(self, "enabled")
         _boolean(self, "viewer")
+        _string(self, "viewer_bind", allow_empty=False)
         _boolean(self, "log_images")
 
 

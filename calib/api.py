@@ -351,3 +351,16 @@ def observations_to_arrays(
             covs.append(None)
     point_cov = None if any(c is None for c in covs) else np.stack(covs)
     return A, B, point_cov, np.asarray(kept, dtype=int)
+
+
+def solve_observations(method: str, observations: Sequence[Observation], setup: Setup, *, refine: bool = False,
+                       robust: bool = False, rng: np.random.Generator | None = None) -> CalibrationResult:
+    """Solve ``A_i X = Y B_i`` (paper eq. 1) for a list of samples with a named solver.
+
+    Point methods (YKronT') get the depth-lifted marker centers ``point_cam``
+    with their covariances; the others the marker poses ``T_cam_marker``
+    (``METHODS[...].needs``). Samples lacking that measurement are left out.
+    """
+    info = resolve_method(method)
+    A, B, point_cov, _ = observations_to_arrays(observations, info.needs)
+    return solve(info.name, A, B, setup=setup, refine=refine, robust=robust, point_cov=point_cov, rng=rng)
