@@ -458,3 +458,47 @@ def self_check(X, Y, A, B, *, setup: str, point_cov=None, noise: model.NoiseLeve
         "consistent": warning is None,
         "warning": warning,
     }
+
+
+def report(result: CalibrationResult) -> dict | None:
+    """The model and self-check part of a result, JSON-ready with units in the keys (for result.yaml, the CLI).
+
+    Returns None when the result carries neither (e.g. the online estimator's).
+    Camera correction: depth and focal scale in %, depth offset in mm (value,
+    1-sigma, whether estimated); noise levels: camera point covariance scale,
+    robot flange error (mm), marker orientation (deg); self-check: chi-square
+    against the camera's a-priori model and the held-out (leave-one-out)
+    prediction error of the marker point, observed and predicted (mm).
+    """
+    info = result.info
+    check = info.get("self_check")
+    if check is None and "camera_correction" not in info:
+        return None
+    out: dict = {}
+    if "measurements" in info:
+        out["measurements"] = list(info["measurements"])
+    if "camera_correction" in info:
+        unit = {"depth_scale": ("depth_scale_percent", 100.0), "depth_offset": ("depth_offset_mm", 1e3),
+                "focal_scale": ("focal_scale_percent", 100.0)}
+        out["camera_correction"] = {
+            unit[name][0]: {"value": c["value"] * unit[name][1], "sigma": c["sigma"] * unit[name][1],
+                            "estimated": c["estimated"]}
+            for name, c in info["camera_correction"].items()
+        }
+    if "noise" in info:
+        n = info["noise"]
+        out["noise"] = {"camera_point_scale": n["point_scale"], "robot_mm": n["robot_m"] * 1e3,
+                        "marker_rotation_deg": None if n["rotation_rad"] is None else float(np.rad2deg(n["rotation_rad"]))}
+    if check is not None:
+        out["self_check"] = {
+            "chi2": check["chi2"], "dof": check["dof"], "p_value": check["p_value"],
+            "camera_noise_model_rejected": check["prior_model_rejected"],
+            "heldout_observed_mm": check["loo_observed_m"] * 1e3,
+            "heldout_predicted_mm": check["loo_predicted_m"] * 1e3,
+            "heldout_ratio": check["loo_ratio"],
+            "consistent": check["consistent"],
+            "warning": check["warning"],
+        }
+    if info.get("notes"):
+        out["notes"] = list(info["notes"])
+    return out
