@@ -10,7 +10,7 @@ from __future__ import annotations
 import contextlib
 import logging
 
-from app.pipeline import sigma
+import numpy as np
 
 
 @contextlib.contextmanager
@@ -25,9 +25,9 @@ def progress_bar(*, total: int | None = None, initial: int = 0, desc: str = "sam
         yield bar
 
 
-def show_sigma(bar, cov) -> None:
-    """Put the current estimate's worst-axis 1-sigma (mm, deg) beside the bar; no-op without a covariance."""
-    if bar is None or cov is None or not hasattr(bar, "set_postfix_str"):
+def show_sigma(bar, result) -> None:
+    """Put the estimate's 1-sigma (`CalibrationResult.sigma`, in mm and deg) beside the bar; no-op without one."""
+    if bar is None or result.sigma is None or not hasattr(bar, "set_postfix_str"):
         return
-    s_deg, s_mm = sigma(cov)
-    bar.set_postfix_str(f"1σ {s_mm:.2f} mm {s_deg:.3f}°")
+    s_rot, s_t = result.sigma
+    bar.set_postfix_str(f"1σ {s_t * 1e3:.2f} mm {np.rad2deg(s_rot):.3f}°")
