@@ -15,7 +15,7 @@ from pathlib import Path
 
 import numpy as np
 
-from calib.errors import HandeyeError
+from calib.errors import ConfigError, HandeyeError
 
 log = logging.getLogger("handeye")
 
@@ -136,7 +136,12 @@ def _load(args):
     from app.config import load_config
 
     cfg = _apply_overrides(load_config(args.config), args)
-    devices.validate(cfg)
+    try:
+        devices.validate(cfg)
+    except ConfigError as e:
+        if args.config is None:
+            raise
+        raise ConfigError(f"{args.config}: {e}") from None
     return cfg
 
 

@@ -14,7 +14,8 @@ import numpy as np
 
 from app.config import Config
 from app.pipeline import Measurement
-from calib.errors import ConfigError
+from app.session import check_writable_root
+from calib.errors import ConfigError, SessionError
 
 #: Result files written into the session directory, by export format.
 RESULT_FILES = {
@@ -28,7 +29,8 @@ RESULT_FILES = {
 
 
 def validate(cfg: Config) -> None:
-    """Validate the sections owned by the device, vision and online layers (raises ConfigError naming the field)."""
+    """Validate the sections owned by the device, vision and online layers, and that the
+    session root is writable (raises ConfigError naming the field)."""
     from calib.vision.extract import TargetConfig
     from drivers.camera.factory import camera_config_from_dict
     from drivers.robot.factory import robot_config_from_dict
@@ -37,6 +39,15 @@ def validate(cfg: Config) -> None:
     camera_config_from_dict(cfg.camera)
     TargetConfig.from_dict(cfg.marker)
     online_config(cfg)
+    check_session_root(cfg)
+
+
+def check_session_root(cfg: Config) -> None:
+    """ConfigError naming ``session.root`` unless sessions can be written there (checked before devices open)."""
+    try:
+        check_writable_root(cfg.session.root)
+    except SessionError as e:
+        raise ConfigError(f"session.root: {e}") from None
 
 
 def open_robot(cfg: Config, *, read_only: bool):

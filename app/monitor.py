@@ -13,7 +13,6 @@ from __future__ import annotations
 
 import logging
 import os
-import shlex
 import subprocess
 import threading
 import time
@@ -25,12 +24,12 @@ from typing import Callable
 import numpy as np
 
 from app.calibrate import take_sample
-from app.config import MonitorConfig
+from app.config import MonitorConfig, hook_argv
 from app.pipeline import Measurement
 from app.session import SessionWriter
 from app.viz import Viz
 from calib import transforms as tf
-from calib.errors import CalibrationError
+from calib.errors import CalibrationError, ConfigError
 from calib.observation import Observation
 from calib.result import CalibrationResult
 from drivers.camera.base import Camera, RGBDFrame
@@ -85,13 +84,17 @@ def _same_pose(T1: np.ndarray, T2: np.ndarray, *, mm: float = 1.0, deg: float = 
 
 
 def run_hook(command: str, env: dict) -> None:
-    """Run the alarm hook (no shell; arguments split like a shell would). Failures are logged, not raised."""
-    if not command:
-        return
+    """Run the alarm hook (no shell; arguments split like a shell would). Failures are logged, not raised.
+
+    The command was checked at config load (`app.config.hook_argv`); a failure
+    here (the program removed since) is logged so the alarm itself still counts.
+    """
     try:
-        done = subprocess.run(shlex.split(command), env={**os.environ, **env}, timeout=30,
-                              capture_output=True, text=True)
-    except (OSError, subprocess.TimeoutExpired) as e:
+        argv = hook_argv(command)
+        if not argv:
+            return
+        done = subprocess.run(argv, env={**os.environ, **env}, timeout=30, capture_output=True, text=True)
+    except (OSError, subprocess.TimeoutExpired, ConfigError) as e:
         log.error("alarm hook %r failed: %s", command, e)
         return
     if done.returncode != 0:

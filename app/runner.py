@@ -86,6 +86,7 @@ def calibrate(cfg: Config, *, resume: Path | None = None, progress: bool = True)
         initial = previous.observations
     # A resumed run must not replay the poses it already visited.
     rng = np.random.default_rng([cfg.calibrate.seed, len(initial)])
+    devices.check_session_root(cfg)
     with devices.open_robot(cfg, read_only=False) as robot, devices.open_camera(cfg, robot) as camera:
         truth = devices.truth(camera)
         if resume is not None:
@@ -124,6 +125,7 @@ def monitor(cfg: Config, *, reference: Path | None = None, stop=None, progress: 
             raise SessionError(f"reference session {reference} is {ref.setup}, the config is {cfg.setup}")
         for obs in ref.observations:
             online.update(obs.T_base_flange, obs.point_cam, obs.point_cov)
+    devices.check_session_root(cfg)
     with devices.open_robot(cfg, read_only=True) as robot, devices.open_camera(cfg, robot) as camera:
         writer = SessionWriter.create(cfg.session.root, cfg.setup, config=cfg.to_dict(),
                                       intrinsics=dataclasses.asdict(camera.intrinsics), truth=devices.truth(camera),

@@ -21,6 +21,7 @@ import datetime as _dt
 import json
 import logging
 import os
+import tempfile
 from collections import Counter
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -271,6 +272,28 @@ class SessionWriter:
     def __exit__(self, *exc):
         self.close()
         return False
+
+
+def check_writable_root(root) -> Path:
+    """Make sure sessions can be written below ``root`` (created if missing), before any device opens.
+
+    Creates and removes a probe file, which also catches read-only mounts and
+    full disks where permission bits alone would not (and root ignores them).
+
+    Raises
+    ------
+    SessionError
+        Naming ``root`` and why it is not writable.
+    """
+    root = Path(root)
+    try:
+        root.mkdir(parents=True, exist_ok=True)
+        fd, probe = tempfile.mkstemp(prefix=".handeye-write-probe-", dir=root)
+        os.close(fd)
+        os.unlink(probe)
+    except OSError as e:
+        raise SessionError(f"cannot write sessions below {root}: {e.strerror or e}") from None
+    return root
 
 
 def _drop_torn_tail(path: Path) -> None:
