@@ -27,6 +27,8 @@ import os
 
 for _var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
     os.environ.setdefault(_var, "1")
+# Damaged images are the point here: keep OpenCV from logging each one.
+os.environ.setdefault("OPENCV_LOG_LEVEL", "OFF")
 
 import argparse  # noqa: E402
 import sys  # noqa: E402
@@ -315,6 +317,280 @@ def run_solver_campaign(n_cases: int, rng: np.random.Generator) -> Tally:
     return t
 
 
+# ------------------------------------------------------------------- file cases
+
+#: A read that has not returned after this long is counted as a hang (and interrupted).
+HANG_S = 10.0
+
+
+class _Hang(Exception):
+    pass
+
+
+class _OpenWatch:
+    """Audit hook on ``open``: records files opened inside ``work`` but outside the case's data directory.
+
+    The campaign plants a canary beside every data directory (``work/outside``)
+    and points mutated file names at it, at ``/etc/hostname`` and through
+    ``..``; opening any of them is a read outside the data directory.
+    """
+
+    def __init__(self, work: Path):
+        self.work = os.path.realpath(work)
+        self.data_dir: str | None = None
+        self.outside: list[str] = []
+        sys.addaudithook(self)
+
+    def __call__(self, event: str, args) -> None:
+        if event != "open" or self.data_dir is None or not isinstance(args[0], (str, bytes, os.PathLike)):
+            return
+        try:
+            p = os.path.realpath(os.fsdecode(args[0]))
+        except (ValueError, OSError):
+            return
+        inside_data = p == self.data_dir or p.startswith(self.data_dir + os.sep)
+        if not inside_data and (p.startswith(self.work + os.sep) or p in ("/etc/hostname", "/etc/passwd")):
+            self.outside.append(p)
+
+
+def _run_file_case(t: Tally, watch: _OpenWatch, data_dir: Path, desc: str, fn) -> None:
+    """Run ``fn`` with the hang alarm and the open watch; count its outcome in ``t``."""
+    import signal
+
+    def on_alarm(signum, frame):
+        raise _Hang()
+
+    t.cases += 1
+    watch.data_dir, watch.outside = os.path.realpath(data_dir), []
+    old = signal.signal(signal.SIGALRM, on_alarm)
+    signal.setitimer(signal.ITIMER_REAL, HANG_S)
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            fn()
+        t.ok += 1
+    except _Hang:
+        t.hangs += 1
+        t.fail("hang", desc)
+    except HandeyeError as e:
+        t.clean_errors += 1
+        if "Traceback" in str(e):
+            t.crashes += 1
+            t.fail("traceback in message", desc)
+    except Exception as e:  # noqa: BLE001 - counting exactly these is the point
+        t.crashes += 1
+        t.crash_types[type(e).__name__] += 1
+        t.fail("crash", f"{desc}: {type(e).__name__}: {str(e)[:120]}")
+    finally:
+        signal.setitimer(signal.ITIMER_REAL, 0)
+        signal.signal(signal.SIGALRM, old)
+        opened, watch.data_dir = list(watch.outside), None
+    if opened:
+        t.outside_reads += 1
+        t.fail("outside read", f"{desc}: opened {opened[0]}")
+
+
+#: Tokens a mutation puts in place of a value: wrong types, absurd numbers, traversal.
+TOKENS = ["null", "[]", "{}", '"abc"', "true", "-1", "1e400", "nan", "1e155", '[[1, 2], [3]]', '[1, "x"]',
+          '"../outside/secret.txt"', '"../../../../../../../../etc/hostname"', "0", '""', "[" * 60 + "]" * 60]
+
+
+def _mutate_bytes(data: bytes, rng: np.random.Generator, canary: Path) -> tuple[str, bytes]:
+    """One damaged variant of a text file's bytes and the damage's name."""
+    kind = str(rng.choice(["insert", "delete", "truncate", "junk", "latin1", "token", "token", "token", "dup_line",
+                           "swap_lines", "path", "empty", "deep"]))
+    n = len(data)
+    pos = int(rng.integers(0, n + 1))
+    if kind == "insert":
+        return kind, data[:pos] + rng.bytes(int(rng.integers(1, 9))) + data[pos:]
+    if kind == "delete":
+        return kind, data[:pos] + data[pos + int(rng.integers(1, 40)):]
+    if kind == "truncate":
+        return kind, data[:pos]
+    if kind == "junk":
+        return kind, rng.bytes(int(rng.integers(1, 4096)))
+    if kind == "latin1":
+        return kind, data[:pos] + b"caf\xe9 \xff\xfe" + data[pos:]
+    if kind == "empty":
+        return kind, b""
+    if kind == "deep":
+        return kind, data[:pos] + b"[" * 3000 + b"]" * 3000 + data[pos:]
+    lines = data.split(b"\n")
+    if kind in ("dup_line", "swap_lines") and len(lines) > 1:
+        i, j = (int(x) for x in rng.integers(0, len(lines), size=2))
+        if kind == "dup_line":
+            lines.insert(j, lines[i])
+        else:
+            lines[i], lines[j] = lines[j], lines[i]
+        return kind, b"\n".join(lines)
+    if kind == "path":
+        target = str(rng.choice(["../outside/secret.txt", "../../../../../../../../etc/hostname", str(canary),
+                                 "/etc/hostname", "..", "."]))
+        names = [m for m in _NAME_RE.finditer(data)]
+        if names:
+            m = names[int(rng.integers(len(names)))]
+            return kind, data[:m.start(1)] + target.encode() + data[m.end(1):]
+    # token: replace one number, string or bracketed value with a wrong one
+    spans = [m.span() for m in _VALUE_RE.finditer(data)]
+    if not spans:
+        return "insert", data[:pos] + b"\x00" + data[pos:]
+    a, b = spans[int(rng.integers(len(spans)))]
+    return "token", data[:a] + str(rng.choice(TOKENS)).encode() + data[b:]
+
+
+import re  # noqa: E402
+
+_VALUE_RE = re.compile(rb'-?\d+(?:\.\d+)?(?:e-?\d+)?|"[^"\n]*"|\[[^\[\]\n]*\]|null|true|false')
+_NAME_RE = re.compile(rb'["\' ]?([\w./-]+\.(?:png|yaml|csv|gz|jsonl|txt))')
+
+
+def _fs_mutation(path: Path, rng: np.random.Generator, canary: Path) -> str:
+    """Replace ``path`` by a FIFO, a directory, a symlink outside, or remove it."""
+    kind = str(rng.choice(["fifo", "dir", "symlink_out", "missing"]))
+    if path.is_dir() and not path.is_symlink():
+        import shutil
+
+        shutil.rmtree(path)
+    elif path.exists() or path.is_symlink():
+        path.unlink()
+    if kind == "fifo":
+        os.mkfifo(path)
+    elif kind == "dir":
+        path.mkdir()
+    elif kind == "symlink_out":
+        path.symlink_to(canary)
+    return kind
+
+
+def _seed_files(work: Path, rng: np.random.Generator) -> dict[str, Path]:
+    """Valid inputs to damage: a config, a session with frames, and one file set per importer."""
+    import shutil
+
+    import yaml
+
+    from app.session import SessionWriter
+    from calib.observation import Observation
+
+    seeds = work / "seeds"
+    seeds.mkdir(parents=True)
+    repo = Path(__file__).resolve().parents[1]
+    shutil.copy(repo / "config" / "sim.toml", seeds / "config.toml")
+
+    d = simulate.realistic_cell(8, rng)
+    with SessionWriter.create(seeds, "eye_to_hand", name="session", truth={"T_base_cam": d.Y}) as w:
+        img = np.zeros((8, 8, 3), np.uint8)
+        for i in range(len(d.A)):
+            w.add_sample(Observation(i, float(i), d.A[i], d.points[i], d.point_cov[i], d.B[i]),
+                         color=img if i < 2 else None, depth=np.ones((8, 8), np.float32) if i < 2 else None)
+            if i == 3:
+                w.add_skip(3.5, "marker not found", T_base_flange=d.A[i])
+                w.add_event(3.6, "note", text="x")
+
+    def msg(T):
+        t, q = tf.to_xyz_quat(T)
+        return {"translation": dict(zip("xyz", map(float, t))), "rotation": dict(zip("xyzw", map(float, q)))}
+
+    stored = tf.invert(d.A)  # eye-on-base files store T_effector_base
+    (seeds / "eh2").mkdir()
+    (seeds / "eh2" / "cell.samples").write_text(yaml.safe_dump(
+        {"parameters": {"name": "cell", "calibration_type": "eye_on_base"},
+         "samples": [{"robot": msg(R), "tracking": msg(B)} for R, B in zip(stored, d.B)]}))
+    (seeds / "eh1").mkdir()
+    (seeds / "eh1" / "samples.yaml").write_text(yaml.safe_dump(
+        {"parameters": {"eye_on_hand": False},
+         "samples": {"hand_world_samples": [msg(R) for R in stored], "camera_marker_samples": [msg(B) for B in d.B]}}))
+
+    ind = seeds / "industrial"
+    (ind / "images").mkdir(parents=True)
+    (ind / "poses").mkdir()
+    src = repo / "tests" / "data" / "circle_grid"
+    doc = yaml.safe_load((src / "cal_data.yaml").read_text())
+    doc["data"] = doc["data"][:3]  # three views keep a case fast
+    for e in doc["data"]:
+        shutil.copy(src / e["image"], ind / e["image"])
+        shutil.copy(src / e["pose"], ind / e["pose"])
+    (ind / "cal_data.yaml").write_text(yaml.safe_dump(doc))
+
+    csv = seeds / "pose_csv"
+    csv.mkdir()
+    t = np.arange(60) * 0.05
+    A = simulate.realistic_cell(60, rng).A
+    for name, T in (("hand.csv", A), ("target.csv", tf.invert(A))):
+        xyz, q = tf.to_xyz_quat(T)
+        rows = np.column_stack([t, xyz, q])
+        (csv / name).write_text("t,x,y,z,qx,qy,qz,qw\n" + "\n".join(",".join(f"{v:.9f}" for v in r) for r in rows))
+    (csv / "streams.toml").write_text('format = "pose_csv"\nsetup = "eye_in_hand"\nrobot = "hand.csv"\n'
+                                      'camera = "target.csv"\nclock_offset = 0.0\nrefine = false\n')
+    return {"config": seeds / "config.toml", "session": seeds / "session", "eh2": seeds / "eh2",
+            "eh1": seeds / "eh1", "industrial": ind, "pose_csv": csv}
+
+
+def _pick_file(case_dir: Path, rng: np.random.Generator) -> Path:
+    files = sorted(p for p in case_dir.rglob("*") if p.is_file())
+    # The main file of each kind most of the time, so the damage reaches its parser.
+    main = [p for p in files if p.name in ("samples.jsonl", "session.json", "cal_data.yaml", "streams.toml",
+                                           "cell.samples", "samples.yaml", "config.toml")]
+    pool = main if main and rng.random() < 0.7 else files
+    return pool[int(rng.integers(len(pool)))]
+
+
+def run_file_campaign(kind: str, n_cases: int, rng: np.random.Generator, work: Path, watch: _OpenWatch) -> Tally:
+    """``n_cases`` damaged files of ``kind`` ("config", "session", "import")."""
+    import dataclasses
+    import shutil
+
+    from app import devices
+    from app.config import load_config
+    from app.formats import load
+    from app.session import SessionWriter, read_session
+
+    seeds = _seed_files(work / kind, rng)
+    outside = work / kind / "cases" / "outside"
+    outside.mkdir(parents=True)
+    canary = outside / "secret.txt"
+    canary.write_text("not yours\n")
+    t = Tally()
+    names = {"config": ["config"], "session": ["session"], "import": ["eh2", "eh1", "industrial", "pose_csv"]}[kind]
+    for i in range(n_cases):
+        name = names[i % len(names)]
+        case = work / kind / "cases" / f"{i:04d}"
+        src = seeds[name]
+        if src.is_dir():
+            shutil.copytree(src, case / src.name)
+        else:
+            case.mkdir(parents=True)
+            shutil.copy(src, case / src.name)
+        data_dir = case / src.name if src.is_dir() else case
+        target = _pick_file(case, rng)
+        # A config is named by the user, who may well symlink it: only data files must stay inside.
+        if rng.random() < 0.12 and target.name not in ("config.toml", "cell.samples", "samples.yaml"):
+            mut = f"{target.name}:{_fs_mutation(target, rng, canary)}"
+        else:
+            m, damaged = _mutate_bytes(target.read_bytes(), rng, canary)
+            target.write_bytes(damaged)
+            mut = f"{target.name}:{m}"
+        desc = f"{name} #{i} {mut}"
+        if name == "config":
+            def fn(p=case / src.name, tmp=case):
+                cfg = load_config(p)
+                cfg = dataclasses.replace(cfg, session=dataclasses.replace(cfg.session, root=str(tmp / "sessions")))
+                devices.validate(cfg)
+        elif name == "session":
+            def fn(p=data_dir):
+                s = read_session(p)
+                for obs in s.observations:
+                    s.load_frames(obs)
+                SessionWriter.resume(p).close()
+        else:
+            main = {"eh2": "cell.samples", "eh1": "samples.yaml"}.get(name)
+
+            def fn(p=data_dir if main is None else data_dir / main):
+                load(p)
+        _run_file_case(t, watch, data_dir, desc, fn)
+        shutil.rmtree(case, ignore_errors=True)
+    return t
+
+
 # -------------------------------------------------------------------- reporting
 
 
@@ -344,9 +620,19 @@ def main(argv=None) -> int:
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--out", default="out/bench")
     args = ap.parse_args(argv)
+    import logging
+
+    logging.disable(logging.WARNING)  # torn lines and skipped images are expected by the thousand
     rng = np.random.default_rng(args.seed)
     t0 = time.perf_counter()
     rows = {"solver API": run_solver_campaign(args.solver_cases, rng)}
+    import tempfile
+
+    with tempfile.TemporaryDirectory(prefix="handeye-fuzz-") as tmp:
+        watch = _OpenWatch(Path(tmp))
+        for kind, label in (("config", "config files"), ("session", "session directories"),
+                            ("import", "import files")):
+            rows[label] = run_file_campaign(kind, args.file_cases, rng, Path(tmp), watch)
     report = "## Input fuzzing\n\n" + format_table(rows, time.perf_counter() - t0)
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
