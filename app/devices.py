@@ -1,4 +1,4 @@
-"""Build the parts a run needs from a `Config`: robot, camera, extraction, online estimator, outputs.
+"""Build the parts a run needs from a `Config`: robot, camera, extraction, solver, online estimator, outputs.
 
 The only place the app knows the other layers' config classes; each section
 (``[robot]``, ``[camera]``, ``[marker]``, ``[monitor.online]``) is validated
@@ -12,10 +12,15 @@ from pathlib import Path
 
 import numpy as np
 
-from app.config import Config
-from app.pipeline import Measurement
+from app import backends  # noqa: F401  every backend registers itself
+from app.config import CalibrateConfig, Config
+from app.errors import ConfigError, SessionError
 from app.session import check_writable_root
-from calib.errors import ConfigError, SessionError
+from app.viz import Viz
+from calib.errors import ParameterError
+from calib.setup import Setup
+from drivers.camera.registry import CAMERAS
+from drivers.robot.registry import ROBOTS
 
 #: Result files written into the session directory, by export format.
 RESULT_FILES = {
@@ -32,12 +37,13 @@ def validate(cfg: Config) -> None:
     """Validate the sections owned by the device, vision and online layers, and that the
     session root is writable (raises ConfigError naming the field)."""
     from calib.vision.extract import TargetConfig
-    from drivers.camera.factory import camera_config_from_dict
-    from drivers.robot.factory import robot_config_from_dict
 
-    robot_config_from_dict(cfg.robot)
-    camera_config_from_dict(cfg.camera)
-    TargetConfig.from_dict(cfg.marker)
+    for section, check in (("robot", ROBOTS.config_from_dict), ("camera", CAMERAS.config_from_dict),
+                           ("marker", TargetConfig.from_dict)):
+        try:
+            check(getattr(cfg, section))
+        except ParameterError as e:
+            raise ConfigError(f"[{section}]: {e}") from None
     online_config(cfg)
     check_session_root(cfg)
 
@@ -56,33 +62,39 @@ def open_robot(cfg: Config, *, read_only: bool):
     ``read_only=True`` (monitor) forces the driver's read-only mode: it then
     refuses every motion command.
     """
-    from drivers.robot.factory import make_robot, robot_config_from_dict
-
-    rc = robot_config_from_dict(cfg.robot)
+    rc = ROBOTS.config_from_dict(cfg.robot)
     if read_only:
         rc = dataclasses.replace(rc, read_only=True)
-    return make_robot(rc)
+    return ROBOTS.create(rc)
 
 
 def open_camera(cfg: Config, robot):
-    """The configured camera; a rendered camera sees the marker at the robot's current flange pose."""
-    from drivers.camera.factory import make_camera
+    """The configured camera, following the robot's flange pose (which a simulated camera renders at)."""
+    camera = CAMERAS.create(cfg.camera)
+    camera.follow(lambda: robot.read().T_base_flange)
+    return camera
 
-    return make_camera(cfg.camera, lambda: robot.read().T_base_flange)
+
+def simulated(cfg: Config) -> bool:
+    """True when both configured devices are simulators (the demo moves without asking)."""
+    return (ROBOTS.get(cfg.robot.get("type", ROBOTS.default)).device.simulated
+            and CAMERAS.get(cfg.camera.get("backend")).device.simulated)
 
 
 def truth(camera) -> dict:
     """True transforms of a simulated camera (``T_base_cam``/``T_flange_marker`` eye-to-hand,
     ``T_flange_cam``/``T_base_marker`` eye-in-hand); empty for real cameras."""
-    c = getattr(camera, "config", None)
-    if getattr(c, "backend", None) != "rendered":
-        return {}
-    names = ("T_base_cam", "T_flange_marker") if c.setup == "eye_to_hand" else ("T_flange_cam", "T_base_marker")
-    return {n: np.asarray(getattr(c, n), dtype=float) for n in names}
+    return camera.truth() or {}
+
+
+def camera_truth(setup: Setup, truth: dict) -> np.ndarray | None:
+    """The true camera transform (``T_base_cam`` or ``T_flange_cam``) from a truth dict, if it holds one."""
+    key = Setup(setup).camera_name
+    return None if key not in truth else np.asarray(truth[key], dtype=float)
 
 
 def make_measure(cfg: Config):
-    """``measure(frame) -> Measurement`` for the configured target (``[marker]``).
+    """``measure(frame) -> MarkerMeasurement`` for the configured target (``[marker]``).
 
     Raises ``ExtractionError`` (marker not found, bad depth) so the caller skips the frame.
     """
@@ -90,14 +102,31 @@ def make_measure(cfg: Config):
 
     target = TargetConfig.from_dict(cfg.marker)
 
-    def measure(frame) -> Measurement:
-        m = extract(frame.color, frame.depth, frame.intrinsics, target)
-        info = {k: float(v) for k, v in m.info.items() if isinstance(v, (int, float, np.floating, np.integer))}
-        return Measurement(m.point_cam, m.point_cov, m.T_cam_marker, m.pose_cov,
-                           pixel=(float(m.center_px[0]), float(m.center_px[1])),
-                           meta={"marker_kind": m.kind, "extract": info})
+    def measure(frame):
+        return extract(frame.color, frame.depth, frame.intrinsics, target)
 
     return measure
+
+
+def make_solve(cal: CalibrateConfig, setup: Setup, rng: np.random.Generator):
+    """``solve(observations, *, final)``: fast unrefined estimates while running, the configured one at the end."""
+    from calib.api import solve_observations
+
+    def solve(observations, *, final: bool):
+        return solve_observations(cal.method, observations, setup,
+                                  refine=cal.refine and final, robust=cal.robust and final, rng=rng)
+
+    return solve
+
+
+def make_viz(cfg: Config, session: Path) -> Viz:
+    """rerun recording saved as ``<session>/recording.rrd`` (``recording-2.rrd`` ... when resumed; no-op if disabled)."""
+    path, n = session / "recording.rrd", 1
+    while path.exists():
+        n += 1
+        path = session / f"recording-{n}.rrd"
+    return Viz(cfg.setup, path, viewer=cfg.viz.viewer, viewer_bind=cfg.viz.viewer_bind, enabled=cfg.viz.enabled,
+               log_images=cfg.viz.log_images)
 
 
 def online_config(cfg: Config):
@@ -116,11 +145,11 @@ def online_config(cfg: Config):
                 raise ConfigError(f"unknown key monitor.online.detector.{key} (known: {', '.join(sorted(dknown))})")
         try:
             data["detector"] = DetectorConfig(**data["detector"])
-        except ConfigError as e:
+        except ParameterError as e:
             raise ConfigError(f"monitor.online.detector: {e}") from None
     try:
         return OnlineConfig(setup=cfg.setup, **data)
-    except ConfigError as e:
+    except ParameterError as e:
         raise ConfigError(f"monitor.online: {e}") from None
 
 

@@ -213,9 +213,12 @@ def solver_case(rng: np.random.Generator):
     A0, B0, p0 = A, B, p
     target = rng.choice(["solve", "solve", "solve", "closed_form", "solver_fn", "kron_t_prime", "refine", "robust"])
     method = str(rng.choice(list(METHODS)))
-    if rng.random() < 0.03:
+    if rng.random() < 0.05:
+        method = "auto"  # calib.auto: the extended model on points or poses
+    elif rng.random() < 0.03:
         method = rng.choice(["bogus", "", "YKRONT''", None, 5])
-    uses_points = METHODS.get(method) is not None and METHODS[method].needs == "points" and rng.random() < 0.7
+    uses_points = (method == "auto" or METHODS.get(method) is not None and METHODS[method].needs == "points") \
+        and rng.random() < 0.7
     Bm = p if uses_points else B
     point_cov = None if rng.random() < 0.6 else (cov if rng.random() < 0.5 else cov[0])
     mut = "valid"

@@ -10,6 +10,8 @@ from hypothesis import settings
 settings.register_profile("handeye", derandomize=True, database=None)
 settings.load_profile("handeye")
 
+import app.backends  # noqa: F401  every robot and camera backend registered by name, as in the app
+
 
 def process_net() -> str:
     """A loopback /24 of this test process (``127.a.b``), derived from its pid, so that

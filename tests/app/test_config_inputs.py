@@ -17,7 +17,8 @@ from hypothesis import strategies as st
 from app import devices
 from app.cli import main
 from app.config import load_config
-from calib.errors import ConfigError, HandeyeError
+from app.errors import ConfigError
+from calib.errors import HandeyeError
 
 SIM = Path(__file__).resolve().parents[2] / "config" / "sim.toml"
 SIM_LINES = SIM.read_text().splitlines()

@@ -14,7 +14,7 @@ from hypothesis import strategies as st
 
 from app.session import SessionWriter, read_session
 from calib import simulate
-from calib.errors import SessionError
+from app.errors import SessionError
 from calib.observation import Observation
 
 SETTINGS = settings(max_examples=60, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])

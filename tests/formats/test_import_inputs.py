@@ -17,7 +17,8 @@ from hypothesis import strategies as st
 from app.formats import load
 from calib import simulate
 from calib import transforms as tf
-from calib.errors import HandeyeError, SessionError
+from app.errors import SessionError
+from calib.errors import HandeyeError
 
 SETTINGS = settings(max_examples=25, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
 DATA_DIR = Path(__file__).resolve().parents[1] / "data"
