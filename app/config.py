@@ -15,12 +15,15 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import shlex
+import shutil
 import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 from app.errors import ConfigError
+from app.files import read_text_file
 from calib.setup import Setup, check_setup
 
 # Solver names as in the paper (or "auto", calib.auto); checked against calib.METHODS
@@ -57,6 +60,43 @@ def _string(obj, name: str, *, choices=None, allow_empty: bool = True) -> None:
         raise ConfigError(f"{type(obj).SECTION}.{name} must be a {'non-empty ' if not allow_empty else ''}string, got {v!r}")
     if choices is not None and v not in choices:
         raise ConfigError(f"{type(obj).SECTION}.{name} must be one of {list(choices)}, got {v!r}")
+
+
+def _method(obj, name: str) -> None:
+    """A solver name `calib.api.solve` knows, so a typo fails at load, before any robot motion."""
+    from calib.api import AUTO, resolve_method
+    from calib.errors import CalibrationError
+
+    _string(obj, name, allow_empty=False)
+    if getattr(obj, name).strip().lower() == AUTO:
+        setattr(obj, name, AUTO)
+        return
+    try:
+        setattr(obj, name, resolve_method(getattr(obj, name)).name)
+    except CalibrationError as e:
+        raise ConfigError(f"{type(obj).SECTION}.{name}: {e}") from None
+
+
+def hook_argv(command: str) -> list[str]:
+    """The alarm hook's argument list (split like a shell, run without one); [] for no hook.
+
+    Raises
+    ------
+    ConfigError
+        Naming ``monitor.alarm_hook``: unbalanced quotes, or a program that is
+        neither on ``PATH`` nor an executable file.
+    """
+    if not command.strip():
+        return []
+    try:
+        argv = shlex.split(command)
+    except ValueError as e:
+        raise ConfigError(f"monitor.alarm_hook: cannot split {command!r} into arguments ({e})") from None
+    if not argv:
+        return []
+    if shutil.which(argv[0]) is None:
+        raise ConfigError(f"monitor.alarm_hook: program {argv[0]!r} not found on PATH or not executable")
+    return argv
 
 
 @dataclass
@@ -101,7 +141,7 @@ class CalibrateConfig:
         _positive(self, "settle_s", allow_zero=True)
         _integer(self, "max_attempts", 1)
         _integer(self, "image_margin_px", 0)
-        _string(self, "method", allow_empty=False)
+        _method(self, "method")
         _boolean(self, "refine")
         _boolean(self, "robust")
         _integer(self, "seed", 0)
@@ -138,8 +178,9 @@ class MonitorConfig:
         _integer(self, "max_samples", 0)
         _positive(self, "duration_s", allow_zero=True)
         _string(self, "alarm_hook")
+        hook_argv(self.alarm_hook)
         _integer(self, "reestimate_samples", 3)
-        _string(self, "method", allow_empty=False)
+        _method(self, "method")
         if not isinstance(self.online, dict):
             raise ConfigError(f"monitor.online must be a table, got {self.online!r}")
 
@@ -287,23 +328,48 @@ def config_from_dict(data: dict) -> Config:
     return Config(**kwargs)
 
 
+#: A config is a few kB; this bounds what a wrong path (a log, a disk image) can cost.
+MAX_CONFIG_BYTES = 1024 * 1024
+#: Deepest nesting of tables/arrays a config may have (ours has 3); deeper input
+#: would otherwise exhaust the TOML parser's recursion.
+MAX_CONFIG_DEPTH = 16
+
+
+def _depth(value, limit: int, level: int = 0) -> int:
+    if level > limit:
+        return level
+    if isinstance(value, dict):
+        return max((_depth(v, limit, level + 1) for v in value.values()), default=level + 1)
+    if isinstance(value, list):
+        return max((_depth(v, limit, level + 1) for v in value), default=level + 1)
+    return level
+
+
 def load_config(path: str | Path | None = None) -> Config:
     """Load and validate a TOML config; ``None`` gives the embedded simulated cell.
 
     Raises
     ------
     ConfigError
-        If the file is missing, not valid TOML, or a field is invalid.
+        If the file is missing, not a regular UTF-8 file, not valid TOML,
+        nested deeper than `MAX_CONFIG_DEPTH`, or a field is invalid; the
+        message names the file and the field.
     """
     if path is None:
         return Config()
     path = Path(path)
     try:
-        data = tomllib.loads(path.read_text(encoding="utf-8"))
-    except FileNotFoundError:
-        raise ConfigError(f"config file not found: {path}") from None
+        text = read_text_file(path, ConfigError, max_bytes=MAX_CONFIG_BYTES)
+    except ConfigError as e:
+        raise ConfigError(f"config file {e}") from None
+    try:
+        data = tomllib.loads(text)
     except tomllib.TOMLDecodeError as e:
         raise ConfigError(f"{path}: invalid TOML: {e}") from None
+    except RecursionError:
+        raise ConfigError(f"{path}: nested deeper than the TOML parser allows") from None
+    if _depth(data, MAX_CONFIG_DEPTH) > MAX_CONFIG_DEPTH:
+        raise ConfigError(f"{path}: nested deeper than {MAX_CONFIG_DEPTH} levels; not a handeye config")
     try:
         return config_from_dict(data)
     except ConfigError as e:

@@ -14,7 +14,8 @@ import numpy as np
 
 from app import backends  # noqa: F401  every backend registers itself
 from app.config import CalibrateConfig, Config
-from app.errors import ConfigError
+from app.errors import ConfigError, SessionError
+from app.session import check_writable_root
 from app.viz import Viz
 from calib.errors import ParameterError
 from calib.setup import Setup
@@ -33,7 +34,8 @@ RESULT_FILES = {
 
 
 def validate(cfg: Config) -> None:
-    """Validate the sections owned by the device, vision and online layers (raises ConfigError naming the field)."""
+    """Validate the sections owned by the device, vision and online layers, and that the
+    session root is writable (raises ConfigError naming the field)."""
     from calib.vision.extract import TargetConfig
 
     for section, check in (("robot", ROBOTS.config_from_dict), ("camera", CAMERAS.config_from_dict),
@@ -43,6 +45,15 @@ def validate(cfg: Config) -> None:
         except ParameterError as e:
             raise ConfigError(f"[{section}]: {e}") from None
     online_config(cfg)
+    check_session_root(cfg)
+
+
+def check_session_root(cfg: Config) -> None:
+    """ConfigError naming ``session.root`` unless sessions can be written there (checked before devices open)."""
+    try:
+        check_writable_root(cfg.session.root)
+    except SessionError as e:
+        raise ConfigError(f"session.root: {e}") from None
 
 
 def open_robot(cfg: Config, *, read_only: bool):

@@ -220,7 +220,8 @@ def check_point_cov(point_cov, n: int) -> np.ndarray | None:
     """Validate a point covariance (3, 3) or (N, 3, 3) and broadcast it to (N, 3, 3); None passes."""
     if point_cov is None:
         return None
-    cov = np.asarray(point_cov, dtype=float)
+    # Variances in m^2: the same bound as coordinates keeps their products finite.
+    cov = tf.as_real_array(point_cov, "point_cov")
     if cov.shape == (3, 3):
         cov = np.broadcast_to(cov, (n, 3, 3))
     if cov.shape != (n, 3, 3):

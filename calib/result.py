@@ -12,6 +12,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from calib.errors import DegenerateMotionError
 from calib.setup import Setup
 
 
@@ -68,6 +69,17 @@ class CalibrationResult:
     converged: bool = True
     iterations: int = 0
     info: dict = field(default_factory=dict)
+
+    def __post_init__(self):
+        # A NaN/inf anywhere means the data did not determine the solution (e.g. a
+        # singular information matrix): say so instead of handing NaN downstream.
+        parts = {"X": self.X, "Y": self.Y, "cov": self.cov, "residuals.translation": self.residuals.translation,
+                 "residuals.rotation": self.residuals.rotation}
+        for name, value in parts.items():
+            if value is not None and not np.isfinite(np.asarray(value, dtype=float)).all():
+                raise DegenerateMotionError(
+                    f"{self.method}: the {name} of the solution is not finite; the {self.n_samples} samples "
+                    "do not determine every unknown (vary the flange orientation and position more)")
 
     @property
     def T_base_cam(self) -> np.ndarray:

@@ -120,6 +120,7 @@ def calibrate(cfg: Config, *, resume: Path | None = None, progress: bool = True)
         initial = previous.observations
     # A resumed run must not replay the poses it already visited.
     rng = np.random.default_rng([cfg.calibrate.seed, len(initial)])
+    devices.check_session_root(cfg)
     with devices.open_robot(cfg, read_only=False) as robot, devices.open_camera(cfg, robot) as camera:
         truth = devices.truth(camera)
         if resume is not None:

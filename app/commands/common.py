@@ -10,6 +10,7 @@ from pathlib import Path
 import numpy as np
 
 from calib import transforms as tf
+from app.errors import ConfigError
 from calib.errors import HandeyeError
 
 
@@ -67,7 +68,12 @@ def load_config_args(args):
     from app.config import load_config
 
     cfg = apply_overrides(load_config(args.config), args)
-    devices.validate(cfg)
+    try:
+        devices.validate(cfg)
+    except ConfigError as e:
+        if args.config is None:
+            raise
+        raise ConfigError(f"{args.config}: {e}") from None
     return cfg
 
 

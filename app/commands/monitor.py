@@ -15,7 +15,6 @@ import argparse
 import dataclasses
 import logging
 import os
-import shlex
 import subprocess
 import threading
 import time
@@ -29,8 +28,8 @@ import numpy as np
 from app import devices
 from app.acquire import take_sample
 from app.commands.common import add_run_options, load_config_args, pose_line
-from app.config import Config, MonitorConfig
-from app.errors import SessionError
+from app.config import Config, MonitorConfig, hook_argv
+from app.errors import ConfigError, SessionError
 from app.progress import progress_bar
 from app.session import SessionWriter, read_session
 from app.viz import Viz
@@ -109,6 +108,7 @@ def monitor(cfg: Config, *, reference: Path | None = None, stop=None, progress: 
             raise SessionError(f"reference session {reference} is {ref.setup}, the config is {cfg.setup}")
         for obs in ref.observations:
             online.update(obs.T_base_flange, obs.point_cam, obs.point_cov)
+    devices.check_session_root(cfg)
     with devices.open_robot(cfg, read_only=True) as robot, devices.open_camera(cfg, robot) as camera:
         writer = SessionWriter.create(cfg.session.root, cfg.setup, config=cfg.to_dict(),
                                       intrinsics=dataclasses.asdict(camera.intrinsics), truth=devices.truth(camera),
@@ -135,13 +135,17 @@ def _same_pose(T1: np.ndarray, T2: np.ndarray, *, mm: float = 1.0, deg: float = 
 
 
 def run_hook(command: str, env: dict) -> None:
-    """Run the alarm hook (no shell; arguments split like a shell would). Failures are logged, not raised."""
-    if not command:
-        return
+    """Run the alarm hook (no shell; arguments split like a shell would). Failures are logged, not raised.
+
+    The command was checked at config load (`app.config.hook_argv`); a failure
+    here (the program removed since) is logged so the alarm itself still counts.
+    """
     try:
-        done = subprocess.run(shlex.split(command), env={**os.environ, **env}, timeout=30,
-                              capture_output=True, text=True)
-    except (OSError, subprocess.TimeoutExpired) as e:
+        argv = hook_argv(command)
+        if not argv:
+            return
+        done = subprocess.run(argv, env={**os.environ, **env}, timeout=30, capture_output=True, text=True)
+    except (OSError, subprocess.TimeoutExpired, ConfigError) as e:
         log.error("alarm hook %r failed: %s", command, e)
         return
     if done.returncode != 0:
