@@ -1,4 +1,4 @@
-"""Active calibration: move the robot through random poses and sample each one.
+"""Active calibration: move the robot through planned (or random, or listed) poses and sample each one.
 
 Works for both setups. Eye-to-hand: static camera, marker on the flange,
 ``T_base_flange @ T_flange_marker = T_base_cam @ T_cam_marker``. Eye-in-hand:
@@ -18,7 +18,7 @@ from typing import Callable
 import numpy as np
 
 from app.config import CalibrateConfig
-from app.pipeline import Measurement, predicted_pixel, sigma
+from app.pipeline import Measurement, sigma
 from app.session import SessionWriter
 from app.viz import Viz
 from calib import transforms as tf
@@ -37,6 +37,9 @@ from drivers.robot.base import Robot
 
 log = logging.getLogger(__name__)
 
+#: Samples before the first solve is tried (the fewest any solver takes; too few for one raises and is logged).
+MIN_ESTIMATE_SAMPLES = 3
+
 
 @dataclass
 class RunReport:
@@ -50,7 +53,8 @@ class RunReport:
         Session directory (samples, frames, result, .rrd).
     n_samples, n_skipped : int
     stopped_by : str
-        ``"samples"``, ``"target_sigma"``, ``"max_attempts"`` or ``"interrupted"``.
+        ``"samples"``, ``"target_sigma"``, ``"max_attempts"``, ``"interrupted"``, or the pose
+        source's end (``"plan_done"``, ``"no_valid_pose"``, ``"no_estimate_after_bootstrap"``).
     elapsed_s : float
     skip_reasons : dict
         ``{reason: count}`` of this run's skips.
@@ -116,6 +120,7 @@ def take_sample(
     not_before: float,
     save_frames: bool = True,
     check: Callable[[], str | None] | None = None,
+    pose_kind: str | None = None,
 ) -> Observation | None:
     """Capture one time-synchronised sample and record it (or its skip reason).
 
@@ -124,6 +129,7 @@ def take_sample(
 
     ``check``, if given, is called after the measurement; a returned string is
     a reason to skip the sample (e.g. the robot moved during the exposure).
+    ``pose_kind`` (e.g. ``"optimal"``, ``"bootstrap"``) is kept in the sample's meta.
 
     Returns
     -------
@@ -147,6 +153,8 @@ def take_sample(
         return None
     viz.frame(frame.t, frame.color, frame.depth, frame.intrinsics, marker_px=m.pixel)
     meta = {"frame_index": frame.index, **m.meta}
+    if pose_kind is not None:
+        meta["pose_kind"] = pose_kind
     if frame.truth:
         meta["truth"] = {k: np.asarray(v).tolist() for k, v in frame.truth.items()}
     obs = Observation(writer.next_index, frame.t, T_base_flange, m.point_cam, m.point_cov,
@@ -168,8 +176,9 @@ def run_calibration(
     save_frames: bool = True,
     progress=None,
     initial: list[Observation] | None = None,
+    poses=None,
 ) -> RunReport:
-    """Active run: random poses, one sample each, until enough or precise enough.
+    """Active run: one sample per pose of ``poses``, until enough or precise enough.
 
     Parameters
     ----------
@@ -183,13 +192,16 @@ def run_calibration(
     cfg : CalibrateConfig
     setup : {"eye_to_hand", "eye_in_hand"}
     rng : numpy.random.Generator
-        Source of the random poses (seeded from config/CLI).
+        Source of the random poses when ``poses`` is None (seeded from config/CLI).
     viz : Viz
     progress : tqdm-like, optional
         ``update(1)`` per sample.
     initial : list[Observation], optional
         Samples already in a resumed session; they count towards ``cfg.samples``
         and give the first estimate.
+    poses : pose source, optional
+        ``next(state, estimate, observations) -> Target | None`` (`app.planning`);
+        None draws uniform random poses around the start.
 
     Returns
     -------
@@ -199,49 +211,53 @@ def run_calibration(
     """
     t0 = time.monotonic()
     start = robot.read().T_base_flange
+    if poses is None:
+        from app.planning import RandomPoses  # app.planning builds on this module
+
+        poses = RandomPoses(start, cfg, setup, camera.intrinsics, rng)
     observations: list[Observation] = list(initial or [])
     estimate: CalibrationResult | None = None
-    if len(observations) >= cfg.min_samples:
+    if len(observations) >= MIN_ESTIMATE_SAMPLES:
         try:
             estimate = solve(observations, final=False)
         except CalibrationError as e:
             log.info("no estimate from the %d resumed samples: %s", len(observations), e)
     n_skipped = 0
     stopped_by = "max_attempts"
-    intrinsics = camera.intrinsics
     try:
         for attempt in range(cfg.max_attempts):
             if len(observations) >= cfg.samples:
                 stopped_by = "samples"
                 break
-            target = random_pose(start, cfg, rng)
-            if estimate is not None:
-                px = predicted_pixel(setup, estimate, target, intrinsics, cfg.image_margin_px)
-                if px is None:
-                    # Not worth a motion: the marker would leave the image (or face away).
-                    log.debug("pose %d skipped: marker predicted outside the image", attempt)
-                    writer.add_skip(time.time(), "marker predicted outside the image", T_base_flange=target)
-                    n_skipped += 1
-                    continue
+            target = poses.next(robot.read(), estimate, observations)
+            if target is None:
+                stopped_by = poses.done_reason
+                break
+            if target.skip is not None:
+                # Not worth a motion (e.g. the marker would leave the image).
+                log.debug("pose %d skipped: %s", attempt, target.skip)
+                writer.add_skip(time.time(), target.skip, T_base_flange=target.T_base_flange)
+                n_skipped += 1
+                continue
             try:
-                state = robot.move_to(target)
+                state = robot.move_to(target.T_base_flange)
             except LimitViolationError as e:
                 log.info("pose %d skipped: %s", attempt, e)
-                writer.add_skip(time.time(), f"limit: {e}", T_base_flange=target)
+                writer.add_skip(time.time(), f"limit: {e}", T_base_flange=target.T_base_flange)
                 n_skipped += 1
                 continue
             time.sleep(cfg.settle_s)
             # Only a frame exposed after the arm settled (plus settle_s for the plate to stop
             # vibrating) pairs with a still pose; older frames queued during the motion are dropped.
             obs = take_sample(robot, camera, measure, writer, viz, not_before=state.t_host + cfg.settle_s,
-                              save_frames=save_frames)
+                              save_frames=save_frames, pose_kind=target.kind)
             if obs is None:
                 n_skipped += 1
                 continue
             observations.append(obs)
             if progress is not None:
                 progress.update(1)
-            if len(observations) >= cfg.min_samples:
+            if len(observations) >= MIN_ESTIMATE_SAMPLES:
                 try:
                     estimate = solve(observations, final=False)
                 except CalibrationError as e:
@@ -250,7 +266,7 @@ def run_calibration(
                 else:
                     viz.sample(obs, estimate.camera_transform)
                     viz.estimate(obs.t, estimate, observations)
-                    if _precise_enough(estimate, cfg):
+                    if len(observations) >= cfg.min_samples and _precise_enough(estimate, cfg):
                         stopped_by = "target_sigma"
                         break
             else:
@@ -266,6 +282,9 @@ def run_calibration(
         log.warning("interrupted: robot stopped, %d samples kept in %s", len(observations), writer.path)
         writer.add_event(time.time(), "interrupted", n_samples=len(observations))
         viz.event(time.time(), "interrupted by user; robot stopped", "WARN")
+    if stopped_by != "interrupted":  # (an interruption has its own event)
+        writer.add_event(time.time(), "stopped", stopped_by=stopped_by, n_samples=len(observations),
+                         n_skipped=n_skipped, poses=cfg.poses)
 
     result = None
     if len(observations) >= 3:

@@ -30,19 +30,41 @@ def _common(p: argparse.ArgumentParser) -> None:
     p.add_argument("--no-frames", action="store_true", help="do not store color/depth PNGs in the session")
 
 
+def _until_sigma(text: str) -> tuple[float, float]:
+    """``MM,DEG`` (e.g. ``1,0.1``) or ``off``."""
+    if text.strip().lower() in ("off", "0", "0,0"):
+        return 0.0, 0.0
+    try:
+        mm, deg = (float(v) for v in text.split(","))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected MM,DEG (e.g. 1,0.1) or 'off', got {text!r}") from None
+    if not (mm > 0 and deg > 0 and np.isfinite(mm) and np.isfinite(deg)):
+        raise argparse.ArgumentTypeError(f"both targets must be positive numbers, got {text!r}")
+    return mm, deg
+
+
+def _motion_flags(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--poses", help="'optimal' (information-planned, default), 'random', or a plan.json "
+                   "from 'handeye plan' (overrides calibrate.poses)")
+    p.add_argument("--until-sigma", type=_until_sigma, metavar="MM,DEG",
+                   help="stop once the camera's predicted 1-sigma is below both (e.g. 1,0.1; 'off' disables; "
+                   "overrides calibrate.target_sigma_mm/deg)")
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="handeye", description="Hand-eye calibration from 3D marker points "
                                      "(Grossmann & Krueger: YKronT', YQuatT').")
     parser.add_argument("-v", "--verbose", action="count", default=0)
     sub = parser.add_subparsers(dest="command", required=True)
 
-    p = sub.add_parser("calibrate", help="active run: move the robot through random poses and calibrate")
+    p = sub.add_parser("calibrate", help="active run: move the robot through planned (or random, or listed) poses and calibrate")
     _common(p)
     p.add_argument("--yes-move", action="store_true", help="allow robot motion without the confirmation prompt")
     p.add_argument("--samples", type=int, help="number of samples (overrides calibrate.samples)")
     p.add_argument("--seed", type=int, help="seed of the random poses (overrides calibrate.seed)")
     p.add_argument("--method", help="solver, paper name (overrides calibrate.method), e.g. \"YKronT'\"")
     p.add_argument("--resume", type=Path, help="continue this session (e.g. after a crash or Ctrl-C)")
+    _motion_flags(p)
 
     p = sub.add_parser("monitor", help="passive: sample while the robot works, alarm when the camera moved")
     _common(p)
@@ -65,6 +87,18 @@ def build_parser() -> argparse.ArgumentParser:
     _common(p)
     p.add_argument("--samples", type=int, help="number of samples (default from the config)")
     p.add_argument("--seed", type=int, help="seed of the random poses")
+    _motion_flags(p)
+
+    p = sub.add_parser("plan", help="plan the calibration poses without moving: plan.json + a rerun recording "
+                       "(replay with 'calibrate --poses plan.json')")
+    _common(p)
+    p.add_argument("--prior", type=Path, help="result.json or session of an earlier calibration of this cell "
+                   "(default on a simulated cell: the simulator's true mounting)")
+    p.add_argument("-o", "--out", type=Path, default=Path("plan.json"), help="plan file to write (default plan.json)")
+    p.add_argument("--samples", type=int, help="poses at most (overrides calibrate.samples)")
+    p.add_argument("--seed", type=int, help="seed of the pose candidates")
+    p.add_argument("--until-sigma", type=_until_sigma, metavar="MM,DEG",
+                   help="plan until the expected 1-sigma is below both (overrides calibrate.target_sigma_mm/deg)")
 
     sub.add_parser("sim-robot", help="run the simulated UR controller (RTDE) in the foreground; "
                    "other arguments go to mocks.ur_sim (--host 127.0.0.x, --model ur10, --controller 5.11)")
@@ -73,6 +107,7 @@ def build_parser() -> argparse.ArgumentParser:
                        "other arguments go to bench.solvers")
     p.add_argument("--vision", action="store_true", help="also run the vision benchmark")
     p.add_argument("--robot", action="store_true", help="also run the robot benchmark")
+    p.add_argument("--plan", action="store_true", help="run only the pose-planning benchmark (bench.plan)")
     return parser
 
 
@@ -86,6 +121,10 @@ def _apply_overrides(cfg, args):
         cal["seed"] = args.seed
     if getattr(args, "method", None) is not None:
         cal["method"] = args.method
+    if getattr(args, "poses", None) is not None:
+        cal["poses"] = args.poses
+    if getattr(args, "until_sigma", None) is not None:
+        cal["target_sigma_mm"], cal["target_sigma_deg"] = args.until_sigma
     mon = {}
     if getattr(args, "duration", None) is not None:
         mon["duration_s"] = args.duration
@@ -125,7 +164,7 @@ def confirm_motion(yes_move: bool, *, stdin=None) -> None:
     stdin = stdin or sys.stdin
     if not stdin.isatty():
         raise HandeyeError("refusing to move the robot: no terminal to confirm on; pass --yes-move")
-    answer = input("The robot will move to random poses around its current pose. Continue? [y/N] ")
+    answer = input("The robot will move to calibration poses around its current pose. Continue? [y/N] ")
     if answer.strip().lower() not in ("y", "yes"):
         raise HandeyeError("robot motion not confirmed; nothing moved")
 
@@ -135,8 +174,11 @@ def _load(args):
     from app import devices
     from app.config import load_config
 
+    from app.planning import check_poses_option
+
     cfg = _apply_overrides(load_config(args.config), args)
     devices.validate(cfg)
+    check_poses_option(cfg.calibrate.poses)
     return cfg
 
 
@@ -184,6 +226,14 @@ def cmd_demo(args) -> int:
     return _exit_code(out)
 
 
+def cmd_plan(args) -> int:
+    from app.runner import plan, print_plan_summary
+
+    cfg = _load(args)
+    print_plan_summary(plan(cfg, args.out, prior=args.prior))
+    return 0
+
+
 def cmd_sim_robot(args) -> int:
     from mocks import ur_sim
 
@@ -191,6 +241,10 @@ def cmd_sim_robot(args) -> int:
 
 
 def cmd_bench(args) -> int:
+    if args.plan:
+        from bench import plan
+
+        return int(plan.main(args.extra) or 0)
     from bench import solvers
 
     rc = int(solvers.main(args.extra) or 0)
@@ -209,7 +263,7 @@ def cmd_bench(args) -> int:
 PASSTHROUGH = ("sim-robot", "bench")
 
 COMMANDS = {"calibrate": cmd_calibrate, "monitor": cmd_monitor, "replay": cmd_replay, "demo": cmd_demo,
-            "sim-robot": cmd_sim_robot, "bench": cmd_bench}
+            "plan": cmd_plan, "sim-robot": cmd_sim_robot, "bench": cmd_bench}
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -9,6 +9,7 @@ eye-in-hand (``X = T_flange_cam``, ``Y = T_base_marker``).
 from __future__ import annotations
 
 import dataclasses
+import json
 import logging
 import time
 from dataclasses import dataclass
@@ -16,7 +17,7 @@ from pathlib import Path
 
 import numpy as np
 
-from app import devices
+from app import devices, planning
 from app.calibrate import RunReport, run_calibration
 from app.config import CalibrateConfig, Config
 from app.monitor import MonitorReport, run_monitor
@@ -51,11 +52,13 @@ def make_viz(cfg: Config, session: Path) -> Viz:
 
 
 def make_solve(cal: CalibrateConfig, setup: str, rng: np.random.Generator):
-    """``solve(observations, *, final)``: fast unrefined estimates while running, the configured one at the end."""
+    """``solve(observations, *, final)``: the configured solver (refined if configured: the stop on the
+    predicted 1-sigma and the planner then see the covariance of the result that will be reported);
+    outlier rejection only at the end."""
 
     def solve(observations, *, final: bool):
         return solve_observations(cal.method, observations, setup,
-                                  refine=cal.refine and final, robust=cal.robust and final, rng=rng)
+                                  refine=cal.refine, robust=cal.robust and final, rng=rng)
 
     return solve
 
@@ -99,12 +102,24 @@ def calibrate(cfg: Config, *, resume: Path | None = None, progress: bool = True)
                 viz.truth(T_true)
             bar = tqdm(total=cfg.calibrate.samples, initial=len(initial), desc="samples", unit="sample",
                        disable=not progress)
+            poses = planning.make_pose_source(cfg, robot, camera.intrinsics, robot.read().T_base_flange, rng)
             with bar:
                 report = run_calibration(robot, camera, devices.make_measure(cfg), make_solve(cfg.calibrate, cfg.setup, rng),
                                          writer, cfg.calibrate, cfg.setup, rng, viz,
-                                         save_frames=cfg.session.save_frames, progress=bar, initial=initial)
+                                         save_frames=cfg.session.save_frames, progress=bar, initial=initial,
+                                         poses=poses)
     files = devices.write_result(report.result, writer.path, cfg.session.exports) if report.result is not None else {}
+    if "json" in files:
+        _add_run_summary(files["json"], report, cfg.calibrate.poses)
     return CalibrationOutput(report, cfg.setup, cfg.calibrate.method, files, _camera_truth(cfg.setup, truth))
+
+
+def _add_run_summary(path: Path, report: RunReport, poses: str) -> None:
+    """Record how the run ended in result.json: samples used, skips, why it stopped, which poses."""
+    doc = json.loads(Path(path).read_text(encoding="utf-8"))
+    doc["run"] = {"n_samples": report.n_samples, "n_skipped": report.n_skipped, "stopped_by": report.stopped_by,
+                  "poses": poses, "elapsed_s": report.elapsed_s}
+    Path(path).write_text(json.dumps(doc, indent=2) + "\n", encoding="utf-8")
 
 
 def monitor(cfg: Config, *, reference: Path | None = None, stop=None, progress: bool = True) -> MonitorReport:
@@ -134,6 +149,94 @@ def monitor(cfg: Config, *, reference: Path | None = None, stop=None, progress: 
             return run_monitor(robot, camera, devices.make_measure(cfg), online, solve, writer, cfg.monitor,
                                cfg.setup, viz, stop=stop, save_frames=cfg.session.save_frames,
                                on_sample=lambda obs: bar.update(1))
+
+
+@dataclass
+class PlanOutput:
+    """A dry-run plan and where it went."""
+
+    document: dict
+    path: Path
+    recording: Path | None
+
+
+def load_prior(cfg: Config, prior: Path | None, camera, T_start: np.ndarray) -> tuple[np.ndarray, np.ndarray, str]:
+    """X, Y to plan with: an earlier result.json or session of this cell, or the simulator's truth.
+
+    Raises
+    ------
+    ConfigError
+        No prior given and the camera is not simulated.
+    """
+    setup = cfg.setup
+    if prior is None:
+        truth = devices.truth(camera)
+        if not truth:
+            raise ConfigError("plan needs a prior calibration of this cell on real hardware: "
+                              "--prior result.json (or a session directory)")
+        names = ("T_flange_marker", "T_base_cam") if setup == "eye_to_hand" else ("T_flange_cam", "T_base_marker")
+        return truth[names[0]], truth[names[1]], "simulator truth (the rendered camera's mounting)"
+    prior = Path(prior)
+    if (prior / "session.json").exists():
+        session = read_session(prior)
+        if session.setup != setup:
+            raise SessionError(f"prior session {prior} is {session.setup}, the config is {setup}")
+        res = solve_observations(cfg.calibrate.method, session.observations, setup, refine=cfg.calibrate.refine)
+        obs = session.observations
+        X, Y = planning.with_marker_rotation(setup, res.X, res.Y, res.marker_rotation_known,
+                                             [o.T_base_flange for o in obs], [o.T_cam_marker for o in obs],
+                                             obs[0].point_cam)
+        return X, Y, f"session {prior} ({res.method}, {res.n_samples} samples)"
+    try:
+        doc = json.loads(prior.read_text(encoding="utf-8"))
+        if doc["setup"] != setup:
+            raise SessionError(f"prior {prior} is {doc['setup']}, the config is {setup}")
+        cam = tf.check_transform(doc["camera_transform"]["matrix"], "camera_transform")
+        mark = tf.check_transform(doc["marker_transform"]["matrix"], "marker_transform")
+        known = bool(doc["marker_transform"].get("rotation_known", True))
+    except (OSError, UnicodeDecodeError, ValueError, KeyError, TypeError, HandeyeError) as e:
+        if isinstance(e, SessionError):
+            raise
+        raise SessionError(f"--prior {prior}: not a handeye result.json or session directory ({e})") from None
+    X, Y = (mark, cam) if setup == "eye_to_hand" else (cam, mark)
+    if not known:
+        # Seen squarely at the start pose: where the prior predicts the marker there.
+        p0 = (tf.invert(Y) @ T_start @ X)[:3, 3] if setup == "eye_to_hand" else (tf.invert(T_start @ X) @ Y)[:3, 3]
+        X, Y = planning.with_marker_rotation(setup, X, Y, False, [T_start], [None], p0)
+    return X, Y, f"result {prior}"
+
+
+def plan(cfg: Config, out: Path, *, prior: Path | None = None) -> PlanOutput:
+    """Plan the poses of an active run without moving (read-only robot connection): write ``out``
+    (plan.json, see `app.planning`) and a rerun recording beside it."""
+    rng = np.random.default_rng(cfg.calibrate.seed)
+    with devices.open_robot(cfg, read_only=True) as robot, devices.open_camera(cfg, robot) as camera:
+        state = robot.read()
+        X, Y, prior_name = load_prior(cfg, prior, camera, state.T_base_flange)
+        doc, poses, _ = planning.make_plan(cfg, X, Y, state.T_base_flange, state.q, camera.intrinsics, robot, rng,
+                                           prior=prior_name)
+        intrinsics = camera.intrinsics
+    path = planning.write_plan(doc, out)
+    rrd = None
+    if cfg.viz.enabled:
+        rrd = Path(out).with_suffix(".rrd")
+        with Viz(cfg.setup, rrd, viewer=cfg.viz.viewer) as viz:
+            viz.plan(poses, X, Y, intrinsics, planning.camera_view(cfg.calibrate, intrinsics, cfg.marker).marker_size_m)
+    return PlanOutput(doc, path, rrd)
+
+
+def print_plan_summary(out: PlanOutput) -> None:
+    d = out.document
+    print(f"\nplan: {out.path}   setup: {d['setup']}   prior: {d['prior']}")
+    print(f"poses: {len(d['poses'])}   expected robot time: {d['expected_robot_time_s']:.1f} s")
+    print("\n| pose | kind | x, y, z [mm] | marker px | expected 1-sigma [mm] | [deg] |\n|---|---|---|---|---|---|")
+    for p in d["poses"]:
+        xyz = np.asarray(p["T_base_flange"])[:3, 3] * 1e3
+        print(f"| {p['index']} | {p['kind']} | {xyz[0]:.0f}, {xyz[1]:.0f}, {xyz[2]:.0f} | "
+              f"{p['pixel'][0]:.0f}, {p['pixel'][1]:.0f} | {p['expected_sigma_mm']:.2f} | {p['expected_sigma_deg']:.3f} |")
+    if out.recording is not None:
+        print(f"\nrerun recording: {out.recording}  (open with: rerun {out.recording})")
+    print(f"replay on the robot: handeye calibrate -c <config> --poses {out.path}")
 
 
 def all_methods() -> list[str]:

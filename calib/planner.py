@@ -399,8 +399,11 @@ class PosePlanner:
         T_cm = self.marker_in_camera(A)
         p, J = point_jacobian(self.X, self.Y, A, setup=self.setup)
         reasons = self.stats.reasons
-        z = p[:, 2]
-        ok = (z >= v.depth_min_m) & (z <= v.depth_max_m)
+        P = self._point_uncertainty(J)
+        z, k = p[:, 2], self.config.uncertainty_k
+        # The depth limits, too, keep k predicted standard deviations of the marker's depth.
+        sz = k * np.sqrt(np.maximum(P[:, 2, 2], 0.0))
+        ok = (z - sz >= v.depth_min_m) & (z + sz <= v.depth_max_m)
         reasons["depth range"] += int((~ok).sum())
         # Marker normal (its z axis) must point back at the camera: angle to the ray from the marker to the camera.
         n = T_cm[:, :3, 2]
@@ -414,7 +417,7 @@ class PosePlanner:
         pc = np.einsum("nij,kj->nki", T_cm, corners)[..., :3]
         zc = np.where(pc[..., 2] > 1e-3, pc[..., 2], np.nan)
         px = v.project(np.concatenate([pc[..., :2], zc[..., None]], -1))
-        margin = v.margin_px + self.config.uncertainty_k * self._pixel_sigma(p, J)
+        margin = v.margin_px + k * self._pixel_sigma(p, P)
         inside = np.all((px[..., 0] >= margin[:, None]) & (px[..., 0] <= v.width - margin[:, None])
                         & (px[..., 1] >= margin[:, None]) & (px[..., 1] <= v.height - margin[:, None]), axis=1)
         reasons["marker outside the image margin"] += int((ok & ~inside).sum())
@@ -425,12 +428,14 @@ class PosePlanner:
             ok &= clear
         return ok, p, J
 
-    def _pixel_sigma(self, p: np.ndarray, J: np.ndarray) -> np.ndarray:
-        """Largest predicted pixel standard deviation (N,) of the marker center from the parameter uncertainty."""
+    def _point_uncertainty(self, J: np.ndarray) -> np.ndarray:
+        """Covariance (N, 3, 3) of the predicted marker centers from the parameter uncertainty (zero if k = 0)."""
         if self.config.uncertainty_k == 0:
-            return np.zeros(len(p))
-        cov = np.linalg.inv(self.information)
-        P = J @ cov @ np.swapaxes(J, 1, 2)  # (N, 3, 3) covariance of the predicted point
+            return np.zeros((len(J), 3, 3))
+        return J @ np.linalg.inv(self.information) @ np.swapaxes(J, 1, 2)
+
+    def _pixel_sigma(self, p: np.ndarray, P: np.ndarray) -> np.ndarray:
+        """Largest predicted pixel standard deviation (N,) of the marker center, given its covariance P (N, 3, 3)."""
         z = np.maximum(p[:, 2], 1e-3)
         # Pixel Jacobian of the projection, f/z [I2 | -xy/z].
         Jp = np.zeros((len(p), 2, 3))

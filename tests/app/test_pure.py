@@ -99,4 +99,4 @@ def test_stop_on_predicted_uncertainty():
     assert _precise_enough(res, CalibrateConfig(target_sigma_mm=0.5, target_sigma_deg=0.05))
     assert not _precise_enough(res, CalibrateConfig(target_sigma_mm=0.3, target_sigma_deg=0.05))
     assert not _precise_enough(res, CalibrateConfig(target_sigma_mm=0.5, target_sigma_deg=0.02))
-    assert not _precise_enough(res, CalibrateConfig())  # targets 0 = off
+    assert not _precise_enough(res, CalibrateConfig(target_sigma_mm=0.0, target_sigma_deg=0.0))  # 0 = off
