@@ -58,6 +58,10 @@ class RunReport:
     elapsed_s : float
     skip_reasons : dict
         ``{reason: count}`` of this run's skips.
+    n_motions : int
+        Motions the robot made to sample (the return to the start not counted).
+    robot_time_s : float
+        Time spent in those motions (until settled), s.
     """
 
     result: CalibrationResult | None
@@ -67,6 +71,8 @@ class RunReport:
     stopped_by: str
     elapsed_s: float
     skip_reasons: dict = field(default_factory=dict)
+    n_motions: int = 0
+    robot_time_s: float = 0.0
 
 
 def random_pose(T_start: np.ndarray, cfg: CalibrateConfig, rng: np.random.Generator) -> np.ndarray:
@@ -222,7 +228,8 @@ def run_calibration(
             estimate = solve(observations, final=False)
         except CalibrationError as e:
             log.info("no estimate from the %d resumed samples: %s", len(observations), e)
-    n_skipped = 0
+    n_skipped = n_motions = 0
+    robot_time = 0.0
     stopped_by = "max_attempts"
     try:
         for attempt in range(cfg.max_attempts):
@@ -240,7 +247,13 @@ def run_calibration(
                 n_skipped += 1
                 continue
             try:
-                state = robot.move_to(target.T_base_flange)
+                state = robot.read()
+                rot, dist = tf.pose_error(state.T_base_flange, target.T_base_flange)
+                if dist > 1e-3 or rot > np.deg2rad(0.1):  # (a target where the flange stands needs no motion)
+                    t_move = time.monotonic()
+                    state = robot.move_to(target.T_base_flange)
+                    robot_time += time.monotonic() - t_move
+                    n_motions += 1
             except LimitViolationError as e:
                 log.info("pose %d skipped: %s", attempt, e)
                 writer.add_skip(time.time(), f"limit: {e}", T_base_flange=target.T_base_flange)
@@ -284,7 +297,7 @@ def run_calibration(
         viz.event(time.time(), "interrupted by user; robot stopped", "WARN")
     if stopped_by != "interrupted":  # (an interruption has its own event)
         writer.add_event(time.time(), "stopped", stopped_by=stopped_by, n_samples=len(observations),
-                         n_skipped=n_skipped, poses=cfg.poses)
+                         n_skipped=n_skipped, n_motions=n_motions, robot_time_s=robot_time, poses=cfg.poses)
 
     result = None
     if len(observations) >= 3:
@@ -295,7 +308,7 @@ def run_calibration(
             log.error("final solve failed: %s", e)
             writer.add_event(time.time(), "solve_failed", error=str(e))
     return RunReport(result, writer.path, len(observations), n_skipped, stopped_by, time.monotonic() - t0,
-                     dict(writer.skip_reasons))
+                     dict(writer.skip_reasons), n_motions, robot_time)
 
 
 def _precise_enough(estimate: CalibrationResult, cfg: CalibrateConfig) -> bool:

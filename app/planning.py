@@ -42,6 +42,10 @@ log = logging.getLogger(__name__)
 
 PLAN_FORMAT = "handeye-plan"
 PLAN_VERSION = 1
+#: Samples (with marker orientations) before a first estimate for planning is tried ...
+EARLY_SAMPLES = 4
+#: ... and the largest predicted 1-sigma (mm, deg) at which it is trusted to plan with.
+EARLY_MAX_SIGMA = (20.0, 2.0)
 #: Poses a plan file may hold at most (a plan is a handful of motions, not a trajectory).
 MAX_PLAN_POSES = 1000
 
@@ -181,6 +185,8 @@ class OptimalPoses:
             if not self.bootstrap:
                 log.warning("the marker is too close to the image border (or too oblique) for a safe bootstrap")
         if estimate is None:
+            estimate = _early_estimate(setup, observations)
+        if estimate is None:
             while self.bootstrap:
                 T = self.bootstrap.pop(0)
                 q = self.reachable(T, state.q) if self.reachable is not None else None
@@ -200,6 +206,36 @@ class OptimalPoses:
                         dict(planner.stats.reasons))
             return None
         return Target(pose.T_base_flange, "optimal", q=pose.q)
+
+
+def _early_estimate(setup: str, observations):
+    """A first estimate for planning before the run's solver has enough samples (None if not possible).
+
+    From `EARLY_SAMPLES` samples with marker orientations: YQuatT' (paper,
+    from poses), then ML refinement on the marker centers
+    (`calib.refine.refine`), so the estimate and the planner's uncertainty
+    come from the same point model; used only when its predicted 1-sigma is
+    below `EARLY_MAX_SIGMA` (the bootstrap continues otherwise).
+    """
+    from calib.api import solve
+    from calib.refine import refine
+
+    if len(observations) < EARLY_SAMPLES or any(o.T_cam_marker is None or o.point_cov is None
+                                                 for o in observations):
+        return None
+    A = np.array([o.T_base_flange for o in observations])
+    try:
+        start = solve("YQuatT'", A, np.array([o.T_cam_marker for o in observations]), setup=setup)
+        est = refine(start, A, np.array([o.point_cam for o in observations]),
+                     point_cov=np.array([o.point_cov for o in observations]))
+    except CalibrationError as e:
+        log.info("no early estimate from %d samples: %s", len(observations), e)
+        return None
+    s_deg, s_mm = sigma(est.cov)
+    if s_mm > EARLY_MAX_SIGMA[0] or s_deg > EARLY_MAX_SIGMA[1]:
+        log.info("early estimate too uncertain to plan with (%.1f mm, %.2f deg)", s_mm, s_deg)
+        return None
+    return est
 
 
 class FilePoses:

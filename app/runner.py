@@ -118,7 +118,8 @@ def _add_run_summary(path: Path, report: RunReport, poses: str) -> None:
     """Record how the run ended in result.json: samples used, skips, why it stopped, which poses."""
     doc = json.loads(Path(path).read_text(encoding="utf-8"))
     doc["run"] = {"n_samples": report.n_samples, "n_skipped": report.n_skipped, "stopped_by": report.stopped_by,
-                  "poses": poses, "elapsed_s": report.elapsed_s}
+                  "poses": poses, "n_motions": report.n_motions, "robot_time_s": report.robot_time_s,
+                  "elapsed_s": report.elapsed_s}
     Path(path).write_text(json.dumps(doc, indent=2) + "\n", encoding="utf-8")
 
 
@@ -310,7 +311,8 @@ def print_calibration_summary(out: CalibrationOutput) -> None:
     cam = "T_base_cam" if out.setup == "eye_to_hand" else "T_flange_cam"
     print(f"\nsession: {r.session}")
     print(f"setup: {out.setup}   solver: {out.method}   samples: {r.n_samples}   skipped: {r.n_skipped}   "
-          f"stopped by: {r.stopped_by}   time: {r.elapsed_s:.1f} s")
+          f"stopped by: {r.stopped_by}   time: {r.elapsed_s:.1f} s (robot motions: {r.n_motions}, "
+          f"{r.robot_time_s:.1f} s)")
     reasons = sorted(r.skip_reasons.items(), key=lambda kv: -kv[1])[:3]
     if reasons:
         print("most frequent skips: " + "; ".join(f"{n}x {why}" for why, n in reasons))

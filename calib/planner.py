@@ -408,7 +408,9 @@ class PosePlanner:
         # Marker normal (its z axis) must point back at the camera: angle to the ray from the marker to the camera.
         n = T_cm[:, :3, 2]
         cos_view = -np.einsum("ni,ni->n", n, p) / np.maximum(np.linalg.norm(p, axis=1), 1e-9)
-        facing = cos_view >= math.cos(math.radians(v.max_view_angle_deg))
+        # ... by k predicted standard deviations of the camera rotation less than the limit.
+        s_rot = math.sqrt(max(np.linalg.eigvalsh(self.camera_cov()[:3, :3])[-1], 0.0)) if k > 0 else 0.0
+        facing = np.arccos(np.clip(cos_view, -1, 1)) <= math.radians(v.max_view_angle_deg) - k * s_rot
         reasons["view angle"] += int((ok & ~facing).sum())
         ok &= facing
         # Corners inside the image, the margin widened by k predicted pixel sigmas of the center.
