@@ -21,13 +21,18 @@ venv: $(STAMP)
 
 # libusb-1.0-0: open3d. libopenni2-0: the OpenNI2 camera driver (its dummy device is tested).
 SYSLIBS := libusb-1.0.so.0:libusb-1.0-0 libOpenNI2.so.0:libopenni2-0
+# mosquitto: the MQTT broker the alarm tests publish through (real broker on loopback).
+SYSBINS := /usr/sbin/mosquitto:mosquitto
 
 sysdeps:
 	@missing=""; for pair in $(SYSLIBS); do \
 		ldconfig -p | grep -q "$${pair%%:*}" || missing="$$missing $${pair#*:}"; \
 	done; \
+	for pair in $(SYSBINS); do \
+		[ -x "$${pair%%:*}" ] || missing="$$missing $${pair#*:}"; \
+	done; \
 	if [ -n "$$missing" ]; then \
-		echo "installing system libraries:$$missing"; \
+		echo "installing system packages:$$missing"; \
 		$(SUDO) apt-get update -qq && $(SUDO) apt-get install -y -qq $$missing; \
 	fi
 

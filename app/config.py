@@ -22,11 +22,11 @@ from typing import Any
 
 import numpy as np
 
-from calib.errors import ConfigError
-from calib.observation import SETUPS
+from app.errors import ConfigError
+from calib.setup import Setup, check_setup
 
 # Solver names as in the paper; checked against calib.METHODS when the solver
-# layer is imported (app.pipeline), here only for shape.
+# layer is imported (calib.api), here only for shape.
 DEFAULT_METHOD = "YKronT'"
 # Result formats of app.formats.write_result (kept literal: config must load without the exporters).
 EXPORTS = ("yaml", "json", "easy_handeye", "easy_handeye2", "urdf", "ros2_launch")
@@ -212,16 +212,22 @@ class SessionConfig:
 
 @dataclass
 class VizConfig:
-    """``[viz]``: rerun logging (an ``.rrd`` beside the session; live viewer on request)."""
+    """``[viz]``: rerun logging (an ``.rrd`` beside the session; live viewer on request).
+
+    ``viewer_bind`` is the address the live viewer listens on: loopback, so
+    the recording is not served to the network, unless set otherwise.
+    """
 
     SECTION = "viz"
     enabled: bool = True
     viewer: bool = False
+    viewer_bind: str = "127.0.0.1"
     log_images: bool = True
 
     def __post_init__(self):
         _boolean(self, "enabled")
         _boolean(self, "viewer")
+        _string(self, "viewer_bind", allow_empty=False)
         _boolean(self, "log_images")
 
 
@@ -251,7 +257,7 @@ def _default_robot() -> dict:
 
 
 def _default_camera() -> dict:
-    return {"backend": "rendered", "setup": "eye_to_hand"}
+    return {"backend": "rendered", "setup": Setup.EYE_TO_HAND.value}
 
 
 def _default_marker() -> dict:
@@ -268,7 +274,7 @@ class Config:
     """
 
     SECTION = "config"
-    setup: str = "eye_to_hand"
+    setup: Setup = Setup.EYE_TO_HAND
     robot: dict = field(default_factory=_default_robot)
     camera: dict = field(default_factory=_default_camera)
     marker: dict = field(default_factory=_default_marker)
@@ -278,8 +284,7 @@ class Config:
     viz: VizConfig = field(default_factory=VizConfig)
 
     def __post_init__(self):
-        if self.setup not in SETUPS:
-            raise ConfigError(f"setup must be one of {list(SETUPS)}, got {self.setup!r}")
+        self.setup = check_setup(self.setup, error=ConfigError)
         for name in ("robot", "camera", "marker"):
             if not isinstance(getattr(self, name), dict):
                 raise ConfigError(f"[{name}] must be a table, got {getattr(self, name)!r}")

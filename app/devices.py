@@ -1,4 +1,4 @@
-"""Build the parts a run needs from a `Config`: robot, camera, extraction, online estimator, outputs.
+"""Build the parts a run needs from a `Config`: robot, camera, extraction, solver, online estimator, outputs.
 
 The only place the app knows the other layers' config classes; each section
 (``[robot]``, ``[camera]``, ``[marker]``, ``[monitor.online]``) is validated
@@ -12,9 +12,11 @@ from pathlib import Path
 
 import numpy as np
 
-from app.config import Config
-from app.pipeline import Measurement
-from calib.errors import ConfigError
+from app.config import CalibrateConfig, Config
+from app.errors import ConfigError
+from app.viz import Viz
+from calib.errors import ParameterError
+from calib.setup import Setup
 
 #: Result files written into the session directory, by export format.
 RESULT_FILES = {
@@ -33,9 +35,12 @@ def validate(cfg: Config) -> None:
     from drivers.camera.factory import camera_config_from_dict
     from drivers.robot.factory import robot_config_from_dict
 
-    robot_config_from_dict(cfg.robot)
-    camera_config_from_dict(cfg.camera)
-    TargetConfig.from_dict(cfg.marker)
+    for section, check in (("robot", robot_config_from_dict), ("camera", camera_config_from_dict),
+                           ("marker", TargetConfig.from_dict)):
+        try:
+            check(getattr(cfg, section))
+        except ParameterError as e:
+            raise ConfigError(f"[{section}]: {e}") from None
     online_config(cfg)
 
 
@@ -66,12 +71,17 @@ def truth(camera) -> dict:
     c = getattr(camera, "config", None)
     if getattr(c, "backend", None) != "rendered":
         return {}
-    names = ("T_base_cam", "T_flange_marker") if c.setup == "eye_to_hand" else ("T_flange_cam", "T_base_marker")
-    return {n: np.asarray(getattr(c, n), dtype=float) for n in names}
+    return {n: np.asarray(getattr(c, n), dtype=float) for n in (c.setup.camera_name, c.setup.marker_name)}
+
+
+def camera_truth(setup: Setup, truth: dict) -> np.ndarray | None:
+    """The true camera transform (``T_base_cam`` or ``T_flange_cam``) from a truth dict, if it holds one."""
+    key = Setup(setup).camera_name
+    return None if key not in truth else np.asarray(truth[key], dtype=float)
 
 
 def make_measure(cfg: Config):
-    """``measure(frame) -> Measurement`` for the configured target (``[marker]``).
+    """``measure(frame) -> MarkerMeasurement`` for the configured target (``[marker]``).
 
     Raises ``ExtractionError`` (marker not found, bad depth) so the caller skips the frame.
     """
@@ -79,14 +89,33 @@ def make_measure(cfg: Config):
 
     target = TargetConfig.from_dict(cfg.marker)
 
-    def measure(frame) -> Measurement:
-        m = extract(frame.color, frame.depth, frame.intrinsics, target)
-        info = {k: float(v) for k, v in m.info.items() if isinstance(v, (int, float, np.floating, np.integer))}
-        return Measurement(m.point_cam, m.point_cov, m.T_cam_marker, m.pose_cov,
-                           pixel=(float(m.center_px[0]), float(m.center_px[1])),
-                           meta={"marker_kind": m.kind, "extract": info})
+    def measure(frame):
+        return extract(frame.color, frame.depth, frame.intrinsics, target)
 
     return measure
+
+
+def make_solve(cal: CalibrateConfig, setup: Setup, rng: np.random.Generator):
+    """``solve(observations, *, final)``: the configured solver, refined while running too if configured (the
+    stop on the predicted 1-sigma and the pose planner then see the covariance of the result that will be
+    reported); outlier rejection only at the end."""
+    from calib.api import solve_observations
+
+    def solve(observations, *, final: bool):
+        return solve_observations(cal.method, observations, setup,
+                                  refine=cal.refine, robust=cal.robust and final, rng=rng)
+
+    return solve
+
+
+def make_viz(cfg: Config, session: Path) -> Viz:
+    """rerun recording saved as ``<session>/recording.rrd`` (``recording-2.rrd`` ... when resumed; no-op if disabled)."""
+    path, n = session / "recording.rrd", 1
+    while path.exists():
+        n += 1
+        path = session / f"recording-{n}.rrd"
+    return Viz(cfg.setup, path, viewer=cfg.viz.viewer, viewer_bind=cfg.viz.viewer_bind, enabled=cfg.viz.enabled,
+               log_images=cfg.viz.log_images)
 
 
 def online_config(cfg: Config):
@@ -105,11 +134,11 @@ def online_config(cfg: Config):
                 raise ConfigError(f"unknown key monitor.online.detector.{key} (known: {', '.join(sorted(dknown))})")
         try:
             data["detector"] = DetectorConfig(**data["detector"])
-        except ConfigError as e:
+        except ParameterError as e:
             raise ConfigError(f"monitor.online.detector: {e}") from None
     try:
         return OnlineConfig(setup=cfg.setup, **data)
-    except ConfigError as e:
+    except ParameterError as e:
         raise ConfigError(f"monitor.online: {e}") from None
 
 

@@ -31,12 +31,16 @@ from pathlib import Path
 
 import numpy as np
 
-from app.calibrate import random_pose
 from app.config import CalibrateConfig, Config
-from app.pipeline import predicted_pixel, sigma
+from app.errors import ConfigError, SessionError
+from calib import model
 from calib import planner as pl
 from calib import transforms as tf
-from calib.errors import CalibrationError, ConfigError, LimitViolationError, SessionError
+from calib.errors import CalibrationError
+from calib.predict import predicted_pixel
+from calib.result import worst_axis_sigma
+from calib.setup import Setup
+from drivers.errors import LimitViolationError
 
 log = logging.getLogger(__name__)
 
@@ -131,23 +135,44 @@ def with_marker_rotation(setup: str, X, Y, rotation_known: bool, A, T_cam_marker
     return pl.marker_rotation(setup, X, Y, np.asarray(A[0])[None], _facing(np.asarray(point_cam, float))[None])
 
 
+def camera_correction(estimate) -> tuple | None:
+    """``(theta, free)`` of the camera correction a ``solve("auto")`` result estimated (None otherwise),
+    so the planner also plans for the depth scale / offset (and focal scale) it is estimating."""
+    cc = estimate.info.get("camera_correction") if estimate is not None else None
+    if not cc:
+        return None
+    return (np.array([cc[n]["value"] for n in model.CAMERA_PARAMS]),
+            tuple(bool(cc[n]["estimated"]) for n in model.CAMERA_PARAMS))
+
+
 def _estimate_transforms(setup: str, estimate, observations) -> tuple:
     return with_marker_rotation(setup, estimate.X, estimate.Y, estimate.marker_rotation_known,
                                 [o.T_base_flange for o in observations], [o.T_cam_marker for o in observations],
                                 observations[0].point_cam)
 
 
-class RandomPoses:
-    """Uniform poses around the start (`app.calibrate.random_pose`); skips those the estimate puts outside the image."""
+def random_pose(T_start: np.ndarray, cfg: CalibrateConfig, rng: np.random.Generator) -> np.ndarray:
+    """A flange pose around ``T_start``: each axis offset uniform in +-range, tilt <= cfg.tilt_deg.
 
-    def __init__(self, start: np.ndarray, cal: CalibrateConfig, setup: str, intrinsics, rng: np.random.Generator):
-        self.start, self.cal, self.setup, self.intrinsics, self.rng = start, cal, setup, intrinsics, rng
+    The rotation is applied about the flange origin (in the base frame), so the
+    tilt does not swing the flange away from its sampled position.
+    """
+    T_start = tf.check_transform(T_start, "T_start")
+    R = tf.random_rotations(1, np.deg2rad(cfg.tilt_deg), rng)[0]
+    dt = rng.uniform(-cfg.translation_range_m, cfg.translation_range_m, size=3)
+    return tf.make_transform(R @ T_start[:3, :3], T_start[:3, 3] + dt)
+
+
+class RandomPoses:
+    """Uniform poses around the start (`random_pose`); skips those the estimate puts outside the image."""
+
+    def __init__(self, start: np.ndarray, cal: CalibrateConfig, intrinsics, rng: np.random.Generator):
+        self.start, self.cal, self.intrinsics, self.rng = start, cal, intrinsics, rng
         self.done_reason = "max_attempts"
 
     def next(self, state, estimate, observations) -> Target:
         T = random_pose(self.start, self.cal, self.rng)
-        if estimate is not None and predicted_pixel(self.setup, estimate, T, self.intrinsics,
-                                                    self.cal.image_margin_px) is None:
+        if estimate is not None and predicted_pixel(estimate, T, self.intrinsics, self.cal.image_margin_px) is None:
             return Target(T, "random", skip="marker predicted outside the image")
         return Target(T, "random")
 
@@ -196,7 +221,7 @@ class OptimalPoses:
             self.done_reason = "no_estimate_after_bootstrap"
             return None
         X, Y = _estimate_transforms(setup, estimate, observations)
-        planner = pl.PosePlanner(setup, X, Y, self.view, self.pcfg)
+        planner = pl.PosePlanner(setup, X, Y, self.view, self.pcfg, correction=camera_correction(estimate))
         for o in observations:
             planner.add(o.T_base_flange)
         pose = planner.next_pose(self.start, state.T_base_flange, state.q, self.rng, self.reachable)
@@ -231,9 +256,9 @@ def _early_estimate(setup: str, observations):
     except CalibrationError as e:
         log.info("no early estimate from %d samples: %s", len(observations), e)
         return None
-    s_deg, s_mm = sigma(est.cov)
-    if s_mm > EARLY_MAX_SIGMA[0] or s_deg > EARLY_MAX_SIGMA[1]:
-        log.info("early estimate too uncertain to plan with (%.1f mm, %.2f deg)", s_mm, s_deg)
+    s_rot, s_t = est.sigma
+    if s_t * 1e3 > EARLY_MAX_SIGMA[0] or np.degrees(s_rot) > EARLY_MAX_SIGMA[1]:
+        log.info("early estimate too uncertain to plan with (%.1f mm, %.2f deg)", s_t * 1e3, np.degrees(s_rot))
         return None
     return est
 
@@ -253,8 +278,7 @@ class FilePoses:
         if not self.poses:
             return None
         T = self.poses.pop(0)
-        if estimate is not None and predicted_pixel(self.setup, estimate, T, self.intrinsics,
-                                                    self.cal.image_margin_px) is None:
+        if estimate is not None and predicted_pixel(estimate, T, self.intrinsics, self.cal.image_margin_px) is None:
             return Target(T, "file", skip="marker predicted outside the image")
         return Target(T, "file")
 
@@ -265,7 +289,7 @@ def make_pose_source(cfg: Config, robot, intrinsics, start: np.ndarray, rng: np.
     if kind == "optimal":
         return OptimalPoses(cfg, start, camera_view(cfg.calibrate, intrinsics, cfg.marker), robot, rng)
     if kind == "random":
-        return RandomPoses(start, cfg.calibrate, cfg.setup, intrinsics, rng)
+        return RandomPoses(start, cfg.calibrate, intrinsics, rng)
     return FilePoses(Path(kind), cfg.setup, cfg.calibrate, intrinsics)
 
 
@@ -308,9 +332,9 @@ def make_plan(cfg: Config, X, Y, T_start, q_start, intrinsics, robot, rng: np.ra
     T_cur, q_cur = np.asarray(T_start, float), q_start
     check = reachable(robot) if robot is not None else None
     while len(poses) < n:
-        s_deg, s_mm = sigma(poses[-1].cov)
+        s_rot, s_t = worst_axis_sigma(poses[-1].cov)
         if len(poses) >= cal.min_samples and cal.target_sigma_mm > 0 and cal.target_sigma_deg > 0 \
-                and s_mm <= cal.target_sigma_mm and s_deg <= cal.target_sigma_deg:
+                and s_t * 1e3 <= cal.target_sigma_mm and np.degrees(s_rot) <= cal.target_sigma_deg:
             break
         pose = planner.next_pose(T_start, T_cur, q_cur, rng, check)
         if pose is None:
@@ -326,15 +350,16 @@ def plan_document(setup: str, poses: list[pl.PlannedPose], prior: str, T_start, 
     """The ``plan.json`` document (module docstring) of planned poses."""
     rows = []
     for i, p in enumerate(poses):
-        s_deg, s_mm = sigma(p.cov)
+        s_rot, s_t = worst_axis_sigma(p.cov)
+        s_deg, s_mm = float(np.degrees(s_rot)), s_t * 1e3
         rows.append({"index": i, "kind": "start" if i == 0 else "optimal", "T_base_flange": _m(p.T_base_flange),
                      "ur_pose": tf.to_ur_pose(p.T_base_flange).tolist(),
                      "q": None if p.q is None else np.asarray(p.q).tolist(),
                      "pixel": np.asarray(p.pixel).tolist(), "expected_sigma_mm": s_mm, "expected_sigma_deg": s_deg,
                      "travel_s": p.travel_s})
-    cam = "T_base_cam" if setup == "eye_to_hand" else "T_flange_cam"
-    equation = ("A_i X = Y B_i, X = T_flange_marker, Y = T_base_cam" if setup == "eye_to_hand"
-                else "A_i X = Y B_i, X = T_flange_cam, Y = T_base_marker")
+    setup = Setup(setup)
+    cam = setup.camera_name
+    equation = f"A_i X = Y B_i, X = {setup.x_name}, Y = {setup.y_name}"
     return {"format": PLAN_FORMAT, "version": PLAN_VERSION, "setup": setup, "equation": equation,
             "camera_transform": cam, "prior": prior,
             "noise_model": "calib.noise.default_point_cov (depth-dependent marker-center covariance)",
@@ -362,7 +387,7 @@ def read_plan(path: Path) -> dict:
         raise SessionError(f"{path}: not a {PLAN_FORMAT} file (write one with 'handeye plan')")
     if doc.get("version") != PLAN_VERSION:
         raise SessionError(f"{path}: plan version {doc.get('version')!r}, this handeye reads {PLAN_VERSION}")
-    if doc.get("setup") not in ("eye_to_hand", "eye_in_hand"):
+    if doc.get("setup") not in tuple(Setup):
         raise SessionError(f"{path}: setup must be eye_to_hand or eye_in_hand, got {doc.get('setup')!r}")
     poses = doc.get("poses")
     if not isinstance(poses, list) or not 0 < len(poses) <= MAX_PLAN_POSES:

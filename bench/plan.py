@@ -49,7 +49,6 @@ import numpy as np  # noqa: E402
 
 from app import devices, planning  # noqa: E402
 from app.config import load_config  # noqa: E402
-from app.pipeline import sigma  # noqa: E402
 from calib import planner as pl  # noqa: E402
 from calib import transforms as tf  # noqa: E402
 from calib.api import solve  # noqa: E402
@@ -95,7 +94,7 @@ def _cell_config(setup: str, seed: int, host: str, root: Path, poses: str):
 
 def run_strategy(setup: str, strategy: str, seed: int, host: str, root: Path) -> dict:
     """One full calibrate run on the simulated cell; motions, robot time and the outcome."""
-    from app.runner import calibrate
+    from app.commands.calibrate import calibrate
     from drivers.robot import ur_kinematics as kin
 
     poses = strategy
@@ -109,7 +108,8 @@ def run_strategy(setup: str, strategy: str, seed: int, host: str, root: Path) ->
     cfg = _cell_config(setup, seed, host, root, poses)
     out = calibrate(cfg, progress=False)
     r = out.report
-    s_deg, s_mm = sigma(r.result.cov) if r.result is not None and r.result.cov is not None else (math.nan, math.nan)
+    s_rot, s_t = r.result.sigma if r.result is not None and r.result.sigma is not None else (math.nan, math.nan)
+    s_deg, s_mm = math.degrees(s_rot), s_t * 1e3
     err = tf.pose_error(r.result.camera_transform, out.truth) if r.result is not None else (math.nan, math.nan)
     lost = sum(n for why, n in r.skip_reasons.items() if not why.startswith(("limit:", "marker predicted")))
     return {"setup": setup, "strategy": strategy, "seed": seed, "reached": r.stopped_by == "target_sigma",
@@ -203,8 +203,8 @@ def validity_run(setup: str, cfg, robot, state, rng: np.random.Generator, max_po
             except CalibrationError:
                 estimate = None
             if estimate is not None and len(obs) >= 5:
-                s_deg, s_mm = sigma(estimate.cov)
-                if s_mm <= TARGET_MM and s_deg <= TARGET_DEG:
+                s_rot, s_t = estimate.sigma
+                if s_t * 1e3 <= TARGET_MM and math.degrees(s_rot) <= TARGET_DEG:
                     stats["reached"].append(len(obs) - 1)
                     break
     return len(obs)

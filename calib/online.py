@@ -47,12 +47,13 @@ import numpy as np
 from scipy.linalg.lapack import dposv
 from scipy.stats import chi2
 
+from calib import model
 from calib import refine as rf
 from calib import transforms as tf
-from calib.errors import CalibrationError, ConfigError
+from calib.errors import CalibrationError, ParameterError
 from calib.noise import default_point_cov
-from calib.observation import SETUPS
 from calib.result import CalibrationResult, Residuals
+from calib.setup import Setup, check_setup
 
 _I3 = np.eye(3)
 _I6 = np.eye(6)
@@ -144,11 +145,11 @@ class DetectorConfig:
 
     def __post_init__(self):
         if not isinstance(self.window, int) or self.window < 3:
-            raise ConfigError(f"window must be an int >= 3, got {self.window!r}")
+            raise ParameterError(f"window must be an int >= 3, got {self.window!r}")
         if self.long_window is not None and (not isinstance(self.long_window, int) or self.long_window <= self.window):
-            raise ConfigError(f"long_window must be None or an int > window ({self.window}), got {self.long_window!r}")
+            raise ParameterError(f"long_window must be None or an int > window ({self.window}), got {self.long_window!r}")
         if not 0.0 < self.false_alarm_rate < 0.1:
-            raise ConfigError(f"false_alarm_rate must be in (0, 0.1), got {self.false_alarm_rate!r}")
+            raise ParameterError(f"false_alarm_rate must be in (0, 0.1), got {self.false_alarm_rate!r}")
 
 
 class ChangeDetector:
@@ -245,7 +246,7 @@ class OnlineConfig:
         Change-detector settings (default `DetectorConfig()`).
     """
 
-    setup: str = "eye_to_hand"
+    setup: Setup = Setup.EYE_TO_HAND
     forgetting: float = 1.0
     bootstrap: int = 10
     warmup: int = 20
@@ -253,14 +254,13 @@ class OnlineConfig:
     detector: DetectorConfig | None = None
 
     def __post_init__(self):
-        if self.setup not in SETUPS:
-            raise ConfigError(f"setup must be one of {SETUPS}, got {self.setup!r}")
+        self.setup = check_setup(self.setup, error=ParameterError)
         if not 0.9 < self.forgetting <= 1.0:
-            raise ConfigError(f"forgetting must be in (0.9, 1], got {self.forgetting!r}")
+            raise ParameterError(f"forgetting must be in (0.9, 1], got {self.forgetting!r}")
         if not isinstance(self.bootstrap, int) or self.bootstrap < 6:
-            raise ConfigError(f"bootstrap must be an int >= 6, got {self.bootstrap!r}")
+            raise ParameterError(f"bootstrap must be an int >= 6, got {self.bootstrap!r}")
         if not isinstance(self.warmup, int) or self.warmup < 0:
-            raise ConfigError(f"warmup must be an int >= 0, got {self.warmup!r}")
+            raise ParameterError(f"warmup must be an int >= 0, got {self.warmup!r}")
         if self.detector is None:
             self.detector = DetectorConfig()
 
@@ -389,11 +389,11 @@ class OnlineCalibrator:
             except CalibrationError:
                 # Degenerate motions so far: keep buffering (the deque drops the oldest).
                 return OnlineUpdate(self._n, None, None, None, None, 0.0, False)
-            C, K, M = rf._split(res.X, res.Y, As, self.config.setup)
-            problem = rf._Problem(M, ps, rf._whitener(covs))
+            C, K, M = model.split(res.X, res.Y, As, self.config.setup)
+            problem = model.Problem(M, ps, model.whitener(covs))
             self._cols = [tuple(c) for c in C[:3, :3].T.tolist()]
             self._tC, self._tK = tuple(C[:3, 3].tolist()), tuple(K[:3, 3].tolist())
-            info = rf._information(problem, C, K)
+            info = model.information(problem, C, K)
             self._P = np.linalg.inv(info)
             self._I2 = info
             self._buffer.clear()
@@ -408,7 +408,7 @@ class OnlineCalibrator:
         cfg = self.config
         lam = cfg.forgetting
         (m00, m01, m02, m03), (m10, m11, m12, m13), (m20, m21, m22, m23) = a[0], a[1], a[2]
-        if cfg.setup == "eye_to_hand":
+        if cfg.setup == Setup.EYE_TO_HAND:
             t0, t1, t2 = m03, m13, m23
         else:
             # M = A^-1: transpose the rotation in place of the names.
@@ -420,7 +420,7 @@ class OnlineCalibrator:
         w0 = m00 * k0 + m01 * k1 + m02 * k2 + t0 - u0
         w1 = m10 * k0 + m11 * k1 + m12 * k2 + t1 - u1
         w2 = m20 * k0 + m21 * k1 + m22 * k2 + t2 - u2
-        # Row j of d(predicted point)/d[dC, tC, tK] = R_C^T [[w]x, -I, R_M] (refine._point_residuals)
+        # Row j of d(predicted point)/d[dC, tC, tK] = R_C^T [[w]x, -I, R_M] (model.point_residuals)
         # is [c_j x w, -c_j, c_j^T R_M], c_j the j-th column of R_C; the innovation r_j ends the row.
         rows = []
         for (c0, c1, c2), pj in zip(self._cols, p.tolist()):
@@ -516,7 +516,7 @@ class OnlineCalibrator:
         if self._cols is None:
             return None
         K = tf.make_transform(_I3, np.array(self._tK))
-        X, Y = rf._join(self.camera_transform, K, self.config.setup)
+        X, Y = model.join(self.camera_transform, K, self.config.setup)
         return CalibrationResult(
             method="YKronT'+online",
             setup=self.config.setup,

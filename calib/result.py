@@ -12,6 +12,17 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from calib.setup import Setup
+
+
+def worst_axis_sigma(cov) -> tuple[float, float]:
+    """Worst-axis 1-sigma ``(rotation rad, translation m)`` of a 6x6 ``[rotvec, t]`` covariance:
+    the square roots of the largest eigenvalues of its rotation and translation blocks."""
+    cov = np.asarray(cov, dtype=float)
+    s_rot = float(np.sqrt(max(np.linalg.eigvalsh(cov[:3, :3]).max(), 0.0)))
+    s_t = float(np.sqrt(max(np.linalg.eigvalsh(cov[3:, 3:]).max(), 0.0)))
+    return s_rot, s_t
+
 
 @dataclass(frozen=True)
 class Residuals:
@@ -55,7 +66,7 @@ class CalibrationResult:
     """
 
     method: str
-    setup: str
+    setup: Setup
     X: np.ndarray
     Y: np.ndarray
     n_samples: int
@@ -69,28 +80,37 @@ class CalibrationResult:
 
     @property
     def T_base_cam(self) -> np.ndarray:
-        self._require("eye_to_hand", "T_base_cam")
+        self._require(Setup.EYE_TO_HAND, "T_base_cam")
         return self.Y
 
     @property
     def T_flange_marker(self) -> np.ndarray:
-        self._require("eye_to_hand", "T_flange_marker")
+        self._require(Setup.EYE_TO_HAND, "T_flange_marker")
         return self.X
 
     @property
     def T_flange_cam(self) -> np.ndarray:
-        self._require("eye_in_hand", "T_flange_cam")
+        self._require(Setup.EYE_IN_HAND, "T_flange_cam")
         return self.X
 
     @property
     def T_base_marker(self) -> np.ndarray:
-        self._require("eye_in_hand", "T_base_marker")
+        self._require(Setup.EYE_IN_HAND, "T_base_marker")
         return self.Y
 
     @property
     def camera_transform(self) -> np.ndarray:
         """``T_base_cam`` (eye-to-hand) or ``T_flange_cam`` (eye-in-hand)."""
-        return self.Y if self.setup == "eye_to_hand" else self.X
+        return self.Y if self.setup == Setup.EYE_TO_HAND else self.X
+
+    @property
+    def sigma(self) -> tuple[float, float] | None:
+        """Worst-axis 1-sigma of the camera transform from ``cov``: ``(rotation rad, translation m)``, or None.
+
+        The square roots of the largest eigenvalues of the rotation and the
+        translation blocks of the 6x6 ``[rotvec, t]`` covariance.
+        """
+        return None if self.cov is None else worst_axis_sigma(self.cov)
 
     @property
     def rejected(self) -> np.ndarray:
@@ -99,6 +119,6 @@ class CalibrationResult:
             return np.zeros(0, dtype=int)
         return np.flatnonzero(~self.inliers)
 
-    def _require(self, setup: str, name: str) -> None:
+    def _require(self, setup: Setup, name: str) -> None:
         if self.setup != setup:
-            raise AttributeError(f"{name} is defined for setup={setup!r}, this result is {self.setup!r}")
+            raise AttributeError(f"{name} is defined for setup={setup.value!r}, this result is {str(self.setup)!r}")

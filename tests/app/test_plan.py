@@ -10,11 +10,11 @@ import pytest
 from app import devices, planning
 from app.cli import main
 from app.config import load_config
-from app.runner import calibrate
+from app.commands.calibrate import calibrate
 from app.session import read_session
 from calib import planner as pl
 from calib import transforms as tf
-from calib.errors import SessionError
+from app.errors import SessionError
 from drivers.camera.base import CameraIntrinsics
 
 pytestmark = pytest.mark.slow

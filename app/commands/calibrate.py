@@ -1,4 +1,4 @@
-"""Active calibration: move the robot through planned (or random, or listed) poses and sample each one.
+"""``handeye calibrate``: move the robot through planned (or random, or listed) poses, sample each one, solve.
 
 Works for both setups. Eye-to-hand: static camera, marker on the flange,
 ``T_base_flange @ T_flange_marker = T_base_cam @ T_cam_marker``. Eye-in-hand:
@@ -9,6 +9,9 @@ T_cam_marker = T_base_marker``. Either way the paper's ``A_i X = Y B_i``
 
 from __future__ import annotations
 
+import argparse
+import dataclasses
+import json
 import logging
 import time
 from dataclasses import dataclass, field
@@ -17,28 +20,49 @@ from typing import Callable
 
 import numpy as np
 
-from app.config import CalibrateConfig
-from app.pipeline import Measurement, sigma
-from app.session import SessionWriter
+from app import devices, planning
+from app.acquire import take_sample
+from app.commands.common import add_motion_options, add_run_options, confirm_motion, load_config_args, pose_line
+from app.config import CalibrateConfig, Config
+from app.errors import SessionError
+from app.progress import progress_bar, show_sigma
+from app.session import SessionWriter, read_session
 from app.viz import Viz
 from calib import transforms as tf
-from calib.errors import (
-    CalibrationError,
-    ConnectionLostError,
-    DeviceError,
-    ExtractionError,
-    LimitViolationError,
-    RobotStoppedError,
-)
+from calib.errors import CalibrationError
 from calib.observation import Observation
 from calib.result import CalibrationResult
+from calib.setup import Setup
+from calib.vision.extract import MarkerMeasurement
 from drivers.camera.base import Camera, RGBDFrame
+from drivers.errors import DeviceError, LimitViolationError
 from drivers.robot.base import Robot
 
 log = logging.getLogger(__name__)
 
 #: Samples before the first solve is tried (the fewest any solver takes; too few for one raises and is logged).
 MIN_ESTIMATE_SAMPLES = 3
+
+NAME = "calibrate"
+HELP = "active run: move the robot through planned (or random, or listed) poses and calibrate"
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    add_run_options(p)
+    p.add_argument("--yes-move", action="store_true", help="allow robot motion without the confirmation prompt")
+    p.add_argument("--samples", type=int, help="number of samples (overrides calibrate.samples)")
+    p.add_argument("--seed", type=int, help="seed of the random poses (overrides calibrate.seed)")
+    p.add_argument("--method", help="solver, paper name (overrides calibrate.method), e.g. \"YKronT'\"")
+    p.add_argument("--resume", type=Path, help="continue this session (e.g. after a crash or Ctrl-C)")
+    add_motion_options(p)
+
+
+def run(args) -> int:
+    cfg = load_config_args(args)
+    confirm_motion(args.yes_move)
+    out = calibrate(cfg, resume=args.resume)
+    print_calibration_summary(out)
+    return exit_code(out)
 
 
 @dataclass
@@ -75,107 +99,78 @@ class RunReport:
     robot_time_s: float = 0.0
 
 
-def random_pose(T_start: np.ndarray, cfg: CalibrateConfig, rng: np.random.Generator) -> np.ndarray:
-    """A flange pose around ``T_start``: each axis offset uniform in +-range, tilt <= cfg.tilt_deg.
+@dataclass
+class CalibrationOutput:
+    """An active run and where its outputs went."""
 
-    The rotation is applied about the flange origin (in the base frame), so the
-    tilt does not swing the flange away from its sampled position.
-    """
-    T_start = tf.check_transform(T_start, "T_start")
-    R = tf.random_rotations(1, np.deg2rad(cfg.tilt_deg), rng)[0]
-    dt = rng.uniform(-cfg.translation_range_m, cfg.translation_range_m, size=3)
-    return tf.make_transform(R @ T_start[:3, :3], T_start[:3, 3] + dt)
-
-
-def _capture(camera: Camera, not_before: float, tries: int = 10) -> RGBDFrame:
-    """First frame exposed after ``not_before`` (drops frames buffered during the motion)."""
-    for _ in range(tries):
-        frame = camera.read()
-        if frame.t >= not_before:
-            return frame
-    log.warning("no frame newer than %.3f s in %d reads (camera clock behind the robot's?); using frame %d at %.3f s",
-                not_before, tries, frame.index, frame.t)
-    return frame
+    report: RunReport
+    setup: Setup
+    method: str
+    files: dict
+    truth: np.ndarray | None = None
+    recording: Path | None = None
 
 
-def pose_at_frame(robot: Robot, t: float, timeout: float = 1.0) -> np.ndarray:
-    """``robot.pose_at(t)``, waiting up to ``timeout`` s for the robot states around ``t`` to arrive.
+def calibrate(cfg: Config, *, resume: Path | None = None, progress: bool = True) -> CalibrationOutput:
+    """Active calibration with the configured robot and camera (the caller confirmed motion).
 
-    A frame stamped at ``t`` often reaches us before the robot state that
-    follows it (a controller tick is 2-8 ms); interpolation needs both sides.
-    """
-    deadline = time.monotonic() + timeout
-    while True:
-        try:
-            return robot.pose_at(t)
-        except (ConnectionLostError, RobotStoppedError):
-            raise
-        except DeviceError:
-            if time.monotonic() > deadline:
-                raise
-            time.sleep(0.005)
-
-
-def take_sample(
-    robot: Robot,
-    camera: Camera,
-    measure: Callable[[RGBDFrame], Measurement],
-    writer: SessionWriter,
-    viz: Viz,
-    *,
-    not_before: float,
-    save_frames: bool = True,
-    check: Callable[[], str | None] | None = None,
-    pose_kind: str | None = None,
-) -> Observation | None:
-    """Capture one time-synchronised sample and record it (or its skip reason).
-
-    The robot pose is interpolated at the frame's exposure time
-    (``robot.pose_at(frame.t)``), not read after the fact.
-
-    ``check``, if given, is called after the measurement; a returned string is
-    a reason to skip the sample (e.g. the robot moved during the exposure).
-    ``pose_kind`` (e.g. ``"optimal"``, ``"bootstrap"``) is kept in the sample's meta.
+    ``resume``: a session (same setup) to continue; its samples count towards
+    ``calibrate.samples`` and new ones are appended to it.
 
     Returns
     -------
-    Observation or None
-        None when the frame gave no measurement (recorded as a skip).
+    CalibrationOutput
+        The run report (result, session path, counts) and the files written.
     """
-    frame = _capture(camera, not_before)
-    T_base_flange = pose_at_frame(robot, frame.t)
-    viz.robot(frame.t, T_base_flange)
-    color, depth = (frame.color, frame.depth) if save_frames else (None, None)
-    try:
-        m = measure(frame)
-        reason = check() if check is not None else None
-    except ExtractionError as e:
-        reason = str(e)
-    if reason is not None:
-        log.info("frame %d skipped: %s", frame.index, reason)
-        viz.frame(frame.t, frame.color, frame.depth, frame.intrinsics)
-        viz.event(frame.t, f"skip: {reason}", "WARN")
-        writer.add_skip(frame.t, reason, T_base_flange=T_base_flange, color=color, depth=depth)
-        return None
-    viz.frame(frame.t, frame.color, frame.depth, frame.intrinsics, marker_px=m.pixel)
-    meta = {"frame_index": frame.index, **m.meta}
-    if pose_kind is not None:
-        meta["pose_kind"] = pose_kind
-    if frame.truth:
-        meta["truth"] = {k: np.asarray(v).tolist() for k, v in frame.truth.items()}
-    obs = Observation(writer.next_index, frame.t, T_base_flange, m.point_cam, m.point_cov,
-                      m.T_cam_marker, m.pose_cov, meta)
-    return writer.add_sample(obs, color=color, depth=depth)
+    initial = []
+    if resume is not None:
+        previous = read_session(resume)
+        if previous.setup != cfg.setup:
+            raise SessionError(f"session {resume} is {previous.setup}, the config is {cfg.setup}")
+        initial = previous.observations
+    # A resumed run must not replay the poses it already visited.
+    rng = np.random.default_rng([cfg.calibrate.seed, len(initial)])
+    with devices.open_robot(cfg, read_only=False) as robot, devices.open_camera(cfg, robot) as camera:
+        truth = devices.truth(camera)
+        if resume is not None:
+            writer = SessionWriter.resume(resume)
+        else:
+            writer = SessionWriter.create(cfg.session.root, cfg.setup, config=cfg.to_dict(),
+                                          intrinsics=dataclasses.asdict(camera.intrinsics), truth=truth)
+        with writer, devices.make_viz(cfg, writer.path) as viz:
+            recording = viz.rrd_path
+            T_true = devices.camera_truth(cfg.setup, truth)
+            if T_true is not None:
+                viz.truth(T_true)
+            poses = planning.make_pose_source(cfg, robot, camera.intrinsics, robot.read().T_base_flange, rng)
+            with progress_bar(total=cfg.calibrate.samples, initial=len(initial), enabled=progress) as bar:
+                report = run_calibration(robot, camera, devices.make_measure(cfg),
+                                         devices.make_solve(cfg.calibrate, cfg.setup, rng), writer, cfg.calibrate,
+                                         rng, viz, save_frames=cfg.session.save_frames, progress=bar,
+                                         initial=initial, poses=poses)
+    files = devices.write_result(report.result, writer.path, cfg.session.exports) if report.result is not None else {}
+    if "json" in files:
+        _add_run_summary(files["json"], report, cfg.calibrate.poses)
+    return CalibrationOutput(report, cfg.setup, cfg.calibrate.method, files, devices.camera_truth(cfg.setup, truth),
+                             recording)
+
+
+def _add_run_summary(path: Path, report: RunReport, poses: str) -> None:
+    """Record how the run ended in result.json: samples used, skips, why it stopped, which poses, robot time."""
+    doc = json.loads(Path(path).read_text(encoding="utf-8"))
+    doc["run"] = {"n_samples": report.n_samples, "n_skipped": report.n_skipped, "stopped_by": report.stopped_by,
+                  "poses": poses, "n_motions": report.n_motions, "robot_time_s": report.robot_time_s,
+                  "elapsed_s": report.elapsed_s}
+    Path(path).write_text(json.dumps(doc, indent=2) + "\n", encoding="utf-8")
 
 
 def run_calibration(
     robot: Robot,
     camera: Camera,
-    measure: Callable[[RGBDFrame], Measurement],
+    measure: Callable[[RGBDFrame], MarkerMeasurement],
     solve: Callable[..., CalibrationResult],
     writer: SessionWriter,
     cfg: CalibrateConfig,
-    setup: str,
     rng: np.random.Generator,
     viz: Viz,
     *,
@@ -189,14 +184,13 @@ def run_calibration(
     Parameters
     ----------
     robot, camera : connected devices (the robot must allow motion).
-    measure : callable(RGBDFrame) -> Measurement
+    measure : callable(RGBDFrame) -> MarkerMeasurement
         Marker extraction; raises ExtractionError to skip a frame.
     solve : callable(observations, *, final) -> CalibrationResult
         The solver to use (``final=True`` for the last, refined solve).
     writer : SessionWriter
         Every sample and skip is appended and flushed as taken.
     cfg : CalibrateConfig
-    setup : {"eye_to_hand", "eye_in_hand"}
     rng : numpy.random.Generator
         Source of the random poses when ``poses`` is None (seeded from config/CLI).
     viz : Viz
@@ -218,9 +212,7 @@ def run_calibration(
     t0 = time.monotonic()
     start = robot.read().T_base_flange
     if poses is None:
-        from app.planning import RandomPoses  # app.planning builds on this module
-
-        poses = RandomPoses(start, cfg, setup, camera.intrinsics, rng)
+        poses = planning.RandomPoses(start, cfg, camera.intrinsics, rng)
     observations: list[Observation] = list(initial or [])
     estimate: CalibrationResult | None = None
     if len(observations) >= MIN_ESTIMATE_SAMPLES:
@@ -279,6 +271,7 @@ def run_calibration(
                 else:
                     viz.sample(obs, estimate.camera_transform)
                     viz.estimate(obs.t, estimate, observations)
+                    show_sigma(progress, estimate)
                     if len(observations) >= cfg.min_samples and _precise_enough(estimate, cfg):
                         stopped_by = "target_sigma"
                         break
@@ -304,6 +297,7 @@ def run_calibration(
         try:
             result = solve(observations, final=True)
             viz.estimate(observations[-1].t, result, observations)
+            viz.result(observations[-1].t, result)
         except CalibrationError as e:
             log.error("final solve failed: %s", e)
             writer.add_event(time.time(), "solve_failed", error=str(e))
@@ -313,7 +307,61 @@ def run_calibration(
 
 def _precise_enough(estimate: CalibrationResult, cfg: CalibrateConfig) -> bool:
     """Predicted 1-sigma of the camera transform below both targets (a target of 0 disables this)."""
-    if estimate.cov is None or cfg.target_sigma_mm <= 0 or cfg.target_sigma_deg <= 0:
+    if estimate.sigma is None or cfg.target_sigma_mm <= 0 or cfg.target_sigma_deg <= 0:
         return False
-    s_deg, s_mm = sigma(estimate.cov)
-    return s_mm <= cfg.target_sigma_mm and s_deg <= cfg.target_sigma_deg
+    s_rot, s_t = estimate.sigma
+    return s_t * 1e3 <= cfg.target_sigma_mm and np.rad2deg(s_rot) <= cfg.target_sigma_deg
+
+
+def exit_code(out: CalibrationOutput) -> int:
+    """130 after Ctrl-C (samples kept), 1 without a calibration, else 0."""
+    if out.report.stopped_by == "interrupted":
+        return 130
+    return 0 if out.report.result is not None else 1
+
+
+def print_calibration_summary(out: CalibrationOutput) -> None:
+    r = out.report
+    cam = Setup(out.setup).camera_name
+    print(f"\nsession: {r.session}")
+    print(f"setup: {out.setup}   solver: {out.method}   samples: {r.n_samples}   skipped: {r.n_skipped}   "
+          f"stopped by: {r.stopped_by}   time: {r.elapsed_s:.1f} s (robot motions: {r.n_motions}, "
+          f"{r.robot_time_s:.1f} s)")
+    reasons = sorted(r.skip_reasons.items(), key=lambda kv: -kv[1])[:3]
+    if reasons:
+        print("most frequent skips: " + "; ".join(f"{n}x {why}" for why, n in reasons))
+    if r.result is None:
+        print(f"no calibration: {r.n_samples} samples are too few (every skip and its reason is in "
+              f"{r.session / 'samples.jsonl'})")
+        return
+    res = r.result
+    rows = [("estimate " + cam, pose_line(res.camera_transform))]
+    if out.truth is not None:
+        rows.append(("truth    " + cam, pose_line(out.truth)))
+    for name, line in rows:
+        print(f"  {name}: {line}")
+    print()
+    print("| quantity | value |\n|---|---|")
+    print(f"| residual RMS [mm] | {res.residuals.rms_translation * 1e3:.2f} |")
+    print(f"| residual max [mm] | {res.residuals.max_translation * 1e3:.2f} |")
+    if res.sigma is not None:
+        s_rot, s_t = res.sigma
+        print(f"| 1-sigma [mm] | {s_t * 1e3:.2f} |\n| 1-sigma [deg] | {np.rad2deg(s_rot):.3f} |")
+    if out.truth is not None:
+        rot, trans = tf.pose_error(res.camera_transform, out.truth)
+        print(f"| error vs truth [mm] | {trans * 1e3:.2f} |\n| error vs truth [deg] | {np.rad2deg(rot):.3f} |")
+    for kind, path in out.files.items():
+        print(f"| {kind} | {path} |")
+    print_next_steps(out)
+
+
+def print_next_steps(out: CalibrationOutput) -> None:
+    """How to look at the run (rerun) and use its result (ROS 2), as commands to paste."""
+    from app.formats import ros2_command
+    from app.viz import open_command
+
+    print()
+    if out.recording is not None and out.recording.exists():
+        print(f"open the recording:  {open_command(out.recording)}")
+    if out.report.result is not None:
+        print(f"publish in ROS 2:    {ros2_command(out.report.result)}")

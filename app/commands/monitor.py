@@ -1,4 +1,4 @@
-"""Passive monitoring: sample while something else moves the robot, watch for a moved camera.
+"""``handeye monitor``: sample while something else moves the robot, watch for a moved camera.
 
 Read-only: this module never commands a motion. Eye-to-hand (static camera,
 ``Y = T_base_cam``) it detects a bumped camera; eye-in-hand (``X =
@@ -11,6 +11,8 @@ the move once there are enough.
 
 from __future__ import annotations
 
+import argparse
+import dataclasses
 import logging
 import os
 import shlex
@@ -24,19 +26,41 @@ from typing import Callable
 
 import numpy as np
 
-from app.calibrate import take_sample
-from app.config import MonitorConfig
-from app.pipeline import Measurement
-from app.session import SessionWriter
+from app import devices
+from app.acquire import take_sample
+from app.commands.common import add_run_options, load_config_args, pose_line
+from app.config import Config, MonitorConfig
+from app.errors import SessionError
+from app.progress import progress_bar
+from app.session import SessionWriter, read_session
 from app.viz import Viz
 from calib import transforms as tf
 from calib.errors import CalibrationError
 from calib.observation import Observation
 from calib.result import CalibrationResult
+from calib.vision.extract import MarkerMeasurement
 from drivers.camera.base import Camera, RGBDFrame
 from drivers.robot.base import Robot
 
 log = logging.getLogger(__name__)
+
+NAME = "monitor"
+HELP = "passive: sample while the robot works, alarm when the camera moved"
+EXIT_ALARM = 3
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    add_run_options(p)
+    p.add_argument("--reference", type=Path, help="session whose samples give the reference calibration")
+    p.add_argument("--duration", type=float, help="seconds to run (overrides monitor.duration_s)")
+    p.add_argument("--max-samples", type=int, help="stop after this many samples")
+    p.add_argument("--hook", help="command to run on an alarm (overrides monitor.alarm_hook)")
+
+
+def run(args) -> int:
+    report = monitor(load_config_args(args), reference=args.reference)
+    print_monitor_summary(report)
+    return EXIT_ALARM if report.alarms else 0
 
 
 @dataclass
@@ -70,6 +94,32 @@ class MonitorReport:
     elapsed_s: float = 0.0
 
 
+def monitor(cfg: Config, *, reference: Path | None = None, stop=None, progress: bool = True) -> MonitorReport:
+    """Passive monitoring with a read-only robot connection (never moves the robot).
+
+    ``reference``: a previous session (same setup) whose samples prime the
+    online estimator, so change detection starts with the first new sample
+    instead of after the estimator's bootstrap and warm-up.
+    """
+    rng = np.random.default_rng(cfg.calibrate.seed)
+    online = devices.make_online(cfg)
+    if reference is not None:
+        ref = read_session(reference)
+        if ref.setup != cfg.setup:
+            raise SessionError(f"reference session {reference} is {ref.setup}, the config is {cfg.setup}")
+        for obs in ref.observations:
+            online.update(obs.T_base_flange, obs.point_cam, obs.point_cov)
+    with devices.open_robot(cfg, read_only=True) as robot, devices.open_camera(cfg, robot) as camera:
+        writer = SessionWriter.create(cfg.session.root, cfg.setup, config=cfg.to_dict(),
+                                      intrinsics=dataclasses.asdict(camera.intrinsics), truth=devices.truth(camera),
+                                      source="handeye monitor")
+        solve = devices.make_solve(dataclasses.replace(cfg.calibrate, method=cfg.monitor.method), cfg.setup, rng)
+        with writer, devices.make_viz(cfg, writer.path) as viz, progress_bar(enabled=progress) as bar:
+            return run_monitor(robot, camera, devices.make_measure(cfg), online, solve, writer, cfg.monitor,
+                               viz, stop=stop, save_frames=cfg.session.save_frames,
+                               on_sample=lambda obs: bar.update(1))
+
+
 def is_diverse(T: np.ndarray, recent, min_translation_m: float, min_rotation_deg: float) -> bool:
     """True if ``T`` differs from every recent pose by >= the translation OR the rotation threshold."""
     if len(recent) == 0:
@@ -101,12 +151,11 @@ def run_hook(command: str, env: dict) -> None:
 def run_monitor(
     robot: Robot,
     camera: Camera,
-    measure: Callable[[RGBDFrame], Measurement],
+    measure: Callable[[RGBDFrame], MarkerMeasurement],
     online,
     solve: Callable[..., CalibrationResult],
     writer: SessionWriter,
     cfg: MonitorConfig,
-    setup: str,
     viz: Viz,
     *,
     stop: threading.Event | None = None,
@@ -119,13 +168,12 @@ def run_monitor(
     ----------
     robot : Robot connected read-only (this function only reads it).
     camera : Camera
-    measure : callable(RGBDFrame) -> Measurement (raises ExtractionError to skip).
+    measure : callable(RGBDFrame) -> MarkerMeasurement (raises ExtractionError to skip).
     online : calib.online.OnlineCalibrator
         ``update(T_base_flange, point_cam, point_cov) -> OnlineUpdate`` (estimate, cov, alarm).
     solve : callable(observations, *, final) -> CalibrationResult, for the re-estimate.
     writer : SessionWriter
     cfg : MonitorConfig
-    setup : {"eye_to_hand", "eye_in_hand"}
     stop : threading.Event, optional
         Set from another thread to end the run.
     on_sample : callable, optional
@@ -222,3 +270,13 @@ def _reestimate(samples: list[Observation], solve, writer: SessionWriter, viz: V
     viz.estimate(samples[-1].t, res, samples)
     log.info("re-estimated the camera from %d samples after the move", len(samples))
     return res
+
+
+def print_monitor_summary(report: MonitorReport) -> None:
+    print(f"\nsession: {report.session}")
+    print(f"samples: {report.n_samples}   skipped: {report.n_skipped}   alarms: {len(report.alarms)}   "
+          f"time: {report.elapsed_s:.1f} s")
+    for a in report.alarms:
+        print(f"  ALARM camera moved at sample {a.sample_index} ({time.strftime('%H:%M:%S', time.localtime(a.t))})")
+    if report.reestimate is not None:
+        print(f"  re-estimate after the move: {pose_line(report.reestimate.camera_transform)}")

@@ -1,0 +1,124 @@
+"""What the commands that run a cell share: the run options, config loading with overrides, motion consent."""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import sys
+from pathlib import Path
+
+import numpy as np
+
+from calib import transforms as tf
+from calib.errors import HandeyeError
+
+
+def add_run_options(p: argparse.ArgumentParser) -> None:
+    """Options of every command that opens the configured cell (calibrate, monitor, demo)."""
+    p.add_argument("-c", "--config", type=Path, help="TOML config (default: the embedded simulated cell)")
+    p.add_argument("--session-root", type=Path, help="directory for sessions (overrides session.root)")
+    p.add_argument("--no-viz", action="store_true", help="disable rerun logging")
+    p.add_argument("--viewer", action="store_true", help="open a live rerun viewer")
+    p.add_argument("--viewer-bind", help="address the live viewer listens on (default 127.0.0.1, loopback only)")
+    p.add_argument("--no-frames", action="store_true", help="do not store color/depth PNGs in the session")
+
+
+def until_sigma(text: str) -> tuple[float, float]:
+    """``--until-sigma`` value: ``MM,DEG`` (e.g. ``1,0.1``) or ``off``."""
+    if text.strip().lower() in ("off", "0", "0,0"):
+        return 0.0, 0.0
+    try:
+        mm, deg = (float(v) for v in text.split(","))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected MM,DEG (e.g. 1,0.1) or 'off', got {text!r}") from None
+    if not (mm > 0 and deg > 0 and np.isfinite(mm) and np.isfinite(deg)):
+        raise argparse.ArgumentTypeError(f"both targets must be positive numbers, got {text!r}")
+    return mm, deg
+
+
+def add_motion_options(p: argparse.ArgumentParser) -> None:
+    """Where an active run moves (calibrate, demo)."""
+    p.add_argument("--poses", help="'optimal' (information-planned, default), 'random', or a plan.json "
+                   "from 'handeye plan' (overrides calibrate.poses)")
+    p.add_argument("--until-sigma", type=until_sigma, metavar="MM,DEG",
+                   help="stop once the camera's predicted 1-sigma is below both (e.g. 1,0.1; 'off' disables; "
+                   "overrides calibrate.target_sigma_mm/deg)")
+
+
+def apply_overrides(cfg, args):
+    """Copy CLI overrides into the config, re-validating the touched sections."""
+    cal = {}
+    if getattr(args, "samples", None) is not None:
+        cal["samples"] = args.samples
+        cal["min_samples"] = min(cfg.calibrate.min_samples, args.samples)
+    if getattr(args, "seed", None) is not None:
+        cal["seed"] = args.seed
+    if getattr(args, "method", None) is not None:
+        cal["method"] = args.method
+    if getattr(args, "poses", None) is not None:
+        cal["poses"] = args.poses
+    if getattr(args, "until_sigma", None) is not None:
+        cal["target_sigma_mm"], cal["target_sigma_deg"] = args.until_sigma
+    mon = {}
+    if getattr(args, "duration", None) is not None:
+        mon["duration_s"] = args.duration
+    if getattr(args, "max_samples", None) is not None:
+        mon["max_samples"] = args.max_samples
+    if getattr(args, "hook", None) is not None:
+        mon["alarm_hook"] = args.hook
+    viz = {}
+    if getattr(args, "no_viz", False):
+        viz["enabled"] = False
+    if getattr(args, "viewer", False):
+        viz["viewer"] = True
+    if getattr(args, "viewer_bind", None) is not None:
+        viz["viewer_bind"] = args.viewer_bind
+    ses = {}
+    if getattr(args, "session_root", None) is not None:
+        ses["root"] = str(args.session_root)
+    if getattr(args, "no_frames", False):
+        ses["save_frames"] = False
+    return dataclasses.replace(
+        cfg,
+        calibrate=dataclasses.replace(cfg.calibrate, **cal),
+        monitor=dataclasses.replace(cfg.monitor, **mon),
+        viz=dataclasses.replace(cfg.viz, **viz),
+        session=dataclasses.replace(cfg.session, **ses),
+    )
+
+
+def load_config_args(args):
+    """Config file (or the embedded simulated cell) + CLI overrides, every section validated."""
+    from app import devices
+    from app.config import load_config
+    from app.planning import check_poses_option
+
+    cfg = apply_overrides(load_config(args.config), args)
+    devices.validate(cfg)
+    check_poses_option(cfg.calibrate.poses)
+    return cfg
+
+
+def confirm_motion(yes_move: bool, *, stdin=None) -> None:
+    """Require ``--yes-move`` or a "y" at a TTY prompt before any robot motion.
+
+    Raises
+    ------
+    HandeyeError
+        When refused, or when there is no TTY to ask and no flag.
+    """
+    if yes_move:
+        return
+    stdin = stdin or sys.stdin
+    if not stdin.isatty():
+        raise HandeyeError("refusing to move the robot: no terminal to confirm on; pass --yes-move")
+    answer = input("The robot will move to calibration poses around its current pose. Continue? [y/N] ")
+    if answer.strip().lower() not in ("y", "yes"):
+        raise HandeyeError("robot motion not confirmed; nothing moved")
+
+
+def pose_line(T: np.ndarray) -> str:
+    """``xyz [mm] = [...]  quat (x,y,z,w) = [...]`` of a transform, for printing."""
+    xyz, q = tf.to_xyz_quat(T)
+    return (f"xyz [mm] = {np.array2string(xyz * 1e3, precision=2)}  "
+            f"quat (x,y,z,w) = {np.array2string(q, precision=5)}")
