@@ -159,7 +159,11 @@ class MonitorConfig:
 
     A sample is taken when the robot has been still for ``still_s`` and its
     pose differs from each of the last ``diversity_window`` samples by at
-    least ``min_translation_m`` or ``min_rotation_deg``.
+    least ``min_translation_m`` or ``min_rotation_deg``. The samples since the
+    start (or the last alarm) are held in a set of at most ``keep_samples``
+    (0 = unbounded): beyond it, the sample whose loss costs the estimate the
+    least information goes, never one of the ``keep_recent`` newest
+    (`calib.planner.least_informative`, docs/planning.md).
     """
 
     SECTION = "monitor"
@@ -172,6 +176,8 @@ class MonitorConfig:
     duration_s: float = 0.0
     alarm_hook: str = ""
     reestimate_samples: int = 8
+    keep_samples: int = 300
+    keep_recent: int = 50
     method: str = DEFAULT_METHOD
     online: dict = field(default_factory=dict)
 
@@ -185,6 +191,11 @@ class MonitorConfig:
         _positive(self, "duration_s", allow_zero=True)
         _string(self, "alarm_hook")
         _integer(self, "reestimate_samples", 3)
+        _integer(self, "keep_samples", 0)
+        _integer(self, "keep_recent", 0)
+        if self.keep_samples and self.keep_recent >= self.keep_samples:
+            raise ConfigError(f"monitor.keep_recent ({self.keep_recent}) must be below monitor.keep_samples "
+                              f"({self.keep_samples})")
         _string(self, "method", allow_empty=False)
         if not isinstance(self.online, dict):
             raise ConfigError(f"monitor.online must be a table, got {self.online!r}")

@@ -194,6 +194,10 @@ class PlannerConfig:
         object.__setattr__(self, "keep_out", tuple(k if isinstance(k, KeepOut) else KeepOut(*k) for k in self.keep_out))
 
 
+#: A camera model for uses that never screen poses (`least_informative`).
+_NO_VIEW = CameraView(1, 1, 1.0, 1.0, 0.0, 0.0, margin_px=0.0)
+
+
 @dataclass(frozen=True)
 class PlannedPose:
     """One planned pose and what the planner expects from it.
@@ -552,6 +556,46 @@ class PosePlanner:
             self.add(pose.T_base_flange)
             T_cur, q_cur = pose.T_base_flange, pose.q
         return out
+
+
+def least_informative(setup: str, X, Y, A, *, keep_recent: int = 0, correction=None,
+                      point_cov: Callable[[np.ndarray], np.ndarray] = default_point_cov) -> int:
+    """Which sample to drop from a bounded set so that the estimate loses the least: the D-optimal exchange rule.
+
+    For every sample ``i`` but the ``keep_recent`` newest, the loss of
+    removing it is ``log det Sigma_C(I - U_i) - log det Sigma_C(I)`` (the
+    growth of the camera's confidence ellipsoid, `PosePlanner`); the sample
+    with the smallest loss goes. Samples at poses the others already cover
+    carry little information of their own and go first; a lone pose that
+    pins down a direction stays however old it is.
+
+    Parameters
+    ----------
+    setup : {"eye_to_hand", "eye_in_hand"}
+    X, Y : array_like, shape (4, 4)
+        Current estimate (eye-to-hand ``X = T_flange_marker``, ``Y = T_base_cam``;
+        eye-in-hand ``X = T_flange_cam``, ``Y = T_base_marker``).
+    A : array_like, shape (N, 4, 4)
+        ``T_base_flange`` of the samples held, oldest first.
+    keep_recent : int
+        The newest this many are never dropped (they follow the present).
+    correction : (theta, free), optional
+        See `PosePlanner`.
+
+    Returns
+    -------
+    int
+        Index into ``A``.
+    """
+    A = tf.check_transforms(A, "A")
+    if not 0 <= keep_recent < len(A):
+        raise CalibrationError(f"keep_recent must be in [0, {len(A)}), got {keep_recent}")
+    planner = PosePlanner(setup, X, Y, _NO_VIEW, PlannerConfig(uncertainty_k=0), point_cov, correction)
+    U = planner.sample_information(A)
+    info = planner.information + U.sum(axis=0)
+    candidates = U[: len(A) - keep_recent]
+    loss = planner._log_det(info - candidates) - planner._log_det(info)
+    return int(np.argmin(loss))
 
 
 def _invert_stack(T: np.ndarray) -> np.ndarray:
