@@ -17,17 +17,21 @@ cell out for illustration, and a test keeps the two identical.
 
 from __future__ import annotations
 
+import shlex
+import shutil
 import tomllib
 from pathlib import Path
 from typing import Annotated, Any, Literal, Union
 
-from pydantic import Discriminator, Field, Tag, ValidationError, model_validator
+from pydantic import AfterValidator, Discriminator, Field, Tag, ValidationError, field_validator, model_validator
 
 from app import backends  # noqa: F401  every backend registers itself before the unions are built
 from app.errors import ConfigError
+from app.files import read_text_file
 from calib.online import OnlineConfig
 from calib.params import (
     Bool,
+    Float,
     Int,
     NonEmptyStr,
     NonNegativeFloat,
@@ -36,6 +40,7 @@ from calib.params import (
     PositiveFloat,
     PositiveInt,
     Str,
+    Vector3,
     describe,
 )
 from calib.setup import Setup
@@ -46,32 +51,114 @@ from drivers.robot.registry import ROBOTS
 from mocks.render.camera import RenderedCameraConfig
 from mocks.ur_sim.robot import URSimRobotConfig
 
-# Solver names as in the paper; checked against calib.METHODS when a run solves.
-DEFAULT_METHOD = "YKronT'"
+# Solver names as in the paper (or "auto", calib.auto), checked against calib.api at load.
+DEFAULT_METHOD = "auto"
+# The monitor re-estimates from a few samples after a move: the paper's point solver.
+MONITOR_METHOD = "YKronT'"
 # Result formats of app.formats.write_result (kept literal: config must load without the exporters).
 EXPORTS = ("yaml", "json", "easy_handeye", "easy_handeye2", "urdf", "ros2_launch")
 
 
-class CalibrateConfig(Params):
-    """``[calibrate]``: the active run (robot moves through random poses).
+def _method(name: str) -> str:
+    """A solver name `calib.api.solve` knows (its canonical spelling), so a typo fails at load, before any motion."""
+    from calib.api import AUTO, resolve_method
+    from calib.errors import CalibrationError
 
-    Poses are drawn around the start pose: each axis offset uniform in
-    ``+-translation_range_m``, a rotation about a random axis by up to
-    ``tilt_deg``. The run stops at ``samples`` or as soon as the predicted
-    1-sigma of the camera transform falls below both targets (after
-    ``min_samples``).
+    if name.strip().lower() == AUTO:
+        return AUTO
+    try:
+        return resolve_method(name).name
+    except CalibrationError as e:
+        raise ValueError(str(e)) from None
+
+
+def hook_argv(command: str) -> list[str]:
+    """The alarm hook's argument list (split like a shell, run without one); [] for no hook.
+
+    Raises
+    ------
+    ConfigError
+        Naming ``monitor.alarm_hook``: unbalanced quotes, or a program that is
+        neither on ``PATH`` nor an executable file.
+    """
+    if not command.strip():
+        return []
+    try:
+        argv = shlex.split(command)
+    except ValueError as e:
+        raise ConfigError(f"monitor.alarm_hook: cannot split {command!r} into arguments ({e})") from None
+    if not argv:
+        return []
+    if shutil.which(argv[0]) is None:
+        raise ConfigError(f"monitor.alarm_hook: program {argv[0]!r} not found on PATH or not executable")
+    return argv
+
+
+def _hook(command: str) -> str:
+    try:
+        hook_argv(command)
+    except ConfigError as e:
+        raise ValueError(str(e).removeprefix("monitor.alarm_hook: ")) from None
+    return command
+
+
+def _box(box):
+    if not all(lo < hi for lo, hi in zip(*box)):
+        raise ValueError(f"must be [[xmin, ymin, zmin], [xmax, ymax, zmax]] (m) with min < max, got {box!r}")
+    return box
+
+
+def _range(r):
+    if not r[0] < r[1]:
+        raise ValueError(f"must be [min, max] with min < max, got {list(r)}")
+    return r
+
+
+Method = Annotated[NonEmptyStr, AfterValidator(_method)]
+
+
+class CalibrateConfig(Params):
+    """``[calibrate]``: the active run (robot moves through planned, random or listed poses).
+
+    Poses lie around the start pose: each axis offset within
+    ``+-translation_range_m``, a rotation about an axis through the flange by
+    up to ``tilt_deg``. ``poses``: ``"optimal"`` (`calib.planner`: a small
+    model-free bootstrap, then the pose that teaches the estimator most about
+    the camera per second of motion), ``"random"`` (uniform), or a file
+    (``plan.json`` from ``handeye plan``). The run stops at ``samples`` or as
+    soon as the predicted 1-sigma of the camera transform falls below both
+    targets (after ``min_samples``; a target of 0 disables the stop).
+
+    Planner validity (poses that fail are never sent): the marker's corners
+    ``image_margin_px`` inside the image, its center's depth within
+    ``depth_range_m``, its face within ``max_view_angle_deg`` of the camera
+    ray, the flange and the marker (eye-to-hand) / camera (eye-in-hand) at
+    least ``clearance_m`` from every ``keep_out`` box (``[[xmin, ymin, zmin],
+    [xmax, ymax, zmax]]`` in the base frame, m) along the path; the robot
+    driver adds its own limits (joints, workspace box, tilt cone, path).
+    ``lever_max_m`` bounds the flange-to-marker (eye-to-hand) or
+    flange-to-camera (eye-in-hand) distance that the bootstrap's in-view
+    guarantee assumes. ``travel_weight``: information (nats) one second of
+    motion is worth.
     """
 
     samples: Annotated[Int, Field(ge=3)] = 20
     min_samples: Annotated[Int, Field(ge=3)] = 8
-    target_sigma_mm: NonNegativeFloat = 0.0
-    target_sigma_deg: NonNegativeFloat = 0.0
+    target_sigma_mm: NonNegativeFloat = 1.0
+    target_sigma_deg: NonNegativeFloat = 0.1
+    poses: NonEmptyStr = "optimal"
     translation_range_m: Annotated[PositiveFloat, Field(le=1.0)] = 0.15
     tilt_deg: Annotated[PositiveFloat, Field(le=90.0)] = 40.0
     settle_s: NonNegativeFloat = 0.1
     max_attempts: PositiveInt = 200
     image_margin_px: NonNegativeInt = 40
-    method: NonEmptyStr = DEFAULT_METHOD
+    depth_range_m: Annotated[tuple[NonNegativeFloat, NonNegativeFloat], AfterValidator(_range)] = (0.4, 2.0)
+    max_view_angle_deg: Annotated[PositiveFloat, Field(lt=90.0)] = 60.0
+    keep_out: list[Annotated[tuple[Vector3, Vector3], AfterValidator(_box)]] = Field(default_factory=list)
+    clearance_m: NonNegativeFloat = 0.05
+    lever_max_m: NonNegativeFloat = 0.1
+    travel_weight: NonNegativeFloat = 0.05
+    method: Method = DEFAULT_METHOD
     refine: Bool = True
     robust: Bool = False
     seed: NonNegativeInt = 0
@@ -88,9 +175,14 @@ class MonitorConfig(Params):
 
     A sample is taken when the robot has been still for ``still_s`` and its
     pose differs from each of the last ``diversity_window`` samples by at
-    least ``min_translation_m`` or ``min_rotation_deg``. ``[monitor.online]``
-    configures the online estimator and change detector (its setup is the
-    config's).
+    least ``min_translation_m`` or ``min_rotation_deg``. The samples since the
+    start (or the last alarm) are held in a set of at most ``keep_samples``
+    (0 = unbounded): beyond it, the sample whose loss costs the estimate the
+    least information goes, never one of the ``keep_recent`` newest
+    (`calib.planner.least_informative`, docs/planning.md). ``alarm_hook`` is
+    split like a shell line and must name a program on ``PATH``.
+    ``[monitor.online]`` configures the online estimator and change detector
+    (its setup is the config's).
     """
 
     still_s: NonNegativeFloat = 0.3
@@ -100,10 +192,18 @@ class MonitorConfig(Params):
     diversity_window: NonNegativeInt = 10
     max_samples: NonNegativeInt = 0
     duration_s: NonNegativeFloat = 0.0
-    alarm_hook: Str = ""
+    alarm_hook: Annotated[Str, AfterValidator(_hook)] = ""
     reestimate_samples: Annotated[Int, Field(ge=3)] = 8
-    method: NonEmptyStr = DEFAULT_METHOD
+    keep_samples: NonNegativeInt = 300
+    keep_recent: NonNegativeInt = 50
+    method: Method = MONITOR_METHOD
     online: OnlineConfig = Field(default_factory=OnlineConfig)
+
+    @model_validator(mode="after")
+    def _keep(self):
+        if self.keep_samples and self.keep_recent >= self.keep_samples:
+            raise ValueError(f"keep_recent ({self.keep_recent}) must be below keep_samples ({self.keep_samples})")
+        return self
 
 
 class SessionConfig(Params):
@@ -225,21 +325,46 @@ def config_from_dict(data: dict, where: str = "") -> Config:
         raise ConfigError(f"{where + ': ' if where else ''}{describe(e, skip=_TAGS)}") from None
 
 
+#: A config is a few kB; this bounds what a wrong path (a log, a disk image) can cost.
+MAX_CONFIG_BYTES = 1024 * 1024
+#: Deepest nesting of tables/arrays a config may have (ours has 3); deeper input
+#: would otherwise exhaust the TOML parser's recursion.
+MAX_CONFIG_DEPTH = 16
+
+
+def _depth(value, limit: int, level: int = 0) -> int:
+    if level > limit:
+        return level
+    if isinstance(value, dict):
+        return max((_depth(v, limit, level + 1) for v in value.values()), default=level + 1)
+    if isinstance(value, list):
+        return max((_depth(v, limit, level + 1) for v in value), default=level + 1)
+    return level
+
+
 def load_config(path: str | Path | None = None) -> Config:
     """Load and validate a TOML config; ``None`` gives the embedded simulated cell.
 
     Raises
     ------
     ConfigError
-        If the file is missing, not valid TOML, or a field is invalid.
+        If the file is missing, not a regular UTF-8 file, not valid TOML,
+        nested deeper than `MAX_CONFIG_DEPTH`, or a field is invalid; the
+        message names the file and the field.
     """
     if path is None:
         return Config()
     path = Path(path)
     try:
-        data = tomllib.loads(path.read_text(encoding="utf-8"))
-    except FileNotFoundError:
-        raise ConfigError(f"config file not found: {path}") from None
+        text = read_text_file(path, ConfigError, max_bytes=MAX_CONFIG_BYTES)
+    except ConfigError as e:
+        raise ConfigError(f"config file {e}") from None
+    try:
+        data = tomllib.loads(text)
     except tomllib.TOMLDecodeError as e:
         raise ConfigError(f"{path}: invalid TOML: {e}") from None
+    except RecursionError:
+        raise ConfigError(f"{path}: nested deeper than the TOML parser allows") from None
+    if _depth(data, MAX_CONFIG_DEPTH) > MAX_CONFIG_DEPTH:
+        raise ConfigError(f"{path}: nested deeper than {MAX_CONFIG_DEPTH} levels; not a handeye config")
     return config_from_dict(data, str(path))

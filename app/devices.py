@@ -11,6 +11,8 @@ from pathlib import Path
 import numpy as np
 
 from app.config import CalibrateConfig, Config
+from app.errors import ConfigError, SessionError
+from app.session import check_writable_root
 from app.viz import Viz
 from calib.setup import Setup
 from drivers.camera.registry import CAMERAS
@@ -25,6 +27,14 @@ RESULT_FILES = {
     "urdf": "handeye.urdf.xacro",
     "ros2_launch": "handeye.launch.py",
 }
+
+
+def check_session_root(cfg: Config) -> None:
+    """ConfigError naming ``session.root`` unless sessions can be written there (checked before devices open)."""
+    try:
+        check_writable_root(cfg.session.root)
+    except SessionError as e:
+        raise ConfigError(f"session.root: {e}") from None
 
 
 def open_robot(cfg: Config, *, read_only: bool):
@@ -74,12 +84,16 @@ def make_measure(cfg: Config):
 
 
 def make_solve(cal: CalibrateConfig, setup: Setup, rng: np.random.Generator):
-    """``solve(observations, *, final)``: fast unrefined estimates while running, the configured one at the end."""
+    """``solve(observations, *, final)``: the configured solver, refined while running too if configured (the
+    stop on the predicted 1-sigma and the pose planner then see the covariance of the result that will be
+    reported); outlier rejection only at the end."""
     from calib.api import solve_observations
 
     def solve(observations, *, final: bool):
-        return solve_observations(cal.method, observations, setup,
-                                  refine=cal.refine and final, robust=cal.robust and final, rng=rng)
+        # While running, "auto" gives way to its fast closed-form start.
+        method = "YKronT'" if cal.method.strip().lower() == "auto" and not final else cal.method
+        return solve_observations(method, observations, setup,
+                                  refine=cal.refine, robust=cal.robust and final, rng=rng)
 
     return solve
 

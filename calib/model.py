@@ -55,7 +55,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from calib import transforms as tf
-from calib.errors import CalibrationError, DegenerateMotionError
+from calib.errors import CalibrationError, DegenerateMotionError, InsufficientDataError
 from calib.noise import default_point_cov
 from calib.setup import Setup
 
@@ -220,7 +220,8 @@ def check_point_cov(point_cov, n: int) -> np.ndarray | None:
     """Validate a point covariance (3, 3) or (N, 3, 3) and broadcast it to (N, 3, 3); None passes."""
     if point_cov is None:
         return None
-    cov = np.asarray(point_cov, dtype=float)
+    # Variances in m^2: the same bound as coordinates keeps their products finite.
+    cov = tf.as_real_array(point_cov, "point_cov")
     if cov.shape == (3, 3):
         cov = np.broadcast_to(cov, (n, 3, 3))
     if cov.shape != (n, 3, 3):
@@ -536,6 +537,11 @@ def leave_one_out(problem: Problem, C, K, theta=None, point_cov=None) -> tuple[n
         Held-out point prediction error norms, m.
     predicted : ndarray, shape (N,)
         Predicted RMS of each (``sqrt(trace)`` of its covariance), m.
+
+    Raises
+    ------
+    InsufficientDataError
+        When some sample left out leaves the others short of determining the unknowns.
     """
     r, e, J_t, J_e = problem.raw(C, K, theta)
     P = np.swapaxes(problem.W_t, 1, 2) @ problem.W_t
@@ -548,7 +554,13 @@ def leave_one_out(problem: Problem, C, K, theta=None, point_cov=None) -> tuple[n
         Ni = Ni + np.swapaxes(J_e, 1, 2) @ J_e / s2
         g = g + np.einsum("nki,nk->ni", J_e, e) / s2
     Nmat = Ni.sum(axis=0)
-    Nloo_inv = np.linalg.inv(Nmat[None] - Ni)
+    Nloo = Nmat[None] - Ni
+    try:
+        np.linalg.cholesky(Nloo)
+    except np.linalg.LinAlgError:
+        raise InsufficientDataError(f"leave-one-out needs more than {len(r)} samples: without one of them the "
+                                    "others do not determine every unknown") from None
+    Nloo_inv = np.linalg.inv(Nloo)
     # Parameter shift when sample i is removed: -(N - N_i)^-1 g_i; the residual moves by -J_i d.
     d = -np.einsum("nij,nj->ni", Nloo_inv, g)
     r_loo = r - np.einsum("nij,nj->ni", J_t, d)
