@@ -12,9 +12,15 @@ PASSTHROUGH = True
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--vision", action="store_true", help="also run the vision benchmark")
     p.add_argument("--robot", action="store_true", help="also run the robot benchmark")
+    p.add_argument("--model", action="store_true",
+                   help="only the measurement-model / solve('auto') benchmark (bench.model; --quick passes through)")
 
 
 def run(args) -> int:
+    if args.model:
+        from bench import model
+
+        return int(model.main(args.extra) or 0)
     from bench import solvers
 
     rc = int(solvers.main(args.extra) or 0)
