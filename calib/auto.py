@@ -45,6 +45,12 @@ IDENTIFIABLE_SIGMA = {"depth_scale": 0.1, "depth_offset": 0.05, "focal_scale": 0
 #: Only the depth errors, the most common ones (1-2% and millimetres for structured light
 #: and stereo), which also shift predictions most when extrapolating in depth.
 WELL_DETERMINED_SIGMA = {"depth_scale": 0.01, "depth_offset": 0.01, "focal_scale": 0.0}
+#: Fewest samples before camera parameters are considered: below it the held-out test that
+#: admits them is too noisy (with 8 samples it admits metre-scale nonsense).
+MIN_SAMPLES_CAMERA = 12
+#: A camera parameter estimated beyond this is taken as the model absorbing something else
+#: (a bad sample, robot error) and is not used: 5% scale, 30 mm offset, 5% focal.
+PLAUSIBLE = {"depth_scale": 0.05, "depth_offset": 0.03, "focal_scale": 0.05}
 #: Smallest held-out improvement that counts, m (below it noise-free data would choose at random).
 MIN_LOO_GAIN_M = 1e-6
 #: A model variant (orientations, a camera parameter) must lower the held-out point error by this fraction.
@@ -250,6 +256,9 @@ def solve_auto(A, B, *, setup: str, point_cov=None, camera_correction: str = "au
     # depth offset, focal): one joins if the motions determine it well (information matrix), or
     # determine it at all and it lowers the held-out prediction error of the points.
     wanted = _free_for(camera_correction)
+    if any(wanted) and len(A_in) < MIN_SAMPLES_CAMERA:
+        notes.append(f"camera correction not attempted: {len(A_in)} samples, it needs {MIN_SAMPLES_CAMERA}")
+        wanted = (False, False, False)
     fit, free = best.fit, np.zeros(3, dtype=bool)
     for k, name in enumerate(model.CAMERA_PARAMS):
         if not wanted[k]:
@@ -263,6 +272,11 @@ def solve_auto(A, B, *, setup: str, point_cov=None, camera_correction: str = "au
                          f"kept at nominal: {_MOTION_HINT[name]}")
             continue
         cand = _Candidate(fit, *fit.run(best.C, best.K, best.theta, best.noise, tuple(trial)))
+        wild = [n for i, n in enumerate(model.CAMERA_PARAMS) if trial[i] and abs(cand.theta[i]) > PLAUSIBLE[n]]
+        if wild:
+            notes.append(f"{name} not estimated: with it, {', '.join(wild)} came out implausibly large "
+                         "(the model would absorb another error)")
+            continue
         if sigmas[name] <= WELL_DETERMINED_SIGMA[name] or _better(cand, best):
             cand.iterations += best.iterations
             best, free = cand, trial
