@@ -30,7 +30,7 @@ from calib.errors import CalibrationError, InsufficientDataError
 from calib.observation import Observation
 from calib.result import CalibrationResult, Residuals
 from calib.auto import self_check, solve_auto
-from calib.robust import robust_solve
+from calib.robust import default_subset, robust_solve
 from calib.setup import Setup, check_setup
 
 
@@ -116,7 +116,8 @@ def resolve_method(method: str) -> MethodInfo:
 
 
 def _check_inputs(info: MethodInfo, A, B) -> tuple[np.ndarray, np.ndarray]:
-    if info.needs == "poses" and np.ndim(B) == 2:
+    B = tf.as_real_array(B, "B")
+    if info.needs == "poses" and B.ndim == 2:
         point_methods = ", ".join(m.name for m in METHODS.values() if m.needs == "points")
         raise CalibrationError(
             f"{info.name} needs marker poses B of shape (N, 4, 4), got points {np.shape(B)}; "
@@ -265,7 +266,9 @@ def solve(
         return _closed_form(info, A_sub, B_sub, setup)
 
     if robust:
-        result = robust_solve(solve_fn, A, B, setup=setup, point_cov=cov_p,
+        # A subset must be solvable: XKronT needs 5 poses where the default subset has 4.
+        subset = max(info.min_samples, default_subset(points=B.ndim == 2))
+        result = robust_solve(solve_fn, A, B, setup=setup, point_cov=cov_p, min_samples=subset,
                               rng=rng if rng is not None else np.random.default_rng(0))
     else:
         result = solve_fn(A, B)

@@ -298,9 +298,12 @@ def solve_auto(A, B, *, setup: str, point_cov=None, camera_correction: str = "au
         for i, name in enumerate(model.CAMERA_PARAMS)
     }
     X, Y = model.join(C, K, setup)
-    check = self_check(X, Y, A_in, B_in, setup=setup, point_cov=shape_in, noise=noise, theta=theta, free=free,
-                       use_rotation=use_rotation)
-    if check["warning"]:
+    try:
+        check = self_check(X, Y, A_in, B_in, setup=setup, point_cov=shape_in, noise=noise, theta=theta, free=free,
+                           use_rotation=use_rotation)
+    except InsufficientDataError:
+        check = None  # too few samples to hold one out: no self-check, the result stands
+    if check is not None and check["warning"]:
         notes.append(check["warning"])
     r_all = _residuals(X, Y, A, B, setup, theta, use_rotation)
     return CalibrationResult(

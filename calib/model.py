@@ -55,7 +55,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from calib import transforms as tf
-from calib.errors import CalibrationError, DegenerateMotionError
+from calib.errors import CalibrationError, DegenerateMotionError, InsufficientDataError
 from calib.noise import default_point_cov
 from calib.setup import Setup
 
@@ -220,7 +220,8 @@ def check_point_cov(point_cov, n: int) -> np.ndarray | None:
     """Validate a point covariance (3, 3) or (N, 3, 3) and broadcast it to (N, 3, 3); None passes."""
     if point_cov is None:
         return None
-    cov = np.asarray(point_cov, dtype=float)
+    # Variances in m^2: the same bound as coordinates keeps their products finite.
+    cov = tf.as_real_array(point_cov, "point_cov")
     if cov.shape == (3, 3):
         cov = np.broadcast_to(cov, (n, 3, 3))
     if cov.shape != (n, 3, 3):
@@ -552,6 +553,11 @@ def leave_one_out(problem: Problem, C, K, theta=None, point_cov=None) -> tuple[n
         Held-out point prediction error norms, m.
     predicted : ndarray, shape (N,)
         Predicted RMS of each (``sqrt(trace)`` of its covariance), m.
+
+    Raises
+    ------
+    InsufficientDataError
+        When some sample left out leaves the others short of determining the unknowns.
     """
     r, e, J_t, J_e = problem.raw(C, K, theta)
     n, u = len(r), J_t.shape[2]
@@ -566,6 +572,10 @@ def leave_one_out(problem: Problem, C, K, theta=None, point_cov=None) -> tuple[n
     GN = G @ Ninv
     H = GN @ np.swapaxes(G, 1, 2)
     S = np.eye(k) - H
+    # Leverage 1 (an eigenvalue of S at 0): without sample i the others do not determine the unknowns.
+    if np.linalg.eigvalsh(S).min() <= 1e-9:
+        raise InsufficientDataError(f"leave-one-out needs more than {n} samples: without one of them the "
+                                    "others do not determine every unknown")
     r_loo = np.linalg.solve(S, rw[:, :, None])[:, :, 0]
     Winv = np.linalg.inv(W)
     errors = np.linalg.norm(np.einsum("nij,nj->ni", Winv, r_loo[:, :3]), axis=1)

@@ -4,8 +4,9 @@ from __future__ import annotations
 
 import argparse
 
+from app import devices
 from app.commands.calibrate import CalibrationOutput, calibrate, exit_code, print_calibration_summary
-from app.commands.common import add_run_options, load_config_args
+from app.commands.common import add_motion_options, add_run_options, load_config_args
 from app.config import Config
 from app.errors import ConfigError
 
@@ -16,7 +17,8 @@ HELP = "simulated UR10 + rendered camera: calibrate and compare to the truth"
 def add_arguments(p: argparse.ArgumentParser) -> None:
     add_run_options(p)
     p.add_argument("--samples", type=int, help="number of samples (default from the config)")
-    p.add_argument("--seed", type=int, help="seed of the random poses")
+    p.add_argument("--seed", type=int, help="seed of the pose candidates")
+    add_motion_options(p)
 
 
 def run(args) -> int:
@@ -34,7 +36,7 @@ def demo(cfg: Config, *, progress: bool = True) -> CalibrationOutput:
     ConfigError
         If the config names real hardware: the demo moves without asking.
     """
-    if cfg.robot.get("type") != "ur_sim" or cfg.camera.get("backend") != "rendered":
-        raise ConfigError("demo runs only the simulated cell (robot.type = 'ur_sim', camera.backend = 'rendered'); "
+    if not devices.simulated(cfg):
+        raise ConfigError("demo runs only a simulated cell (a simulated robot.type and camera.backend); "
                           "use 'handeye calibrate' for hardware")
     return calibrate(cfg, progress=progress)
