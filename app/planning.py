@@ -48,7 +48,7 @@ log = logging.getLogger(__name__)
 PLAN_FORMAT = "handeye-plan"
 PLAN_VERSION = 1
 #: Samples (with marker orientations) before a first estimate for planning is tried ...
-EARLY_SAMPLES = 4
+EARLY_SAMPLES = 3
 #: ... and the largest predicted 1-sigma (mm, deg) at which it is trusted to plan with.
 EARLY_MAX_SIGMA = (20.0, 2.0)
 #: Poses a plan file may hold at most (a plan is a handful of motions, not a trajectory).
