@@ -35,6 +35,7 @@ from calib.vision.lift import pnp_covariance, solve_pnp
 from calib.vision.markers import BoardSpec, Detection, detect_charuco
 
 from app.formats.common import ImportedSamples, observations_from_poses, read_yaml, transform_from_xyz_quat_fields
+from app.formats.registry import register_import
 
 log = logging.getLogger(__name__)
 
@@ -102,6 +103,14 @@ def _read_image(path: Path):
         return None
 
 
+def _is_industrial_calibration(path: Path, document) -> bool:
+    if path.is_dir():
+        return (path / "cal_data.yaml").exists()
+    data = document()
+    return isinstance(data, dict) and "target_finder" in data and "data" in data
+
+
+@register_import("industrial_calibration", _is_industrial_calibration)
 def load_industrial_calibration(path) -> ImportedSamples:
     """Read an industrial_calibration data set: poses, images -> target poses.
 
