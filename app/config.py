@@ -117,6 +117,7 @@ class CalibrateConfig:
     settle_s: float = 0.1
     max_attempts: int = 200
     image_margin_px: int = 40
+    max_missed_frames: int = 10
     method: str = DEFAULT_METHOD
     refine: bool = True
     robust: bool = False
@@ -138,6 +139,7 @@ class CalibrateConfig:
         _positive(self, "settle_s", allow_zero=True)
         _integer(self, "max_attempts", 1)
         _integer(self, "image_margin_px", 0)
+        _integer(self, "max_missed_frames", 1)
         _method(self, "method")
         _boolean(self, "refine")
         _boolean(self, "robust")
@@ -151,6 +153,11 @@ class MonitorConfig:
     A sample is taken when the robot has been still for ``still_s`` and its
     pose differs from each of the last ``diversity_window`` samples by at
     least ``min_translation_m`` or ``min_rotation_deg``.
+
+    Disk budget: frames (PNG) are kept for the last ``keep_frames`` samples
+    and skips only (default 100, the change detector's long window); the
+    rerun recording is rotated at ``max_recording_mb`` (the current file and
+    one previous, ``recording.old.rrd``, are kept).
     """
 
     SECTION = "monitor"
@@ -165,6 +172,8 @@ class MonitorConfig:
     reestimate_samples: int = 8
     method: str = DEFAULT_METHOD
     online: dict = field(default_factory=dict)
+    keep_frames: int = 100
+    max_recording_mb: float = 500.0
 
     def __post_init__(self):
         _positive(self, "still_s", allow_zero=True)
@@ -180,6 +189,8 @@ class MonitorConfig:
         _method(self, "method")
         if not isinstance(self.online, dict):
             raise ConfigError(f"monitor.online must be a table, got {self.online!r}")
+        _integer(self, "keep_frames", 0)
+        _positive(self, "max_recording_mb")
 
 
 @dataclass
