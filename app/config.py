@@ -26,8 +26,11 @@ from app.errors import ConfigError
 from app.files import read_text_file
 from calib.setup import Setup, check_setup
 
-# Solver names as in the paper (calib.METHODS) or "auto", checked at load.
-DEFAULT_METHOD = "YKronT'"
+# Solver names as in the paper (or "auto", calib.auto); checked against calib.METHODS
+# when the solver layer is imported (calib.api), here only for shape.
+DEFAULT_METHOD = "auto"
+# The monitor re-estimates from a few samples after a move: the paper's point solver.
+MONITOR_METHOD = "YKronT'"
 # Result formats of app.formats.write_result (kept literal: config must load without the exporters).
 EXPORTS = ("yaml", "json", "easy_handeye", "easy_handeye2", "urdf", "ros2_launch")
 
@@ -170,7 +173,7 @@ class MonitorConfig:
     duration_s: float = 0.0
     alarm_hook: str = ""
     reestimate_samples: int = 8
-    method: str = DEFAULT_METHOD
+    method: str = MONITOR_METHOD
     online: dict = field(default_factory=dict)
     keep_frames: int = 100
     max_recording_mb: float = 500.0

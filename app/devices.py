@@ -113,7 +113,9 @@ def make_solve(cal: CalibrateConfig, setup: Setup, rng: np.random.Generator):
     from calib.api import solve_observations
 
     def solve(observations, *, final: bool):
-        return solve_observations(cal.method, observations, setup,
+        # While running, "auto" gives way to its fast closed-form start.
+        method = "YKronT'" if cal.method.strip().lower() == "auto" and not final else cal.method
+        return solve_observations(method, observations, setup,
                                   refine=cal.refine and final, robust=cal.robust and final, rng=rng)
 
     return solve

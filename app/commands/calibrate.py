@@ -28,6 +28,7 @@ from app.progress import progress_bar, show_sigma
 from app.session import SessionWriter, read_session
 from app.viz import Viz
 from calib import transforms as tf
+from calib.auto import report
 from calib.errors import CalibrationError
 from calib.observation import Observation
 from calib.predict import predicted_pixel
@@ -346,7 +347,33 @@ def print_calibration_summary(out: CalibrationOutput) -> None:
         print(f"| error vs truth [mm] | {trans * 1e3:.2f} |\n| error vs truth [deg] | {np.rad2deg(rot):.3f} |")
     for kind, path in out.files.items():
         print(f"| {kind} | {path} |")
+    print_model_summary(res)
     print_next_steps(out)
+
+
+def print_model_summary(res: CalibrationResult) -> None:
+    """Camera correction, noise levels and the self-check of ``res`` (`calib.auto.report`), then any warning."""
+    rep = report(res)
+    if rep is None:
+        return
+    rows = []
+    for name, c in rep.get("camera_correction", {}).items():
+        if c["estimated"]:
+            label = name.replace("_percent", " [%]").replace("_mm", " [mm]").replace("_", " ")
+            rows.append((label, f"{c['value']:+.2f} ± {c['sigma']:.2f}"))
+    if "noise" in rep:
+        rows.append(("robot error [mm] (estimated)", f"{rep['noise']['robot_mm']:.2f}"))
+    check = rep.get("self_check")
+    if check is not None:
+        rows.append(("held-out error [mm] observed / predicted",
+                     f"{check['heldout_observed_mm']:.2f} / {check['heldout_predicted_mm']:.2f}"))
+        rows.append(("chi-square vs camera noise model", f"{check['chi2']:.0f} for {check['dof']} dof"))
+    for name, value in rows:
+        print(f"| {name} | {value} |")
+    for note in rep.get("notes", []):
+        print(f"note: {note}")
+    if check is not None and check["warning"] and check["warning"] not in rep.get("notes", []):
+        print(f"warning: {check['warning']}")
 
 
 def print_next_steps(out: CalibrationOutput) -> None:

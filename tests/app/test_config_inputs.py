@@ -47,7 +47,7 @@ def _edit(tmp_path, old, new, name="c.toml"):
     ("online = {}", "online = {forgetting = \"fast\"}", "monitor.online"),
     ("online = {}", "online = {reset_on_alarm = 1}", "monitor.online"),
     ("online = {}", "online = {bootstrap = true}", "monitor.online"),
-    ('method = "YKronT\'"          # the paper', 'method = "bogus"  # the paper', "calibrate.method"),
+    ('method = "auto"', 'method = "bogus"', "calibrate.method"),
     ('root = "sessions"', 'root = "/etc/hostname/sessions"', "session.root"),
 ])
 def test_bad_field_is_one_line_naming_field_and_file(tmp_path, capsys, old, new, field):
@@ -65,7 +65,7 @@ def test_unknown_method_on_the_command_line_fails_before_any_motion(capsys, loop
 
 
 def test_method_aliases_are_normalised(tmp_path):
-    cfg = load_config(_edit(tmp_path, 'method = "YKronT\'"          # the paper', 'method = "yquatt"  # the paper'))
+    cfg = load_config(_edit(tmp_path, 'method = "auto"', 'method = "yquatt"'))
     assert cfg.calibrate.method == "YQuatT'"
 
 

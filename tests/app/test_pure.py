@@ -90,7 +90,7 @@ def test_config_sections_roundtrip():
                             "calibrate": {"samples": 5, "min_samples": 4}})
     assert cfg.setup == "eye_in_hand" and cfg.calibrate.samples == 5
     assert dataclasses.asdict(config_from_dict(cfg.to_dict())) == cfg.to_dict()
-    assert Config().calibrate.method == "YKronT'"
+    assert Config().calibrate.method == "auto" and Config().monitor.method == "YKronT'"
 
 
 def test_stop_on_predicted_uncertainty():
