@@ -67,6 +67,9 @@ MAX_PATH_DQ, MIN_PATH_STEP = 0.02, 1e-5
 # ur_rtde's own bounds for moveL / moveJ arguments.
 MAX_TOOL_SPEED, MAX_TOOL_ACC = 3.0, 150.0
 MAX_JOINT_SPEED, MAX_JOINT_ACC = 3.14, 40.0
+#: Bounds of ``path_step``: finer than 1 mm (1 mrad) only costs time (1e-7 made a target take 20 s),
+#: coarser than 5 cm could step over a limit or a singular region between two checks.
+PATH_STEP_MIN, PATH_STEP_MAX = 1e-3, 0.05
 
 
 def _vec(value, n: int, name: str) -> tuple[float, ...]:
@@ -178,15 +181,19 @@ class URRobotConfig:
         for name, hi in (("speed", MAX_TOOL_SPEED), ("acceleration", MAX_TOOL_ACC), ("joint_speed", MAX_JOINT_SPEED),
                          ("joint_acceleration", MAX_JOINT_ACC), ("stop_deceleration", MAX_TOOL_ACC)):
             val = getattr(self, name)
-            if not isinstance(val, (int, float)) or not 0 < val <= hi:
+            # A TOML `true` is an int to Python: it must not pass as 1 m/s.
+            if isinstance(val, bool) or not isinstance(val, (int, float)) or not 0 < val <= hi:
                 raise ParameterError(f"URRobotConfig.{name} must be in (0, {hi}], got {val!r}")
         if self.motion not in ("linear", "joint"):
             raise ParameterError(f"URRobotConfig.motion must be 'linear' or 'joint', got {self.motion!r}")
         for name in ("settle_time", "settle_speed", "reach_tolerance", "reach_tolerance_deg", "frozen_timeout",
                      "connect_timeout", "move_timeout", "buffer_seconds", "path_step"):
             val = getattr(self, name)
-            if not isinstance(val, (int, float)) or not math.isfinite(val) or val <= 0:
+            if isinstance(val, bool) or not isinstance(val, (int, float)) or not math.isfinite(val) or val <= 0:
                 raise ParameterError(f"URRobotConfig.{name} must be a positive number, got {val!r}")
+        if not PATH_STEP_MIN <= self.path_step <= PATH_STEP_MAX:
+            raise ParameterError(f"URRobotConfig.path_step must be in [{PATH_STEP_MIN}, {PATH_STEP_MAX}] "
+                                 f"(m of tool travel or rad of the leading joint), got {self.path_step!r}")
         if (self.workspace_min is None) != (self.workspace_max is None):
             raise ParameterError("URRobotConfig.workspace_min and workspace_max must be given together")
         if self.workspace_min is None:

@@ -49,6 +49,10 @@ def _edit(tmp_path, old, new, name="c.toml"):
     ("online = {}", "online = {bootstrap = true}", "monitor.online"),
     ('method = "auto"', 'method = "bogus"', "calibrate.method"),
     ('root = "sessions"', 'root = "/etc/hostname/sessions"', "session.root"),
+    ("speed = 0.5", "speed = true", "speed"),
+    ("acceleration = 2.0", "acceleration = false", "acceleration"),
+    ("speed = 0.5", "speed = 0.5\npath_step = 1e-7", "path_step"),
+    ("speed = 0.5", "speed = 0.5\npath_step = 2.0", "path_step"),
 ])
 def test_bad_field_is_one_line_naming_field_and_file(tmp_path, capsys, old, new, field):
     p = _edit(tmp_path, old, new)
