@@ -176,7 +176,7 @@ class MonitorConfig:
     method: str = MONITOR_METHOD
     online: dict = field(default_factory=dict)
     keep_frames: int = 100
-    max_recording_mb: float = 500.0
+    max_recording_mb: float = 200.0
 
     def __post_init__(self):
         _positive(self, "still_s", allow_zero=True)

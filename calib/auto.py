@@ -29,7 +29,7 @@ from scipy.stats import chi2
 
 from calib import model
 from calib import transforms as tf
-from calib.errors import CalibrationError, InsufficientDataError
+from calib.errors import CalibrationError, DegenerateMotionError, InsufficientDataError
 from calib.result import CalibrationResult, Residuals
 
 #: Allowed values of ``camera_correction``.
@@ -282,9 +282,13 @@ def solve_auto(A, B, *, setup: str, point_cov=None, camera_correction: str = "au
         for i, name in enumerate(model.CAMERA_PARAMS)
     }
     X, Y = model.join(C, K, setup)
-    check = self_check(X, Y, A_in, B_in, setup=setup, point_cov=shape_in, noise=noise, theta=theta, free=free,
-                       use_rotation=use_rotation)
-    if check["warning"]:
+    try:
+        check = self_check(X, Y, A_in, B_in, setup=setup, point_cov=shape_in, noise=noise, theta=theta, free=free,
+                           use_rotation=use_rotation)
+    except CalibrationError as e:
+        check = None  # too few samples to predict each from the others: the result stands unchecked
+        notes.append(str(e))
+    if check is not None and check["warning"]:
         notes.append(check["warning"])
     r_all = _residuals(X, Y, A, B, setup, theta, use_rotation)
     return CalibrationResult(
@@ -436,7 +440,16 @@ def self_check(X, Y, A, B, *, setup: str, point_cov=None, noise: model.NoiseLeve
     dof = max(3 * len(p) - prob.n_params, 1)
     p_value = float(chi2.sf(d2, dof))
     cof = model.robot_cofactor(C, K, prob.M, fit.setup)
-    errors, predicted = model.leave_one_out(prob, C, K, theta, noise.point_cov(fit.shape, cof))
+    # With few samples, leaving one out can leave the rest unable to determine the model:
+    # the held-out prediction is then undefined (a singular or indefinite matrix), not NaN.
+    try:
+        with np.errstate(invalid="ignore", divide="ignore", over="ignore"):
+            errors, predicted = model.leave_one_out(prob, C, K, theta, noise.point_cov(fit.shape, cof))
+    except np.linalg.LinAlgError:
+        errors = predicted = np.full(len(p), np.nan)
+    if not (np.isfinite(errors).all() and np.isfinite(predicted).all()):
+        raise DegenerateMotionError(f"no held-out self-check: the other {len(p) - 1} samples cannot predict "
+                                    "a left-out one (too few samples)")
     obs = float(np.sqrt(np.mean(errors**2)))
     pre = float(np.sqrt(np.mean(predicted**2)))
     ratio = obs / pre if pre > 0 else float("inf")
