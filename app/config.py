@@ -22,6 +22,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+
 from app.errors import ConfigError
 from app.files import read_text_file
 from calib.setup import Setup, check_setup
@@ -101,26 +103,48 @@ def hook_argv(command: str) -> list[str]:
 
 @dataclass
 class CalibrateConfig:
-    """``[calibrate]``: the active run (robot moves through random poses).
+    """``[calibrate]``: the active run (robot moves through planned, random or listed poses).
 
-    Poses are drawn around the start pose: each axis offset uniform in
-    ``+-translation_range_m``, a rotation about a random axis by up to
-    ``tilt_deg``. The run stops at ``samples`` or as soon as the predicted
-    1-sigma of the camera transform falls below both targets (after
-    ``min_samples``).
+    Poses lie around the start pose: each axis offset within
+    ``+-translation_range_m``, a rotation about an axis through the flange by
+    up to ``tilt_deg``. ``poses``: ``"optimal"`` (`calib.planner`: a small
+    model-free bootstrap, then the pose that teaches the estimator most about
+    the camera per second of motion), ``"random"`` (uniform), or a file
+    (``plan.json`` from ``handeye plan``). The run stops at ``samples`` or as
+    soon as the predicted 1-sigma of the camera transform falls below both
+    targets (after ``min_samples``).
+
+    Planner validity (poses that fail are never sent): the marker's corners
+    ``image_margin_px`` inside the image, its center's depth within
+    ``depth_range_m``, its face within ``max_view_angle_deg`` of the camera
+    ray, the flange and the marker (eye-to-hand) / camera (eye-in-hand) at
+    least ``clearance_m`` from every ``keep_out`` box (``[[xmin, ymin, zmin],
+    [xmax, ymax, zmax]]`` in the base frame, m) along the path; the robot
+    driver adds its own limits (joints, workspace box, tilt cone, path).
+    ``lever_max_m`` bounds the flange-to-marker (eye-to-hand) or
+    flange-to-camera (eye-in-hand) distance that the bootstrap's in-view
+    guarantee assumes. ``travel_weight``: information (nats) one second of
+    motion is worth.
     """
 
     SECTION = "calibrate"
     samples: int = 20
     min_samples: int = 8
-    target_sigma_mm: float = 0.0
-    target_sigma_deg: float = 0.0
+    target_sigma_mm: float = 1.0
+    target_sigma_deg: float = 0.1
+    poses: str = "optimal"
     translation_range_m: float = 0.15
     tilt_deg: float = 40.0
     settle_s: float = 0.1
     max_attempts: int = 200
     image_margin_px: int = 40
     max_missed_frames: int = 10
+    depth_range_m: list = field(default_factory=lambda: [0.4, 2.0])
+    max_view_angle_deg: float = 60.0
+    keep_out: list = field(default_factory=list)
+    clearance_m: float = 0.05
+    lever_max_m: float = 0.1
+    travel_weight: float = 0.05
     method: str = DEFAULT_METHOD
     refine: bool = True
     robust: bool = False
@@ -143,6 +167,30 @@ class CalibrateConfig:
         _integer(self, "max_attempts", 1)
         _integer(self, "image_margin_px", 0)
         _integer(self, "max_missed_frames", 1)
+        _string(self, "poses", allow_empty=False)
+        r = self.depth_range_m
+        if (not isinstance(r, (list, tuple)) or len(r) != 2 or any(isinstance(v, bool) or not isinstance(v, (int, float))
+                                                                   or not math.isfinite(v) for v in r)
+                or not 0 <= r[0] < r[1]):
+            raise ConfigError(f"calibrate.depth_range_m must be [min, max] m with 0 <= min < max, got {r!r}")
+        _positive(self, "max_view_angle_deg")
+        if self.max_view_angle_deg >= 90.0:
+            raise ConfigError(f"calibrate.max_view_angle_deg must be < 90, got {self.max_view_angle_deg}")
+        if not isinstance(self.keep_out, list):
+            raise ConfigError(f"calibrate.keep_out must be a list of [[xmin, ymin, zmin], [xmax, ymax, zmax]], "
+                              f"got {self.keep_out!r}")
+        for i, box in enumerate(self.keep_out):
+            try:
+                lo, hi = (np.asarray(v, dtype=float) for v in box)
+                ok = lo.shape == hi.shape == (3,) and np.isfinite(lo).all() and np.isfinite(hi).all() and (lo < hi).all()
+            except (TypeError, ValueError):
+                ok = False
+            if not ok:
+                raise ConfigError(f"calibrate.keep_out[{i}] must be [[xmin, ymin, zmin], [xmax, ymax, zmax]] (m) with "
+                                  f"min < max, got {box!r}")
+        _positive(self, "clearance_m", allow_zero=True)
+        _positive(self, "lever_max_m", allow_zero=True)
+        _positive(self, "travel_weight", allow_zero=True)
         _method(self, "method")
         _boolean(self, "refine")
         _boolean(self, "robust")
@@ -155,7 +203,11 @@ class MonitorConfig:
 
     A sample is taken when the robot has been still for ``still_s`` and its
     pose differs from each of the last ``diversity_window`` samples by at
-    least ``min_translation_m`` or ``min_rotation_deg``.
+    least ``min_translation_m`` or ``min_rotation_deg``. The samples since the
+    start (or the last alarm) are held in a set of at most ``keep_samples``
+    (0 = unbounded): beyond it, the sample whose loss costs the estimate the
+    least information goes, never one of the ``keep_recent`` newest
+    (`calib.planner.least_informative`, docs/planning.md).
 
     Disk budget: frames (PNG) are kept for the last ``keep_frames`` samples
     and skips only (default 100, the change detector's long window); the
@@ -173,6 +225,8 @@ class MonitorConfig:
     duration_s: float = 0.0
     alarm_hook: str = ""
     reestimate_samples: int = 8
+    keep_samples: int = 300
+    keep_recent: int = 50
     method: str = MONITOR_METHOD
     online: dict = field(default_factory=dict)
     keep_frames: int = 100
@@ -189,6 +243,11 @@ class MonitorConfig:
         _string(self, "alarm_hook")
         hook_argv(self.alarm_hook)
         _integer(self, "reestimate_samples", 3)
+        _integer(self, "keep_samples", 0)
+        _integer(self, "keep_recent", 0)
+        if self.keep_samples and self.keep_recent >= self.keep_samples:
+            raise ConfigError(f"monitor.keep_recent ({self.keep_recent}) must be below monitor.keep_samples "
+                              f"({self.keep_samples})")
         _method(self, "method")
         if not isinstance(self.online, dict):
             raise ConfigError(f"monitor.online must be a table, got {self.online!r}")

@@ -109,14 +109,16 @@ def make_measure(cfg: Config):
 
 
 def make_solve(cal: CalibrateConfig, setup: Setup, rng: np.random.Generator):
-    """``solve(observations, *, final)``: fast unrefined estimates while running, the configured one at the end."""
+    """``solve(observations, *, final)``: the configured solver, refined while running too if configured (the
+    stop on the predicted 1-sigma and the pose planner then see the covariance of the result that will be
+    reported); outlier rejection only at the end."""
     from calib.api import solve_observations
 
     def solve(observations, *, final: bool):
         # While running, "auto" gives way to its fast closed-form start.
         method = "YKronT'" if cal.method.strip().lower() == "auto" and not final else cal.method
         return solve_observations(method, observations, setup,
-                                  refine=cal.refine and final, robust=cal.robust and final, rng=rng)
+                                  refine=cal.refine, robust=cal.robust and final, rng=rng)
 
     return solve
 

@@ -16,6 +16,15 @@ from calib.errors import DegenerateMotionError
 from calib.setup import Setup
 
 
+def worst_axis_sigma(cov) -> tuple[float, float]:
+    """Worst-axis 1-sigma ``(rotation rad, translation m)`` of a 6x6 ``[rotvec, t]`` covariance:
+    the square roots of the largest eigenvalues of its rotation and translation blocks."""
+    cov = np.asarray(cov, dtype=float)
+    s_rot = float(np.sqrt(max(np.linalg.eigvalsh(cov[:3, :3]).max(), 0.0)))
+    s_t = float(np.sqrt(max(np.linalg.eigvalsh(cov[3:, 3:]).max(), 0.0)))
+    return s_rot, s_t
+
+
 @dataclass(frozen=True)
 class Residuals:
     """Per-sample residuals of ``A_i X = Y B_i`` at the solution.
@@ -113,12 +122,7 @@ class CalibrationResult:
         The square roots of the largest eigenvalues of the rotation and the
         translation blocks of the 6x6 ``[rotvec, t]`` covariance.
         """
-        if self.cov is None:
-            return None
-        cov = np.asarray(self.cov, dtype=float)
-        s_rot = float(np.sqrt(max(np.linalg.eigvalsh(cov[:3, :3]).max(), 0.0)))
-        s_t = float(np.sqrt(max(np.linalg.eigvalsh(cov[3:, 3:]).max(), 0.0)))
-        return s_rot, s_t
+        return None if self.cov is None else worst_axis_sigma(self.cov)
 
     @property
     def rejected(self) -> np.ndarray:

@@ -6,7 +6,7 @@ import argparse
 
 from app import devices
 from app.commands.calibrate import CalibrationOutput, calibrate, exit_code, print_calibration_summary
-from app.commands.common import add_run_options, load_config_args
+from app.commands.common import add_motion_options, add_run_options, load_config_args
 from app.config import Config
 from app.errors import ConfigError
 
@@ -17,7 +17,8 @@ HELP = "simulated UR10 + rendered camera: calibrate and compare to the truth"
 def add_arguments(p: argparse.ArgumentParser) -> None:
     add_run_options(p)
     p.add_argument("--samples", type=int, help="number of samples (default from the config)")
-    p.add_argument("--seed", type=int, help="seed of the random poses")
+    p.add_argument("--seed", type=int, help="seed of the pose candidates")
+    add_motion_options(p)
 
 
 def run(args) -> int:

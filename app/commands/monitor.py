@@ -34,6 +34,7 @@ from app.progress import progress_bar
 from app.session import SessionWriter, read_session
 from app.viz import Viz
 from calib import transforms as tf
+from calib.planner import least_informative
 from calib.errors import CalibrationError
 from calib.observation import Observation
 from calib.result import CalibrationResult
@@ -84,6 +85,9 @@ class MonitorReport:
     reestimate : CalibrationResult or None
         Solved from the samples after the last alarm (None if too few).
     elapsed_s : float
+    kept : list[int]
+        Indices of the samples held at the end (since the start or the last
+        alarm, bounded by ``keep_samples``, chosen by information).
     """
 
     session: Path
@@ -92,6 +96,7 @@ class MonitorReport:
     alarms: list[Alarm] = field(default_factory=list)
     reestimate: CalibrationResult | None = None
     elapsed_s: float = 0.0
+    kept: list[int] = field(default_factory=list)
 
 
 def monitor(cfg: Config, *, reference: Path | None = None, stop=None, progress: bool = True) -> MonitorReport:
@@ -187,7 +192,8 @@ def run_monitor(
     t0 = time.monotonic()
     report = MonitorReport(writer.path, 0, 0)
     recent: deque = deque(maxlen=max(cfg.diversity_window, 1))
-    after_alarm: list[Observation] = []
+    kept: list[Observation] = []  # since the start or the last alarm; bounded by information
+    n_after_alarm = 0
     still_since: float | None = None
     still_pose: np.ndarray | None = None
     tried_pose: np.ndarray | None = None
@@ -230,6 +236,8 @@ def run_monitor(
             if on_sample is not None:
                 on_sample(obs)
             update = online.update(obs.T_base_flange, obs.point_cam, obs.point_cov)
+            kept.append(obs)
+            _bound(kept, cfg, online)
             viz.sample(obs, update.camera_transform)
             if update.camera_transform is not None:
                 if reference is None:
@@ -238,13 +246,13 @@ def run_monitor(
                 viz.drift(obs.t, float(trans) * 1e3, float(np.rad2deg(rot)))
             if update.alarm:
                 _raise_alarm(report, obs, update, writer, viz, cfg)
-                after_alarm, reference = [], None
+                kept, reference, n_after_alarm = [], None, 0
                 continue
             if report.alarms:
-                after_alarm.append(obs)
+                n_after_alarm += 1
                 # Re-solve every reestimate_samples new samples: cheap, and improves as they accrue.
-                if len(after_alarm) % cfg.reestimate_samples == 0:
-                    report.reestimate = _reestimate(after_alarm, solve, writer, viz) or report.reestimate
+                if n_after_alarm % cfg.reestimate_samples == 0:
+                    report.reestimate = _reestimate(kept, solve, writer, viz) or report.reestimate
     except DeviceError as e:
         # As calibrate does: leave the reason in the session next to the samples it kept, then report it.
         writer.add_event(time.time(), "device_error", error=str(e), n_samples=report.n_samples)
@@ -254,7 +262,22 @@ def run_monitor(
         log.warning("monitor interrupted; %d samples kept in %s", report.n_samples, writer.path)
         writer.add_event(time.time(), "interrupted", n_samples=report.n_samples)
     report.elapsed_s = time.monotonic() - t0
+    report.kept = [o.index for o in kept]
+    writer.add_event(time.time(), "sample_set", indices=report.kept, keep_samples=cfg.keep_samples)
     return report
+
+
+def _bound(kept: list[Observation], cfg: MonitorConfig, online) -> None:
+    """Hold at most ``cfg.keep_samples``: drop the least informative at the online estimate
+    (`calib.planner.least_informative`), the oldest while there is no estimate yet."""
+    if not cfg.keep_samples or len(kept) <= cfg.keep_samples:
+        return
+    estimate = online.result()
+    if estimate is None:
+        kept.pop(0)
+        return
+    A = np.array([o.T_base_flange for o in kept])
+    kept.pop(least_informative(estimate.setup, estimate.X, estimate.Y, A, keep_recent=cfg.keep_recent))
 
 
 def _raise_alarm(report: MonitorReport, obs: Observation, update, writer: SessionWriter, viz: Viz,
