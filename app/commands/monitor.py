@@ -119,7 +119,7 @@ def monitor(cfg: Config, *, reference: Path | None = None, stop=None, progress: 
         writer = SessionWriter.create(cfg.session.root, cfg.setup, config=cfg.to_dict(),
                                       intrinsics=dataclasses.asdict(camera.intrinsics), truth=devices.truth(camera),
                                       source="handeye monitor", keep_frames=cfg.monitor.keep_frames)
-        solve = devices.make_solve(dataclasses.replace(cfg.calibrate, method=cfg.monitor.method), cfg.setup, rng)
+        solve = devices.make_solve(cfg.calibrate.model_copy(update={"method": cfg.monitor.method}), cfg.setup, rng)
         with writer, devices.make_viz(cfg, writer.path) as viz, progress_bar(enabled=progress) as bar:
             return run_monitor(robot, camera, devices.make_measure(cfg), online, solve, writer, cfg.monitor,
                                viz, stop=stop, save_frames=cfg.session.save_frames,

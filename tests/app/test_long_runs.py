@@ -7,7 +7,6 @@
 Eye-to-hand simulated cell (``Y = T_base_cam``).
 """
 
-import dataclasses
 import threading
 
 import numpy as np
@@ -31,8 +30,9 @@ def test_calibrate_gives_up_when_the_marker_is_never_seen(tmp_path, capsys, loop
     text = SIM_TOML.replace('host = "127.0.0.2"', f'host = "{loopback(20)}"').replace("marker_id = 0", "marker_id = 7")
     p.write_text(text.replace("max_missed_frames = 10", "max_missed_frames = 4"))
     assert main(["calibrate", "--yes-move", "-c", str(p), "--session-root", str(tmp_path), "--no-viz"]) == 1
-    out = capsys.readouterr().out
-    assert "stopped by: no_marker" in out and "gave up" in out
+    captured = capsys.readouterr()
+    out = captured.out
+    assert "stopped by: no_marker" in out and "gave up" in out, captured.err
     assert "4x marker 7 of DICT_4X4_50 not found" in out  # what the camera saw
     session = read_session(next(tmp_path.glob("*_eye_to_hand")))
     assert len(session.skipped) == 4 and not session.observations  # 4 motions, not max_attempts = 200
@@ -43,8 +43,8 @@ def test_calibrate_gives_up_when_the_marker_is_never_seen(tmp_path, capsys, loop
 @pytest.mark.slow
 def test_monitor_records_device_error_on_a_dropped_controller(sim_config, tmp_path, loopback):
     cfg = sim_config(loopback(21))
-    cfg = dataclasses.replace(cfg, monitor=dataclasses.replace(cfg.monitor, still_s=0.05, poll_s=0.01,
-                                                               duration_s=30.0))
+    cfg = cfg.model_copy(update={"monitor": cfg.monitor.model_copy(update={"still_s": 0.05, "poll_s": 0.01,
+                                                                           "duration_s": 30.0})})
     rng = np.random.default_rng(0)
     with devices.open_robot(cfg, read_only=True) as robot, devices.open_camera(cfg, robot) as camera:
         dropper = threading.Timer(1.0, lambda: robot.sim.drop(refuse_s=5.0))
