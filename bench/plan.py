@@ -226,6 +226,10 @@ def validity_run(setup: str, cfg, robot, state, rng: np.random.Generator, max_po
                     break
             if not truth.screen(T[None])[0][0]:
                 stats["invalid_view"] += 1
+                why = [k for k, n in truth.stats.reasons.items() if n]
+                print(f"invalid view: {setup} {target.kind} pose after {len(obs)} samples "
+                      f"(estimate {'yes' if estimate is not None else 'no'}): {why}", flush=True)
+                truth.stats.reasons.clear()
         else:
             q = cur.q
         cur = RobotState(0.0, 0.0, T, q, np.zeros(6), 7, 1)
