@@ -158,7 +158,9 @@ class URRobotConfig(Params):
     connect_timeout: PositiveFloat = 5.0
     move_timeout: PositiveFloat = 60.0
     buffer_seconds: PositiveFloat = 5.0
-    path_step: PositiveFloat = 0.01
+    # Finer than 1 mm (1 mrad) only costs time (1e-7 made a target take 20 s); coarser
+    # than 5 cm could step over a limit or a singular region between two checks.
+    path_step: Annotated[Float, Field(ge=1e-3, le=0.05)] = 0.01
 
     @field_validator("model")
     @classmethod
@@ -227,6 +229,7 @@ class URRobot(Robot):
         self._buffer = StateBuffer(config.buffer_seconds)
         self._clock = ClockMapper(config.buffer_seconds)
         self._new_state = threading.Condition()
+        self._state_lock = threading.Lock()  # the TCP offset and the states computed with it
         self._last_ts = None
         self._last_change = 0.0
         self._safety_bits = 0
@@ -263,6 +266,7 @@ class URRobot(Robot):
         self._buffer.clear()
         self._clock.reset()
         self._last_ts = None
+        self._last_change = time.monotonic()  # the stream's age counts from now, not from an old stream
         client = RTDEClient(cfg.host, cfg.frequency, cfg.read_only, RTDE_VARIABLES, self._on_state)
         try:
             client.start(cfg.connect_timeout)
@@ -271,6 +275,8 @@ class URRobot(Robot):
             raise DeviceError(str(exc)) from None
         self._client = client
         try:
+            # First a live stream, then the control calls (which watch the stream while they run).
+            self._wait_first_state()
             if not cfg.read_only:
                 tcp = np.asarray(self._call("getTCPOffset"), dtype=float)
                 if tcp.shape != (6,):
@@ -280,8 +286,9 @@ class URRobot(Robot):
                                 cfg.tcp_offset, tcp.tolist())
             else:
                 tcp = np.asarray(cfg.tcp_offset)
-            self._T_flange_tcp = from_ur_pose(tcp)
-            self._buffer.clear()  # states before the TCP was known carry the wrong flange pose
+            with self._state_lock:  # states before the TCP was known carry the wrong flange pose
+                self._T_flange_tcp = from_ur_pose(tcp)
+                self._buffer.clear()
             self._wait_first_state()
         except BaseException:
             self._close_interfaces()
@@ -336,17 +343,18 @@ class URRobot(Robot):
             return
         self._last_ts = ts
         self._safety_bits = safety_bits
-        self._buffer.append(
-            RobotState(
-                t_host=self._clock.update(ts, t_recv),
-                t_controller=ts,
-                T_base_flange=from_ur_pose(np.asarray(tcp)) @ invert(self._T_flange_tcp),
-                q=np.asarray(q),
-                qd=np.asarray(qd),
-                robot_mode=robot_mode,
-                safety_mode=safety_mode,
+        with self._state_lock:
+            self._buffer.append(
+                RobotState(
+                    t_host=self._clock.update(ts, t_recv),
+                    t_controller=ts,
+                    T_base_flange=from_ur_pose(np.asarray(tcp)) @ invert(self._T_flange_tcp),
+                    q=np.asarray(q),
+                    qd=np.asarray(qd),
+                    robot_mode=robot_mode,
+                    safety_mode=safety_mode,
+                )
             )
-        )
         with self._new_state:
             self._last_change = time.monotonic()
             self._new_state.notify_all()
