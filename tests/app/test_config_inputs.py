@@ -5,7 +5,6 @@ damage to the file, gives a loaded config or a ConfigError -- never another
 exception -- and nothing opens a device (no robot address is used here).
 """
 
-import dataclasses
 import os
 import re
 from pathlib import Path
@@ -47,8 +46,12 @@ def _edit(tmp_path, old, new, name="c.toml"):
     ("online = {}", "online = {forgetting = \"fast\"}", "monitor.online"),
     ("online = {}", "online = {reset_on_alarm = 1}", "monitor.online"),
     ("online = {}", "online = {bootstrap = true}", "monitor.online"),
-    ('method = "auto"             # every measurement', 'method = "bogus"  # the paper', "calibrate.method"),
+    ('method = "auto"', 'method = "bogus"', "calibrate.method"),
     ('root = "sessions"', 'root = "/etc/hostname/sessions"', "session.root"),
+    ("speed = 0.5", "speed = true", "speed"),
+    ("acceleration = 2.0", "acceleration = false", "acceleration"),
+    ("speed = 0.5", "speed = 0.5\npath_step = 1e-7", "path_step"),
+    ("speed = 0.5", "speed = 0.5\npath_step = 2.0", "path_step"),
 ])
 def test_bad_field_is_one_line_naming_field_and_file(tmp_path, capsys, old, new, field):
     p = _edit(tmp_path, old, new)
@@ -65,7 +68,7 @@ def test_unknown_method_on_the_command_line_fails_before_any_motion(capsys, loop
 
 
 def test_method_aliases_are_normalised(tmp_path):
-    cfg = load_config(_edit(tmp_path, 'method = "auto"             # every measurement', 'method = "yquatt"  # the paper'))
+    cfg = load_config(_edit(tmp_path, 'method = "auto"', 'method = "yquatt"'))
     assert cfg.calibrate.method == "YQuatT'"
 
 
@@ -107,8 +110,8 @@ def _load_and_validate(text: str, tmp: Path):
     try:
         cfg = load_config(p)
         # Never create directories where a mutated root points: validate the rest against a temp root.
-        cfg = dataclasses.replace(cfg, session=dataclasses.replace(cfg.session, root=str(tmp / "sessions")))
-        devices.validate(cfg)
+        cfg = cfg.model_copy(update={"session": cfg.session.model_copy(update={"root": str(tmp / "sessions")})})
+        devices.check_session_root(cfg)
     except HandeyeError as e:
         assert "\n" not in str(e) or "invalid TOML" in str(e)
 
@@ -131,7 +134,7 @@ def test_byte_damage_is_loaded_or_a_config_error(tmp_path, pos, junk, cut):
     p.write_bytes(damaged)
     try:
         cfg = load_config(p)
-        cfg = dataclasses.replace(cfg, session=dataclasses.replace(cfg.session, root=str(tmp_path / "sessions")))
-        devices.validate(cfg)
+        cfg = cfg.model_copy(update={"session": cfg.session.model_copy(update={"root": str(tmp_path / "sessions")})})
+        devices.check_session_root(cfg)
     except HandeyeError:
         pass
