@@ -46,6 +46,7 @@ from calib.api import METHODS, closed_form, solve  # noqa: E402
 from calib.errors import HandeyeError  # noqa: E402
 from calib.refine import refine  # noqa: E402
 from calib.robust import robust_solve  # noqa: E402
+from calib.setup import Setup  # noqa: E402
 
 #: Public solver functions of `calib.solvers` taking ``(A, B)`` pose stacks.
 POSE_SOLVERS = {
@@ -88,10 +89,10 @@ class Tally:
 # ------------------------------------------------------------------ solver cases
 
 
-def _base_data(rng: np.random.Generator, n: int, setup: str):
+def _base_data(rng: np.random.Generator, n: int, setup: Setup):
     """A valid (A, B poses, points, point_cov) of ``n`` samples (the paper's simulated round)."""
     d = simulate.paper_setup(n, rng, noise_A=(np.deg2rad(0.5), 0.002), noise_B=(np.deg2rad(0.5), 0.002))
-    B = d.B if setup == "eye_to_hand" else tf.invert(d.B)
+    B = d.B if setup == Setup.EYE_TO_HAND else tf.invert(d.B)
     return d.A.copy(), B.copy(), B[:, :3, 3].copy(), d.point_cov.copy()
 
 
@@ -207,7 +208,7 @@ def _degenerate(A: np.ndarray, B: np.ndarray, p: np.ndarray, rng: np.random.Gene
 
 def solver_case(rng: np.random.Generator):
     """One seeded solver fuzz case: ``(description, thunk)``; the thunk returns a result or raises."""
-    setup = "eye_to_hand" if rng.random() < 0.7 else "eye_in_hand"
+    setup = Setup.EYE_TO_HAND if rng.random() < 0.7 else Setup.EYE_IN_HAND
     n = int(rng.choice([1, 3, 4, 5, 6, 8, 12, 20]))
     A, B, p, cov = _base_data(rng, n, setup)
     A0, B0, p0 = A, B, p

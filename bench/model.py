@@ -39,6 +39,7 @@ from calib.api import METHODS, closed_form  # noqa: E402
 from calib.crossval import cross_validate  # noqa: E402
 from calib.errors import CalibrationError  # noqa: E402
 from calib.refine import cramer_rao_bound, error_vector, nees  # noqa: E402
+from calib.setup import Setup  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 SHARED = Path("/work/shared/datasets")
@@ -67,9 +68,9 @@ def extended_crlb(d: simulate.SimulatedData, robot_rms: float, orientation_sigma
     white (the simulated kinematic error is systematic, so this is the bound
     of an idealised robot with the same error level).
     """
-    C, K, M = model.split(d.X, d.Y, d.A_true, "eye_to_hand")
+    C, K, M = model.split(d.X, d.Y, d.A_true, Setup.EYE_TO_HAND)
     p_true = model.predict_points(C, K[:3, 3], M)
-    cov = d.point_cov + robot_rms**2 * model.robot_cofactor(C, K, M, "eye_to_hand")
+    cov = d.point_cov + robot_rms**2 * model.robot_cofactor(C, K, M, Setup.EYE_TO_HAND)
     B = p_true if orientation_sigma is None else np.concatenate(
         [np.concatenate([d.B_true[:, :3, :3], p_true[:, :, None]], axis=2), d.B_true[:, 3:]], axis=1)
     prob = model.Problem(M, B, model.whitener(cov), sigma_rot=orientation_sigma, free=free)
@@ -246,7 +247,7 @@ def section_plain(rng, trials: int, n: int = 30) -> str:
         d = simulate.realistic_cell(n, rng)
         res = solve("YKronT'", d.A, d.points, refine=True, point_cov=d.point_cov)
         err.append(np.linalg.norm(error_vector(res.Y, d.Y)[3:]))
-        bound.append(cramer_rao_bound(d.X, d.Y, d.A, d.point_cov, setup="eye_to_hand")[1])
+        bound.append(cramer_rao_bound(d.X, d.Y, d.A, d.point_cov, setup=Setup.EYE_TO_HAND)[1])
     e, b = _rms(err), _rms(bound)
     return (f"### Plain cell (paper model, N = {n}, {trials} cells): YKronT'+ML {e * 1e3:.3f} mm RMS, "
             f"CRLB {b * 1e3:.3f} mm, ratio {e / b:.3f}")
