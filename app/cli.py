@@ -62,10 +62,19 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--setup", choices=["eye_to_hand", "eye_in_hand"], help="setup of an imported file")
     p.add_argument("--seed", type=int, default=0, help="seed for randomised (robust) solvers")
 
-    p = sub.add_parser("demo", help="simulated UR10 + rendered camera: calibrate and compare to the truth")
+    p = sub.add_parser("demo", help="simulated UR10 + rendered camera: calibrate and compare to the truth "
+                       "(--monitor: watch a production program, bump the camera, alarm)")
     _common(p)
     p.add_argument("--samples", type=int, help="number of samples (default from the config)")
     p.add_argument("--seed", type=int, help="seed of the random poses")
+    p.add_argument("--monitor", action="store_true", help="passive monitoring instead: the simulated robot runs a "
+                   "looping production program, the camera is bumped partway; exit status 3 on the alarm")
+    p.add_argument("--bump-mm", type=float, default=10.0, help="--monitor: camera shift, mm (default 10; 0 and "
+                   "--bump-deg 0 for no bump)")
+    p.add_argument("--bump-deg", type=float, default=0.5, help="--monitor: camera rotation, deg (default 0.5)")
+    p.add_argument("--bump-after", type=int, default=16, help="--monitor: samples before the bump (default 16)")
+    p.add_argument("--reference", type=Path, help="--monitor: session that arms the change detector at once")
+    p.add_argument("--max-samples", type=int, help="--monitor: stop after this many samples")
 
     sub.add_parser("sim-robot", help="run the simulated UR controller (RTDE) in the foreground; "
                    "other arguments go to mocks.ur_sim (--host 127.0.0.x, --model ur10, --controller 5.11)")
@@ -165,7 +174,7 @@ def cmd_monitor(args) -> int:
 
     cfg = _load(args)
     report = monitor(cfg, reference=args.reference)
-    print_monitor_summary(report)
+    print_monitor_summary(report, cfg.setup)
     return EXIT_ALARM if report.alarms else 0
 
 
@@ -181,10 +190,25 @@ def cmd_replay(args) -> int:
 def cmd_demo(args) -> int:
     from app.runner import demo, print_demo_summary
 
+    if args.monitor:
+        return _demo_monitor(args)
     cfg = _load(args)
     out = demo(cfg)
     print_demo_summary(out)
     return _exit_code(out)
+
+
+def _demo_monitor(args) -> int:
+    from app.production import Bump
+    from app.runner import demo_monitor, print_monitor_summary
+
+    if args.bump_after < 1:
+        raise HandeyeError(f"--bump-after must be >= 1, got {args.bump_after}")
+    cfg = _load(args)
+    bump = Bump(args.bump_after, args.bump_mm, args.bump_deg) if (args.bump_mm or args.bump_deg) else None
+    report = demo_monitor(cfg, bump=bump, reference=args.reference, max_samples=args.max_samples)
+    print_monitor_summary(report, cfg.setup)
+    return EXIT_ALARM if report.alarms else 0
 
 
 def cmd_sim_robot(args) -> int:

@@ -60,6 +60,17 @@ class MonitorReport:
     reestimate : CalibrationResult or None
         Solved from the samples after the last alarm (None if too few).
     elapsed_s : float
+    estimate : ndarray (4, 4) or None
+        The online estimator's latest camera transform (``T_base_cam``
+        eye-to-hand, ``T_flange_cam`` eye-in-hand).
+    estimate_cov : ndarray (6, 6) or None
+        Its covariance (`calib.result` convention).
+    drift : (float, float) or None
+        ``(mm, deg)`` of the latest estimate against the reference (the
+        reference session's estimate, else the first online estimate since
+        the start or the last alarm).
+    samples_until_armed : int
+        Change detector state at the end (0: armed).
     """
 
     session: Path
@@ -68,6 +79,19 @@ class MonitorReport:
     alarms: list[Alarm] = field(default_factory=list)
     reestimate: CalibrationResult | None = None
     elapsed_s: float = 0.0
+    estimate: np.ndarray | None = None
+    estimate_cov: np.ndarray | None = None
+    drift: tuple[float, float] | None = None
+    samples_until_armed: int = 0
+
+    @property
+    def last_alarm(self) -> Alarm | None:
+        return self.alarms[-1] if self.alarms else None
+
+
+def detector_state(n: int) -> str:
+    """``"armed"`` or ``"armed after N more samples"`` (from `OnlineCalibrator.samples_until_armed`)."""
+    return "armed" if n == 0 else f"armed after {n} more sample{'s' if n != 1 else ''}"
 
 
 def is_diverse(T: np.ndarray, recent, min_translation_m: float, min_rotation_deg: float) -> bool:
@@ -112,6 +136,9 @@ def run_monitor(
     stop: threading.Event | None = None,
     save_frames: bool = True,
     on_sample: Callable[[Observation], None] | None = None,
+    on_update: Callable[[Observation, object, MonitorReport], None] | None = None,
+    reference: np.ndarray | None = None,
+    say: Callable[[str], None] = log.info,
 ) -> MonitorReport:
     """Passive run until ``cfg.max_samples``, ``cfg.duration_s``, ``stop`` or Ctrl-C.
 
@@ -130,6 +157,15 @@ def run_monitor(
         Set from another thread to end the run.
     on_sample : callable, optional
         Called with each accepted sample (progress display).
+    on_update : callable(obs, OnlineUpdate, MonitorReport), optional
+        Called after each sample was fused (and an alarm handled): live
+        displays and publishers (MQTT) read the estimate, drift and alarms there.
+    reference : ndarray (4, 4), optional
+        Camera transform the drift is measured against (the reference
+        session's); default: the first online estimate.
+    say : callable(str)
+        Where the change detector's state changes are told ("armed", "armed
+        after N more samples").
     """
     t0 = time.monotonic()
     report = MonitorReport(writer.path, 0, 0)
@@ -138,7 +174,8 @@ def run_monitor(
     still_since: float | None = None
     still_pose: np.ndarray | None = None
     tried_pose: np.ndarray | None = None
-    reference: np.ndarray | None = None
+    report.samples_until_armed = online.samples_until_armed
+    say(f"change detector: {detector_state(report.samples_until_armed)}")
     try:
         while True:
             if stop is not None and stop.is_set():
@@ -181,10 +218,21 @@ def run_monitor(
                 if reference is None:
                     reference = update.camera_transform
                 rot, trans = tf.pose_error(update.camera_transform, reference)
-                viz.drift(obs.t, float(trans) * 1e3, float(np.rad2deg(rot)))
+                report.estimate, report.estimate_cov = update.camera_transform, update.cov
+                report.drift = (float(trans) * 1e3, float(np.rad2deg(rot)))
+                viz.drift(obs.t, *report.drift)
+            armed_before, report.samples_until_armed = report.samples_until_armed, online.samples_until_armed
             if update.alarm:
                 _raise_alarm(report, obs, update, writer, viz, cfg)
-                after_alarm, reference = [], None
+                # The reference stays: the drift of the re-learnt camera against it is how far it moved.
+                after_alarm = []
+                say(f"change detector: re-{detector_state(report.samples_until_armed)} "
+                    "(learning the moved camera from new samples)")
+            elif armed_before and not report.samples_until_armed:
+                say(f"change detector: armed (sample {obs.index})")
+            if on_update is not None:
+                on_update(obs, update, report)
+            if update.alarm:
                 continue
             if report.alarms:
                 after_alarm.append(obs)

@@ -31,3 +31,27 @@ def show_sigma(bar, cov) -> None:
         return
     s_deg, s_mm = sigma(cov)
     bar.set_postfix_str(f"1σ {s_mm:.2f} mm {s_deg:.3f}°")
+
+
+def say(text: str) -> None:
+    """A status line for the user, above any open progress bar."""
+    from tqdm import tqdm
+
+    tqdm.write(text)
+
+
+def show_monitor(bar, report) -> None:
+    """Detector state, live 1-sigma and drift beside the monitor's bar."""
+    if bar is None or not hasattr(bar, "set_postfix_str"):
+        return
+    from app.monitor import detector_state
+
+    parts = [detector_state(report.samples_until_armed).replace(" more samples", "").replace(" more sample", "")]
+    if report.estimate_cov is not None:
+        s_deg, s_mm = sigma(report.estimate_cov)
+        parts.append(f"1σ {s_mm:.2f} mm {s_deg:.3f}°")
+    if report.drift is not None:
+        parts.append(f"drift {report.drift[0]:.1f} mm {report.drift[1]:.2f}°")
+    if report.alarms:
+        parts.append(f"ALARMS {len(report.alarms)}")
+    bar.set_postfix_str(", ".join(parts))

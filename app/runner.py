@@ -21,12 +21,13 @@ from app.calibrate import RunReport, run_calibration
 from app.config import CalibrateConfig, Config
 from app.monitor import MonitorReport, run_monitor
 from app.pipeline import sigma, solve_observations
-from app.progress import progress_bar
+from app.production import Bump, start_production
+from app.progress import progress_bar, say, show_monitor
 from app.replay import format_table, replay
 from app.session import SessionWriter, read_session
 from app.viz import Viz
 from calib import transforms as tf
-from calib.errors import ConfigError, HandeyeError, InsufficientDataError, SessionError
+from calib.errors import CalibrationError, ConfigError, HandeyeError, InsufficientDataError, SessionError
 
 log = logging.getLogger(__name__)
 
@@ -108,30 +109,66 @@ def calibrate(cfg: Config, *, resume: Path | None = None, progress: bool = True)
                              recording)
 
 
-def monitor(cfg: Config, *, reference: Path | None = None, stop=None, progress: bool = True) -> MonitorReport:
+def monitor(cfg: Config, *, reference: Path | None = None, stop=None, progress: bool = True,
+            bump: Bump | None = None, production: bool = True, publish=None) -> MonitorReport:
     """Passive monitoring with a read-only robot connection (never moves the robot).
 
-    ``reference``: a previous session (same setup) whose samples prime the
-    online estimator, so change detection starts with the first new sample
-    instead of after the estimator's bootstrap and warm-up.
+    ``reference``: a previous session (same setup) whose samples are solved
+    in one batch to arm the change detector at once (estimate and
+    covariance), so detection starts with the first new sample and the
+    drift is measured against it.
+
+    On the simulated cell (``robot.type = "ur_sim"``) the simulated controller
+    runs a looping production program (``production``, `app.production`) so
+    that the robot moves, and ``bump`` knocks the rendered camera partway.
+    ``publish``: optional ``(obs, update, report)`` callback (MQTT).
     """
     rng = np.random.default_rng(cfg.calibrate.seed)
     online = devices.make_online(cfg)
+    T_reference = None
     if reference is not None:
         ref = read_session(reference)
         if ref.setup != cfg.setup:
             raise SessionError(f"reference session {reference} is {ref.setup}, the config is {cfg.setup}")
-        for obs in ref.observations:
-            online.update(obs.T_base_flange, obs.point_cam, obs.point_cov)
+        usable = [o for o in ref.observations if o.point_cam is not None]
+        covs = None if any(o.point_cov is None for o in usable) else np.array([o.point_cov for o in usable])
+        try:
+            online.arm(np.array([o.T_base_flange for o in usable]).reshape(-1, 4, 4),
+                       np.array([o.point_cam for o in usable]).reshape(-1, 3), covs)
+        except CalibrationError as e:
+            raise SessionError(f"reference session {reference}: cannot arm the change detector: {e}") from None
+        T_reference = online.camera_transform
+        say(f"reference {reference}: {len(usable)} samples, change detector armed from its estimate and covariance")
     with devices.open_robot(cfg, read_only=True) as robot, devices.open_camera(cfg, robot) as camera:
+        if production:
+            start_production(robot, cfg, rng, say=say)
         writer = SessionWriter.create(cfg.session.root, cfg.setup, config=cfg.to_dict(),
                                       intrinsics=dataclasses.asdict(camera.intrinsics), truth=devices.truth(camera),
                                       source="handeye monitor")
         solve = make_solve(dataclasses.replace(cfg.calibrate, method=cfg.monitor.method), cfg.setup, rng)
         with writer, make_viz(cfg, writer.path) as viz, progress_bar(enabled=progress) as bar:
+            seen = []
+
+            def on_sample(obs):
+                bar.update(1)
+                seen.append(obs.index)
+                if bump is not None and len(seen) == bump.after:
+                    bump.apply(camera, cfg.setup)
+                    text = (f"simulated camera bumped by {bump.translation_mm:g} mm and {bump.rotation_deg:g} deg "
+                            f"after sample {obs.index}")
+                    say(text)
+                    writer.add_event(obs.t, "simulated_bump", sample_index=obs.index,
+                                     translation_mm=bump.translation_mm, rotation_deg=bump.rotation_deg)
+                    viz.event(obs.t, text, "WARN")
+
+            def on_update(obs, update, report):
+                show_monitor(bar, report)
+                if publish is not None:
+                    publish(obs, update, report)
+
             return run_monitor(robot, camera, devices.make_measure(cfg), online, solve, writer, cfg.monitor,
                                cfg.setup, viz, stop=stop, save_frames=cfg.session.save_frames,
-                               on_sample=lambda obs: bar.update(1))
+                               on_sample=on_sample, on_update=on_update, reference=T_reference, say=say)
 
 
 def all_methods() -> list[str]:
@@ -194,6 +231,38 @@ def demo(cfg: Config, *, progress: bool = True) -> CalibrationOutput:
     return calibrate(cfg, progress=progress)
 
 
+#: Monitor settings of ``handeye demo --monitor``: quick standstills and a small estimator bootstrap,
+#: so the whole story (arming, bump, alarm, re-estimate) fits in about half a minute.
+DEMO_MONITOR = {"still_s": 0.2, "poll_s": 0.02, "reestimate_samples": 6,
+                "online": {"bootstrap": 6, "warmup": 4, "detector": {"window": 6}}}
+
+
+def demo_monitor(cfg: Config, *, bump: Bump | None, reference: Path | None = None, max_samples: int | None = None,
+                 progress: bool = True, publish=None) -> MonitorReport:
+    """Passive monitoring of the simulated cell: its controller runs a looping production program,
+    the rendered camera is bumped partway (``bump``), the monitor alarms and re-estimates.
+
+    Without ``max_samples`` the run ends a few samples after the re-estimate is due.
+
+    Raises
+    ------
+    ConfigError
+        If the config names real hardware.
+    """
+    if cfg.robot.get("type") != "ur_sim" or cfg.camera.get("backend") != "rendered":
+        raise ConfigError("demo --monitor runs only the simulated cell (robot.type = 'ur_sim', "
+                          "camera.backend = 'rendered'); use 'handeye monitor' for hardware")
+    mon = dict(DEMO_MONITOR)
+    if cfg.monitor.online:  # the config's own estimator settings win
+        mon.pop("online")
+    after = bump.after if bump is not None else 0
+    mon["max_samples"] = max_samples or (after + 4 + mon["reestimate_samples"] + 6 if bump else 30)
+    mon["duration_s"] = cfg.monitor.duration_s or 300.0
+    cfg = dataclasses.replace(cfg, monitor=dataclasses.replace(cfg.monitor, **mon))
+    devices.validate(cfg)
+    return monitor(cfg, reference=reference, progress=progress, bump=bump, publish=publish)
+
+
 def _pose_line(T: np.ndarray) -> str:
     xyz, q = tf.to_xyz_quat(T)
     return (f"xyz [mm] = {np.array2string(xyz * 1e3, precision=2)}  "
@@ -246,14 +315,36 @@ def print_next_steps(out: CalibrationOutput) -> None:
         print(f"publish in ROS 2:    {ros2_command(out.report.result)}")
 
 
-def print_monitor_summary(report: MonitorReport) -> None:
+def print_monitor_summary(report: MonitorReport, setup: str = "eye_to_hand") -> None:
+    """Counts, detector state, latest estimate with 1-sigma, drift, every alarm, the re-estimate."""
+    from app.monitor import detector_state
+
+    cam = "T_base_cam" if setup == "eye_to_hand" else "T_flange_cam"
     print(f"\nsession: {report.session}")
     print(f"samples: {report.n_samples}   skipped: {report.n_skipped}   alarms: {len(report.alarms)}   "
-          f"time: {report.elapsed_s:.1f} s")
+          f"time: {report.elapsed_s:.1f} s   change detector: {detector_state(report.samples_until_armed)}")
+    if report.estimate is None:
+        print("  estimate: none yet (the online estimator is still collecting its first samples)")
+    else:
+        line = f"  estimate {cam}: {_pose_line(report.estimate)}"
+        if report.estimate_cov is not None:
+            s_deg, s_mm = sigma(report.estimate_cov)
+            line += f"  1-sigma {s_mm:.2f} mm {s_deg:.3f} deg"
+        print(line)
+    if report.drift is not None:
+        print(f"  drift vs. reference: {report.drift[0]:.2f} mm  {report.drift[1]:.3f} deg")
     for a in report.alarms:
-        print(f"  ALARM camera moved at sample {a.sample_index} ({time.strftime('%H:%M:%S', time.localtime(a.t))})")
+        print(f"  ALARM camera moved at sample {a.sample_index} ({time.strftime('%H:%M:%S', time.localtime(a.t))}, "
+              f"GLR statistic {a.info.get('statistic', float('nan')):.1f})")
+    if report.last_alarm is None:
+        print("  last alarm: none")
     if report.reestimate is not None:
-        print(f"  re-estimate after the move: {_pose_line(report.reestimate.camera_transform)}")
+        print(f"  re-estimate after the move ({report.reestimate.n_samples} samples): "
+              f"{_pose_line(report.reestimate.camera_transform)}")
+    if report.session is not None and (report.session / "recording.rrd").exists():
+        from app.viz import open_command
+
+        print(f"\nopen the recording:  {open_command(report.session / 'recording.rrd')}")
 
 
 print_demo_summary = print_calibration_summary

@@ -47,6 +47,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--initial-q", type=float, nargs=6, metavar="Q", help="start joint positions, rad")
     ap.add_argument("--tcp-offset", type=float, nargs=6, metavar="P", default=[0.0, 0.0, 0.1, 0.0, 0.0, 0.0],
                     help="active TCP in the flange frame: x y z (m) rx ry rz (rad)")
+    ap.add_argument("--program", help="JSON file: a looping production program to run (mocks.ur_sim.program)")
     ap.add_argument("-v", "--verbose", action="store_true")
     args = ap.parse_args(argv)
     logging.basicConfig(level=logging.INFO if args.verbose else logging.WARNING, format="ur_sim: %(message)s")
@@ -55,6 +56,15 @@ def main(argv: list[str] | None = None) -> int:
     except Exception as exc:  # bad model / version: one line, exit 2 like argparse
         print(f"ur_sim: {exc}", file=sys.stderr)
         return 2
+    if args.program:
+        from mocks.ur_sim.program import Program
+
+        try:
+            with open(args.program) as f:
+                ctl.program = Program.from_dict(json.load(f))
+        except (OSError, ValueError) as exc:
+            print(f"ur_sim: --program {args.program}: {exc}", file=sys.stderr)
+            return 2
     server = SimServer(args.host, ctl)
     try:
         server.open_listeners()
@@ -128,6 +138,15 @@ class SimProcess:
 
     def set_q(self, q) -> None:
         self.command("sim set_q " + " ".join(f"{x:.12g}" for x in q))
+
+    def start_program(self, program: dict) -> None:
+        """Run a looping production program (JSON form of `mocks.ur_sim.program`) until `stop_program`."""
+        reply = self.command("sim program " + json.dumps(program))
+        if reply != "ok":
+            raise DeviceError(f"simulated controller refused the production program: {reply}")
+
+    def stop_program(self) -> None:
+        self.command("sim program stop")
 
     def stop(self, timeout: float = 5.0) -> int:
         """SIGTERM the simulator and wait; returns its exit code."""
