@@ -23,16 +23,11 @@ from app.progress import show_sigma
 from app.session import SessionWriter
 from app.viz import Viz
 from calib import transforms as tf
-from calib.errors import (
-    CalibrationError,
-    ConnectionLostError,
-    DeviceError,
-    ExtractionError,
-    LimitViolationError,
-    RobotStoppedError,
-)
+from calib.errors import CalibrationError, ExtractionError
+from drivers.errors import ConnectionLostError, DeviceError, LimitViolationError, RobotStoppedError
 from calib.observation import Observation
 from calib.result import CalibrationResult
+from calib.setup import Setup
 from drivers.camera.base import Camera, RGBDFrame
 from drivers.robot.base import Robot
 
@@ -162,7 +157,7 @@ def run_calibration(
     solve: Callable[..., CalibrationResult],
     writer: SessionWriter,
     cfg: CalibrateConfig,
-    setup: str,
+    setup: Setup,
     rng: np.random.Generator,
     viz: Viz,
     *,

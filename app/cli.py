@@ -16,6 +16,7 @@ from pathlib import Path
 import numpy as np
 
 from calib.errors import HandeyeError
+from calib.setup import Setup
 
 log = logging.getLogger("handeye")
 
@@ -59,7 +60,7 @@ def build_parser() -> argparse.ArgumentParser:
                    help="solver (repeatable); default YKronT' and YQuatT'; 'all' for every solver")
     p.add_argument("--refine", action="store_true", help="refine each solution (nonlinear least squares)")
     p.add_argument("--robust", action="store_true", help="reject outliers")
-    p.add_argument("--setup", choices=["eye_to_hand", "eye_in_hand"], help="setup of an imported file")
+    p.add_argument("--setup", choices=[s.value for s in Setup], help="setup of an imported file")
     p.add_argument("--seed", type=int, default=0, help="seed for randomised (robust) solvers")
 
     p = sub.add_parser("demo", help="simulated UR10 + rendered camera: calibrate and compare to the truth "

@@ -20,8 +20,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from calib.errors import ConfigError
-from calib.observation import SETUPS
+from app.errors import ConfigError
+from calib.setup import Setup, check_setup
 
 # Solver names as in the paper; checked against calib.METHODS when the solver
 # layer is imported (app.pipeline), here only for shape.
@@ -209,7 +209,7 @@ def _default_robot() -> dict:
 
 
 def _default_camera() -> dict:
-    return {"backend": "rendered", "setup": "eye_to_hand"}
+    return {"backend": "rendered", "setup": Setup.EYE_TO_HAND.value}
 
 
 def _default_marker() -> dict:
@@ -226,7 +226,7 @@ class Config:
     """
 
     SECTION = "config"
-    setup: str = "eye_to_hand"
+    setup: Setup = Setup.EYE_TO_HAND
     robot: dict = field(default_factory=_default_robot)
     camera: dict = field(default_factory=_default_camera)
     marker: dict = field(default_factory=_default_marker)
@@ -236,8 +236,7 @@ class Config:
     viz: VizConfig = field(default_factory=VizConfig)
 
     def __post_init__(self):
-        if self.setup not in SETUPS:
-            raise ConfigError(f"setup must be one of {list(SETUPS)}, got {self.setup!r}")
+        self.setup = check_setup(self.setup, error=ConfigError)
         for name in ("robot", "camera", "marker"):
             if not isinstance(getattr(self, name), dict):
                 raise ConfigError(f"[{name}] must be a table, got {getattr(self, name)!r}")

@@ -14,7 +14,8 @@ import numpy as np
 
 from app.config import Config
 from app.pipeline import Measurement
-from calib.errors import ConfigError
+from app.errors import ConfigError
+from calib.errors import ParameterError
 
 #: Result files written into the session directory, by export format.
 RESULT_FILES = {
@@ -33,9 +34,12 @@ def validate(cfg: Config) -> None:
     from drivers.camera.factory import camera_config_from_dict
     from drivers.robot.factory import robot_config_from_dict
 
-    robot_config_from_dict(cfg.robot)
-    camera_config_from_dict(cfg.camera)
-    TargetConfig.from_dict(cfg.marker)
+    for section, check in (("robot", robot_config_from_dict), ("camera", camera_config_from_dict),
+                           ("marker", TargetConfig.from_dict)):
+        try:
+            check(getattr(cfg, section))
+        except ParameterError as e:
+            raise ConfigError(f"[{section}]: {e}") from None
     online_config(cfg)
 
 
@@ -66,8 +70,7 @@ def truth(camera) -> dict:
     c = getattr(camera, "config", None)
     if getattr(c, "backend", None) != "rendered":
         return {}
-    names = ("T_base_cam", "T_flange_marker") if c.setup == "eye_to_hand" else ("T_flange_cam", "T_base_marker")
-    return {n: np.asarray(getattr(c, n), dtype=float) for n in names}
+    return {n: np.asarray(getattr(c, n), dtype=float) for n in (c.setup.camera_name, c.setup.marker_name)}
 
 
 def make_measure(cfg: Config):
@@ -105,11 +108,11 @@ def online_config(cfg: Config):
                 raise ConfigError(f"unknown key monitor.online.detector.{key} (known: {', '.join(sorted(dknown))})")
         try:
             data["detector"] = DetectorConfig(**data["detector"])
-        except ConfigError as e:
+        except ParameterError as e:
             raise ConfigError(f"monitor.online.detector: {e}") from None
     try:
         return OnlineConfig(setup=cfg.setup, **data)
-    except ConfigError as e:
+    except ParameterError as e:
         raise ConfigError(f"monitor.online: {e}") from None
 
 

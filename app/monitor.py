@@ -33,6 +33,7 @@ from calib import transforms as tf
 from calib.errors import CalibrationError
 from calib.observation import Observation
 from calib.result import CalibrationResult
+from calib.setup import Setup
 from drivers.camera.base import Camera, RGBDFrame
 from drivers.robot.base import Robot
 
@@ -130,7 +131,7 @@ def run_monitor(
     solve: Callable[..., CalibrationResult],
     writer: SessionWriter,
     cfg: MonitorConfig,
-    setup: str,
+    setup: Setup,
     viz: Viz,
     *,
     stop: threading.Event | None = None,

@@ -13,6 +13,7 @@ import numpy as np
 
 from calib import transforms as tf
 from calib.result import CalibrationResult
+from calib.setup import Setup
 
 
 @dataclass
@@ -55,18 +56,18 @@ def sigma(cov: np.ndarray) -> tuple[float, float]:
     return float(np.rad2deg(s_rot)), s_t * 1e3
 
 
-def predicted_point(setup: str, estimate: CalibrationResult, T_base_flange: np.ndarray) -> np.ndarray:
+def predicted_point(setup: Setup, estimate: CalibrationResult, T_base_flange: np.ndarray) -> np.ndarray:
     """Marker center in the camera frame predicted for a flange pose, shape (3,).
 
     Eye-to-hand: ``Y^-1 A t_X`` (only X's translation is needed, which point-only
     methods recover). Eye-in-hand: ``(A X)^-1 t_Y``.
     """
-    if setup == "eye_to_hand":
+    if setup == Setup.EYE_TO_HAND:
         return tf.transform_points(tf.invert(estimate.Y) @ T_base_flange, estimate.X[:3, 3])
     return tf.transform_points(tf.invert(T_base_flange @ estimate.X), estimate.Y[:3, 3])
 
 
-def predicted_pixel(setup: str, estimate: CalibrationResult, T_base_flange: np.ndarray,
+def predicted_pixel(setup: Setup, estimate: CalibrationResult, T_base_flange: np.ndarray,
                     intrinsics, margin_px: int = 0) -> tuple[float, float] | None:
     """Pixel of the marker center predicted for a flange pose, or None if it leaves the image.
 
@@ -83,7 +84,7 @@ def predicted_pixel(setup: str, estimate: CalibrationResult, T_base_flange: np.n
 
 
 
-def solve_observations(method: str, observations, setup: str, *, refine: bool = False,
+def solve_observations(method: str, observations, setup: Setup, *, refine: bool = False,
                        robust: bool = False, rng: np.random.Generator | None = None) -> CalibrationResult:
     """Solve ``A_i X = Y B_i`` (paper eq. 1) for a list of samples with a named solver.
 

@@ -26,6 +26,7 @@ import numpy as np
 from app.calibrate import random_pose
 from app.config import CalibrateConfig
 from calib import transforms as tf
+from calib.setup import Setup
 
 log = logging.getLogger(__name__)
 
@@ -84,10 +85,10 @@ class Bump:
         return tf.from_rotvec_translation([0.0, np.deg2rad(self.rotation_deg), 0.0],
                                           [self.translation_mm * 1e-3, 0.0, 0.0])
 
-    def apply(self, camera, setup: str) -> np.ndarray:
+    def apply(self, camera, setup: Setup) -> np.ndarray:
         """Move the rendered camera; returns its new true transform (``T_base_cam`` / ``T_flange_cam``)."""
         c = camera.config
-        if setup == "eye_to_hand":
+        if Setup(setup) == Setup.EYE_TO_HAND:
             T, B = np.asarray(c.T_base_cam, dtype=float), self.transform
             c.T_base_cam = tf.make_transform(B[:3, :3] @ T[:3, :3], T[:3, 3] + B[:3, 3]).tolist()
             return np.asarray(c.T_base_cam)

@@ -17,6 +17,7 @@ from calib import transforms as tf
 from calib.errors import HandeyeError
 from calib.observation import Observation
 from calib.result import CalibrationResult
+from calib.setup import Setup
 
 
 @dataclass
@@ -37,7 +38,7 @@ class ReplayRow:
 
 def replay(
     observations: list[Observation],
-    setup: str,
+    setup: Setup,
     methods: list[str],
     *,
     refine: bool = False,
@@ -80,9 +81,9 @@ def replay(
     return rows
 
 
-def format_table(rows: list[ReplayRow], setup: str) -> str:
+def format_table(rows: list[ReplayRow], setup: Setup) -> str:
     """Markdown table: method, samples, residual RMS (mm), camera xyz (mm), 1-sigma, time, error vs. truth."""
-    cam = "T_base_cam" if setup == "eye_to_hand" else "T_flange_cam"
+    cam = Setup(setup).camera_name
     has_truth = any(r.truth_error is not None for r in rows)
     head = ["solver", "n", "inliers", "resid RMS [mm]", f"{cam} xyz [mm]", "1σ [mm]", "1σ [deg]", "time [ms]"]
     if has_truth:

@@ -27,7 +27,9 @@ from app.replay import format_table, replay
 from app.session import SessionWriter, read_session
 from app.viz import Viz
 from calib import transforms as tf
-from calib.errors import CalibrationError, ConfigError, HandeyeError, InsufficientDataError, SessionError
+from calib.setup import Setup
+from app.errors import ConfigError, SessionError
+from calib.errors import CalibrationError, HandeyeError, InsufficientDataError
 
 log = logging.getLogger(__name__)
 
@@ -37,7 +39,7 @@ class CalibrationOutput:
     """An active run and where its outputs went."""
 
     report: RunReport
-    setup: str
+    setup: Setup
     method: str
     files: dict
     truth: np.ndarray | None = None
@@ -54,7 +56,7 @@ def make_viz(cfg: Config, session: Path) -> Viz:
                log_images=cfg.viz.log_images)
 
 
-def make_solve(cal: CalibrateConfig, setup: str, rng: np.random.Generator):
+def make_solve(cal: CalibrateConfig, setup: Setup, rng: np.random.Generator):
     """``solve(observations, *, final)``: fast unrefined estimates while running, the configured one at the end."""
 
     def solve(observations, *, final: bool):
@@ -64,8 +66,8 @@ def make_solve(cal: CalibrateConfig, setup: str, rng: np.random.Generator):
     return solve
 
 
-def _camera_truth(setup: str, truth: dict) -> np.ndarray | None:
-    key = "T_base_cam" if setup == "eye_to_hand" else "T_flange_cam"
+def _camera_truth(setup: Setup, truth: dict) -> np.ndarray | None:
+    key = Setup(setup).camera_name
     return None if key not in truth else np.asarray(truth[key], dtype=float)
 
 
@@ -178,7 +180,7 @@ def all_methods() -> list[str]:
 
 
 def replay_source(source: Path, methods: list[str], *, refine: bool = False, robust: bool = False,
-                  setup: str | None = None, rng: np.random.Generator | None = None) -> str:
+                  setup: Setup | None = None, rng: np.random.Generator | None = None) -> str:
     """Re-solve a session directory or an imported file with each method; returns the markdown table."""
     if not Path(source).exists():
         raise SessionError(f"{source}: no such file or directory")
@@ -271,7 +273,7 @@ def _pose_line(T: np.ndarray) -> str:
 
 def print_calibration_summary(out: CalibrationOutput) -> None:
     r = out.report
-    cam = "T_base_cam" if out.setup == "eye_to_hand" else "T_flange_cam"
+    cam = Setup(out.setup).camera_name
     print(f"\nsession: {r.session}")
     print(f"setup: {out.setup}   solver: {out.method}   samples: {r.n_samples}   skipped: {r.n_skipped}   "
           f"stopped by: {r.stopped_by}   time: {r.elapsed_s:.1f} s")
@@ -315,11 +317,11 @@ def print_next_steps(out: CalibrationOutput) -> None:
         print(f"publish in ROS 2:    {ros2_command(out.report.result)}")
 
 
-def print_monitor_summary(report: MonitorReport, setup: str = "eye_to_hand") -> None:
+def print_monitor_summary(report: MonitorReport, setup: Setup = Setup.EYE_TO_HAND) -> None:
     """Counts, detector state, latest estimate with 1-sigma, drift, every alarm, the re-estimate."""
     from app.monitor import detector_state
 
-    cam = "T_base_cam" if setup == "eye_to_hand" else "T_flange_cam"
+    cam = Setup(setup).camera_name
     print(f"\nsession: {report.session}")
     print(f"samples: {report.n_samples}   skipped: {report.n_skipped}   alarms: {len(report.alarms)}   "
           f"time: {report.elapsed_s:.1f} s   change detector: {detector_state(report.samples_until_armed)}")

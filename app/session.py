@@ -27,8 +27,9 @@ from pathlib import Path
 
 import numpy as np
 
-from calib.errors import SessionError
-from calib.observation import SETUPS, Observation
+from app.errors import SessionError
+from calib.observation import Observation
+from calib.setup import Setup, check_setup
 from drivers.camera.depth import depth_from_mm, depth_to_mm
 
 log = logging.getLogger(__name__)
@@ -36,16 +37,8 @@ log = logging.getLogger(__name__)
 FORMAT_NAME = "handeye-session"
 FORMAT_VERSION = 1
 
-FRAMES = {
-    "eye_to_hand": {
-        "A": "T_base_flange", "B": "T_cam_marker", "X": "T_flange_marker", "Y": "T_base_cam",
-        "equation": "T_base_flange @ T_flange_marker = T_base_cam @ T_cam_marker",
-    },
-    "eye_in_hand": {
-        "A": "T_base_flange", "B": "T_cam_marker", "X": "T_flange_cam", "Y": "T_base_marker",
-        "equation": "T_base_flange @ T_flange_cam @ T_cam_marker = T_base_marker",
-    },
-}
+FRAMES = {s.value: {"A": "T_base_flange", "B": "T_cam_marker", "X": s.x_name, "Y": s.y_name, "equation": s.equation}
+          for s in Setup}
 
 
 def _fsync_write(path: Path, data: bytes) -> None:
@@ -103,8 +96,8 @@ class Session:
     events: list[dict] = field(default_factory=list)
 
     @property
-    def setup(self) -> str:
-        return self.header["setup"]
+    def setup(self) -> Setup:
+        return Setup(self.header["setup"])
 
     @property
     def truth(self) -> dict:
@@ -164,8 +157,7 @@ class SessionWriter:
         truth : dict of (4, 4) arrays, optional
             Known true transforms (simulated cells), e.g. ``T_base_cam``.
         """
-        if setup not in SETUPS:
-            raise SessionError(f"setup must be one of {list(SETUPS)}, got {setup!r}")
+        setup = check_setup(setup, error=SessionError)
         now = _dt.datetime.now(_dt.timezone.utc)
         path = Path(root) / (name or f"{now:%Y%m%d-%H%M%S-%f}_{setup}")
         try:
@@ -176,7 +168,7 @@ class SessionWriter:
         header = {
             "format": FORMAT_NAME,
             "version": FORMAT_VERSION,
-            "setup": setup,
+            "setup": setup.value,
             "frames": FRAMES[setup],
             "units": {"translation": "m", "rotation": "rad", "time": "s", "depth_png": "mm"},
             "created": now.isoformat(),
@@ -303,8 +295,7 @@ def read_session(path: str | Path) -> Session:
     version = header.get("version")
     if not isinstance(version, int) or version > FORMAT_VERSION or version < 1:
         raise SessionError(f"{path}: unsupported session version {version!r} (this handeye reads <= {FORMAT_VERSION})")
-    if header.get("setup") not in SETUPS:
-        raise SessionError(f"{path}: setup must be one of {list(SETUPS)}, got {header.get('setup')!r}")
+    check_setup(header.get("setup"), f"{path}: setup", SessionError)
 
     session = Session(path, header)
     lines_path = path / "samples.jsonl"

@@ -49,6 +49,7 @@ import numpy as np
 
 from app.pipeline import sigma
 from calib import transforms as tf
+from calib.setup import Setup, check_setup
 
 log = logging.getLogger(__name__)
 
@@ -184,12 +185,12 @@ class Viewer:
                 self.proc.wait()
 
 
-def blueprint(setup: str):
+def blueprint(setup: Setup):
     """Layout the recording opens in: 3D cell | camera image with the marker, residual / 1-sigma /
     drift plots | per-sample residuals, events."""
     import rerun.blueprint as rrb
 
-    cam = "world/camera" if setup == "eye_to_hand" else "world/flange/camera"
+    cam = "world/flange/camera" if check_setup(setup).camera_on_flange else "world/camera"
     return rrb.Blueprint(
         rrb.Horizontal(
             rrb.Spatial3DView(origin="world", name="cell (base frame)"),
@@ -229,9 +230,9 @@ class Viz:
         Log color and depth images (large recordings; off for long monitors).
     """
 
-    def __init__(self, setup: str, rrd_path: Path | None = None, *, viewer: bool = False,
+    def __init__(self, setup: Setup, rrd_path: Path | None = None, *, viewer: bool = False,
                  viewer_bind: str = "127.0.0.1", enabled: bool = True, log_images: bool = True):
-        self.setup = setup
+        self.setup = check_setup(setup)
         self.enabled = enabled
         self.log_images = log_images
         self.rrd_path = rrd_path if enabled else None
@@ -265,7 +266,7 @@ class Viz:
         self._log("world", rr.ViewCoordinates.RIGHT_HAND_Z_UP, static=True)
         self._log("world/base", rr.TransformAxes3D(0.2), static=True)
         self._log("events", rr.TextLog(f"setup: {setup}"), static=True)
-        self._cam_path = "world/camera" if setup == "eye_to_hand" else "world/flange/camera"
+        self._cam_path = "world/flange/camera" if self.setup.camera_on_flange else "world/camera"
         self._measured: list[np.ndarray] = []
 
     def _drop_live(self, why: str) -> None:
@@ -299,7 +300,7 @@ class Viz:
         """True camera transform of a simulated cell (static)."""
         if not self.enabled:
             return
-        path = "world/camera_truth" if self.setup == "eye_to_hand" else "world/flange/camera_truth"
+        path = "world/flange/camera_truth" if self.setup.camera_on_flange else "world/camera_truth"
         self._transform(path, T_camera_true, static=True)
 
     def robot(self, t: float, T_base_flange: np.ndarray) -> None:
@@ -332,7 +333,7 @@ class Viz:
         self._time(obs.t, obs.index)
         self._transform("world/flange", obs.T_base_flange)
         if T_camera is not None and obs.point_cam is not None:
-            T_base_cam = T_camera if self.setup == "eye_to_hand" else obs.T_base_flange @ T_camera
+            T_base_cam = T_camera if self.setup == Setup.EYE_TO_HAND else obs.T_base_flange @ T_camera
             self._measured.append(tf.transform_points(T_base_cam, obs.point_cam))
             self._log("world/samples/measured",
                       self._rr.Points3D(np.array(self._measured), radii=0.004, colors=[0, 160, 255]))
@@ -345,7 +346,7 @@ class Viz:
         self._time(t, result.n_samples)
         self._transform(self._cam_path, result.camera_transform)
         A = np.array([o.T_base_flange for o in observations])
-        if self.setup == "eye_to_hand":
+        if self.setup == Setup.EYE_TO_HAND:
             predicted = tf.transform_points(A @ result.X, np.zeros(3))
             T_base_cams = np.broadcast_to(result.Y, A.shape)
         else:
@@ -371,7 +372,7 @@ class Viz:
             return
         rr = self._rr
         self._time(t, result.n_samples)
-        cam = "T_base_cam" if self.setup == "eye_to_hand" else "T_flange_cam"
+        cam = Setup(self.setup).camera_name
         xyz, q = tf.to_xyz_quat(result.camera_transform)
         line = (f"result: {cam} xyz [mm] = {np.array2string(xyz * 1e3, precision=2)}, "
                 f"solver {result.method}, {result.n_samples} samples, "

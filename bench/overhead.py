@@ -24,6 +24,7 @@ from bench.solvers import _median_time  # noqa: E402
 from calib import simulate, solvers  # noqa: E402
 from calib import transforms as tf  # noqa: E402
 from calib.api import METHODS, closed_form, solve  # noqa: E402
+from calib.setup import Setup  # noqa: E402
 
 COUNTS = (10, 100, 1000)
 
@@ -45,8 +46,8 @@ def measure(repeats: int, rng: np.random.Generator) -> tuple[dict, dict]:
         est = closed_form("YKronT'", d.A, d.points)
         rows = {
             "check_transforms(A)": lambda: tf.check_transforms(d.A, "A"),
-            "YKronT' solver core": lambda: solvers._y_kron_t_prime(d.A, d.points, "eye_to_hand"),
-            "residuals (validated)": lambda: solvers.residuals(est.X, est.Y, d.A, d.points, "eye_to_hand"),
+            "YKronT' solver core": lambda: solvers._y_kron_t_prime(d.A, d.points, Setup.EYE_TO_HAND),
+            "residuals (validated)": lambda: solvers.residuals(est.X, est.Y, d.A, d.points, Setup.EYE_TO_HAND),
             "closed_form(\"YKronT'\")": lambda: closed_form("YKronT'", d.A, d.points),
             "solve(\"YKronT'\") (with cov)": lambda: solve("YKronT'", d.A, d.points),
         }

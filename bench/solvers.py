@@ -55,6 +55,7 @@ from calib import transforms as tf  # noqa: E402
 from calib.api import METHODS, closed_form, solve  # noqa: E402
 from calib.errors import CalibrationError  # noqa: E402
 from calib.online import OnlineCalibrator, OnlineConfig  # noqa: E402
+from calib.setup import Setup  # noqa: E402
 from calib.refine import cramer_rao_bound, error_vector, kron_t_prime_covariance, nees, refine  # noqa: E402
 
 cv2.setNumThreads(1)
@@ -173,7 +174,7 @@ def experiment_realistic(rng, rounds, n):
             errs[s][r] = errors(X, Y, d, n)
         res = solve("YKronT'", d.A, d.points, refine=True, point_cov=d.point_cov)
         errs["YKronT'+ML"][r] = errors(res.X, res.Y, d, n)
-        c_rot, c_t, _ = cramer_rao_bound(d.X, d.Y, d.A_true, d.point_cov, setup="eye_to_hand")
+        c_rot, c_t, _ = cramer_rao_bound(d.X, d.Y, d.A_true, d.point_cov, setup=Setup.EYE_TO_HAND)
         crlb[r] = np.rad2deg(c_rot), 1e3 * c_t
     return errs, crlb
 
@@ -181,14 +182,14 @@ def experiment_realistic(rng, rounds, n):
 def experiment_efficiency(rng, trials, counts):
     """RMS error / CRLB and NEES of refined YKronT' per setup and N; NEES of other variants."""
     rows = []
-    for setup in ("eye_to_hand", "eye_in_hand"):
+    for setup in Setup:
         for n in counts:
             se = np.zeros((trials, 2))
             bound = np.zeros((trials, 2))
             ne = {"ML, given cov": [], "ML, default model": [], "closed form (delta)": [], "poses YQuatT'+ML": []}
             for k in range(trials):
                 d = simulate.realistic_cell(n, rng, setup=setup)
-                truth = d.Y if setup == "eye_to_hand" else d.X
+                truth = d.Y if setup == Setup.EYE_TO_HAND else d.X
                 res = solve("YKronT'", d.A, d.points, setup=setup, refine=True, point_cov=d.point_cov)
                 e = error_vector(res.camera_transform, truth)
                 se[k] = e[:3] @ e[:3], e[3:] @ e[3:]
@@ -332,10 +333,10 @@ def experiment_timing(rng, counts, repeats, skip_slow):
                 continue
             table[s].append(_median_time(lambda: run_solver(s, d.A, d.B), rep))
         table["YKronT' (solver core, no input checks)"].append(
-            _median_time(lambda: solvers._y_kron_t_prime(d.A, d.points, "eye_to_hand"), rep))
+            _median_time(lambda: solvers._y_kron_t_prime(d.A, d.points, Setup.EYE_TO_HAND), rep))
         start = closed_form("YKronT'", d.A, d.points)
         table["YKronT' closed-form covariance (analytic delta)"].append(_median_time(
-            lambda: kron_t_prime_covariance(start.X, start.Y, d.A, d.points, setup="eye_to_hand",
+            lambda: kron_t_prime_covariance(start.X, start.Y, d.A, d.points, setup=Setup.EYE_TO_HAND,
                                             point_cov=d.point_cov), rep))
         table["YKronT'+ML (refine only)"].append(
             _median_time(lambda: refine(start, d.A, d.points, point_cov=d.point_cov), rep))

@@ -22,6 +22,7 @@ from calib import simulate, solvers
 from calib import transforms as tf
 from calib.api import closed_form
 from calib.errors import DegenerateMotionError
+from calib.setup import Setup
 
 
 def unrotated_y_axis_r(A: np.ndarray, B: np.ndarray) -> np.ndarray:
@@ -40,16 +41,16 @@ def rotation_error_deg(R_est: np.ndarray, R_true: np.ndarray) -> float:
 
 def accuracy(rounds: int, seed: int) -> tuple[dict, dict]:
     """Y rotation error (deg) per round for each dataset and variant, and |y_0| of the true Y per round."""
-    sets = {"paper exp. 1, N=70": lambda rng: (simulate.paper_setup(70, rng), "eye_to_hand"),
-            "realistic, N=80": lambda rng: (simulate.realistic_cell(80, rng), "eye_to_hand"),
-            "realistic eye-in-hand, N=80": lambda rng: (simulate.realistic_cell(80, rng, setup="eye_in_hand"),
-                                                        "eye_in_hand")}
+    sets = {"paper exp. 1, N=70": lambda rng: (simulate.paper_setup(70, rng), Setup.EYE_TO_HAND),
+            "realistic, N=80": lambda rng: (simulate.realistic_cell(80, rng), Setup.EYE_TO_HAND),
+            "realistic eye-in-hand, N=80": lambda rng: (simulate.realistic_cell(80, rng, setup=Setup.EYE_IN_HAND),
+                                                        Setup.EYE_IN_HAND)}
     err = {(s, v): [] for s in sets for v in ("unrotated", "pre-rotated", "YQuatR*")}
     y0 = {s: [] for s in sets}
     for s, make in sets.items():
         for r in range(rounds):
             d, setup = make(np.random.default_rng(seed + r))
-            B = d.B if setup == "eye_to_hand" else tf.invert(d.B)  # eye-in-hand as A X = Y B^-1
+            B = d.B if setup == Setup.EYE_TO_HAND else tf.invert(d.B)  # eye-in-hand as A X = Y B^-1
             y0[s].append(abs(Rotation.from_matrix(d.Y[:3, :3]).as_quat()[3]))
             err[(s, "unrotated")].append(rotation_error_deg(unrotated_y_axis_r(d.A, B), d.Y[:3, :3]))
             for name, method in (("pre-rotated", "YAxisR"), ("YQuatR*", "YQuatR*")):

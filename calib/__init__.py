@@ -12,12 +12,12 @@ from calib.errors import (
     InsufficientDataError,
     MarkerNotFoundError,
 )
-from calib.observation import SETUPS, Observation
+from calib.observation import Observation
+from calib.setup import Setup, check_setup
 from calib.result import CalibrationResult, Residuals
 from calib.api import METHODS, MethodInfo, observations_to_arrays, solve
 
 __all__ = [
-    "SETUPS",
     "CalibrationError",
     "CalibrationResult",
     "DegenerateMotionError",
@@ -30,6 +30,8 @@ __all__ = [
     "MarkerNotFoundError",
     "Observation",
     "Residuals",
+    "Setup",
+    "check_setup",
     "observations_to_arrays",
     "solve",
 ]

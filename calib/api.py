@@ -30,6 +30,7 @@ from calib.errors import CalibrationError, InsufficientDataError
 from calib.observation import Observation
 from calib.result import CalibrationResult, Residuals
 from calib.robust import robust_solve
+from calib.setup import Setup, check_setup
 
 
 @dataclass(frozen=True)
@@ -121,7 +122,7 @@ def _check_inputs(info: MethodInfo, A, B) -> tuple[np.ndarray, np.ndarray]:
     return A, B
 
 
-def closed_form(method: str, A, B, *, setup: str = "eye_to_hand") -> CalibrationResult:
+def closed_form(method: str, A, B, *, setup: Setup = Setup.EYE_TO_HAND) -> CalibrationResult:
     """Run one closed-form method of Table I and wrap it in a CalibrationResult (no refinement, no cov).
 
     Parameters
@@ -143,7 +144,7 @@ def closed_form(method: str, A, B, *, setup: str = "eye_to_hand") -> Calibration
         ``X``, ``Y``, per-sample residuals (eq. 4/5), ``cov`` None.
     """
     info = resolve_method(method)
-    solvers.check_setup(setup)
+    setup = check_setup(setup)
     A, B = _check_inputs(info, A, B)
     return _closed_form(info, A, B, setup)
 
@@ -153,7 +154,7 @@ def _closed_form(info: MethodInfo, A: np.ndarray, B: np.ndarray, setup: str) -> 
         X, Y = solvers._y_kron_t_prime(A, B[:, :3, 3] if B.ndim == 3 else B, setup)
     else:
         # Eye-in-hand A X B = Y is eq. 1 with B inverted: A X = Y B^-1.
-        X, Y = info.function(A, B if setup == "eye_to_hand" else tf.invert(B))
+        X, Y = info.function(A, B if setup == Setup.EYE_TO_HAND else tf.invert(B))
     # A and B were validated by the caller; X and Y come from a solver.
     trans, rot = solvers._residuals(X, Y, A, B, setup, info.marker_rotation_known)
     return CalibrationResult(
@@ -173,7 +174,7 @@ def solve(
     A,
     B,
     *,
-    setup: str = "eye_to_hand",
+    setup: Setup = Setup.EYE_TO_HAND,
     refine: bool = False,
     robust: bool = False,
     point_cov=None,
@@ -233,7 +234,7 @@ def solve(
         The motions do not determine every unknown (the message says what to add).
     """
     info = resolve_method(method)
-    solvers.check_setup(setup)
+    setup = check_setup(setup)
     A, B = _check_inputs(info, A, B)
     cov_p = rf.check_point_cov(point_cov, len(A))
 
@@ -276,7 +277,7 @@ def _covariance(info: MethodInfo, result: CalibrationResult, A, B, setup, point_
         return rf.kron_t_prime_covariance(result.X, result.Y, A, B, setup=setup, point_cov=point_cov), "delta-analytic"
     if len(A) <= DELTA_METHOD_MAX_SAMPLES:
         def estimator(A_sub, B_sub):
-            return info.function(A_sub, B_sub if setup == "eye_to_hand" else tf.invert(B_sub))
+            return info.function(A_sub, B_sub if setup == Setup.EYE_TO_HAND else tf.invert(B_sub))
 
         cov = rf.delta_method_covariance(estimator, result.X, result.Y, A, B, setup=setup, point_cov=point_cov)
         return cov, "delta-numerical"

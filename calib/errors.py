@@ -1,7 +1,14 @@
-"""The one exception tree of handeye.
+"""The root of handeye's exception tree and the errors of the calibration library.
 
-Every layer raises from here so that the CLI can print one line and exit 1 for
-any ``HandeyeError``, and let anything else surface as a bug.
+Every layer defines its errors next to the code that raises them, all under
+`HandeyeError`, so that the CLI can print one line and exit 1 for any of them
+and let anything else surface as a bug:
+
+- here (``calib``): `ParameterError`, `CalibrationError` (> `InsufficientDataError`,
+  `DegenerateMotionError`), `ExtractionError` (> `MarkerNotFoundError`, `DepthError`);
+- ``drivers.errors``: `DeviceError` (> `ConnectionLostError`, `RobotStoppedError`,
+  `LimitViolationError`);
+- ``app.errors``: `ConfigError` (a `ParameterError` of a config file), `SessionError`.
 """
 
 
@@ -9,8 +16,8 @@ class HandeyeError(Exception):
     """Base of every error handeye expects and reports to users."""
 
 
-class ConfigError(HandeyeError, ValueError):
-    """A configuration field is missing or out of range (the message names it)."""
+class ParameterError(HandeyeError, ValueError):
+    """A parameter of a library, device or simulator object is invalid (the message names it)."""
 
 
 class CalibrationError(HandeyeError, ValueError):
@@ -35,26 +42,3 @@ class MarkerNotFoundError(ExtractionError):
 
 class DepthError(ExtractionError):
     """Too few valid depth pixels on the marker, or the plane fit is bad."""
-
-
-class DeviceError(HandeyeError):
-    """A robot or camera failed."""
-
-
-class ConnectionLostError(DeviceError):
-    """The connection to a device dropped or its data stream froze."""
-
-
-class RobotStoppedError(DeviceError):
-    """The robot entered a protective or emergency stop."""
-
-
-class LimitViolationError(DeviceError):
-    """A motion target lies outside the configured workspace, tilt or joint limits.
-
-    Raised before anything is sent to the robot.
-    """
-
-
-class SessionError(HandeyeError):
-    """A recorded session is missing, unreadable, or of an unknown version."""

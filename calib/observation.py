@@ -15,9 +15,6 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-SETUPS = ("eye_to_hand", "eye_in_hand")
-
-
 @dataclass
 class Observation:
     """A robot pose and the marker measurement taken at the same instant.

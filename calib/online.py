@@ -49,10 +49,10 @@ from scipy.stats import chi2
 
 from calib import refine as rf
 from calib import transforms as tf
-from calib.errors import CalibrationError, ConfigError
+from calib.errors import CalibrationError, ParameterError
 from calib.noise import default_point_cov
-from calib.observation import SETUPS
 from calib.result import CalibrationResult, Residuals
+from calib.setup import Setup, check_setup
 
 _I3 = np.eye(3)
 _I6 = np.eye(6)
@@ -144,11 +144,11 @@ class DetectorConfig:
 
     def __post_init__(self):
         if not isinstance(self.window, int) or self.window < 3:
-            raise ConfigError(f"window must be an int >= 3, got {self.window!r}")
+            raise ParameterError(f"window must be an int >= 3, got {self.window!r}")
         if self.long_window is not None and (not isinstance(self.long_window, int) or self.long_window <= self.window):
-            raise ConfigError(f"long_window must be None or an int > window ({self.window}), got {self.long_window!r}")
+            raise ParameterError(f"long_window must be None or an int > window ({self.window}), got {self.long_window!r}")
         if not 0.0 < self.false_alarm_rate < 0.1:
-            raise ConfigError(f"false_alarm_rate must be in (0, 0.1), got {self.false_alarm_rate!r}")
+            raise ParameterError(f"false_alarm_rate must be in (0, 0.1), got {self.false_alarm_rate!r}")
 
 
 class ChangeDetector:
@@ -245,7 +245,7 @@ class OnlineConfig:
         Change-detector settings (default `DetectorConfig()`).
     """
 
-    setup: str = "eye_to_hand"
+    setup: Setup = Setup.EYE_TO_HAND
     forgetting: float = 1.0
     bootstrap: int = 10
     warmup: int = 20
@@ -253,14 +253,13 @@ class OnlineConfig:
     detector: DetectorConfig | None = None
 
     def __post_init__(self):
-        if self.setup not in SETUPS:
-            raise ConfigError(f"setup must be one of {SETUPS}, got {self.setup!r}")
+        self.setup = check_setup(self.setup, error=ParameterError)
         if not 0.9 < self.forgetting <= 1.0:
-            raise ConfigError(f"forgetting must be in (0.9, 1], got {self.forgetting!r}")
+            raise ParameterError(f"forgetting must be in (0.9, 1], got {self.forgetting!r}")
         if not isinstance(self.bootstrap, int) or self.bootstrap < 6:
-            raise ConfigError(f"bootstrap must be an int >= 6, got {self.bootstrap!r}")
+            raise ParameterError(f"bootstrap must be an int >= 6, got {self.bootstrap!r}")
         if not isinstance(self.warmup, int) or self.warmup < 0:
-            raise ConfigError(f"warmup must be an int >= 0, got {self.warmup!r}")
+            raise ParameterError(f"warmup must be an int >= 0, got {self.warmup!r}")
         if self.detector is None:
             self.detector = DetectorConfig()
 
@@ -468,7 +467,7 @@ class OnlineCalibrator:
         cfg = self.config
         lam = cfg.forgetting
         (m00, m01, m02, m03), (m10, m11, m12, m13), (m20, m21, m22, m23) = a[0], a[1], a[2]
-        if cfg.setup == "eye_to_hand":
+        if cfg.setup == Setup.EYE_TO_HAND:
             t0, t1, t2 = m03, m13, m23
         else:
             # M = A^-1: transpose the rotation in place of the names.

@@ -37,7 +37,8 @@ from calib import transforms as tf
 from calib.errors import CalibrationError, DegenerateMotionError, InsufficientDataError
 from calib.noise import default_point_cov
 from calib.result import CalibrationResult, Residuals
-from calib.solvers import check_measurements, check_setup
+from calib.setup import Setup, check_setup
+from calib.solvers import check_measurements
 
 #: A given ``point_cov`` is trusted unless the residuals reject it at this level;
 #: then the covariance is inflated by the a posteriori variance factor.
@@ -72,14 +73,14 @@ def check_point_cov(point_cov, n: int) -> np.ndarray | None:
 
 def _split(X, Y, A, setup):
     """Camera transform C, marker-side transform K and per-sample M_i (see module docstring)."""
-    if setup == "eye_to_hand":
+    if setup == Setup.EYE_TO_HAND:
         return Y, X, A
     return X, Y, tf.invert(A)
 
 
 def _join(C, K, setup):
     """(X, Y) from camera transform C and marker-side transform K."""
-    return (K, C) if setup == "eye_to_hand" else (C, K)
+    return (K, C) if setup == Setup.EYE_TO_HAND else (C, K)
 
 
 def _skew(v):
@@ -278,7 +279,7 @@ def _min_samples(points: bool) -> int:
 
 def _prepare(X, Y, A, B, setup, point_cov):
     """Validated problem at (X, Y): returns problem, C, K, whether the point covariance was given, A, B."""
-    check_setup(setup)
+    setup = check_setup(setup)
     A, B = check_measurements(A, B)
     X = tf.check_transform(X, "X")
     Y = tf.check_transform(Y, "Y")
@@ -420,7 +421,7 @@ def kron_t_prime_covariance(X, Y, A, B, *, setup: str, point_cov=None) -> np.nda
     # Step 1: the system of eq. 20 exactly as `calib.solvers._y_kron_t_prime` builds it.
     M = np.empty((n, 3, 15))
     T2 = np.empty((n, 3, 6))
-    if setup == "eye_to_hand":
+    if setup == Setup.EYE_TO_HAND:
         M[:, :, :9] = (p[:, None, :, None] * _I3[None, :, None, :]).reshape(n, 3, 9)
         M[:, :, 9:12] = _I3
         M[:, :, 12:] = -R_A
@@ -439,7 +440,7 @@ def kron_t_prime_covariance(X, Y, A, B, *, setup: str, point_cov=None) -> np.nda
     x = H_inv @ (Mf.T @ rhs.reshape(-1))
     Q = x[:9].reshape(3, 3).T                                         # unvec, column-major
     e = rhs - M @ x                                                   # (N, 3) residuals of eq. 20
-    if setup == "eye_to_hand":
+    if setup == Setup.EYE_TO_HAND:
         E, u = Q, e
     else:
         E, u = R_A @ Q, np.einsum("nji,nj->ni", R_A, e)
@@ -460,7 +461,7 @@ def kron_t_prime_covariance(X, Y, A, B, *, setup: str, point_cov=None) -> np.nda
     J_rot = -(D @ H_inv[:9]) @ L                                      # (N, 3, 3): d delta / d p_i
     # Step 3: translations re-solved with R fixed.
     Rp = p @ R.T
-    if setup == "eye_to_hand":
+    if setup == Setup.EYE_TO_HAND:
         F, G = -R, _skew(Rp)
     else:
         F, G = -R_A @ R, R_A @ _skew(Rp)
@@ -576,7 +577,7 @@ def cramer_rao_bound(X, Y, A, point_cov, *, setup: str) -> tuple[float, float, n
     cov : ndarray, shape (6, 6)
         The camera block of the inverse Fisher information.
     """
-    check_setup(setup)
+    setup = check_setup(setup)
     A = tf.check_transforms(A, "A")
     X = tf.check_transform(X, "X")
     Y = tf.check_transform(Y, "Y")
@@ -616,7 +617,7 @@ def residuals(X, Y, A, B, *, setup: str) -> Residuals:
     Translation: distance between the measured and the predicted marker center
     (m). Rotation (pose data only): angle of ``R_B^T R_C^T R_M R_K`` (rad).
     """
-    check_setup(setup)
+    setup = check_setup(setup)
     A, B = check_measurements(A, B)
     return _residuals(tf.check_transform(X, "X"), tf.check_transform(Y, "Y"), A, B, setup)
 
@@ -711,3 +712,33 @@ def refine(initial: CalibrationResult, A, B, *, point_cov=None, max_iterations: 
         iterations=iters,
         info={**initial.info, **info},
     )
+
+
+def point_jacobian(X, Y, A, *, setup: str) -> tuple[np.ndarray, np.ndarray]:
+    """Predicted marker points and their Jacobian w.r.t. the point model's unknowns.
+
+    The point model of the module docstring (paper eq. 5), for flange poses
+    that have not been measured yet: what the camera would see, and how that
+    depends on the unknowns ``[dC, tC, tK]`` (left rotation perturbation and
+    translation of the camera transform C, translation of the marker-side K).
+
+    Parameters
+    ----------
+    X, Y : array_like, shape (4, 4)
+        Eye-to-hand: ``X = T_flange_marker``, ``Y = T_base_cam``; eye-in-hand:
+        ``X = T_flange_cam``, ``Y = T_base_marker``.
+    A : array_like, shape (N, 4, 4)
+        ``T_base_flange``.
+    setup : {"eye_to_hand", "eye_in_hand"}
+
+    Returns
+    -------
+    points : ndarray, shape (N, 3)
+        Marker center in the camera frame, m.
+    J : ndarray, shape (N, 3, 9)
+        ``d points / d [dC, tC, tK]``.
+    """
+    check_setup(setup)
+    C, K, M = _split(tf.check_transform(X, "X"), tf.check_transform(Y, "Y"), tf.check_transforms(A, "A"), setup)
+    r, J_dC, J_tC, J_tK = _point_residuals(C, K[:3, 3], M, np.zeros((len(M), 3)))
+    return -r, -np.concatenate([J_dC, J_tC, J_tK], axis=2)

@@ -12,6 +12,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from calib.setup import Setup
+
 
 @dataclass(frozen=True)
 class Residuals:
@@ -55,7 +57,7 @@ class CalibrationResult:
     """
 
     method: str
-    setup: str
+    setup: Setup
     X: np.ndarray
     Y: np.ndarray
     n_samples: int
@@ -69,28 +71,28 @@ class CalibrationResult:
 
     @property
     def T_base_cam(self) -> np.ndarray:
-        self._require("eye_to_hand", "T_base_cam")
+        self._require(Setup.EYE_TO_HAND, "T_base_cam")
         return self.Y
 
     @property
     def T_flange_marker(self) -> np.ndarray:
-        self._require("eye_to_hand", "T_flange_marker")
+        self._require(Setup.EYE_TO_HAND, "T_flange_marker")
         return self.X
 
     @property
     def T_flange_cam(self) -> np.ndarray:
-        self._require("eye_in_hand", "T_flange_cam")
+        self._require(Setup.EYE_IN_HAND, "T_flange_cam")
         return self.X
 
     @property
     def T_base_marker(self) -> np.ndarray:
-        self._require("eye_in_hand", "T_base_marker")
+        self._require(Setup.EYE_IN_HAND, "T_base_marker")
         return self.Y
 
     @property
     def camera_transform(self) -> np.ndarray:
         """``T_base_cam`` (eye-to-hand) or ``T_flange_cam`` (eye-in-hand)."""
-        return self.Y if self.setup == "eye_to_hand" else self.X
+        return self.Y if self.setup == Setup.EYE_TO_HAND else self.X
 
     @property
     def rejected(self) -> np.ndarray:
@@ -99,6 +101,6 @@ class CalibrationResult:
             return np.zeros(0, dtype=int)
         return np.flatnonzero(~self.inliers)
 
-    def _require(self, setup: str, name: str) -> None:
+    def _require(self, setup: Setup, name: str) -> None:
         if self.setup != setup:
-            raise AttributeError(f"{name} is defined for setup={setup!r}, this result is {self.setup!r}")
+            raise AttributeError(f"{name} is defined for setup={setup.value!r}, this result is {str(self.setup)!r}")

@@ -29,6 +29,7 @@ from scipy.stats import chi2
 from calib import refine as rf
 from calib.errors import CalibrationError, InsufficientDataError
 from calib.result import CalibrationResult
+from calib.setup import check_setup
 
 #: Chi-square quantile below which a sample counts as an inlier.
 INLIER_QUANTILE = 0.999
@@ -121,7 +122,7 @@ def robust_solve(
     CalibrationError
         Bad shapes or values (see `calib.refine.check_measurements`).
     """
-    rf.check_setup(setup)
+    setup = check_setup(setup)
     A, B = rf.check_measurements(A, B)
     if not isinstance(rng, np.random.Generator):
         raise CalibrationError("rng must be a numpy.random.Generator")

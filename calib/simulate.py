@@ -24,6 +24,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from calib import transforms as tf
+from calib.setup import Setup, check_setup
 
 
 @dataclass(frozen=True)
@@ -56,7 +57,7 @@ class SimulatedData:
     Y: np.ndarray
     A_true: np.ndarray
     B_true: np.ndarray
-    setup: str = "eye_to_hand"
+    setup: Setup = Setup.EYE_TO_HAND
 
 
 def _random_direction(n: int, rng: np.random.Generator) -> np.ndarray:
@@ -132,7 +133,7 @@ def realistic_cell(
     n: int,
     rng: np.random.Generator,
     *,
-    setup: str = "eye_to_hand",
+    setup: Setup = Setup.EYE_TO_HAND,
     distance: float = 0.7,
     translation_range: float = 0.15,
     angle_range: float = np.deg2rad(40.0),
@@ -153,8 +154,7 @@ def realistic_cell(
     Eye-in-hand mirrors it: the camera rides on the flange ``distance`` m from
     a static marker, ``X = T_flange_cam``, ``Y = T_base_marker``.
     """
-    if setup not in ("eye_to_hand", "eye_in_hand"):
-        raise ValueError(f"setup must be 'eye_to_hand' or 'eye_in_hand', got {setup!r}")
+    setup = check_setup(setup)
     # Flange start pose: 0.9 m in front of the base, 0.5 m up, tool z axis horizontal.
     p0 = np.array([0.9, 0.1, 0.5])
     # A mounting offset of a few cm and tens of degrees, unknown to the solver.
@@ -169,7 +169,7 @@ def realistic_cell(
     R_flange0 = T_base_cam[:3, :3] @ Rotation.from_euler("y", np.pi).as_matrix()
     A0 = tf.make_transform(R_flange0, p0)
 
-    if setup == "eye_to_hand":
+    if setup == Setup.EYE_TO_HAND:
         X = offset                                   # T_flange_marker
         Y = T_base_cam                               # T_base_cam
     else:
@@ -181,7 +181,7 @@ def realistic_cell(
     dR = tf.random_rotations(n, angle_range, rng)
     dt = rng.uniform(-translation_range, translation_range, size=(n, 3))
     A_true = tf.make_transform(dR @ R_flange0, p0 + dt)
-    if setup == "eye_to_hand":
+    if setup == Setup.EYE_TO_HAND:
         B_true = tf.invert(Y) @ A_true @ X           # T_cam_marker
     else:
         B_true = tf.invert(A_true @ X) @ Y           # T_cam_marker = (T_base_flange T_flange_cam)^-1 T_base_marker

@@ -38,7 +38,7 @@ from scipy.spatial.transform import Rotation
 
 from calib import transforms as tf
 from calib.errors import CalibrationError, DegenerateMotionError, InsufficientDataError
-from calib.observation import SETUPS
+from calib.setup import Setup, check_setup
 
 #: A linear system is called degenerate when the singular value that must be
 #: non-zero for a unique solution is below this fraction of the largest one
@@ -56,13 +56,6 @@ _I3 = np.eye(3)
 
 
 # ---------------------------------------------------------------- validation
-
-
-def check_setup(setup: str) -> str:
-    """Return ``setup`` if it is ``"eye_to_hand"`` or ``"eye_in_hand"``, else raise CalibrationError."""
-    if setup not in SETUPS:
-        raise CalibrationError(f"setup must be one of {SETUPS}, got {setup!r}")
-    return setup
 
 
 def check_pose_pairs(A, B, minimum: int) -> tuple[np.ndarray, np.ndarray]:
@@ -677,7 +670,7 @@ def y_quat_t_prime(A: np.ndarray, B: np.ndarray) -> tuple[np.ndarray, np.ndarray
     return X, Y
 
 
-def y_kron_t_prime(A: np.ndarray, p: np.ndarray, setup: str = "eye_to_hand") -> tuple[np.ndarray, np.ndarray]:
+def y_kron_t_prime(A: np.ndarray, p: np.ndarray, setup: Setup = Setup.EYE_TO_HAND) -> tuple[np.ndarray, np.ndarray]:
     """YKronT' (proposed, eq. 20): the equation of translation alone, marker points only.
 
     Eye-to-hand (``X = T_flange_marker``, ``Y = T_base_cam``, ``p`` = marker
@@ -710,7 +703,7 @@ def y_kron_t_prime(A: np.ndarray, p: np.ndarray, setup: str = "eye_to_hand") -> 
     -------
     X, Y : ndarray, shape (4, 4)
     """
-    check_setup(setup)
+    setup = check_setup(setup)
     A, p = check_point_pairs(A, p, 5)
     return _y_kron_t_prime(A, p, setup)
 
@@ -719,7 +712,7 @@ def _y_kron_t_prime(A: np.ndarray, p: np.ndarray, setup: str) -> tuple[np.ndarra
     n = len(A)
     R_A, t_A = A[:, :3, :3], A[:, :3, 3]
     M = np.empty((n, 3, 15))
-    if setup == "eye_to_hand":
+    if setup == Setup.EYE_TO_HAND:
         M[:, :, :9] = _kron_t(p)
         M[:, :, 9:12] = _I3
         M[:, :, 12:] = -R_A
@@ -734,7 +727,7 @@ def _y_kron_t_prime(A: np.ndarray, p: np.ndarray, setup: str) -> tuple[np.ndarra
     R = tf.project_to_so3(_unvec(x[:9]))
     # Re-solve [I, -R_A][t_1; t_2] = c with the rotation fixed (a 3N x 6 system).
     T2 = np.empty((n, 3, 6))
-    if setup == "eye_to_hand":
+    if setup == Setup.EYE_TO_HAND:
         T2[:, :, :3] = _I3
         T2[:, :, 3:] = -R_A
         c = t_A - p @ R.T
@@ -743,7 +736,7 @@ def _y_kron_t_prime(A: np.ndarray, p: np.ndarray, setup: str) -> tuple[np.ndarra
         T2[:, :, 3:] = -_I3
         c = -t_A - np.einsum("nij,nj->ni", R_A, p @ R.T)
     t = _lstsq(T2.reshape(3 * n, 6), c.reshape(-1), "eq. 20 translations", A)
-    if setup == "eye_to_hand":
+    if setup == Setup.EYE_TO_HAND:
         return tf.make_transform(_I3, t[3:]), tf.make_transform(R, t[:3])
     return tf.make_transform(R, t[:3]), tf.make_transform(_I3, t[3:])
 
@@ -775,7 +768,7 @@ def residuals(X, Y, A, B, setup: str, *, rotation: bool = True) -> tuple[np.ndar
     translation : ndarray, shape (N,)
     rotation : ndarray, shape (N,), or None
     """
-    check_setup(setup)
+    setup = check_setup(setup)
     X = tf.check_transform(X, "X")
     Y = tf.check_transform(Y, "Y")
     A, B = check_measurements(A, B)
@@ -787,7 +780,7 @@ def _residuals(X, Y, A, B, setup: str, rotation: bool) -> tuple[np.ndarray, np.n
     n = len(A)
     poses = B.ndim == 3
     p = B[:, :3, 3] if poses else B
-    if setup == "eye_to_hand":
+    if setup == Setup.EYE_TO_HAND:
         # [R_A | t_A] [t_X; 1] as one matrix-vector product over the (4N, 4) stack.
         r = (A.reshape(4 * n, 4) @ np.append(X[:3, 3], 1.0)).reshape(n, 4)[:, :3] - p @ Y[:3, :3].T - Y[:3, 3]
     else:
@@ -801,5 +794,5 @@ def _residuals(X, Y, A, B, setup: str, rotation: bool) -> tuple[np.ndarray, np.n
     R_A = np.ascontiguousarray(A[:, :3, :3].transpose(1, 2, 0))
     R_B = np.ascontiguousarray(B[:, :3, :3].transpose(1, 2, 0))
     P = np.einsum("iln,lj->ijn", np.einsum("ki,kln->iln", Y[:3, :3], R_A), X[:3, :3])
-    dR = np.einsum("ikn,jkn->ijn" if setup == "eye_to_hand" else "ikn,kjn->ijn", P, R_B)
+    dR = np.einsum("ikn,jkn->ijn" if setup == Setup.EYE_TO_HAND else "ikn,kjn->ijn", P, R_B)
     return trans, tf.rotation_angle(dR.transpose(2, 0, 1))

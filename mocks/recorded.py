@@ -26,7 +26,8 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from calib.errors import ConfigError, ConnectionLostError, DeviceError
+from calib.errors import ParameterError
+from drivers.errors import ConnectionLostError, DeviceError
 from drivers.camera.base import Camera, CameraIntrinsics, RGBDFrame
 from drivers.camera.depth import depth_from_mm, depth_to_mm
 from drivers.camera.intrinsics import load_intrinsics, save_intrinsics
@@ -55,12 +56,12 @@ class RecordedCameraConfig:
 
     def __post_init__(self):
         if self.backend != "recorded":
-            raise ConfigError(f"camera.backend must be 'recorded' for RecordedCameraConfig, got {self.backend!r}")
+            raise ParameterError(f"camera.backend must be 'recorded' for RecordedCameraConfig, got {self.backend!r}")
         if not isinstance(self.path, str) or not self.path:
-            raise ConfigError(f"camera.path must name a recording directory, got {self.path!r}")
+            raise ParameterError(f"camera.path must name a recording directory, got {self.path!r}")
         for name in ("loop", "realtime"):
             if not isinstance(getattr(self, name), bool):
-                raise ConfigError(f"camera.{name} must be true or false, got {getattr(self, name)!r}")
+                raise ParameterError(f"camera.{name} must be true or false, got {getattr(self, name)!r}")
 
 
 class RecordedCamera(Camera):

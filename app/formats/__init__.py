@@ -42,7 +42,7 @@ from pathlib import Path
 
 import yaml
 
-from calib.errors import SessionError
+from app.errors import SessionError
 
 from app.formats.common import DEFAULT_FRAMES, ImportedSamples
 from app.formats.export import EXPORT_FORMATS, result_to_dict, ros2_command, urdf_origin, write_result

@@ -17,8 +17,10 @@ import numpy as np
 import yaml
 
 from calib import transforms as tf
-from calib.errors import CalibrationError, SessionError
-from calib.observation import SETUPS, Observation
+from app.errors import SessionError
+from calib.errors import CalibrationError
+from calib.observation import Observation
+from calib.setup import Setup, check_setup
 
 DEFAULT_FRAMES = {"base": "base", "flange": "flange", "camera": "camera", "marker": "marker"}
 
@@ -39,12 +41,11 @@ class ImportedSamples:
     """
 
     observations: list[Observation]
-    setup: str
+    setup: Setup
     meta: dict = field(default_factory=dict)
 
     def __post_init__(self):
-        if self.setup not in SETUPS:
-            raise SessionError(f"setup must be one of {SETUPS}, got {self.setup!r}")
+        self.setup = check_setup(self.setup, error=SessionError)
 
     @property
     def A(self) -> np.ndarray:

@@ -28,19 +28,19 @@ from __future__ import annotations
 from pathlib import Path
 
 from calib import transforms as tf
-from calib.errors import SessionError
+from app.errors import SessionError
+from calib.setup import Setup, check_setup
 
 from app.formats.common import ImportedSamples, observations_from_poses, read_yaml, transform_from_msg
 
-_SETUP_NAMES = {"eye_in_hand": "eye_in_hand", "eye_on_hand": "eye_in_hand",
-                "eye_on_base": "eye_to_hand", "eye_to_hand": "eye_to_hand"}
+# easy_handeye's names for the two setups (and ours).
+_SETUP_NAMES = {"eye_in_hand": Setup.EYE_IN_HAND, "eye_on_hand": Setup.EYE_IN_HAND,
+                "eye_on_base": Setup.EYE_TO_HAND, "eye_to_hand": Setup.EYE_TO_HAND}
 
 
-def _setup_from(value, path: Path, given: str | None) -> str:
+def _setup_from(value, path: Path, given: str | None) -> Setup:
     if given is not None:
-        if given not in ("eye_to_hand", "eye_in_hand"):
-            raise SessionError(f"setup must be 'eye_to_hand' or 'eye_in_hand', got {given!r}")
-        return given
+        return check_setup(given, error=SessionError)
     if value in _SETUP_NAMES:
         return _SETUP_NAMES[value]
     raise SessionError(
@@ -58,7 +58,7 @@ def _frames(params: dict) -> dict:
     }
 
 
-def _build(robot, tracking, setup: str, path: Path, fmt: str, params: dict) -> ImportedSamples:
+def _build(robot, tracking, setup: Setup, path: Path, fmt: str, params: dict) -> ImportedSamples:
     if not robot:
         raise SessionError(f"{path}: no samples")
     if len(robot) != len(tracking):
@@ -66,7 +66,7 @@ def _build(robot, tracking, setup: str, path: Path, fmt: str, params: dict) -> I
     R = [transform_from_msg(d, f"{path}: sample {i} robot") for i, d in enumerate(robot)]
     B = [transform_from_msg(d, f"{path}: sample {i} tracking") for i, d in enumerate(tracking)]
     # eye-on-base samples store T_effector_base (the tools invert it for their solver).
-    A = R if setup == "eye_in_hand" else list(tf.invert(R))
+    A = R if setup == Setup.EYE_IN_HAND else list(tf.invert(R))
     obs = observations_from_poses(A, B)
     meta = {"format": fmt, "source": str(path), "frames": _frames(params), "time": "sample index"}
     return ImportedSamples(obs, setup, meta)

@@ -19,8 +19,10 @@ import yaml
 from scipy.spatial.transform import Rotation
 
 from calib import transforms as tf
-from calib.errors import CalibrationError, ConfigError
+from app.errors import ConfigError
+from calib.errors import CalibrationError
 from calib.result import CalibrationResult
+from calib.setup import Setup, check_setup
 
 from app.formats.common import DEFAULT_FRAMES
 
@@ -28,11 +30,6 @@ EXPORT_FORMATS = ("yaml", "json", "easy_handeye", "easy_handeye2", "urdf", "ros2
 RESULT_FORMAT = "handeye-result"
 RESULT_VERSION = 1
 
-_EQUATION = {
-    "eye_to_hand": "T_base_flange @ T_flange_marker = T_base_cam @ T_cam_marker",
-    "eye_in_hand": "T_base_flange @ T_flange_cam @ T_cam_marker = T_base_marker",
-}
-_NAMES = {"eye_to_hand": ("T_base_cam", "T_flange_marker"), "eye_in_hand": ("T_flange_cam", "T_base_marker")}
 
 
 class _Dumper(yaml.SafeDumper):
@@ -68,8 +65,7 @@ def check_result(result) -> CalibrationResult:
     """
     if not isinstance(result, CalibrationResult):
         raise CalibrationError(f"result must be a CalibrationResult, got {type(result).__name__}")
-    if result.setup not in _NAMES:
-        raise CalibrationError(f"result.setup must be one of {sorted(_NAMES)}, got {result.setup!r}")
+    check_setup(result.setup, "result.setup")
     tf.check_transform(result.X, "result.X")
     tf.check_transform(result.Y, "result.Y")
     if result.cov is not None:
@@ -81,12 +77,12 @@ def check_result(result) -> CalibrationResult:
 
 def _parent_child(setup: str, frames: dict) -> tuple[str, str]:
     """(parent, child) frame names of the camera transform."""
-    return (frames["base"] if setup == "eye_to_hand" else frames["flange"]), frames["camera"]
+    return (frames["base"] if setup == Setup.EYE_TO_HAND else frames["flange"]), frames["camera"]
 
 
 def _marker_parent_child(setup: str, frames: dict) -> tuple[str, str]:
     """(parent, child) frame names of the marker-side transform."""
-    return (frames["flange"] if setup == "eye_to_hand" else frames["base"]), frames["marker"]
+    return (frames["flange"] if setup == Setup.EYE_TO_HAND else frames["base"]), frames["marker"]
 
 
 def rpy_deg(T) -> np.ndarray:
@@ -156,9 +152,8 @@ def result_to_dict(result: CalibrationResult, frames: dict | None = None) -> dic
     """
     check_result(result)
     frames = _frames(frames)
-    setup = result.setup
-    cam_name, marker_name = _NAMES[setup]
-    marker_T = result.X if setup == "eye_to_hand" else result.Y
+    setup = Setup(result.setup)
+    marker_T = result.X if setup == Setup.EYE_TO_HAND else result.Y
     res = result.residuals
     resid = {
         "n_samples": int(result.n_samples),
@@ -168,16 +163,16 @@ def result_to_dict(result: CalibrationResult, frames: dict | None = None) -> dic
         "rms_rotation_deg": None if res.rms_rotation is None else math.degrees(res.rms_rotation),
         "note": "per-sample residuals of A_i X = Y B_i (paper eq. 1); translation in the camera frame",
     }
-    marker = _transform_dict(marker_T, marker_name, *_marker_parent_child(setup, frames))
+    marker = _transform_dict(marker_T, setup.marker_name, *_marker_parent_child(setup, frames))
     marker["rotation_known"] = bool(result.marker_rotation_known)
     return {
         "format": RESULT_FORMAT,
         "version": RESULT_VERSION,
-        "setup": setup,
-        "equation": _EQUATION[setup],
+        "setup": setup.value,
+        "equation": setup.equation,
         "solver": result.method,
         "frames": frames,
-        "camera_transform": _transform_dict(result.camera_transform, cam_name, *_parent_child(setup, frames),
+        "camera_transform": _transform_dict(result.camera_transform, setup.camera_name, *_parent_child(setup, frames),
                                             cov=result.cov),
         "marker_transform": marker,
         "residuals": resid,
@@ -203,7 +198,7 @@ def easy_handeye_dict(result: CalibrationResult, frames: dict | None = None, *, 
     return {
         "parameters": {
             "namespace": f"/{namespace}/", "move_group_namespace": "/", "move_group": "manipulator",
-            "eye_on_hand": result.setup == "eye_in_hand",
+            "eye_on_hand": result.setup == Setup.EYE_IN_HAND,
             "robot_base_frame": frames["base"], "robot_effector_frame": frames["flange"],
             "tracking_base_frame": frames["camera"], "tracking_marker_frame": frames["marker"],
         },
@@ -218,7 +213,7 @@ def easy_handeye2_dict(result: CalibrationResult, frames: dict | None = None, *,
     t, q = tf.to_xyz_quat(result.camera_transform)
     return {
         "parameters": {
-            "name": name, "calibration_type": "eye_in_hand" if result.setup == "eye_in_hand" else "eye_on_base",
+            "name": name, "calibration_type": "eye_in_hand" if result.setup == Setup.EYE_IN_HAND else "eye_on_base",
             "robot_base_frame": frames["base"], "robot_effector_frame": frames["flange"],
             "tracking_base_frame": frames["camera"], "tracking_marker_frame": frames["marker"],
             "freehand_robot_movement": True, "move_group_namespace": "/", "move_group": "manipulator",
@@ -237,7 +232,7 @@ def urdf_joint(result: CalibrationResult, frames: dict | None = None) -> str:
     check_result(result)
     frames = _frames(frames)
     parent, child = _parent_child(result.setup, frames)
-    cam_name = _NAMES[result.setup][0]
+    cam_name = Setup(result.setup).camera_name
     return (
         f"<!-- handeye {result.setup}: {cam_name} by {result.method}, {result.n_samples} samples, "
         f"residual RMS {result.residuals.rms_translation * 1e3:.2f} mm -->\n"
@@ -263,7 +258,7 @@ def ros2_launch(result: CalibrationResult, frames: dict | None = None) -> str:
     args += ["--frame-id", parent, "--child-frame-id", child]
     arg_lines = "".join(f"                {json.dumps(a)}, {json.dumps(b)},\n" for a, b in zip(args[::2], args[1::2]))
     return (
-        f'"""Publish the hand-eye calibration ({result.setup}, {_NAMES[result.setup][0]}, '
+        f'"""Publish the hand-eye calibration ({result.setup}, {Setup(result.setup).camera_name}, '
         f'solver {result.method}) as a static transform."""\n'
         "from launch import LaunchDescription\n"
         "from launch_ros.actions import Node\n\n\n"
@@ -308,7 +303,7 @@ def write_result(result: CalibrationResult, path, fmt: str = "yaml", frames: dic
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     if fmt == "yaml":
-        text = (f"# handeye calibration result ({result.setup}); camera_transform = {_NAMES[result.setup][0]}\n"
+        text = (f"# handeye calibration result ({result.setup}); camera_transform = {Setup(result.setup).camera_name}\n"
                 + yaml.dump(result_to_dict(result, frames), Dumper=_Dumper, sort_keys=False, width=1000))
     elif fmt == "json":
         text = json.dumps(result_to_dict(result, frames), indent=2) + "\n"

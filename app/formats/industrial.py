@@ -26,7 +26,9 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from calib.errors import ConfigError, ExtractionError, SessionError
+from app.errors import ConfigError, SessionError
+from calib.errors import ExtractionError
+from calib.setup import Setup
 from calib.vision.circle_grid import CircleGridSpec, detect_circle_grid
 from calib.vision.lift import pnp_covariance, solve_pnp
 from calib.vision.markers import BoardSpec, Detection, detect_charuco
@@ -116,7 +118,7 @@ def load_industrial_calibration(path) -> ImportedSamples:
         raise ConfigError(f"{path}: intrinsics needs numeric fx, fy, cx, cy ({e})") from e
     K = np.array([[fx, 0, cx], [0, fy, cy], [0, 0, 1.0]])
     detect = make_detector(data["target_finder"], str(path))
-    setup = "eye_to_hand" if data.get("static_camera", False) else "eye_in_hand"
+    setup = Setup.EYE_TO_HAND if data.get("static_camera", False) else Setup.EYE_IN_HAND
 
     A, B, covs, per, skipped = [], [], [], [], []
     for i, entry in enumerate(data["data"]):

@@ -39,8 +39,10 @@ import numpy as np
 
 from calib import timesync
 from calib import transforms as tf
-from calib.errors import ConfigError, HandeyeError, SessionError
-from calib.observation import SETUPS, Observation
+from app.errors import ConfigError, SessionError
+from calib.errors import HandeyeError
+from calib.observation import Observation
+from calib.setup import Setup, check_setup
 
 from app.formats.common import DEFAULT_FRAMES, ImportedSamples
 
@@ -126,7 +128,7 @@ def read_pose_csv(path) -> tuple[np.ndarray, np.ndarray]:
 class StreamsConfig:
     """The manifest of a pose-stream pair (see the module docstring); paths relative to it."""
 
-    setup: str
+    setup: Setup
     robot: str
     camera: str
     robot_transform: str = "T_base_flange"
@@ -142,8 +144,7 @@ class StreamsConfig:
     format: str = "pose_csv"
 
     def __post_init__(self):
-        if self.setup not in SETUPS:
-            raise ConfigError(f"setup must be one of {SETUPS}, got {self.setup!r}")
+        self.setup = check_setup(self.setup, error=ConfigError)
         if self.robot_transform not in ("T_base_flange", "T_flange_base"):
             raise ConfigError(f"robot_transform must be 'T_base_flange' or 'T_flange_base', got {self.robot_transform!r}")
         if self.camera_transform not in ("T_cam_marker", "T_marker_cam"):
@@ -178,7 +179,7 @@ def read_manifest(path) -> StreamsConfig:
         raise ConfigError(f"{path}: {e}") from e
 
 
-def residual_of_solve(method: str, setup: str):
+def residual_of_solve(method: str, setup: Setup):
     """``f(A, B) -> RMS translation residual (m)`` of the closed-form ``method`` on paired poses.
 
     Uses `calib.api.closed_form` (no covariance: it is evaluated ~25 times);

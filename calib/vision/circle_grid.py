@@ -23,7 +23,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from calib.errors import ConfigError, MarkerNotFoundError
+from calib.errors import MarkerNotFoundError, ParameterError
 from calib.vision.markers import Detection, check_gray
 
 # A corner dot counts as the origin dot if its blob is this much larger than
@@ -57,13 +57,13 @@ class CircleGridSpec:
 
     def __post_init__(self):
         if self.rows < 2 or self.cols < 2:
-            raise ConfigError(f"rows and cols must be >= 2, got rows={self.rows!r}, cols={self.cols!r}")
+            raise ParameterError(f"rows and cols must be >= 2, got rows={self.rows!r}, cols={self.cols!r}")
         if not self.spacing > 0:
-            raise ConfigError(f"spacing must be > 0 m, got {self.spacing!r}")
+            raise ParameterError(f"spacing must be > 0 m, got {self.spacing!r}")
         if not 0 < self.min_area < self.max_area:
-            raise ConfigError(f"need 0 < min_area < max_area px^2, got {self.min_area!r}, {self.max_area!r}")
+            raise ParameterError(f"need 0 < min_area < max_area px^2, got {self.min_area!r}, {self.max_area!r}")
         if not 0 <= self.min_convexity <= 1:
-            raise ConfigError(f"min_convexity must be in [0, 1], got {self.min_convexity!r}")
+            raise ParameterError(f"min_convexity must be in [0, 1], got {self.min_convexity!r}")
 
     def object_points(self) -> np.ndarray:
         """Dot centers (rows*cols, 3) in the target frame, row-major, m."""

@@ -21,7 +21,7 @@ from dataclasses import dataclass, field
 import cv2
 import numpy as np
 
-from calib.errors import ConfigError, DepthError, ExtractionError, MarkerNotFoundError
+from calib.errors import DepthError, ExtractionError, MarkerNotFoundError, ParameterError
 from calib.vision.lift import (
     DepthNoiseModel,
     fit_plane,
@@ -103,50 +103,50 @@ class TargetConfig:
 
     def __post_init__(self):
         if self.kind not in KINDS:
-            raise ConfigError(f"marker.kind must be one of {list(KINDS)}, got {self.kind!r}")
+            raise ParameterError(f"marker.kind must be one of {list(KINDS)}, got {self.kind!r}")
         if not isinstance(self.dictionary, str):
-            raise ConfigError(f"marker.dictionary must be a string, got {self.dictionary!r}")
+            raise ParameterError(f"marker.dictionary must be a string, got {self.dictionary!r}")
         if self.kind != "chessboard":
             get_dictionary(self.dictionary)
         if isinstance(self.marker_id, bool) or not isinstance(self.marker_id, int) or self.marker_id < 0:
-            raise ConfigError(f"marker.marker_id must be an integer >= 0, got {self.marker_id!r}")
+            raise ParameterError(f"marker.marker_id must be an integer >= 0, got {self.marker_id!r}")
         for name in ("marker_size", "sigma_px", "small_marker_px", "depth_roi_scale", "max_chi2_ratio"):
             v = getattr(self, name)
             if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v) or v <= 0:
-                raise ConfigError(f"marker.{name} must be a finite number > 0, got {v!r}")
+                raise ParameterError(f"marker.{name} must be a finite number > 0, got {v!r}")
         for name in ("border_margin_px", "square_size"):
             v = getattr(self, name)
             if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v) or v < 0:
-                raise ConfigError(f"marker.{name} must be a finite number >= 0, got {v!r}")
+                raise ParameterError(f"marker.{name} must be a finite number >= 0, got {v!r}")
         for name in ("min_valid_fraction", "min_inlier_fraction"):
             v = getattr(self, name)
             if not isinstance(v, (int, float)) or not 0 <= v <= 1:
-                raise ConfigError(f"marker.{name} must be in [0, 1], got {v!r}")
+                raise ParameterError(f"marker.{name} must be in [0, 1], got {v!r}")
         mdp = self.min_depth_pixels
         if isinstance(mdp, bool) or not isinstance(mdp, int) or mdp < 3:
-            raise ConfigError(f"marker.min_depth_pixels must be an integer >= 3, got {self.min_depth_pixels!r}")
+            raise ParameterError(f"marker.min_depth_pixels must be an integer >= 3, got {self.min_depth_pixels!r}")
         if self.depth_roi_scale > 1:
-            raise ConfigError(f"marker.depth_roi_scale must be <= 1, got {self.depth_roi_scale!r}")
+            raise ParameterError(f"marker.depth_roi_scale must be <= 1, got {self.depth_roi_scale!r}")
         if not isinstance(self.use_depth, bool):
-            raise ConfigError(f"marker.use_depth must be true or false, got {self.use_depth!r}")
+            raise ParameterError(f"marker.use_depth must be true or false, got {self.use_depth!r}")
         object.__setattr__(self, "squares", tuple(self.squares))
         if isinstance(self.depth_noise, dict):
             try:
                 object.__setattr__(self, "depth_noise", DepthNoiseModel(**self.depth_noise))
             except TypeError as e:
-                raise ConfigError(f"marker.depth_noise: {e}") from None
+                raise ParameterError(f"marker.depth_noise: {e}") from None
         if self.kind != "aruco":
             if self.square_size <= 0:
-                raise ConfigError(f"marker.square_size must be > 0 for a {self.kind}, got {self.square_size!r}")
+                raise ParameterError(f"marker.square_size must be > 0 for a {self.kind}, got {self.square_size!r}")
             self.board  # validates squares / sizes
 
     @classmethod
     def from_dict(cls, data: dict) -> "TargetConfig":
-        """Build from a TOML table; unknown keys raise ConfigError naming the key."""
+        """Build from a TOML table; unknown keys raise ParameterError naming the key."""
         known = {f.name for f in dataclasses.fields(cls)}
         for key in data:
             if key not in known:
-                raise ConfigError(f"unknown key marker.{key} (known: {', '.join(sorted(known))})")
+                raise ParameterError(f"unknown key marker.{key} (known: {', '.join(sorted(known))})")
         return cls(**data)
 
     @property

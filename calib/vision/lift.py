@@ -25,7 +25,7 @@ import cv2
 import numpy as np
 
 from calib import transforms as tf
-from calib.errors import ConfigError, DepthError, MarkerNotFoundError
+from calib.errors import DepthError, MarkerNotFoundError, ParameterError
 
 
 def _rotvec_to_matrix(rv) -> np.ndarray:
@@ -65,11 +65,11 @@ class DepthNoiseModel:
         for name in ("k", "sigma_0", "k_sys"):
             v = getattr(self, name)
             if not (np.isfinite(v) and v >= 0):
-                raise ConfigError(f"depth_noise.{name} must be finite and >= 0, got {v!r}")
+                raise ParameterError(f"depth_noise.{name} must be finite and >= 0, got {v!r}")
         if self.k == 0 and self.sigma_0 == 0:
-            raise ConfigError("depth_noise.k and depth_noise.sigma_0 cannot both be 0")
+            raise ParameterError("depth_noise.k and depth_noise.sigma_0 cannot both be 0")
         if not self.max_independent_pixels >= 3:
-            raise ConfigError(f"depth_noise.max_independent_pixels must be >= 3, got {self.max_independent_pixels!r}")
+            raise ParameterError(f"depth_noise.max_independent_pixels must be >= 3, got {self.max_independent_pixels!r}")
 
     def sigma(self, z) -> np.ndarray:
         """Per-pixel depth standard deviation (m) at depth(s) ``z`` (m)."""

@@ -20,7 +20,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from calib.errors import ConfigError, MarkerNotFoundError
+from calib.errors import MarkerNotFoundError, ParameterError
 
 
 @dataclass(frozen=True)
@@ -71,13 +71,13 @@ def get_dictionary(name: str) -> cv2.aruco.Dictionary:
 
     Raises
     ------
-    ConfigError
+    ParameterError
         Naming the unknown dictionary.
     """
     key = name if name.startswith("DICT_") else f"DICT_{name}"
     if not hasattr(cv2.aruco, key):
         known = sorted(k for k in dir(cv2.aruco) if k.startswith("DICT_"))
-        raise ConfigError(f"unknown marker dictionary {name!r} (known: {', '.join(known)})")
+        raise ParameterError(f"unknown marker dictionary {name!r} (known: {', '.join(known)})")
     return cv2.aruco.getPredefinedDictionary(getattr(cv2.aruco, key))
 
 
@@ -141,11 +141,11 @@ class BoardSpec:
 
     def __post_init__(self):
         if len(self.squares) != 2 or min(self.squares) < 2:
-            raise ConfigError(f"squares must be two integers >= 2 (columns, rows), got {self.squares!r}")
+            raise ParameterError(f"squares must be two integers >= 2 (columns, rows), got {self.squares!r}")
         if not self.square_size > 0:
-            raise ConfigError(f"square_size must be > 0 m, got {self.square_size!r}")
+            raise ParameterError(f"square_size must be > 0 m, got {self.square_size!r}")
         if self.marker_size < 0 or self.marker_size >= self.square_size:
-            raise ConfigError(
+            raise ParameterError(
                 f"marker_size must be in [0, square_size) m, got {self.marker_size!r}"
             )
 
@@ -196,7 +196,7 @@ def detect_charuco(image, board: BoardSpec, min_corners: int = 4) -> Detection:
         Fewer than ``min_corners`` corners found.
     """
     if board.marker_size <= 0:
-        raise ConfigError("a ChArUco board needs marker_size > 0")
+        raise ParameterError("a ChArUco board needs marker_size > 0")
     gray = check_gray(image)
     b, detector = _charuco(board)
     ch_corners, ch_ids, _, _ = detector.detectBoard(gray)

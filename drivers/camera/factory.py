@@ -14,7 +14,7 @@ from collections.abc import Callable
 
 import numpy as np
 
-from calib.errors import ConfigError
+from calib.errors import ParameterError
 from drivers.camera.base import Camera
 
 BACKENDS = ("openni2", "rendered", "recorded")
@@ -33,7 +33,7 @@ def _config_class(backend: str):
         from mocks.recorded import RecordedCameraConfig
 
         return RecordedCameraConfig
-    raise ConfigError(f"camera.backend must be one of {list(BACKENDS)}, got {backend!r}")
+    raise ParameterError(f"camera.backend must be one of {list(BACKENDS)}, got {backend!r}")
 
 
 def camera_config_from_dict(data: dict):
@@ -41,16 +41,16 @@ def camera_config_from_dict(data: dict):
 
     Raises
     ------
-    ConfigError
+    ParameterError
         Unknown backend, unknown key (named) or a bad field (named).
     """
     if not isinstance(data, dict):
-        raise ConfigError(f"[camera] must be a table, got {data!r}")
+        raise ParameterError(f"[camera] must be a table, got {data!r}")
     cls = _config_class(data.get("backend"))
     known = {f.name for f in dataclasses.fields(cls)}
     for key in data:
         if key not in known:
-            raise ConfigError(
+            raise ParameterError(
                 f"unknown key camera.{key} for backend {data['backend']!r} (known: {', '.join(sorted(known))})"
             )
     return cls(**data)
@@ -78,7 +78,7 @@ def make_camera(config, flange_pose_source: Callable[[], np.ndarray] | None = No
         from mocks.render.camera import RenderedCamera
 
         if flange_pose_source is None:
-            raise ConfigError("camera.backend 'rendered' needs a flange_pose_source (the robot's T_base_flange)")
+            raise ParameterError("camera.backend 'rendered' needs a flange_pose_source (the robot's T_base_flange)")
         return RenderedCamera(config, flange_pose_source)
     from mocks.recorded import RecordedCamera
 

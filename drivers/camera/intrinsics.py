@@ -22,24 +22,24 @@ from pathlib import Path
 
 import yaml
 
-from calib.errors import ConfigError
+from calib.errors import ParameterError
 from drivers.camera.base import CameraIntrinsics
 
 
 def check_intrinsics(intr: CameraIntrinsics, name: str = "intrinsics") -> CameraIntrinsics:
-    """Raise ConfigError naming the field if ``intr`` is not a usable pinhole model."""
+    """Raise ParameterError naming the field if ``intr`` is not a usable pinhole model."""
     for f in ("width", "height"):
         v = getattr(intr, f)
         if isinstance(v, bool) or not isinstance(v, int) or v <= 0:
-            raise ConfigError(f"{name}.{f} must be a positive integer, got {v!r}")
+            raise ParameterError(f"{name}.{f} must be a positive integer, got {v!r}")
     for f in ("fx", "fy", "cx", "cy"):
         v = getattr(intr, f)
         if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
-            raise ConfigError(f"{name}.{f} must be a finite number, got {v!r}")
+            raise ParameterError(f"{name}.{f} must be a finite number, got {v!r}")
     if intr.fx <= 0 or intr.fy <= 0:
-        raise ConfigError(f"{name}.fx and {name}.fy must be > 0, got {intr.fx}, {intr.fy}")
+        raise ParameterError(f"{name}.fx and {name}.fy must be > 0, got {intr.fx}, {intr.fy}")
     if len(intr.dist) not in (4, 5, 8, 12, 14) or not all(math.isfinite(float(d)) for d in intr.dist):
-        raise ConfigError(f"{name}.dist must be 4, 5, 8, 12 or 14 finite OpenCV coefficients, got {intr.dist!r}")
+        raise ParameterError(f"{name}.dist must be 4, 5, 8, 12 or 14 finite OpenCV coefficients, got {intr.dist!r}")
     return intr
 
 
@@ -58,9 +58,9 @@ def intrinsics_from_dict(d: dict, name: str = "intrinsics") -> CameraIntrinsics:
                 tuple(float(x) for x in d.get("dist", (0.0,) * 5)),
             )
     except KeyError as e:
-        raise ConfigError(f"{name}: missing key {e.args[0]!r}") from None
+        raise ParameterError(f"{name}: missing key {e.args[0]!r}") from None
     except (TypeError, ValueError, IndexError) as e:
-        raise ConfigError(f"{name}: {e}") from None
+        raise ParameterError(f"{name}: {e}") from None
     return check_intrinsics(intr, name)
 
 
@@ -70,9 +70,9 @@ def load_intrinsics(path) -> CameraIntrinsics:
     try:
         data = yaml.safe_load(path.read_text())
     except (OSError, yaml.YAMLError) as e:
-        raise ConfigError(f"cannot read intrinsics file {path}: {e}") from None
+        raise ParameterError(f"cannot read intrinsics file {path}: {e}") from None
     if not isinstance(data, dict):
-        raise ConfigError(f"intrinsics file {path} must hold a mapping")
+        raise ParameterError(f"intrinsics file {path} must hold a mapping")
     return intrinsics_from_dict(data, str(path))
 
 

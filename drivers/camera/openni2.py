@@ -24,7 +24,8 @@ from pathlib import Path
 
 import numpy as np
 
-from calib.errors import ConfigError, ConnectionLostError, DeviceError
+from calib.errors import ParameterError
+from drivers.errors import ConnectionLostError, DeviceError
 from drivers.camera.base import Camera, CameraIntrinsics, RGBDFrame
 from drivers.camera.depth import depth_from_mm
 from drivers.camera.intrinsics import load_intrinsics
@@ -79,23 +80,23 @@ class OpenNI2CameraConfig:
 
     def __post_init__(self):
         if self.backend != "openni2":
-            raise ConfigError(f"camera.backend must be 'openni2' for OpenNI2CameraConfig, got {self.backend!r}")
+            raise ParameterError(f"camera.backend must be 'openni2' for OpenNI2CameraConfig, got {self.backend!r}")
         for name in ("uri", "intrinsics_file", "library_dir"):
             if not isinstance(getattr(self, name), str):
-                raise ConfigError(f"camera.{name} must be a string, got {getattr(self, name)!r}")
+                raise ParameterError(f"camera.{name} must be a string, got {getattr(self, name)!r}")
         for name in ("width", "height", "fps"):
             v = getattr(self, name)
             if isinstance(v, bool) or not isinstance(v, int) or v <= 0:
-                raise ConfigError(f"camera.{name} must be a positive integer, got {v!r}")
+                raise ParameterError(f"camera.{name} must be a positive integer, got {v!r}")
         for name in ("max_skew_ms", "timeout_s"):
             v = getattr(self, name)
             if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v) or v <= 0:
-                raise ConfigError(f"camera.{name} must be a finite number > 0, got {v!r}")
+                raise ParameterError(f"camera.{name} must be a finite number > 0, got {v!r}")
         for name in ("registration", "sync"):
             if not isinstance(getattr(self, name), bool):
-                raise ConfigError(f"camera.{name} must be true or false, got {getattr(self, name)!r}")
+                raise ParameterError(f"camera.{name} must be true or false, got {getattr(self, name)!r}")
         if self.intrinsics_file and not Path(self.intrinsics_file).is_file():
-            raise ConfigError(f"camera.intrinsics_file {self.intrinsics_file!r} does not exist")
+            raise ParameterError(f"camera.intrinsics_file {self.intrinsics_file!r} does not exist")
 
 
 def _library_dirs(config: OpenNI2CameraConfig) -> list[Path]:
@@ -208,7 +209,7 @@ class OpenNI2Camera(Camera):
         if c.intrinsics_file:
             intr = load_intrinsics(c.intrinsics_file)
             if (intr.width, intr.height) != (c.width, c.height):
-                raise ConfigError(
+                raise ParameterError(
                     f"camera.intrinsics_file is for {intr.width}x{intr.height}, the stream is {c.width}x{c.height}"
                 )
             return intr

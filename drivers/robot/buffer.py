@@ -14,7 +14,7 @@ import threading
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from calib.errors import DeviceError
+from drivers.errors import DeviceError
 from drivers.robot.base import RobotState
 
 

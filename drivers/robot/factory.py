@@ -11,14 +11,14 @@ Vendor SDKs (ur_rtde) are imported only when a UR robot actually connects.
 
 from __future__ import annotations
 
-from calib.errors import ConfigError
+from calib.errors import ParameterError
 from drivers.robot.base import Robot
 
 
 def robot_config_from_dict(d: dict):
     """Config dataclass for a ``[robot]`` TOML table (``type`` selects the backend)."""
     if not isinstance(d, dict):
-        raise ConfigError(f"robot config must be a table, got {type(d).__name__}")
+        raise ParameterError(f"robot config must be a table, got {type(d).__name__}")
     d = dict(d)
     kind = d.pop("type", "ur")
     if kind == "ur":
@@ -29,7 +29,7 @@ def robot_config_from_dict(d: dict):
         from mocks.ur_sim.robot import URSimRobotConfig
 
         return URSimRobotConfig.from_dict(d)
-    raise ConfigError(f"robot.type must be 'ur' or 'ur_sim', got {kind!r}")
+    raise ParameterError(f"robot.type must be 'ur' or 'ur_sim', got {kind!r}")
 
 
 def make_robot(config) -> Robot:
@@ -46,4 +46,4 @@ def make_robot(config) -> Robot:
         return URSimRobot(config)
     if isinstance(config, URRobotConfig):
         return URRobot(config)
-    raise ConfigError(f"no robot backend for config of type {type(config).__name__}")
+    raise ParameterError(f"no robot backend for config of type {type(config).__name__}")

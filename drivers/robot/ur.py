@@ -29,7 +29,8 @@ from dataclasses import dataclass, field, fields
 
 import numpy as np
 
-from calib.errors import ConfigError, ConnectionLostError, DeviceError, LimitViolationError, RobotStoppedError
+from calib.errors import ParameterError
+from drivers.errors import ConnectionLostError, DeviceError, LimitViolationError, RobotStoppedError
 from calib.transforms import from_ur_pose, invert, pose_error, to_ur_pose
 from drivers.robot import ur_kinematics as kin
 from drivers.robot.base import Robot, RobotState
@@ -63,9 +64,9 @@ def _vec(value, n: int, name: str) -> tuple[float, ...]:
     try:
         arr = np.asarray(value, dtype=float)
     except (TypeError, ValueError):
-        raise ConfigError(f"URRobotConfig.{name} must be {n} numbers, got {value!r}") from None
+        raise ParameterError(f"URRobotConfig.{name} must be {n} numbers, got {value!r}") from None
     if arr.shape != (n,) or not np.isfinite(arr).all():
-        raise ConfigError(f"URRobotConfig.{name} must be {n} finite numbers, got {value!r}")
+        raise ParameterError(f"URRobotConfig.{name} must be {n} finite numbers, got {value!r}")
     return tuple(float(x) for x in arr)
 
 
@@ -157,49 +158,49 @@ class URRobotConfig:
 
     def __post_init__(self):
         if not isinstance(self.host, str) or not self.host.strip():
-            raise ConfigError(f"URRobotConfig.host must be a non-empty address, got {self.host!r}")
+            raise ParameterError(f"URRobotConfig.host must be a non-empty address, got {self.host!r}")
         kin.geometry(self.model)
         self.model = self.model.lower().replace("-", "")
         if not isinstance(self.read_only, bool):
-            raise ConfigError(f"URRobotConfig.read_only must be true or false, got {self.read_only!r}")
+            raise ParameterError(f"URRobotConfig.read_only must be true or false, got {self.read_only!r}")
         if not (self.frequency == -1 or 0 < self.frequency <= 500):
-            raise ConfigError(f"URRobotConfig.frequency must be -1 or in (0, 500] Hz, got {self.frequency!r}")
+            raise ParameterError(f"URRobotConfig.frequency must be -1 or in (0, 500] Hz, got {self.frequency!r}")
         for name, hi in (("speed", MAX_TOOL_SPEED), ("acceleration", MAX_TOOL_ACC), ("joint_speed", MAX_JOINT_SPEED),
                          ("joint_acceleration", MAX_JOINT_ACC), ("stop_deceleration", MAX_TOOL_ACC)):
             val = getattr(self, name)
             if not isinstance(val, (int, float)) or not 0 < val <= hi:
-                raise ConfigError(f"URRobotConfig.{name} must be in (0, {hi}], got {val!r}")
+                raise ParameterError(f"URRobotConfig.{name} must be in (0, {hi}], got {val!r}")
         if self.motion not in ("linear", "joint"):
-            raise ConfigError(f"URRobotConfig.motion must be 'linear' or 'joint', got {self.motion!r}")
+            raise ParameterError(f"URRobotConfig.motion must be 'linear' or 'joint', got {self.motion!r}")
         for name in ("settle_time", "settle_speed", "reach_tolerance", "reach_tolerance_deg", "frozen_timeout",
                      "connect_timeout", "move_timeout", "buffer_seconds", "path_step"):
             val = getattr(self, name)
             if not isinstance(val, (int, float)) or not math.isfinite(val) or val <= 0:
-                raise ConfigError(f"URRobotConfig.{name} must be a positive number, got {val!r}")
+                raise ParameterError(f"URRobotConfig.{name} must be a positive number, got {val!r}")
         if (self.workspace_min is None) != (self.workspace_max is None):
-            raise ConfigError("URRobotConfig.workspace_min and workspace_max must be given together")
+            raise ParameterError("URRobotConfig.workspace_min and workspace_max must be given together")
         if self.workspace_min is None:
             if not self.read_only:
-                raise ConfigError("URRobotConfig.workspace_min/workspace_max are required unless read_only is true")
+                raise ParameterError("URRobotConfig.workspace_min/workspace_max are required unless read_only is true")
         else:
             self.workspace_min = _vec(self.workspace_min, 3, "workspace_min")
             self.workspace_max = _vec(self.workspace_max, 3, "workspace_max")
             if not np.all(np.less(self.workspace_min, self.workspace_max)):
-                raise ConfigError(
+                raise ParameterError(
                     f"URRobotConfig.workspace_min {self.workspace_min} must be below workspace_max "
                     f"{self.workspace_max} on every axis"
                 )
         self.tilt_reference = _vec(self.tilt_reference, 3, "tilt_reference")
         if np.linalg.norm(self.tilt_reference) < 1e-9:
-            raise ConfigError("URRobotConfig.tilt_reference must be a non-zero direction")
+            raise ParameterError("URRobotConfig.tilt_reference must be a non-zero direction")
         if not isinstance(self.max_tilt_deg, (int, float)) or not 0 < self.max_tilt_deg <= 180:
-            raise ConfigError(f"URRobotConfig.max_tilt_deg must be in (0, 180] degrees, got {self.max_tilt_deg!r}")
+            raise ParameterError(f"URRobotConfig.max_tilt_deg must be in (0, 180] degrees, got {self.max_tilt_deg!r}")
         self.joint_min = _vec(self.joint_min, 6, "joint_min")
         self.joint_max = _vec(self.joint_max, 6, "joint_max")
         lim = kin.UR_JOINT_LIMITS
         if not (np.all(np.less(self.joint_min, self.joint_max)) and np.all(np.greater_equal(self.joint_min, lim[:, 0]))
                 and np.all(np.less_equal(self.joint_max, lim[:, 1]))):
-            raise ConfigError(
+            raise ParameterError(
                 f"URRobotConfig.joint_min/joint_max must satisfy -2pi <= joint_min < joint_max <= 2pi rad, "
                 f"got {self.joint_min} / {self.joint_max}"
             )
@@ -222,9 +223,9 @@ class URRobotConfig:
         known = {f.name for f in fields(cls)}
         unknown = sorted(set(d) - known)
         if unknown:
-            raise ConfigError(f"URRobotConfig: unknown field(s) {unknown}; known: {sorted(known)}")
+            raise ParameterError(f"URRobotConfig: unknown field(s) {unknown}; known: {sorted(known)}")
         if "host" not in d:
-            raise ConfigError("URRobotConfig.host is required")
+            raise ParameterError("URRobotConfig.host is required")
         return cls(**d)
 
 
@@ -239,7 +240,7 @@ class URRobot(Robot):
 
     def __init__(self, config: URRobotConfig):
         if not isinstance(config, URRobotConfig):
-            raise ConfigError(f"URRobot needs a URRobotConfig, got {type(config).__name__}")
+            raise ParameterError(f"URRobot needs a URRobotConfig, got {type(config).__name__}")
         self.config = config
         self._rtde_r = None
         self._rtde_c = None
@@ -269,7 +270,7 @@ class URRobot(Robot):
 
         Raises
         ------
-        ConfigError
+        ParameterError
             Read-only without a configured ``tcp_offset``.
         DeviceError
             The controller cannot be reached, or sends no state within ``connect_timeout``.
@@ -278,7 +279,7 @@ class URRobot(Robot):
             return
         cfg = self.config
         if cfg.read_only and cfg.tcp_offset is None:
-            raise ConfigError(
+            raise ParameterError(
                 "URRobotConfig.tcp_offset is required in read_only mode: ur_rtde reads the active TCP only "
                 "through the control interface, which read-only mode never opens"
             )

@@ -23,7 +23,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from calib.errors import ConfigError, DeviceError
+from calib.errors import ParameterError
+from drivers.errors import DeviceError
 
 _ALPHA = np.array([np.pi / 2, 0.0, 0.0, np.pi / 2, -np.pi / 2, 0.0])
 _ALPHA_T = tuple(_ALPHA.tolist())
@@ -68,7 +69,7 @@ def geometry(model: str) -> URGeometry:
     """DH lengths of ``model`` (case-insensitive, e.g. ``"ur10"``, ``"UR10e"``)."""
     key = str(model).lower().replace("-", "")
     if key not in UR_MODELS:
-        raise ConfigError(f"model: unknown UR model {model!r}; known: {sorted(UR_MODELS)}")
+        raise ParameterError(f"model: unknown UR model {model!r}; known: {sorted(UR_MODELS)}")
     return UR_MODELS[key]
 
 

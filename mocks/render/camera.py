@@ -26,8 +26,9 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from calib import transforms as tf
-from calib.errors import CalibrationError, ConfigError, DeviceError
-from calib.observation import SETUPS
+from calib.errors import CalibrationError, ParameterError
+from drivers.errors import DeviceError
+from calib.setup import Setup, check_setup
 from calib.vision.markers import get_dictionary
 from drivers.camera.base import Camera, CameraIntrinsics, RGBDFrame
 from drivers.camera.intrinsics import check_intrinsics
@@ -86,7 +87,7 @@ class RenderedCameraConfig:
     """
 
     backend: str = "rendered"
-    setup: str = "eye_to_hand"
+    setup: Setup = Setup.EYE_TO_HAND
     T_base_cam: list = _mat(_DEFAULT_T_BASE_CAM)
     T_flange_marker: list = _mat(_DEFAULT_T_FLANGE_MARKER)
     T_flange_cam: list = _mat(_DEFAULT_T_FLANGE_CAM)
@@ -108,31 +109,30 @@ class RenderedCameraConfig:
 
     def __post_init__(self):
         if self.backend != "rendered":
-            raise ConfigError(f"camera.backend must be 'rendered' for RenderedCameraConfig, got {self.backend!r}")
-        if self.setup not in SETUPS:
-            raise ConfigError(f"camera.setup must be one of {list(SETUPS)}, got {self.setup!r}")
+            raise ParameterError(f"camera.backend must be 'rendered' for RenderedCameraConfig, got {self.backend!r}")
+        self.setup = check_setup(self.setup, "camera.setup", ParameterError)
         for name in ("T_base_cam", "T_flange_marker", "T_flange_cam", "T_base_marker"):
             try:
                 tf.check_transform(getattr(self, name), f"camera.{name}")
             except (CalibrationError, ValueError) as e:
-                raise ConfigError(str(e)) from None
+                raise ParameterError(str(e)) from None
         get_dictionary(self.dictionary)
         if isinstance(self.marker_id, bool) or not isinstance(self.marker_id, int) or self.marker_id < 0:
-            raise ConfigError(f"camera.marker_id must be an integer >= 0, got {self.marker_id!r}")
+            raise ParameterError(f"camera.marker_id must be an integer >= 0, got {self.marker_id!r}")
         for name in ("marker_size", "plate_size"):
             v = getattr(self, name)
             if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v) or v <= 0:
-                raise ConfigError(f"camera.{name} must be a finite number > 0 (m), got {v!r}")
+                raise ParameterError(f"camera.{name} must be a finite number > 0 (m), got {v!r}")
         if self.plate_size < 1.2 * self.marker_size:
-            raise ConfigError(f"camera.plate_size must be >= 1.2 x marker_size, got {self.plate_size!r}")
+            raise ParameterError(f"camera.plate_size must be >= 1.2 x marker_size, got {self.plate_size!r}")
         check_intrinsics(self.intrinsics, "camera")
         if isinstance(self.noise, dict):
             try:
                 self.noise = RenderNoise(**self.noise)
             except TypeError as e:
-                raise ConfigError(f"camera.noise: {e}") from None
+                raise ParameterError(f"camera.noise: {e}") from None
         if isinstance(self.seed, bool) or not isinstance(self.seed, int):
-            raise ConfigError(f"camera.seed must be an integer, got {self.seed!r}")
+            raise ParameterError(f"camera.seed must be an integer, got {self.seed!r}")
 
     @property
     def intrinsics(self) -> CameraIntrinsics:
@@ -141,12 +141,12 @@ class RenderedCameraConfig:
     @property
     def X(self) -> np.ndarray:
         """The paper's X: ``T_flange_marker`` (eye-to-hand) or ``T_flange_cam`` (eye-in-hand)."""
-        return np.array(self.T_flange_marker if self.setup == "eye_to_hand" else self.T_flange_cam, float)
+        return np.array(getattr(self, self.setup.x_name), float)
 
     @property
     def Y(self) -> np.ndarray:
         """The paper's Y: ``T_base_cam`` (eye-to-hand) or ``T_base_marker`` (eye-in-hand)."""
-        return np.array(self.T_base_cam if self.setup == "eye_to_hand" else self.T_base_marker, float)
+        return np.array(getattr(self, self.setup.y_name), float)
 
 
 class RenderedCamera(Camera):
@@ -161,7 +161,7 @@ class RenderedCamera(Camera):
 
     def __init__(self, config: RenderedCameraConfig, flange_pose_source: Callable[[], np.ndarray]):
         if not callable(flange_pose_source):
-            raise ConfigError("the rendered camera needs a flange_pose_source callable returning T_base_flange")
+            raise ParameterError("the rendered camera needs a flange_pose_source callable returning T_base_flange")
         self.config = config
         self._source = flange_pose_source
         self._renderer: MarkerSceneRenderer | None = None
@@ -197,7 +197,7 @@ class RenderedCamera(Camera):
             raise DeviceError(f"rendered camera got a bad flange pose: {e}") from None
         c = self.config
         X, Y = c.X, c.Y
-        if c.setup == "eye_to_hand":
+        if c.setup == Setup.EYE_TO_HAND:
             T_cam_base = tf.invert(Y)
             T_cam_flange = T_cam_base @ T_base_flange
             T_cam_marker = T_cam_flange @ X

@@ -25,7 +25,7 @@ import numpy as np
 import open3d as o3d
 
 from calib import transforms as tf
-from calib.errors import ConfigError
+from calib.errors import ParameterError
 from calib.vision.markers import get_dictionary
 
 _FLOOR, _FLANGE, _PLATE = 0, 1, 2
@@ -33,7 +33,7 @@ _FLOOR, _FLANGE, _PLATE = 0, 1, 2
 
 def _range(name, v, lo=0.0):
     if len(v) != 2 or not (np.isfinite(v).all() and lo <= v[0] <= v[1]):
-        raise ConfigError(f"noise.{name} must be [min, max] with {lo} <= min <= max, got {v!r}")
+        raise ParameterError(f"noise.{name} must be [min, max] with {lo} <= min <= max, got {v!r}")
 
 
 @dataclass(frozen=True)
@@ -85,13 +85,13 @@ class RenderNoise:
         for name in ("disparity_sigma_px", "disparity_step_px", "depth_bias_k", "dropout", "image_noise", "gradient"):
             v = getattr(self, name)
             if isinstance(v, bool) or not isinstance(v, (int, float)) or not np.isfinite(v) or v < 0:
-                raise ConfigError(f"noise.{name} must be a finite number >= 0, got {v!r}")
+                raise ParameterError(f"noise.{name} must be a finite number >= 0, got {v!r}")
         for name in ("baseline_m", "edge_jump_m"):
             v = getattr(self, name)
             if isinstance(v, bool) or not isinstance(v, (int, float)) or not np.isfinite(v) or v <= 0:
-                raise ConfigError(f"noise.{name} must be a finite number > 0, got {v!r}")
+                raise ParameterError(f"noise.{name} must be a finite number > 0, got {v!r}")
         if self.dropout >= 1:
-            raise ConfigError(f"noise.dropout must be < 1, got {self.dropout!r}")
+            raise ParameterError(f"noise.dropout must be < 1, got {self.dropout!r}")
         for name in ("depth_range_m", "blur_sigma_px", "gain"):
             object.__setattr__(self, name, tuple(float(x) for x in getattr(self, name)))
             _range(name, getattr(self, name))
@@ -122,9 +122,9 @@ class MarkerSceneRenderer:
     def __init__(self, intrinsics, dictionary: str, marker_id: int, marker_size: float, plate_size: float,
                  noise: RenderNoise):
         if any(intrinsics.dist):
-            raise ConfigError("the rendered camera does not model lens distortion: intrinsics.dist must be zeros")
+            raise ParameterError("the rendered camera does not model lens distortion: intrinsics.dist must be zeros")
         if plate_size < marker_size * 1.2:
-            raise ConfigError(
+            raise ParameterError(
                 f"plate_size must leave a white margin around the marker (>= 1.2 x marker_size), got {plate_size}"
             )
         self.intr = intrinsics

@@ -30,7 +30,7 @@ import sys
 import threading
 import time
 
-from calib.errors import DeviceError
+from drivers.errors import DeviceError
 
 __all__ = ["main", "launch", "SimProcess"]
 

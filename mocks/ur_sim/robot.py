@@ -12,7 +12,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from calib.errors import ConfigError
+from calib.errors import ParameterError
 from drivers.robot.ur import URRobot, URRobotConfig
 from mocks.ur_sim import SimProcess, launch
 from mocks.ur_sim.controller import parse_version
@@ -41,7 +41,7 @@ class URSimRobotConfig(URRobotConfig):
         try:
             parse_version(self.controller)
         except ValueError as exc:
-            raise ConfigError(f"URSimRobotConfig.controller: {exc}") from None
+            raise ParameterError(f"URSimRobotConfig.controller: {exc}") from None
         if self.initial_q is not None:
             self.initial_q = _six(self.initial_q, "initial_q")
         self.sim_tcp_offset = _six(self.sim_tcp_offset, "sim_tcp_offset")
@@ -53,7 +53,7 @@ def _six(value, name: str) -> tuple[float, ...]:
     except (TypeError, ValueError):
         arr = np.zeros(0)
     if arr.shape != (6,) or not np.isfinite(arr).all():
-        raise ConfigError(f"URSimRobotConfig.{name} must be 6 finite numbers, got {value!r}")
+        raise ParameterError(f"URSimRobotConfig.{name} must be 6 finite numbers, got {value!r}")
     return tuple(float(x) for x in arr)
 
 

@@ -8,7 +8,7 @@ from app.config import Config, load_config
 from app.runner import calibrate, demo
 from app.session import read_session
 from calib import transforms as tf
-from calib.errors import ConfigError
+from app.errors import ConfigError
 
 pytestmark = pytest.mark.slow
 

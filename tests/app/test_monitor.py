@@ -12,7 +12,7 @@ from app.monitor import run_monitor
 from app.runner import make_solve, make_viz
 from app.session import SessionWriter, read_session
 from calib import transforms as tf
-from calib.errors import DeviceError
+from drivers.errors import DeviceError
 from drivers.robot import ur_kinematics as kin
 
 pytestmark = pytest.mark.slow

@@ -10,7 +10,7 @@ from app.config import CalibrateConfig, Config, config_from_dict
 from app.monitor import is_diverse
 from app.pipeline import predicted_pixel, predicted_point, sigma
 from calib import transforms as tf
-from calib.errors import ConfigError
+from app.errors import ConfigError
 from calib.result import CalibrationResult, Residuals
 from calib.simulate import realistic_cell
 from drivers.camera.base import CameraIntrinsics

@@ -5,7 +5,7 @@ import pytest
 
 from app.session import FORMAT_NAME, SessionWriter, read_session
 from calib import transforms as tf
-from calib.errors import SessionError
+from app.errors import SessionError
 from calib.observation import Observation
 
 

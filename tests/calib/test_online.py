@@ -6,7 +6,7 @@ from scipy.spatial.transform import Rotation
 
 from calib import simulate
 from calib import transforms as tf
-from calib.errors import CalibrationError, ConfigError
+from calib.errors import CalibrationError, ParameterError
 from calib.online import ChangeDetector, DetectorConfig, OnlineCalibrator, OnlineConfig
 from calib.refine import nees
 
@@ -131,15 +131,15 @@ def test_bad_samples_raise_and_leave_state_alone():
 
 
 def test_config_validation_names_the_field():
-    with pytest.raises(ConfigError, match="forgetting"):
+    with pytest.raises(ParameterError, match="forgetting"):
         OnlineConfig(forgetting=1.5)
-    with pytest.raises(ConfigError, match="setup"):
+    with pytest.raises(ParameterError, match="setup"):
         OnlineConfig(setup="eye_on_hand")
-    with pytest.raises(ConfigError, match="bootstrap"):
+    with pytest.raises(ParameterError, match="bootstrap"):
         OnlineConfig(bootstrap=3)
-    with pytest.raises(ConfigError, match="window"):
+    with pytest.raises(ParameterError, match="window"):
         DetectorConfig(window=1)
-    with pytest.raises(ConfigError, match="long_window"):
+    with pytest.raises(ParameterError, match="long_window"):
         DetectorConfig(window=20, long_window=10)
 
 

@@ -6,7 +6,7 @@ import cv2
 import numpy as np
 import pytest
 
-from calib.errors import ConfigError, MarkerNotFoundError
+from calib.errors import MarkerNotFoundError, ParameterError
 from calib.vision.circle_grid import CircleGridSpec, detect_circle_grid
 
 IMAGE = Path(__file__).parents[1] / "data" / "circle_grid" / "images" / "0.png"
@@ -66,7 +66,7 @@ def test_missing_grid_and_missing_origin_dot(gray):
 
 
 def test_spec_is_validated():
-    with pytest.raises(ConfigError, match="spacing"):
+    with pytest.raises(ParameterError, match="spacing"):
         CircleGridSpec(spacing=0.0)
-    with pytest.raises(ConfigError, match="rows"):
+    with pytest.raises(ParameterError, match="rows"):
         CircleGridSpec(rows=1)

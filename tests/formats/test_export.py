@@ -15,7 +15,8 @@ from app.formats import EXPORT_FORMATS, result_to_dict, write_result
 from calib import simulate
 from calib import transforms as tf
 from calib.api import solve
-from calib.errors import CalibrationError, ConfigError
+from app.errors import ConfigError
+from calib.errors import CalibrationError
 
 FRAMES = {"base": "base_link", "flange": "tool0", "camera": "cam_optical", "marker": "target"}
 

@@ -9,7 +9,7 @@ from app.formats.pose_csv import read_pose_csv
 from calib import simulate
 from calib import transforms as tf
 from calib.api import solve
-from calib.errors import ConfigError, SessionError
+from app.errors import ConfigError, SessionError
 
 
 def _msg(T):

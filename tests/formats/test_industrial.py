@@ -11,7 +11,7 @@ import pytest
 import yaml
 
 from app.formats import detect_format, load
-from calib.errors import ConfigError, SessionError
+from app.errors import ConfigError, SessionError
 
 SRC = Path(__file__).parents[1] / "data" / "circle_grid"
 

@@ -8,7 +8,7 @@ import time
 import numpy as np
 import pytest
 
-from calib.errors import DeviceError
+from drivers.errors import DeviceError
 
 from drivers.robot.ur import URRobot, URRobotConfig
 from mocks.ur_sim import launch

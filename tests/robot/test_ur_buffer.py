@@ -2,7 +2,7 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from calib.errors import DeviceError
+from drivers.errors import DeviceError
 from calib.transforms import make_transform
 from drivers.robot.base import RobotState
 from drivers.robot.buffer import ClockMapper, StateBuffer

@@ -1,6 +1,7 @@
 import pytest
 
-from calib.errors import ConfigError, DeviceError
+from calib.errors import ParameterError
+from drivers.errors import DeviceError
 from drivers.robot.factory import make_robot, robot_config_from_dict
 from drivers.robot.ur import URRobot, URRobotConfig
 from mocks.ur_sim import main as sim_main
@@ -28,14 +29,14 @@ BOX = dict(workspace_min=(-1, -1, 0), workspace_max=(1, 1, 1))
 def test_bad_field_is_named_in_the_error(field, value):
     kw = dict(host="10.0.0.2", **BOX)
     kw[field] = value
-    with pytest.raises(ConfigError, match=field):
+    with pytest.raises(ParameterError, match=field):
         URRobotConfig(**kw)
 
 
 def test_moving_robot_needs_a_workspace_box_and_a_sane_one():
-    with pytest.raises(ConfigError, match="workspace_min"):
+    with pytest.raises(ParameterError, match="workspace_min"):
         URRobotConfig(host="10.0.0.2")
-    with pytest.raises(ConfigError, match="below workspace_max"):
+    with pytest.raises(ParameterError, match="below workspace_max"):
         URRobotConfig(host="10.0.0.2", workspace_min=(0, 0, 0), workspace_max=(1, -1, 1))
     assert URRobotConfig(host="10.0.0.2", read_only=True).workspace_min is None
 
@@ -45,17 +46,17 @@ def test_factory_builds_from_toml_tables_without_connecting(loopback):
     assert isinstance(robot, URRobot) and not robot.is_connected
     sim = make_robot({"type": "ur_sim", "host": loopback(98), "controller": "3.15", **BOX})
     assert isinstance(sim, URSimRobot) and sim.config.controller == "3.15"
-    with pytest.raises(ConfigError, match="robot.type"):
+    with pytest.raises(ParameterError, match="robot.type"):
         robot_config_from_dict({"type": "kuka", "host": "x"})
-    with pytest.raises(ConfigError, match="spede"):
+    with pytest.raises(ParameterError, match="spede"):
         robot_config_from_dict({"type": "ur", "host": "x", "spede": 1, **BOX})
-    with pytest.raises(ConfigError, match="controller"):
+    with pytest.raises(ParameterError, match="controller"):
         robot_config_from_dict({"type": "ur_sim", "host": "x", "controller": "9.1", **BOX})
 
 
 def test_read_only_without_tcp_offset_fails_clearly_before_any_io():
     robot = URRobot(URRobotConfig(host="10.0.0.2", read_only=True))
-    with pytest.raises(ConfigError, match="tcp_offset"):
+    with pytest.raises(ParameterError, match="tcp_offset"):
         robot.connect()
     with pytest.raises(DeviceError, match="not connected"):
         robot.read()

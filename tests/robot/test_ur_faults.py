@@ -7,7 +7,7 @@ import time
 import numpy as np
 import pytest
 
-from calib.errors import ConnectionLostError, DeviceError, RobotStoppedError
+from drivers.errors import ConnectionLostError, DeviceError, RobotStoppedError
 from .conftest import START_Q, connect_robot, robot_config
 
 

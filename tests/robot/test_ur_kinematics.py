@@ -1,7 +1,7 @@
 import numpy as np
 import pytest
 
-from calib.errors import ConfigError
+from calib.errors import ParameterError
 from drivers.robot import ur_kinematics as kin
 
 
@@ -39,5 +39,5 @@ def test_out_of_reach_has_no_solution_and_unknown_model_is_config_error():
     T = np.eye(4)
     T[:3, 3] = [3.0, 0.0, 0.5]
     assert kin.inverse_all(T, "ur10").shape == (0, 6)
-    with pytest.raises(ConfigError, match="model"):
+    with pytest.raises(ParameterError, match="model"):
         kin.geometry("ur99")

@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from calib.errors import LimitViolationError
+from drivers.errors import LimitViolationError
 from calib.transforms import from_ur_pose
 from drivers.robot import ur_kinematics as kin
 from drivers.robot.ur import URRobot, URRobotConfig

@@ -7,7 +7,7 @@ import time
 import numpy as np
 import pytest
 
-from calib.errors import DeviceError, LimitViolationError
+from drivers.errors import DeviceError, LimitViolationError
 from calib.transforms import from_ur_pose, make_transform, pose_error
 from drivers.robot import ur_kinematics as kin
 from .conftest import SIM_TCP, controller_stamps, START_Q, connect_robot, robot_config, truth_flange

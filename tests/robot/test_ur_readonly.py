@@ -6,7 +6,7 @@ import time
 import numpy as np
 import pytest
 
-from calib.errors import DeviceError
+from drivers.errors import DeviceError
 from .conftest import SIM_TCP, controller_stamps, connect_robot, robot_config, truth_flange
 
 

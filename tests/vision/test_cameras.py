@@ -10,7 +10,8 @@ import numpy as np
 import pytest
 
 from calib import transforms as tf
-from calib.errors import ConfigError, ConnectionLostError, DeviceError
+from calib.errors import ParameterError
+from drivers.errors import ConnectionLostError, DeviceError
 from calib.vision.extract import TargetConfig, extract
 from drivers.camera.base import CameraIntrinsics, RGBDFrame
 from drivers.camera.factory import camera_config_from_dict, make_camera
@@ -60,19 +61,19 @@ def test_rendered_eye_in_hand():
 
 
 def test_factory_rejects_bad_configs():
-    with pytest.raises(ConfigError, match="camera.backend must be one of"):
+    with pytest.raises(ParameterError, match="camera.backend must be one of"):
         make_camera({"backend": "kinect"})
-    with pytest.raises(ConfigError, match="unknown key camera.fov"):
+    with pytest.raises(ParameterError, match="unknown key camera.fov"):
         make_camera({"backend": "rendered", "fov": 60})
-    with pytest.raises(ConfigError, match="flange_pose_source"):
+    with pytest.raises(ParameterError, match="flange_pose_source"):
         make_camera({"backend": "rendered"})
-    with pytest.raises(ConfigError, match="camera.T_base_cam"):
+    with pytest.raises(ParameterError, match="camera.T_base_cam"):
         RenderedCameraConfig(T_base_cam=np.eye(4)[:3].tolist())
-    with pytest.raises(ConfigError, match="noise.dropout"):
+    with pytest.raises(ParameterError, match="noise.dropout"):
         RenderedCameraConfig(noise={"dropout": 1.5})
-    with pytest.raises(ConfigError, match="camera.path"):
+    with pytest.raises(ParameterError, match="camera.path"):
         make_camera({"backend": "recorded"})
-    with pytest.raises(ConfigError, match="camera.fps"):
+    with pytest.raises(ParameterError, match="camera.fps"):
         make_camera({"backend": "openni2", "fps": 0})
 
 
@@ -124,7 +125,7 @@ def test_intrinsics_file_ros_format(tmp_path):
     intr = load_intrinsics(p)
     assert (intr.fx, intr.fy, intr.cx, intr.cy, intr.dist[0]) == (570, 571, 320, 240, 0.01)
     p.write_text("width: 640\nheight: 480\nfx: 570\n")
-    with pytest.raises(ConfigError, match="missing key 'fy'"):
+    with pytest.raises(ParameterError, match="missing key 'fy'"):
         load_intrinsics(p)
 
 
@@ -150,7 +151,7 @@ def _openni2_available() -> bool:
 # take the whole pytest session down. The child reports and leaves with os._exit.
 _DUMMY_SCRIPT = r"""
 import json, os, sys
-from calib.errors import DeviceError
+from drivers.errors import DeviceError
 from drivers.camera.base import CameraIntrinsics
 from drivers.camera.factory import make_camera
 from drivers.camera.intrinsics import save_intrinsics

@@ -6,7 +6,7 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from calib import transforms as tf
-from calib.errors import ConfigError, DepthError, MarkerNotFoundError
+from calib.errors import DepthError, MarkerNotFoundError, ParameterError
 from calib.vision.extract import TargetConfig, extract, try_extract
 from drivers.camera.base import CameraIntrinsics
 from mocks.render.scene import MarkerSceneRenderer, RenderNoise
@@ -123,15 +123,15 @@ def test_depth_problems_are_depth_errors(renderer):
 
 
 def test_target_config_validation_names_the_field():
-    with pytest.raises(ConfigError, match="marker.kind"):
+    with pytest.raises(ParameterError, match="marker.kind"):
         TargetConfig(kind="qr")
-    with pytest.raises(ConfigError, match="marker.marker_size"):
+    with pytest.raises(ParameterError, match="marker.marker_size"):
         TargetConfig(marker_size=-0.05)
-    with pytest.raises(ConfigError, match="unknown key marker.size"):
+    with pytest.raises(ParameterError, match="unknown key marker.size"):
         TargetConfig.from_dict({"size": 0.05})
-    with pytest.raises(ConfigError, match="square_size"):
+    with pytest.raises(ParameterError, match="square_size"):
         TargetConfig(kind="charuco")
-    with pytest.raises(ConfigError, match="depth_noise"):
+    with pytest.raises(ParameterError, match="depth_noise"):
         TargetConfig(depth_noise={"k": -1.0})
     cfg = TargetConfig.from_dict({"dictionary": "DICT_APRILTAG_36h11", "depth_noise": {"k": 2e-3}})
     assert cfg.depth_noise.k == 2e-3

@@ -4,7 +4,7 @@ import cv2
 import numpy as np
 import pytest
 
-from calib.errors import ConfigError, MarkerNotFoundError
+from calib.errors import MarkerNotFoundError, ParameterError
 from calib.vision.markers import BoardSpec, detect_charuco, detect_chessboard, detect_markers, get_dictionary
 
 
@@ -33,7 +33,7 @@ def test_no_marker_gives_empty_list_and_bad_images_raise():
 
 
 def test_unknown_dictionary_is_named():
-    with pytest.raises(ConfigError, match="DICT_9X9_1"):
+    with pytest.raises(ParameterError, match="DICT_9X9_1"):
         get_dictionary("DICT_9X9_1")
 
 
@@ -72,7 +72,7 @@ def test_chessboard():
 
 
 def test_board_spec_validation_names_field():
-    with pytest.raises(ConfigError, match="marker_size"):
+    with pytest.raises(ParameterError, match="marker_size"):
         BoardSpec((5, 7), 0.03, 0.04)
-    with pytest.raises(ConfigError, match="square_size"):
+    with pytest.raises(ParameterError, match="square_size"):
         BoardSpec((5, 7), 0.0)

@@ -8,7 +8,7 @@ import types
 import numpy as np
 import pytest
 
-from calib.errors import ConnectionLostError, DeviceError
+from drivers.errors import ConnectionLostError, DeviceError
 from drivers.camera.factory import make_camera
 
 

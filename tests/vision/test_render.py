@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 
 from calib import transforms as tf
-from calib.errors import ConfigError
+from calib.errors import ParameterError
 from calib.vision.extract import TargetConfig, extract
 from drivers.camera.base import CameraIntrinsics
 from drivers.camera.factory import make_camera
@@ -52,12 +52,12 @@ def test_color_lighting_changes_between_frames():
 
 
 def test_renderer_rejects_distortion_and_tiny_plate():
-    with pytest.raises(ConfigError, match="distortion"):
+    with pytest.raises(ParameterError, match="distortion"):
         MarkerSceneRenderer(CameraIntrinsics(640, 480, 570, 570, 320, 240, (0.1, 0, 0, 0, 0)), "DICT_4X4_50", 0,
                             0.05, 0.08, RenderNoise())
-    with pytest.raises(ConfigError, match="plate_size"):
+    with pytest.raises(ParameterError, match="plate_size"):
         MarkerSceneRenderer(INTR, "DICT_4X4_50", 0, 0.05, 0.05, RenderNoise())
-    with pytest.raises(ConfigError, match="noise.gain"):
+    with pytest.raises(ParameterError, match="noise.gain"):
         RenderNoise(gain=(1.2, 0.7))
 
 

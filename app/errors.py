@@ -1,0 +1,11 @@
+"""Errors of the application layer, under `calib.errors.HandeyeError`."""
+
+from calib.errors import HandeyeError, ParameterError
+
+
+class ConfigError(ParameterError):
+    """A field of a configuration file (or a command-line override) is missing or invalid (the message names it)."""
+
+
+class SessionError(HandeyeError):
+    """A recorded session or an imported file is missing, unreadable, or of an unknown version."""

@@ -1,0 +1,609 @@
+"""Information-optimal flange poses for an active calibration.
+
+Greedy D-optimal design with a travel cost. Given the current estimate of
+``A_i X = Y B_i`` (paper eq. 1) and the Fisher information of the samples
+taken so far, the planner draws candidate flange poses around the start pose,
+screens out those the camera could not measure, scores the rest by the
+expected information gain on the camera transform and moves to the best one
+the robot can reach:
+
+    gain_j  = log det Sigma_C(I) - log det Sigma_C(I + J_j^T S_j^-1 J_j)
+    score_j = gain_j - travel_weight * t_travel(j)
+
+``Sigma_C(I)`` is the camera block of ``I^-1`` (the other unknowns
+marginalised), ``J_j`` the Jacobian of the predicted marker point (paper eq. 5)
+at candidate ``j`` and ``S_j`` its covariance from the depth model of
+`calib.noise`. Maximising ``gain`` maximises the volume shrink of the camera's
+confidence ellipsoid (D-optimality; invariant to the choice of units, so mm
+and deg need no weighting). ``t_travel`` is a trapezoidal-profile estimate of
+the motion time, so between two equally informative poses the nearer one wins.
+
+Setups: eye-to-hand (``X = T_flange_marker``, ``Y = T_base_cam``; the camera
+transform is ``Y``) and eye-in-hand (``X = T_flange_cam``, ``Y =
+T_base_marker``; the camera transform is ``X``). Poses are ``T_base_flange``.
+
+Validity is split by who knows what. This module checks what the camera model
+decides (marker center and corners inside the image with a margin widened by
+the predicted pixel uncertainty, depth range, marker facing the camera within
+a maximum angle) and optional keep-out boxes along the straight path; the
+robot's own checks (IK within joint limits continuous from the current joints,
+workspace box, tilt cone, path) come in as a callback, so this module imports
+no driver.
+"""
+
+from __future__ import annotations
+
+import math
+from collections import Counter
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from calib import transforms as tf
+from calib.errors import CalibrationError
+from calib.noise import default_point_cov
+from calib.refine import point_jacobian
+from calib.solvers import check_setup
+
+#: ``reachable(T_base_flange (4, 4), q_from (6,) or None) -> q (6,) or None``.
+Reachable = Callable[[np.ndarray, "np.ndarray | None"], "np.ndarray | None"]
+
+#: Number of unknowns of the point model: camera transform (6) + marker-side translation (3).
+N_PARAMS = 9
+
+
+@dataclass(frozen=True)
+class CameraView:
+    """What the camera can measure (pinhole, no distortion needed at this accuracy).
+
+    Attributes
+    ----------
+    width, height : int
+        Image size, px.
+    fx, fy, cx, cy : float
+        Intrinsics, px.
+    margin_px : float
+        Every marker corner must stay this far inside the image border.
+    depth_min_m, depth_max_m : float
+        Range of the marker center's depth (camera z), m.
+    max_view_angle_deg : float
+        Largest angle between the marker normal and the ray to the camera.
+    marker_size_m : float
+        Side of the marker's black square, m (its corners are checked).
+    """
+
+    width: int
+    height: int
+    fx: float
+    fy: float
+    cx: float
+    cy: float
+    margin_px: float = 40.0
+    depth_min_m: float = 0.4
+    depth_max_m: float = 2.0
+    max_view_angle_deg: float = 60.0
+    marker_size_m: float = 0.05
+
+    def __post_init__(self):
+        for name in ("width", "height", "fx", "fy", "marker_size_m", "depth_max_m"):
+            v = getattr(self, name)
+            if not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0):
+                raise CalibrationError(f"CameraView.{name} must be a positive number, got {v!r}")
+        if not 0 <= self.depth_min_m < self.depth_max_m:
+            raise CalibrationError(f"CameraView: need 0 <= depth_min_m < depth_max_m, got "
+                                   f"{self.depth_min_m}, {self.depth_max_m}")
+        if not 0 < self.max_view_angle_deg < 90:
+            raise CalibrationError(f"CameraView.max_view_angle_deg must be in (0, 90), got {self.max_view_angle_deg}")
+        if not 0 <= self.margin_px < min(self.width, self.height) / 2:
+            raise CalibrationError(f"CameraView.margin_px must be in [0, {min(self.width, self.height) / 2}), "
+                                   f"got {self.margin_px}")
+
+    def project(self, p: np.ndarray) -> np.ndarray:
+        """Pixels (..., 2) of camera-frame points (..., 3) (z must be positive)."""
+        return np.stack([self.fx * p[..., 0] / p[..., 2] + self.cx, self.fy * p[..., 1] / p[..., 2] + self.cy], -1)
+
+
+@dataclass(frozen=True)
+class KeepOut:
+    """An axis-aligned box in the base frame (m) that the flange and the marker/camera must not enter."""
+
+    min: tuple[float, float, float]
+    max: tuple[float, float, float]
+
+    def __post_init__(self):
+        lo, hi = np.asarray(self.min, float), np.asarray(self.max, float)
+        if lo.shape != (3,) or hi.shape != (3,) or not (np.isfinite(lo).all() and np.isfinite(hi).all()) \
+                or not np.all(lo < hi):
+            raise CalibrationError(f"KeepOut: min {self.min} must be below max {self.max} on every axis")
+
+
+@dataclass(frozen=True)
+class PlannerConfig:
+    """Candidate generation, scoring and the travel model.
+
+    Attributes
+    ----------
+    n_candidates : int
+        Candidate poses drawn per planned pose.
+    translation_range_m : float
+        Candidates lie within +- this per axis around the start pose ...
+    tilt_deg : float
+        ... turned about a random axis through the flange by up to this.
+    local_fraction : float
+        This share of the candidates is drawn at a third of both ranges, so
+        that a cautious step is available while the estimate is still rough.
+    workspace_min, workspace_max : 3 floats or None
+        Candidate positions are clipped into this box (the robot's own limit
+        check still decides).
+    keep_out : sequence of KeepOut
+        Boxes that the flange origin and the marker (eye-to-hand) / camera
+        (eye-in-hand) origin must keep ``clearance_m`` from, along the
+        straight path from the current pose.
+    clearance_m : float
+    travel_weight : float
+        Score cost per second of estimated motion, in nats of information.
+    speed_m_s, acceleration_m_s2 : float
+        Linear motion profile for the travel-time estimate.
+    rotation_radius_m : float
+        A rotation by ``a`` rad counts as ``a * rotation_radius_m`` of travel.
+    prior_sigma_rad, prior_sigma_m : float
+        Weak prior on every unknown before any sample (keeps the information invertible).
+    uncertainty_k : float
+        The image margin grows by this many predicted pixel standard
+        deviations of the marker center (0: trust the estimate fully).
+    max_checks : int
+        Reachability callbacks per planned pose at most (best scores first).
+    """
+
+    n_candidates: int = 300
+    translation_range_m: float = 0.15
+    tilt_deg: float = 40.0
+    local_fraction: float = 0.3
+    workspace_min: tuple[float, float, float] | None = None
+    workspace_max: tuple[float, float, float] | None = None
+    keep_out: tuple[KeepOut, ...] = ()
+    clearance_m: float = 0.05
+    travel_weight: float = 0.05
+    speed_m_s: float = 0.25
+    acceleration_m_s2: float = 1.0
+    rotation_radius_m: float = 0.1
+    prior_sigma_rad: float = 1.0
+    prior_sigma_m: float = 1.0
+    uncertainty_k: float = 3.0
+    max_checks: int = 40
+
+    def __post_init__(self):
+        if isinstance(self.n_candidates, bool) or not isinstance(self.n_candidates, int) or self.n_candidates < 1:
+            raise CalibrationError(f"PlannerConfig.n_candidates must be an integer >= 1, got {self.n_candidates!r}")
+        for name in ("translation_range_m", "tilt_deg", "speed_m_s", "acceleration_m_s2", "rotation_radius_m",
+                     "prior_sigma_rad", "prior_sigma_m"):
+            v = getattr(self, name)
+            if not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0):
+                raise CalibrationError(f"PlannerConfig.{name} must be a positive number, got {v!r}")
+        for name in ("travel_weight", "uncertainty_k", "clearance_m"):
+            v = getattr(self, name)
+            if not (isinstance(v, (int, float)) and math.isfinite(v) and v >= 0):
+                raise CalibrationError(f"PlannerConfig.{name} must be a number >= 0, got {v!r}")
+        if not 0 <= self.local_fraction <= 1:
+            raise CalibrationError(f"PlannerConfig.local_fraction must be in [0, 1], got {self.local_fraction!r}")
+        if (self.workspace_min is None) != (self.workspace_max is None):
+            raise CalibrationError("PlannerConfig.workspace_min and workspace_max go together")
+        object.__setattr__(self, "keep_out", tuple(k if isinstance(k, KeepOut) else KeepOut(*k) for k in self.keep_out))
+
+
+@dataclass(frozen=True)
+class PlannedPose:
+    """One planned pose and what the planner expects from it.
+
+    Attributes
+    ----------
+    T_base_flange : ndarray, shape (4, 4)
+    q : ndarray, shape (6,), or None
+        Joint target from the reachability callback.
+    gain : float
+        Expected information gain on the camera transform, nats.
+    travel_s : float
+        Estimated motion time from the previous pose, s.
+    pixel : ndarray, shape (2,)
+        Predicted marker center in the image, px.
+    point_cam : ndarray, shape (3,)
+        Predicted marker center in the camera frame, m.
+    cov : ndarray, shape (6, 6)
+        Predicted covariance of the camera transform once this pose is
+        sampled (`calib.result` convention).
+    """
+
+    T_base_flange: np.ndarray
+    q: np.ndarray | None
+    gain: float
+    travel_s: float
+    pixel: np.ndarray
+    point_cam: np.ndarray
+    cov: np.ndarray
+
+
+@dataclass
+class ScreenStats:
+    """Why candidates were rejected (counts by reason), for logs and the benchmark."""
+
+    reasons: Counter = field(default_factory=Counter)
+    checks: int = 0
+
+
+def marker_rotation(setup: str, X, Y, A, T_cam_marker) -> tuple[np.ndarray, np.ndarray]:
+    """Fill in the marker-side rotation that point-only solvers (YKronT') leave at identity.
+
+    From measured marker orientations ``R_B`` (e.g. ArUco), the chordal mean
+    of ``R_A^T R_Y R_B`` (eye-to-hand, ``R_X``) or ``R_A R_X R_B``
+    (eye-in-hand, ``R_Y``); the planner needs it to know which way the marker faces.
+
+    Parameters
+    ----------
+    setup : {"eye_to_hand", "eye_in_hand"}
+    X, Y : array_like, shape (4, 4)
+    A : array_like, shape (N, 4, 4)
+    T_cam_marker : array_like, shape (N, 4, 4)
+
+    Returns
+    -------
+    X, Y : ndarray, shape (4, 4)
+        With the marker-side rotation replaced.
+    """
+    check_setup(setup)
+    X, Y = tf.check_transform(X, "X"), tf.check_transform(Y, "Y")
+    A, B = tf.check_transforms(A, "A"), tf.check_transforms(T_cam_marker, "T_cam_marker")
+    if len(A) != len(B) or len(A) == 0:
+        raise CalibrationError(f"A and T_cam_marker must be equally long and non-empty, got {len(A)}, {len(B)}")
+    if setup == "eye_to_hand":
+        R = tf.project_to_so3((np.swapaxes(A[:, :3, :3], 1, 2) @ Y[:3, :3] @ B[:, :3, :3]).sum(axis=0))
+        return tf.make_transform(R, X[:3, 3]), Y
+    R = tf.project_to_so3((A[:, :3, :3] @ X[:3, :3] @ B[:, :3, :3]).sum(axis=0))
+    return X, tf.make_transform(R, Y[:3, 3])
+
+
+def candidate_poses(T_start, config: PlannerConfig, rng: np.random.Generator) -> np.ndarray:
+    """``config.n_candidates`` flange poses (N, 4, 4) around ``T_start``.
+
+    Offsets uniform in ``+-translation_range_m`` per axis, rotations about
+    uniform random axes through the flange origin by up to ``tilt_deg``; a
+    ``local_fraction`` share at a third of both ranges. Positions are clipped
+    into the workspace box when one is configured.
+    """
+    T_start = tf.check_transform(T_start, "T_start")
+    n = config.n_candidates
+    scale = np.where(np.arange(n) < round(config.local_fraction * n), 1.0 / 3.0, 1.0)
+    axes = rng.normal(size=(n, 3))
+    axes /= np.linalg.norm(axes, axis=1, keepdims=True)
+    angles = rng.uniform(0.0, np.deg2rad(config.tilt_deg), size=n) * scale
+    R = _rotvec_matrices(axes * angles[:, None])
+    T = np.broadcast_to(np.eye(4), (n, 4, 4)).copy()
+    T[:, :3, :3] = R @ T_start[:3, :3]
+    T[:, :3, 3] = T_start[:3, 3] + rng.uniform(-1, 1, size=(n, 3)) * config.translation_range_m * scale[:, None]
+    if config.workspace_min is not None:
+        T[:, :3, 3] = np.clip(T[:, :3, 3], config.workspace_min, config.workspace_max)
+    return T
+
+
+def _rotvec_matrices(v: np.ndarray) -> np.ndarray:
+    from scipy.spatial.transform import Rotation
+
+    return Rotation.from_rotvec(v).as_matrix()
+
+
+def travel_time(T_from, T_to, config: PlannerConfig) -> np.ndarray:
+    """Trapezoidal-profile motion time (s) from ``T_from`` (4, 4) to each of ``T_to`` (N, 4, 4).
+
+    The path length is the larger of the translation and ``rotation_radius_m``
+    times the rotation angle.
+    """
+    rot, dist = tf.pose_error(np.asarray(T_to), np.asarray(T_from)[None])
+    length = np.maximum(dist, config.rotation_radius_m * rot)
+    v, a = config.speed_m_s, config.acceleration_m_s2
+    return np.where(length > v * v / a, length / v + v / a, 2.0 * np.sqrt(length / a))
+
+
+class PosePlanner:
+    """Greedy D-optimal pose selection for one calibration (see the module docstring).
+
+    Parameters
+    ----------
+    setup : {"eye_to_hand", "eye_in_hand"}
+    X, Y : array_like, shape (4, 4)
+        Current estimate (paper eq. 1), with the marker-side rotation filled
+        in (`marker_rotation`) so the marker's facing is known.
+    view : CameraView
+    config : PlannerConfig
+    point_cov : callable, optional
+        ``point_cov(points (N, 3)) -> (N, 3, 3)`` m^2; default the depth model
+        `calib.noise.default_point_cov`.
+    """
+
+    def __init__(self, setup: str, X, Y, view: CameraView, config: PlannerConfig | None = None,
+                 point_cov: Callable[[np.ndarray], np.ndarray] = default_point_cov):
+        check_setup(setup)
+        self.setup = setup
+        self.view = view
+        self.config = config or PlannerConfig()
+        self._point_cov = point_cov
+        self.X, self.Y = tf.check_transform(X, "X"), tf.check_transform(Y, "Y")
+        c = self.config
+        self._prior = np.diag([c.prior_sigma_rad ** -2] * 3 + [c.prior_sigma_m ** -2] * 6)
+        self._taken: list[np.ndarray] = []
+        self.information = self._prior.copy()
+        self.stats = ScreenStats()
+
+    # ------------------------------------------------------------ information
+    def sample_information(self, A) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Predicted points (N, 3), their Jacobians (N, 3, 9) and Fisher information (N, 9, 9) at flange poses A."""
+        p, J = point_jacobian(self.X, self.Y, A, setup=self.setup)
+        S_inv = np.linalg.inv(self._point_cov(np.where(p[:, 2:] > 0.1, p, [0.0, 0.0, 0.1])))
+        return p, J, np.swapaxes(J, 1, 2) @ S_inv @ J
+
+    def add(self, T_base_flange) -> None:
+        """Account for a sample taken at ``T_base_flange`` (4, 4)."""
+        T = tf.check_transform(T_base_flange, "T_base_flange")
+        self._taken.append(T)
+        self.information = self.information + self.sample_information(T[None])[2][0]
+
+    def update_estimate(self, X, Y) -> None:
+        """Relinearise the information of the samples taken so far at a new estimate."""
+        self.X, self.Y = tf.check_transform(X, "X"), tf.check_transform(Y, "Y")
+        info = self._prior.copy()
+        if self._taken:
+            info = info + self.sample_information(np.stack(self._taken))[2].sum(axis=0)
+        self.information = info
+
+    def camera_cov(self, information=None) -> np.ndarray:
+        """Predicted covariance (6, 6) of the camera transform (`calib.result` convention)."""
+        cov = np.linalg.inv(self.information if information is None else information)[..., :6, :6]
+        return 0.5 * (cov + np.swapaxes(cov, -1, -2))
+
+    def gains(self, A) -> np.ndarray:
+        """Expected D-optimal gain (nats) of sampling at each flange pose of A (N, 4, 4)."""
+        _, _, U = self.sample_information(A)
+        return self._gains(U)
+
+    def _gains(self, U: np.ndarray) -> np.ndarray:
+        base = np.linalg.slogdet(self.camera_cov())[1]
+        return base - np.linalg.slogdet(self.camera_cov(self.information + U))[1]
+
+    # --------------------------------------------------------------- validity
+    def marker_in_camera(self, A) -> np.ndarray:
+        """``T_cam_marker`` (N, 4, 4) predicted at flange poses A (N, 4, 4)."""
+        A = np.asarray(A, dtype=float)
+        if self.setup == "eye_to_hand":
+            return tf.invert(self.Y) @ A @ self.X
+        return _invert_stack(A @ self.X) @ self.Y
+
+    def screen(self, A, T_from=None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Which flange poses the camera could measure (and that clear the keep-out boxes).
+
+        Parameters
+        ----------
+        A : ndarray, shape (N, 4, 4)
+        T_from : ndarray, shape (4, 4), optional
+            Start of the straight path checked against the keep-out boxes
+            (default: only the targets).
+
+        Returns
+        -------
+        ok : ndarray of bool, shape (N,)
+        points : ndarray, shape (N, 3)
+            Predicted marker centers, camera frame, m.
+        J : ndarray, shape (N, 3, 9)
+            Their Jacobians (reused for the scores).
+        """
+        v = self.view
+        A = np.asarray(A, dtype=float)
+        T_cm = self.marker_in_camera(A)
+        p, J = point_jacobian(self.X, self.Y, A, setup=self.setup)
+        reasons = self.stats.reasons
+        z = p[:, 2]
+        ok = (z >= v.depth_min_m) & (z <= v.depth_max_m)
+        reasons["depth range"] += int((~ok).sum())
+        # Marker normal (its z axis) must point back at the camera: angle to the ray from the marker to the camera.
+        n = T_cm[:, :3, 2]
+        cos_view = -np.einsum("ni,ni->n", n, p) / np.maximum(np.linalg.norm(p, axis=1), 1e-9)
+        facing = cos_view >= math.cos(math.radians(v.max_view_angle_deg))
+        reasons["view angle"] += int((ok & ~facing).sum())
+        ok &= facing
+        # Corners inside the image, the margin widened by k predicted pixel sigmas of the center.
+        h = v.marker_size_m / 2
+        corners = np.array([[-h, -h, 0, 1], [h, -h, 0, 1], [h, h, 0, 1], [-h, h, 0, 1]])
+        pc = np.einsum("nij,kj->nki", T_cm, corners)[..., :3]
+        zc = np.where(pc[..., 2] > 1e-3, pc[..., 2], np.nan)
+        px = v.project(np.concatenate([pc[..., :2], zc[..., None]], -1))
+        margin = v.margin_px + self.config.uncertainty_k * self._pixel_sigma(p, J)
+        inside = np.all((px[..., 0] >= margin[:, None]) & (px[..., 0] <= v.width - margin[:, None])
+                        & (px[..., 1] >= margin[:, None]) & (px[..., 1] <= v.height - margin[:, None]), axis=1)
+        reasons["marker outside the image margin"] += int((ok & ~inside).sum())
+        ok &= inside
+        if self.config.keep_out:
+            clear = self._clear(A, T_from)
+            reasons["keep-out box"] += int((ok & ~clear).sum())
+            ok &= clear
+        return ok, p, J
+
+    def _pixel_sigma(self, p: np.ndarray, J: np.ndarray) -> np.ndarray:
+        """Largest predicted pixel standard deviation (N,) of the marker center from the parameter uncertainty."""
+        if self.config.uncertainty_k == 0:
+            return np.zeros(len(p))
+        cov = np.linalg.inv(self.information)
+        P = J @ cov @ np.swapaxes(J, 1, 2)  # (N, 3, 3) covariance of the predicted point
+        z = np.maximum(p[:, 2], 1e-3)
+        # Pixel Jacobian of the projection, f/z [I2 | -xy/z].
+        Jp = np.zeros((len(p), 2, 3))
+        Jp[:, 0, 0] = self.view.fx / z
+        Jp[:, 1, 1] = self.view.fy / z
+        Jp[:, 0, 2] = -self.view.fx * p[:, 0] / z**2
+        Jp[:, 1, 2] = -self.view.fy * p[:, 1] / z**2
+        Q = Jp @ P @ np.swapaxes(Jp, 1, 2)
+        return np.sqrt(np.maximum(np.linalg.eigvalsh(Q)[:, -1], 0.0))
+
+    def _clear(self, A: np.ndarray, T_from) -> np.ndarray:
+        c = self.config
+        if T_from is not None:
+            T_from = np.asarray(T_from, float)
+            # Straight-line samples of the carried points (every ~1 cm of the longest path, at most 50).
+            carried_from = np.stack([T_from[:3, 3], (T_from @ self.X)[:3, 3]])
+            carried_to = np.stack([A[:, :3, 3], (A @ self.X)[:, :3, 3]], axis=1)  # (N, 2, 3)
+            n = int(min(50, max(2, np.ceil(np.abs(carried_to - carried_from).max() / 0.01))))
+            s = np.linspace(0, 1, n)[:, None, None, None]
+            pts = carried_from[None, None] + s * (carried_to[None] - carried_from[None, None])  # (n, N, 2, 3)
+            pts = np.moveaxis(pts, 0, 1).reshape(len(A), -1, 3)
+        else:
+            pts = np.stack([A[:, :3, 3], (A @ self.X)[:, :3, 3]], axis=1)
+        clear = np.ones(len(A), bool)
+        for box in c.keep_out:
+            lo = np.asarray(box.min) - c.clearance_m
+            hi = np.asarray(box.max) + c.clearance_m
+            clear &= ~np.any(np.all((pts >= lo) & (pts <= hi), axis=2), axis=1)
+        return clear
+
+    # ----------------------------------------------------------------- choice
+    def next_pose(self, T_start, T_current, q_current, rng: np.random.Generator,
+                  reachable: Reachable | None = None) -> PlannedPose | None:
+        """The best valid pose to sample next (does not add it; call `add` once sampled).
+
+        Parameters
+        ----------
+        T_start : (4, 4)
+            Center of the candidate region (the run's start pose).
+        T_current : (4, 4)
+            Where the flange is now (start of the next motion).
+        q_current : (6,) or None
+            Current joints, handed to ``reachable``.
+        rng : numpy.random.Generator
+        reachable : callable, optional
+            The robot's own check (`Reachable`); None accepts every pose.
+
+        Returns
+        -------
+        PlannedPose or None
+            None when no candidate is valid.
+        """
+        T_current = tf.check_transform(T_current, "T_current")
+        A = candidate_poses(T_start, self.config, rng)
+        ok, p, J = self.screen(A, T_current)
+        idx = np.flatnonzero(ok)
+        if len(idx) == 0:
+            return None
+        A, p, J = A[idx], p[idx], J[idx]
+        S_inv = np.linalg.inv(self._point_cov(p))
+        U = np.swapaxes(J, 1, 2) @ S_inv @ J
+        gain = self._gains(U)
+        travel = travel_time(T_current, A, self.config)
+        order = np.argsort(-(gain - self.config.travel_weight * travel))
+        for k in order[: self.config.max_checks]:
+            self.stats.checks += 1
+            q = None
+            if reachable is not None:
+                q = reachable(A[k], q_current)
+                if q is None:
+                    self.stats.reasons["robot limits"] += 1
+                    continue
+            pixel = self.view.project(p[k])
+            return PlannedPose(A[k], None if q is None else np.asarray(q, float), float(gain[k]), float(travel[k]),
+                               pixel, p[k].copy(), self.camera_cov(self.information + U[k]))
+        return None
+
+    def plan(self, T_start, q_start, n: int, rng: np.random.Generator,
+             reachable: Reachable | None = None) -> list[PlannedPose]:
+        """``n`` poses in a row, each assumed sampled before the next is chosen (a dry run).
+
+        The estimate is not updated between poses (nothing is measured), so
+        the expected covariance after each pose is that of the current
+        linearisation. Stops early when no candidate is valid.
+        """
+        T_cur, q_cur = tf.check_transform(T_start, "T_start"), q_start
+        out: list[PlannedPose] = []
+        for _ in range(n):
+            pose = self.next_pose(T_start, T_cur, q_cur, rng, reachable)
+            if pose is None:
+                break
+            out.append(pose)
+            self.add(pose.T_base_flange)
+            T_cur, q_cur = pose.T_base_flange, pose.q
+        return out
+
+
+def _invert_stack(T: np.ndarray) -> np.ndarray:
+    R = np.swapaxes(T[:, :3, :3], 1, 2)
+    out = np.broadcast_to(np.eye(4), T.shape).copy()
+    out[:, :3, :3] = R
+    out[:, :3, 3] = -np.einsum("nij,nj->ni", R, T[:, :3, 3])
+    return out
+
+
+#: Directions of the bootstrap pattern: (rotation axis in the flange frame, base-frame offset direction).
+_BOOTSTRAP = [((1, 0, 0), (1, 0, 0)), ((0, 1, 0), (0, 1, 0)), ((-1, 0, 0), (0, 0, 1)), ((0, -1, 0), (-1, 0, 0)),
+              ((0.7071, 0.7071, 0), (0, -1, 0)), ((0, 0, 1), (0, 0, -1))]
+
+
+def bootstrap_poses(T_start, setup: str, view: CameraView, point_cam, config: PlannerConfig, *,
+                    lever_max_m: float = 0.1, view_angle_deg: float = 0.0, n: int = 5) -> np.ndarray:
+    """A model-free pattern (n, 4, 4) to take the first samples with, while nothing is known.
+
+    Turns about the flange's own x, y, -x, -y, x+y, z axes, each with an offset
+    along a different base axis. The amplitude is the largest fraction ``a <= 1``
+    of ``(translation_range_m, tilt_deg)`` for which the marker provably stays
+    in view whatever the unknown transforms are, given only the first
+    measurement (marker center ``point_cam`` and its ``view_angle_deg``) and a
+    bound on the lever arm (flange to marker, eye-to-hand; flange to camera,
+    eye-in-hand): the marker moves relative to the camera by at most
+    ``delta = |d| + theta (L + z0 [eye-in-hand])``, which must fit in the pixel
+    room to the image margin (``f delta / (z0 - delta)``), the depth range, and
+    the view angle budget (``theta``).
+
+    Returns
+    -------
+    ndarray, shape (n, 4, 4)
+        Empty (0, 4, 4) when even a tiny pattern would not be safe.
+    """
+    T_start = tf.check_transform(T_start, "T_start")
+    check_setup(setup)
+    p0 = np.asarray(point_cam, dtype=float)
+    if p0.shape != (3,) or not np.isfinite(p0).all() or p0[2] <= 0:
+        raise CalibrationError(f"point_cam must be a finite 3-vector in front of the camera, got {point_cam!r}")
+    if not 1 <= n <= len(_BOOTSTRAP):
+        raise CalibrationError(f"n must be in 1..{len(_BOOTSTRAP)}, got {n}")
+    z0, f = float(p0[2]), max(view.fx, view.fy)
+    u, v = view.project(p0)
+    half_px = f * view.marker_size_m / 2 * math.sqrt(2) / z0
+    room_px = min(u, view.width - u, v, view.height - v) - view.margin_px - 2 * half_px
+    theta_max = math.radians(config.tilt_deg)
+    lever = lever_max_m + (z0 if setup == "eye_in_hand" else 0.0)
+
+    def safe(a: float) -> bool:
+        theta = a * theta_max
+        delta = a * config.translation_range_m + theta * lever
+        if delta >= z0 - view.depth_min_m or z0 + delta > view.depth_max_m:
+            return False
+        if view_angle_deg + math.degrees(theta) > view.max_view_angle_deg:
+            return False
+        return f * delta / (z0 - delta) <= room_px
+
+    if room_px <= 0 or not safe(0.02):
+        return np.zeros((0, 4, 4))
+    lo, hi = 0.02, 1.0
+    if safe(hi):
+        lo = hi
+    for _ in range(30):
+        if lo == hi:
+            break
+        mid = 0.5 * (lo + hi)
+        lo, hi = (mid, hi) if safe(mid) else (lo, mid)
+    a = lo
+    out = []
+    for axis, offset in _BOOTSTRAP[:n]:
+        ax = np.asarray(axis, float) / np.linalg.norm(axis)
+        R = T_start[:3, :3] @ _rotvec_matrices((ax * a * theta_max)[None])[0]
+        dt = np.asarray(offset, float) * a * config.translation_range_m
+        out.append(tf.make_transform(R, T_start[:3, 3] + dt))
+    return np.stack(out)
+
+
+def sequence_travel(T: Sequence[np.ndarray], config: PlannerConfig) -> float:
+    """Estimated total motion time (s) along a sequence of flange poses (4, 4)."""
+    return float(sum(travel_time(a, b[None], config)[0] for a, b in zip(T[:-1], T[1:])))

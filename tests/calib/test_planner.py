@@ -1,0 +1,208 @@
+"""calib.planner: screening, information ordering, bootstrap safety, both setups."""
+
+import numpy as np
+import pytest
+
+from calib import transforms as tf
+from calib.errors import CalibrationError
+from calib.planner import (
+    CameraView,
+    KeepOut,
+    PlannerConfig,
+    PosePlanner,
+    bootstrap_poses,
+    candidate_poses,
+    marker_rotation,
+    travel_time,
+)
+from calib.simulate import realistic_cell
+
+VIEW = CameraView(640, 480, 570.0, 570.0, 319.5, 239.5, margin_px=40, depth_min_m=0.4, depth_max_m=2.0,
+                  max_view_angle_deg=60.0, marker_size_m=0.05)
+
+
+def _cell(setup, seed=0):
+    """True X, Y of `calib.simulate.realistic_cell` and its start pose (marker and camera facing at 0.7 m)."""
+    from scipy.spatial.transform import Rotation
+
+    d = realistic_cell(1, np.random.default_rng(seed), setup=setup)
+    flip = Rotation.from_euler("y", np.pi).as_matrix()
+    if setup == "eye_to_hand":
+        T0 = tf.make_transform(d.Y[:3, :3] @ flip, [0.9, 0.1, 0.5])
+    else:
+        T0 = d.Y @ tf.invert(tf.make_transform(flip, [0, 0, 0.7])) @ tf.invert(d.X)
+    return d.X, d.Y, T0
+
+
+def _visible_under(setup, X, Y, T):
+    """Screen with the true transforms and no uncertainty margin: what the camera would really see."""
+    return PosePlanner(setup, X, Y, VIEW, PlannerConfig(uncertainty_k=0)).screen(T)[0]
+
+
+@pytest.mark.parametrize("setup", ["eye_to_hand", "eye_in_hand"])
+def test_start_pose_sees_the_marker(setup):
+    X, Y, T0 = _cell(setup)
+    assert _visible_under(setup, X, Y, T0[None])[0]
+
+
+@pytest.mark.parametrize("setup", ["eye_to_hand", "eye_in_hand"])
+def test_every_planned_pose_is_seen_under_the_truth_from_a_perturbed_estimate(setup):
+    """Planning on a rough estimate (3 mm / 0.3 deg off, with the matching uncertainty) keeps the marker in view."""
+    X, Y, T0 = _cell(setup)
+    rng = np.random.default_rng(1)
+    bump = tf.from_rotvec_translation(rng.normal(0, np.deg2rad(0.3), 3), rng.normal(0, 0.003, 3))
+    Xe, Ye = (X, bump @ Y) if setup == "eye_to_hand" else (X @ bump, Y)
+    cfg = PlannerConfig(translation_range_m=0.15 if setup == "eye_to_hand" else 0.1,
+                        tilt_deg=40.0 if setup == "eye_to_hand" else 20.0)
+    planner = PosePlanner(setup, Xe, Ye, VIEW, cfg)
+    for T in bootstrap_poses(T0, setup, VIEW, planner.marker_in_camera(T0[None])[0, :3, 3], cfg, n=5):
+        planner.add(T)
+    poses = planner.plan(T0, None, 15, rng)
+    assert len(poses) == 15
+    A = np.stack([p.T_base_flange for p in poses])
+    assert _visible_under(setup, X, Y, A).all()
+    # Predicted covariance shrinks monotonically (information only grows).
+    logdets = [np.linalg.slogdet(p.cov)[1] for p in poses]
+    assert np.all(np.diff(logdets) < 0)
+
+
+@pytest.mark.parametrize("setup", ["eye_to_hand", "eye_in_hand"])
+def test_chosen_pose_gains_more_information_than_random_candidates(setup):
+    X, Y, T0 = _cell(setup)
+    cfg = PlannerConfig(travel_weight=0.0, uncertainty_k=0, tilt_deg=40 if setup == "eye_to_hand" else 20)
+    planner = PosePlanner(setup, X, Y, VIEW, cfg)
+    for T in bootstrap_poses(T0, setup, VIEW, planner.marker_in_camera(T0[None])[0, :3, 3], cfg, n=5):
+        planner.add(T)
+    rng = np.random.default_rng(3)
+    chosen = planner.next_pose(T0, T0, None, rng)
+    others = candidate_poses(T0, cfg, np.random.default_rng(4))
+    ok = planner.screen(others)[0]
+    gains = planner.gains(others[ok])
+    assert chosen.gain == pytest.approx(planner.gains(chosen.T_base_flange[None])[0])
+    assert chosen.gain >= np.quantile(gains, 0.95)
+    # And it is a real reduction of the predicted uncertainty.
+    before = np.linalg.slogdet(planner.camera_cov())[1]
+    assert np.linalg.slogdet(chosen.cov)[1] == pytest.approx(before - chosen.gain)
+
+
+@pytest.mark.parametrize("setup", ["eye_to_hand", "eye_in_hand"])
+def test_optimal_sequence_beats_random_sequences_on_predicted_sigma(setup):
+    X, Y, T0 = _cell(setup)
+    cfg = PlannerConfig(uncertainty_k=0, tilt_deg=40 if setup == "eye_to_hand" else 20,
+                        translation_range_m=0.15 if setup == "eye_to_hand" else 0.1)
+    n = 10
+
+    def worst_sigma(planner):
+        cov = planner.camera_cov()
+        return np.sqrt(np.linalg.eigvalsh(cov[:3, :3])[-1]), np.sqrt(np.linalg.eigvalsh(cov[3:, 3:])[-1])
+
+    opt = PosePlanner(setup, X, Y, VIEW, cfg)
+    opt.plan(T0, None, n, np.random.default_rng(0))
+    s_opt = worst_sigma(opt)
+    for seed in range(5):
+        rnd = PosePlanner(setup, X, Y, VIEW, cfg)
+        rng = np.random.default_rng(seed)
+        taken = 0
+        while taken < n:
+            T = candidate_poses(T0, PlannerConfig(n_candidates=1, local_fraction=0, tilt_deg=cfg.tilt_deg,
+                                                  translation_range_m=cfg.translation_range_m), rng)
+            if rnd.screen(T)[0][0]:
+                rnd.add(T[0])
+                taken += 1
+        s_rnd = worst_sigma(rnd)
+        assert s_opt[0] < s_rnd[0] and s_opt[1] < s_rnd[1]
+
+
+def test_travel_cost_prefers_the_nearer_of_equal_poses():
+    cfg = PlannerConfig()
+    T0 = np.eye(4)
+    far, near = tf.make_transform(np.eye(3), [0.3, 0, 0]), tf.make_transform(np.eye(3), [0.05, 0, 0])
+    t = travel_time(T0, np.stack([far, near]), cfg)
+    assert t[0] > t[1] > 0
+    # 0.3 m at 0.25 m/s, 1 m/s^2: trapezoid 0.3/0.25 + 0.25 = 1.45 s.
+    assert t[0] == pytest.approx(1.45)
+
+
+def test_keep_out_box_on_the_path_rejects_the_candidate():
+    X, Y, T0 = _cell("eye_to_hand")
+    target = T0.copy()
+    target[:3, 3] += [0.0, 0.0, -0.2]
+    mid = 0.5 * (T0[:3, 3] + target[:3, 3])
+    box = KeepOut(tuple(mid - 0.01), tuple(mid + 0.01))
+    free = PosePlanner("eye_to_hand", X, Y, VIEW, PlannerConfig(uncertainty_k=0))
+    blocked = PosePlanner("eye_to_hand", X, Y, VIEW, PlannerConfig(uncertainty_k=0, keep_out=(box,)))
+    assert free.screen(target[None], T0)[0][0]
+    assert not blocked.screen(target[None], T0)[0][0]
+    assert blocked.screen(target[None])[0][0]  # the target alone is clear; the path is not
+    assert blocked.stats.reasons["keep-out box"] == 1
+
+
+def test_screen_rejects_marker_turned_away_and_out_of_range():
+    X, Y, T0 = _cell("eye_to_hand")
+    planner = PosePlanner("eye_to_hand", X, Y, VIEW, PlannerConfig(uncertainty_k=0))
+    flipped = T0.copy()
+    flipped[:3, :3] = T0[:3, :3] @ np.diag([1.0, -1.0, -1.0])  # marker faces away
+    far = T0.copy()
+    far[:3, 3] += 2.0 * (T0[:3, 3] - Y[:3, 3])  # three times as far from the camera
+    ok, _, _ = planner.screen(np.stack([T0, flipped, far]))
+    assert ok.tolist() == [True, False, False]
+    assert planner.stats.reasons["view angle"] == 1 and planner.stats.reasons["depth range"] == 1
+
+
+def test_uncertainty_widens_the_margin():
+    X, Y, T0 = _cell("eye_to_hand")
+    edge = T0.copy()
+    edge[:3, 3] += 0.12 * Y[:3, 0]  # towards the image border along the camera x axis
+    sure = PosePlanner("eye_to_hand", X, Y, VIEW, PlannerConfig(uncertainty_k=0))
+    unsure = PosePlanner("eye_to_hand", X, Y, VIEW, PlannerConfig(uncertainty_k=3, prior_sigma_m=0.05,
+                                                                     prior_sigma_rad=0.05))
+    assert sure.screen(edge[None])[0][0]
+    assert not unsure.screen(edge[None])[0][0]
+
+
+@pytest.mark.parametrize("setup", ["eye_to_hand", "eye_in_hand"])
+@pytest.mark.parametrize("seed", range(20))
+def test_bootstrap_keeps_the_marker_in_view_for_any_mounting_within_the_lever_bound(seed, setup):
+    """The bootstrap is model-free: whatever X (lever <= 10 cm) and Y, its poses keep the marker in view."""
+    rng = np.random.default_rng(seed)
+    X0, Y0, T0 = _cell(setup)
+    R = tf.random_rotations(1, np.pi, rng)[0]
+    t = rng.normal(size=3)
+    t *= rng.uniform(0, 0.1) / np.linalg.norm(t)
+    if setup == "eye_to_hand":
+        # Another marker mounting; keep the camera where it sees the marker at the start pose.
+        X = tf.make_transform(R, t)
+        Y = Y0
+        look = tf.invert(Y) @ T0 @ X
+        if -look[:3, 2] @ look[:3, 3] < np.cos(np.deg2rad(50)) * np.linalg.norm(look[:3, 3]):
+            return  # this mounting faces away from the camera at the start: nothing to bootstrap from
+    else:
+        X = tf.make_transform(tf.random_rotations(1, 0.3, rng)[0] @ X0[:3, :3], t)
+        Y = T0 @ X @ tf.invert(tf.invert(T0 @ X0) @ Y0)
+    cfg = PlannerConfig(tilt_deg=40.0, translation_range_m=0.15)
+    truth = PosePlanner(setup, X, Y, VIEW, PlannerConfig(uncertainty_k=0))
+    first = truth.marker_in_camera(T0[None])[0]
+    if not truth.screen(T0[None])[0][0]:
+        return
+    angle = np.degrees(np.arccos(-first[:3, 2] @ first[:3, 3] / np.linalg.norm(first[:3, 3])))
+    B = bootstrap_poses(T0, setup, VIEW, first[:3, 3], cfg, lever_max_m=0.1, view_angle_deg=angle, n=6)
+    assert truth.screen(B)[0].all()
+
+
+def test_marker_rotation_recovers_the_flange_marker_rotation():
+    d = realistic_cell(8, np.random.default_rng(2))
+    X_point_only = tf.make_transform(np.eye(3), d.X[:3, 3])
+    X, Y = marker_rotation("eye_to_hand", X_point_only, d.Y, d.A, d.B)
+    assert np.degrees(tf.rotation_angle(X[:3, :3].T @ d.X[:3, :3])) < 1.0
+    assert np.array_equal(Y, d.Y)
+
+
+def test_bad_inputs_are_named():
+    with pytest.raises(CalibrationError, match="margin_px"):
+        CameraView(640, 480, 570, 570, 320, 240, margin_px=300)
+    with pytest.raises(CalibrationError, match="n_candidates"):
+        PlannerConfig(n_candidates=0)
+    with pytest.raises(CalibrationError, match="KeepOut"):
+        KeepOut((0, 0, 0), (0, 1, 1))
+    with pytest.raises(CalibrationError, match="point_cam"):
+        bootstrap_poses(np.eye(4), "eye_to_hand", VIEW, [0, 0, -1], PlannerConfig())
