@@ -28,6 +28,9 @@ from calib.setup import Setup, check_setup
 DEFAULT_METHOD = "YKronT'"
 # Result formats of app.formats.write_result (kept literal: config must load without the exporters).
 EXPORTS = ("yaml", "json", "easy_handeye", "easy_handeye2", "urdf", "ros2_launch")
+# [frames]: names every export uses (validated by app.formats.export.check_frames). "camera" is the
+# camera's optical frame (z forward, x right, y down), not a ROS camera_link.
+FRAMES = {"base": "base", "flange": "flange", "camera": "camera", "marker": "marker"}
 
 
 def _positive(obj, name: str, *, allow_zero: bool = False) -> None:
@@ -234,10 +237,12 @@ class Config:
     monitor: MonitorConfig = field(default_factory=MonitorConfig)
     session: SessionConfig = field(default_factory=SessionConfig)
     viz: VizConfig = field(default_factory=VizConfig)
+    frames: dict = field(default_factory=lambda: dict(FRAMES))
+    mqtt: dict = field(default_factory=dict)
 
     def __post_init__(self):
         self.setup = check_setup(self.setup, error=ConfigError)
-        for name in ("robot", "camera", "marker"):
+        for name in ("robot", "camera", "marker", "frames", "mqtt"):
             if not isinstance(getattr(self, name), dict):
                 raise ConfigError(f"[{name}] must be a table, got {getattr(self, name)!r}")
         backend = self.camera.get("backend")

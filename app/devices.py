@@ -41,6 +41,11 @@ def validate(cfg: Config) -> None:
         except ParameterError as e:
             raise ConfigError(f"[{section}]: {e}") from None
     online_config(cfg)
+    from app.formats.export import check_frames
+    from app.mqtt import MqttConfig
+
+    check_frames(cfg.frames)
+    MqttConfig.from_dict(cfg.mqtt)
 
 
 def open_robot(cfg: Config, *, read_only: bool):
@@ -123,11 +128,12 @@ def make_online(cfg: Config):
     return OnlineCalibrator(online_config(cfg))
 
 
-def write_result(result, session: Path, formats) -> dict:
-    """Write the result in each export format into the session directory; returns ``{format: path}``."""
+def write_result(result, session: Path, formats, frames: dict | None = None) -> dict:
+    """Write the result in each export format into the session directory, with the ``[frames]``
+    names; returns ``{format: path}``."""
     from app.formats import write_result as export
 
-    return {fmt: export(result, Path(session) / RESULT_FILES[fmt], fmt) for fmt in formats}
+    return {fmt: export(result, Path(session) / RESULT_FILES[fmt], fmt, frames) for fmt in formats}
 
 
 def import_observations(path: Path, setup: str | None):

@@ -8,6 +8,7 @@ eye-in-hand (``X = T_flange_cam``, ``Y = T_base_marker``).
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import logging
 import time
@@ -44,6 +45,7 @@ class CalibrationOutput:
     files: dict
     truth: np.ndarray | None = None
     recording: Path | None = None
+    frames: dict | None = None
 
 
 def make_viz(cfg: Config, session: Path) -> Viz:
@@ -106,9 +108,10 @@ def calibrate(cfg: Config, *, resume: Path | None = None, progress: bool = True)
                 report = run_calibration(robot, camera, devices.make_measure(cfg), make_solve(cfg.calibrate, cfg.setup, rng),
                                          writer, cfg.calibrate, cfg.setup, rng, viz,
                                          save_frames=cfg.session.save_frames, progress=bar, initial=initial)
-    files = devices.write_result(report.result, writer.path, cfg.session.exports) if report.result is not None else {}
+    files = (devices.write_result(report.result, writer.path, cfg.session.exports, cfg.frames)
+             if report.result is not None else {})
     return CalibrationOutput(report, cfg.setup, cfg.calibrate.method, files, _camera_truth(cfg.setup, truth),
-                             recording)
+                             recording, cfg.frames)
 
 
 def monitor(cfg: Config, *, reference: Path | None = None, stop=None, progress: bool = True,
@@ -123,8 +126,12 @@ def monitor(cfg: Config, *, reference: Path | None = None, stop=None, progress: 
     On the simulated cell (``robot.type = "ur_sim"``) the simulated controller
     runs a looping production program (``production``, `app.production`) so
     that the robot moves, and ``bump`` knocks the rendered camera partway.
-    ``publish``: optional ``(obs, update, report)`` callback (MQTT).
+    ``publish``: optional ``(obs, update, report)`` callback; by default the
+    ``[mqtt]`` publisher when enabled (`app.mqtt`).
     """
+    from app.formats.export import check_frames
+    from app.mqtt import make_publisher
+
     rng = np.random.default_rng(cfg.calibrate.seed)
     online = devices.make_online(cfg)
     T_reference = None
@@ -141,7 +148,10 @@ def monitor(cfg: Config, *, reference: Path | None = None, stop=None, progress: 
             raise SessionError(f"reference session {reference}: cannot arm the change detector: {e}") from None
         T_reference = online.camera_transform
         say(f"reference {reference}: {len(usable)} samples, change detector armed from its estimate and covariance")
-    with devices.open_robot(cfg, read_only=True) as robot, devices.open_camera(cfg, robot) as camera:
+    publisher = make_publisher(cfg.mqtt, cfg.setup, check_frames(cfg.frames)) if publish is None else None
+    with devices.open_robot(cfg, read_only=True) as robot, devices.open_camera(cfg, robot) as camera, \
+            (publisher or contextlib.nullcontext()):
+        publish = publish or publisher
         if production:
             start_production(robot, cfg, rng, say=say)
         writer = SessionWriter.create(cfg.session.root, cfg.setup, config=cfg.to_dict(),
@@ -314,7 +324,7 @@ def print_next_steps(out: CalibrationOutput) -> None:
     if out.recording is not None and out.recording.exists():
         print(f"open the recording:  {open_command(out.recording)}")
     if out.report.result is not None:
-        print(f"publish in ROS 2:    {ros2_command(out.report.result)}")
+        print(f"publish in ROS 2:    {ros2_command(out.report.result, out.frames)}")
 
 
 def print_monitor_summary(report: MonitorReport, setup: Setup = Setup.EYE_TO_HAND) -> None:

@@ -44,7 +44,7 @@ def _represent_list(dumper, data):
 _Dumper.add_representer(list, _represent_list)
 
 
-def _frames(frames: dict | None) -> dict:
+def check_frames(frames: dict | None) -> dict:
     frames = {**DEFAULT_FRAMES, **(frames or {})}
     unknown = set(frames) - set(DEFAULT_FRAMES)
     if unknown:
@@ -118,7 +118,7 @@ def _transform_dict(T, name: str, parent: str, child: str, cov=None) -> dict:
 def ros2_command(result: CalibrationResult, frames: dict | None = None) -> str:
     """``ros2 run tf2_ros static_transform_publisher ...`` for the camera transform (ROS 2 Humble+ flags)."""
     check_result(result)
-    frames = _frames(frames)
+    frames = check_frames(frames)
     parent, child = _parent_child(result.setup, frames)
     t, q = tf.to_xyz_quat(result.camera_transform)
     args = " ".join(f"--{k} {_fmt(v)}" for k, v in zip(("x", "y", "z", "qx", "qy", "qz", "qw"), [*t, *q]))
@@ -151,7 +151,7 @@ def result_to_dict(result: CalibrationResult, frames: dict | None = None) -> dic
         (deg, mm) when the result has a covariance.
     """
     check_result(result)
-    frames = _frames(frames)
+    frames = check_frames(frames)
     setup = Setup(result.setup)
     marker_T = result.X if setup == Setup.EYE_TO_HAND else result.Y
     res = result.residuals
@@ -193,7 +193,7 @@ def easy_handeye_dict(result: CalibrationResult, frames: dict | None = None, *, 
     camera transform.
     """
     check_result(result)
-    frames = _frames(frames)
+    frames = check_frames(frames)
     t, q = tf.to_xyz_quat(result.camera_transform)
     return {
         "parameters": {
@@ -209,7 +209,7 @@ def easy_handeye_dict(result: CalibrationResult, frames: dict | None = None, *, 
 def easy_handeye2_dict(result: CalibrationResult, frames: dict | None = None, *, name: str = "handeye") -> dict:
     """easy_handeye2 ``.calib`` file: ``parameters`` + ``transform`` {translation, rotation}."""
     check_result(result)
-    frames = _frames(frames)
+    frames = check_frames(frames)
     t, q = tf.to_xyz_quat(result.camera_transform)
     return {
         "parameters": {
@@ -230,7 +230,7 @@ def urdf_joint(result: CalibrationResult, frames: dict | None = None) -> str:
     robot description, which must define both links.
     """
     check_result(result)
-    frames = _frames(frames)
+    frames = check_frames(frames)
     parent, child = _parent_child(result.setup, frames)
     cam_name = Setup(result.setup).camera_name
     return (
@@ -249,7 +249,7 @@ def urdf_joint(result: CalibrationResult, frames: dict | None = None) -> str:
 def ros2_launch(result: CalibrationResult, frames: dict | None = None) -> str:
     """A ROS 2 Python launch file starting ``static_transform_publisher`` with the camera transform."""
     check_result(result)
-    frames = _frames(frames)
+    frames = check_frames(frames)
     parent, child = _parent_child(result.setup, frames)
     t, q = tf.to_xyz_quat(result.camera_transform)
     args = []

@@ -18,8 +18,8 @@ from mocks.ur_sim import launch
 pytestmark = pytest.mark.slow
 
 
-def _sim_toml(tmp_path, host: str) -> str:
-    text = open("config/sim.toml").read().replace('host = "127.0.0.2"', f'host = "{host}"')
+def _sim_toml(tmp_path, host: str, extra: str = "") -> str:
+    text = open("config/sim.toml").read().replace('host = "127.0.0.2"', f'host = "{host}"') + extra
     path = tmp_path / "sim.toml"
     path.write_text(text)
     return str(path)
@@ -43,7 +43,7 @@ def _reference_session(root, n: int, rng) -> str:
 def test_production_program_loops_with_tool_stops(loopback):
     wp = [{"q": q, "pause_s": 0.2, "tool": t} for q, t in
           [([0.3, -1.3, 1.6, -1.9, -1.5, 0.0], "pick"), ([0.5, -1.2, 1.5, -1.9, -1.5, 0.2], "place")]]
-    with launch(loopback(8), "ur10", "3.15", initial_q=wp[0]["q"]) as sim:
+    with launch(loopback(41), "ur10", "3.15", initial_q=wp[0]["q"]) as sim:
         assert sim.command("sim program {not json").startswith("error")
         sim.start_program({"waypoints": wp, "speed": 3.0, "acceleration": 12.0})
         seen = set()
@@ -60,11 +60,15 @@ def test_production_program_loops_with_tool_stops(loopback):
         assert sim.state()["program"] is None
 
 
-def test_demo_monitor_bump_alarms_and_exits_3(tmp_path, loopback, capsys):
+def test_demo_monitor_bump_alarms_and_exits_3(tmp_path, loopback, capsys, mosquitto, mqtt_inbox):
     """Reference-armed: a 12-sample session arms the detector at once; the 10 mm bump after
-    3 samples is flagged within a few samples; the re-estimate finds the moved camera."""
+    3 samples is flagged within a few samples; the re-estimate finds the moved camera; the
+    alarm reaches an MQTT subscriber through a real broker."""
     ref = _reference_session(tmp_path / "ref", 12, np.random.default_rng(3))
-    rc = main(["demo", "--monitor", "-c", _sim_toml(tmp_path, loopback(9)), "--reference", ref,
+    port = mosquitto()
+    inbox = mqtt_inbox(port, "cell7/#")
+    mqtt = f"\n[mqtt]\nenabled = true\nport = {port}\ntopic_prefix = \"cell7\"\n"
+    rc = main(["demo", "--monitor", "-c", _sim_toml(tmp_path, loopback(42), mqtt), "--reference", ref,
                "--bump-after", "3", "--bump-mm", "10", "--bump-deg", "0", "--max-samples", "14",
                "--no-frames", "--no-viz", "--session-root", str(tmp_path / "s")])
     out = capsys.readouterr().out
@@ -78,10 +82,17 @@ def test_demo_monitor_bump_alarms_and_exits_3(tmp_path, loopback, capsys):
     alarm = next(e for e in s.events if e["event"] == "alarm")
     assert 0 < alarm["sample_index"] - bump["sample_index"] <= 20
     assert "ALARM camera moved" in out and "drift vs. reference" in out and "re-estimate after the move" in out
+    deadline = time.monotonic() + 5
+    while not any(t == "cell7/status" and m["state"] == "offline" for t, m, _ in inbox) and time.monotonic() < deadline:
+        time.sleep(0.05)
+    alarms = [m for t, m, _ in inbox if t == "cell7/alarm"]
+    assert [a["sample"] for a in alarms] == [alarm["sample_index"]] and alarms[0]["session"] == str(session)
+    estimates = [m for t, m, _ in inbox if t == "cell7/estimate"]
+    assert len(estimates) >= 10 and estimates[0]["samples_until_armed"] <= 2
 
 
 def test_monitor_with_the_shipped_config_samples(tmp_path, loopback, capsys):
-    rc = main(["monitor", "-c", _sim_toml(tmp_path, loopback(10)), "--max-samples", "3", "--no-frames", "--no-viz",
+    rc = main(["monitor", "-c", _sim_toml(tmp_path, loopback(43)), "--max-samples", "3", "--no-frames", "--no-viz",
                "--session-root", str(tmp_path / "s")])
     out = capsys.readouterr().out
     assert rc == 0

@@ -95,7 +95,7 @@ def test_demo_with_viewer_and_no_display_writes_result(tmp_path, monkeypatch, ca
     for var in ("DISPLAY", "WAYLAND_DISPLAY", "WAYLAND_SOCKET"):
         monkeypatch.delenv(var, raising=False)
     cfg = tmp_path / "sim.toml"
-    text = open("config/sim.toml").read().replace('host = "127.0.0.2"', f'host = "{loopback(7)}"')
+    text = open("config/sim.toml").read().replace('host = "127.0.0.2"', f'host = "{loopback(40)}"')
     cfg.write_text(text)
     with caplog.at_level(logging.WARNING):
         rc = main(["demo", "-c", str(cfg), "--viewer", "--samples", "5", "--session-root", str(tmp_path / "s")])

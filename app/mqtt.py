@@ -1,0 +1,275 @@
+"""Alarms a plant can hear: the monitor's live estimate, drift and alarms as JSON over MQTT.
+
+Configured by the ``[mqtt]`` table (`MqttConfig`); credentials come only
+from the environment (``HANDEYE_MQTT_USERNAME``, ``HANDEYE_MQTT_PASSWORD``),
+never from the config file, which is often committed or copied around.
+
+Topics (``<prefix>`` = ``topic_prefix``, each overridable in ``[mqtt.topics]``)
+and messages, every one a JSON object with ``schema`` naming it (the full
+schema is in docs/mqtt.md)::
+
+    <prefix>/status    retained  {"schema": "handeye/status/1", "state": "online" | "offline", ...}
+    <prefix>/estimate  retained  {"schema": "handeye/estimate/1", "translation_m", "quaternion_xyzw", "sigma_mm", ...}
+    <prefix>/drift               {"schema": "handeye/drift/1", "translation_mm", "rotation_deg", ...}
+    <prefix>/alarm               {"schema": "handeye/alarm/1", "event": "camera_moved", "sample", "statistic", ...}
+
+The estimate is ``T_base_cam`` (eye-to-hand) or ``T_flange_cam``
+(eye-in-hand) of the camera's optical frame (z forward, x right, y down),
+named by ``parent_frame`` / ``child_frame`` from ``[frames]``.
+
+A broker that cannot be reached costs a warning, not the monitoring run:
+paho keeps reconnecting in its network thread and queues what is published
+meanwhile.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import logging
+import os
+import socket
+import threading
+import time
+from dataclasses import dataclass, field
+
+from app.errors import ConfigError
+from app.pipeline import sigma
+from calib import transforms as tf
+from calib.setup import Setup
+
+log = logging.getLogger(__name__)
+
+USERNAME_ENV = "HANDEYE_MQTT_USERNAME"
+PASSWORD_ENV = "HANDEYE_MQTT_PASSWORD"
+SCHEMA_VERSION = 1
+TOPICS = ("status", "estimate", "drift", "alarm")
+_SECRET_KEYS = ("username", "password", "user", "passwd", "token")
+
+
+@dataclass
+class MqttConfig:
+    """``[mqtt]``: where and how the monitor publishes.
+
+    Attributes
+    ----------
+    enabled : bool
+    host : str
+        Broker address.
+    port : int
+        1883 (plain) or 8883 (TLS) by convention.
+    client_id : str
+        Empty: ``handeye-<hostname>-<pid>``.
+    topic_prefix : str
+        Topics are ``<prefix>/status``, ``/estimate``, ``/drift``, ``/alarm``.
+    topics : dict
+        Per-topic overrides, keys from ``status, estimate, drift, alarm``.
+    qos : int
+        0, 1 or 2, for every message.
+    keepalive_s : int
+    connect_timeout_s : float
+        How long the start waits for the broker before going on without it.
+    tls : bool
+        TLS with the system's CAs, or ``ca_file``.
+    ca_file, certfile, keyfile : str
+        PEM files (client certificate optional).
+    """
+
+    SECTION = "mqtt"
+    enabled: bool = False
+    host: str = "127.0.0.1"
+    port: int = 1883
+    client_id: str = ""
+    topic_prefix: str = "handeye"
+    topics: dict = field(default_factory=dict)
+    qos: int = 1
+    keepalive_s: int = 30
+    connect_timeout_s: float = 5.0
+    tls: bool = False
+    ca_file: str = ""
+    certfile: str = ""
+    keyfile: str = ""
+
+    def __post_init__(self):
+        def bad(name, what):
+            return ConfigError(f"mqtt.{name} must be {what}, got {getattr(self, name)!r}")
+
+        if not isinstance(self.enabled, bool):
+            raise bad("enabled", "true or false")
+        if not isinstance(self.tls, bool):
+            raise bad("tls", "true or false")
+        for name in ("host", "topic_prefix"):
+            if not isinstance(getattr(self, name), str) or not getattr(self, name):
+                raise bad(name, "a non-empty string")
+        for name in ("client_id", "ca_file", "certfile", "keyfile"):
+            if not isinstance(getattr(self, name), str):
+                raise bad(name, "a string")
+        if isinstance(self.port, bool) or not isinstance(self.port, int) or not 0 < self.port < 65536:
+            raise bad("port", "an integer in 1..65535")
+        if self.qos not in (0, 1, 2) or isinstance(self.qos, bool):
+            raise bad("qos", "0, 1 or 2")
+        if isinstance(self.keepalive_s, bool) or not isinstance(self.keepalive_s, int) or self.keepalive_s < 5:
+            raise bad("keepalive_s", "an integer >= 5")
+        if isinstance(self.connect_timeout_s, bool) or not isinstance(self.connect_timeout_s, (int, float)) \
+                or not 0 <= self.connect_timeout_s <= 60:
+            raise bad("connect_timeout_s", "a number of seconds in [0, 60]")
+        if not isinstance(self.topics, dict):
+            raise bad("topics", "a table")
+        for k, v in self.topics.items():
+            if k not in TOPICS:
+                raise ConfigError(f"unknown key mqtt.topics.{k} (known: {', '.join(TOPICS)})")
+            if not isinstance(v, str) or not v or any(c in v for c in "+#"):
+                raise ConfigError(f"mqtt.topics.{k} must be a topic name without wildcards, got {v!r}")
+        if any(c in self.topic_prefix for c in "+#"):
+            raise bad("topic_prefix", "a topic name without wildcards")
+        if (self.certfile or self.keyfile) and not self.tls:
+            raise ConfigError("mqtt.certfile/keyfile need mqtt.tls = true")
+
+    @classmethod
+    def from_dict(cls, data: dict) -> "MqttConfig":
+        """Validate an ``[mqtt]`` table; credentials in it are refused, naming the environment variables."""
+        if not isinstance(data, dict):
+            raise ConfigError(f"[mqtt] must be a table, got {data!r}")
+        for key in data:
+            if key in _SECRET_KEYS:
+                raise ConfigError(f"mqtt.{key}: credentials are never read from the config file; "
+                                  f"set {USERNAME_ENV} and {PASSWORD_ENV} in the environment")
+        known = {f.name for f in dataclasses.fields(cls)}
+        for key in data:
+            if key not in known:
+                raise ConfigError(f"unknown key mqtt.{key} (known: {', '.join(sorted(known))})")
+        return cls(**data)
+
+    def topic(self, kind: str) -> str:
+        return self.topics.get(kind) or f"{self.topic_prefix}/{kind}"
+
+
+class MqttPublisher:
+    """Publishes the monitor's state (see the module docstring); use as a context manager.
+
+    Parameters
+    ----------
+    config : MqttConfig
+    setup : Setup
+    frames : dict
+        ``base``, ``flange``, ``camera``, ``marker`` names (``[frames]``).
+    environ : mapping, optional
+        Where the credentials are read (default ``os.environ``).
+    """
+
+    def __init__(self, config: MqttConfig, setup: Setup, frames: dict, *, environ=None):
+        self.config, self.setup, self.frames = config, Setup(setup), dict(frames)
+        self.environ = os.environ if environ is None else environ
+        self.connected = threading.Event()
+        self.client = None
+        self.session: str | None = None
+        self._last_error = ""
+
+    # ------------------------------------------------------------ connection
+    def connect(self) -> "MqttPublisher":
+        import paho.mqtt.client as mqtt
+
+        c = self.config
+        client_id = c.client_id or f"handeye-{socket.gethostname()}-{os.getpid()}"
+        client = mqtt.Client(mqtt.CallbackAPIVersion.VERSION2, client_id=client_id)
+        user = self.environ.get(USERNAME_ENV)
+        if user:
+            client.username_pw_set(user, self.environ.get(PASSWORD_ENV))
+        if c.tls:
+            try:
+                client.tls_set(ca_certs=c.ca_file or None, certfile=c.certfile or None, keyfile=c.keyfile or None)
+            except (OSError, ValueError) as e:
+                raise ConfigError(f"mqtt TLS files: {e}") from None
+        # A monitor that dies leaves "offline" behind (last will), so a dashboard never trusts a stale estimate.
+        client.will_set(c.topic("status"), json.dumps(self._status("offline")), qos=c.qos, retain=True)
+        client.on_connect = self._on_connect
+        client.on_disconnect = self._on_disconnect
+        client.max_queued_messages_set(10000)
+        self.client = client
+        try:
+            client.connect_async(c.host, c.port, keepalive=c.keepalive_s)
+        except (OSError, ValueError) as e:
+            raise ConfigError(f"mqtt broker {c.host}:{c.port}: {e}") from None
+        client.loop_start()
+        if not self.connected.wait(c.connect_timeout_s):
+            log.warning("MQTT broker %s:%d not reachable%s; monitoring goes on and keeps retrying",
+                        c.host, c.port, f" ({self._last_error})" if self._last_error else "")
+        self.publish("status", self._status("online"), retain=True)
+        return self
+
+    def _on_connect(self, client, userdata, flags, reason_code, properties):
+        if reason_code.is_failure:
+            self._last_error = str(reason_code)
+            return
+        self.connected.set()
+
+    def _on_disconnect(self, client, userdata, flags, reason_code, properties):
+        self.connected.clear()
+        if reason_code.is_failure:
+            self._last_error = str(reason_code)
+
+    def close(self) -> None:
+        """Publish ``offline`` (retained), wait briefly for the queue to drain, disconnect."""
+        if self.client is None:
+            return
+        info = self.publish("status", self._status("offline"), retain=True)
+        if self.connected.is_set() and info is not None:
+            try:
+                info.wait_for_publish(timeout=3.0)
+            except (RuntimeError, ValueError):
+                pass
+        self.client.disconnect()
+        self.client.loop_stop()
+        self.client = None
+
+    def __enter__(self):
+        return self.connect()
+
+    def __exit__(self, *exc):
+        self.close()
+        return False
+
+    # -------------------------------------------------------------- messages
+    def publish(self, kind: str, payload: dict, *, retain: bool = False):
+        """Publish one JSON message on the topic of ``kind``; returns paho's MQTTMessageInfo."""
+        if self.client is None:
+            return None
+        return self.client.publish(self.config.topic(kind), json.dumps(payload), qos=self.config.qos, retain=retain)
+
+    def _base(self, schema: str) -> dict:
+        return {"schema": f"handeye/{schema}/{SCHEMA_VERSION}", "t": time.time(), "setup": str(self.setup),
+                "session": self.session}
+
+    def _status(self, state: str) -> dict:
+        return {**self._base("status"), "state": state}
+
+    def __call__(self, obs, update, report) -> None:
+        """`app.monitor.run_monitor`'s ``on_update``: estimate (retained), drift, and the alarm if one fired."""
+        self.session = str(report.session)
+        if report.estimate is not None:
+            xyz, q = tf.to_xyz_quat(report.estimate)
+            parent = self.frames["flange"] if self.setup.camera_on_flange else self.frames["base"]
+            msg = {**self._base("estimate"), "sample": obs.index, "transform": self.setup.camera_name,
+                   "parent_frame": parent, "child_frame": self.frames["camera"],
+                   "translation_m": xyz.tolist(), "quaternion_xyzw": q.tolist(),
+                   "sigma_mm": None, "sigma_deg": None, "n_samples": report.n_samples,
+                   "samples_until_armed": report.samples_until_armed, "alarms": len(report.alarms)}
+            if report.estimate_cov is not None:
+                msg["sigma_deg"], msg["sigma_mm"] = sigma(report.estimate_cov)
+            self.publish("estimate", msg, retain=True)
+        if report.drift is not None:
+            self.publish("drift", {**self._base("drift"), "sample": obs.index, "translation_mm": report.drift[0],
+                                   "rotation_deg": report.drift[1]})
+        if update.alarm:
+            a = report.alarms[-1]
+            self.publish("alarm", {**self._base("alarm"), "event": "camera_moved", "sample": a.sample_index,
+                                   "statistic": a.info.get("statistic"), "alarm_count": len(report.alarms),
+                                   "drift_mm": None if report.drift is None else report.drift[0],
+                                   "drift_deg": None if report.drift is None else report.drift[1]})
+
+
+def make_publisher(mqtt: dict, setup: Setup, frames: dict) -> MqttPublisher | None:
+    """A publisher for an enabled ``[mqtt]`` table, else None."""
+    cfg = MqttConfig.from_dict(mqtt)
+    return MqttPublisher(cfg, setup, frames) if cfg.enabled else None
+
