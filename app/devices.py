@@ -146,10 +146,10 @@ def import_observations(path: Path, setup: str | None):
     meta : dict
         What the importer found out (e.g. ``clock_offset_s`` of pose streams).
     """
-    from app.formats import detect_format, load
+    from app.formats import SETUP_OPTION_FORMATS, detect_format, load
 
     fmt = detect_format(path)
-    # Only the easy_handeye files may leave the setup open; the others state it.
-    options = {"setup": setup} if setup is not None and fmt.startswith("easy_handeye") else {}
+    # Only some formats may leave the setup open; the others state it.
+    options = {"setup": setup} if setup is not None and fmt in SETUP_OPTION_FORMATS else {}
     imported = load(path, fmt, **options)
     return imported.observations, imported.setup, imported.meta

@@ -15,10 +15,15 @@ format                     path
                            naming two ``t,x,y,z,qx,qy,qz,qw`` CSV streams;
                            the clock offset is estimated and reported in
                            ``meta["clock_offset_s"]``
+``visp``                   directory of ViSP's ``pose_fPe_<i>.yaml`` + ``pose_cPo_<i>.yaml``
+``image_folder``           directory of images + ``poses.csv|yaml|json`` + ``intrinsics.yaml|json``
+``opencv_storage``         OpenCV FileStorage YAML (``%YAML:1.0``) with ``R_/t_gripper2base``,
+                           ``R_/t_target2cam`` sequences
+``moveit_calibration``     MoveIt Calibration's JSON list of [effector_wrt_world, object_wrt_sensor]
 =========================  ===================================================
 
-``format=None`` detects it from the file. Options: ``setup=`` for the easy_handeye
-formats when the file does not say; manifest overrides for ``pose_csv``.
+``format=None`` detects it from the file. Options: ``setup=`` for the formats
+that may not say (`SETUP_OPTION_FORMATS`); manifest overrides for ``pose_csv``.
 
 Export (`app.formats.export`)::
 
@@ -38,6 +43,7 @@ This package imports neither rerun nor drivers.
 
 from __future__ import annotations
 
+import json
 from pathlib import Path
 
 import yaml
@@ -47,7 +53,11 @@ from app.errors import SessionError
 from app.formats.common import DEFAULT_FRAMES, ImportedSamples
 from app.formats.export import EXPORT_FORMATS, result_to_dict, ros2_command, urdf_origin, write_result
 
-IMPORT_FORMATS = ("easy_handeye2", "easy_handeye", "industrial_calibration", "pose_csv")
+IMPORT_FORMATS = ("easy_handeye2", "easy_handeye", "industrial_calibration", "pose_csv", "visp", "image_folder",
+                  "opencv_storage", "moveit_calibration")
+#: Formats whose files may leave the setup open: they take a ``setup=`` option.
+SETUP_OPTION_FORMATS = ("easy_handeye2", "easy_handeye", "visp", "image_folder", "opencv_storage",
+                        "moveit_calibration")
 
 
 def detect_format(path) -> str:
@@ -58,11 +68,31 @@ def detect_format(path) -> str:
             return "industrial_calibration"
         if (path / "streams.toml").exists():
             return "pose_csv"
-        raise SessionError(f"{path}: directory holds neither cal_data.yaml nor streams.toml")
+        from app.formats.image_folder import is_image_folder
+        from app.formats.visp import is_visp_dir
+
+        if is_visp_dir(path):
+            return "visp"
+        if is_image_folder(path):
+            return "image_folder"
+        raise SessionError(f"{path}: directory holds none of cal_data.yaml, streams.toml, pose_fPe_<i>.yaml "
+                           "(ViSP), poses.csv|yaml|json + intrinsics.yaml|json (image folder)")
     if path.suffix == ".toml":
         return "pose_csv"
     if path.suffix == ".samples":
         return "easy_handeye2"
+    from app.formats.opencv_storage import is_opencv_storage
+
+    if is_opencv_storage(path):
+        return "opencv_storage"
+    if path.suffix == ".json":
+        from app.formats.moveit import looks_like_moveit
+
+        try:
+            if looks_like_moveit(json.loads(path.read_text())):
+                return "moveit_calibration"
+        except (OSError, UnicodeDecodeError, json.JSONDecodeError) as e:
+            raise SessionError(f"{path}: cannot read JSON ({e})") from e
     try:
         data = yaml.safe_load(path.read_text())
     except (OSError, yaml.YAMLError, UnicodeDecodeError) as e:
@@ -99,6 +129,22 @@ def load(path, format: str | None = None, **options) -> ImportedSamples:
         from app.formats.pose_csv import load_pose_streams
 
         return load_pose_streams(path, **options)
+    if fmt == "visp":
+        from app.formats.visp import load_visp
+
+        return load_visp(path, **options)
+    if fmt == "image_folder":
+        from app.formats.image_folder import load_image_folder
+
+        return load_image_folder(path, **options)
+    if fmt == "opencv_storage":
+        from app.formats.opencv_storage import load_opencv_storage
+
+        return load_opencv_storage(path, **options)
+    if fmt == "moveit_calibration":
+        from app.formats.moveit import load_moveit
+
+        return load_moveit(path, **options)
     raise SessionError(f"unknown import format {fmt!r} (use one of {IMPORT_FORMATS})")
 
 
@@ -106,6 +152,7 @@ __all__ = [
     "DEFAULT_FRAMES",
     "EXPORT_FORMATS",
     "IMPORT_FORMATS",
+    "SETUP_OPTION_FORMATS",
     "ImportedSamples",
     "detect_format",
     "load",

@@ -175,6 +175,7 @@ def result_to_dict(result: CalibrationResult, frames: dict | None = None) -> dic
         "camera_transform": _transform_dict(result.camera_transform, setup.camera_name, *_parent_child(setup, frames),
                                             cov=result.cov),
         "marker_transform": marker,
+        "camera_frame": camera_frame_note(result, frames),
         "residuals": resid,
         "n_samples": int(result.n_samples),
         "rejected_samples": result.rejected.tolist(),
@@ -182,6 +183,29 @@ def result_to_dict(result: CalibrationResult, frames: dict | None = None) -> dic
         "iterations": int(result.iterations),
         "ros2_static_transform_publisher": ros2_command(result, frames),
         "urdf_origin": urdf_origin(result),
+    }
+
+
+#: Rotation from a ROS ``camera_link`` (x forward, y left, z up) to the camera's optical frame
+#: (z forward, x right, y down): ``T_camera_link_optical``, origin shared.
+T_LINK_OPTICAL = np.array([[0.0, 0.0, 1.0, 0.0], [-1.0, 0.0, 0.0, 0.0], [0.0, -1.0, 0.0, 0.0], [0.0, 0.0, 0.0, 1.0]])
+
+
+def camera_frame_note(result: CalibrationResult, frames: dict | None = None) -> dict:
+    """What the camera frame is (the optical frame) and the pose of a ROS ``camera_link`` at the same origin."""
+    frames = check_frames(frames)
+    parent, child = _parent_child(result.setup, frames)
+    link = result.camera_transform @ tf.invert(T_LINK_OPTICAL)
+    t, q = tf.to_xyz_quat(link)
+    return {
+        "name": child,
+        "convention": "optical frame: z forward (viewing direction), x right, y down in the image "
+                      "(ROS REP 103 *_optical_frame); not a ROS camera_link",
+        "camera_link_to_optical": {"quaternion_xyzw": [-0.5, 0.5, -0.5, 0.5], "rpy_deg": [-90.0, 0.0, -90.0],
+                                   "note": "T_camera_link_optical: camera_link (x forward, y left, z up) to the "
+                                           "optical frame, same origin"},
+        "camera_link_transform": {"parent_frame": parent, "translation_m": t.tolist(), "quaternion_xyzw": q.tolist(),
+                                  "note": f"T_{parent}_camera_link = camera_transform @ inv(T_camera_link_optical)"},
     }
 
 
@@ -304,6 +328,8 @@ def write_result(result: CalibrationResult, path, fmt: str = "yaml", frames: dic
     path.parent.mkdir(parents=True, exist_ok=True)
     if fmt == "yaml":
         text = (f"# handeye calibration result ({result.setup}); camera_transform = {Setup(result.setup).camera_name}\n"
+                "# The camera frame is the OPTICAL frame (z forward, x right, y down); camera_frame gives a ROS "
+                "camera_link.\n"
                 + yaml.dump(result_to_dict(result, frames), Dumper=_Dumper, sort_keys=False, width=1000))
     elif fmt == "json":
         text = json.dumps(result_to_dict(result, frames), indent=2) + "\n"
