@@ -61,7 +61,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--refine", action="store_true", help="refine each solution (nonlinear least squares)")
     p.add_argument("--robust", action="store_true", help="reject outliers")
     p.add_argument("--setup", choices=[s.value for s in Setup], help="setup of an imported file")
-    p.add_argument("--seed", type=int, default=0, help="seed for randomised (robust) solvers")
+    p.add_argument("--seed", type=int, default=0, help="seed for randomised (robust) solvers and the folds")
+    p.add_argument("-c", "--config", type=Path, help="config whose calibrate.target_sigma_mm/_deg the 1-sigma "
+                   "warnings use (default targets: 3 mm, 0.2 deg)")
 
     p = sub.add_parser("demo", help="simulated UR10 + rendered camera: calibrate and compare to the truth "
                        "(--monitor: watch a production program, bump the camera, alarm)")
@@ -183,8 +185,14 @@ def cmd_replay(args) -> int:
     from app.runner import replay_source
 
     methods = args.methods or ["YKronT'", "YQuatT'"]
+    target = (0.0, 0.0)
+    if args.config is not None:
+        from app.config import load_config
+
+        cal = load_config(args.config).calibrate
+        target = (cal.target_sigma_mm, cal.target_sigma_deg)
     print(replay_source(args.source, methods, refine=args.refine, robust=args.robust, setup=args.setup,
-                        rng=np.random.default_rng(args.seed)))
+                        rng=np.random.default_rng(args.seed), target_mm=target[0], target_deg=target[1]))
     return 0
 
 

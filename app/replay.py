@@ -1,8 +1,17 @@
-"""Replay: re-solve a recorded session (or an imported file) with one, several or all solvers.
+"""Replay: re-solve a recorded session (or an imported file) with one, several or all solvers, and advise.
 
 Works for both setups; the session header says which (eye-to-hand:
 ``X = T_flange_marker``, ``Y = T_base_cam``; eye-in-hand: ``X = T_flange_cam``,
 ``Y = T_base_marker``).
+
+The report (`format_report`) groups the solvers by what they use (marker
+points or marker poses), sorts each group by the held-out prediction error
+of the marker point (`calib.crossval.cross_validate`: each fold solved
+without its samples, their points predicted from the robot poses), marks the
+recommended result (the lowest held-out error), explains refined rows that
+agree (refinement takes every start to the same maximum-likelihood optimum),
+and warns about a 1-sigma above the target and about residuals the
+measurement noise does not explain.
 """
 
 from __future__ import annotations
@@ -20,13 +29,25 @@ from calib.result import CalibrationResult
 from calib.setup import Setup
 
 
+#: 1-sigma targets when the config sets none (calibrate.target_sigma_mm/_deg = 0): the project's accuracy target.
+DEFAULT_TARGET_MM = 3.0
+DEFAULT_TARGET_DEG = 0.2
+#: Held-out (or in-sample) error this many times what the noise model predicts: the residuals are inconsistent.
+INCONSISTENT_RATIO = 2.0
+#: Refined results closer than this (mm, deg) count as the same optimum (well inside any 1-sigma we accept).
+SAME_MM, SAME_DEG = 0.5, 0.05
+
+
 @dataclass
 class ReplayRow:
     """One solver's outcome on the replayed samples.
 
     ``error`` holds the one-line reason when the solver refused the data (e.g.
     a pose-based method on a point-only session); ``truth_error`` is
-    ``(deg, mm)`` of the camera transform against the recorded truth, if any.
+    ``(deg, mm)`` of the camera transform against the recorded truth, if any;
+    ``uses`` is ``"points"`` or ``"poses"``; ``heldout`` the
+    `calib.crossval.CrossValidation` of the method on these samples (None if
+    cross-validation was off or failed, with ``heldout_error`` saying why).
     """
 
     method: str
@@ -34,6 +55,39 @@ class ReplayRow:
     seconds: float
     error: str | None = None
     truth_error: tuple[float, float] | None = None
+    uses: str = ""
+    heldout: object | None = None
+    heldout_error: str | None = None
+
+
+def _uses(method: str) -> str:
+    from calib.api import resolve_method
+
+    try:
+        return resolve_method(method).needs
+    except HandeyeError:
+        return "?"
+
+
+def heldout_error(method: str, observations, setup: Setup, *, refine: bool, robust: bool,
+                  rng: np.random.Generator | None):
+    """`calib.crossval.cross_validate` of ``method`` on the samples it uses (leave-one-out up to 30
+    samples, else 10 folds); returns ``(CrossValidation or None, reason or None)``."""
+    from calib.api import observations_to_arrays, resolve_method
+
+    try:
+        from calib.crossval import cross_validate
+    except ImportError:  # lands with issue 10 (calib.model / calib.crossval)
+        return None, "calib.crossval is not available in this build"
+
+    info = resolve_method(method)
+    A, B, point_cov, _ = observations_to_arrays(observations, info.needs)
+    folds = None if len(A) <= 30 else 10
+    try:
+        return cross_validate(info.name, A, B, setup=setup, folds=folds, rng=rng, refine=refine, robust=robust,
+                              point_cov=point_cov), None
+    except HandeyeError as e:
+        return None, str(e)
 
 
 def replay(
@@ -45,8 +99,9 @@ def replay(
     robust: bool = False,
     truth: np.ndarray | None = None,
     rng: np.random.Generator | None = None,
+    crossval: bool = True,
 ) -> list[ReplayRow]:
-    """Solve the same samples with each method and time it.
+    """Solve the same samples with each method, time it, and cross-validate it.
 
     Parameters
     ----------
@@ -57,6 +112,8 @@ def replay(
     truth : ndarray (4, 4), optional
         True camera transform (``T_base_cam`` eye-to-hand, ``T_flange_cam``
         eye-in-hand) to report errors against.
+    crossval : bool
+        Also measure each method's held-out prediction error (`heldout_error`).
 
     Returns
     -------
@@ -70,36 +127,145 @@ def replay(
         try:
             res = solve_observations(method, observations, setup, refine=refine, robust=robust, rng=rng)
         except HandeyeError as e:
-            rows.append(ReplayRow(method, None, time.perf_counter() - t0, error=str(e)))
+            rows.append(ReplayRow(method, None, time.perf_counter() - t0, error=str(e), uses=_uses(method)))
             continue
         dt = time.perf_counter() - t0
         err = None
         if truth is not None:
             rot, trans = tf.pose_error(res.camera_transform, truth)
             err = (float(np.rad2deg(rot)), float(trans * 1e3))
-        rows.append(ReplayRow(method, res, dt, truth_error=err))
+        row = ReplayRow(method, res, dt, truth_error=err, uses=_uses(method))
+        if crossval:
+            row.heldout, row.heldout_error = heldout_error(method, observations, setup, refine=refine,
+                                                           robust=robust, rng=rng)
+        rows.append(row)
     return rows
 
 
+def _rank_key(r: ReplayRow):
+    if r.result is None:
+        return (2, 0.0)
+    if r.heldout is None:
+        return (1, r.result.residuals.rms_translation)
+    return (0, r.heldout.observed_rms)
+
+
+def recommended(rows: list[ReplayRow]) -> ReplayRow | None:
+    """The row with the lowest held-out prediction error (None without cross-validation results)."""
+    ranked = [r for r in rows if r.result is not None and r.heldout is not None]
+    return min(ranked, key=_rank_key) if ranked else None
+
+
 def format_table(rows: list[ReplayRow], setup: Setup) -> str:
-    """Markdown table: method, samples, residual RMS (mm), camera xyz (mm), 1-sigma, time, error vs. truth."""
+    """Markdown tables, one per group (marker points / marker poses), each sorted by held-out error.
+
+    Columns: solver, samples, inliers, residual RMS (mm), camera xyz (mm),
+    1-sigma (mm, deg), held-out prediction error (mm) and what the model
+    predicts for it, time, error vs. truth, and the recommendation.
+    """
     cam = Setup(setup).camera_name
     has_truth = any(r.truth_error is not None for r in rows)
-    head = ["solver", "n", "inliers", "resid RMS [mm]", f"{cam} xyz [mm]", "1σ [mm]", "1σ [deg]", "time [ms]"]
+    best = recommended(rows)
+    head = ["solver", "n", "inliers", "resid RMS [mm]", f"{cam} xyz [mm]", "1σ [mm]", "1σ [deg]",
+            "held-out [mm]", "predicted [mm]", "time [ms]"]
     if has_truth:
         head += ["err [mm]", "err [deg]"]
-    lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
-    for r in rows:
-        if r.result is None:
-            cells = [r.method, "-", "-", f"failed: {r.error}"] + [""] * (len(head) - 4)
-        else:
-            res = r.result
-            xyz = " ".join(f"{v:.1f}" for v in res.camera_transform[:3, 3] * 1e3)
-            s_deg, s_mm = sigma(res.cov) if res.cov is not None else (float("nan"), float("nan"))
-            n_in = res.n_samples if res.inliers is None else int(np.count_nonzero(res.inliers))
-            cells = [r.method, str(res.n_samples), str(n_in), f"{res.residuals.rms_translation * 1e3:.2f}",
-                     xyz, f"{s_mm:.2f}", f"{s_deg:.3f}", f"{r.seconds * 1e3:.1f}"]
-            if has_truth:
-                cells += ["-", "-"] if r.truth_error is None else [f"{r.truth_error[1]:.2f}", f"{r.truth_error[0]:.3f}"]
-        lines.append("| " + " | ".join(cells) + " |")
-    return "\n".join(lines)
+    head.append("advice")
+    out = []
+    for uses, title in (("points", "solvers using marker points"), ("poses", "solvers using marker poses"),
+                        ("?", "unknown solvers")):
+        group = sorted((r for r in rows if r.uses == uses), key=_rank_key)
+        if not group:
+            continue
+        out += ["", f"{title}, by held-out prediction error:", "",
+                "| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
+        for r in group:
+            if r.result is None:
+                cells = [r.method, "-", "-", f"failed: {r.error}"] + [""] * (len(head) - 4)
+            else:
+                res = r.result
+                xyz = " ".join(f"{v:.1f}" for v in res.camera_transform[:3, 3] * 1e3)
+                s_deg, s_mm = sigma(res.cov) if res.cov is not None else (float("nan"), float("nan"))
+                n_in = res.n_samples if res.inliers is None else int(np.count_nonzero(res.inliers))
+                ho = ("-", "-") if r.heldout is None else (f"{r.heldout.observed_rms * 1e3:.2f}",
+                                                            f"{r.heldout.predicted_rms * 1e3:.2f}")
+                cells = [r.method, str(res.n_samples), str(n_in), f"{res.residuals.rms_translation * 1e3:.2f}",
+                         xyz, f"{s_mm:.2f}", f"{s_deg:.3f}", *ho, f"{r.seconds * 1e3:.1f}"]
+                if has_truth:
+                    cells += ["-", "-"] if r.truth_error is None else [f"{r.truth_error[1]:.2f}",
+                                                                      f"{r.truth_error[0]:.3f}"]
+                cells.append("**recommended**" if r is best else "")
+            out.append("| " + " | ".join(cells) + " |")
+    return "\n".join(out).lstrip("\n")
+
+
+def advice(rows: list[ReplayRow], observations, *, refine: bool, target_mm: float = 0.0,
+           target_deg: float = 0.0) -> list[str]:
+    """Lines under the tables: the recommendation, why refined rows agree, and warnings.
+
+    ``target_mm`` / ``target_deg``: the config's 1-sigma targets
+    (``calibrate.target_sigma_mm/_deg``); 0 falls back to `DEFAULT_TARGET_MM`
+    / `DEFAULT_TARGET_DEG`.
+    """
+    lines = []
+    ok = [r for r in rows if r.result is not None]
+    best = recommended(rows)
+    if best is not None:
+        lines.append(f"recommended: {best.method}{' (refined)' if refine else ''}: lowest held-out prediction error, "
+                     f"{best.heldout.observed_rms * 1e3:.2f} mm (its model predicts "
+                     f"{best.heldout.predicted_rms * 1e3:.2f} mm)")
+    elif ok:
+        why = next((r.heldout_error for r in ok if r.heldout_error), "cross-validation off")
+        lines.append(f"no recommendation: no held-out prediction error ({why}); rows sorted by residual RMS")
+    if refine:
+        for uses in ("points", "poses"):
+            group = [r for r in ok if r.uses == uses]
+            if len(group) < 2:
+                continue
+            ref = group[0].result.camera_transform
+            errs = np.array([tf.pose_error(r.result.camera_transform, ref) for r in group])
+            spread_mm, spread_deg = float(errs[:, 1].max()) * 1e3, float(np.rad2deg(errs[:, 0].max()))
+            if spread_mm <= SAME_MM and spread_deg <= SAME_DEG:
+                lines.append(f"note: the {len(group)} refined rows using marker {uses} agree within "
+                             f"{spread_mm:.3f} mm / {spread_deg:.4f} deg: maximum-likelihood refinement takes "
+                             "every solver's closed-form start to the same optimum, so they differ only in time "
+                             "(replay without --refine to compare the closed forms)")
+    t_mm = target_mm or DEFAULT_TARGET_MM
+    t_deg = target_deg or DEFAULT_TARGET_DEG
+    where = "the config's calibrate.target_sigma" if (target_mm or target_deg) else "the default target"
+    above, inconsistent = [], []
+    for r in ok:
+        if r.result.cov is not None:
+            s_deg, s_mm = sigma(r.result.cov)
+            if s_mm > t_mm or s_deg > t_deg:
+                above.append((s_mm, s_deg, r.method))
+        ratio, basis = _consistency(r, observations)
+        if ratio is not None and ratio > INCONSISTENT_RATIO:
+            inconsistent.append((ratio, basis, r.method))
+    if above:
+        worst = max(above)
+        lines.append(f"warning: 1-sigma above {where} ({t_mm:g} mm / {t_deg:g} deg) for {_names(above, ok)} "
+                     f"(largest: {worst[2]}, {worst[0]:.2f} mm / {worst[1]:.3f} deg): take more samples, with more "
+                     "rotation between them")
+    if inconsistent:
+        worst = max(inconsistent)
+        lines.append(f"warning: inconsistent residuals for {_names(inconsistent, ok)}: {worst[1]} up to "
+                     f"{worst[0]:.1f}x what the measurement noise explains ({worst[2]}): outliers (try --robust), "
+                     "a wrong --setup, a clock offset between robot and camera, or a camera that moved during "
+                     "the recording")
+    return lines
+
+
+def _names(flagged: list, ok: list) -> str:
+    return f"all {len(ok)} solvers" if len(flagged) == len(ok) else ", ".join(f[2] for f in flagged)
+
+
+def _consistency(r: ReplayRow, observations) -> tuple[float | None, str]:
+    """Observed / expected error: held-out vs. predicted, else in-sample residuals vs. the points' covariances."""
+    if r.heldout is not None:
+        return r.heldout.ratio, "held-out errors are"
+    covs = [o.point_cov for o in observations if o.point_cov is not None]
+    if not covs or len(covs) != len(observations):
+        return None, ""
+    expected = float(np.sqrt(np.mean([np.trace(c) for c in covs])))
+    return (r.result.residuals.rms_translation / expected if expected > 0 else None), "residuals are"

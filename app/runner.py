@@ -24,7 +24,7 @@ from app.monitor import MonitorReport, run_monitor
 from app.pipeline import sigma, solve_observations
 from app.production import Bump, start_production
 from app.progress import progress_bar, say, show_monitor
-from app.replay import format_table, replay
+from app.replay import advice, format_table, replay
 from app.session import SessionWriter, read_session
 from app.viz import Viz
 from calib import transforms as tf
@@ -190,8 +190,11 @@ def all_methods() -> list[str]:
 
 
 def replay_source(source: Path, methods: list[str], *, refine: bool = False, robust: bool = False,
-                  setup: Setup | None = None, rng: np.random.Generator | None = None) -> str:
-    """Re-solve a session directory or an imported file with each method; returns the markdown table."""
+                  setup: Setup | None = None, rng: np.random.Generator | None = None,
+                  target_mm: float = 0.0, target_deg: float = 0.0) -> str:
+    """Re-solve a session directory or an imported file with each method; returns the report: the
+    tables grouped by what the solvers use and sorted by held-out error, then the advice
+    (`app.replay.advice`; ``target_mm``/``target_deg`` are the config's 1-sigma targets)."""
     if not Path(source).exists():
         raise SessionError(f"{source}: no such file or directory")
     if (Path(source) / "session.json").exists():
@@ -212,7 +215,9 @@ def replay_source(source: Path, methods: list[str], *, refine: bool = False, rob
                   truth=_camera_truth(setup, truth), rng=rng)
     if all(r.result is None for r in rows):
         raise HandeyeError(f"no solver succeeded on {source}: " + "; ".join(f"{r.method}: {r.error}" for r in rows))
-    return f"{source} ({setup}, {len(observations)} samples)\n{header}\n" + format_table(rows, setup)
+    lines = advice(rows, observations, refine=refine, target_mm=target_mm, target_deg=target_deg)
+    return (f"{source} ({setup}, {len(observations)} samples)\n{header}\n" + format_table(rows, setup)
+            + ("\n\n" + "\n".join(lines) if lines else ""))
 
 
 def _import_summary(meta: dict) -> str:
