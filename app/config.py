@@ -24,7 +24,7 @@ from app.errors import ConfigError
 from calib.setup import Setup, check_setup
 
 # Solver names as in the paper; checked against calib.METHODS when the solver
-# layer is imported (app.pipeline), here only for shape.
+# layer is imported (calib.api), here only for shape.
 DEFAULT_METHOD = "YKronT'"
 # Result formats of app.formats.write_result (kept literal: config must load without the exporters).
 EXPORTS = ("yaml", "json", "easy_handeye", "easy_handeye2", "urdf", "ros2_launch")

@@ -1,4 +1,4 @@
-"""Build the parts a run needs from a `Config`: robot, camera, extraction, online estimator, outputs.
+"""Build the parts a run needs from a `Config`: robot, camera, extraction, solver, online estimator, outputs.
 
 The only place the app knows the other layers' config classes; each section
 (``[robot]``, ``[camera]``, ``[marker]``, ``[monitor.online]``) is validated
@@ -12,10 +12,11 @@ from pathlib import Path
 
 import numpy as np
 
-from app.config import Config
-from app.pipeline import Measurement
+from app.config import CalibrateConfig, Config
 from app.errors import ConfigError
+from app.viz import Viz
 from calib.errors import ParameterError
+from calib.setup import Setup
 
 #: Result files written into the session directory, by export format.
 RESULT_FILES = {
@@ -78,8 +79,14 @@ def truth(camera) -> dict:
     return {n: np.asarray(getattr(c, n), dtype=float) for n in (c.setup.camera_name, c.setup.marker_name)}
 
 
+def camera_truth(setup: Setup, truth: dict) -> np.ndarray | None:
+    """The true camera transform (``T_base_cam`` or ``T_flange_cam``) from a truth dict, if it holds one."""
+    key = Setup(setup).camera_name
+    return None if key not in truth else np.asarray(truth[key], dtype=float)
+
+
 def make_measure(cfg: Config):
-    """``measure(frame) -> Measurement`` for the configured target (``[marker]``).
+    """``measure(frame) -> MarkerMeasurement`` for the configured target (``[marker]``).
 
     Raises ``ExtractionError`` (marker not found, bad depth) so the caller skips the frame.
     """
@@ -87,14 +94,31 @@ def make_measure(cfg: Config):
 
     target = TargetConfig.from_dict(cfg.marker)
 
-    def measure(frame) -> Measurement:
-        m = extract(frame.color, frame.depth, frame.intrinsics, target)
-        info = {k: float(v) for k, v in m.info.items() if isinstance(v, (int, float, np.floating, np.integer))}
-        return Measurement(m.point_cam, m.point_cov, m.T_cam_marker, m.pose_cov,
-                           pixel=(float(m.center_px[0]), float(m.center_px[1])),
-                           meta={"marker_kind": m.kind, "extract": info})
+    def measure(frame):
+        return extract(frame.color, frame.depth, frame.intrinsics, target)
 
     return measure
+
+
+def make_solve(cal: CalibrateConfig, setup: Setup, rng: np.random.Generator):
+    """``solve(observations, *, final)``: fast unrefined estimates while running, the configured one at the end."""
+    from calib.api import solve_observations
+
+    def solve(observations, *, final: bool):
+        return solve_observations(cal.method, observations, setup,
+                                  refine=cal.refine and final, robust=cal.robust and final, rng=rng)
+
+    return solve
+
+
+def make_viz(cfg: Config, session: Path) -> Viz:
+    """rerun recording saved as ``<session>/recording.rrd`` (``recording-2.rrd`` ... when resumed; no-op if disabled)."""
+    path, n = session / "recording.rrd", 1
+    while path.exists():
+        n += 1
+        path = session / f"recording-{n}.rrd"
+    return Viz(cfg.setup, path, viewer=cfg.viz.viewer, viewer_bind=cfg.viz.viewer_bind, enabled=cfg.viz.enabled,
+               log_images=cfg.viz.log_images)
 
 
 def online_config(cfg: Config):

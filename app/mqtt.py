@@ -33,8 +33,9 @@ import threading
 import time
 from dataclasses import dataclass, field
 
+import numpy as np
+
 from app.errors import ConfigError
-from app.pipeline import sigma
 from calib import transforms as tf
 from calib.setup import Setup
 
@@ -244,7 +245,7 @@ class MqttPublisher:
         return {**self._base("status"), "state": state}
 
     def __call__(self, obs, update, report) -> None:
-        """`app.monitor.run_monitor`'s ``on_update``: estimate (retained), drift, and the alarm if one fired."""
+        """`app.commands.monitor.run_monitor`'s ``on_update``: estimate (retained), drift, and the alarm if one fired."""
         self.session = str(report.session)
         if report.estimate is not None:
             xyz, q = tf.to_xyz_quat(report.estimate)
@@ -254,8 +255,9 @@ class MqttPublisher:
                    "translation_m": xyz.tolist(), "quaternion_xyzw": q.tolist(),
                    "sigma_mm": None, "sigma_deg": None, "n_samples": report.n_samples,
                    "samples_until_armed": report.samples_until_armed, "alarms": len(report.alarms)}
-            if report.estimate_cov is not None:
-                msg["sigma_deg"], msg["sigma_mm"] = sigma(report.estimate_cov)
+            if report.estimate_sigma is not None:
+                msg["sigma_deg"] = float(np.rad2deg(report.estimate_sigma[0]))
+                msg["sigma_mm"] = report.estimate_sigma[1] * 1e3
             self.publish("estimate", msg, retain=True)
         if report.drift is not None:
             self.publish("drift", {**self._base("drift"), "sample": obs.index, "translation_mm": report.drift[0],

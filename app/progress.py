@@ -10,7 +10,7 @@ from __future__ import annotations
 import contextlib
 import logging
 
-from app.pipeline import sigma
+import numpy as np
 
 
 @contextlib.contextmanager
@@ -25,12 +25,12 @@ def progress_bar(*, total: int | None = None, initial: int = 0, desc: str = "sam
         yield bar
 
 
-def show_sigma(bar, cov) -> None:
-    """Put the current estimate's worst-axis 1-sigma (mm, deg) beside the bar; no-op without a covariance."""
-    if bar is None or cov is None or not hasattr(bar, "set_postfix_str"):
+def show_sigma(bar, result) -> None:
+    """Put the estimate's 1-sigma (`CalibrationResult.sigma`, in mm and deg) beside the bar; no-op without one."""
+    if bar is None or result.sigma is None or not hasattr(bar, "set_postfix_str"):
         return
-    s_deg, s_mm = sigma(cov)
-    bar.set_postfix_str(f"1σ {s_mm:.2f} mm {s_deg:.3f}°")
+    s_rot, s_t = result.sigma
+    bar.set_postfix_str(f"1σ {s_t * 1e3:.2f} mm {np.rad2deg(s_rot):.3f}°")
 
 
 def say(text: str) -> None:
@@ -41,15 +41,14 @@ def say(text: str) -> None:
 
 
 def show_monitor(bar, report) -> None:
-    """Detector state, live 1-sigma and drift beside the monitor's bar."""
+    """Change detector state, live 1-sigma and drift beside the monitor's bar (``MonitorReport`` of `app.commands.monitor`)."""
     if bar is None or not hasattr(bar, "set_postfix_str"):
         return
-    from app.monitor import detector_state
-
-    parts = [detector_state(report.samples_until_armed).replace(" more samples", "").replace(" more sample", "")]
-    if report.estimate_cov is not None:
-        s_deg, s_mm = sigma(report.estimate_cov)
-        parts.append(f"1σ {s_mm:.2f} mm {s_deg:.3f}°")
+    n = report.samples_until_armed
+    parts = ["armed" if n == 0 else f"armed after {n}"]
+    if report.estimate_sigma is not None:
+        s_rot, s_t = report.estimate_sigma
+        parts.append(f"1σ {s_t * 1e3:.2f} mm {np.rad2deg(s_rot):.3f}°")
     if report.drift is not None:
         parts.append(f"drift {report.drift[0]:.1f} mm {report.drift[1]:.2f}°")
     if report.alarms:

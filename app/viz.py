@@ -47,7 +47,6 @@ from pathlib import Path
 
 import numpy as np
 
-from app.pipeline import sigma
 from calib import transforms as tf
 from calib.setup import Setup, check_setup
 
@@ -361,8 +360,8 @@ class Viz:
                                                              colors=[255, 60, 60]))
         self._log("residuals/translation_mm", rr.Scalars(result.residuals.rms_translation * 1e3))
         self._log("per_sample/residual_mm", rr.BarChart(np.asarray(result.residuals.translation) * 1e3))
-        if result.cov is not None:
-            s_deg, s_mm = sigma(result.cov)
+        if result.sigma is not None:
+            s_deg, s_mm = _sigma_deg_mm(result)
             self._log("uncertainty/sigma_mm", rr.Scalars(s_mm))
             self._log("uncertainty/sigma_deg", rr.Scalars(s_deg))
 
@@ -372,7 +371,7 @@ class Viz:
             return
         rr = self._rr
         self._time(t, result.n_samples)
-        cam = Setup(self.setup).camera_name
+        cam = self.setup.camera_name
         xyz, q = tf.to_xyz_quat(result.camera_transform)
         line = (f"result: {cam} xyz [mm] = {np.array2string(xyz * 1e3, precision=2)}, "
                 f"solver {result.method}, {result.n_samples} samples, "
@@ -381,8 +380,8 @@ class Viz:
                 f"| {cam} quat (x,y,z,w) | {' '.join(f'{v:.5f}' for v in q)} |",
                 f"| solver | {result.method} |", f"| samples | {result.n_samples} |",
                 f"| residual RMS [mm] | {result.residuals.rms_translation * 1e3:.2f} |"]
-        if result.cov is not None:
-            s_deg, s_mm = sigma(result.cov)
+        if result.sigma is not None:
+            s_deg, s_mm = _sigma_deg_mm(result)
             line += f", 1-sigma {s_mm:.2f} mm / {s_deg:.3f} deg"
             rows.append(f"| 1-sigma [mm, deg] | {s_mm:.2f}, {s_deg:.3f} |")
         self._log("events", rr.TextLog(line, level="INFO"))
@@ -429,3 +428,9 @@ class Viz:
     def __exit__(self, *exc):
         self.close()
         return False
+
+
+def _sigma_deg_mm(result) -> tuple[float, float]:
+    """1-sigma of the camera transform at the edge units: (rotation deg, translation mm)."""
+    s_rot, s_t = result.sigma
+    return float(np.rad2deg(s_rot)), s_t * 1e3

@@ -608,18 +608,18 @@ def main(argv=None) -> int:
     ]
     results: dict = {}
     printed = ""
-    interrupted = False
-    for i, (key, title, run) in enumerate(stages, start=1):
-        print(f"bench.solvers [{i}/{len(stages)}] {title} ({time.perf_counter() - t0:.0f} s so far)",
-              file=sys.stderr, flush=True)
-        try:
+    interrupted, current = False, ""
+    try:
+        for i, (key, title, run) in enumerate(stages, start=1):
+            current = title
+            print(f"bench.solvers [{i}/{len(stages)}] {title} ({time.perf_counter() - t0:.0f} s so far)",
+                  file=sys.stderr, flush=True)
             results[key] = run()
-        except KeyboardInterrupt:
-            interrupted = True
-            break
-        text = _format_report(cfg, **results)
-        print(text[len(printed):], end="", flush=True)
-        printed = text
+            text = _format_report(cfg, **results)
+            print(text[len(printed):], end="", flush=True)
+            printed = text
+    except KeyboardInterrupt:
+        interrupted = True
 
     if "exp1" in results:
         _plot_curves(out / "solvers_samples.png", cfg["counts"], results["exp1"], "number of samples",
@@ -631,8 +631,8 @@ def main(argv=None) -> int:
         _plot_realistic(out / "solvers_realistic.png", *results["real"])
     report = _format_report(cfg, **results, elapsed=time.perf_counter() - t0)
     if interrupted:
-        report += (f"\n**Interrupted** during {stages[len(results)][1]}: the sections above are complete, the "
-                   "rest did not run.\n")
+        report += (f"\n**Interrupted** during {current}: the sections above are complete, the rest did not "
+                   "run.\n")
     else:
         report += "\nPlots: `solvers_samples.png`, `solvers_noise.png`, `solvers_realistic.png`.\n"
     (out / "solvers.md").write_text(report)

@@ -15,7 +15,7 @@ from calib.errors import (
 from calib.observation import Observation
 from calib.setup import Setup, check_setup
 from calib.result import CalibrationResult, Residuals
-from calib.api import METHODS, MethodInfo, observations_to_arrays, solve
+from calib.api import METHODS, MethodInfo, observations_to_arrays, solve, solve_observations
 
 __all__ = [
     "CalibrationError",
@@ -34,4 +34,5 @@ __all__ = [
     "check_setup",
     "observations_to_arrays",
     "solve",
+    "solve_observations",
 ]

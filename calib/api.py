@@ -29,6 +29,7 @@ from calib import transforms as tf
 from calib.errors import CalibrationError, InsufficientDataError
 from calib.observation import Observation
 from calib.result import CalibrationResult, Residuals
+from calib.auto import solve_auto
 from calib.robust import robust_solve
 from calib.setup import Setup, check_setup
 
@@ -97,6 +98,11 @@ def _table() -> dict[str, MethodInfo]:
 #: Every closed-form method of the paper's Table I, keyed by its printed name.
 METHODS: dict[str, MethodInfo] = _table()
 
+#: The name of the extended-model estimator (`calib.auto`).
+AUTO = "auto"
+#: Fewest samples ``"auto"`` accepts (its YKronT' start needs 5).
+AUTO_MIN_SAMPLES = 5
+
 _ALIASES = {name.lower().replace("'", "").replace("*", ""): name for name in METHODS}
 
 
@@ -106,7 +112,7 @@ def resolve_method(method: str) -> MethodInfo:
         key = method.strip().lower().replace("'", "").replace("*", "")
         if key in _ALIASES:
             return METHODS[_ALIASES[key]]
-    raise CalibrationError(f"unknown method {method!r}; valid: {', '.join(METHODS)}")
+    raise CalibrationError(f"unknown method {method!r}; valid: {AUTO}, {', '.join(METHODS)}")
 
 
 def _check_inputs(info: MethodInfo, A, B) -> tuple[np.ndarray, np.ndarray]:
@@ -179,8 +185,9 @@ def solve(
     robust: bool = False,
     point_cov=None,
     rng: np.random.Generator | None = None,
+    camera_correction: str | None = None,
 ) -> CalibrationResult:
-    """Hand-eye calibration ``A_i X = Y B_i`` (paper eq. 1) with a method of Table I.
+    """Hand-eye calibration ``A_i X = Y B_i`` (paper eq. 1) with a method of Table I, or ``"auto"``.
 
     Pipeline: validate -> closed form (or ``calib.robust.robust_solve`` around
     it) -> ``calib.refine.refine`` on the inliers if asked -> covariance of
@@ -189,7 +196,11 @@ def solve(
     Parameters
     ----------
     method : str
-        ``XAxisRX``, ``XQuatR*``, ``XKronR*``, ``XKronRT``, ``XKronT``,
+        ``"auto"`` (`calib.auto.solve_auto`: every measurement the data
+        carry, the best closed-form start, robust, refined with the extended
+        model of `calib.model`: robot error, camera depth/focal correction,
+        estimated noise levels; ``refine`` and ``robust`` do not apply), or a
+        paper method: ``XAxisRX``, ``XQuatR*``, ``XKronR*``, ``XKronRT``, ``XKronT``,
         ``YAxisR``, ``YQuatR*``, ``YKronRT``, ``YQuatT'``, ``YKronT'``; also
         case-insensitive without ``'``/``*`` (``"ykront"``). See `METHODS`.
     A : array_like, shape (N, 4, 4)
@@ -209,6 +220,9 @@ def solve(
     rng : numpy.random.Generator, optional
         For the robust sampler; ``default_rng(0)`` if not given, so results
         are reproducible.
+    camera_correction : {"auto", "none", "depth", "depth+focal"}, optional
+        Method ``"auto"`` only (default "auto"): which camera parameters to
+        estimate (`calib.auto.solve_auto`).
 
     Returns
     -------
@@ -233,6 +247,15 @@ def solve(
     DegenerateMotionError
         The motions do not determine every unknown (the message says what to add).
     """
+    if isinstance(method, str) and method.strip().lower() == AUTO:
+        setup = check_setup(setup)
+        A, B = solvers.check_measurements(A, B)
+        if len(A) < AUTO_MIN_SAMPLES:
+            raise InsufficientDataError(f"auto needs at least {AUTO_MIN_SAMPLES} samples, got {len(A)}")
+        return solve_auto(A, B, setup=setup, point_cov=point_cov, rng=rng,
+                          camera_correction="auto" if camera_correction is None else camera_correction)
+    if camera_correction is not None:
+        raise CalibrationError(f"camera_correction applies to method 'auto' only, not {method!r}")
     info = resolve_method(method)
     setup = check_setup(setup)
     A, B = _check_inputs(info, A, B)
@@ -322,9 +345,22 @@ def observations_to_arrays(
         if kind == "points":
             covs.append(None if o.point_cov is None else np.asarray(o.point_cov, dtype=float))
         elif o.pose_cov is not None:
-            J = np.hstack([-solvers.skew(np.asarray(o.T_cam_marker, dtype=float)[:3, 3]), np.eye(3)])
+            J = np.hstack([-tf.skew(np.asarray(o.T_cam_marker, dtype=float)[:3, 3]), np.eye(3)])
             covs.append(J @ np.asarray(o.pose_cov, dtype=float) @ J.T)
         else:
             covs.append(None)
     point_cov = None if any(c is None for c in covs) else np.stack(covs)
     return A, B, point_cov, np.asarray(kept, dtype=int)
+
+
+def solve_observations(method: str, observations: Sequence[Observation], setup: Setup, *, refine: bool = False,
+                       robust: bool = False, rng: np.random.Generator | None = None) -> CalibrationResult:
+    """Solve ``A_i X = Y B_i`` (paper eq. 1) for a list of samples with a named solver.
+
+    Point methods (YKronT') get the depth-lifted marker centers ``point_cam``
+    with their covariances; the others the marker poses ``T_cam_marker``
+    (``METHODS[...].needs``). Samples lacking that measurement are left out.
+    """
+    info = resolve_method(method)
+    A, B, point_cov, _ = observations_to_arrays(observations, info.needs)
+    return solve(info.name, A, B, setup=setup, refine=refine, robust=robust, point_cov=point_cov, rng=rng)

@@ -50,3 +50,15 @@ class Observation:
     T_cam_marker: np.ndarray | None = None
     pose_cov: np.ndarray | None = None
     meta: dict = field(default_factory=dict)
+
+    @classmethod
+    def from_measurement(cls, index: int, t: float, T_base_flange: np.ndarray, m, meta: dict | None = None
+                         ) -> "Observation":
+        """The sample of a flange pose and a marker measurement (`calib.vision.extract.MarkerMeasurement`).
+
+        ``meta`` gets the marker kind and the extraction's numeric diagnostics
+        (``extract``) after the caller's own entries.
+        """
+        info = {k: float(v) for k, v in m.info.items() if isinstance(v, (int, float, np.floating, np.integer))}
+        return cls(index, t, T_base_flange, m.point_cam, m.point_cov, m.T_cam_marker, m.pose_cov,
+                   {**(meta or {}), "marker_kind": m.kind, "extract": info})

@@ -47,6 +47,7 @@ import numpy as np
 from scipy.linalg.lapack import dposv
 from scipy.stats import chi2
 
+from calib import model
 from calib import refine as rf
 from calib import transforms as tf
 from calib.errors import CalibrationError, ParameterError
@@ -395,11 +396,11 @@ class OnlineCalibrator:
 
         start = closed_form("YKronT'", As, ps, setup=self.config.setup)
         res = rf.refine(start, As, ps, point_cov=covs)
-        C, K, M = rf._split(res.X, res.Y, As, self.config.setup)
-        problem = rf._Problem(M, ps, rf._whitener(covs))
+        C, K, M = model.split(res.X, res.Y, As, self.config.setup)
+        problem = model.Problem(M, ps, model.whitener(covs))
         self._cols = [tuple(c) for c in C[:3, :3].T.tolist()]
         self._tC, self._tK = tuple(C[:3, 3].tolist()), tuple(K[:3, 3].tolist())
-        info = rf._information(problem, C, K)
+        info = model.information(problem, C, K)
         self._P = np.linalg.inv(info)
         self._I2 = info
 
@@ -479,7 +480,7 @@ class OnlineCalibrator:
         w0 = m00 * k0 + m01 * k1 + m02 * k2 + t0 - u0
         w1 = m10 * k0 + m11 * k1 + m12 * k2 + t1 - u1
         w2 = m20 * k0 + m21 * k1 + m22 * k2 + t2 - u2
-        # Row j of d(predicted point)/d[dC, tC, tK] = R_C^T [[w]x, -I, R_M] (refine._point_residuals)
+        # Row j of d(predicted point)/d[dC, tC, tK] = R_C^T [[w]x, -I, R_M] (model.point_residuals)
         # is [c_j x w, -c_j, c_j^T R_M], c_j the j-th column of R_C; the innovation r_j ends the row.
         rows = []
         for (c0, c1, c2), pj in zip(self._cols, p.tolist()):
@@ -575,7 +576,7 @@ class OnlineCalibrator:
         if self._cols is None:
             return None
         K = tf.make_transform(_I3, np.array(self._tK))
-        X, Y = rf._join(self.camera_transform, K, self.config.setup)
+        X, Y = model.join(self.camera_transform, K, self.config.setup)
         return CalibrationResult(
             method="YKronT'+online",
             setup=self.config.setup,

@@ -1,11 +1,11 @@
-"""Maximum-likelihood refinement and covariance of a hand-eye calibration.
+"""Maximum-likelihood refinement and covariance of a hand-eye calibration (the paper's model).
 
-Both setups are written as one measurement model. The camera measures the
-marker ``B_i = C^-1 M_i K`` (paper eq. 1, ``A_i X = Y B_i``, rearranged), with
-
-- eye-to-hand: ``C = Y = T_base_cam``, ``K = X = T_flange_marker``, ``M_i = A_i``;
-- eye-in-hand: ``C = X = T_flange_cam``, ``K = Y = T_base_marker``,
-  ``M_i = A_i^-1`` (from ``A_i X B_i = Y``).
+The measurement model (residuals, Jacobians, whitening, information) is
+`calib.model`, with the camera ``C`` and marker-side ``K`` transforms of
+both setups: eye-to-hand ``C = Y = T_base_cam``, ``K = X = T_flange_marker``;
+eye-in-hand ``C = X = T_flange_cam``, ``K = Y = T_base_marker``. Here it is
+used without camera nuisance parameters or robot error (see `calib.auto` for
+the extended model).
 
 Point data (``B`` of shape (N, 3), the marker center in the camera frame)
 constrain ``C`` (6 dof) and the translation ``t_K`` (3); the residual is the
@@ -30,11 +30,12 @@ from __future__ import annotations
 import dataclasses
 
 import numpy as np
-from scipy.spatial.transform import Rotation
 from scipy.stats import chi2
 
+from calib import model
 from calib import transforms as tf
-from calib.errors import CalibrationError, DegenerateMotionError, InsufficientDataError
+from calib.errors import CalibrationError, InsufficientDataError
+from calib.model import check_point_cov
 from calib.noise import default_point_cov
 from calib.result import CalibrationResult, Residuals
 from calib.setup import Setup, check_setup
@@ -43,206 +44,7 @@ from calib.solvers import check_measurements
 #: A given ``point_cov`` is trusted unless the residuals reject it at this level;
 #: then the covariance is inflated by the a posteriori variance factor.
 CHI2_REJECT = 0.999
-#: Smallest eigenvalue ratio of the Fisher information before we call the motions degenerate.
-MIN_INFORMATION_RATIO = 1e-14
-
 _I3 = np.eye(3)
-
-
-# --------------------------------------------------------------------------- checks
-
-
-def check_point_cov(point_cov, n: int) -> np.ndarray | None:
-    """Validate a point covariance (3, 3) or (N, 3, 3) and broadcast it to (N, 3, 3); None passes."""
-    if point_cov is None:
-        return None
-    cov = np.asarray(point_cov, dtype=float)
-    if cov.shape == (3, 3):
-        cov = np.broadcast_to(cov, (n, 3, 3))
-    if cov.shape != (n, 3, 3):
-        raise CalibrationError(f"point_cov must have shape (3, 3) or ({n}, 3, 3), got {cov.shape}")
-    if not np.isfinite(cov).all():
-        raise CalibrationError("point_cov contains NaN or inf")
-    if np.abs(cov - np.swapaxes(cov, 1, 2)).max() > 1e-9 * max(np.abs(cov).max(), 1e-30):
-        raise CalibrationError("point_cov is not symmetric")
-    return cov
-
-
-# --------------------------------------------------------------------------- model
-
-
-def _split(X, Y, A, setup):
-    """Camera transform C, marker-side transform K and per-sample M_i (see module docstring)."""
-    if setup == Setup.EYE_TO_HAND:
-        return Y, X, A
-    return X, Y, tf.invert(A)
-
-
-def _join(C, K, setup):
-    """(X, Y) from camera transform C and marker-side transform K."""
-    return (K, C) if setup == Setup.EYE_TO_HAND else (C, K)
-
-
-def _skew(v):
-    S = np.zeros(v.shape[:-1] + (3, 3))
-    S[..., 0, 1], S[..., 0, 2] = -v[..., 2], v[..., 1]
-    S[..., 1, 0], S[..., 1, 2] = v[..., 2], -v[..., 0]
-    S[..., 2, 0], S[..., 2, 1] = -v[..., 1], v[..., 0]
-    return S
-
-
-def _so3_log(R):
-    return Rotation.from_matrix(R).as_rotvec()
-
-
-def _so3_exp(v):
-    return Rotation.from_rotvec(v).as_matrix()
-
-
-def _inv_right_jacobian(e):
-    """Inverse right Jacobian of SO(3), ``Log(Exp(e) Exp(d)) = e + Jr^-1(e) d + O(d^2)``; e (N, 3)."""
-    th = np.linalg.norm(e, axis=1)
-    S = _skew(e)
-    small = th < 1e-6
-    ths = np.where(small, 1.0, th)
-    c = np.where(small, 1.0 / 12.0, 1.0 / ths**2 - (1.0 + np.cos(ths)) / (2.0 * ths * np.sin(ths)))
-    return np.eye(3) + 0.5 * S + c[:, None, None] * (S @ S)
-
-
-def _point_residuals(C, t_K, M, p):
-    """Translation residuals r (N, 3) = p - predicted, and their Jacobians (N, 3, 3) each.
-
-    Returns ``r, J_dC, J_tC, J_tK``: derivatives of ``r`` w.r.t. the left rotation
-    perturbation of C, the translation of C and the translation of K.
-    """
-    R_C, t_C = C[:3, :3], C[:3, 3]
-    w = M[:, :3, :3] @ t_K + M[:, :3, 3] - t_C          # marker center minus camera origin, C's parent frame
-    r = p - w @ R_C                                      # w @ R_C == (R_C^T w_i)_i
-    J_dC = -(R_C.T @ _skew(w))
-    J_tC = np.broadcast_to(R_C.T, J_dC.shape)
-    J_tK = -(R_C.T @ M[:, :3, :3])
-    return r, J_dC, J_tC, J_tK
-
-
-def _rotation_residuals(C, K, M, R_B):
-    """Rotation residuals e (N, 3) = Log(R_B^T R_C^T R_M R_K) and Jacobians w.r.t. dC, dK (N, 3, 3)."""
-    R_C, R_K, R_M = C[:3, :3], K[:3, :3], M[:, :3, :3]
-    E = np.swapaxes(R_B, 1, 2) @ R_C.T @ R_M @ R_K
-    e = _so3_log(E)
-    Jinv = _inv_right_jacobian(e)
-    J_dK = Jinv @ R_K.T
-    J_dC = -(J_dK @ np.swapaxes(R_M, 1, 2))
-    return e, J_dC, J_dK
-
-
-def _whitener(cov):
-    """Inverse Cholesky factors (N, 3, 3) so that ``L^-1 r`` has unit covariance."""
-    try:
-        L = np.linalg.cholesky(cov)
-    except np.linalg.LinAlgError:
-        raise CalibrationError("point_cov is not positive definite") from None
-    return np.linalg.inv(L)
-
-
-class _Problem:
-    """Whitened residual vector and Jacobian of one data set for the LM loop.
-
-    Parameters are ``[dC, tC, tK]`` (points) or ``[dC, tC, dK, tK]`` (poses).
-    """
-
-    def __init__(self, M, B, W_t, sigma_rot=None):
-        self.M = M
-        self.points = B.ndim == 2
-        self.p = B if self.points else B[:, :3, 3]
-        self.R_B = None if self.points else B[:, :3, :3]
-        self.W_t = W_t
-        self.sigma_rot = sigma_rot
-        self.n_params = 9 if self.points else 12
-
-    def raw(self, C, K):
-        r, J_dC, J_tC, J_tK = _point_residuals(C, K[:3, 3], self.M, self.p)
-        if self.points:
-            return r, None, np.concatenate([J_dC, J_tC, J_tK], axis=2), None
-        e, JeC, JeK = _rotation_residuals(C, K, self.M, self.R_B)
-        zeros = np.zeros_like(J_dC)
-        J_t = np.concatenate([J_dC, J_tC, zeros, J_tK], axis=2)
-        J_e = np.concatenate([JeC, zeros, JeK, zeros], axis=2)
-        return r, e, J_t, J_e
-
-    def whitened(self, C, K):
-        r, e, J_t, J_e = self.raw(C, K)
-        rw = np.einsum("nij,nj->ni", self.W_t, r).reshape(-1)
-        Jw = (self.W_t @ J_t).reshape(-1, self.n_params)
-        if not self.points:
-            rw = np.concatenate([rw, (e / self.sigma_rot).reshape(-1)])
-            Jw = np.concatenate([Jw, (J_e / self.sigma_rot).reshape(-1, self.n_params)])
-        return rw, Jw
-
-    def whitened_residual_only(self, C, K):
-        R_C, t_C = C[:3, :3], C[:3, 3]
-        w = self.M[:, :3, :3] @ K[:3, 3] + self.M[:, :3, 3] - t_C
-        r = np.einsum("nij,nj->ni", self.W_t, self.p - w @ R_C)
-        cost = float(np.sum(r**2))
-        if not self.points:
-            E = np.swapaxes(self.R_B, 1, 2) @ R_C.T @ self.M[:, :3, :3] @ K[:3, :3]
-            cost += float(np.sum(_so3_log(E) ** 2)) / self.sigma_rot**2
-        return cost, r
-
-
-def _apply(C, K, delta, points):
-    """Retract a parameter step onto (C, K) with left perturbations."""
-    C2 = tf.make_transform(_so3_exp(delta[:3]) @ C[:3, :3], C[:3, 3] + delta[3:6])
-    if points:
-        K2 = tf.make_transform(K[:3, :3], K[:3, 3] + delta[6:9])
-    else:
-        K2 = tf.make_transform(_so3_exp(delta[6:9]) @ K[:3, :3], K[:3, 3] + delta[9:12])
-    return C2, K2
-
-
-def _levenberg_marquardt(problem, C, K, *, max_iterations, tol=1e-10):
-    """Minimise the whitened cost over (C, K). Returns C, K, cost, iterations, converged."""
-    cost = problem.whitened_residual_only(C, K)[0]
-    lam = 1e-6
-    for it in range(1, max_iterations + 1):
-        r, J = problem.whitened(C, K)
-        H = J.T @ J
-        g = J.T @ r
-        while True:
-            try:
-                delta = -np.linalg.solve(H + lam * np.diag(np.diag(H)), g)
-            except np.linalg.LinAlgError:
-                raise DegenerateMotionError("the motions do not constrain every unknown (singular normal equations)") from None
-            C2, K2 = _apply(C, K, delta, problem.points)
-            cost2 = problem.whitened_residual_only(C2, K2)[0]
-            if cost2 <= cost:
-                break
-            lam *= 10.0
-            if lam > 1e10:
-                # No descent direction left: we sit at the minimum to numerical precision.
-                return C, K, cost, it, True
-        lam = max(lam / 10.0, 1e-12)
-        step = np.abs(delta).max()
-        rel = (cost - cost2) / max(cost, 1e-300)
-        C, K, cost = C2, K2, cost2
-        if step < tol or rel < 1e-14:
-            return C, K, cost, it, True
-    return C, K, cost, max_iterations, False
-
-
-def _marker_rotation(C, M, R_B):
-    """Best R_K given C for pose data: chordal mean of R_M^T R_C R_B (the nuisance rotation)."""
-    S = (np.swapaxes(M[:, :3, :3], 1, 2) @ C[:3, :3] @ R_B).sum(axis=0)
-    return tf.project_to_so3(S)
-
-
-def _point_weights(B, point_cov):
-    """Whitening matrices for the translation residual and whether ``point_cov`` was given."""
-    p = B if B.ndim == 2 else B[:, :3, 3]
-    cov = check_point_cov(point_cov, len(p))
-    given = cov is not None
-    if not given:
-        cov = default_point_cov(p)
-    return _whitener(cov), given
 
 
 def _pose_noise(problem, C, K, W0):
@@ -254,23 +56,6 @@ def _pose_noise(problem, C, K, W0):
     sigma_rot = max(float(np.sqrt(np.sum(e**2) / dof)), 1e-9)
     scale_t = max(float(np.sum(rw**2) / dof), 1e-18)
     return sigma_rot, scale_t
-
-
-def _information(problem, C, K):
-    _, J = problem.whitened(C, K)
-    return J.T @ J
-
-
-def _camera_block(info):
-    """6x6 camera block of the inverse information, after a degeneracy check."""
-    ev = np.linalg.eigvalsh(info)
-    if ev[0] <= MIN_INFORMATION_RATIO * ev[-1]:
-        raise DegenerateMotionError(
-            "the motions do not constrain every unknown "
-            f"(Fisher information eigenvalue ratio {ev[0] / ev[-1]:.1e}); vary the flange rotation"
-        )
-    cov = np.linalg.inv(info)[:6, :6]
-    return 0.5 * (cov + cov.T)
 
 
 def _min_samples(points: bool) -> int:
@@ -286,11 +71,11 @@ def _prepare(X, Y, A, B, setup, point_cov):
     points = B.ndim == 2
     if len(A) < _min_samples(points):
         raise InsufficientDataError(f"need at least {_min_samples(points)} samples, got {len(A)}")
-    C, K, M = _split(X, Y, A, setup)
-    W_t, given = _point_weights(B, point_cov)
-    problem = _Problem(M, B, W_t)
+    C, K, M = model.split(X, Y, A, setup)
+    W_t, given = model.point_weights(B, point_cov)
+    problem = model.Problem(M, B, W_t)
     if not points:
-        K = tf.make_transform(_marker_rotation(C, M, B[:, :3, :3]), K[:3, 3])
+        K = tf.make_transform(model.marker_rotation(C, M, B[:, :3, :3]), K[:3, 3])
     return problem, C, K, given, A, B
 
 
@@ -348,13 +133,13 @@ def covariance(X, Y, A, B, *, setup: str, point_cov=None) -> np.ndarray:
     """
     problem, C, K, given, _, _ = _prepare(X, Y, A, B, setup, point_cov)
     if problem.points:
-        cost = problem.whitened_residual_only(C, K)[0]
+        cost = problem.cost(C, K)
         factor = _variance_factor(cost, 3 * len(problem.p) - 9, given)
-        return factor * _camera_block(_information(problem, C, K))
+        return factor * model.camera_block(model.information(problem, C, K))
     sigma_rot, scale_t = _pose_noise(problem, C, K, problem.W_t)
     problem.sigma_rot = sigma_rot
     problem.W_t = problem.W_t / np.sqrt(scale_t)
-    return _camera_block(_information(problem, C, K))
+    return model.camera_block(model.information(problem, C, K))
 
 
 def kron_t_prime_covariance(X, Y, A, B, *, setup: str, point_cov=None) -> np.ndarray:
@@ -415,7 +200,7 @@ def kron_t_prime_covariance(X, Y, A, B, *, setup: str, point_cov=None) -> np.nda
     cov_p = check_point_cov(point_cov, n)
     if cov_p is None:
         cov_p = default_point_cov(p)
-    factor = _variance_factor(problem.whitened_residual_only(C, K)[0], 3 * n - 9, given)
+    factor = _variance_factor(problem.cost(C, K), 3 * n - 9, given)
 
     R_A, t_A = A[:, :3, :3], A[:, :3, 3]
     # Step 1: the system of eq. 20 exactly as `calib.solvers._y_kron_t_prime` builds it.
@@ -462,9 +247,9 @@ def kron_t_prime_covariance(X, Y, A, B, *, setup: str, point_cov=None) -> np.nda
     # Step 3: translations re-solved with R fixed.
     Rp = p @ R.T
     if setup == Setup.EYE_TO_HAND:
-        F, G = -R, _skew(Rp)
+        F, G = -R, tf.skew(Rp)
     else:
-        F, G = -R_A @ R, R_A @ _skew(Rp)
+        F, G = -R_A @ R, R_A @ tf.skew(Rp)
     T2t = np.swapaxes(T2, 1, 2)
     T2f = T2.reshape(3 * n, 6)
     H2_inv = np.linalg.inv(T2f.T @ T2f)[:3]                           # the camera translation is t[:3]
@@ -527,15 +312,15 @@ def delta_method_covariance(estimator, X, Y, A, B, *, setup: str, point_cov=None
     for _ in range(2):
         sigma_rot, scale_t = _pose_noise(problem, C, K, W0)
         problem.sigma_rot, problem.W_t = sigma_rot, W0 / np.sqrt(scale_t)
-        C, K = _levenberg_marquardt(problem, C, K, max_iterations=50)[:2]
+        C, K = model.minimize(problem, C, K, max_iterations=50)[:2]
     sigma_rot, scale_t = _pose_noise(problem, C, K, W0)
     cov_t = check_point_cov(point_cov, len(B))
     if cov_t is None:
         cov_t = default_point_cov(B[:, :3, 3])
     L_t = np.linalg.cholesky(scale_t * cov_t)                          # (N, 3, 3) noise directions
-    rot_steps = _so3_exp(np.eye(3) * (step * sigma_rot))               # (3, 3, 3)
+    rot_steps = tf.so3_exp(np.eye(3) * (step * sigma_rot))               # (3, 3, 3)
 
-    base = _split(*estimator(A, B), A, setup)[0]
+    base = model.split(*estimator(A, B), A, setup)[0]
     base_inv_R, base_t = base[:3, :3].T, base[:3, 3]
     J = np.empty((len(B), 6, 6))
     B_pert = B.copy()
@@ -545,8 +330,8 @@ def delta_method_covariance(estimator, X, Y, A, B, *, setup: str, point_cov=None
                 B_pert[i, :3, :3] = B[i, :3, :3] @ rot_steps[k]
             else:
                 B_pert[i, :3, 3] = B[i, :3, 3] + step * L_t[i, :, k - 3]
-            cam = _split(*estimator(A, B_pert), A, setup)[0]
-            J[i, :3, k] = _so3_log((cam[:3, :3] @ base_inv_R)[None])[0]
+            cam = model.split(*estimator(A, B_pert), A, setup)[0]
+            J[i, :3, k] = tf.so3_log((cam[:3, :3] @ base_inv_R)[None])[0]
             J[i, 3:, k] = cam[:3, 3] - base_t
             B_pert[i] = B[i]
     J /= step
@@ -581,13 +366,13 @@ def cramer_rao_bound(X, Y, A, point_cov, *, setup: str) -> tuple[float, float, n
     A = tf.check_transforms(A, "A")
     X = tf.check_transform(X, "X")
     Y = tf.check_transform(Y, "Y")
-    C, K, M = _split(X, Y, A, setup)
+    C, K, M = model.split(X, Y, A, setup)
     p_true = tf.transform_points(tf.invert(C) @ M, K[:3, 3])
     cov_p = check_point_cov(point_cov, len(A))
     if cov_p is None:
         raise CalibrationError("point_cov is required for the Cramér-Rao bound")
-    problem = _Problem(M, p_true, _whitener(cov_p))
-    cov = _camera_block(_information(problem, C, K))
+    problem = model.Problem(M, p_true, model.whitener(cov_p))
+    cov = model.camera_block(model.information(problem, C, K))
     return float(np.sqrt(np.trace(cov[:3, :3]))), float(np.sqrt(np.trace(cov[3:, 3:]))), cov
 
 
@@ -598,7 +383,7 @@ def error_vector(T_est, T_true) -> np.ndarray:
     """
     T_est = tf.check_transform(T_est, "T_est")
     T_true = tf.check_transform(T_true, "T_true")
-    d = _so3_log((T_true[:3, :3] @ T_est[:3, :3].T)[None])[0]
+    d = tf.so3_log((T_true[:3, :3] @ T_est[:3, :3].T)[None])[0]
     return np.concatenate([d, T_true[:3, 3] - T_est[:3, 3]])
 
 
@@ -623,9 +408,9 @@ def residuals(X, Y, A, B, *, setup: str) -> Residuals:
 
 
 def _residuals(X, Y, A, B, setup) -> Residuals:
-    C, K, M = _split(X, Y, A, setup)
+    C, K, M = model.split(X, Y, A, setup)
     p = B if B.ndim == 2 else B[:, :3, 3]
-    r = _point_residuals(C, K[:3, 3], M, p)[0]
+    r = model.point_residuals(C, K[:3, 3], M, p)[0]
     rot = None
     if B.ndim == 3:
         E = np.swapaxes(B[:, :3, :3], 1, 2) @ C[:3, :3].T @ M[:, :3, :3] @ K[:3, :3]
@@ -676,10 +461,10 @@ def refine(initial: CalibrationResult, A, B, *, point_cov=None, max_iterations: 
     setup = initial.setup
     problem, C, K, given, A, B = _prepare(initial.X, initial.Y, A, B, setup, point_cov)
     if problem.points:
-        initial_cost = problem.whitened_residual_only(C, K)[0]
-        C, K, cost, iters, converged = _levenberg_marquardt(problem, C, K, max_iterations=max_iterations)
+        initial_cost = problem.cost(C, K)
+        C, K, _, cost, iters, converged = model.minimize(problem, C, K, max_iterations=max_iterations)
         factor = _variance_factor(cost, 3 * len(problem.p) - 9, given)
-        cov = factor * _camera_block(_information(problem, C, K))
+        cov = factor * model.camera_block(model.information(problem, C, K))
         info = {"cost": cost, "initial_cost": initial_cost, "variance_factor": factor}
         rotation_known = initial.marker_rotation_known
     else:
@@ -690,15 +475,15 @@ def refine(initial: CalibrationResult, A, B, *, point_cov=None, max_iterations: 
             sigma_rot, scale_t = _pose_noise(problem, C, K, W0)
             problem.sigma_rot, problem.W_t = sigma_rot, W0 / np.sqrt(scale_t)
             if initial_cost is None:
-                initial_cost = problem.whitened_residual_only(C, K)[0]
-            C, K, cost, it, converged = _levenberg_marquardt(problem, C, K, max_iterations=max_iterations)
+                initial_cost = problem.cost(C, K)
+            C, K, _, cost, it, converged = model.minimize(problem, C, K, max_iterations=max_iterations)
             iters += it
         sigma_rot, scale_t = _pose_noise(problem, C, K, W0)
         problem.sigma_rot, problem.W_t = sigma_rot, W0 / np.sqrt(scale_t)
-        cov = _camera_block(_information(problem, C, K))
+        cov = model.camera_block(model.information(problem, C, K))
         info = {"cost": cost, "initial_cost": initial_cost, "sigma_rotation": sigma_rot, "translation_scale": scale_t}
         rotation_known = True
-    X, Y = _join(C, K, setup)
+    X, Y = model.join(C, K, setup)
     return dataclasses.replace(
         initial,
         method=f"{initial.method}+ML",
@@ -739,6 +524,6 @@ def point_jacobian(X, Y, A, *, setup: str) -> tuple[np.ndarray, np.ndarray]:
         ``d points / d [dC, tC, tK]``.
     """
     check_setup(setup)
-    C, K, M = _split(tf.check_transform(X, "X"), tf.check_transform(Y, "Y"), tf.check_transforms(A, "A"), setup)
-    r, J_dC, J_tC, J_tK = _point_residuals(C, K[:3, 3], M, np.zeros((len(M), 3)))
+    C, K, M = model.split(tf.check_transform(X, "X"), tf.check_transform(Y, "Y"), tf.check_transforms(A, "A"), setup)
+    r, J_dC, J_tC, J_tK = model.point_residuals(C, K[:3, 3], M, np.zeros((len(M), 3)))
     return -r, -np.concatenate([J_dC, J_tC, J_tK], axis=2)

@@ -95,6 +95,20 @@ class CalibrationResult:
         return self.Y if self.setup == Setup.EYE_TO_HAND else self.X
 
     @property
+    def sigma(self) -> tuple[float, float] | None:
+        """Worst-axis 1-sigma of the camera transform from ``cov``: ``(rotation rad, translation m)``, or None.
+
+        The square roots of the largest eigenvalues of the rotation and the
+        translation blocks of the 6x6 ``[rotvec, t]`` covariance.
+        """
+        if self.cov is None:
+            return None
+        cov = np.asarray(self.cov, dtype=float)
+        s_rot = float(np.sqrt(max(np.linalg.eigvalsh(cov[:3, :3]).max(), 0.0)))
+        s_t = float(np.sqrt(max(np.linalg.eigvalsh(cov[3:, 3:]).max(), 0.0)))
+        return s_rot, s_t
+
+    @property
     def rejected(self) -> np.ndarray:
         """Indices of samples rejected as outliers (empty if none or not robust)."""
         if self.inliers is None:

@@ -7,7 +7,7 @@ setup (eye-to-hand ``X = T_flange_marker``, ``Y = T_base_cam``; eye-in-hand
 
 1. Least median of squares (Rousseeuw 1984): fit random subsets of
    ``min_samples`` samples and keep the hypothesis whose median Mahalanobis
-   point residual (paper eq. 5 in the camera frame, as in `calib.refine`) is
+   point residual (paper eq. 5 in the camera frame, as in `calib.model`) is
    smallest. Valid up to 50% outliers; the number of subsets is RANSAC's
    ``log(1 - CONFIDENCE) / log(1 - (1 - eps)^m)`` for a design outlier
    fraction ``eps`` (not adapted to the data: a contaminated hypothesis
@@ -26,7 +26,8 @@ from collections.abc import Callable
 import numpy as np
 from scipy.stats import chi2
 
-from calib import refine as rf
+from calib import model
+from calib.solvers import check_measurements
 from calib.errors import CalibrationError, InsufficientDataError
 from calib.result import CalibrationResult
 from calib.setup import check_setup
@@ -44,12 +45,12 @@ def _squared_distances(result: CalibrationResult, A, B, W_t, setup: str) -> np.n
     hypothesis knows the marker rotation add the rotation residual normalised
     by a robust (median) estimate of its own scale (3 more dof).
     """
-    C, K, M = rf._split(result.X, result.Y, A, setup)
+    C, K, M = model.split(result.X, result.Y, A, setup)
     p = B if B.ndim == 2 else B[:, :3, 3]
-    r = rf._point_residuals(C, K[:3, 3], M, p)[0]
+    r = model.point_residuals(C, K[:3, 3], M, p)[0]
     d2 = np.sum(np.einsum("nij,nj->ni", W_t, r) ** 2, axis=1)
     if B.ndim == 3 and result.marker_rotation_known:
-        e2 = np.sum(rf._rotation_residuals(C, K, M, B[:, :3, :3])[0] ** 2, axis=1)
+        e2 = np.sum(model.rotation_residuals(C, K, M, B[:, :3, :3])[0] ** 2, axis=1)
         e2_scale = max(np.median(e2) / chi2.ppf(0.5, 3), 1e-18)
         return d2 + e2 / e2_scale, 6
     return d2, 3
@@ -120,17 +121,17 @@ def robust_solve(
     InsufficientDataError
         Fewer than ``min_samples + 1`` samples, or no subset could be solved.
     CalibrationError
-        Bad shapes or values (see `calib.refine.check_measurements`).
+        Bad shapes or values (see `calib.solvers.check_measurements`).
     """
     setup = check_setup(setup)
-    A, B = rf.check_measurements(A, B)
+    A, B = check_measurements(A, B)
     if not isinstance(rng, np.random.Generator):
         raise CalibrationError("rng must be a numpy.random.Generator")
     n = len(A)
     m = min_samples if min_samples is not None else (6 if B.ndim == 2 else 4)
     if n < m + 1:
         raise InsufficientDataError(f"robust estimation needs at least {m + 1} samples, got {n}")
-    W_t, given = rf._point_weights(B, point_cov)
+    W_t, given = model.point_weights(B, point_cov)
 
     if not 0.0 <= max_outlier_fraction < 0.5:
         raise CalibrationError(f"max_outlier_fraction must be in [0, 0.5), got {max_outlier_fraction}")

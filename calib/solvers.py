@@ -99,20 +99,11 @@ def _check_counts(n_a: int, n_b: int, minimum: int) -> None:
 # ------------------------------------------------------------ small helpers
 
 
-def skew(v: np.ndarray) -> np.ndarray:
-    """Cross-product matrices (..., 3, 3) of vectors (..., 3)."""
-    S = np.zeros(v.shape[:-1] + (3, 3))
-    S[..., 0, 1], S[..., 0, 2] = -v[..., 2], v[..., 1]
-    S[..., 1, 0], S[..., 1, 2] = v[..., 2], -v[..., 0]
-    S[..., 2, 0], S[..., 2, 1] = -v[..., 1], v[..., 0]
-    return S
-
-
 def quat_left(q: np.ndarray) -> np.ndarray:
     """``Q+(q)`` (..., 4, 4) with ``q p = Q+(q) p`` (Hamilton product, scalar-last), eq. 8."""
     v, w = q[..., :3], q[..., 3]
     M = np.empty(q.shape[:-1] + (4, 4))
-    M[..., :3, :3] = w[..., None, None] * _I3 + skew(v)
+    M[..., :3, :3] = w[..., None, None] * _I3 + tf.skew(v)
     M[..., :3, 3] = v
     M[..., 3, :3] = -v
     M[..., 3, 3] = w
@@ -123,7 +114,7 @@ def quat_right(q: np.ndarray) -> np.ndarray:
     """``Q-(q)`` (..., 4, 4) with ``p q = Q-(q) p`` (Hamilton product, scalar-last), eq. 8."""
     v, w = q[..., :3], q[..., 3]
     M = np.empty(q.shape[:-1] + (4, 4))
-    M[..., :3, :3] = w[..., None, None] * _I3 - skew(v)
+    M[..., :3, :3] = w[..., None, None] * _I3 - tf.skew(v)
     M[..., :3, 3] = v
     M[..., 3, :3] = -v
     M[..., 3, 3] = w
@@ -467,8 +458,8 @@ def _zhuang_system(qa: np.ndarray, qb: np.ndarray) -> tuple[np.ndarray, np.ndarr
     av, a0, bv, b0 = qa[..., :3], qa[..., 3, None, None], qb[..., :3], qb[..., 3, None, None]
     lead = np.broadcast_shapes(qa.shape[:-1], qb.shape[:-1])
     M = np.empty(lead + (3, 6))
-    M[..., :3] = a0**2 * _I3 + av[..., :, None] * av[..., None, :] + a0 * skew(av)
-    M[..., 3:] = a0 * skew(bv) - a0 * b0 * _I3 - av[..., :, None] * bv[..., None, :]
+    M[..., :3] = a0**2 * _I3 + av[..., :, None] * av[..., None, :] + a0 * tf.skew(av)
+    M[..., 3:] = a0 * tf.skew(bv) - a0 * b0 * _I3 - av[..., :, None] * bv[..., None, :]
     rhs = a0[..., 0] * bv - b0[..., 0] * av
     return M.reshape(lead[:-1] + (3 * lead[-1], 6)), np.broadcast_to(rhs, lead + (3,)).reshape(lead[:-1] + (-1,))
 

@@ -117,11 +117,31 @@ def project_to_so3(M) -> np.ndarray:
     return (U * D[..., None, :]) @ Vt
 
 
+def skew(v) -> np.ndarray:
+    """Cross-product matrices (..., 3, 3) of vectors (..., 3): ``skew(a) @ b == cross(a, b)``."""
+    v = np.asarray(v, dtype=float)
+    S = np.zeros(v.shape[:-1] + (3, 3))
+    S[..., 0, 1], S[..., 0, 2] = -v[..., 2], v[..., 1]
+    S[..., 1, 0], S[..., 1, 2] = v[..., 2], -v[..., 0]
+    S[..., 2, 0], S[..., 2, 1] = -v[..., 1], v[..., 0]
+    return S
+
+
+def so3_exp(v) -> np.ndarray:
+    """Rotation matrices (..., 3, 3) of rotation vectors (..., 3), rad (SO(3) exponential map)."""
+    v = np.asarray(v, dtype=float)
+    return Rotation.from_rotvec(v.reshape(-1, 3)).as_matrix().reshape(v.shape[:-1] + (3, 3))
+
+
+def so3_log(R) -> np.ndarray:
+    """Rotation vectors (..., 3), rad, of rotation matrices (..., 3, 3) (SO(3) logarithm, angle in [0, pi])."""
+    R = np.asarray(R, dtype=float)
+    return Rotation.from_matrix(R.reshape(-1, 3, 3)).as_rotvec().reshape(R.shape[:-2] + (3,))
+
+
 def from_rotvec_translation(rotvec, t) -> np.ndarray:
     """Transform(s) from rotation vector(s) (..., 3) in rad and translation(s) (..., 3) in m."""
-    rotvec = np.asarray(rotvec, dtype=float)
-    R = Rotation.from_rotvec(rotvec.reshape(-1, 3)).as_matrix().reshape(rotvec.shape[:-1] + (3, 3))
-    return make_transform(R, t)
+    return make_transform(so3_exp(rotvec), t)
 
 
 def to_rotvec_translation(T) -> tuple[np.ndarray, np.ndarray]:

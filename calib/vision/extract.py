@@ -22,6 +22,7 @@ import cv2
 import numpy as np
 
 from calib.errors import DepthError, ExtractionError, MarkerNotFoundError, ParameterError
+from calib.transforms import skew
 from calib.vision.lift import (
     DepthNoiseModel,
     fit_plane,
@@ -30,7 +31,6 @@ from calib.vision.lift import (
     pnp_covariance,
     polygon_pixels,
     refine_pose_with_depth,
-    skew,
     solve_pnp,
 )
 from calib.vision.markers import (

@@ -33,10 +33,6 @@ def _rotvec_to_matrix(rv) -> np.ndarray:
     return cv2.Rodrigues(np.asarray(rv, dtype=np.float64).reshape(3, 1))[0]
 
 
-def skew(v) -> np.ndarray:
-    return np.array([[0.0, -v[2], v[1]], [v[2], 0.0, -v[0]], [-v[1], v[0], 0.0]])
-
-
 @dataclass(frozen=True)
 class DepthNoiseModel:
     """Per-pixel depth noise of a structured-light (Xtion / Kinect v1) sensor.
@@ -111,7 +107,7 @@ def pnp_covariance(T_cam_target, object_points, K: np.ndarray, sigma_px: float) 
     for i in range(len(P)):
         dpi = np.array([[fx / Z[i], 0.0, -fx * X[i] / Z[i] ** 2], [0.0, fy / Z[i], -fy * Y[i] / Z[i] ** 2]])
         # d(Exp(w) R p)/dw = -[R p]_x at w = 0.
-        J[2 * i : 2 * i + 2, :3] = dpi @ -skew(Rp[i])
+        J[2 * i : 2 * i + 2, :3] = dpi @ -tf.skew(Rp[i])
         J[2 * i : 2 * i + 2, 3:] = dpi
     return sigma_px**2 * np.linalg.pinv(J.T @ J)
 
@@ -387,12 +383,12 @@ def refine_pose_with_depth(
     R_align = np.eye(3) if s < 1e-12 else _rotvec_to_matrix(axis / s * np.arctan2(s, c))
     R = R_align @ T_pnp[:3, :3]
     t = p_center - R @ center_target
-    S = skew(n)
+    S = tf.skew(n)
     cov_rot = S @ plane.normal_cov @ S.T + np.outer(n, n) * float(n @ cov_pnp[:3, :3] @ n)
     cov = np.zeros((6, 6))
     cov[:3, :3] = cov_rot
     # t = p - R c: a rotation error moves t by [R c]_x delta when the center is off the target origin.
-    Sc = skew(R @ center_target)
+    Sc = tf.skew(R @ center_target)
     cov[3:, 3:] = cov_center + Sc @ cov_rot @ Sc.T
     cov[:3, 3:] = cov_rot @ Sc.T
     cov[3:, :3] = cov[:3, 3:].T

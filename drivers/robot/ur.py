@@ -17,6 +17,9 @@ The TCP offset comes from the control interface (``getTCPOffset()``). ur_rtde
 1.6.5 cannot decode the RTDE output ``tcp_offset``, so in read-only mode
 (which never opens the control interface) it must be configured
 (``tcp_offset``), or `connect` fails.
+
+ur_rtde itself runs in a child process (`drivers.robot.ur_client`, which says
+why): this module sees states and call results, never a ur_rtde object.
 """
 
 from __future__ import annotations
@@ -35,6 +38,7 @@ from calib.transforms import from_ur_pose, invert, pose_error, to_ur_pose
 from drivers.robot import ur_kinematics as kin
 from drivers.robot.base import Robot, RobotState
 from drivers.robot.buffer import ClockMapper, StateBuffer, interpolate_pose
+from drivers.robot.ur_client import ClientDied, RTDEClient
 
 log = logging.getLogger(__name__)
 
@@ -54,6 +58,10 @@ RTDE_VARIABLES = [
     "safety_status_bits",
     "runtime_state",
 ]
+
+# Linear path check: largest joint step (rad) between two checked samples, and the shortest
+# tool travel (m) a sample interval is bisected down to.
+MAX_PATH_DQ, MIN_PATH_STEP = 0.02, 1e-5
 
 # ur_rtde's own bounds for moveL / moveJ arguments.
 MAX_TOOL_SPEED, MAX_TOOL_ACC = 3.0, 150.0
@@ -117,7 +125,8 @@ class URRobotConfig:
         Same for the orientation, degrees.
     frozen_timeout : float
         No new controller timestamp for this long (s) means the stream froze
-        (`ConnectionLostError`).
+        (`ConnectionLostError`, also while a move or any control call runs);
+        the RTDE client process is then killed (default 0.5 s).
     connect_timeout : float
         Seconds to wait for the first state after connecting.
     move_timeout : float
@@ -150,7 +159,7 @@ class URRobotConfig:
     tcp_offset: tuple[float, ...] | None = None
     reach_tolerance: float = 0.005
     reach_tolerance_deg: float = 1.0
-    frozen_timeout: float = 0.25
+    frozen_timeout: float = 0.5
     connect_timeout: float = 5.0
     move_timeout: float = 60.0
     buffer_seconds: float = 5.0
@@ -242,14 +251,11 @@ class URRobot(Robot):
         if not isinstance(config, URRobotConfig):
             raise ParameterError(f"URRobot needs a URRobotConfig, got {type(config).__name__}")
         self.config = config
-        self._rtde_r = None
-        self._rtde_c = None
+        self._client: RTDEClient | None = None
         self._T_flange_tcp = np.eye(4)
         self._buffer = StateBuffer(config.buffer_seconds)
         self._clock = ClockMapper(config.buffer_seconds)
-        self._poller: threading.Thread | None = None
-        self._stop_poll = threading.Event()
-        self._poll_error: Exception | None = None
+        self._new_state = threading.Condition()
         self._last_ts = None
         self._last_change = 0.0
         self._safety_bits = 0
@@ -258,7 +264,7 @@ class URRobot(Robot):
     # ------------------------------------------------------------ connection
     @property
     def is_connected(self) -> bool:
-        return self._rtde_r is not None
+        return self._client is not None
 
     @property
     def T_flange_tcp(self) -> np.ndarray:
@@ -266,7 +272,7 @@ class URRobot(Robot):
         return self._T_flange_tcp.copy()
 
     def connect(self) -> None:
-        """Open RTDE receive (and, unless read-only, control) and start buffering states.
+        """Start the RTDE client process (receive and, unless read-only, control) and buffer states.
 
         Raises
         ------
@@ -283,19 +289,19 @@ class URRobot(Robot):
                 "URRobotConfig.tcp_offset is required in read_only mode: ur_rtde reads the active TCP only "
                 "through the control interface, which read-only mode never opens"
             )
-        import rtde_receive  # vendor SDK, only needed once a UR is actually used
-
+        self._buffer.clear()
+        self._clock.reset()
+        self._last_ts = None
+        client = RTDEClient(cfg.host, cfg.frequency, cfg.read_only, RTDE_VARIABLES, self._on_state)
         try:
-            self._rtde_r = rtde_receive.RTDEReceiveInterface(cfg.host, float(cfg.frequency), RTDE_VARIABLES)
-        except RuntimeError as exc:
-            self._rtde_r = None
-            raise DeviceError(f"cannot open RTDE receive on UR controller {cfg.host}: {exc}") from exc
+            client.start(cfg.connect_timeout)
+        except ClientDied as exc:
+            client.close(0.0)
+            raise DeviceError(str(exc)) from None
+        self._client = client
         try:
             if not cfg.read_only:
-                import rtde_control
-
-                self._rtde_c = rtde_control.RTDEControlInterface(cfg.host, float(cfg.frequency))
-                tcp = np.asarray(self._rtde_c.getTCPOffset(), dtype=float)
+                tcp = np.asarray(self._call("getTCPOffset"), dtype=float)
                 if tcp.shape != (6,):
                     raise DeviceError(f"UR controller {cfg.host} did not report its TCP offset")
                 if cfg.tcp_offset is not None and not np.allclose(tcp, cfg.tcp_offset, atol=1e-6):
@@ -304,11 +310,10 @@ class URRobot(Robot):
             else:
                 tcp = np.asarray(cfg.tcp_offset)
             self._T_flange_tcp = from_ur_pose(tcp)
-            self._start_polling()
-        except BaseException as exc:
+            self._buffer.clear()  # states before the TCP was known carry the wrong flange pose
+            self._wait_first_state()
+        except BaseException:
             self._close_interfaces()
-            if isinstance(exc, RuntimeError):  # what ur_rtde's C++ exceptions become
-                raise DeviceError(f"cannot open RTDE control on UR controller {cfg.host}: {exc}") from exc
             raise
         self._check_model()
 
@@ -322,28 +327,20 @@ class URRobot(Robot):
                         self.config.host, self.config.model, dt * 1e3)
 
     def disconnect(self) -> None:
-        """Stop buffering, stop the control script and close both interfaces (idempotent)."""
+        """Stop the control script and close both interfaces (idempotent).
+
+        On a stale or dropped stream the client process is killed instead:
+        see `drivers.robot.ur_client` for why no ur_rtde teardown may run then.
+        """
         self._close_interfaces()
 
     def _close_interfaces(self) -> None:
-        self._stop_poll.set()
-        if self._poller is not None:
-            self._poller.join(timeout=2.0)
-            self._poller = None
-        if self._rtde_c is not None:
-            try:
-                if self._rtde_c.isConnected() and self._rtde_c.isProgramRunning():
-                    self._rtde_c.stopScript()
-                self._rtde_c.disconnect()
-            except RuntimeError as exc:
-                log.warning("closing RTDE control on %s: %s", self.config.host, exc)
-            self._rtde_c = None
-        if self._rtde_r is not None:
-            try:
-                self._rtde_r.disconnect()
-            except RuntimeError as exc:
-                log.warning("closing RTDE receive on %s: %s", self.config.host, exc)
-            self._rtde_r = None
+        client, self._client = self._client, None
+        if client is None:
+            return
+        if client.error is None and self._stream_age() > self.config.frozen_timeout:
+            client.kill("stream frozen at disconnect")
+        client.close(timeout=self.config.connect_timeout)
 
     def reconnect(self) -> None:
         """Close whatever is left of the connection and connect again (re-uploads the control script)."""
@@ -351,72 +348,63 @@ class URRobot(Robot):
         self.connect()
 
     # --------------------------------------------------------------- reading
-    def _start_polling(self) -> None:
-        self._buffer.clear()
-        self._clock.reset()
-        self._poll_error = None
-        self._last_ts = None
-        self._stop_poll = threading.Event()
-        self._poller = threading.Thread(target=self._poll, args=(self._stop_poll,), name=f"ur-rtde-{self.config.host}",
-                                        daemon=True)
-        self._poller.start()
+    def _wait_first_state(self) -> None:
         deadline = time.monotonic() + self.config.connect_timeout
-        while self._buffer.latest is None:
-            if time.monotonic() > deadline or self._poll_error is not None:
-                raise DeviceError(
-                    f"no RTDE data from UR controller {self.config.host} within {self.config.connect_timeout} s"
-                    + (f": {self._poll_error}" if self._poll_error else "")
-                )
-            time.sleep(0.002)
-        self._last_change = time.monotonic()
+        with self._new_state:
+            while self._buffer.latest is None:
+                if self._client.error is not None or time.monotonic() > deadline:
+                    raise DeviceError(
+                        f"no RTDE data from UR controller {self.config.host} within {self.config.connect_timeout} s"
+                        + (f": {self._client.error}" if self._client.error else "")
+                    )
+                self._new_state.wait(0.01)
 
-    def _sample(self) -> bool:
-        """Read one state if the controller timestamp moved; True if a new one was buffered."""
-        r = self._rtde_r
-        ts = r.getTimestamp()
-        if ts == self._last_ts:
-            return False
-        t_recv = time.time()
-        q = np.asarray(r.getActualQ())
-        qd = np.asarray(r.getActualQd())
-        tcp = np.asarray(r.getActualTCPPose())
-        robot_mode, safety_mode = r.getRobotMode(), r.getSafetyMode()
-        self._safety_bits = r.getSafetyStatusBits()
-        if r.getTimestamp() != ts:
-            return False  # a newer package arrived between the getters: read again, untorn
+    def _on_state(self, t_recv, ts, q, qd, tcp, robot_mode, safety_mode, safety_bits) -> None:
+        """One new controller state from the client process (its reader thread)."""
+        if self._last_ts is not None and ts <= self._last_ts:
+            return
         self._last_ts = ts
-        self._last_change = time.monotonic()
+        self._safety_bits = safety_bits
         self._buffer.append(
             RobotState(
                 t_host=self._clock.update(ts, t_recv),
                 t_controller=ts,
-                T_base_flange=from_ur_pose(tcp) @ invert(self._T_flange_tcp),
-                q=q,
-                qd=qd,
-                robot_mode=int(robot_mode),
-                safety_mode=int(safety_mode),
+                T_base_flange=from_ur_pose(np.asarray(tcp)) @ invert(self._T_flange_tcp),
+                q=np.asarray(q),
+                qd=np.asarray(qd),
+                robot_mode=robot_mode,
+                safety_mode=safety_mode,
             )
         )
-        return True
+        with self._new_state:
+            self._last_change = time.monotonic()
+            self._new_state.notify_all()
 
-    def _poll(self, stop: threading.Event) -> None:
-        # Poll at 4x the stream rate: ur_rtde keeps only the newest package, so a slower
-        # poller would miss states.
-        period = 0.25 / (500.0 if self.config.frequency == -1 else self.config.frequency)
-        while not stop.is_set():
-            try:
-                if not self._rtde_r.isConnected():
-                    self._poll_error = ConnectionLostError(f"RTDE connection to UR controller {self.config.host} dropped")
-                    return
-                self._sample()
-            except RuntimeError as exc:
-                self._poll_error = ConnectionLostError(f"RTDE read from UR controller {self.config.host} failed: {exc}")
-                return
-            time.sleep(period)
+    def _stream_age(self) -> float:
+        """Seconds since the controller timestamp last advanced."""
+        return time.monotonic() - self._last_change
 
     def _require_connected(self) -> None:
         if not self.is_connected:
             raise DeviceError(f"UR robot {self.config.host} is not connected; call connect()")
+
+    def _check_stream(self) -> None:
+        """Raise ConnectionLostError if the client died, the stream dropped, or the timestamp went stale."""
+        client = self._client
+        if client.error is not None:
+            raise ConnectionLostError(f"RTDE connection to UR controller {self.config.host} lost: {client.error}")
+        limit = self.config.frozen_timeout
+        age = self._stream_age()
+        if age > limit:
+            # Our reader thread may just have been starved of CPU: give it a moment to catch up.
+            with self._new_state:
+                self._new_state.wait(0.05)
+            age = self._stream_age()
+            if age > limit:
+                msg = (f"RTDE stream from UR controller {self.config.host} is frozen: no new controller timestamp "
+                       f"for {age * 1e3:.0f} ms (limit {limit * 1e3:.0f} ms)")
+                client.kill(msg)
+                raise ConnectionLostError(msg)
 
     def read(self) -> RobotState:
         """Latest state.
@@ -425,25 +413,11 @@ class URRobot(Robot):
         ------
         ConnectionLostError
             The RTDE connection dropped, or no new controller timestamp arrived
-            for ``frozen_timeout`` (frozen stream).
+            for ``frozen_timeout`` (frozen stream; the client is then killed
+            and `reconnect` is needed).
         """
         self._require_connected()
-        if self._poll_error is not None:
-            raise ConnectionLostError(str(self._poll_error))
-        if not self._rtde_r.isConnected():
-            raise ConnectionLostError(f"RTDE connection to UR controller {self.config.host} dropped")
-        age = time.monotonic() - self._last_change
-        if age > self.config.frozen_timeout:
-            # The poller may just have been starved of CPU: look once more ourselves.
-            try:
-                fresh = self._sample() or self._rtde_r.getTimestamp() != self._last_ts  # torn read = fresh
-            except RuntimeError as exc:
-                raise ConnectionLostError(f"RTDE read from UR controller {self.config.host} failed: {exc}") from exc
-            if not fresh:
-                raise ConnectionLostError(
-                    f"RTDE stream from UR controller {self.config.host} is frozen: no new controller timestamp "
-                    f"for {age * 1e3:.0f} ms (limit {self.config.frozen_timeout * 1e3:.0f} ms)"
-                )
+        self._check_stream()
         return self._buffer.latest
 
     def pose_at(self, t_host: float) -> np.ndarray:
@@ -490,8 +464,10 @@ class URRobot(Robot):
         The target and samples along the path (every ``path_step``) must keep
         the flange origin and the TCP inside the workspace box and the flange
         z axis inside the tilt cone; the joint solution (nominal IK nearest to
-        the start) must respect the joint limits, and a linear path must not
-        need a jump of the IK branch (singularity).
+        the start) must respect the joint limits, and a linear path must keep
+        its IK branch and stay `ur_kinematics.SINGULARITY_REFUSE` away from the
+        wrist, elbow and shoulder singularities (sampled more finely wherever
+        the joints move fast, see `_check_linear_path`).
 
         Parameters
         ----------
@@ -547,27 +523,62 @@ class URRobot(Robot):
             T0_tcp, T1_tcp = T0 @ self._T_flange_tcp, T @ self._T_flange_tcp
             angle = pose_error(T0_tcp, T1_tcp)[0]
             length = max(float(np.linalg.norm(T1_tcp[:3, 3] - T0_tcp[:3, 3])), 0.1 * float(angle))
-            n = max(1, math.ceil(length / cfg.path_step))
-            T_tcp_flange = invert(self._T_flange_tcp)
-            q = q0
-            for s in np.linspace(0.0, 1.0, n + 1)[1:]:
-                Ts = interpolate_pose(T0_tcp, T1_tcp, s) @ T_tcp_flange
-                self._check_pose(Ts, f"moveL path at {s:.0%}")
-                qs = kin.inverse_nearest(Ts, q, cfg.model, limits)
-                if qs is None or np.max(np.abs(qs - q)) > 0.5:
-                    raise LimitViolationError(
-                        f"moveL path at {s:.0%}: leaves the joint limits or passes a singularity; use motion='joint'"
-                    )
-                q = qs
-            q1 = q
+            q1 = self._check_linear_path(q0, T0_tcp, T1_tcp, length)
         return q1
 
+    def _check_linear_path(self, q0: np.ndarray, T0_tcp: np.ndarray, T1_tcp: np.ndarray, length: float) -> np.ndarray:
+        # Samples every path_step, bisected wherever the joints move more than MAX_PATH_DQ between
+        # two samples: near a singularity the joints turn fast for little tool travel, and a
+        # controller that samples the line more finely than path_step would meet what a coarse
+        # check jumps over. Every sample must keep the limits and SINGULARITY_REFUSE margins.
+        cfg = self.config
+        limits = cfg.joint_limits
+        T_tcp_flange = invert(self._T_flange_tcp)
+        n = max(1, math.ceil(length / cfg.path_step))
+        todo = list(np.linspace(0.0, 1.0, n + 1)[:0:-1])  # stack, next sample last
+        q, s_prev = q0, 0.0
+        while todo:
+            s = todo.pop()
+            Ts = interpolate_pose(T0_tcp, T1_tcp, s) @ T_tcp_flange
+            qs = kin.inverse_nearest(Ts, q, cfg.model, limits)
+            dq = np.inf if qs is None else float(np.max(np.abs(qs - q)))
+            if dq > MAX_PATH_DQ and (s - s_prev) * length > MIN_PATH_STEP:
+                todo += [s, 0.5 * (s_prev + s)]
+                continue
+            where = f"moveL path at {s:.0%}"
+            if qs is None or dq > 0.5:
+                raise LimitViolationError(f"{where}: leaves the joint limits or passes a singularity; use motion='joint'")
+            self._check_pose(Ts, where)
+            margins = kin.singularity_margins(qs, cfg.model)
+            low = margins < kin.SINGULARITY_REFUSE
+            if low.any():
+                i = int(np.argmax(low))
+                raise LimitViolationError(
+                    f"{where}: passes near a {kin.SINGULARITIES[i]} singularity (margin {margins[i]:.3f} < "
+                    f"{kin.SINGULARITY_REFUSE[i]}); use motion='joint'"
+                )
+            q, s_prev = qs, s
+        return q
+
     # ---------------------------------------------------------------- motion
-    def _control(self):
+    def _call(self, name: str, *args):
+        """One control-interface call in the client process, watching the stream while it runs.
+
+        A call that blocks in ur_rtde (e.g. moveL waiting for the controller's
+        acknowledgement during a frozen stream) still ends after ``frozen_timeout``.
+        """
         self._require_connected()
-        if self.config.read_only or self._rtde_c is None:
+        try:
+            return self._client.call(name, *args, timeout=self.config.connect_timeout, watch=self._check_stream)
+        except ClientDied as exc:
+            raise ConnectionLostError(f"RTDE connection to UR controller {self.config.host} lost: {exc}") from None
+        except RuntimeError as exc:  # ur_rtde's own error, raised in the client
+            raise DeviceError(f"UR controller {self.config.host}: {name} failed: {exc}") from None
+
+    def _require_control(self) -> None:
+        self._require_connected()
+        if self.config.read_only:
             raise DeviceError(f"UR robot {self.config.host} is read-only: it cannot move or stop the arm")
-        return self._rtde_c
 
     def _raise_if_stopped(self, state: RobotState, doing: str) -> None:
         if state.safety_mode in SAFETY_STOPPED or self._safety_bits & SAFETY_STOP_BITS:
@@ -600,14 +611,14 @@ class URRobot(Robot):
             Read-only mode; the control script is not running (after a stop:
             call `reconnect`); timeout; stopped by `stop`; settled off target.
         """
-        ctl = self._control()
+        self._require_control()
         cfg = self.config
         motion = motion or cfg.motion
         state = self.read()
         self._raise_if_stopped(state, "before the move")
         q_target = self.check_target(T_base_flange, motion, state.q, q_target)
         T = np.asarray(T_base_flange, dtype=float)
-        if not ctl.isProgramRunning():
+        if not self._call("isProgramRunning"):
             # A safety stop ends the script; its state package may trail the script flag by a cycle.
             time.sleep(0.02)
             self._raise_if_stopped(self.read(), "before the move")
@@ -616,13 +627,13 @@ class URRobot(Robot):
             )
         self._stop_requested = False
         if motion == "linear":
-            ok = ctl.moveL(to_ur_pose(T @ self._T_flange_tcp).tolist(), cfg.speed, cfg.acceleration, True)
+            ok = self._call("moveL", to_ur_pose(T @ self._T_flange_tcp).tolist(), cfg.speed, cfg.acceleration, True)
         else:
-            ok = ctl.moveJ(q_target.tolist(), cfg.joint_speed, cfg.joint_acceleration, True)
+            ok = self._call("moveJ", q_target.tolist(), cfg.joint_speed, cfg.joint_acceleration, True)
         if not ok:
             self._raise_if_stopped(self.read(), "the controller refused the move")
             raise DeviceError(f"UR controller {cfg.host} refused the {motion} move")
-        state = self._wait_settled(ctl, motion)
+        state = self._wait_settled(motion)
         rot, dist = pose_error(state.T_base_flange, T)
         if dist > cfg.reach_tolerance or math.degrees(rot) > cfg.reach_tolerance_deg:
             raise DeviceError(
@@ -640,7 +651,7 @@ class URRobot(Robot):
             raise LimitViolationError(f"q must have shape (6,), got {q.shape}")
         return self.move_to(kin.forward(q, self.config.model), motion="joint", q_target=q)
 
-    def _wait_settled(self, ctl, motion: str) -> RobotState:
+    def _wait_settled(self, motion: str) -> RobotState:
         cfg = self.config
         deadline = time.monotonic() + cfg.move_timeout
         still_since = None
@@ -649,7 +660,7 @@ class URRobot(Robot):
             self._raise_if_stopped(state, f"during the {motion} move")
             if self._stop_requested:
                 raise DeviceError(f"{motion} move on {cfg.host} was interrupted by stop()")
-            running = ctl.getAsyncOperationProgressEx().isAsyncOperationRunning()
+            running = self._call("asyncRunning")
             now = time.monotonic()
             if not running and np.max(np.abs(state.qd)) < cfg.settle_speed:
                 still_since = still_since or now
@@ -670,6 +681,6 @@ class URRobot(Robot):
         DeviceError
             In read-only mode (nothing could be stopped from here).
         """
-        ctl = self._control()
+        self._require_control()
         self._stop_requested = True
-        ctl.stopL(self.config.stop_deceleration, False)
+        self._call("stopL", self.config.stop_deceleration, False)

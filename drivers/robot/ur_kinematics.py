@@ -128,30 +128,50 @@ def forward(q, model: str | URGeometry) -> np.ndarray:
 def forward_one(q, model: str | URGeometry) -> np.ndarray:
     """`forward` of a single joint vector (6,), without validation: the simulator's per-tick path."""
     g = model if isinstance(model, URGeometry) else geometry(model)
+    return np.array(_fk(q, g) + (0.0, 0.0, 0.0, 1.0)).reshape(4, 4)
+
+
+# Scalar affine algebra on row-major 3x4 tuples (the top rows of a 4x4 transform): the IK runs
+# at every control tick of the simulator and at every sample of a path check, and numpy's
+# per-call overhead on 4x4 arrays costs ten times the arithmetic.
+def _dh1(theta: float, d: float, a: float, alpha: float) -> tuple:
+    ct, st = math.cos(theta), math.sin(theta)
+    ca, sa = math.cos(alpha), math.sin(alpha)
+    return (ct, -st * ca, st * sa, a * ct, st, ct * ca, -ct * sa, a * st, 0.0, sa, ca, d)
+
+
+def _mul(A: tuple, B: tuple) -> tuple:
+    a0, a1, a2, a3, a4, a5, a6, a7, a8, a9, a10, a11 = A
+    b0, b1, b2, b3, b4, b5, b6, b7, b8, b9, b10, b11 = B
+    return (a0 * b0 + a1 * b4 + a2 * b8, a0 * b1 + a1 * b5 + a2 * b9, a0 * b2 + a1 * b6 + a2 * b10,
+            a0 * b3 + a1 * b7 + a2 * b11 + a3,
+            a4 * b0 + a5 * b4 + a6 * b8, a4 * b1 + a5 * b5 + a6 * b9, a4 * b2 + a5 * b6 + a6 * b10,
+            a4 * b3 + a5 * b7 + a6 * b11 + a7,
+            a8 * b0 + a9 * b4 + a10 * b8, a8 * b1 + a9 * b5 + a10 * b9, a8 * b2 + a9 * b6 + a10 * b10,
+            a8 * b3 + a9 * b7 + a10 * b11 + a11)
+
+
+def _inv(A: tuple) -> tuple:
+    r0, r1, r2, x, r4, r5, r6, y, r8, r9, r10, z = A
+    return (r0, r4, r8, -(r0 * x + r4 * y + r8 * z), r1, r5, r9, -(r1 * x + r5 * y + r9 * z),
+            r2, r6, r10, -(r2 * x + r6 * y + r10 * z))
+
+
+def _fk(q, g: URGeometry) -> tuple:
     d, a = (g.d1, 0.0, 0.0, g.d4, g.d5, g.d6), (0.0, g.a2, g.a3, 0.0, 0.0, 0.0)
     T = _dh1(float(q[0]), d[0], a[0], _ALPHA_T[0])
     for i in range(1, 6):
-        T = T @ _dh1(float(q[i]), d[i], a[i], _ALPHA_T[i])
+        T = _mul(T, _dh1(float(q[i]), d[i], a[i], _ALPHA_T[i]))
     return T
-
-
-def _inv(T: np.ndarray) -> np.ndarray:
-    R = T[:3, :3].T
-    out = np.eye(4)
-    out[:3, :3] = R
-    out[:3, 3] = -R @ T[:3, 3]
-    return out
-
-
-def _dh1(theta: float, d: float, a: float, alpha: float) -> np.ndarray:
-    """One standard-DH link transform; scalar math because IK runs every control tick."""
-    ct, st = math.cos(theta), math.sin(theta)
-    ca, sa = math.cos(alpha), math.sin(alpha)
-    return np.array([[ct, -st * ca, st * sa, a * ct], [st, ct * ca, -ct * sa, a * st], [0.0, sa, ca, d], [0, 0, 0, 1.0]])
 
 
 def _clip1(x: float) -> float:
     return -1.0 if x < -1.0 else 1.0 if x > 1.0 else x
+
+
+def _wrap(x: float) -> float:
+    """Angle wrapped to (-pi, pi]."""
+    return math.atan2(math.sin(x), math.cos(x))
 
 
 def inverse_all(T_base_flange, model: str | URGeometry, *, tol: float = 1e-7) -> np.ndarray:
@@ -176,7 +196,8 @@ def inverse_all(T_base_flange, model: str | URGeometry, *, tol: float = 1e-7) ->
     if T.shape != (4, 4) or not np.isfinite(T).all():
         raise DeviceError(f"T_base_flange must be a finite (4, 4) array, got shape {T.shape}")
     d1, a2, a3, d4, d5, d6 = g.d1, g.a2, g.a3, g.d4, g.d5, g.d6
-    (nx, ox, ax, px), (ny, oy, ay, py) = T[0].tolist(), T[1].tolist()
+    Tt = tuple(T[:3].ravel().tolist())
+    nx, ox, ax, px, ny, oy, ay, py = Tt[:8]
     p05x, p05y = px - d6 * ax, py - d6 * ay
     r = math.hypot(p05x, p05y)
     if r < abs(d4):
@@ -194,22 +215,50 @@ def inverse_all(T_base_flange, model: str | URGeometry, *, tol: float = 1e-7) ->
             s5 = math.sin(q5)
             # T60 entries are the transposed rotation of T: T60[1,0] = ox, T60[0,1] = ny.
             q6 = 0.0 if abs(s5) < 1e-9 else math.atan2((-ox * s1 + oy * c1) / s5, (nx * s1 - ny * c1) / s5)
-            T14 = T01_inv @ T @ _inv(_dh1(q5, d5, 0.0, -math.pi / 2) @ _dh1(q6, d6, 0.0, 0.0))
-            x13 = T14[0, 3] - d4 * T14[0, 1]  # T14 @ [0, -d4, 0, 1]
-            y13 = T14[1, 3] - d4 * T14[1, 1]
+            T14 = _mul(_mul(T01_inv, Tt), _inv(_mul(_dh1(q5, d5, 0.0, -math.pi / 2), _dh1(q6, d6, 0.0, 0.0))))
+            x13 = T14[3] - d4 * T14[1]  # T14 @ [0, -d4, 0, 1]
+            y13 = T14[7] - d4 * T14[5]
             n13 = math.hypot(x13, y13)
             c3 = (n13 * n13 - a2 * a2 - a3 * a3) / (2 * a2 * a3)
             if abs(c3) > 1.0 + 1e-9:
                 continue
             for q3 in (math.acos(_clip1(c3)), -math.acos(_clip1(c3))):
                 q2 = -math.atan2(y13, -x13) + math.asin(_clip1(a3 * math.sin(q3) / n13))
-                T34 = _inv(_dh1(q2, 0.0, a2, 0.0) @ _dh1(q3, 0.0, a3, 0.0)) @ T14
-                sols.append([q1, q2, q3, math.atan2(T34[1, 0], T34[0, 0]), q5, q6])
-    if not sols:
-        return np.zeros((0, 6))
-    q = np.angle(np.exp(1j * np.asarray(sols)))  # wrap to (-pi, pi]
-    err = np.abs(forward(q, g) - T).max(axis=(1, 2))
-    return q[err < tol]
+                T34 = _mul(_inv(_mul(_dh1(q2, 0.0, a2, 0.0), _dh1(q3, 0.0, a3, 0.0))), T14)
+                q = tuple(_wrap(x) for x in (q1, q2, q3, math.atan2(T34[4], T34[0]), q5, q6))
+                if max(abs(u - v) for u, v in zip(_fk(q, g), Tt)) < tol:
+                    sols.append(q)
+    return np.array(sols) if sols else np.zeros((0, 6))
+
+
+# The three singularities of the UR geometry, as distances from them (see `singularity_margins`).
+SINGULARITIES = ("wrist", "elbow", "shoulder")
+# Below these margins a controller cannot follow a straight TCP line (joint speeds blow up):
+# the simulated controller protective-stops there, like a real one. The driver refuses paths
+# that come closer than `SINGULARITY_REFUSE` (larger, so that its samples between the
+# controller's own cannot hide a dip below `SINGULARITY_STOP`).
+SINGULARITY_STOP = np.array([0.05, 0.05, 0.03])  # |sin q5|, |sin q3|, m
+SINGULARITY_REFUSE = np.array([0.12, 0.12, 0.08])
+
+
+def singularity_margins(q, model: str | URGeometry) -> np.ndarray:
+    """How far joint vector ``q`` (6,) is from each UR singularity, in the order of `SINGULARITIES`.
+
+    - wrist: ``|sin q5|`` (joint 4 and 6 axes align at 0);
+    - elbow: ``|sin q3|`` (arm stretched or folded at 0);
+    - shoulder: ``sqrt(r^2 - d4^2)`` (m), where ``r`` is the horizontal distance of the
+      wrist point (flange minus ``d6`` along its z axis) from the base z axis; at 0 the
+      wrist point lies on the plane of the joint 1 and 2 axes and the two shoulder
+      solutions of the IK merge.
+
+    Returns
+    -------
+    margins : ndarray, shape (3,)
+    """
+    g = model if isinstance(model, URGeometry) else geometry(model)
+    T = _fk(q, g)
+    px, py = T[3] - g.d6 * T[2], T[7] - g.d6 * T[6]
+    return np.array([abs(math.sin(q[4])), abs(math.sin(q[2])), math.sqrt(max(px * px + py * py - g.d4 * g.d4, 0.0))])
 
 
 def inverse_nearest(T_base_flange, q_near, model: str | URGeometry, limits=UR_JOINT_LIMITS) -> np.ndarray | None:
@@ -223,18 +272,23 @@ def inverse_nearest(T_base_flange, q_near, model: str | URGeometry, limits=UR_JO
     -------
     q : ndarray, shape (6,), or None when no solution is reachable within the limits.
     """
-    q_near = check_q(q_near, "q_near")
-    limits = np.asarray(limits, dtype=float)
-    q = inverse_all(T_base_flange, model)
-    if len(q) == 0:
-        return None
-    # Each joint of each solution: the 2-pi multiple nearest q_near among those inside the limits.
-    cand = q[None] + 2 * np.pi * np.arange(-2, 3)[:, None, None]  # (5, K, 6)
-    ok = (cand >= limits[:, 0]) & (cand <= limits[:, 1])
-    dist = np.where(ok, np.abs(cand - q_near), np.inf)
-    k = np.argmin(dist, axis=0)  # (K, 6) best shift per joint
-    cost = np.take_along_axis(dist, k[None], axis=0)[0].max(axis=1)  # (K,)
-    i = int(np.argmin(cost))
-    if not np.isfinite(cost[i]):
-        return None
-    return np.take_along_axis(cand[:, i], k[i][None], axis=0)[0]
+    q_near = check_q(q_near, "q_near").tolist()
+    lims = np.asarray(limits, dtype=float).tolist()
+    best, best_cost = None, math.inf
+    for sol in inverse_all(T_base_flange, model).tolist():
+        # Each joint: the 2-pi multiple nearest q_near among those inside the limits.
+        q, cost = [], 0.0
+        for x, near, (lo, hi) in zip(sol, q_near, lims):
+            pick, dist = None, math.inf
+            for k in (-2, -1, 0, 1, 2):
+                c = x + 2 * math.pi * k
+                if lo <= c <= hi and abs(c - near) < dist:
+                    pick, dist = c, abs(c - near)
+            if pick is None:
+                break
+            q.append(pick)
+            cost = max(cost, dist)
+        else:
+            if cost < best_cost:
+                best, best_cost = q, cost
+    return None if best is None else np.array(best)

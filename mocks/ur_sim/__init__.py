@@ -23,6 +23,7 @@ import argparse
 import collections
 import json
 import logging
+import os
 import signal
 import socket
 import subprocess
@@ -48,6 +49,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--tcp-offset", type=float, nargs=6, metavar="P", default=[0.0, 0.0, 0.1, 0.0, 0.0, 0.0],
                     help="active TCP in the flange frame: x y z (m) rx ry rz (rad)")
     ap.add_argument("--program", help="JSON file: a looping production program to run (mocks.ur_sim.program)")
+    ap.add_argument("--parent-pid", type=int, metavar="PID",
+                    help="stop as soon as this process is no longer our parent (it died)")
     ap.add_argument("-v", "--verbose", action="store_true")
     args = ap.parse_args(argv)
     logging.basicConfig(level=logging.INFO if args.verbose else logging.WARNING, format="ur_sim: %(message)s")
@@ -66,6 +69,10 @@ def main(argv: list[str] | None = None) -> int:
             print(f"ur_sim: --program {args.program}: {exc}", file=sys.stderr)
             return 2
     server = SimServer(args.host, ctl)
+    server.parent_pid = args.parent_pid
+    if args.parent_pid is not None and os.getppid() != args.parent_pid:
+        print(f"ur_sim: parent process {args.parent_pid} is already gone", file=sys.stderr)
+        return 1
     try:
         server.open_listeners()
     except OSError as exc:
@@ -73,7 +80,7 @@ def main(argv: list[str] | None = None) -> int:
         return 1
 
     def _stop(*_):
-        server.stop_event.set()
+        server.stopping = True  # async-signal-safe: no lock, re-entry harmless (see SimServer.stopping)
 
     if threading.current_thread() is threading.main_thread():
         signal.signal(signal.SIGINT, _stop)
@@ -167,13 +174,6 @@ class SimProcess:
         return False
 
 
-def _die_with_parent() -> None:
-    # Linux prctl(PR_SET_PDEATHSIG, SIGTERM): a crashed test run leaves no simulator holding the ports.
-    import ctypes
-
-    ctypes.CDLL("libc.so.6", use_errno=True).prctl(1, signal.SIGTERM)
-
-
 def launch(host: str = "127.0.0.1", model: str = "ur10", controller: str = "5.11", initial_q=None,
            tcp_offset=None, timeout: float = 15.0) -> SimProcess:
     """Start ``python -m mocks.ur_sim`` and wait until its ports accept connections.
@@ -184,13 +184,16 @@ def launch(host: str = "127.0.0.1", model: str = "ur10", controller: str = "5.11
         If the simulator exits or does not report ready within ``timeout`` s
         (message includes its stderr, e.g. address already in use).
     """
-    cmd = [sys.executable, "-m", "mocks.ur_sim", "--host", host, "--model", model, "--controller", controller]
+    # The simulator watches this process (--parent-pid) and stops when it dies, even by SIGKILL.
+    # Not PR_SET_PDEATHSIG: that fires when the launching *thread* exits (one signal per thread of
+    # a dying many-threaded parent), and a preexec_fn may deadlock a forking many-threaded parent.
+    cmd = [sys.executable, "-m", "mocks.ur_sim", "--host", host, "--model", model, "--controller", controller,
+           "--parent-pid", str(os.getpid())]
     if initial_q is not None:
         cmd += ["--initial-q", *[f"{x:.12g}" for x in initial_q]]
     if tcp_offset is not None:
         cmd += ["--tcp-offset", *[f"{x:.12g}" for x in tcp_offset]]
-    proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
-                            preexec_fn=_die_with_parent if sys.platform == "linux" else None)
+    proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     ready: list[str] = []
     reader = threading.Thread(target=lambda: ready.append(proc.stdout.readline()), daemon=True)
     reader.start()

@@ -404,7 +404,7 @@ class SimController:
         t = self.timestamp - self.motion_t0
         q = self.motion.q_at(t)
         if q is None:
-            self.protective_stop(f"{self.motion.kind}: path leaves the reachable joint space")
+            self.protective_stop(f"{self.motion.kind}: {self.motion.failure}")
             return
         if np.any(q < self.limits[:, 0]) or np.any(q > self.limits[:, 1]):
             self.protective_stop("joint limit")

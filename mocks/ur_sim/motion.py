@@ -88,8 +88,10 @@ class LinearMotion:
     motion time, each solved nearest to the previous knot so the arm keeps its
     configuration, and are interpolated linearly in between (the TCP then
     leaves the line by micrometres). `q_at` returns None when the path
-    leaves the reachable set or the joint limits; the controller then raises
-    a protective stop, as a real one does.
+    leaves the reachable set or the joint limits, or comes closer to a
+    singularity than `drivers.robot.ur_kinematics.SINGULARITY_STOP` (a real
+    controller cannot keep the line there either); `failure` says which, and
+    the controller raises a protective stop, as a real one does.
     """
 
     kind = "movel"
@@ -108,6 +110,7 @@ class LinearMotion:
         n = max(1, math.ceil(self.duration / self.KNOT_DT))
         self.knot_t = np.linspace(0.0, self.duration, n + 1)
         self.knots = [np.asarray(q0, dtype=float)]
+        self.failure: str | None = None
 
     def pose_at(self, t: float) -> np.ndarray:
         """``T_base_flange`` on the straight TCP path at motion time ``t``."""
@@ -127,6 +130,11 @@ class LinearMotion:
             # A jump of more than ~0.5 rad between knots means the IK switched branch
             # (singularity): a real arm cannot follow that either.
             if q is None or np.max(np.abs(q - self.knots[-1])) > 0.5:
+                self.failure = "path leaves the reachable joint space"
+                return None
+            low = kin.singularity_margins(q, self.model) < kin.SINGULARITY_STOP
+            if low.any():
+                self.failure = f"path passes a {kin.SINGULARITIES[int(np.argmax(low))]} singularity"
                 return None
             self.knots.append(q)
         f = (t - self.knot_t[k]) / (self.knot_t[k + 1] - self.knot_t[k])

@@ -26,6 +26,7 @@ from __future__ import annotations
 
 import json
 import logging
+import os
 import re
 import socket
 import struct
@@ -285,7 +286,11 @@ class SimServer:
         self.input_owner: dict[str, Connection] = {}
         self.freeze_until = 0.0
         self.refuse_until = 0.0
-        self.stop_event = threading.Event()
+        # Set by the signal handler of `mocks.ur_sim.main`: a plain attribute store is all a
+        # handler may do (an Event.set() there deadlocks when a second signal interrupts the first
+        # handler inside the Event's lock, e.g. one SIGTERM per exiting thread of a dying parent).
+        self.stopping = False
+        self.parent_pid: int | None = None
 
     # ---------------------------------------------------------- connections
     def open_listeners(self) -> None:
@@ -484,7 +489,9 @@ class SimServer:
 
     # ---------------------------------------------------------- control loop
     def run(self) -> None:
-        """Tick until `stop_event` is set (SIGINT/SIGTERM in `mocks.ur_sim.main`).
+        """Tick until `stopping` is set (SIGINT/SIGTERM in `mocks.ur_sim.main`) or, when
+        ``parent_pid`` is set, until that process is no longer our parent (it died: we were
+        re-parented), so that no simulator outlives the test run or app that started it.
 
         Controller time stays locked to the wall clock: when the process was
         starved, the missed ticks are simulated at once and only the newest
@@ -492,13 +499,19 @@ class SimServer:
         """
         ctl = self.controller
         t0 = time.perf_counter() - ctl.ticks * ctl.dt
-        while not self.stop_event.is_set():
+        next_parent_check = 0.0
+        while not self.stopping:
             due = int((time.perf_counter() - t0) / ctl.dt) - ctl.ticks
             for _ in range(min(max(due, 1), 50)):
                 ctl.tick()
             if due > 50:  # hopelessly behind (suspended process): drop the backlog
                 t0 = time.perf_counter() - ctl.ticks * ctl.dt
             now_m = time.monotonic()
+            if self.parent_pid is not None and now_m >= next_parent_check:
+                next_parent_check = now_m + 0.1
+                if os.getppid() != self.parent_pid:
+                    log.warning("parent process %d is gone; stopping", self.parent_pid)
+                    break
             if not self.listeners and now_m >= self.refuse_until:
                 try:
                     self.open_listeners()

@@ -4,7 +4,8 @@ import io
 
 import pytest
 
-from app.cli import confirm_motion, main
+from app.cli import main
+from app.commands.common import confirm_motion
 from calib.errors import HandeyeError
 
 

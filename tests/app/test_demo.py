@@ -5,7 +5,8 @@ import pytest
 
 from app import devices
 from app.config import Config, load_config
-from app.runner import calibrate, demo
+from app.commands.calibrate import calibrate
+from app.commands.demo import demo
 from app.session import read_session
 from calib import transforms as tf
 from app.errors import ConfigError

@@ -11,7 +11,7 @@ from pathlib import Path
 import pytest
 
 from app.cli import main
-from app.runner import calibrate
+from app.commands.calibrate import calibrate
 from app.session import read_session
 
 pytestmark = pytest.mark.slow

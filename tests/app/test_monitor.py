@@ -7,9 +7,8 @@ import numpy as np
 import pytest
 
 from app import devices
-from app.calibrate import random_pose
-from app.monitor import run_monitor
-from app.runner import make_solve, make_viz
+from app.commands.calibrate import random_pose
+from app.commands.monitor import run_monitor
 from app.session import SessionWriter, read_session
 from calib import transforms as tf
 from drivers.errors import DeviceError
@@ -55,10 +54,10 @@ def test_monitor_flags_camera_bump(sim_config, tmp_path, loopback):
         mover.start()
         try:
             writer = SessionWriter.create(cfg.session.root, cfg.setup, truth=devices.truth(camera))
-            with writer, make_viz(cfg, writer.path) as viz:
+            with writer, devices.make_viz(cfg, writer.path) as viz:
                 report = run_monitor(robot, camera, devices.make_measure(cfg), devices.make_online(cfg),
-                                     make_solve(cfg.calibrate, cfg.setup, rng), writer, cfg.monitor, cfg.setup,
-                                     viz, on_sample=on_sample)
+                                     devices.make_solve(cfg.calibrate, cfg.setup, rng), writer, cfg.monitor, viz,
+                                     on_sample=on_sample)
         finally:
             stop.set()
             mover.join()

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from app.errors import ConfigError
-from app.monitor import Alarm, MonitorReport
+from app.commands.monitor import Alarm, MonitorReport
 from app.mqtt import PASSWORD_ENV, USERNAME_ENV, MqttConfig, MqttPublisher
 from calib import transforms as tf
 from calib.observation import Observation
@@ -27,7 +27,7 @@ def _feed(pub, tmp_path, alarm: bool):
     """One sample through the publisher as run_monitor's on_update would hand it."""
     T = tf.from_rotvec_translation([0.1, -0.2, 0.3], [0.7, -0.6, 0.85])
     report = MonitorReport(tmp_path, n_samples=7, n_skipped=0, estimate=T, estimate_cov=np.diag([1e-6] * 3 + [4e-6] * 3),
-                           drift=(1.5, 0.1), samples_until_armed=0)
+                           estimate_sigma=(1e-3, 2e-3), drift=(1.5, 0.1), samples_until_armed=0)
     if alarm:
         report.alarms.append(Alarm(1.0, 7, {"statistic": 123.4}))
     obs = Observation(7, 1.0, np.eye(4), np.zeros(3))

@@ -5,12 +5,12 @@ import dataclasses
 import numpy as np
 import pytest
 
-from app.calibrate import random_pose
+from app.commands.calibrate import random_pose
 from app.config import CalibrateConfig, Config, config_from_dict
-from app.monitor import is_diverse
-from app.pipeline import predicted_pixel, predicted_point, sigma
+from app.commands.monitor import is_diverse
 from calib import transforms as tf
 from app.errors import ConfigError
+from calib.predict import predicted_pixel, predicted_point
 from calib.result import CalibrationResult, Residuals
 from calib.simulate import realistic_cell
 from drivers.camera.base import CameraIntrinsics
@@ -48,21 +48,23 @@ def test_predicted_point_matches_truth(setup):
                        pose_noise=(0.0, 0.0))
     res = CalibrationResult("YKronT'", setup, d.X, d.Y, 5, Residuals(np.zeros(5)))
     for A, B in zip(d.A_true, d.B_true):
-        np.testing.assert_allclose(predicted_point(setup, res, A), B[:3, 3], atol=1e-9)
+        np.testing.assert_allclose(predicted_point(res, A), B[:3, 3], atol=1e-9)
     K = CameraIntrinsics(640, 480, 525.0, 525.0, 320.0, 240.0)
-    px = predicted_pixel(setup, res, d.A_true[0], K)
+    px = predicted_pixel(res, d.A_true[0], K)
     p = d.B_true[0][:3, 3]
     assert px == pytest.approx((525 * p[0] / p[2] + 320, 525 * p[1] / p[2] + 240))
     # far off to the side: the marker leaves the image
     away = d.A_true[0].copy()
     away[:3, 3] += 5.0 * (d.Y[:3, 0] if setup == "eye_to_hand" else -away[:3, 0])
-    assert predicted_pixel(setup, res, away, K) is None
+    assert predicted_pixel(res, away, K) is None
 
 
 def test_sigma_worst_axis():
     cov = np.diag([np.deg2rad(0.1) ** 2, 0, 0, 1e-6, 4e-6, 0])
-    s_deg, s_mm = sigma(cov)
-    assert s_deg == pytest.approx(0.1) and s_mm == pytest.approx(2.0)
+    res = CalibrationResult("YKronT'", "eye_to_hand", np.eye(4), np.eye(4), 3, Residuals(np.zeros(3)), cov=cov)
+    s_rot, s_t = res.sigma
+    assert np.rad2deg(s_rot) == pytest.approx(0.1) and s_t == pytest.approx(2e-3)
+    assert dataclasses.replace(res, cov=None).sigma is None
 
 
 @pytest.mark.parametrize("data, match", [
@@ -92,7 +94,7 @@ def test_config_sections_roundtrip():
 
 
 def test_stop_on_predicted_uncertainty():
-    from app.calibrate import _precise_enough
+    from app.commands.calibrate import _precise_enough
 
     cov = np.diag([np.deg2rad(0.03) ** 2] * 3 + [(0.4e-3) ** 2] * 3)
     res = CalibrationResult("YKronT'", "eye_to_hand", np.eye(4), np.eye(4), 10, Residuals(np.zeros(10)), cov=cov)

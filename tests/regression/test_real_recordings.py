@@ -13,8 +13,8 @@ import numpy as np
 import pytest
 
 from app.formats import load
-from app.pipeline import solve_observations
-from app.replay import format_table, replay
+from calib.api import solve_observations
+from app.commands.replay import format_table, replay
 from calib import transforms as tf
 
 DATA = Path(__file__).parents[1] / "data"

@@ -78,14 +78,38 @@ def test_dropped_connection_raises_connection_lost_then_reconnects(robot, sim):
     assert robot.read().t_controller > t0
 
 
-def test_frozen_stream_raises_connection_lost_then_reconnects(robot, sim):
-    robot.read()
-    sim.freeze(0.6)
-    time.sleep(0.4)  # > frozen_timeout (0.25 s), < ur_rtde's own 2.5 s read deadline
+def test_short_freeze_during_a_move_is_detected_within_a_second(robot, sim):
+    target = _moved(robot, 0.3)
+    started = []
+    timer = threading.Timer(0.3, lambda: (started.append(time.monotonic()), sim.freeze(2.0)))
+    timer.start()
     with pytest.raises(ConnectionLostError, match="frozen"):
+        robot.move_to(target)
+    detected = time.monotonic() - started[0]
+    timer.join()
+    assert robot.config.frozen_timeout <= detected < 1.0
+    with pytest.raises(ConnectionLostError):  # stays failed until reconnect()
         robot.read()
-    time.sleep(0.3)
+    time.sleep(max(0.0, 2.0 - (time.monotonic() - started[0])))
     robot.reconnect()
+    st = robot.move_to(_moved(robot, 0.02))
+    assert st.is_still
+
+
+def test_long_freeze_is_detected_and_disconnect_does_not_wait_for_ur_rtde(robot, sim):
+    robot.read()
+    sim.freeze(60.0)
+    try:
+        time.sleep(0.7)  # > frozen_timeout (0.5 s), < ur_rtde's own 2.5 s read deadline
+        with pytest.raises(ConnectionLostError, match="frozen"):
+            robot.read()
+        t0 = time.monotonic()
+        robot.disconnect()  # the stale client is killed, not torn down through ur_rtde
+        assert time.monotonic() - t0 < 1.0
+        time.sleep(3.0)  # past ur_rtde's deadline: its self-reconnect would run now, in no process of ours
+    finally:
+        sim.freeze(0.0)
+    robot.connect()
     st = robot.move_to(_moved(robot))
     assert st.is_still
     np.testing.assert_allclose(robot.read().q[3:], START_Q[3:], atol=0.5)

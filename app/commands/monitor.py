@@ -1,4 +1,4 @@
-"""Passive monitoring: sample while something else moves the robot, watch for a moved camera.
+"""``handeye monitor``: sample while something else moves the robot, watch for a moved camera.
 
 Read-only: this module never commands a motion. Eye-to-hand (static camera,
 ``Y = T_base_cam``) it detects a bumped camera; eye-in-hand (``X =
@@ -11,6 +11,9 @@ the move once there are enough.
 
 from __future__ import annotations
 
+import argparse
+import contextlib
+import dataclasses
 import logging
 import os
 import shlex
@@ -24,20 +27,44 @@ from typing import Callable
 
 import numpy as np
 
-from app.calibrate import take_sample
-from app.config import MonitorConfig
-from app.pipeline import Measurement
-from app.session import SessionWriter
+from app import devices
+from app.acquire import take_sample
+from app.commands.common import add_run_options, load_config_args, pose_line
+from app.config import Config, MonitorConfig
+from app.errors import SessionError
+from app.production import Bump, start_production
+from app.progress import progress_bar, say, show_monitor
+from app.session import SessionWriter, read_session
 from app.viz import Viz
 from calib import transforms as tf
 from calib.errors import CalibrationError
 from calib.observation import Observation
 from calib.result import CalibrationResult
 from calib.setup import Setup
+from calib.vision.extract import MarkerMeasurement
 from drivers.camera.base import Camera, RGBDFrame
 from drivers.robot.base import Robot
 
 log = logging.getLogger(__name__)
+
+NAME = "monitor"
+HELP = "passive: sample while the robot works, alarm when the camera moved"
+EXIT_ALARM = 3
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    add_run_options(p)
+    p.add_argument("--reference", type=Path, help="session whose samples give the reference calibration")
+    p.add_argument("--duration", type=float, help="seconds to run (overrides monitor.duration_s)")
+    p.add_argument("--max-samples", type=int, help="stop after this many samples")
+    p.add_argument("--hook", help="command to run on an alarm (overrides monitor.alarm_hook)")
+
+
+def run(args) -> int:
+    cfg = load_config_args(args)
+    report = monitor(cfg, reference=args.reference)
+    print_monitor_summary(report, cfg.setup)
+    return EXIT_ALARM if report.alarms else 0
 
 
 @dataclass
@@ -66,6 +93,8 @@ class MonitorReport:
         eye-to-hand, ``T_flange_cam`` eye-in-hand).
     estimate_cov : ndarray (6, 6) or None
         Its covariance (`calib.result` convention).
+    estimate_sigma : (float, float) or None
+        Its worst-axis 1-sigma ``(rad, m)`` (`CalibrationResult.sigma`).
     drift : (float, float) or None
         ``(mm, deg)`` of the latest estimate against the reference (the
         reference session's estimate, else the first online estimate since
@@ -82,6 +111,7 @@ class MonitorReport:
     elapsed_s: float = 0.0
     estimate: np.ndarray | None = None
     estimate_cov: np.ndarray | None = None
+    estimate_sigma: tuple[float, float] | None = None
     drift: tuple[float, float] | None = None
     samples_until_armed: int = 0
 
@@ -93,6 +123,75 @@ class MonitorReport:
 def detector_state(n: int) -> str:
     """``"armed"`` or ``"armed after N more samples"`` (from `OnlineCalibrator.samples_until_armed`)."""
     return "armed" if n == 0 else f"armed after {n} more sample{'s' if n != 1 else ''}"
+
+
+def monitor(cfg: Config, *, reference: Path | None = None, stop=None, progress: bool = True,
+            bump: Bump | None = None, production: bool = True, publish=None) -> MonitorReport:
+    """Passive monitoring with a read-only robot connection (never moves the robot).
+
+    ``reference``: a previous session (same setup) whose samples are solved
+    in one batch to arm the change detector at once (estimate and
+    covariance, `calib.online.OnlineCalibrator.arm`), so detection starts with
+    the first new sample and the drift is measured against it.
+
+    On the simulated cell (``robot.type = "ur_sim"``) the simulated controller
+    runs a looping production program (``production``, `app.production`) so
+    that the robot moves, and ``bump`` knocks the rendered camera partway.
+    ``publish``: optional ``(obs, update, report)`` callback; by default the
+    ``[mqtt]`` publisher when enabled (`app.mqtt`).
+    """
+    from app.formats.export import check_frames
+    from app.mqtt import make_publisher
+
+    rng = np.random.default_rng(cfg.calibrate.seed)
+    online = devices.make_online(cfg)
+    T_reference = None
+    if reference is not None:
+        ref = read_session(reference)
+        if ref.setup != cfg.setup:
+            raise SessionError(f"reference session {reference} is {ref.setup}, the config is {cfg.setup}")
+        usable = [o for o in ref.observations if o.point_cam is not None]
+        covs = None if any(o.point_cov is None for o in usable) else np.array([o.point_cov for o in usable])
+        try:
+            online.arm(np.array([o.T_base_flange for o in usable]).reshape(-1, 4, 4),
+                       np.array([o.point_cam for o in usable]).reshape(-1, 3), covs)
+        except CalibrationError as e:
+            raise SessionError(f"reference session {reference}: cannot arm the change detector: {e}") from None
+        T_reference = online.camera_transform
+        say(f"reference {reference}: {len(usable)} samples, change detector armed from its estimate and covariance")
+    publisher = make_publisher(cfg.mqtt, cfg.setup, check_frames(cfg.frames)) if publish is None else None
+    with devices.open_robot(cfg, read_only=True) as robot, devices.open_camera(cfg, robot) as camera, \
+            (publisher or contextlib.nullcontext()):
+        publish = publish or publisher
+        if production:
+            start_production(robot, cfg, rng, say=say)
+        writer = SessionWriter.create(cfg.session.root, cfg.setup, config=cfg.to_dict(),
+                                      intrinsics=dataclasses.asdict(camera.intrinsics), truth=devices.truth(camera),
+                                      source="handeye monitor")
+        solve = devices.make_solve(dataclasses.replace(cfg.calibrate, method=cfg.monitor.method), cfg.setup, rng)
+        with writer, devices.make_viz(cfg, writer.path) as viz, progress_bar(enabled=progress) as bar:
+            seen = []
+
+            def on_sample(obs):
+                bar.update(1)
+                seen.append(obs.index)
+                if bump is not None and len(seen) == bump.after:
+                    bump.apply(camera, cfg.setup)
+                    text = (f"simulated camera bumped by {bump.translation_mm:g} mm and {bump.rotation_deg:g} deg "
+                            f"after sample {obs.index}")
+                    say(text)
+                    writer.add_event(obs.t, "simulated_bump", sample_index=obs.index,
+                                     translation_mm=bump.translation_mm, rotation_deg=bump.rotation_deg)
+                    viz.event(obs.t, text, "WARN")
+
+            def on_update(obs, update, report):
+                show_monitor(bar, report)
+                if publish is not None:
+                    publish(obs, update, report)
+
+            return run_monitor(robot, camera, devices.make_measure(cfg), online, solve, writer, cfg.monitor,
+                               viz, stop=stop, save_frames=cfg.session.save_frames,
+                               on_sample=on_sample, on_update=on_update, reference=T_reference, say=say)
 
 
 def is_diverse(T: np.ndarray, recent, min_translation_m: float, min_rotation_deg: float) -> bool:
@@ -126,12 +225,11 @@ def run_hook(command: str, env: dict) -> None:
 def run_monitor(
     robot: Robot,
     camera: Camera,
-    measure: Callable[[RGBDFrame], Measurement],
+    measure: Callable[[RGBDFrame], MarkerMeasurement],
     online,
     solve: Callable[..., CalibrationResult],
     writer: SessionWriter,
     cfg: MonitorConfig,
-    setup: Setup,
     viz: Viz,
     *,
     stop: threading.Event | None = None,
@@ -147,13 +245,12 @@ def run_monitor(
     ----------
     robot : Robot connected read-only (this function only reads it).
     camera : Camera
-    measure : callable(RGBDFrame) -> Measurement (raises ExtractionError to skip).
+    measure : callable(RGBDFrame) -> MarkerMeasurement (raises ExtractionError to skip).
     online : calib.online.OnlineCalibrator
         ``update(T_base_flange, point_cam, point_cov) -> OnlineUpdate`` (estimate, cov, alarm).
     solve : callable(observations, *, final) -> CalibrationResult, for the re-estimate.
     writer : SessionWriter
     cfg : MonitorConfig
-    setup : {"eye_to_hand", "eye_in_hand"}
     stop : threading.Event, optional
         Set from another thread to end the run.
     on_sample : callable, optional
@@ -220,6 +317,9 @@ def run_monitor(
                     reference = update.camera_transform
                 rot, trans = tf.pose_error(update.camera_transform, reference)
                 report.estimate, report.estimate_cov = update.camera_transform, update.cov
+                current = online.result()  # None right after an alarm reset the estimator
+                if current is not None:
+                    report.estimate_sigma = current.sigma
                 report.drift = (float(trans) * 1e3, float(np.rad2deg(rot)))
                 viz.drift(obs.t, *report.drift)
             armed_before, report.samples_until_armed = report.samples_until_armed, online.samples_until_armed
@@ -271,3 +371,32 @@ def _reestimate(samples: list[Observation], solve, writer: SessionWriter, viz: V
     viz.estimate(samples[-1].t, res, samples)
     log.info("re-estimated the camera from %d samples after the move", len(samples))
     return res
+
+
+def print_monitor_summary(report: MonitorReport, setup: Setup = Setup.EYE_TO_HAND) -> None:
+    """Counts, detector state, latest estimate with 1-sigma, drift, every alarm, the re-estimate."""
+    cam = Setup(setup).camera_name
+    print(f"\nsession: {report.session}")
+    print(f"samples: {report.n_samples}   skipped: {report.n_skipped}   alarms: {len(report.alarms)}   "
+          f"time: {report.elapsed_s:.1f} s   change detector: {detector_state(report.samples_until_armed)}")
+    if report.estimate is None:
+        print("  estimate: none yet (the online estimator is still collecting its first samples)")
+    else:
+        line = f"  estimate {cam}: {pose_line(report.estimate)}"
+        if report.estimate_sigma is not None:
+            line += f"  1-sigma {report.estimate_sigma[1] * 1e3:.2f} mm {np.rad2deg(report.estimate_sigma[0]):.3f} deg"
+        print(line)
+    if report.drift is not None:
+        print(f"  drift vs. reference: {report.drift[0]:.2f} mm  {report.drift[1]:.3f} deg")
+    for a in report.alarms:
+        print(f"  ALARM camera moved at sample {a.sample_index} ({time.strftime('%H:%M:%S', time.localtime(a.t))}, "
+              f"GLR statistic {a.info.get('statistic', float('nan')):.1f})")
+    if report.last_alarm is None:
+        print("  last alarm: none")
+    if report.reestimate is not None:
+        print(f"  re-estimate after the move ({report.reestimate.n_samples} samples): "
+              f"{pose_line(report.reestimate.camera_transform)}")
+    if report.session is not None and (report.session / "recording.rrd").exists():
+        from app.viz import open_command
+
+        print(f"\nopen the recording:  {open_command(report.session / 'recording.rrd')}")

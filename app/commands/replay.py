@@ -1,32 +1,112 @@
-"""Replay: re-solve a recorded session (or an imported file) with one, several or all solvers, and advise.
+"""``handeye replay``: re-solve a recorded session (or an imported file) with one, several or all solvers, and advise.
 
 Works for both setups; the session header says which (eye-to-hand:
 ``X = T_flange_marker``, ``Y = T_base_cam``; eye-in-hand: ``X = T_flange_cam``,
 ``Y = T_base_marker``).
 
-The report (`format_report`) groups the solvers by what they use (marker
-points or marker poses), sorts each group by the held-out prediction error
-of the marker point (`calib.crossval.cross_validate`: each fold solved
-without its samples, their points predicted from the robot poses), marks the
-recommended result (the lowest held-out error), explains refined rows that
-agree (refinement takes every start to the same maximum-likelihood optimum),
-and warns about a 1-sigma above the target and about residuals the
-measurement noise does not explain.
+The report groups the solvers by what they use (marker points or marker
+poses), sorts each group by the held-out prediction error of the marker
+point (`calib.crossval.cross_validate`: each fold solved without its
+samples, their points predicted from the robot poses), marks the recommended
+result (the lowest held-out error), explains refined rows that agree
+(refinement takes every start to the same maximum-likelihood optimum), and
+warns about a 1-sigma above the target and about residuals the measurement
+noise does not explain (`advice`).
 """
 
 from __future__ import annotations
 
+import argparse
 import time
 from dataclasses import dataclass
+from pathlib import Path
 
 import numpy as np
 
-from app.pipeline import sigma, solve_observations
+from app import devices
+from app.errors import SessionError
+from app.session import read_session
 from calib import transforms as tf
-from calib.errors import HandeyeError
+from calib.api import METHODS, solve_observations
+from calib.errors import HandeyeError, InsufficientDataError
 from calib.observation import Observation
 from calib.result import CalibrationResult
 from calib.setup import Setup
+
+
+NAME = "replay"
+HELP = "re-solve a recorded session or an imported file, compare solvers"
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("source", type=Path, help="session directory, or a file/dir to import (easy_handeye, "
+                   "industrial_calibration, pose-stream CSV, ViSP, image folder, OpenCV FileStorage YAML, "
+                   "MoveIt Calibration samples)")
+    p.add_argument("-m", "--method", action="append", dest="methods",
+                   help="solver (repeatable); default YKronT' and YQuatT'; 'all' for every solver")
+    p.add_argument("--refine", action="store_true", help="refine each solution (nonlinear least squares)")
+    p.add_argument("--robust", action="store_true", help="reject outliers")
+    p.add_argument("--setup", choices=[s.value for s in Setup], help="setup of an imported file")
+    p.add_argument("--seed", type=int, default=0, help="seed for randomised (robust) solvers and the folds")
+    p.add_argument("-c", "--config", type=Path, help="config whose calibrate.target_sigma_mm/_deg the 1-sigma "
+                   "warnings use (default targets: 3 mm, 0.2 deg)")
+
+
+def run(args) -> int:
+    methods = args.methods or ["YKronT'", "YQuatT'"]
+    target = (0.0, 0.0)
+    if args.config is not None:
+        from app.config import load_config
+
+        cal = load_config(args.config).calibrate
+        target = (cal.target_sigma_mm, cal.target_sigma_deg)
+    print(replay_source(args.source, methods, refine=args.refine, robust=args.robust, setup=args.setup,
+                        rng=np.random.default_rng(args.seed), target_mm=target[0], target_deg=target[1]))
+    return 0
+
+
+def replay_source(source: Path, methods: list[str], *, refine: bool = False, robust: bool = False,
+                  setup: Setup | None = None, rng: np.random.Generator | None = None,
+                  target_mm: float = 0.0, target_deg: float = 0.0) -> str:
+    """Re-solve a session directory or an imported file with each method; returns the report: the
+    tables grouped by what the solvers use and sorted by held-out error, then the advice
+    (`advice`; ``target_mm``/``target_deg`` are the config's 1-sigma targets)."""
+    if not Path(source).exists():
+        raise SessionError(f"{source}: no such file or directory")
+    if (Path(source) / "session.json").exists():
+        session = read_session(source)
+        if setup is not None and setup != session.setup:
+            raise SessionError(f"{source} is an {session.setup} session; --setup {setup} contradicts it")
+        observations, file_setup, truth = session.observations, session.setup, session.truth
+        header = ""
+    else:
+        observations, file_setup, meta = devices.import_observations(Path(source), setup)
+        truth, header = {}, _import_summary(meta)
+    setup = setup or file_setup
+    if not observations:
+        raise InsufficientDataError(f"{source}: no samples to replay")
+    if methods == ["all"]:
+        methods = list(METHODS)
+    rows = replay(observations, setup, methods, refine=refine, robust=robust,
+                  truth=devices.camera_truth(setup, truth), rng=rng)
+    if all(r.result is None for r in rows):
+        raise HandeyeError(f"no solver succeeded on {source}: " + "; ".join(f"{r.method}: {r.error}" for r in rows))
+    lines = advice(rows, observations, refine=refine, target_mm=target_mm, target_deg=target_deg)
+    return (f"{source} ({setup}, {len(observations)} samples)\n{header}\n" + format_table(rows, setup)
+            + ("\n\n" + "\n".join(lines) if lines else ""))
+
+
+def _import_summary(meta: dict) -> str:
+    """What an importer measured that the table does not show (the streams' clock offset)."""
+    if "clock_offset_s" not in meta:
+        return ""
+    line = f"clock offset (t_robot = t_camera + offset): {meta['clock_offset_s'] * 1e3:+.1f} ms"
+    if "xcorr_score" in meta:
+        line += f" (angular-speed correlation {meta['xcorr_score']:.2f}"
+        if "refine_rms_mm" in meta:
+            line += f", refined on the residual: RMS {meta['refine_rms_mm']:.2f} mm"
+        line += ")"
+    return line + "\n"
 
 
 #: 1-sigma targets when the config sets none (calibrate.target_sigma_mm/_deg = 0): the project's accuracy target.
@@ -74,11 +154,7 @@ def heldout_error(method: str, observations, setup: Setup, *, refine: bool, robu
     """`calib.crossval.cross_validate` of ``method`` on the samples it uses (leave-one-out up to 30
     samples, else 10 folds); returns ``(CrossValidation or None, reason or None)``."""
     from calib.api import observations_to_arrays, resolve_method
-
-    try:
-        from calib.crossval import cross_validate
-    except ImportError:  # lands with issue 10 (calib.model / calib.crossval)
-        return None, "calib.crossval is not available in this build"
+    from calib.crossval import cross_validate
 
     info = resolve_method(method)
     A, B, point_cov, _ = observations_to_arrays(observations, info.needs)
@@ -185,7 +261,7 @@ def format_table(rows: list[ReplayRow], setup: Setup) -> str:
             else:
                 res = r.result
                 xyz = " ".join(f"{v:.1f}" for v in res.camera_transform[:3, 3] * 1e3)
-                s_deg, s_mm = sigma(res.cov) if res.cov is not None else (float("nan"), float("nan"))
+                s_deg, s_mm = _sigma_deg_mm(res)
                 n_in = res.n_samples if res.inliers is None else int(np.count_nonzero(res.inliers))
                 ho = ("-", "-") if r.heldout is None else (f"{r.heldout.observed_rms * 1e3:.2f}",
                                                             f"{r.heldout.predicted_rms * 1e3:.2f}")
@@ -235,8 +311,8 @@ def advice(rows: list[ReplayRow], observations, *, refine: bool, target_mm: floa
     where = "the config's calibrate.target_sigma" if (target_mm or target_deg) else "the default target"
     above, inconsistent = [], []
     for r in ok:
-        if r.result.cov is not None:
-            s_deg, s_mm = sigma(r.result.cov)
+        if r.result.sigma is not None:
+            s_deg, s_mm = _sigma_deg_mm(r.result)
             if s_mm > t_mm or s_deg > t_deg:
                 above.append((s_mm, s_deg, r.method))
         ratio, basis = _consistency(r, observations)
@@ -269,3 +345,11 @@ def _consistency(r: ReplayRow, observations) -> tuple[float | None, str]:
         return None, ""
     expected = float(np.sqrt(np.mean([np.trace(c) for c in covs])))
     return (r.result.residuals.rms_translation / expected if expected > 0 else None), "residuals are"
+
+
+def _sigma_deg_mm(res: CalibrationResult) -> tuple[float, float]:
+    """`CalibrationResult.sigma` in deg and mm (NaN without a covariance)."""
+    if res.sigma is None:
+        return float("nan"), float("nan")
+    s_rot, s_t = res.sigma
+    return float(np.rad2deg(s_rot)), s_t * 1e3

@@ -1,0 +1,102 @@
+"""Taking one sample: a fresh frame, the robot pose at its exposure time, the marker measurement.
+
+Shared by the active run (`app.commands.calibrate`) and passive monitoring
+(`app.commands.monitor`). The measurement is the same in both setups: the
+marker seen from the camera, ``B_i = T_cam_marker`` (or its center) in the
+paper's ``A_i X = Y B_i`` with ``A_i = T_base_flange``.
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+from typing import Callable
+
+import numpy as np
+
+from app.session import SessionWriter
+from app.viz import Viz
+from calib.errors import ExtractionError
+from calib.observation import Observation
+from calib.vision.extract import MarkerMeasurement
+from drivers.camera.base import Camera, RGBDFrame
+from drivers.errors import ConnectionLostError, DeviceError, RobotStoppedError
+from drivers.robot.base import Robot
+
+log = logging.getLogger(__name__)
+
+
+def capture_after(camera: Camera, not_before: float, tries: int = 10) -> RGBDFrame:
+    """First frame exposed after ``not_before`` (drops frames buffered during the motion)."""
+    for _ in range(tries):
+        frame = camera.read()
+        if frame.t >= not_before:
+            return frame
+    log.warning("no frame newer than %.3f s in %d reads (camera clock behind the robot's?); using frame %d at %.3f s",
+                not_before, tries, frame.index, frame.t)
+    return frame
+
+
+def pose_at_frame(robot: Robot, t: float, timeout: float = 1.0) -> np.ndarray:
+    """``robot.pose_at(t)``, waiting up to ``timeout`` s for the robot states around ``t`` to arrive.
+
+    A frame stamped at ``t`` often reaches us before the robot state that
+    follows it (a controller tick is 2-8 ms); interpolation needs both sides.
+    """
+    deadline = time.monotonic() + timeout
+    while True:
+        try:
+            return robot.pose_at(t)
+        except (ConnectionLostError, RobotStoppedError):
+            raise
+        except DeviceError:
+            if time.monotonic() > deadline:
+                raise
+            time.sleep(0.005)
+
+
+def take_sample(
+    robot: Robot,
+    camera: Camera,
+    measure: Callable[[RGBDFrame], MarkerMeasurement],
+    writer: SessionWriter,
+    viz: Viz,
+    *,
+    not_before: float,
+    save_frames: bool = True,
+    check: Callable[[], str | None] | None = None,
+) -> Observation | None:
+    """Capture one time-synchronised sample and record it (or its skip reason).
+
+    The robot pose is interpolated at the frame's exposure time
+    (``robot.pose_at(frame.t)``), not read after the fact.
+
+    ``check``, if given, is called after the measurement; a returned string is
+    a reason to skip the sample (e.g. the robot moved during the exposure).
+
+    Returns
+    -------
+    Observation or None
+        None when the frame gave no measurement (recorded as a skip).
+    """
+    frame = capture_after(camera, not_before)
+    T_base_flange = pose_at_frame(robot, frame.t)
+    viz.robot(frame.t, T_base_flange)
+    color, depth = (frame.color, frame.depth) if save_frames else (None, None)
+    try:
+        m = measure(frame)
+        reason = check() if check is not None else None
+    except ExtractionError as e:
+        reason = str(e)
+    if reason is not None:
+        log.info("frame %d skipped: %s", frame.index, reason)
+        viz.frame(frame.t, frame.color, frame.depth, frame.intrinsics)
+        viz.event(frame.t, f"skip: {reason}", "WARN")
+        writer.add_skip(frame.t, reason, T_base_flange=T_base_flange, color=color, depth=depth)
+        return None
+    viz.frame(frame.t, frame.color, frame.depth, frame.intrinsics,
+              marker_px=(float(m.center_px[0]), float(m.center_px[1])))
+    obs = Observation.from_measurement(writer.next_index, frame.t, T_base_flange, m, {"frame_index": frame.index})
+    if frame.truth:
+        obs.meta["truth"] = {k: np.asarray(v).tolist() for k, v in frame.truth.items()}
+    return writer.add_sample(obs, color=color, depth=depth)

@@ -1,0 +1,31 @@
+"""``handeye bench``: the benchmarks (markdown tables on stdout, PNGs in out/bench/)."""
+
+from __future__ import annotations
+
+import argparse
+
+NAME = "bench"
+HELP = "run the benchmarks (markdown tables, PNGs in out/bench/); other arguments go to bench.solvers"
+PASSTHROUGH = True
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--vision", action="store_true", help="also run the vision benchmark")
+    p.add_argument("--robot", action="store_true", help="also run the robot benchmark")
+
+
+def run(args) -> int:
+    from bench import solvers
+
+    rc = int(solvers.main(args.extra) or 0)
+    if rc == 130:  # Ctrl-C: the finished sections are printed and saved; skip the other benchmarks
+        return rc
+    if args.vision:
+        from bench import vision
+
+        rc = rc or int(vision.main([]) or 0)
+    if args.robot:
+        from bench import robot
+
+        rc = rc or int(robot.main([]) or 0)
+    return rc

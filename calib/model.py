@@ -1,0 +1,556 @@
+"""The measurement model of a hand-eye sample: residual, Jacobian, whitening, information.
+
+One model shared by `calib.refine` (ML refinement), `calib.robust` (inlier
+test), `calib.online` (recursive filter), `calib.auto` (``solve("auto")``)
+and the pose planner (information matrix).
+
+Unknowns
+--------
+Both setups are one model. The camera measures the marker ``B_i = C^-1 M_i K``
+(paper eq. 1 ``A_i X = Y B_i`` rearranged), with
+
+- eye-to-hand: ``C = Y = T_base_cam``, ``K = X = T_flange_marker``, ``M_i = A_i``;
+- eye-in-hand: ``C = X = T_flange_cam``, ``K = Y = T_base_marker``,
+  ``M_i = A_i^-1`` (from ``A_i X B_i = Y``).
+
+Parameter vector (left perturbations as in `calib.result`, ``R = Exp(d) R_est``,
+``t = t_est + dt``): ``[dC, tC, tK]`` for points, ``[dC, tC, dK, tK]`` for
+poses, followed by the free camera nuisance parameters (`CAMERA_PARAMS`).
+
+Measurements
+------------
+- Marker point (always): ``r_i = p_i - h(R_C^T (R_Mi t_K + t_Mi - t_C); theta)``,
+  the equation of translation (paper eq. 5) in the camera frame. ``h`` is the
+  camera's systematic error (`CameraCorrection`): measured depth
+  ``z_m = (1 + s) z + d`` with the point moved along its pixel ray, and a
+  lateral scale ``1 + f`` from a focal length error::
+
+      h(p) = diag(1 + f, 1 + f, 1) p (1 + s + d / z)
+
+  With ``theta = 0``, ``h`` is the identity and the model is the paper's.
+- Marker orientation (pose data): ``e_i = Log(R_Bi^T R_C^T R_Mi R_K)`` (eq. 4,
+  marker frame), noise ``sigma_rot^2 I``.
+
+Noise (errors in variables)
+---------------------------
+The point residual's covariance is ``Sigma_i = s_p S_i + sigma_R^2 T_i``:
+
+- ``S_i`` the camera's point covariance shape (given ``point_cov``, else the
+  depth model of `calib.noise`), ``s_p`` its scale;
+- ``T_i`` the robot pose error propagated through the lever arm of the
+  marker (`robot_cofactor`): the flange pose is ``A_i Exp(xi)`` with
+  ``xi = [a, b]`` in the flange frame, ``b ~ N(0, sigma_R^2 I)`` (m),
+  ``a ~ N(0, (ROBOT_ROTATION_PER_M sigma_R)^2 I)`` (rad).
+
+`variance_components` estimates ``s_p``, ``sigma_R^2`` and ``sigma_rot^2``
+from the residuals (Förstner's iterated variance-component estimate, the
+Helmert/REML kind: each component's weighted residual square sum divided by
+its share of the redundancy).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from calib import transforms as tf
+from calib.errors import CalibrationError, DegenerateMotionError
+from calib.noise import default_point_cov
+from calib.setup import Setup
+
+#: Names of the camera nuisance parameters, in parameter-vector order.
+CAMERA_PARAMS = ("depth_scale", "depth_offset", "focal_scale")
+#: Flange rotation error per unit of flange translation error of the robot
+#: (rad per m). A UR10's joint zero offsets of 0.01-0.05 deg move the flange
+#: by ~0.2-1 mm at 1.2 m reach and turn it by the same order in mrad, so 1.
+ROBOT_ROTATION_PER_M = 1.0
+#: Smallest eigenvalue ratio of the information before the motions are called degenerate.
+MIN_INFORMATION_RATIO = 1e-14
+
+_I3 = np.eye(3)
+
+
+# --------------------------------------------------------------------------- frames
+
+
+def split(X, Y, A, setup: str):
+    """Camera transform ``C``, marker-side transform ``K`` and per-sample ``M_i`` (module docstring)."""
+    if setup == Setup.EYE_TO_HAND:
+        return Y, X, A
+    return X, Y, tf.invert(A)
+
+
+def join(C, K, setup: str):
+    """``(X, Y)`` from the camera transform ``C`` and the marker-side transform ``K``."""
+    return (K, C) if setup == Setup.EYE_TO_HAND else (C, K)
+
+
+# --------------------------------------------------------------------------- camera correction
+
+
+@dataclass(frozen=True)
+class CameraCorrection:
+    """Systematic error of the RGB-D camera: what it measures for a true point.
+
+    ``depth_scale`` s and ``depth_offset`` d (m): measured depth
+    ``(1 + s) z + d``, along the pixel ray; ``focal_scale`` f: lateral
+    coordinates scaled by ``1 + f`` (the focal length used to back-project is
+    ``1 / (1 + f)`` of the true one). All zero = a perfect camera.
+    """
+
+    depth_scale: float = 0.0
+    depth_offset: float = 0.0
+    focal_scale: float = 0.0
+
+    def as_array(self) -> np.ndarray:
+        return np.array([self.depth_scale, self.depth_offset, self.focal_scale])
+
+    @classmethod
+    def from_array(cls, theta) -> "CameraCorrection":
+        s, d, f = (float(v) for v in theta)
+        return cls(s, d, f)
+
+    def measure(self, points) -> np.ndarray:
+        """What the camera reports (N, 3) for true camera-frame points (N, 3), m."""
+        return measure(points, self.as_array())[0]
+
+    def correct(self, measured) -> np.ndarray:
+        """True camera-frame points (N, 3) from measured ones (N, 3): the inverse of `measure`."""
+        m = np.asarray(measured, dtype=float)
+        s, d, f = self.as_array()
+        z = (m[:, 2] - d) / (1.0 + s)
+        out = m * (z / m[:, 2])[:, None]
+        out[:, :2] /= 1.0 + f
+        return out
+
+
+def measure(p, theta):
+    """``h(p; theta)`` (N, 3) and its Jacobians w.r.t. ``p`` (N, 3, 3) and ``theta`` (N, 3, 3).
+
+    See the module docstring: ``h(p) = diag(1 + f, 1 + f, 1) p (1 + s + d / z)``.
+    """
+    s, d, f = theta
+    z = p[:, 2]
+    g = 1.0 + s + d / z
+    D = np.array([1.0 + f, 1.0 + f, 1.0])
+    h = p * g[:, None] * D
+    J_p = g[:, None, None] * np.diag(D)[None].repeat(len(p), axis=0)
+    J_p[:, :, 2] += -(D * p) * (d / z**2)[:, None]
+    J_theta = np.empty((len(p), 3, 3))
+    J_theta[:, :, 0] = D * p
+    J_theta[:, :, 1] = D * p / z[:, None]
+    J_theta[:, :, 2] = p * g[:, None] * np.array([1.0, 1.0, 0.0])
+    return h, J_p, J_theta
+
+
+# --------------------------------------------------------------------------- residuals
+
+
+def point_residuals(C, t_K, M, p):
+    """Translation residuals ``r`` (N, 3) = p - predicted (no camera error), and Jacobians (N, 3, 3) each.
+
+    Returns ``r, J_dC, J_tC, J_tK``: derivatives of ``r`` w.r.t. the left
+    rotation perturbation of C, the translation of C and the translation of K.
+    """
+    R_C, t_C = C[:3, :3], C[:3, 3]
+    w = M[:, :3, :3] @ t_K + M[:, :3, 3] - t_C          # marker center minus camera origin, C's parent frame
+    r = p - w @ R_C                                      # w @ R_C == (R_C^T w_i)_i
+    J_dC = -(R_C.T @ tf.skew(w))
+    J_tC = np.broadcast_to(R_C.T, J_dC.shape)
+    J_tK = -(R_C.T @ M[:, :3, :3])
+    return r, J_dC, J_tC, J_tK
+
+
+def predict_points(C, t_K, M, theta=None) -> np.ndarray:
+    """Predicted measured marker points (N, 3) in the camera frame, camera error ``theta`` applied."""
+    R_C, t_C = C[:3, :3], C[:3, 3]
+    p = (M[:, :3, :3] @ t_K + M[:, :3, 3] - t_C) @ R_C
+    if theta is None or not np.any(theta):
+        return p
+    return measure(p, np.asarray(theta, dtype=float))[0]
+
+
+def inv_right_jacobian(e):
+    """Inverse right Jacobian of SO(3), ``Log(Exp(e) Exp(d)) = e + Jr^-1(e) d + O(d^2)``; e (N, 3)."""
+    th = np.linalg.norm(e, axis=1)
+    S = tf.skew(e)
+    small = th < 1e-6
+    ths = np.where(small, 1.0, th)
+    c = np.where(small, 1.0 / 12.0, 1.0 / ths**2 - (1.0 + np.cos(ths)) / (2.0 * ths * np.sin(ths)))
+    return np.eye(3) + 0.5 * S + c[:, None, None] * (S @ S)
+
+
+def rotation_residuals(C, K, M, R_B):
+    """Rotation residuals ``e`` (N, 3) = Log(R_B^T R_C^T R_M R_K) and Jacobians w.r.t. dC, dK (N, 3, 3)."""
+    R_C, R_K, R_M = C[:3, :3], K[:3, :3], M[:, :3, :3]
+    E = np.swapaxes(R_B, 1, 2) @ R_C.T @ R_M @ R_K
+    e = tf.so3_log(E)
+    Jinv = inv_right_jacobian(e)
+    J_dK = Jinv @ R_K.T
+    J_dC = -(J_dK @ np.swapaxes(R_M, 1, 2))
+    return e, J_dC, J_dK
+
+
+def robot_cofactor(C, K, M, setup: str) -> np.ndarray:
+    """Camera-frame covariance (N, 3, 3) of the predicted marker point per unit robot variance ``sigma_R^2``.
+
+    The flange pose is ``A_i Exp([a, b])`` (flange frame), ``b ~ N(0, I)``,
+    ``a ~ N(0, ROBOT_ROTATION_PER_M^2 I)``. The marker point (eye-to-hand) or
+    the inverse flange motion seen from the flange-mounted camera
+    (eye-in-hand) moves by ``b + a x l`` (rotated into C's parent frame), with
+    ``l`` the lever arm from the flange to the marker, so the covariance is
+    ``R_C^T (I + rho^2 [l]x [l]x^T) R_C``.
+    """
+    R_C = C[:3, :3]
+    lever = M[:, :3, :3] @ K[:3, 3]
+    if setup != Setup.EYE_TO_HAND:
+        lever = lever + M[:, :3, 3]
+    # [l]x [l]x^T = |l|^2 I - l l^T
+    rho2 = ROBOT_ROTATION_PER_M**2
+    cov_parent = ((1.0 + rho2 * np.einsum("ni,ni->n", lever, lever))[:, None, None] * _I3
+                  - rho2 * lever[:, :, None] * lever[:, None, :])
+    return R_C.T @ cov_parent @ R_C
+
+
+# --------------------------------------------------------------------------- weights
+
+
+def check_point_cov(point_cov, n: int) -> np.ndarray | None:
+    """Validate a point covariance (3, 3) or (N, 3, 3) and broadcast it to (N, 3, 3); None passes."""
+    if point_cov is None:
+        return None
+    cov = np.asarray(point_cov, dtype=float)
+    if cov.shape == (3, 3):
+        cov = np.broadcast_to(cov, (n, 3, 3))
+    if cov.shape != (n, 3, 3):
+        raise CalibrationError(f"point_cov must have shape (3, 3) or ({n}, 3, 3), got {cov.shape}")
+    if not np.isfinite(cov).all():
+        raise CalibrationError("point_cov contains NaN or inf")
+    if np.abs(cov - np.swapaxes(cov, 1, 2)).max() > 1e-9 * max(np.abs(cov).max(), 1e-30):
+        raise CalibrationError("point_cov is not symmetric")
+    return cov
+
+
+def whitener(cov) -> np.ndarray:
+    """Inverse Cholesky factors (N, 3, 3) so that ``W r`` has unit covariance."""
+    try:
+        L = np.linalg.cholesky(cov)
+    except np.linalg.LinAlgError:
+        raise CalibrationError("point_cov is not positive definite") from None
+    return np.linalg.inv(L)
+
+
+def point_shape(B, point_cov) -> tuple[np.ndarray, bool]:
+    """Camera point covariance shape ``S_i`` (N, 3, 3) and whether ``point_cov`` was given."""
+    p = B if B.ndim == 2 else B[:, :3, 3]
+    cov = check_point_cov(point_cov, len(p))
+    if cov is None:
+        return default_point_cov(p), False
+    return np.array(cov), True
+
+
+def point_weights(B, point_cov) -> tuple[np.ndarray, bool]:
+    """Whitening matrices (N, 3, 3) of the point residual and whether ``point_cov`` was given."""
+    cov, given = point_shape(B, point_cov)
+    return whitener(cov), given
+
+
+# --------------------------------------------------------------------------- problem
+
+
+class Problem:
+    """Whitened residual vector and Jacobian of one data set (see the module docstring).
+
+    Parameters
+    ----------
+    M : ndarray, shape (N, 4, 4)
+        Per-sample robot transform of the model (`split`).
+    B : ndarray, shape (N, 3) or (N, 4, 4)
+        Measured marker points or poses (camera frame).
+    W_t : ndarray, shape (N, 3, 3)
+        Whitening matrices of the point residual (`whitener` of ``Sigma_i``).
+    sigma_rot : float, optional
+        Rotation noise (rad) of pose data.
+    free : sequence of bool, length 3
+        Which of `CAMERA_PARAMS` are estimated; the others stay at ``theta``.
+    use_rotation : bool
+        Whether pose data contribute their orientation residual (else only
+        the translation of ``B`` is used and ``K``'s rotation is not estimated).
+    """
+
+    def __init__(self, M, B, W_t, sigma_rot=None, free=(False, False, False), use_rotation=True):
+        self.M = M
+        self.rotations = B.ndim == 3 and use_rotation
+        self.p = B if B.ndim == 2 else B[:, :3, 3]
+        self.R_B = B[:, :3, :3] if self.rotations else None
+        self.W_t = W_t
+        self.sigma_rot = sigma_rot
+        self.free = np.asarray(free, dtype=bool)
+        self.n_pose = 12 if self.rotations else 9
+        self.n_params = self.n_pose + int(self.free.sum())
+
+    @property
+    def points(self) -> bool:
+        """True when only marker points are used (no orientation residual)."""
+        return not self.rotations
+
+    def raw(self, C, K, theta=None):
+        """Unwhitened residuals and Jacobians: ``r (N,3), e (N,3)|None, J_t (N,3,P), J_e (N,3,P)|None``."""
+        r, J_dC, J_tC, J_tK = point_residuals(C, K[:3, 3], self.M, self.p)
+        if theta is not None and (np.any(theta) or self.free.any()):
+            pred = self.p - r
+            h, J_p, J_theta = measure(pred, theta)
+            r = self.p - h
+            J_dC, J_tC, J_tK = J_p @ J_dC, J_p @ J_tC, J_p @ J_tK
+            J_nuis = -J_theta[:, :, self.free]
+        else:
+            J_nuis = np.zeros((len(r), 3, int(self.free.sum())))
+        if not self.rotations:
+            return r, None, np.concatenate([J_dC, J_tC, J_tK, J_nuis], axis=2), None
+        e, JeC, JeK = rotation_residuals(C, K, self.M, self.R_B)
+        zeros = np.zeros_like(J_dC)
+        J_t = np.concatenate([J_dC, J_tC, zeros, J_tK, J_nuis], axis=2)
+        J_e = np.concatenate([JeC, zeros, JeK, zeros, np.zeros_like(J_nuis)], axis=2)
+        return r, e, J_t, J_e
+
+    def whitened(self, C, K, theta=None):
+        """Whitened residual vector (3N or 6N,) and Jacobian (3N or 6N, n_params)."""
+        r, e, J_t, J_e = self.raw(C, K, theta)
+        rw = np.einsum("nij,nj->ni", self.W_t, r).reshape(-1)
+        Jw = (self.W_t @ J_t).reshape(-1, self.n_params)
+        if self.rotations:
+            rw = np.concatenate([rw, (e / self.sigma_rot).reshape(-1)])
+            Jw = np.concatenate([Jw, (J_e / self.sigma_rot).reshape(-1, self.n_params)])
+        return rw, Jw
+
+    def cost(self, C, K, theta=None) -> float:
+        """Whitened residual square sum (chi-square statistic)."""
+        p = predict_points(C, K[:3, 3], self.M, theta)
+        r = np.einsum("nij,nj->ni", self.W_t, self.p - p)
+        cost = float(np.sum(r**2))
+        if self.rotations:
+            E = np.swapaxes(self.R_B, 1, 2) @ C[:3, :3].T @ self.M[:, :3, :3] @ K[:3, :3]
+            cost += float(np.sum(tf.so3_log(E) ** 2)) / self.sigma_rot**2
+        return cost
+
+    def retract(self, C, K, theta, delta):
+        """Apply a parameter step with left perturbations: new ``(C, K, theta)``."""
+        C2 = tf.make_transform(tf.so3_exp(delta[:3]) @ C[:3, :3], C[:3, 3] + delta[3:6])
+        if self.rotations:
+            K2 = tf.make_transform(tf.so3_exp(delta[6:9]) @ K[:3, :3], K[:3, 3] + delta[9:12])
+        else:
+            K2 = tf.make_transform(K[:3, :3], K[:3, 3] + delta[6:9])
+        if theta is not None and self.free.any():
+            theta = np.array(theta, dtype=float)
+            theta[self.free] += delta[self.n_pose:]
+        return C2, K2, theta
+
+
+def information(problem: Problem, C, K, theta=None) -> np.ndarray:
+    """Fisher information ``J^T W J`` (n_params, n_params) of ``problem`` at ``(C, K, theta)``."""
+    _, J = problem.whitened(C, K, theta)
+    return J.T @ J
+
+
+def camera_block(info) -> np.ndarray:
+    """6x6 camera block of the inverse information, after a degeneracy check."""
+    ev = np.linalg.eigvalsh(info)
+    if ev[0] <= MIN_INFORMATION_RATIO * ev[-1]:
+        raise DegenerateMotionError(
+            "the motions do not constrain every unknown "
+            f"(Fisher information eigenvalue ratio {ev[0] / ev[-1]:.1e}); vary the flange rotation"
+        )
+    cov = np.linalg.inv(info)[:6, :6]
+    return 0.5 * (cov + cov.T)
+
+
+def minimize(problem: Problem, C, K, theta=None, *, max_iterations: int = 50, tol: float = 1e-10):
+    """Levenberg-Marquardt on the whitened cost over ``(C, K, theta)``.
+
+    Returns ``C, K, theta, cost, iterations, converged``.
+    """
+    cost = problem.cost(C, K, theta)
+    lam = 1e-6
+    for it in range(1, max_iterations + 1):
+        r, J = problem.whitened(C, K, theta)
+        H = J.T @ J
+        g = J.T @ r
+        while True:
+            try:
+                delta = -np.linalg.solve(H + lam * np.diag(np.diag(H)), g)
+            except np.linalg.LinAlgError:
+                raise DegenerateMotionError("the motions do not constrain every unknown (singular normal equations)") from None
+            C2, K2, theta2 = problem.retract(C, K, theta, delta)
+            cost2 = problem.cost(C2, K2, theta2)
+            if cost2 <= cost:
+                break
+            lam *= 10.0
+            if lam > 1e10:
+                # No descent direction left: we sit at the minimum to numerical precision.
+                return C, K, theta, cost, it, True
+        lam = max(lam / 10.0, 1e-12)
+        step = np.abs(delta).max()
+        rel = (cost - cost2) / max(cost, 1e-300)
+        C, K, theta, cost = C2, K2, theta2, cost2
+        if step < tol or rel < 1e-14:
+            return C, K, theta, cost, it, True
+    return C, K, theta, cost, max_iterations, False
+
+
+def marker_rotation(C, M, R_B) -> np.ndarray:
+    """Best ``R_K`` given ``C`` for pose data: chordal mean of ``R_M^T R_C R_B``."""
+    S = (np.swapaxes(M[:, :3, :3], 1, 2) @ C[:3, :3] @ R_B).sum(axis=0)
+    return tf.project_to_so3(S)
+
+
+# --------------------------------------------------------------------------- noise levels
+
+
+@dataclass(frozen=True)
+class NoiseLevels:
+    """Variance components of the model (module docstring).
+
+    Attributes
+    ----------
+    point_scale : float
+        ``s_p``: factor on the camera point covariance shape (1 = as given / as the depth model says).
+    robot : float
+        ``sigma_R``: flange translation error, m (rotation ``ROBOT_ROTATION_PER_M`` times it, rad).
+    rotation : float or None
+        ``sigma_rot``: marker orientation noise, rad (pose data).
+    """
+
+    point_scale: float = 1.0
+    robot: float = 0.0
+    rotation: float | None = None
+
+    def point_cov(self, shape, robot_cof) -> np.ndarray:
+        """``Sigma_i`` (N, 3, 3) = ``s_p S_i + sigma_R^2 T_i``."""
+        return self.point_scale * shape + self.robot**2 * robot_cof
+
+
+#: Floors of the variance components: they keep the weights finite when a component vanishes.
+MIN_POINT_SCALE = 1e-4
+MIN_ROBOT_SIGMA = 1e-6
+MIN_ROTATION_SIGMA = 1e-6
+
+
+def variance_components(problem: Problem, C, K, theta, shape, robot_cof, noise: NoiseLevels,
+                        *, estimate=(True, True, True)) -> tuple[NoiseLevels, np.ndarray]:
+    """One update of the variance components at ``(C, K, theta)`` (Helmert / REML scoring).
+
+    The point covariance is ``Sigma_i = s_p S_i + sigma_R^2 T_i`` (module
+    docstring), ``P_i = Sigma_i^-1``, ``v_i`` the point residuals. The
+    Helmert equations ``sum_l H_kl sigma_l^2 = q_k`` with
+    ``q_k = sum_i v_i^T P_i Q_ki P_i v_i`` and
+    ``H_kl = c_k sum_i tr(Q_ki P_i Q_li P_i)`` are solved for
+    ``(s_p, sigma_R^2)``; ``c_k = r_k / tr(Q_k P)`` is the share of
+    component ``k`` in the redundancy, ``r_k = tr(Q_k P) - tr(N^-1 J^T P Q_k P J)``,
+    ``N = J^T P J``, which removes the bias of the fitted parameters (REML).
+    Iterated with the fit, this is Fisher scoring of the restricted likelihood.
+    The orientation noise (own block) is ``sum e^2 / r_rot``.
+
+    ``problem.W_t`` and ``problem.sigma_rot`` must hold the whitening of
+    ``noise``. ``estimate`` says which of (point, robot, rotation) to update;
+    a component whose solution is negative (not supported by the data) is
+    set to its floor and the other re-solved alone.
+
+    Returns
+    -------
+    noise : NoiseLevels
+        Updated.
+    redundancy : ndarray, shape (3,)
+        Degrees of freedom of the redundancy taken by (point, robot, rotation).
+    """
+    r, e, J_t, J_e = problem.raw(C, K, theta)
+    u = J_t.shape[2]
+    P = np.swapaxes(problem.W_t, 1, 2) @ problem.W_t
+    Pv = np.einsum("nij,nj->ni", P, r)
+    PJ = P @ J_t
+    PJ_flat = PJ.reshape(-1, u)
+    Nmat = J_t.reshape(-1, u).T @ PJ_flat
+    if e is not None:
+        s2 = problem.sigma_rot**2
+        Je_flat = J_e.reshape(-1, u)
+        Nmat = Nmat + Je_flat.T @ Je_flat / s2
+    Ninv = np.linalg.inv(Nmat)
+    Q = [shape, robot_cof]
+    QP = [Qk @ P for Qk in Q]
+    q = np.array([float(np.sum(Pv * np.einsum("nij,nj->ni", Qk, Pv))) for Qk in Q])
+    tr1 = np.array([float(np.trace(QPk, axis1=1, axis2=2).sum()) for QPk in QP])
+    tr2 = np.array([float(np.sum(Ninv * (PJ_flat.T @ (Qk @ PJ).reshape(-1, u)))) for Qk in Q])
+    red = tr1 - tr2
+    H = np.array([[float(np.einsum("nij,nji->", QP[k], QP[m])) for m in range(2)] for k in range(2)])
+    H *= (red / np.maximum(tr1, 1e-300))[:, None]
+    current = np.array([noise.point_scale, noise.robot**2])
+    active = np.array(estimate[:2], dtype=bool)
+    value = current.copy()
+    while active.any():
+        idx = np.flatnonzero(active)
+        rhs = q[idx] - H[np.ix_(idx, ~active)] @ value[~active]
+        try:
+            sol = np.linalg.solve(H[np.ix_(idx, idx)], rhs)
+        except np.linalg.LinAlgError:
+            break
+        if np.all(sol > 0):
+            value[idx] = sol
+            break
+        # A negative component is not supported by the data: hold it at its floor, re-solve the rest.
+        drop = idx[int(np.argmin(sol))]
+        value[drop] = (MIN_POINT_SCALE, MIN_ROBOT_SIGMA**2)[drop]
+        active[drop] = False
+    shares = list(current * red)
+    rot = noise.rotation
+    if e is not None:
+        tr_rot = 3.0 * len(e) - float(np.sum(Ninv * (Je_flat.T @ Je_flat))) / s2
+        shares.append(tr_rot)
+        if estimate[2] and tr_rot > 0.5:
+            rot = max(float(np.sqrt(np.sum(e**2) / tr_rot)), MIN_ROTATION_SIGMA)
+    else:
+        shares.append(0.0)
+    new = NoiseLevels(
+        point_scale=max(float(value[0]), MIN_POINT_SCALE),
+        robot=max(float(np.sqrt(max(value[1], 0.0))), MIN_ROBOT_SIGMA),
+        rotation=rot,
+    )
+    return new, np.array(shares)
+
+
+def leave_one_out(problem: Problem, C, K, theta=None, point_cov=None) -> tuple[np.ndarray, np.ndarray]:
+    """Linearised leave-one-out prediction errors of the marker points.
+
+    For a least-squares fit the residual of sample ``i`` left out is, to first
+    order, ``r_i + J_i (N - N_i)^-1 J_i^T P_i r_i`` with ``N_i = J_i^T P_i J_i``
+    its share of the normal matrix (exact for a linear model). Its predicted
+    covariance is ``Sigma_i + J_i (N - N_i)^-1 J_i^T``.
+
+    Parameters
+    ----------
+    point_cov : ndarray, shape (N, 3, 3), optional
+        ``Sigma_i`` of the points (m^2); default the inverse of ``W^T W``.
+
+    Returns
+    -------
+    errors : ndarray, shape (N,)
+        Held-out point prediction error norms, m.
+    predicted : ndarray, shape (N,)
+        Predicted RMS of each (``sqrt(trace)`` of its covariance), m.
+    """
+    r, e, J_t, J_e = problem.raw(C, K, theta)
+    P = np.swapaxes(problem.W_t, 1, 2) @ problem.W_t
+    Sigma = np.linalg.inv(P) if point_cov is None else point_cov
+    PJ = P @ J_t
+    Ni = np.swapaxes(J_t, 1, 2) @ PJ
+    g = np.einsum("nki,nk->ni", PJ, r)
+    if e is not None:
+        s2 = problem.sigma_rot**2
+        Ni = Ni + np.swapaxes(J_e, 1, 2) @ J_e / s2
+        g = g + np.einsum("nki,nk->ni", J_e, e) / s2
+    Nmat = Ni.sum(axis=0)
+    Nloo_inv = np.linalg.inv(Nmat[None] - Ni)
+    # Parameter shift when sample i is removed: -(N - N_i)^-1 g_i; the residual moves by -J_i d.
+    d = -np.einsum("nij,nj->ni", Nloo_inv, g)
+    r_loo = r - np.einsum("nij,nj->ni", J_t, d)
+    pred_cov = Sigma + J_t @ Nloo_inv @ np.swapaxes(J_t, 1, 2)
+    return np.linalg.norm(r_loo, axis=1), np.sqrt(np.trace(pred_cov, axis1=1, axis2=2))

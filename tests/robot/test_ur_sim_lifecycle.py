@@ -1,0 +1,82 @@
+"""The simulated controller never outlives the process that launched it, whatever kills
+that process and however many threads it has, and always frees its ports."""
+
+import os
+import signal
+import socket
+import subprocess
+import sys
+import time
+
+import pytest
+
+from mocks.ur_sim import launch
+from .conftest import free_host
+
+# A parent like a calibrate run: the simulator is launched from a worker thread that then
+# exits (PR_SET_PDEATHSIG would fire here), and 31 more threads are alive when it dies.
+PARENT = """
+import sys, threading, time
+from mocks.ur_sim import launch
+box = []
+t = threading.Thread(target=lambda: box.append(launch(sys.argv[1])))
+t.start(); t.join()
+for _ in range(31):
+    threading.Thread(target=time.sleep, args=(3600,), daemon=True).start()
+print(box[0].proc.pid, flush=True)
+time.sleep(3600)
+"""
+
+
+def _alive(pid: int) -> bool:
+    """Running (a zombie waiting for init to reap it holds no ports and counts as gone)."""
+    try:
+        with open(f"/proc/{pid}/stat") as f:
+            return f.read().rsplit(")", 1)[1].split()[0] != "Z"
+    except FileNotFoundError:
+        return False
+
+
+def _wait_gone(pid: int, timeout: float) -> bool:
+    deadline = time.monotonic() + timeout
+    while _alive(pid):
+        if time.monotonic() > deadline:
+            return False
+        time.sleep(0.02)
+    return True
+
+
+def _ports_free(host: str) -> bool:
+    for port in (29999, 30003, 30004):
+        with socket.socket() as s:
+            s.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+            try:
+                s.bind((host, port))
+            except OSError:
+                return False
+    return True
+
+
+@pytest.mark.parametrize("slot", [60, 61])
+def test_sim_exits_when_its_many_threaded_parent_is_killed(slot):
+    host = free_host(slot)
+    parent = subprocess.Popen([sys.executable, "-c", PARENT, host], stdout=subprocess.PIPE, text=True)
+    try:
+        sim_pid = int(parent.stdout.readline())
+        time.sleep(0.5)
+        assert _alive(sim_pid), "the simulator must survive the exit of the thread that launched it"
+        parent.kill()
+        parent.wait()
+        assert _wait_gone(sim_pid, 3.0), "orphaned simulator"
+        assert _ports_free(host)
+    finally:
+        parent.kill()
+
+
+def test_sigterm_storm_stops_the_sim():
+    sim = launch(free_host(62))
+    for _ in range(100):  # one SIGTERM per exiting thread of a dying parent, and then some
+        os.kill(sim.proc.pid, signal.SIGTERM)
+    assert _wait_gone(sim.proc.pid, 3.0)
+    assert sim.proc.wait(1.0) == 0
+    assert _ports_free(sim.host)
