@@ -9,7 +9,7 @@ import time
 
 def test_bench_prints_progressively_and_keeps_partial_results_on_ctrl_c(tmp_path):
     out = tmp_path / "bench"
-    proc = subprocess.Popen([sys.executable, "-m", "bench.solvers", "--quick", "--out", str(out)],
+    proc = subprocess.Popen([sys.executable, "-m", "bench.solvers", "--tiny", "--out", str(out)],
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     # Wait until the first table has been printed (unbuffered through a pipe), then press Ctrl-C.
     first = []
