@@ -12,11 +12,14 @@ from pathlib import Path
 
 import numpy as np
 
+from app import backends  # noqa: F401  every backend registers itself
 from app.config import CalibrateConfig, Config
 from app.errors import ConfigError
 from app.viz import Viz
 from calib.errors import ParameterError
 from calib.setup import Setup
+from drivers.camera.registry import CAMERAS
+from drivers.robot.registry import ROBOTS
 
 #: Result files written into the session directory, by export format.
 RESULT_FILES = {
@@ -32,10 +35,8 @@ RESULT_FILES = {
 def validate(cfg: Config) -> None:
     """Validate the sections owned by the device, vision and online layers (raises ConfigError naming the field)."""
     from calib.vision.extract import TargetConfig
-    from drivers.camera.factory import camera_config_from_dict
-    from drivers.robot.factory import robot_config_from_dict
 
-    for section, check in (("robot", robot_config_from_dict), ("camera", camera_config_from_dict),
+    for section, check in (("robot", ROBOTS.config_from_dict), ("camera", CAMERAS.config_from_dict),
                            ("marker", TargetConfig.from_dict)):
         try:
             check(getattr(cfg, section))
@@ -55,28 +56,29 @@ def open_robot(cfg: Config, *, read_only: bool):
     ``read_only=True`` (monitor) forces the driver's read-only mode: it then
     refuses every motion command.
     """
-    from drivers.robot.factory import make_robot, robot_config_from_dict
-
-    rc = robot_config_from_dict(cfg.robot)
+    rc = ROBOTS.config_from_dict(cfg.robot)
     if read_only:
         rc = dataclasses.replace(rc, read_only=True)
-    return make_robot(rc)
+    return ROBOTS.create(rc)
 
 
 def open_camera(cfg: Config, robot):
-    """The configured camera; a rendered camera sees the marker at the robot's current flange pose."""
-    from drivers.camera.factory import make_camera
+    """The configured camera, following the robot's flange pose (which a simulated camera renders at)."""
+    camera = CAMERAS.create(cfg.camera)
+    camera.follow(lambda: robot.read().T_base_flange)
+    return camera
 
-    return make_camera(cfg.camera, lambda: robot.read().T_base_flange)
+
+def simulated(cfg: Config) -> bool:
+    """True when both configured devices are simulators (the demo moves without asking)."""
+    return (ROBOTS.get(cfg.robot.get("type", ROBOTS.default)).device.simulated
+            and CAMERAS.get(cfg.camera.get("backend")).device.simulated)
 
 
 def truth(camera) -> dict:
     """True transforms of a simulated camera (``T_base_cam``/``T_flange_marker`` eye-to-hand,
     ``T_flange_cam``/``T_base_marker`` eye-in-hand); empty for real cameras."""
-    c = getattr(camera, "config", None)
-    if getattr(c, "backend", None) != "rendered":
-        return {}
-    return {n: np.asarray(getattr(c, n), dtype=float) for n in (c.setup.camera_name, c.setup.marker_name)}
+    return camera.truth() or {}
 
 
 def camera_truth(setup: Setup, truth: dict) -> np.ndarray | None:

@@ -44,7 +44,7 @@ from calib import transforms as tf
 from calib.errors import CalibrationError
 from calib.noise import default_point_cov
 from calib.refine import point_jacobian
-from calib.solvers import check_setup
+from calib.setup import Setup, check_setup
 
 #: ``reachable(T_base_flange (4, 4), q_from (6,) or None) -> q (6,) or None``.
 Reachable = Callable[[np.ndarray, "np.ndarray | None"], "np.ndarray | None"]
@@ -255,7 +255,7 @@ def marker_rotation(setup: str, X, Y, A, T_cam_marker) -> tuple[np.ndarray, np.n
     A, B = tf.check_transforms(A, "A"), tf.check_transforms(T_cam_marker, "T_cam_marker")
     if len(A) != len(B) or len(A) == 0:
         raise CalibrationError(f"A and T_cam_marker must be equally long and non-empty, got {len(A)}, {len(B)}")
-    if setup == "eye_to_hand":
+    if setup == Setup.EYE_TO_HAND:
         R = tf.project_to_so3((np.swapaxes(A[:, :3, :3], 1, 2) @ Y[:3, :3] @ B[:, :3, :3]).sum(axis=0))
         return tf.make_transform(R, X[:3, 3]), Y
     R = tf.project_to_so3((A[:, :3, :3] @ X[:3, :3] @ B[:, :3, :3]).sum(axis=0))
@@ -372,7 +372,7 @@ class PosePlanner:
     def marker_in_camera(self, A) -> np.ndarray:
         """``T_cam_marker`` (N, 4, 4) predicted at flange poses A (N, 4, 4)."""
         A = np.asarray(A, dtype=float)
-        if self.setup == "eye_to_hand":
+        if self.setup == Setup.EYE_TO_HAND:
             return tf.invert(self.Y) @ A @ self.X
         return _invert_stack(A @ self.X) @ self.Y
 
@@ -573,7 +573,7 @@ def bootstrap_poses(T_start, setup: str, view: CameraView, point_cam, config: Pl
     half_px = f * view.marker_size_m / 2 * math.sqrt(2) / z0
     room_px = min(u, view.width - u, v, view.height - v) - view.margin_px - 2 * half_px
     theta_max = math.radians(config.tilt_deg)
-    lever = lever_max_m + (z0 if setup == "eye_in_hand" else 0.0)
+    lever = lever_max_m + (z0 if setup == Setup.EYE_IN_HAND else 0.0)
 
     def safe(a: float) -> bool:
         theta = a * theta_max

@@ -1,5 +1,7 @@
-"""Device drivers: one abstract base per device kind, one config per backend.
+"""Device drivers: one abstract base per device kind, one config per backend, backends registered by name.
 
-Vendor SDKs are imported only inside the factory branch that needs them, so
-that a machine without OpenNI2 can still run the simulated cell.
+`drivers.robot.registry.ROBOTS` and `drivers.camera.registry.CAMERAS` map a
+config table's ``type`` / ``backend`` to its backend. Vendor SDKs are imported
+only when a backend connects, so a machine without OpenNI2 can still run the
+simulated cell. Nothing here imports `mocks`.
 """

@@ -6,7 +6,13 @@ import abc
 
 
 class Device(abc.ABC):
-    """A device with a connection. ``with make_robot(cfg) as robot:`` connects and always disconnects."""
+    """A device with a connection. ``with ROBOTS.create(cfg) as robot:`` connects and always disconnects.
+
+    ``simulated`` is True for the simulators (`mocks`), which the demo may
+    move without asking.
+    """
+
+    simulated: bool = False
 
     @abc.abstractmethod
     def connect(self) -> None: ...

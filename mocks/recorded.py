@@ -31,6 +31,7 @@ from drivers.errors import ConnectionLostError, DeviceError
 from drivers.camera.base import Camera, CameraIntrinsics, RGBDFrame
 from drivers.camera.depth import depth_from_mm, depth_to_mm
 from drivers.camera.intrinsics import load_intrinsics, save_intrinsics
+from drivers.camera.registry import CAMERAS
 
 FIELDS = ["index", "t", "color", "depth"]
 
@@ -64,6 +65,7 @@ class RecordedCameraConfig:
                 raise ParameterError(f"camera.{name} must be true or false, got {getattr(self, name)!r}")
 
 
+@CAMERAS.register("recorded", RecordedCameraConfig)
 class RecordedCamera(Camera):
     """Plays back a directory written by `RecordingWriter` (see module docstring).
 

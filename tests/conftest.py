@@ -4,6 +4,8 @@ import os
 
 import pytest
 
+import app.backends  # noqa: F401  every robot and camera backend registered by name, as in the app
+
 
 def process_net() -> str:
     """A loopback /24 of this test process (``127.a.b``), derived from its pid, so that

@@ -12,9 +12,15 @@ PASSTHROUGH = True
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--vision", action="store_true", help="also run the vision benchmark")
     p.add_argument("--robot", action="store_true", help="also run the robot benchmark")
+    p.add_argument("--faults", action="store_true",
+                   help="run only the fault campaign (bench.faults: robot and simulator faults, minutes)")
 
 
 def run(args) -> int:
+    if args.faults:
+        from bench import faults
+
+        return int(faults.main(args.extra) or 0)
     from bench import solvers
 
     rc = int(solvers.main(args.extra) or 0)

@@ -6,6 +6,7 @@ import argparse
 import dataclasses
 from pathlib import Path
 
+from app import devices
 from app.commands.calibrate import CalibrationOutput, calibrate, exit_code, print_calibration_summary
 from app.commands.common import add_run_options, load_config_args
 from app.config import Config
@@ -53,8 +54,8 @@ def demo(cfg: Config, *, progress: bool = True) -> CalibrationOutput:
     ConfigError
         If the config names real hardware: the demo moves without asking.
     """
-    if cfg.robot.get("type") != "ur_sim" or cfg.camera.get("backend") != "rendered":
-        raise ConfigError("demo runs only the simulated cell (robot.type = 'ur_sim', camera.backend = 'rendered'); "
+    if not devices.simulated(cfg):
+        raise ConfigError("demo runs only a simulated cell (a simulated robot.type and camera.backend); "
                           "use 'handeye calibrate' for hardware")
     return calibrate(cfg, progress=progress)
 

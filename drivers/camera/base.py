@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import abc
+from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -61,7 +62,18 @@ class RGBDFrame:
 
 
 class Camera(Device):
-    """An RGB-D source. Use as a context manager: ``with make_camera(cfg) as cam: ...``."""
+    """An RGB-D source. Use as a context manager: ``with CAMERAS.create(cfg) as cam: ...``."""
+
+    def follow(self, flange_pose_source: Callable[[], np.ndarray]) -> None:
+        """Give the camera the robot's current ``T_base_flange`` (a callable).
+
+        Real cameras ignore it; a simulated one renders what it would see there.
+        """
+
+    def truth(self) -> dict | None:
+        """The true ``X``/``Y`` transforms by frame name (e.g. ``T_base_cam``, ``T_flange_marker``)
+        of a simulated camera; None for a real one."""
+        return None
 
     @property
     @abc.abstractmethod

@@ -28,6 +28,7 @@ from calib.errors import ParameterError
 from drivers.errors import ConnectionLostError, DeviceError
 from drivers.camera.base import Camera, CameraIntrinsics, RGBDFrame
 from drivers.camera.depth import depth_from_mm
+from drivers.camera.registry import CAMERAS
 from drivers.camera.intrinsics import load_intrinsics
 
 log = logging.getLogger(__name__)
@@ -126,6 +127,7 @@ def _loadable_dir(d: Path) -> str | None:
     return None
 
 
+@CAMERAS.register("openni2", OpenNI2CameraConfig)
 class OpenNI2Camera(Camera):
     """Registered, synchronised depth + color from an OpenNI2 device."""
 

@@ -46,7 +46,7 @@ class RobotState:
 
 
 class Robot(Device):
-    """A robot arm. Use as a context manager: ``with make_robot(cfg) as robot: ...``."""
+    """A robot arm. Use as a context manager: ``with ROBOTS.create(cfg) as robot: ...``."""
 
     @abc.abstractmethod
     def read(self) -> RobotState:

@@ -37,6 +37,7 @@ from drivers.errors import ConnectionLostError, DeviceError, LimitViolationError
 from calib.transforms import from_ur_pose, invert, pose_error, to_ur_pose
 from drivers.robot import ur_kinematics as kin
 from drivers.robot.base import Robot, RobotState
+from drivers.robot.registry import ROBOTS
 from drivers.robot.buffer import ClockMapper, StateBuffer, interpolate_pose
 from drivers.robot.ur_client import ClientDied, RTDEClient
 
@@ -238,6 +239,7 @@ class URRobotConfig:
         return cls(**d)
 
 
+@ROBOTS.register("ur", URRobotConfig)
 class URRobot(Robot):
     """A UR arm over RTDE; see the module docstring. Eye-to-hand or eye-in-hand alike:
     it only provides ``T_base_flange`` (the paper's ``A_i``).

@@ -30,6 +30,7 @@ from calib.errors import CalibrationError, ParameterError
 from drivers.errors import DeviceError
 from calib.setup import Setup, check_setup
 from calib.vision.markers import get_dictionary
+from drivers.camera.registry import CAMERAS
 from drivers.camera.base import Camera, CameraIntrinsics, RGBDFrame
 from drivers.camera.intrinsics import check_intrinsics
 from mocks.render.scene import MarkerSceneRenderer, RenderNoise
@@ -149,26 +150,38 @@ class RenderedCameraConfig:
         return np.array(getattr(self, self.setup.y_name), float)
 
 
+@CAMERAS.register("rendered", RenderedCameraConfig)
 class RenderedCamera(Camera):
     """Renders the configured marker at ``flange_pose_source()`` on every `read`.
 
     Parameters
     ----------
     config : RenderedCameraConfig
-    flange_pose_source : callable () -> ndarray (4, 4)
-        Current ``T_base_flange``.
+    flange_pose_source : callable () -> ndarray (4, 4), optional
+        Current ``T_base_flange``; or given later with `follow`, before `connect`.
     """
 
-    def __init__(self, config: RenderedCameraConfig, flange_pose_source: Callable[[], np.ndarray]):
-        if not callable(flange_pose_source):
-            raise ParameterError("the rendered camera needs a flange_pose_source callable returning T_base_flange")
+    simulated = True
+
+    def __init__(self, config: RenderedCameraConfig, flange_pose_source: Callable[[], np.ndarray] | None = None):
         self.config = config
         self._source = flange_pose_source
         self._renderer: MarkerSceneRenderer | None = None
         self._rng: np.random.Generator | None = None
         self._index = 0
 
+    def follow(self, flange_pose_source: Callable[[], np.ndarray]) -> None:
+        self._source = flange_pose_source
+
+    def truth(self) -> dict:
+        """The configured true camera and marker transforms (``T_base_cam``/``T_flange_marker``
+        eye-to-hand, ``T_flange_cam``/``T_base_marker`` eye-in-hand)."""
+        s = self.config.setup
+        return {n: np.asarray(getattr(self.config, n), dtype=float) for n in (s.camera_name, s.marker_name)}
+
     def connect(self) -> None:
+        if not callable(self._source):
+            raise ParameterError("the rendered camera needs a flange_pose_source callable returning T_base_flange")
         c = self.config
         self._renderer = MarkerSceneRenderer(c.intrinsics, c.dictionary, c.marker_id, c.marker_size, c.plate_size,
                                              c.noise)

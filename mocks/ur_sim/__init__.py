@@ -193,14 +193,22 @@ def launch(host: str = "127.0.0.1", model: str = "ur10", controller: str = "5.11
         cmd += ["--initial-q", *[f"{x:.12g}" for x in initial_q]]
     if tcp_offset is not None:
         cmd += ["--tcp-offset", *[f"{x:.12g}" for x in tcp_offset]]
-    proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-    ready: list[str] = []
-    reader = threading.Thread(target=lambda: ready.append(proc.stdout.readline()), daemon=True)
-    reader.start()
-    reader.join(timeout)
-    if not ready or not ready[0].startswith("ur_sim ready"):
+    # A simulator whose parent was just killed needs a moment (<= 0.1 s to notice, then its exit)
+    # to free the ports: an immediate `--resume` waits for it instead of failing.
+    bind_deadline = time.monotonic() + min(timeout, 5.0)
+    while True:
+        proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+        ready: list[str] = []
+        reader = threading.Thread(target=lambda: ready.append(proc.stdout.readline()), daemon=True)
+        reader.start()
+        reader.join(timeout)
+        if ready and ready[0].startswith("ur_sim ready"):
+            break
         proc.kill()
         _, err = proc.communicate()
+        if "in use" in err and time.monotonic() < bind_deadline:
+            time.sleep(0.2)
+            continue
         raise DeviceError(f"simulated UR controller on {host} did not start: {err.strip() or 'timeout'}")
     sim = SimProcess(host, proc)
     # The ready line is printed after bind/listen; one dashboard round trip proves the loop runs.

@@ -13,6 +13,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from calib.errors import ParameterError
+from drivers.robot.registry import ROBOTS
 from drivers.robot.ur import URRobot, URRobotConfig
 from mocks.ur_sim import SimProcess, launch
 from mocks.ur_sim.controller import parse_version
@@ -57,8 +58,11 @@ def _six(value, name: str) -> tuple[float, ...]:
     return tuple(float(x) for x in arr)
 
 
+@ROBOTS.register("ur_sim", URSimRobotConfig)
 class URSimRobot(URRobot):
     """`URRobot` that owns its simulated controller process (``self.sim``)."""
+
+    simulated = True
 
     def __init__(self, config: URSimRobotConfig):
         super().__init__(config)

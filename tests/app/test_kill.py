@@ -28,7 +28,6 @@ def test_sigkill_mid_run_then_replay_and_resume(tmp_path, capsys, sim_config, lo
     cfg = tmp_path / "sim.toml"
     cfg.write_text(Path("config/sim.toml").read_text().replace('host = "127.0.0.2"', f'host = "{loopback(4)}"'))
     root = tmp_path / "sessions"
-    # Own process group: the kill takes the simulator subprocess the run started down with it.
     proc = subprocess.Popen([sys.executable, "-m", "app.cli", "demo", "-c", str(cfg), "--samples", "40",
                              "--session-root", str(root), "--no-viz"],
                             stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, start_new_session=True)
@@ -39,7 +38,9 @@ def test_sigkill_mid_run_then_replay_and_resume(tmp_path, capsys, sim_config, lo
             assert time.monotonic() < deadline, "no samples recorded in 60 s"
             time.sleep(0.05)
     finally:
-        os.killpg(proc.pid, signal.SIGKILL)
+        # The process only, like `kill -9 <pid>`: its simulator and RTDE client must exit by
+        # themselves (parent death), or the resume below cannot bind the simulator's ports.
+        proc.kill()
         proc.wait()
     assert proc.returncode == -signal.SIGKILL
     session_dir = next(root.iterdir())

@@ -2,7 +2,7 @@ import pytest
 
 from calib.errors import ParameterError
 from drivers.errors import DeviceError
-from drivers.robot.factory import make_robot, robot_config_from_dict
+from drivers.robot.registry import ROBOTS
 from drivers.robot.ur import URRobot, URRobotConfig
 from mocks.ur_sim import main as sim_main
 from mocks.ur_sim.robot import URSimRobot
@@ -42,16 +42,16 @@ def test_moving_robot_needs_a_workspace_box_and_a_sane_one():
 
 
 def test_factory_builds_from_toml_tables_without_connecting(loopback):
-    robot = make_robot({"type": "ur", "host": "10.0.0.2", "read_only": True, "tcp_offset": [0, 0, 0.1, 0, 0, 0]})
+    robot = ROBOTS.create({"type": "ur", "host": "10.0.0.2", "read_only": True, "tcp_offset": [0, 0, 0.1, 0, 0, 0]})
     assert isinstance(robot, URRobot) and not robot.is_connected
-    sim = make_robot({"type": "ur_sim", "host": loopback(98), "controller": "3.15", **BOX})
+    sim = ROBOTS.create({"type": "ur_sim", "host": loopback(98), "controller": "3.15", **BOX})
     assert isinstance(sim, URSimRobot) and sim.config.controller == "3.15"
     with pytest.raises(ParameterError, match="robot.type"):
-        robot_config_from_dict({"type": "kuka", "host": "x"})
+        ROBOTS.config_from_dict({"type": "kuka", "host": "x"})
     with pytest.raises(ParameterError, match="spede"):
-        robot_config_from_dict({"type": "ur", "host": "x", "spede": 1, **BOX})
+        ROBOTS.config_from_dict({"type": "ur", "host": "x", "spede": 1, **BOX})
     with pytest.raises(ParameterError, match="controller"):
-        robot_config_from_dict({"type": "ur_sim", "host": "x", "controller": "9.1", **BOX})
+        ROBOTS.config_from_dict({"type": "ur_sim", "host": "x", "controller": "9.1", **BOX})
 
 
 def test_read_only_without_tcp_offset_fails_clearly_before_any_io():

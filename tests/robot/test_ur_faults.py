@@ -1,6 +1,8 @@
 """Faults injected in the simulated controller surface as the
 documented errors through ur_rtde and URRobot, and reconnect() recovers."""
 
+import os
+import signal
 import threading
 import time
 
@@ -113,3 +115,30 @@ def test_long_freeze_is_detected_and_disconnect_does_not_wait_for_ur_rtde(robot,
     st = robot.move_to(_moved(robot))
     assert st.is_still
     np.testing.assert_allclose(robot.read().q[3:], START_Q[3:], atol=0.5)
+
+
+def _client_pid(host: str) -> int:
+    """The RTDE client process this test process started for ``host``."""
+    for entry in os.listdir("/proc"):
+        if not entry.isdigit():
+            continue
+        try:
+            with open(f"/proc/{entry}/cmdline", "rb") as f:
+                cmd = f.read().split(b"\0")
+            with open(f"/proc/{entry}/stat") as f:
+                ppid = int(f.read().rsplit(")", 1)[1].split()[1])
+        except OSError:
+            continue
+        if ppid == os.getpid() and b"drivers.robot.ur_client" in cmd and host.encode() in b" ".join(cmd):
+            return int(entry)
+    raise AssertionError(f"no RTDE client process for {host}")
+
+
+def test_a_native_crash_of_the_rtde_client_is_a_connection_lost_error(robot, sim):
+    robot.read()
+    os.kill(_client_pid(sim.host), signal.SIGSEGV)  # what a heap corruption in ur_rtde ends as
+    time.sleep(0.3)
+    with pytest.raises(ConnectionLostError, match="SIGSEGV"):
+        robot.read()
+    robot.reconnect()
+    assert robot.move_to(_moved(robot, 0.02)).is_still

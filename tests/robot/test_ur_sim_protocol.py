@@ -62,7 +62,11 @@ def test_rtde_handshake_recipes_and_data(sim):
         ts, *q = struct.unpack(">Bd6dI", body)[1:]
         stamps.append(ts)
         np.testing.assert_allclose(q[:6], sim.state()["q"], atol=1e-9)
-    np.testing.assert_allclose(np.diff(stamps), 0.004, atol=1e-9)  # 250 Hz requested of a 500 Hz controller
+    # 250 Hz requested of a 500 Hz controller: every other 2 ms tick, never closer; more ticks
+    # apart only when the simulator was starved and skipped packages (as a real controller does).
+    ticks = np.diff(stamps) / 0.002
+    np.testing.assert_allclose(ticks, np.round(ticks), atol=1e-6)
+    assert np.round(ticks).min() == 2
     kind, body = c.request("P")
     while kind == "U":  # packages already in flight
         kind, body = c.recv()

@@ -1,9 +1,9 @@
-"""`type = "ur_sim"` from a TOML table: the factory's robot launches its own simulator."""
+"""`type = "ur_sim"` from a TOML table: the registered robot launches its own simulator."""
 
 import numpy as np
 
 from drivers.robot import ur_kinematics as kin
-from drivers.robot.factory import make_robot
+from drivers.robot.registry import ROBOTS
 
 from .conftest import START_Q, free_host
 
@@ -14,7 +14,7 @@ def test_ur_sim_robot_launches_moves_and_stops_its_simulator():
         "initial_q": list(START_Q), "sim_tcp_offset": [0, 0, 0.12, 0, 0, 0],
         "workspace_min": [-1.3, -1.0, 0.0], "workspace_max": [1.3, 1.0, 1.2], "speed": 0.5, "acceleration": 2.0,
     }
-    robot = make_robot(table)
+    robot = ROBOTS.create(table)
     with robot:
         sim = robot.sim
         st = robot.read()

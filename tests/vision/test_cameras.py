@@ -1,4 +1,4 @@
-"""Camera backends behind the one factory: rendered, recorded, OpenNI2 (dummy device / hardware)."""
+"""Camera backends behind the one registry: rendered, recorded, OpenNI2 (dummy device / hardware)."""
 
 import json
 import os
@@ -14,7 +14,7 @@ from calib.errors import ParameterError
 from drivers.errors import ConnectionLostError, DeviceError
 from calib.vision.extract import TargetConfig, extract
 from drivers.camera.base import CameraIntrinsics, RGBDFrame
-from drivers.camera.factory import camera_config_from_dict, make_camera
+from drivers.camera.registry import CAMERAS
 from drivers.camera.intrinsics import load_intrinsics
 from mocks.recorded import RecordingWriter
 from mocks.render.camera import RenderedCameraConfig
@@ -30,9 +30,9 @@ def _flange_facing_camera(cfg: RenderedCameraConfig) -> np.ndarray:
 
 
 def test_rendered_eye_to_hand_truth_and_extraction():
-    cfg = camera_config_from_dict({"backend": "rendered", "seed": 1})
+    cfg = CAMERAS.config_from_dict({"backend": "rendered", "seed": 1})
     A = _flange_facing_camera(cfg)
-    with make_camera(cfg, flange_pose_source=lambda: A) as cam:
+    with CAMERAS.create(cfg, flange_pose_source=lambda: A) as cam:
         f1, f2 = cam.read(), cam.read()
     assert isinstance(f1, RGBDFrame) and f1.color.shape == (480, 640, 3) and f1.depth.dtype == np.float32
     assert f2.index == f1.index + 1 and f2.t >= f1.t
@@ -49,7 +49,7 @@ def test_rendered_eye_in_hand():
     cfg = RenderedCameraConfig(setup="eye_in_hand", seed=2)
     # Flange 0.6 m above the marker on the table, z axis down: the camera looks at the marker.
     A = tf.make_transform(np.diag([1.0, -1.0, -1.0]), [0.9, 0.05, 0.62])
-    cam = make_camera({"backend": "rendered", "setup": "eye_in_hand", "seed": 2}, lambda: A)
+    cam = CAMERAS.create({"backend": "rendered", "setup": "eye_in_hand", "seed": 2}, lambda: A)
     with cam:
         f = cam.read()
     tr = f.truth
@@ -62,23 +62,23 @@ def test_rendered_eye_in_hand():
 
 def test_factory_rejects_bad_configs():
     with pytest.raises(ParameterError, match="camera.backend must be one of"):
-        make_camera({"backend": "kinect"})
+        CAMERAS.create({"backend": "kinect"})
     with pytest.raises(ParameterError, match="unknown key camera.fov"):
-        make_camera({"backend": "rendered", "fov": 60})
+        CAMERAS.create({"backend": "rendered", "fov": 60})
     with pytest.raises(ParameterError, match="flange_pose_source"):
-        make_camera({"backend": "rendered"})
+        CAMERAS.create({"backend": "rendered"}).connect()
     with pytest.raises(ParameterError, match="camera.T_base_cam"):
         RenderedCameraConfig(T_base_cam=np.eye(4)[:3].tolist())
     with pytest.raises(ParameterError, match="noise.dropout"):
         RenderedCameraConfig(noise={"dropout": 1.5})
     with pytest.raises(ParameterError, match="camera.path"):
-        make_camera({"backend": "recorded"})
+        CAMERAS.create({"backend": "recorded"})
     with pytest.raises(ParameterError, match="camera.fps"):
-        make_camera({"backend": "openni2", "fps": 0})
+        CAMERAS.create({"backend": "openni2", "fps": 0})
 
 
 def test_rendered_camera_needs_connect_and_a_valid_pose():
-    cam = make_camera({"backend": "rendered"}, lambda: np.full((4, 4), np.nan))
+    cam = CAMERAS.create({"backend": "rendered"}, lambda: np.full((4, 4), np.nan))
     with pytest.raises(DeviceError, match="not connected"):
         cam.read()
     with cam, pytest.raises(DeviceError, match="bad flange pose"):
@@ -98,7 +98,7 @@ def test_recorded_roundtrip(tmp_path):
         for f in frames:
             w.write(f)
     assert load_intrinsics(tmp_path / "rec" / "intrinsics.yaml") == intr
-    cam = make_camera({"backend": "recorded", "path": str(tmp_path / "rec")})
+    cam = CAMERAS.create({"backend": "recorded", "path": str(tmp_path / "rec")})
     with cam:
         got = [cam.read() for _ in range(3)]
         with pytest.raises(ConnectionLostError, match="ended after 3 frames"):
@@ -108,10 +108,10 @@ def test_recorded_roundtrip(tmp_path):
         np.testing.assert_allclose(g.depth, f.depth, atol=0.5e-3 + 1e-6)  # stored in whole mm
         assert (g.depth == 0).sum() == (f.depth == 0).sum()
         assert g.t == f.t and g.index == f.index and g.intrinsics == intr
-    with make_camera({"backend": "recorded", "path": str(tmp_path / "rec"), "loop": True}) as cam:
+    with CAMERAS.create({"backend": "recorded", "path": str(tmp_path / "rec"), "loop": True}) as cam:
         assert [cam.read().index for _ in range(5)] == [0, 1, 2, 0, 1]
     with pytest.raises(DeviceError, match="frames.csv missing"):
-        make_camera({"backend": "recorded", "path": str(tmp_path / "nothing")}).connect()
+        CAMERAS.create({"backend": "recorded", "path": str(tmp_path / "nothing")}).connect()
     with pytest.raises(DeviceError, match="already holds a recording"):
         RecordingWriter(tmp_path / "rec", intr)
 
@@ -131,7 +131,7 @@ def test_intrinsics_file_ros_format(tmp_path):
 
 def test_openni_import_error_is_a_device_error_with_hint(monkeypatch):
     monkeypatch.setitem(sys.modules, "openni", None)  # makes `import openni` fail
-    cam = make_camera({"backend": "openni2"})
+    cam = CAMERAS.create({"backend": "openni2"})
     with pytest.raises(DeviceError, match=r"pip install 'handeye\[openni\]'.*libopenni2-0"):
         cam.connect()
 
@@ -153,7 +153,8 @@ _DUMMY_SCRIPT = r"""
 import json, os, sys
 from drivers.errors import DeviceError
 from drivers.camera.base import CameraIntrinsics
-from drivers.camera.factory import make_camera
+from drivers.camera.registry import CAMERAS
+from drivers.camera import openni2  # registers "openni2"
 from drivers.camera.intrinsics import save_intrinsics
 
 out = {}
@@ -161,12 +162,12 @@ base = {"backend": "openni2", "uri": "Dummy", "width": 320, "height": 240}
 for name, extra in (("fov", {"registration": False}), ("registration", {}), ("mode", {"registration": False,
                                                                                           "width": 640, "height": 480})):
     try:
-        make_camera({**base, **extra}).connect()
+        CAMERAS.create({**base, **extra}).connect()
         out[name] = "no error"
     except DeviceError as e:
         out[name] = str(e)
 save_intrinsics(sys.argv[1], CameraIntrinsics(320, 240, 285.0, 285.0, 159.5, 119.5))
-cam = make_camera({**base, "registration": False, "intrinsics_file": sys.argv[1]})
+cam = CAMERAS.create({**base, "registration": False, "intrinsics_file": sys.argv[1]})
 with cam:
     f1, f2 = cam.read(), cam.read()
     out["fx"] = cam.intrinsics.fx
@@ -208,7 +209,7 @@ def test_openni2_real_device_registered_frames():
     cfg = {"backend": "openni2"}
     if os.environ.get("HANDEYE_INTRINSICS"):
         cfg["intrinsics_file"] = os.environ["HANDEYE_INTRINSICS"]
-    with make_camera(cfg) as cam:
+    with CAMERAS.create(cfg) as cam:
         frames = [cam.read() for _ in range(10)]
     assert all(f.color.shape[:2] == f.depth.shape for f in frames)
     assert all((f.depth > 0).mean() > 0.2 for f in frames)

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from drivers.errors import ConnectionLostError, DeviceError
-from drivers.camera.factory import make_camera
+from drivers.camera.registry import CAMERAS
 
 
 class _Mode:
@@ -131,7 +131,7 @@ CFG = {"backend": "openni2", "width": 64, "height": 48, "fps": 30}
 def test_pairs_frames_by_device_timestamp(fake):
     # Color starts one frame (33 ms) ahead: the driver drops a depth frame to pair them.
     ni = fake(depth_ts=lambda n: 33_333 * n, color_ts=lambda n: 33_400 + 33_333 * n)
-    with make_camera(CFG) as cam:
+    with CAMERAS.create(CFG) as cam:
         f = cam.read()
         # Field of view 58 deg over 64 px.
         assert cam.intrinsics.fx == pytest.approx(32 / math.tan(math.radians(29)))
@@ -144,13 +144,13 @@ def test_pairs_frames_by_device_timestamp(fake):
 def test_streams_that_never_align_are_a_lost_connection(fake):
     fake(depth_ts=lambda n: 0, color_ts=lambda n: 500_000)  # depth frozen in the past
     cfg = dict(CFG, timeout_s=0.05)
-    with make_camera(cfg) as cam, pytest.raises(ConnectionLostError, match="apart"):
+    with CAMERAS.create(cfg) as cam, pytest.raises(ConnectionLostError, match="apart"):
         cam.read()
 
 
 def test_stalled_or_failing_stream_is_a_lost_connection(fake):
     ni = fake(depth_ts=lambda n: 33_333 * n, color_ts=lambda n: 33_333 * n)
-    with make_camera(CFG) as cam:
+    with CAMERAS.create(CFG) as cam:
         cam.read()
         ni.stalled = True
         with pytest.raises(ConnectionLostError, match="no frame within"):
@@ -163,7 +163,7 @@ def test_stalled_or_failing_stream_is_a_lost_connection(fake):
 
 def test_device_without_registration_is_refused(fake):
     fake(depth_ts=lambda n: 0, color_ts=lambda n: 0, registration=False)
-    cam = make_camera(CFG)
+    cam = CAMERAS.create(CFG)
     with pytest.raises(DeviceError, match="cannot register depth to color"):
         cam.connect()
     assert not cam.is_connected

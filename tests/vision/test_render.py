@@ -8,7 +8,7 @@ from calib import transforms as tf
 from calib.errors import ParameterError
 from calib.vision.extract import TargetConfig, extract
 from drivers.camera.base import CameraIntrinsics
-from drivers.camera.factory import make_camera
+from drivers.camera.registry import CAMERAS
 from mocks.recorded import RecordingWriter
 from mocks.render.camera import RenderedCameraConfig
 from mocks.render.scene import MarkerSceneRenderer, RenderNoise
@@ -64,13 +64,13 @@ def test_renderer_rejects_distortion_and_tiny_plate():
 def test_recorded_rendered_frames_extract_the_same(tmp_path):
     # Face the marker to the default camera: flange z axis towards it, at the default cell's start point.
     Y = np.array(RenderedCameraConfig().T_base_cam)
-    cam = make_camera({"backend": "rendered", "seed": 3},
+    cam = CAMERAS.create({"backend": "rendered", "seed": 3},
                       lambda: tf.make_transform(Y[:3, :3] @ FACING, [0.9, 0.1, 0.5]))
     with cam, RecordingWriter(tmp_path / "rec", cam.intrinsics) as w:
         frames = [cam.read() for _ in range(2)]
         for f in frames:
             w.write(f)
-    with make_camera({"backend": "recorded", "path": str(tmp_path / "rec")}) as rec:
+    with CAMERAS.create({"backend": "recorded", "path": str(tmp_path / "rec")}) as rec:
         played = [rec.read() for _ in range(2)]
     for f, g in zip(frames, played):
         m1 = extract(f.color, f.depth, f.intrinsics, TargetConfig())

@@ -1,0 +1,13 @@
+"""Every device backend the application can build.
+
+Importing a backend module registers it by name (`drivers.robot.registry.ROBOTS`,
+`drivers.camera.registry.CAMERAS`); `drivers` never imports the simulators,
+so the application imports them here, once. Adding a backend is its module
+plus one line below (docs/architecture.md has a worked example).
+"""
+
+from drivers.camera import openni2  # noqa: F401  camera "openni2"
+from drivers.robot import ur  # noqa: F401  robot "ur"
+from mocks import recorded  # noqa: F401  camera "recorded"
+from mocks.render import camera  # noqa: F401  camera "rendered"
+from mocks.ur_sim import robot  # noqa: F401  robot "ur_sim"
