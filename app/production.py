@@ -1,7 +1,7 @@
 """The simulated cell at work: a looping production program and a camera bump, for `handeye monitor`.
 
 On a real cell the robot runs its own program while ``handeye monitor``
-watches. On the simulated cell (``robot.type = "ur_sim"``) nothing would move
+watches. On a simulated cell (the ``ur_sim`` robot) nothing would move
 the robot, so `start_production` gives its simulated controller a looping
 program (`mocks.ur_sim.program`): waypoints around the start pose, a tool stop
 at each. `Bump` knocks the rendered camera partway through a run, as a

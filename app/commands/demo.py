@@ -87,9 +87,9 @@ def demo_monitor(cfg: Config, *, bump: Bump | None, reference: Path | None = Non
     from app import devices
     from app.commands.monitor import monitor
 
-    if cfg.robot.get("type") != "ur_sim" or cfg.camera.get("backend") != "rendered":
-        raise ConfigError("demo --monitor runs only the simulated cell (robot.type = 'ur_sim', "
-                          "camera.backend = 'rendered'); use 'handeye monitor' for hardware")
+    if not devices.simulated(cfg):
+        raise ConfigError("demo --monitor runs only a simulated cell (a simulated robot.type and camera.backend); "
+                          "use 'handeye monitor' for hardware")
     mon = dict(DEMO_MONITOR)
     if cfg.monitor.online:  # the config's own estimator settings win
         mon.pop("online")

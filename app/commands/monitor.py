@@ -134,7 +134,7 @@ def monitor(cfg: Config, *, reference: Path | None = None, stop=None, progress: 
     covariance, `calib.online.OnlineCalibrator.arm`), so detection starts with
     the first new sample and the drift is measured against it.
 
-    On the simulated cell (``robot.type = "ur_sim"``) the simulated controller
+    On a simulated cell (the ``ur_sim`` robot) the simulated controller
     runs a looping production program (``production``, `app.production`) so
     that the robot moves, and ``bump`` knocks the rendered camera partway.
     ``publish``: optional ``(obs, update, report)`` callback; by default the

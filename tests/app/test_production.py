@@ -11,7 +11,7 @@ from app.config import load_config
 from app.session import SessionWriter, read_session
 from calib import transforms as tf
 from calib.observation import Observation
-from drivers.camera.factory import camera_config_from_dict
+from mocks.render.camera import RenderedCameraConfig
 from drivers.robot import ur_kinematics as kin
 from mocks.ur_sim import launch
 
@@ -28,7 +28,7 @@ def _sim_toml(tmp_path, host: str, extra: str = "") -> str:
 def _reference_session(root, n: int, rng) -> str:
     """A 12-sample calibration session of the simulated cell (marker centers with 0.5 mm noise)."""
     cfg = load_config(None)
-    truth = camera_config_from_dict(cfg.camera)
+    truth = RenderedCameraConfig(setup=cfg.setup)
     T_base_cam, T_flange_marker = np.array(truth.T_base_cam), np.array(truth.T_flange_marker)
     T_start = kin.forward(np.array(cfg.robot["initial_q"]), "ur10")
     cov = np.eye(3) * 0.5e-3 ** 2

@@ -97,12 +97,11 @@ def test_image_folder(tmp_path, capsys, poses_format):
     importer measures each image (depth-lifted center) and replay recovers the camera."""
     from app.commands.calibrate import random_pose
     from app.config import load_config
-    from drivers.camera.factory import camera_config_from_dict
     from drivers.robot import ur_kinematics as kin
-    from mocks.render.camera import RenderedCamera
+    from mocks.render.camera import RenderedCamera, RenderedCameraConfig
 
     cfg = load_config(None)
-    cam_cfg = camera_config_from_dict({"backend": "rendered", "setup": "eye_to_hand", "seed": 5})
+    cam_cfg = RenderedCameraConfig(setup="eye_to_hand", seed=5)
     T_start = kin.forward(np.array(cfg.robot["initial_q"]), "ur10")
     rng = np.random.default_rng(7)
     folder = tmp_path / "capture"
