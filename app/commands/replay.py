@@ -151,14 +151,14 @@ def _uses(method: str) -> str:
 
 def heldout_error(method: str, observations, setup: Setup, *, refine: bool, robust: bool,
                   rng: np.random.Generator | None):
-    """`calib.crossval.cross_validate` of ``method`` on the samples it uses (leave-one-out up to 30
-    samples, else 10 folds); returns ``(CrossValidation or None, reason or None)``."""
+    """`calib.crossval.cross_validate` of ``method`` on the samples it uses (leave-one-out up to 10
+    samples, else 5 folds: a few solves per method); returns ``(CrossValidation or None, reason or None)``."""
     from calib.api import observations_to_arrays, resolve_method
     from calib.crossval import cross_validate
 
     info = resolve_method(method)
     A, B, point_cov, _ = observations_to_arrays(observations, info.needs)
-    folds = None if len(A) <= 30 else 10
+    folds = None if len(A) <= 10 else 5
     try:
         return cross_validate(info.name, A, B, setup=setup, folds=folds, rng=rng, refine=refine, robust=robust,
                               point_cov=point_cov), None
@@ -285,14 +285,8 @@ def advice(rows: list[ReplayRow], observations, *, refine: bool, target_mm: floa
     """
     lines = []
     ok = [r for r in rows if r.result is not None]
-    best = recommended(rows)
-    if best is not None:
-        lines.append(f"recommended: {best.method}{' (refined)' if refine else ''}: lowest held-out prediction error, "
-                     f"{best.heldout.observed_rms * 1e3:.2f} mm (its model predicts "
-                     f"{best.heldout.predicted_rms * 1e3:.2f} mm)")
-    elif ok:
-        why = next((r.heldout_error for r in ok if r.heldout_error), "cross-validation off")
-        lines.append(f"no recommendation: no held-out prediction error ({why}); rows sorted by residual RMS")
+    # Groups whose refined rows all reach the same optimum: one result, however many solvers.
+    agreeing = {}
     if refine:
         for uses in ("points", "poses"):
             group = [r for r in ok if r.uses == uses]
@@ -302,10 +296,23 @@ def advice(rows: list[ReplayRow], observations, *, refine: bool, target_mm: floa
             errs = np.array([tf.pose_error(r.result.camera_transform, ref) for r in group])
             spread_mm, spread_deg = float(errs[:, 1].max()) * 1e3, float(np.rad2deg(errs[:, 0].max()))
             if spread_mm <= SAME_MM and spread_deg <= SAME_DEG:
-                lines.append(f"note: the {len(group)} refined rows using marker {uses} agree within "
-                             f"{spread_mm:.3f} mm / {spread_deg:.4f} deg: maximum-likelihood refinement takes "
-                             "every solver's closed-form start to the same optimum, so they differ only in time "
-                             "(replay without --refine to compare the closed forms)")
+                agreeing[uses] = (group, spread_mm, spread_deg)
+    best = recommended(rows)
+    if best is not None:
+        what = f"{best.method}{' (refined)' if refine else ''}"
+        if best.uses in agreeing:
+            what = (f"the refined result from marker {best.uses} (all {len(agreeing[best.uses][0])} solvers of that "
+                    f"group reach it; {best.method} had the lowest held-out error)")
+        lines.append(f"recommended: {what}: held-out prediction error {best.heldout.observed_rms * 1e3:.2f} mm "
+                     f"(its model predicts {best.heldout.predicted_rms * 1e3:.2f} mm)")
+    elif ok:
+        why = next((r.heldout_error for r in ok if r.heldout_error), "cross-validation off")
+        lines.append(f"no recommendation: no held-out prediction error ({why}); rows sorted by residual RMS")
+    for uses, (group, spread_mm, spread_deg) in agreeing.items():
+        lines.append(f"note: the {len(group)} refined rows using marker {uses} agree within "
+                     f"{spread_mm:.3f} mm / {spread_deg:.4f} deg: maximum-likelihood refinement takes "
+                     "every solver's closed-form start to the same optimum, so they differ only in time "
+                     "(replay without --refine to compare the closed forms)")
     t_mm = target_mm or DEFAULT_TARGET_MM
     t_deg = target_deg or DEFAULT_TARGET_DEG
     where = "the config's calibrate.target_sigma" if (target_mm or target_deg) else "the default target"
@@ -337,14 +344,18 @@ def _names(flagged: list, ok: list) -> str:
 
 
 def _consistency(r: ReplayRow, observations) -> tuple[float | None, str]:
-    """Observed / expected error: held-out vs. predicted, else in-sample residuals vs. the points' covariances."""
+    """The larger of two observed / expected ratios: the in-sample residual RMS against the noise the
+    samples' covariances claim, and the held-out error against what the fitted noise model predicts
+    (which adapts its noise levels to the data, so it misses a uniformly inflated noise)."""
+    ratios = []
     if r.heldout is not None:
-        return r.heldout.ratio, "held-out errors are"
+        ratios.append((r.heldout.ratio, "held-out errors are"))
     covs = [o.point_cov for o in observations if o.point_cov is not None]
-    if not covs or len(covs) != len(observations):
-        return None, ""
-    expected = float(np.sqrt(np.mean([np.trace(c) for c in covs])))
-    return (r.result.residuals.rms_translation / expected if expected > 0 else None), "residuals are"
+    if covs and len(covs) == len(observations):
+        expected = float(np.sqrt(np.mean([np.trace(c) for c in covs])))
+        if expected > 0:
+            ratios.append((r.result.residuals.rms_translation / expected, "residuals are"))
+    return max(ratios) if ratios else (None, "")
 
 
 def _sigma_deg_mm(res: CalibrationResult) -> tuple[float, float]:
