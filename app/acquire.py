@@ -65,6 +65,7 @@ def take_sample(
     not_before: float,
     save_frames: bool = True,
     check: Callable[[], str | None] | None = None,
+    pose_kind: str | None = None,
 ) -> Observation | None:
     """Capture one time-synchronised sample and record it (or its skip reason).
 
@@ -73,6 +74,7 @@ def take_sample(
 
     ``check``, if given, is called after the measurement; a returned string is
     a reason to skip the sample (e.g. the robot moved during the exposure).
+    ``pose_kind`` (e.g. ``"optimal"``, ``"bootstrap"``) is kept in the sample's meta.
 
     Returns
     -------
@@ -99,4 +101,6 @@ def take_sample(
     obs = Observation.from_measurement(writer.next_index, frame.t, T_base_flange, m, {"frame_index": frame.index})
     if frame.truth:
         obs.meta["truth"] = {k: np.asarray(v).tolist() for k, v in frame.truth.items()}
+    if pose_kind is not None:
+        obs.meta["pose_kind"] = pose_kind
     return writer.add_sample(obs, color=color, depth=depth)

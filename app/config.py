@@ -15,17 +15,24 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import shlex
+import shutil
 import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+
 from app.errors import ConfigError
+from app.files import read_text_file
 from calib.setup import Setup, check_setup
 
-# Solver names as in the paper; checked against calib.METHODS when the solver
-# layer is imported (calib.api), here only for shape.
-DEFAULT_METHOD = "YKronT'"
+# Solver names as in the paper (or "auto", calib.auto); checked against calib.METHODS
+# when the solver layer is imported (calib.api), here only for shape.
+DEFAULT_METHOD = "auto"
+# The monitor re-estimates from a few samples after a move: the paper's point solver.
+MONITOR_METHOD = "YKronT'"
 # Result formats of app.formats.write_result (kept literal: config must load without the exporters).
 EXPORTS = ("yaml", "json", "easy_handeye", "easy_handeye2", "urdf", "ros2_launch")
 # [frames]: names every export uses (validated by app.formats.export.check_frames). "camera" is the
@@ -60,27 +67,86 @@ def _string(obj, name: str, *, choices=None, allow_empty: bool = True) -> None:
         raise ConfigError(f"{type(obj).SECTION}.{name} must be one of {list(choices)}, got {v!r}")
 
 
+def _method(obj, name: str) -> None:
+    """A solver name `calib.api.solve` knows, so a typo fails at load, before any robot motion."""
+    from calib.api import AUTO, resolve_method
+    from calib.errors import CalibrationError
+
+    _string(obj, name, allow_empty=False)
+    if getattr(obj, name).strip().lower() == AUTO:
+        setattr(obj, name, AUTO)
+        return
+    try:
+        setattr(obj, name, resolve_method(getattr(obj, name)).name)
+    except CalibrationError as e:
+        raise ConfigError(f"{type(obj).SECTION}.{name}: {e}") from None
+
+
+def hook_argv(command: str) -> list[str]:
+    """The alarm hook's argument list (split like a shell, run without one); [] for no hook.
+
+    Raises
+    ------
+    ConfigError
+        Naming ``monitor.alarm_hook``: unbalanced quotes, or a program that is
+        neither on ``PATH`` nor an executable file.
+    """
+    if not command.strip():
+        return []
+    try:
+        argv = shlex.split(command)
+    except ValueError as e:
+        raise ConfigError(f"monitor.alarm_hook: cannot split {command!r} into arguments ({e})") from None
+    if not argv:
+        return []
+    if shutil.which(argv[0]) is None:
+        raise ConfigError(f"monitor.alarm_hook: program {argv[0]!r} not found on PATH or not executable")
+    return argv
+
+
 @dataclass
 class CalibrateConfig:
-    """``[calibrate]``: the active run (robot moves through random poses).
+    """``[calibrate]``: the active run (robot moves through planned, random or listed poses).
 
-    Poses are drawn around the start pose: each axis offset uniform in
-    ``+-translation_range_m``, a rotation about a random axis by up to
-    ``tilt_deg``. The run stops at ``samples`` or as soon as the predicted
-    1-sigma of the camera transform falls below both targets (after
-    ``min_samples``).
+    Poses lie around the start pose: each axis offset within
+    ``+-translation_range_m``, a rotation about an axis through the flange by
+    up to ``tilt_deg``. ``poses``: ``"optimal"`` (`calib.planner`: a small
+    model-free bootstrap, then the pose that teaches the estimator most about
+    the camera per second of motion), ``"random"`` (uniform), or a file
+    (``plan.json`` from ``handeye plan``). The run stops at ``samples`` or as
+    soon as the predicted 1-sigma of the camera transform falls below both
+    targets (after ``min_samples``).
+
+    Planner validity (poses that fail are never sent): the marker's corners
+    ``image_margin_px`` inside the image, its center's depth within
+    ``depth_range_m``, its face within ``max_view_angle_deg`` of the camera
+    ray, the flange and the marker (eye-to-hand) / camera (eye-in-hand) at
+    least ``clearance_m`` from every ``keep_out`` box (``[[xmin, ymin, zmin],
+    [xmax, ymax, zmax]]`` in the base frame, m) along the path; the robot
+    driver adds its own limits (joints, workspace box, tilt cone, path).
+    ``lever_max_m`` bounds the flange-to-marker (eye-to-hand) or
+    flange-to-camera (eye-in-hand) distance that the bootstrap's in-view
+    guarantee assumes. ``travel_weight``: information (nats) one second of
+    motion is worth.
     """
 
     SECTION = "calibrate"
     samples: int = 20
     min_samples: int = 8
-    target_sigma_mm: float = 0.0
-    target_sigma_deg: float = 0.0
+    target_sigma_mm: float = 1.0
+    target_sigma_deg: float = 0.1
+    poses: str = "optimal"
     translation_range_m: float = 0.15
     tilt_deg: float = 40.0
     settle_s: float = 0.1
     max_attempts: int = 200
     image_margin_px: int = 40
+    depth_range_m: list = field(default_factory=lambda: [0.4, 2.0])
+    max_view_angle_deg: float = 60.0
+    keep_out: list = field(default_factory=list)
+    clearance_m: float = 0.05
+    lever_max_m: float = 0.1
+    travel_weight: float = 0.05
     method: str = DEFAULT_METHOD
     refine: bool = True
     robust: bool = False
@@ -102,7 +168,31 @@ class CalibrateConfig:
         _positive(self, "settle_s", allow_zero=True)
         _integer(self, "max_attempts", 1)
         _integer(self, "image_margin_px", 0)
-        _string(self, "method", allow_empty=False)
+        _string(self, "poses", allow_empty=False)
+        r = self.depth_range_m
+        if (not isinstance(r, (list, tuple)) or len(r) != 2 or any(isinstance(v, bool) or not isinstance(v, (int, float))
+                                                                   or not math.isfinite(v) for v in r)
+                or not 0 <= r[0] < r[1]):
+            raise ConfigError(f"calibrate.depth_range_m must be [min, max] m with 0 <= min < max, got {r!r}")
+        _positive(self, "max_view_angle_deg")
+        if self.max_view_angle_deg >= 90.0:
+            raise ConfigError(f"calibrate.max_view_angle_deg must be < 90, got {self.max_view_angle_deg}")
+        if not isinstance(self.keep_out, list):
+            raise ConfigError(f"calibrate.keep_out must be a list of [[xmin, ymin, zmin], [xmax, ymax, zmax]], "
+                              f"got {self.keep_out!r}")
+        for i, box in enumerate(self.keep_out):
+            try:
+                lo, hi = (np.asarray(v, dtype=float) for v in box)
+                ok = lo.shape == hi.shape == (3,) and np.isfinite(lo).all() and np.isfinite(hi).all() and (lo < hi).all()
+            except (TypeError, ValueError):
+                ok = False
+            if not ok:
+                raise ConfigError(f"calibrate.keep_out[{i}] must be [[xmin, ymin, zmin], [xmax, ymax, zmax]] (m) with "
+                                  f"min < max, got {box!r}")
+        _positive(self, "clearance_m", allow_zero=True)
+        _positive(self, "lever_max_m", allow_zero=True)
+        _positive(self, "travel_weight", allow_zero=True)
+        _method(self, "method")
         _boolean(self, "refine")
         _boolean(self, "robust")
         _integer(self, "seed", 0)
@@ -114,7 +204,11 @@ class MonitorConfig:
 
     A sample is taken when the robot has been still for ``still_s`` and its
     pose differs from each of the last ``diversity_window`` samples by at
-    least ``min_translation_m`` or ``min_rotation_deg``.
+    least ``min_translation_m`` or ``min_rotation_deg``. The samples since the
+    start (or the last alarm) are held in a set of at most ``keep_samples``
+    (0 = unbounded): beyond it, the sample whose loss costs the estimate the
+    least information goes, never one of the ``keep_recent`` newest
+    (`calib.planner.least_informative`, docs/planning.md).
     """
 
     SECTION = "monitor"
@@ -127,7 +221,9 @@ class MonitorConfig:
     duration_s: float = 0.0
     alarm_hook: str = ""
     reestimate_samples: int = 8
-    method: str = DEFAULT_METHOD
+    keep_samples: int = 300
+    keep_recent: int = 50
+    method: str = MONITOR_METHOD
     online: dict = field(default_factory=dict)
 
     def __post_init__(self):
@@ -139,8 +235,14 @@ class MonitorConfig:
         _integer(self, "max_samples", 0)
         _positive(self, "duration_s", allow_zero=True)
         _string(self, "alarm_hook")
+        hook_argv(self.alarm_hook)
         _integer(self, "reestimate_samples", 3)
-        _string(self, "method", allow_empty=False)
+        _integer(self, "keep_samples", 0)
+        _integer(self, "keep_recent", 0)
+        if self.keep_samples and self.keep_recent >= self.keep_samples:
+            raise ConfigError(f"monitor.keep_recent ({self.keep_recent}) must be below monitor.keep_samples "
+                              f"({self.keep_samples})")
+        _method(self, "method")
         if not isinstance(self.online, dict):
             raise ConfigError(f"monitor.online must be a table, got {self.online!r}")
 
@@ -290,23 +392,48 @@ def config_from_dict(data: dict) -> Config:
     return Config(**kwargs)
 
 
+#: A config is a few kB; this bounds what a wrong path (a log, a disk image) can cost.
+MAX_CONFIG_BYTES = 1024 * 1024
+#: Deepest nesting of tables/arrays a config may have (ours has 3); deeper input
+#: would otherwise exhaust the TOML parser's recursion.
+MAX_CONFIG_DEPTH = 16
+
+
+def _depth(value, limit: int, level: int = 0) -> int:
+    if level > limit:
+        return level
+    if isinstance(value, dict):
+        return max((_depth(v, limit, level + 1) for v in value.values()), default=level + 1)
+    if isinstance(value, list):
+        return max((_depth(v, limit, level + 1) for v in value), default=level + 1)
+    return level
+
+
 def load_config(path: str | Path | None = None) -> Config:
     """Load and validate a TOML config; ``None`` gives the embedded simulated cell.
 
     Raises
     ------
     ConfigError
-        If the file is missing, not valid TOML, or a field is invalid.
+        If the file is missing, not a regular UTF-8 file, not valid TOML,
+        nested deeper than `MAX_CONFIG_DEPTH`, or a field is invalid; the
+        message names the file and the field.
     """
     if path is None:
         return Config()
     path = Path(path)
     try:
-        data = tomllib.loads(path.read_text(encoding="utf-8"))
-    except FileNotFoundError:
-        raise ConfigError(f"config file not found: {path}") from None
+        text = read_text_file(path, ConfigError, max_bytes=MAX_CONFIG_BYTES)
+    except ConfigError as e:
+        raise ConfigError(f"config file {e}") from None
+    try:
+        data = tomllib.loads(text)
     except tomllib.TOMLDecodeError as e:
         raise ConfigError(f"{path}: invalid TOML: {e}") from None
+    except RecursionError:
+        raise ConfigError(f"{path}: nested deeper than the TOML parser allows") from None
+    if _depth(data, MAX_CONFIG_DEPTH) > MAX_CONFIG_DEPTH:
+        raise ConfigError(f"{path}: nested deeper than {MAX_CONFIG_DEPTH} levels; not a handeye config")
     try:
         return config_from_dict(data)
     except ConfigError as e:

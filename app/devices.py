@@ -14,7 +14,8 @@ import numpy as np
 
 from app import backends  # noqa: F401  every backend registers itself
 from app.config import CalibrateConfig, Config
-from app.errors import ConfigError
+from app.errors import ConfigError, SessionError
+from app.session import check_writable_root
 from app.viz import Viz
 from calib.errors import ParameterError
 from calib.setup import Setup
@@ -33,7 +34,8 @@ RESULT_FILES = {
 
 
 def validate(cfg: Config) -> None:
-    """Validate the sections owned by the device, vision and online layers (raises ConfigError naming the field)."""
+    """Validate the sections owned by the device, vision and online layers, and that the
+    session root is writable (raises ConfigError naming the field)."""
     from calib.vision.extract import TargetConfig
 
     for section, check in (("robot", ROBOTS.config_from_dict), ("camera", CAMERAS.config_from_dict),
@@ -43,11 +45,20 @@ def validate(cfg: Config) -> None:
         except ParameterError as e:
             raise ConfigError(f"[{section}]: {e}") from None
     online_config(cfg)
+    check_session_root(cfg)
     from app.formats.export import check_frames
     from app.mqtt import MqttConfig
 
     check_frames(cfg.frames)
     MqttConfig.from_dict(cfg.mqtt)
+
+
+def check_session_root(cfg: Config) -> None:
+    """ConfigError naming ``session.root`` unless sessions can be written there (checked before devices open)."""
+    try:
+        check_writable_root(cfg.session.root)
+    except SessionError as e:
+        raise ConfigError(f"session.root: {e}") from None
 
 
 def open_robot(cfg: Config, *, read_only: bool):
@@ -103,12 +114,16 @@ def make_measure(cfg: Config):
 
 
 def make_solve(cal: CalibrateConfig, setup: Setup, rng: np.random.Generator):
-    """``solve(observations, *, final)``: fast unrefined estimates while running, the configured one at the end."""
+    """``solve(observations, *, final)``: the configured solver, refined while running too if configured (the
+    stop on the predicted 1-sigma and the pose planner then see the covariance of the result that will be
+    reported); outlier rejection only at the end."""
     from calib.api import solve_observations
 
     def solve(observations, *, final: bool):
-        return solve_observations(cal.method, observations, setup,
-                                  refine=cal.refine and final, robust=cal.robust and final, rng=rng)
+        # While running, "auto" gives way to its fast closed-form start.
+        method = "YKronT'" if cal.method.strip().lower() == "auto" and not final else cal.method
+        return solve_observations(method, observations, setup,
+                                  refine=cal.refine, robust=cal.robust and final, rng=rng)
 
     return solve
 

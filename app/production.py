@@ -23,7 +23,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from app.commands.calibrate import random_pose
+from app.planning import random_pose
 from app.config import CalibrateConfig
 from calib import transforms as tf
 from calib.setup import Setup

@@ -20,7 +20,9 @@ from __future__ import annotations
 import datetime as _dt
 import json
 import logging
+import math
 import os
+import tempfile
 from collections import Counter
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -28,6 +30,9 @@ from pathlib import Path
 import numpy as np
 
 from app.errors import SessionError
+from app.files import inside, read_regular_file
+from calib import transforms as tf
+from calib.errors import CalibrationError
 from calib.observation import Observation
 from calib.setup import Setup, check_setup
 from drivers.camera.depth import depth_from_mm, depth_to_mm
@@ -63,15 +68,6 @@ def _jsonable(x):
     return x
 
 
-def _array(value, shape, what: str, line_no: int):
-    if value is None:
-        return None
-    a = np.asarray(value, dtype=float)
-    if a.shape != shape:
-        raise SessionError(f"samples.jsonl line {line_no}: {what} must have shape {shape}, got {a.shape}")
-    return a
-
-
 @dataclass
 class Session:
     """A session read back from disk.
@@ -101,19 +97,27 @@ class Session:
 
     @property
     def truth(self) -> dict:
-        """True transforms (4x4 arrays) recorded by simulated sources, else empty."""
+        """True transforms (4x4 arrays) recorded by simulated sources, else empty (checked by `read_session`)."""
         return {k: np.asarray(v, dtype=float) for k, v in (self.header.get("truth") or {}).items()}
 
     def load_frames(self, obs: Observation) -> tuple[np.ndarray | None, np.ndarray | None]:
         """Color (H, W, 3) uint8 BGR and depth (H, W) float32 m of a sample, or None if not stored."""
         import cv2  # only needed when frames are asked for
 
-        color = depth = None
-        if obs.meta.get("color"):
-            color = cv2.imread(str(self.path / obs.meta["color"]), cv2.IMREAD_COLOR)
-        if obs.meta.get("depth"):
-            d = cv2.imread(str(self.path / obs.meta["depth"]), cv2.IMREAD_UNCHANGED)
-            depth = None if d is None else depth_from_mm(d)
+        def load(key, flags):
+            # Frame names come from the session's own lines: read them only inside the session.
+            where = f"{self.path / 'samples.jsonl'} sample {obs.index}: {key}"
+            data = read_regular_file(inside(self.path, obs.meta[key], SessionError, what=where), SessionError)
+            try:
+                img = cv2.imdecode(np.frombuffer(data, np.uint8), flags) if data else None
+            except cv2.error:
+                img = None
+            if img is None:
+                raise SessionError(f"{where}: {obs.meta[key]!r} is not an image")
+            return img
+
+        color = load("color", cv2.IMREAD_COLOR) if obs.meta.get("color") else None
+        depth = depth_from_mm(load("depth", cv2.IMREAD_UNCHANGED)) if obs.meta.get("depth") else None
         return color, depth
 
 
@@ -265,8 +269,32 @@ class SessionWriter:
         return False
 
 
+def check_writable_root(root) -> Path:
+    """Make sure sessions can be written below ``root`` (created if missing), before any device opens.
+
+    Creates and removes a probe file, which also catches read-only mounts and
+    full disks where permission bits alone would not (and root ignores them).
+
+    Raises
+    ------
+    SessionError
+        Naming ``root`` and why it is not writable.
+    """
+    root = Path(root)
+    try:
+        root.mkdir(parents=True, exist_ok=True)
+        fd, probe = tempfile.mkstemp(prefix=".handeye-write-probe-", dir=root)
+        os.close(fd)
+        os.unlink(probe)
+    except OSError as e:
+        raise SessionError(f"cannot write sessions below {root}: {e.strerror or e}") from None
+    return root
+
+
 def _drop_torn_tail(path: Path) -> None:
     """Truncate a torn (unterminated) last line so appends start on a fresh line."""
+    if not path.exists():
+        return
     data = path.read_bytes()
     if data and not data.endswith(b"\n"):
         with open(path, "r+b") as f:
@@ -276,74 +304,152 @@ def _drop_torn_tail(path: Path) -> None:
 def read_session(path: str | Path) -> Session:
     """Read a session directory written by `SessionWriter` or another program.
 
+    Reads regular files only (a FIFO named ``samples.jsonl`` is refused, not
+    waited on) and every field is checked where it is read.
+
     Raises
     ------
     SessionError
-        If ``session.json`` is missing, of another format or a newer version,
-        or a line other than the last is not valid JSON or has bad shapes.
+        Naming the file and line: ``session.json`` missing, not a JSON
+        object, of another format or a newer version, or with a malformed
+        ``truth``; a line of ``samples.jsonl`` (other than a torn last one)
+        that is not a JSON object, has a missing or non-numeric field, a
+        ragged or wrongly shaped matrix, or a sample index used twice.
         A torn last line (a run killed mid-write) is ignored with a warning.
     """
     path = Path(path)
-    try:
-        header = json.loads((path / "session.json").read_text(encoding="utf-8"))
-    except FileNotFoundError:
-        raise SessionError(f"not a session (no session.json): {path}") from None
-    except json.JSONDecodeError as e:
-        raise SessionError(f"{path / 'session.json'}: invalid JSON: {e}") from None
+    header_path = path / "session.json"
+    if not header_path.exists():
+        raise SessionError(f"not a session (no session.json): {path}")
+    # The session's own files, too, must not be symlinks out of it.
+    header_path = inside(path, "session.json", SessionError, what=str(path))
+    header = _json(read_regular_file(header_path, SessionError, max_bytes=MAX_HEADER_BYTES), header_path)
+    if not isinstance(header, dict):
+        raise SessionError(f"{header_path}: expected a JSON object, got {type(header).__name__}")
     if header.get("format") != FORMAT_NAME:
-        raise SessionError(f"{path}: format is {header.get('format')!r}, expected {FORMAT_NAME!r}")
+        raise SessionError(f"{path}: format is {header.get('format')!r:.60}, expected {FORMAT_NAME!r}")
     version = header.get("version")
-    if not isinstance(version, int) or version > FORMAT_VERSION or version < 1:
-        raise SessionError(f"{path}: unsupported session version {version!r} (this handeye reads <= {FORMAT_VERSION})")
+    if not isinstance(version, int) or isinstance(version, bool) or version > FORMAT_VERSION or version < 1:
+        raise SessionError(f"{path}: unsupported session version {version!r:.40} (this handeye reads <= {FORMAT_VERSION})")
     check_setup(header.get("setup"), f"{path}: setup", SessionError)
+    _check_truth(header.get("truth"), header_path)
 
     session = Session(path, header)
     lines_path = path / "samples.jsonl"
-    if not lines_path.exists():
+    if not lines_path.exists() and not lines_path.is_symlink():
         return session
-    raw = lines_path.read_bytes().split(b"\n")
+    raw = read_regular_file(inside(path, "samples.jsonl", SessionError, what=str(path)), SessionError).split(b"\n")
     # A file ending with "\n" splits into a final empty chunk; anything else there is a torn write.
     if raw and raw[-1] == b"":
         raw.pop()
         torn_tail = False
     else:
         torn_tail = bool(raw)
+    seen: dict[int, int] = {}  # sample/skip index -> line
     for i, line in enumerate(raw, start=1):
         if not line.strip():
             continue
+        where = f"{lines_path} line {i}"
         try:
-            rec = json.loads(line)
-        except json.JSONDecodeError as e:
+            rec = _json(line, where)
+        except SessionError:
             if torn_tail and i == len(raw):
                 log.warning("%s: ignoring torn last line %d (run interrupted mid-write)", lines_path, i)
                 break
-            raise SessionError(f"{lines_path} line {i}: invalid JSON: {e}") from None
+            raise
+        if not isinstance(rec, dict):
+            raise SessionError(f"{where}: expected a JSON object, got {type(rec).__name__}")
         kind = rec.get("kind", "sample")
         if kind == "sample":
-            session.observations.append(_observation(rec, i))
+            obs = _observation(rec, where)
+            _unique(seen, obs.index, i, where)
+            session.observations.append(obs)
         elif kind == "skip":
+            if "index" in rec:
+                _unique(seen, _int(rec["index"], f"{where}: index"), i, where)
+            if "t" in rec:
+                _real(rec["t"], f"{where}: t")
             session.skipped.append(rec)
         elif kind == "event":
             session.events.append(rec)
         else:
-            raise SessionError(f"{lines_path} line {i}: unknown kind {kind!r}")
+            raise SessionError(f"{where}: unknown kind {kind!r:.40}")
     return session
 
 
-def _observation(rec: dict, line_no: int) -> Observation:
+#: ``session.json`` is a few kB (config, intrinsics, truth).
+MAX_HEADER_BYTES = 16 * 1024 * 1024
+
+
+def _json(data: bytes, where) -> object:
+    """Parsed JSON of ``data``; SessionError naming ``where`` on bad JSON, bad UTF-8 or absurd nesting."""
+    try:
+        return json.loads(data)
+    except (ValueError, RecursionError) as e:  # JSONDecodeError and UnicodeDecodeError are ValueErrors
+        raise SessionError(f"{where}: invalid JSON: {str(e)[:120]}") from None
+
+
+def _unique(seen: dict, index: int, line: int, where: str) -> None:
+    if index in seen:
+        raise SessionError(f"{where}: index {index} is used twice (also on line {seen[index]}); "
+                           "refusing to guess which sample it is")
+    seen[index] = line
+
+
+def _int(value, what: str) -> int:
+    if isinstance(value, bool) or not isinstance(value, int) or value < 0:
+        raise SessionError(f"{what} must be an integer >= 0, got {value!r:.40}")
+    return value
+
+
+def _real(value, what: str) -> float:
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
+        raise SessionError(f"{what} must be a finite number, got {value!r:.40}")
+    return float(value)
+
+
+def _array(value, shape, what: str):
+    if value is None:
+        return None
+    try:
+        a = tf.as_real_array(value, what, max_magnitude=None)
+    except CalibrationError as e:
+        raise SessionError(str(e)) from None
+    if a.shape != shape:
+        raise SessionError(f"{what} must have shape {shape}, got {a.shape}")
+    return a
+
+
+def _check_truth(truth, where: Path) -> None:
+    """``truth`` of ``session.json``: absent/null, or a mapping of names to finite 4x4 transforms."""
+    if truth is None:
+        return
+    if not isinstance(truth, dict):
+        raise SessionError(f"{where}: truth must be an object of 4x4 transforms, got {type(truth).__name__}")
+    for name, value in truth.items():
+        try:
+            tf.check_transform(value, f"truth.{name}", atol=1e-5)
+        except CalibrationError as e:
+            raise SessionError(f"{where}: {e}") from None
+
+
+def _observation(rec: dict, where: str) -> Observation:
     for key in ("index", "t", "T_base_flange"):
         if key not in rec:
-            raise SessionError(f"samples.jsonl line {line_no}: missing {key!r}")
+            raise SessionError(f"{where}: missing {key!r}")
+    meta = rec.get("meta") or {}
+    if not isinstance(meta, dict):
+        raise SessionError(f"{where}: meta must be an object, got {type(meta).__name__}")
     obs = Observation(
-        index=int(rec["index"]),
-        t=float(rec["t"]),
-        T_base_flange=_array(rec["T_base_flange"], (4, 4), "T_base_flange", line_no),
-        point_cam=_array(rec.get("point_cam"), (3,), "point_cam", line_no),
-        point_cov=_array(rec.get("point_cov"), (3, 3), "point_cov", line_no),
-        T_cam_marker=_array(rec.get("T_cam_marker"), (4, 4), "T_cam_marker", line_no),
-        pose_cov=_array(rec.get("pose_cov"), (6, 6), "pose_cov", line_no),
-        meta=rec.get("meta") or {},
+        index=_int(rec["index"], f"{where}: index"),
+        t=_real(rec["t"], f"{where}: t"),
+        T_base_flange=_array(rec["T_base_flange"], (4, 4), f"{where}: T_base_flange"),
+        point_cam=_array(rec.get("point_cam"), (3,), f"{where}: point_cam"),
+        point_cov=_array(rec.get("point_cov"), (3, 3), f"{where}: point_cov"),
+        T_cam_marker=_array(rec.get("T_cam_marker"), (4, 4), f"{where}: T_cam_marker"),
+        pose_cov=_array(rec.get("pose_cov"), (6, 6), f"{where}: pose_cov"),
+        meta=meta,
     )
     if obs.point_cam is None and obs.T_cam_marker is None:
-        raise SessionError(f"samples.jsonl line {line_no}: a sample needs point_cam or T_cam_marker")
+        raise SessionError(f"{where}: a sample needs point_cam or T_cam_marker")
     return obs

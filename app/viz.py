@@ -18,6 +18,10 @@ Entity tree (base frame = ``world``, metres, z up)::
     drift/{translation_mm,rotation_deg} online estimate vs. the reference
     events                       alarms, skips, stops, the result (text log)
     result                       the final result (markdown)
+    plan/flange                  planned flange poses (``handeye plan``; timeline ``plan_pose``)
+    plan/camera/image            camera frustum and the predicted marker outline per planned pose
+    plan/path                    the flange path through the planned poses
+    plan/sigma_{mm,deg}          expected 1-sigma after each planned pose
 
 A blueprint opens the recording in a useful layout: the 3D cell, the camera
 image with the detected marker, residual / 1-sigma / drift plots, the events.
@@ -48,6 +52,7 @@ from pathlib import Path
 import numpy as np
 
 from calib import transforms as tf
+from calib.result import worst_axis_sigma
 from calib.setup import Setup, check_setup
 
 log = logging.getLogger(__name__)
@@ -402,6 +407,39 @@ class Viz:
             return
         self._time(t)
         self._log("events", self._rr.TextLog(text, level=level))
+
+    def plan(self, poses, X: np.ndarray, Y: np.ndarray, intrinsics, marker_size_m: float) -> None:
+        """Planned poses (`calib.planner.PlannedPose`) of a dry run, one step of the ``plan_pose`` timeline each:
+        flange axes, the camera frustum and what the camera would see (predicted marker outline and center).
+
+        Eye-to-hand: ``X = T_flange_marker``, ``Y = T_base_cam``; eye-in-hand:
+        ``X = T_flange_cam``, ``Y = T_base_marker``.
+        """
+        if not self.enabled:
+            return
+        rr = self._rr
+        A = np.array([p.T_base_flange for p in poses])
+        self._log("plan/path", rr.LineStrips3D([A[:, :3, 3]], colors=[200, 200, 200]), static=True)
+        h = marker_size_m / 2
+        corners = np.array([[-h, -h, 0], [h, -h, 0], [h, h, 0], [-h, h, 0], [-h, -h, 0]])
+        for i, p in enumerate(poses):
+            for rec in self._recs:
+                rec.set_time("plan_pose", sequence=i)
+            T_base_cam = Y if not self.setup.camera_on_flange else p.T_base_flange @ X
+            T_cam_marker = tf.invert(T_base_cam) @ (p.T_base_flange @ X if not self.setup.camera_on_flange else Y)
+            self._transform("plan/flange", p.T_base_flange)
+            self._transform("plan/camera", T_base_cam)
+            img = "plan/camera/image"
+            self._log(img, rr.Pinhole(image_from_camera=intrinsics.K, width=intrinsics.width,
+                                      height=intrinsics.height, camera_xyz=rr.ViewCoordinates.RDF))
+            pc = tf.transform_points(T_cam_marker, corners)
+            uv = np.stack([intrinsics.fx * pc[:, 0] / pc[:, 2] + intrinsics.cx,
+                           intrinsics.fy * pc[:, 1] / pc[:, 2] + intrinsics.cy], -1)
+            self._log(f"{img}/marker", rr.LineStrips2D([uv], colors=[255, 0, 0]))
+            self._log(f"{img}/center", rr.Points2D([p.pixel], radii=4.0, colors=[255, 0, 0]))
+            s_rot, s_t = worst_axis_sigma(p.cov)
+            self._log("plan/sigma_mm", rr.Scalars(s_t * 1e3))
+            self._log("plan/sigma_deg", rr.Scalars(np.degrees(s_rot)))
 
     def close(self) -> None:
         """Flush and close the recording; viewer trouble is a warning, never an exception."""

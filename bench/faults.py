@@ -1,7 +1,8 @@
 """Fault campaign for the robot side: repeat each controller/simulator fault many times, count the outcomes.
 
-Run ``python -m bench.faults [--quick | --full] [--freeze N] [--faults N] [--parent-deaths N]
-[--kills N] [--targets N] [--seed S]`` or ``handeye bench --faults``. Prints a markdown table:
+Run ``python -m bench.faults [--quick | --full] [--freeze N] [--faults N] [--app-freezes N]
+[--parent-deaths N] [--kills N] [--targets N] [--seed S]`` or ``handeye bench --faults``. Prints a
+markdown table:
 fault, runs, clean errors, crashes (native signals), hangs, samples lost, and the slowest
 detection. Everything runs on this process's own loopback /24 (``127.a.b.x``).
 
@@ -14,6 +15,11 @@ detection. Everything runs on this process's own loopback /24 (``127.a.b.x``).
 - Each of these runs in a worker process through the real ur_rtde client (`URRobot`) against
   `mocks.ur_sim`. A worker killed by a signal counts a crash (the worker is restarted), a run
   with no answer within 60 s a hang.
+- **calibrate with a frozen stream** (``--app-freezes``): ``handeye calibrate`` on the simulated
+  cell, the stream frozen for 60 s after 1-4 samples (the run that died of SIGFPE/SIGABRT in 2 of
+  10 tries before). Clean = exit 1 with one line naming the frozen stream; the detection column
+  is the time until the process has exited; lost = samples recorded before the freeze that are
+  not in the session afterwards.
 - **Parent death** (``--parent-deaths``): a 32-thread parent (the simulator launched from a
   worker thread that exits first) is SIGKILLed; orphan = the simulator still runs 3 s later or
   its ports are still bound.
@@ -65,9 +71,9 @@ ROBOT_FAULTS = {  # name: (expected error, what its message must say)
     "emergency_stop": (RobotStoppedError, "emergency"),
 }
 RUN_TIMEOUT = 60.0
-DEFAULTS = dict(freeze=10, faults=5, parent_deaths=20, kills=8, targets=1000)
-QUICK = dict(freeze=2, faults=1, parent_deaths=3, kills=1, targets=100)
-FULL = dict(freeze=25, faults=10, parent_deaths=50, kills=100, targets=10000)
+DEFAULTS = dict(freeze=10, faults=5, app_freezes=5, parent_deaths=20, kills=8, targets=1000)
+QUICK = dict(freeze=2, faults=1, app_freezes=1, parent_deaths=3, kills=1, targets=100)
+FULL = dict(freeze=25, faults=10, app_freezes=10, parent_deaths=50, kills=100, targets=10000)
 
 
 def _net() -> str:
@@ -345,6 +351,67 @@ def run_kills(runs: int, slots, seed: int, samples: int = 8) -> dict:
     return row
 
 
+def run_app_freezes(runs: int, slots, seed: int, seconds: float = 60.0) -> dict:
+    """``handeye calibrate`` with the stream frozen ``seconds`` after a random number of samples."""
+    row = {"fault": f"calibrate, stream frozen {seconds:.0f} s mid-run", "runs": 0, "clean": 0, "crashes": 0,
+           "hangs": 0, "lost": 0, "detect": [], "errors": []}
+    rng = random.Random(seed)
+    base = Path(__file__).resolve().parent.parent / "config" / "sim.toml"
+    tmp = Path(tempfile.mkdtemp(prefix="handeye-faults-"))
+    try:
+        for i in range(runs):
+            host = f"{_net()}.{next(slots)}"
+            cfg = tmp / f"sim{i}.toml"
+            cfg.write_text(base.read_text().replace('host = "127.0.0.2"', f'host = "{host}"'))
+            root = tmp / f"sessions{i}"
+            row["runs"] += 1
+            proc = subprocess.Popen([sys.executable, "-m", "app.cli", "calibrate", "--yes-move", "-c", str(cfg),
+                                     "--session-root", str(root), "--no-viz", "--samples", "30", "--seed", str(i)],
+                                    stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+            want = rng.randint(1, 4)
+            deadline = time.monotonic() + 120
+            before: set[int] = set()
+            while len(before) < want and proc.poll() is None and time.monotonic() < deadline:
+                time.sleep(0.05)
+                try:
+                    before, _ = _sample_indices(next(root.iterdir()))
+                except (StopIteration, HandeyeError, OSError):
+                    pass
+            if proc.poll() is not None or len(before) < want:
+                proc.kill()
+                row["errors"].append(f"no {want} samples before the freeze: {proc.communicate()[1].strip()[-200:]}")
+                continue
+            t0 = time.monotonic()
+            with socket.create_connection((host, 29999), timeout=5) as s:
+                f = s.makefile("rb")
+                f.readline()
+                s.sendall(f"sim freeze {seconds}\n".encode())
+                f.readline()
+            try:
+                _, err = proc.communicate(timeout=30)
+            except subprocess.TimeoutExpired:
+                proc.kill()
+                proc.communicate()
+                row["hangs"] += 1
+                row["errors"].append("calibrate did not exit within 30 s of the freeze")
+                continue
+            row["detect"].append(time.monotonic() - t0)  # until the process has exited, not just detected
+            if proc.returncode < 0:
+                row["crashes"] += 1
+                row["errors"].append(f"calibrate killed by {signal.Signals(-proc.returncode).name}")
+                continue
+            after, missing = _sample_indices(next(root.iterdir()))
+            row["lost"] += len(before - after) + missing
+            last = err.strip().splitlines()[-1] if err.strip() else ""
+            if proc.returncode == 1 and "frozen" in last and "Traceback" not in err:
+                row["clean"] += 1
+            else:
+                row["errors"].append(f"exit {proc.returncode}: {last[-200:]}")
+    finally:
+        shutil.rmtree(tmp, ignore_errors=True)
+    return row
+
+
 # ---------------------------------------------------- targets vs simulator
 def _random_start(rng: np.random.Generator, robot) -> np.ndarray:
     from drivers.robot import ur_kinematics as kin
@@ -455,6 +522,7 @@ def main(argv: list[str] | None = None) -> int:
     for fault in ROBOT_FAULTS:
         rows.append(run_robot_fault(fault, counts["freeze" if fault.startswith("freeze") else "faults"], slots,
                                     args.seed))
+    rows.append(run_app_freezes(counts["app_freezes"], slots, args.seed))
     rows.append(run_parent_deaths(counts["parent_deaths"], slots))
     rows.append(run_kills(counts["kills"], slots, args.seed))
     rows.append(run_targets(counts["targets"], args.seed))
@@ -465,11 +533,14 @@ def main(argv: list[str] | None = None) -> int:
     for row in rows:
         print(_fmt(row))
     freeze = [r for r in rows if r["fault"].startswith("freeze")]
+    app_freeze = rows[len(ROBOT_FAULTS)]
     pd, kills, tg = rows[-3], rows[-2], rows[-1]
     print("\n## Targets\n")
     print(f"- frozen-stream runs: {sum(r['runs'] for r in freeze)}, native crashes "
           f"{sum(r['crashes'] for r in freeze)}, hangs {sum(r['hangs'] for r in freeze)}, stale stream detected "
           f"within 1 s in {sum(sum(d <= 1.0 for d in r['detect']) for r in freeze)}")
+    print(f"- calibrate with the stream frozen 60 s: {app_freeze['runs']}, native crashes {app_freeze['crashes']}, "
+          f"hangs {app_freeze['hangs']}, clean one-line errors {app_freeze['clean']}")
     print(f"- parent deaths: {pd['runs']}, orphaned simulators {pd['orphans']}")
     print(f"- kill -9 + resume: {kills['runs']}, samples lost {kills['lost']}, resumable {kills['resumable']}")
     print(f"- targets: {tg['runs']} ({tg['accepted']} accepted, {tg['refused']} refused of which "

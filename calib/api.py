@@ -29,8 +29,8 @@ from calib import transforms as tf
 from calib.errors import CalibrationError, InsufficientDataError
 from calib.observation import Observation
 from calib.result import CalibrationResult, Residuals
-from calib.auto import solve_auto
-from calib.robust import robust_solve
+from calib.auto import self_check, solve_auto
+from calib.robust import default_subset, robust_solve
 from calib.setup import Setup, check_setup
 
 
@@ -116,7 +116,8 @@ def resolve_method(method: str) -> MethodInfo:
 
 
 def _check_inputs(info: MethodInfo, A, B) -> tuple[np.ndarray, np.ndarray]:
-    if info.needs == "poses" and np.ndim(B) == 2:
+    B = tf.as_real_array(B, "B")
+    if info.needs == "poses" and B.ndim == 2:
         point_methods = ", ".join(m.name for m in METHODS.values() if m.needs == "points")
         raise CalibrationError(
             f"{info.name} needs marker poses B of shape (N, 4, 4), got points {np.shape(B)}; "
@@ -265,7 +266,9 @@ def solve(
         return _closed_form(info, A_sub, B_sub, setup)
 
     if robust:
-        result = robust_solve(solve_fn, A, B, setup=setup, point_cov=cov_p,
+        # A subset must be solvable: XKronT needs 5 poses where the default subset has 4.
+        subset = max(info.min_samples, default_subset(points=B.ndim == 2))
+        result = robust_solve(solve_fn, A, B, setup=setup, point_cov=cov_p, min_samples=subset,
                               rng=rng if rng is not None else np.random.default_rng(0))
     else:
         result = solve_fn(A, B)
@@ -276,7 +279,14 @@ def solve(
         refined = rf.refine(result, A_in, B_in, point_cov=cov_in)
         result = dataclasses.replace(refined, inliers=result.inliers)
     cov, kind = _covariance(info, result, A_in, B_in, setup, cov_in, refined=refine)
-    return dataclasses.replace(result, cov=cov, info={**result.info, "cov_kind": kind})
+    extra = {"cov_kind": kind}
+    try:
+        extra["self_check"] = self_check(result.X, result.Y, A_in, B_in, setup=setup, point_cov=cov_in,
+                                         use_rotation=result.marker_rotation_known,
+                                         marker_rotation_known=result.marker_rotation_known)
+    except CalibrationError:
+        pass  # the model's information is singular for these samples: no self-check, the result stands
+    return dataclasses.replace(result, cov=cov, info={**result.info, **extra})
 
 
 #: Above this many samples a closed form from poses gets the ML (Fisher)
@@ -360,7 +370,14 @@ def solve_observations(method: str, observations: Sequence[Observation], setup: 
     Point methods (YKronT') get the depth-lifted marker centers ``point_cam``
     with their covariances; the others the marker poses ``T_cam_marker``
     (``METHODS[...].needs``). Samples lacking that measurement are left out.
+    ``"auto"`` gets the poses when every sample has one, else the centers
+    (``refine``/``robust`` do not apply: it always does both).
     """
+    if isinstance(method, str) and method.strip().lower() == AUTO:
+        # Every measurement the samples carry: poses when all have one, else the marker centers.
+        kind = "poses" if all(o.T_cam_marker is not None for o in observations) else "points"
+        A, B, point_cov, _ = observations_to_arrays(observations, kind)
+        return solve(AUTO, A, B, setup=setup, point_cov=point_cov, rng=rng)
     info = resolve_method(method)
     A, B, point_cov, _ = observations_to_arrays(observations, info.needs)
     return solve(info.name, A, B, setup=setup, refine=refine, robust=robust, point_cov=point_cov, rng=rng)

@@ -34,10 +34,27 @@ from calib.result import CalibrationResult, Residuals
 
 #: Allowed values of ``camera_correction``.
 CAMERA_CORRECTIONS = ("auto", "none", "depth", "depth+focal")
-#: A camera parameter is estimated only if the data determine it to this 1-sigma
-#: (a quarter of the systematic error a structured-light camera has before an
-#: infield correction: 2% scale, 8 mm offset, 2% focal).
-IDENTIFIABLE_SIGMA = {"depth_scale": 0.005, "depth_offset": 0.002, "focal_scale": 0.005}
+#: A camera parameter counts as determined by the motions if its 1-sigma (information
+#: matrix, with the parameters chosen before it) is below this: five times the
+#: systematic error a structured-light camera has before an infield correction
+#: (2% scale, 10 mm offset, 2% focal), i.e. the data could not tell its value from zero.
+IDENTIFIABLE_SIGMA = {"depth_scale": 0.1, "depth_offset": 0.05, "focal_scale": 0.1}
+#: Below this 1-sigma a camera parameter is estimated without further test (the data pin it
+#: down to half the typical error); between this and `IDENTIFIABLE_SIGMA` only if it lowers
+#: the held-out point error.
+#: Only the depth errors, the most common ones (1-2% and millimetres for structured light
+#: and stereo), which also shift predictions most when extrapolating in depth.
+WELL_DETERMINED_SIGMA = {"depth_scale": 0.01, "depth_offset": 0.01, "focal_scale": 0.0}
+#: Fewest samples before camera parameters are considered: below it the held-out test that
+#: admits them is too noisy (with 8 samples it admits metre-scale nonsense).
+MIN_SAMPLES_CAMERA = 12
+#: A camera parameter estimated beyond this is taken as the model absorbing something else
+#: (a bad sample, robot error) and is not used: 5% scale, 30 mm offset, 5% focal.
+PLAUSIBLE = {"depth_scale": 0.05, "depth_offset": 0.03, "focal_scale": 0.05}
+#: Smallest held-out improvement that counts, m (below it noise-free data would choose at random).
+MIN_LOO_GAIN_M = 1e-6
+#: A model variant (orientations, a camera parameter) must lower the held-out point error by this fraction.
+MIN_LOO_GAIN = 0.03
 #: What to move to determine each camera parameter.
 _MOTION_HINT = {
     "depth_scale": "translate the marker over a larger range, especially towards and away from the camera",
@@ -58,6 +75,7 @@ def _free_for(mode: str) -> tuple[bool, bool, bool]:
     return {"none": (False, False, False), "depth": (True, True, False)}.get(mode, (True, True, True))
 
 
+
 class _Fit:
     """State of the extended fit: transforms, camera error, noise levels and the problem."""
 
@@ -74,7 +92,7 @@ class _Fit:
         return model.Problem(self.M, self.B, W, sigma_rot=noise.rotation, free=free,
                              use_rotation=self.use_rotation), cof
 
-    def run(self, C, K, theta, noise, free, estimate):
+    def run(self, C, K, theta, noise, free, estimate=(True, True, True)):
         """Alternate LM and variance components until the noise levels settle."""
         iters, converged = 0, True
         for _ in range(MAX_ROUNDS):
@@ -90,6 +108,22 @@ class _Fit:
                 break
         prob, _ = self.problem(C, K, noise, free)
         return C, K, theta, noise, prob, iters, converged
+
+
+class _Candidate:
+    """One fitted model variant and its linearised leave-one-out RMS point prediction error (m)."""
+
+    def __init__(self, fit, C, K, theta, noise, prob, iterations, converged):
+        self.fit, self.C, self.K, self.theta, self.noise, self.prob = fit, C, K, theta, noise, prob
+        self.iterations, self.converged = iterations, converged
+        cof = model.robot_cofactor(C, K, prob.M, fit.setup)
+        errors, _ = model.leave_one_out(prob, C, K, theta, noise.point_cov(fit.shape, cof))
+        self.loo = float(np.sqrt(np.mean(errors**2)))
+
+
+def _better(cand: _Candidate, best: _Candidate) -> bool:
+    """Whether ``cand`` predicts held-out points clearly better than ``best``."""
+    return cand.loo < (1.0 - MIN_LOO_GAIN) * best.loo and best.loo - cand.loo > MIN_LOO_GAIN_M
 
 
 def _start(A, B, setup, use_rotation):
@@ -191,41 +225,67 @@ def solve_auto(A, B, *, setup: str, point_cov=None, camera_correction: str = "au
         from calib.api import closed_form
 
         name = start.method
-        hyp = robust_solve(lambda a, b: closed_form(name, a, b, setup=setup), A, B, setup=setup, point_cov=point_cov,
-                           rng=rng if rng is not None else np.random.default_rng(0))
-        inliers = hyp.inliers
-        start = hyp
+        try:
+            # YKronT' needs 5 samples (6 steady it); the pose-based starts 3 (4).
+            hyp = robust_solve(lambda a, b: closed_form(name, a, b, setup=setup), A, B, setup=setup,
+                               point_cov=point_cov, rng=rng if rng is not None else np.random.default_rng(0),
+                               min_samples=4 if start.marker_rotation_known else 6)
+        except CalibrationError as e:
+            notes.append(f"outlier search failed ({e}); all samples used")
+        else:
+            inliers = hyp.inliers
+            start = hyp
     A_in, B_in, shape_in = A[inliers], B[inliers], shape[inliers]
-    fit = _Fit(A_in, B_in, setup, shape_in, use_rotation)
-    C, K, _ = model.split(start.X, start.Y, A_in, setup)
-    if use_rotation and not start.marker_rotation_known:
-        K = tf.make_transform(model.marker_rotation(C, fit.M, B_in[:, :3, :3]), K[:3, 3])
+    C0, K0, _ = model.split(start.X, start.Y, A_in, setup)
     theta = np.zeros(3)
-    # Initial levels: the camera model at its own scale from the start's residual, a small robot error.
-    noise = _initial_noise(C, K, fit.M, p[inliers], shape_in, B_in[:, :3, :3] if use_rotation else None)
-    estimate = (True, True, True)
-    C, K, theta, noise, prob, iters, converged = fit.run(C, K, theta, noise, (False, False, False), estimate)
-
+    # Measurement sets: marker orientations are used unless they make held-out points worse.
+    best = None
+    for rot in ([True, False] if use_rotation else [False]):
+        fit = _Fit(A_in, B_in, setup, shape_in, rot)
+        K = K0
+        if rot and not start.marker_rotation_known:
+            K = tf.make_transform(model.marker_rotation(C0, fit.M, B_in[:, :3, :3]), K0[:3, 3])
+        noise = _initial_noise(C0, K, fit.M, p[inliers], shape_in, B_in[:, :3, :3] if rot else None)
+        cand = _Candidate(fit, *fit.run(C0, K, theta, noise, (False, False, False)))
+        if best is None or _better(cand, best):
+            if best is not None:
+                notes.append(f"marker orientations left out: held-out points {best.loo * 1e3:.2f} mm with them, "
+                             f"{cand.loo * 1e3:.2f} mm without (systematic orientation error, e.g. intrinsics)")
+            best = cand
     # Camera parameters, forward selection in the order of how common the error is (depth scale,
-    # depth offset, focal): a parameter joins if, with it, every chosen one stays determined.
-    wanted = _free_for(camera_correction) if camera_correction != "none" else (False, False, False)
-    free = np.zeros(3, dtype=bool)
+    # depth offset, focal): one joins if the motions determine it well (information matrix), or
+    # determine it at all and it lowers the held-out prediction error of the points.
+    wanted = _free_for(camera_correction)
+    if any(wanted) and len(A_in) < MIN_SAMPLES_CAMERA:
+        notes.append(f"camera correction not attempted: {len(A_in)} samples, it needs {MIN_SAMPLES_CAMERA}")
+        wanted = (False, False, False)
+    fit, free = best.fit, np.zeros(3, dtype=bool)
     for k, name in enumerate(model.CAMERA_PARAMS):
         if not wanted[k]:
             continue
         trial = free.copy()
         trial[k] = True
-        cand, _ = fit.problem(C, K, noise, trial)
-        sigmas = identifiability(model.information(cand, C, K, theta), trial, cand.n_pose)
-        if all(v <= IDENTIFIABLE_SIGMA[n] for n, v in sigmas.items()):
-            free = trial
-        else:
-            notes.append(f"{name} is not determined by these motions (1-sigma {_fmt(name, sigmas[name])}"
-                         f"{'' if sigmas[name] > IDENTIFIABLE_SIGMA[name] else ' with the others'}); "
+        probe, _ = fit.problem(best.C, best.K, best.noise, trial)
+        sigmas = identifiability(model.information(probe, best.C, best.K, best.theta), trial, probe.n_pose)
+        if sigmas[name] > IDENTIFIABLE_SIGMA[name]:
+            notes.append(f"{name} is not determined by these motions (1-sigma {_fmt(name, sigmas[name])}); "
                          f"kept at nominal: {_MOTION_HINT[name]}")
-    if free.any():
-        C, K, theta, noise, prob, it2, converged = fit.run(C, K, theta, noise, tuple(free), estimate)
-        iters += it2
+            continue
+        cand = _Candidate(fit, *fit.run(best.C, best.K, best.theta, best.noise, tuple(trial)))
+        wild = [n for i, n in enumerate(model.CAMERA_PARAMS) if trial[i] and abs(cand.theta[i]) > PLAUSIBLE[n]]
+        if wild:
+            notes.append(f"{name} not estimated: with it, {', '.join(wild)} came out implausibly large "
+                         "(the model would absorb another error)")
+            continue
+        if sigmas[name] <= WELL_DETERMINED_SIGMA[name] or _better(cand, best):
+            cand.iterations += best.iterations
+            best, free = cand, trial
+        else:
+            notes.append(f"{name} not estimated: these motions determine it to {_fmt(name, sigmas[name])} "
+                         f"(1-sigma) and it did not improve held-out predictions; to pin it down, "
+                         f"{_MOTION_HINT[name]}")
+    C, K, theta, noise, prob = best.C, best.K, best.theta, best.noise, best.prob
+    iters, converged, use_rotation = best.iterations, best.converged, fit.use_rotation
     info_mat = model.information(prob, C, K, theta)
     full_cov = np.linalg.inv(info_mat)
     cov = model.camera_block(info_mat)
@@ -236,9 +296,12 @@ def solve_auto(A, B, *, setup: str, point_cov=None, camera_correction: str = "au
         for i, name in enumerate(model.CAMERA_PARAMS)
     }
     X, Y = model.join(C, K, setup)
-    check = self_check(X, Y, A_in, B_in, setup=setup, point_cov=shape_in, noise=noise, theta=theta, free=free,
-                       use_rotation=use_rotation)
-    if check["warning"]:
+    try:
+        check = self_check(X, Y, A_in, B_in, setup=setup, point_cov=shape_in, noise=noise, theta=theta, free=free,
+                           use_rotation=use_rotation)
+    except InsufficientDataError:
+        check = None  # too few samples to hold one out: no self-check, the result stands
+    if check is not None and check["warning"]:
         notes.append(check["warning"])
     r_all = _residuals(X, Y, A, B, setup, theta, use_rotation)
     return CalibrationResult(
@@ -296,6 +359,38 @@ def _initial_noise(C, K, M, p, shape, R_B) -> model.NoiseLevels:
                              robot=ROBOT_SIGMA_START, rotation=rot0)
 
 
+def _noise_at(fit, C, K, theta, free) -> model.NoiseLevels:
+    """Variance components at a fixed estimate (no refit)."""
+    p = fit.B if fit.B.ndim == 2 else fit.B[:, :3, 3]
+    noise = _initial_noise(C, K, fit.M, p, fit.shape, fit.B[:, :3, :3] if fit.use_rotation else None)
+    for _ in range(MAX_ROUNDS):
+        prob, cof = fit.problem(C, K, noise, free)
+        new, _ = model.variance_components(prob, C, K, theta, fit.shape, cof, noise)
+        settled = abs(new.point_scale / noise.point_scale - 1) < 0.01 and abs(new.robot / noise.robot - 1) < 0.01
+        noise = new
+        if settled:
+            break
+    return noise
+
+
+def estimate_noise(X, Y, A, B, *, setup: str, point_cov=None, marker_rotation_known: bool = True) -> model.NoiseLevels:
+    """Noise levels (`calib.model.NoiseLevels`) of the data at a given estimate, e.g. a closed form's.
+
+    The variance components of `calib.model.variance_components` at ``(X, Y)``
+    held fixed (eye-to-hand ``X = T_flange_marker``, ``Y = T_base_cam``;
+    eye-in-hand ``X = T_flange_cam``, ``Y = T_base_marker``), no camera
+    correction. Orientations are used for pose data ``B`` (N, 4, 4); with
+    ``marker_rotation_known`` False (a point-only estimate) the marker-side
+    rotation is first fitted to them.
+    """
+    shape, _ = model.point_shape(B, point_cov)
+    fit = _Fit(A, B, setup, shape, B.ndim == 3)
+    C, K, _ = model.split(X, Y, A, setup)
+    if fit.use_rotation and not marker_rotation_known:
+        K = tf.make_transform(model.marker_rotation(C, fit.M, B[:, :3, :3]), K[:3, 3])
+    return _noise_at(fit, C, K, np.zeros(3), (False, False, False))
+
+
 def self_check(X, Y, A, B, *, setup: str, point_cov=None, noise: model.NoiseLevels | None = None,
                theta=None, free=(False, False, False), use_rotation: bool | None = None,
                marker_rotation_known: bool = True) -> dict:
@@ -349,15 +444,7 @@ def self_check(X, Y, A, B, *, setup: str, point_cov=None, noise: model.NoiseLeve
     if use_rotation and not marker_rotation_known:
         K = tf.make_transform(model.marker_rotation(C, fit.M, B[:, :3, :3]), K[:3, 3])
     if noise is None:
-        p = B if B.ndim == 2 else B[:, :3, 3]
-        noise = _initial_noise(C, K, fit.M, p, shape, B[:, :3, :3] if use_rotation else None)
-        for _ in range(MAX_ROUNDS):
-            prob, cof = fit.problem(C, K, noise, free)
-            new, _ = model.variance_components(prob, C, K, theta, shape, cof, noise)
-            settled = abs(new.point_scale / noise.point_scale - 1) < 0.01 and abs(new.robot / noise.robot - 1) < 0.01
-            noise = new
-            if settled:
-                break
+        noise = _noise_at(fit, C, K, theta, free)
     prob, _ = fit.problem(C, K, noise, free)
     p = prob.p
     pred = model.predict_points(C, K[:3, 3], prob.M, theta)
@@ -388,3 +475,47 @@ def self_check(X, Y, A, B, *, setup: str, point_cov=None, noise: model.NoiseLeve
         "consistent": warning is None,
         "warning": warning,
     }
+
+
+def report(result: CalibrationResult) -> dict | None:
+    """The model and self-check part of a result, JSON-ready with units in the keys (for result.yaml, the CLI).
+
+    Returns None when the result carries neither (e.g. the online estimator's).
+    Camera correction: depth and focal scale in %, depth offset in mm (value,
+    1-sigma, whether estimated); noise levels: camera point covariance scale,
+    robot flange error (mm), marker orientation (deg); self-check: chi-square
+    against the camera's a-priori model and the held-out (leave-one-out)
+    prediction error of the marker point, observed and predicted (mm).
+    """
+    info = result.info
+    check = info.get("self_check")
+    if check is None and "camera_correction" not in info:
+        return None
+    out: dict = {}
+    if "measurements" in info:
+        out["measurements"] = list(info["measurements"])
+    if "camera_correction" in info:
+        unit = {"depth_scale": ("depth_scale_percent", 100.0), "depth_offset": ("depth_offset_mm", 1e3),
+                "focal_scale": ("focal_scale_percent", 100.0)}
+        out["camera_correction"] = {
+            unit[name][0]: {"value": c["value"] * unit[name][1], "sigma": c["sigma"] * unit[name][1],
+                            "estimated": c["estimated"]}
+            for name, c in info["camera_correction"].items()
+        }
+    if "noise" in info:
+        n = info["noise"]
+        out["noise"] = {"camera_point_scale": n["point_scale"], "robot_mm": n["robot_m"] * 1e3,
+                        "marker_rotation_deg": None if n["rotation_rad"] is None else float(np.rad2deg(n["rotation_rad"]))}
+    if check is not None:
+        out["self_check"] = {
+            "chi2": check["chi2"], "dof": check["dof"], "p_value": check["p_value"],
+            "camera_noise_model_rejected": check["prior_model_rejected"],
+            "heldout_observed_mm": check["loo_observed_m"] * 1e3,
+            "heldout_predicted_mm": check["loo_predicted_m"] * 1e3,
+            "heldout_ratio": check["loo_ratio"],
+            "consistent": check["consistent"],
+            "warning": check["warning"],
+        }
+    if info.get("notes"):
+        out["notes"] = list(info["notes"])
+    return out

@@ -20,6 +20,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from calib import model
+from calib.auto import estimate_noise
 from calib.errors import CalibrationError, InsufficientDataError
 from calib.setup import Setup, check_setup
 from calib.solvers import check_measurements
@@ -81,18 +82,16 @@ def _prediction(result, A_train, B_train, A_test, setup, point_cov_train):
     shape_train, _ = model.point_shape(B_train, point_cov_train)
     noise = result.info.get("noise")
     M_train = model.split(result.X, result.Y, A_train, setup)[2]
-    use_rot = B_train.ndim == 3 and result.marker_rotation_known
+    use_rot = (B_train.ndim == 3 and result.marker_rotation_known
+               and "orientations" in result.info.get("measurements", ["orientations"]))
     if noise is None:
-        # A paper method: one scale on the camera model, from the training residuals.
-        p_train = B_train if B_train.ndim == 2 else B_train[:, :3, 3]
-        r = p_train - model.predict_points(C, K[:3, 3], M_train, theta)
-        d2 = np.einsum("ni,nij,nj->", r, np.linalg.inv(shape_train), r)
-        levels = model.NoiseLevels(point_scale=float(d2) / max(3 * len(r) - 9, 1), robot=0.0)
-        use_rot = False
+        # A paper method: the noise levels of the data at its estimate.
+        levels = estimate_noise(result.X, result.Y, A_train, B_train, setup=setup, point_cov=point_cov_train,
+                                marker_rotation_known=result.marker_rotation_known)
     else:
         levels = model.NoiseLevels(noise["point_scale"], noise["robot_m"], noise["rotation_rad"])
-        if levels.rotation is None:
-            use_rot = False
+    if levels.rotation is None:
+        use_rot = False
     free = [bool(corr and corr[name]["estimated"]) for name in model.CAMERA_PARAMS] if corr else [False] * 3
     cof_train = model.robot_cofactor(C, K, M_train, setup)
     Bp = B_train if use_rot else (B_train if B_train.ndim == 2 else B_train[:, :3, 3])

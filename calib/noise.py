@@ -26,6 +26,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from calib.errors import CalibrationError
 from calib.transforms import check_points
 
 #: Lateral noise of one pixel measurement, px (Nguyen et al. 2012).
@@ -52,7 +53,10 @@ def ray_covariance(points, sigma_lateral, sigma_depth) -> np.ndarray:
         ``sigma_depth^2 r r^T + sigma_lateral^2 (I - r r^T)`` with ``r`` the unit ray.
     """
     p = check_points(points, "points")
-    r = p / np.linalg.norm(p, axis=1, keepdims=True)
+    norm = np.linalg.norm(p, axis=1, keepdims=True)
+    if not (norm > 0).all():
+        raise CalibrationError(f"points[{int(np.argmin(norm[:, 0]))}] is the camera origin: its viewing ray is undefined")
+    r = p / norm
     outer = r[:, :, None] * r[:, None, :]
     sl = np.broadcast_to(np.asarray(sigma_lateral, dtype=float), (len(p),))[:, None, None]
     sd = np.broadcast_to(np.asarray(sigma_depth, dtype=float), (len(p),))[:, None, None]

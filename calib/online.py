@@ -122,6 +122,16 @@ def _check_sample(T_base_flange, point_cam, point_cov):
     return A, a, p, S
 
 
+def _is_int(v) -> bool:
+    """An integer that is not a bool (TOML ``true`` must not pass as 1)."""
+    return isinstance(v, int) and not isinstance(v, bool)
+
+
+def _is_real(v) -> bool:
+    """A finite real number that is not a bool."""
+    return isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
+
+
 @dataclass
 class DetectorConfig:
     """Settings of `ChangeDetector`.
@@ -144,11 +154,11 @@ class DetectorConfig:
     false_alarm_rate: float = 1e-7
 
     def __post_init__(self):
-        if not isinstance(self.window, int) or self.window < 3:
+        if not _is_int(self.window) or self.window < 3:
             raise ParameterError(f"window must be an int >= 3, got {self.window!r}")
-        if self.long_window is not None and (not isinstance(self.long_window, int) or self.long_window <= self.window):
+        if self.long_window is not None and (not _is_int(self.long_window) or self.long_window <= self.window):
             raise ParameterError(f"long_window must be None or an int > window ({self.window}), got {self.long_window!r}")
-        if not 0.0 < self.false_alarm_rate < 0.1:
+        if not _is_real(self.false_alarm_rate) or not 0.0 < self.false_alarm_rate < 0.1:
             raise ParameterError(f"false_alarm_rate must be in (0, 0.1), got {self.false_alarm_rate!r}")
 
 
@@ -255,14 +265,18 @@ class OnlineConfig:
 
     def __post_init__(self):
         self.setup = check_setup(self.setup, error=ParameterError)
-        if not 0.9 < self.forgetting <= 1.0:
+        if not _is_real(self.forgetting) or not 0.9 < self.forgetting <= 1.0:
             raise ParameterError(f"forgetting must be in (0.9, 1], got {self.forgetting!r}")
-        if not isinstance(self.bootstrap, int) or self.bootstrap < 6:
+        if not _is_int(self.bootstrap) or self.bootstrap < 6:
             raise ParameterError(f"bootstrap must be an int >= 6, got {self.bootstrap!r}")
-        if not isinstance(self.warmup, int) or self.warmup < 0:
+        if not _is_int(self.warmup) or self.warmup < 0:
             raise ParameterError(f"warmup must be an int >= 0, got {self.warmup!r}")
+        if not isinstance(self.reset_on_alarm, bool):
+            raise ParameterError(f"reset_on_alarm must be true or false, got {self.reset_on_alarm!r}")
         if self.detector is None:
             self.detector = DetectorConfig()
+        elif not isinstance(self.detector, DetectorConfig):
+            raise ParameterError(f"detector must be a table (window, long_window, false_alarm_rate), got {self.detector!r}")
 
 
 class OnlineUpdate(NamedTuple):

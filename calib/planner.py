@@ -40,10 +40,10 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from calib import model
 from calib import transforms as tf
 from calib.errors import CalibrationError
 from calib.noise import default_point_cov
-from calib.refine import point_jacobian
 from calib.setup import Setup, check_setup
 
 #: ``reachable(T_base_flange (4, 4), q_from (6,) or None) -> q (6,) or None``.
@@ -51,6 +51,8 @@ Reachable = Callable[[np.ndarray, "np.ndarray | None"], "np.ndarray | None"]
 
 #: Number of unknowns of the point model: camera transform (6) + marker-side translation (3).
 N_PARAMS = 9
+#: Prior standard deviation of a free camera correction (depth scale, depth offset in m, focal scale): weak.
+CORRECTION_PRIOR_SIGMA = 1.0
 
 
 @dataclass(frozen=True)
@@ -192,6 +194,10 @@ class PlannerConfig:
         object.__setattr__(self, "keep_out", tuple(k if isinstance(k, KeepOut) else KeepOut(*k) for k in self.keep_out))
 
 
+#: A camera model for uses that never screen poses (`least_informative`).
+_NO_VIEW = CameraView(1, 1, 1.0, 1.0, 0.0, 0.0, margin_px=0.0)
+
+
 @dataclass(frozen=True)
 class PlannedPose:
     """One planned pose and what the planner expects from it.
@@ -317,42 +323,57 @@ class PosePlanner:
     point_cov : callable, optional
         ``point_cov(points (N, 3)) -> (N, 3, 3)`` m^2; default the depth model
         `calib.noise.default_point_cov`.
+    correction : (theta, free), optional
+        Camera correction of the measurement model (`calib.model.CAMERA_PARAMS`:
+        depth scale, depth offset, focal scale): current values ``theta`` (3,)
+        and which are estimated ``free`` (3 bools). The free ones are unknowns
+        of the information matrix and count in the D-optimal criterion with
+        the camera transform.
     """
 
     def __init__(self, setup: str, X, Y, view: CameraView, config: PlannerConfig | None = None,
-                 point_cov: Callable[[np.ndarray], np.ndarray] = default_point_cov):
-        check_setup(setup)
-        self.setup = setup
+                 point_cov: Callable[[np.ndarray], np.ndarray] = default_point_cov, correction=None):
+        self.setup = check_setup(setup)
         self.view = view
         self.config = config or PlannerConfig()
         self._point_cov = point_cov
         self.X, self.Y = tf.check_transform(X, "X"), tf.check_transform(Y, "Y")
+        theta, free = correction if correction is not None else (np.zeros(3), (False, False, False))
+        self.theta = np.asarray(theta, dtype=float)
+        self.free = tuple(bool(f) for f in free)
+        if self.theta.shape != (3,) or len(self.free) != 3 or not np.isfinite(self.theta).all():
+            raise CalibrationError(f"correction must be (theta (3,), free (3 bools)), got {correction!r}")
+        n_free = sum(self.free)
         c = self.config
-        self._prior = np.diag([c.prior_sigma_rad ** -2] * 3 + [c.prior_sigma_m ** -2] * 6)
-        self._taken: list[np.ndarray] = []
+        self._prior = np.diag([c.prior_sigma_rad ** -2] * 3 + [c.prior_sigma_m ** -2] * 6
+                              + [CORRECTION_PRIOR_SIGMA ** -2] * n_free)
+        #: Unknowns the criterion is about: the camera transform (6) and the free camera corrections.
+        self._interest = np.r_[np.arange(6), N_PARAMS + np.arange(n_free)].astype(int)
         self.information = self._prior.copy()
         self.stats = ScreenStats()
 
     # ------------------------------------------------------------ information
-    def sample_information(self, A) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Predicted points (N, 3), their Jacobians (N, 3, 9) and Fisher information (N, 9, 9) at flange poses A."""
-        p, J = point_jacobian(self.X, self.Y, A, setup=self.setup)
+    def predict(self, A) -> tuple[np.ndarray, np.ndarray]:
+        """Predicted marker points (N, 3) at flange poses A (N, 4, 4) and their Jacobians (N, 3, P)
+        w.r.t. the unknowns ``[dC, tC, tK, free corrections]`` (`calib.model`)."""
+        C, K, M = model.split(self.X, self.Y, tf.check_transforms(A, "A"), self.setup)
+        p = model.predict_points(C, K[:3, 3], M, self.theta)
+        problem = model.Problem(M, p, np.broadcast_to(np.eye(3), (len(p), 3, 3)), free=self.free)
+        J = problem.raw(C, K, self.theta)[2]
+        return p, -J  # the residual is measured minus predicted
+
+    def _information(self, p: np.ndarray, J: np.ndarray) -> np.ndarray:
         S_inv = np.linalg.inv(self._point_cov(np.where(p[:, 2:] > 0.1, p, [0.0, 0.0, 0.1])))
-        return p, J, np.swapaxes(J, 1, 2) @ S_inv @ J
+        return np.swapaxes(J, 1, 2) @ S_inv @ J
+
+    def sample_information(self, A) -> np.ndarray:
+        """Fisher information (N, P, P) of a sample at each flange pose of A (N, 4, 4)."""
+        return self._information(*self.predict(A))
 
     def add(self, T_base_flange) -> None:
         """Account for a sample taken at ``T_base_flange`` (4, 4)."""
         T = tf.check_transform(T_base_flange, "T_base_flange")
-        self._taken.append(T)
-        self.information = self.information + self.sample_information(T[None])[2][0]
-
-    def update_estimate(self, X, Y) -> None:
-        """Relinearise the information of the samples taken so far at a new estimate."""
-        self.X, self.Y = tf.check_transform(X, "X"), tf.check_transform(Y, "Y")
-        info = self._prior.copy()
-        if self._taken:
-            info = info + self.sample_information(np.stack(self._taken))[2].sum(axis=0)
-        self.information = info
+        self.information = self.information + self.sample_information(T[None])[0]
 
     def camera_cov(self, information=None) -> np.ndarray:
         """Predicted covariance (6, 6) of the camera transform (`calib.result` convention)."""
@@ -361,12 +382,15 @@ class PosePlanner:
 
     def gains(self, A) -> np.ndarray:
         """Expected D-optimal gain (nats) of sampling at each flange pose of A (N, 4, 4)."""
-        _, _, U = self.sample_information(A)
-        return self._gains(U)
+        return self._gains(self.sample_information(A))
+
+    def _log_det(self, information) -> np.ndarray:
+        """log det of the covariance of the unknowns of interest (camera + free corrections)."""
+        cov = np.linalg.inv(information)[..., self._interest[:, None], self._interest]
+        return np.linalg.slogdet(cov)[1]
 
     def _gains(self, U: np.ndarray) -> np.ndarray:
-        base = np.linalg.slogdet(self.camera_cov())[1]
-        return base - np.linalg.slogdet(self.camera_cov(self.information + U))[1]
+        return self._log_det(self.information) - self._log_det(self.information + U)
 
     # --------------------------------------------------------------- validity
     def marker_in_camera(self, A) -> np.ndarray:
@@ -391,21 +415,26 @@ class PosePlanner:
         ok : ndarray of bool, shape (N,)
         points : ndarray, shape (N, 3)
             Predicted marker centers, camera frame, m.
-        J : ndarray, shape (N, 3, 9)
+        J : ndarray, shape (N, 3, P)
             Their Jacobians (reused for the scores).
         """
         v = self.view
         A = np.asarray(A, dtype=float)
         T_cm = self.marker_in_camera(A)
-        p, J = point_jacobian(self.X, self.Y, A, setup=self.setup)
+        p, J = self.predict(A)
         reasons = self.stats.reasons
-        z = p[:, 2]
-        ok = (z >= v.depth_min_m) & (z <= v.depth_max_m)
+        P = self._point_uncertainty(J)
+        z, k = p[:, 2], self.config.uncertainty_k
+        # The depth limits, too, keep k predicted standard deviations of the marker's depth.
+        sz = k * np.sqrt(np.maximum(P[:, 2, 2], 0.0))
+        ok = (z - sz >= v.depth_min_m) & (z + sz <= v.depth_max_m)
         reasons["depth range"] += int((~ok).sum())
         # Marker normal (its z axis) must point back at the camera: angle to the ray from the marker to the camera.
         n = T_cm[:, :3, 2]
         cos_view = -np.einsum("ni,ni->n", n, p) / np.maximum(np.linalg.norm(p, axis=1), 1e-9)
-        facing = cos_view >= math.cos(math.radians(v.max_view_angle_deg))
+        # ... by k predicted standard deviations of the camera rotation less than the limit.
+        s_rot = math.sqrt(max(np.linalg.eigvalsh(self.camera_cov()[:3, :3])[-1], 0.0)) if k > 0 else 0.0
+        facing = np.arccos(np.clip(cos_view, -1, 1)) <= math.radians(v.max_view_angle_deg) - k * s_rot
         reasons["view angle"] += int((ok & ~facing).sum())
         ok &= facing
         # Corners inside the image, the margin widened by k predicted pixel sigmas of the center.
@@ -414,7 +443,7 @@ class PosePlanner:
         pc = np.einsum("nij,kj->nki", T_cm, corners)[..., :3]
         zc = np.where(pc[..., 2] > 1e-3, pc[..., 2], np.nan)
         px = v.project(np.concatenate([pc[..., :2], zc[..., None]], -1))
-        margin = v.margin_px + self.config.uncertainty_k * self._pixel_sigma(p, J)
+        margin = v.margin_px + k * self._pixel_sigma(p, P)
         inside = np.all((px[..., 0] >= margin[:, None]) & (px[..., 0] <= v.width - margin[:, None])
                         & (px[..., 1] >= margin[:, None]) & (px[..., 1] <= v.height - margin[:, None]), axis=1)
         reasons["marker outside the image margin"] += int((ok & ~inside).sum())
@@ -425,12 +454,14 @@ class PosePlanner:
             ok &= clear
         return ok, p, J
 
-    def _pixel_sigma(self, p: np.ndarray, J: np.ndarray) -> np.ndarray:
-        """Largest predicted pixel standard deviation (N,) of the marker center from the parameter uncertainty."""
+    def _point_uncertainty(self, J: np.ndarray) -> np.ndarray:
+        """Covariance (N, 3, 3) of the predicted marker centers from the parameter uncertainty (zero if k = 0)."""
         if self.config.uncertainty_k == 0:
-            return np.zeros(len(p))
-        cov = np.linalg.inv(self.information)
-        P = J @ cov @ np.swapaxes(J, 1, 2)  # (N, 3, 3) covariance of the predicted point
+            return np.zeros((len(J), 3, 3))
+        return J @ np.linalg.inv(self.information) @ np.swapaxes(J, 1, 2)
+
+    def _pixel_sigma(self, p: np.ndarray, P: np.ndarray) -> np.ndarray:
+        """Largest predicted pixel standard deviation (N,) of the marker center, given its covariance P (N, 3, 3)."""
         z = np.maximum(p[:, 2], 1e-3)
         # Pixel Jacobian of the projection, f/z [I2 | -xy/z].
         Jp = np.zeros((len(p), 2, 3))
@@ -490,8 +521,7 @@ class PosePlanner:
         if len(idx) == 0:
             return None
         A, p, J = A[idx], p[idx], J[idx]
-        S_inv = np.linalg.inv(self._point_cov(p))
-        U = np.swapaxes(J, 1, 2) @ S_inv @ J
+        U = self._information(p, J)
         gain = self._gains(U)
         travel = travel_time(T_current, A, self.config)
         order = np.argsort(-(gain - self.config.travel_weight * travel))
@@ -526,6 +556,46 @@ class PosePlanner:
             self.add(pose.T_base_flange)
             T_cur, q_cur = pose.T_base_flange, pose.q
         return out
+
+
+def least_informative(setup: str, X, Y, A, *, keep_recent: int = 0, correction=None,
+                      point_cov: Callable[[np.ndarray], np.ndarray] = default_point_cov) -> int:
+    """Which sample to drop from a bounded set so that the estimate loses the least: the D-optimal exchange rule.
+
+    For every sample ``i`` but the ``keep_recent`` newest, the loss of
+    removing it is ``log det Sigma_C(I - U_i) - log det Sigma_C(I)`` (the
+    growth of the camera's confidence ellipsoid, `PosePlanner`); the sample
+    with the smallest loss goes. Samples at poses the others already cover
+    carry little information of their own and go first; a lone pose that
+    pins down a direction stays however old it is.
+
+    Parameters
+    ----------
+    setup : {"eye_to_hand", "eye_in_hand"}
+    X, Y : array_like, shape (4, 4)
+        Current estimate (eye-to-hand ``X = T_flange_marker``, ``Y = T_base_cam``;
+        eye-in-hand ``X = T_flange_cam``, ``Y = T_base_marker``).
+    A : array_like, shape (N, 4, 4)
+        ``T_base_flange`` of the samples held, oldest first.
+    keep_recent : int
+        The newest this many are never dropped (they follow the present).
+    correction : (theta, free), optional
+        See `PosePlanner`.
+
+    Returns
+    -------
+    int
+        Index into ``A``.
+    """
+    A = tf.check_transforms(A, "A")
+    if not 0 <= keep_recent < len(A):
+        raise CalibrationError(f"keep_recent must be in [0, {len(A)}), got {keep_recent}")
+    planner = PosePlanner(setup, X, Y, _NO_VIEW, PlannerConfig(uncertainty_k=0), point_cov, correction)
+    U = planner.sample_information(A)
+    info = planner.information + U.sum(axis=0)
+    candidates = U[: len(A) - keep_recent]
+    loss = planner._log_det(info - candidates) - planner._log_det(info)
+    return int(np.argmin(loss))
 
 
 def _invert_stack(T: np.ndarray) -> np.ndarray:

@@ -497,33 +497,3 @@ def refine(initial: CalibrationResult, A, B, *, point_cov=None, max_iterations: 
         iterations=iters,
         info={**initial.info, **info},
     )
-
-
-def point_jacobian(X, Y, A, *, setup: str) -> tuple[np.ndarray, np.ndarray]:
-    """Predicted marker points and their Jacobian w.r.t. the point model's unknowns.
-
-    The point model of the module docstring (paper eq. 5), for flange poses
-    that have not been measured yet: what the camera would see, and how that
-    depends on the unknowns ``[dC, tC, tK]`` (left rotation perturbation and
-    translation of the camera transform C, translation of the marker-side K).
-
-    Parameters
-    ----------
-    X, Y : array_like, shape (4, 4)
-        Eye-to-hand: ``X = T_flange_marker``, ``Y = T_base_cam``; eye-in-hand:
-        ``X = T_flange_cam``, ``Y = T_base_marker``.
-    A : array_like, shape (N, 4, 4)
-        ``T_base_flange``.
-    setup : {"eye_to_hand", "eye_in_hand"}
-
-    Returns
-    -------
-    points : ndarray, shape (N, 3)
-        Marker center in the camera frame, m.
-    J : ndarray, shape (N, 3, 9)
-        ``d points / d [dC, tC, tK]``.
-    """
-    check_setup(setup)
-    C, K, M = model.split(tf.check_transform(X, "X"), tf.check_transform(Y, "Y"), tf.check_transforms(A, "A"), setup)
-    r, J_dC, J_tC, J_tK = model.point_residuals(C, K[:3, 3], M, np.zeros((len(M), 3)))
-    return -r, -np.concatenate([J_dC, J_tC, J_tK], axis=2)

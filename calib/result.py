@@ -12,7 +12,17 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from calib.errors import DegenerateMotionError
 from calib.setup import Setup
+
+
+def worst_axis_sigma(cov) -> tuple[float, float]:
+    """Worst-axis 1-sigma ``(rotation rad, translation m)`` of a 6x6 ``[rotvec, t]`` covariance:
+    the square roots of the largest eigenvalues of its rotation and translation blocks."""
+    cov = np.asarray(cov, dtype=float)
+    s_rot = float(np.sqrt(max(np.linalg.eigvalsh(cov[:3, :3]).max(), 0.0)))
+    s_t = float(np.sqrt(max(np.linalg.eigvalsh(cov[3:, 3:]).max(), 0.0)))
+    return s_rot, s_t
 
 
 @dataclass(frozen=True)
@@ -69,6 +79,17 @@ class CalibrationResult:
     iterations: int = 0
     info: dict = field(default_factory=dict)
 
+    def __post_init__(self):
+        # A NaN/inf anywhere means the data did not determine the solution (e.g. a
+        # singular information matrix): say so instead of handing NaN downstream.
+        parts = {"X": self.X, "Y": self.Y, "cov": self.cov, "residuals.translation": self.residuals.translation,
+                 "residuals.rotation": self.residuals.rotation}
+        for name, value in parts.items():
+            if value is not None and not np.isfinite(np.asarray(value, dtype=float)).all():
+                raise DegenerateMotionError(
+                    f"{self.method}: the {name} of the solution is not finite; the {self.n_samples} samples "
+                    "do not determine every unknown (vary the flange orientation and position more)")
+
     @property
     def T_base_cam(self) -> np.ndarray:
         self._require(Setup.EYE_TO_HAND, "T_base_cam")
@@ -101,12 +122,7 @@ class CalibrationResult:
         The square roots of the largest eigenvalues of the rotation and the
         translation blocks of the 6x6 ``[rotvec, t]`` covariance.
         """
-        if self.cov is None:
-            return None
-        cov = np.asarray(self.cov, dtype=float)
-        s_rot = float(np.sqrt(max(np.linalg.eigvalsh(cov[:3, :3]).max(), 0.0)))
-        s_t = float(np.sqrt(max(np.linalg.eigvalsh(cov[3:, 3:]).max(), 0.0)))
-        return s_rot, s_t
+        return None if self.cov is None else worst_axis_sigma(self.cov)
 
     @property
     def rejected(self) -> np.ndarray:

@@ -128,7 +128,7 @@ def robust_solve(
     if not isinstance(rng, np.random.Generator):
         raise CalibrationError("rng must be a numpy.random.Generator")
     n = len(A)
-    m = min_samples if min_samples is not None else (6 if B.ndim == 2 else 4)
+    m = min_samples if min_samples is not None else default_subset(points=B.ndim == 2)
     if n < m + 1:
         raise InsufficientDataError(f"robust estimation needs at least {m + 1} samples, got {n}")
     W_t, given = model.point_weights(B, point_cov)
@@ -177,6 +177,13 @@ def robust_solve(
             "robust": {"trials": trials, "subset": m, "scale": scale, "threshold": float(threshold)},
         },
     )
+
+
+def default_subset(*, points: bool) -> int:
+    """Default LMedS subset size: 6 for points (YKronT': 15 linear unknowns, 5 samples
+    determine them, one more steadies them), 4 for poses (3 determine every pose method
+    but XKronT, whose caller passes its own minimum of 5)."""
+    return 6 if points else 4
 
 
 def _scale(median_d2: float, dof: int, n: int, m: int, given: bool) -> float:

@@ -18,6 +18,7 @@ of a static marker (``X = T_flange_cam``, ``Y = T_base_marker``).
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass
 
 import numpy as np
@@ -236,3 +237,150 @@ def moved_camera_points(data: SimulatedData, n_before: int, bump: np.ndarray) ->
     points = data.points.copy()
     points[n_before:] = tf.transform_points(tf.invert(bump), data.B_true[n_before:, :3, 3]) + noise[n_before:]
     return points
+
+
+# --------------------------------------------------------------------------- realistic profile
+
+#: UR10 nominal standard-DH parameters (Universal Robots' published values): d, a (m), alpha (rad).
+#: A copy of `drivers.robot.ur_kinematics`'s table: calib does not import drivers.
+UR10_DH = {
+    "d": np.array([0.1273, 0.0, 0.0, 0.163941, 0.1157, 0.0922]),
+    "a": np.array([0.0, -0.612, -0.5723, 0.0, 0.0, 0.0]),
+    "alpha": np.array([np.pi / 2, 0.0, 0.0, np.pi / 2, -np.pi / 2, 0.0]),
+}
+
+
+@dataclass(frozen=True)
+class RealisticProfile:
+    """Error magnitudes of the ``realistic`` profile (`realistic_profile`); 1-sigma unless said.
+
+    Robot: DH perturbation of an uncalibrated UR10, drawn once per cell
+    (kinematic calibration studies of UR arms report joint zero offsets of a
+    few hundredths of a degree and link-length errors of tenths of a mm, giving
+    1-3 mm of flange position error; e.g. the 0.01-0.05 deg offsets quoted for
+    UR5/UR10 identification), and the datasheet repeatability (UR10: +-0.1 mm,
+    taken as 3 sigma). Camera: depth scale and offset of a structured-light
+    sensor before an infield correction (1-2% of range, a few mm), a focal length
+    error of 1%, a colour/depth misregistration of 2 px, the marker point noise
+    of `calib.noise` (1 mm lateral, 3 mm along the ray at 0.7 m), marker
+    orientation noise, and a share of half-turn flips of a symmetric board.
+    """
+
+    joint_offset_deg: float = 0.03
+    link_length_m: float = 0.0003
+    twist_deg: float = 0.02
+    repeatability_m: float = 0.1e-3 / 3
+    repeatability_rad: float = np.deg2rad(0.01) / 3
+    depth_scale: float = 0.015
+    depth_offset: float = 0.003
+    focal_scale: float = 0.01
+    misregistration_px: float = 2.0
+    orientation_noise_rad: float = np.deg2rad(0.5)
+    flip_fraction: float = 0.0
+    board_center: tuple = (0.09, 0.06, 0.0)
+
+    def bias_free(self) -> "RealisticProfile":
+        """The same cell without systematic errors: exact kinematics and an ideal camera (random noise kept)."""
+        return dataclasses.replace(self, joint_offset_deg=0.0, link_length_m=0.0, twist_deg=0.0, depth_scale=0.0,
+                                   depth_offset=0.0, focal_scale=0.0, misregistration_px=0.0, flip_fraction=0.0)
+
+
+@dataclass(frozen=True)
+class RealisticData:
+    """`realistic_profile` output: the measurements, the truth, and the systematic errors applied.
+
+    ``data`` holds measured ``A`` (nominal kinematics at the joint angles),
+    ``B``/``points`` (camera errors applied, flipped poses in ``B``), the true
+    ``X = T_flange_marker``, ``Y = T_base_cam``, and ``A_true`` (actual flange
+    poses). ``camera`` is the true `calib.model.CameraCorrection`; ``flipped``
+    the indices of half-turned marker poses; ``robot_rms_m`` the RMS flange
+    position error of the measured poses (kinematics + repeatability).
+    """
+
+    data: SimulatedData
+    camera: object
+    flipped: np.ndarray
+    robot_rms_m: float
+    q: np.ndarray
+
+
+def ur_forward(q: np.ndarray, d: np.ndarray, a: np.ndarray, alpha: np.ndarray, offsets: np.ndarray) -> np.ndarray:
+    """Standard-DH forward kinematics ``T_base_flange`` (N, 4, 4) of joints ``q`` (N, 6) with zero offsets (6,)."""
+    T = np.broadcast_to(np.eye(4), (len(q), 4, 4)).copy()
+    for i in range(6):
+        th = q[:, i] + offsets[i]
+        ct, st, ca, sa = np.cos(th), np.sin(th), np.cos(alpha[i]), np.sin(alpha[i])
+        L = np.zeros((len(q), 4, 4))
+        L[:, 0, 0], L[:, 0, 1], L[:, 0, 2], L[:, 0, 3] = ct, -st * ca, st * sa, a[i] * ct
+        L[:, 1, 0], L[:, 1, 1], L[:, 1, 2], L[:, 1, 3] = st, ct * ca, -ct * sa, a[i] * st
+        L[:, 2, 1], L[:, 2, 2], L[:, 2, 3] = sa, ca, d[i]
+        L[:, 3, 3] = 1.0
+        T = T @ L
+    return T
+
+
+def realistic_profile(n: int, rng: np.random.Generator, profile: RealisticProfile | None = None, *,
+                      distance: float = 0.8) -> RealisticData:
+    """An eye-to-hand UR10 cell with the systematic errors of a real one (`RealisticProfile`), and the truth.
+
+    Joint configurations are drawn around a working pose (+-8 deg on the
+    shoulder/elbow joints, +-25 deg on the wrist); the actual flange pose is the
+    forward kinematics with the perturbed DH parameters (plus repeatability
+    noise), the reported one that of the nominal parameters. A static camera
+    ``distance`` m in front of the marker sees it with the point noise of
+    `calib.noise`, then the camera's systematic errors: colour/depth
+    misregistration (the depth of the marker plane is read ``misregistration_px``
+    off), depth scale and offset along the ray and the focal scale
+    (`calib.model.CameraCorrection`). Marker poses get orientation noise and,
+    for ``flip_fraction`` of the samples, a half turn about the board normal
+    through ``board_center``.
+    """
+    from calib.model import CameraCorrection
+    from calib.noise import FOCAL_PX, default_point_cov
+
+    prof = profile if profile is not None else RealisticProfile()
+    dh = UR10_DH
+    q0 = np.deg2rad([10.0, -110.0, 100.0, -80.0, -90.0, 0.0])
+    off_true = rng.normal(scale=np.deg2rad(prof.joint_offset_deg), size=6)
+    d_true = dh["d"] + rng.normal(scale=prof.link_length_m, size=6)
+    a_true = dh["a"] + rng.normal(scale=prof.link_length_m, size=6)
+    al_true = dh["alpha"] + rng.normal(scale=np.deg2rad(prof.twist_deg), size=6)
+    X = tf.make_transform(Rotation.from_euler("xyz", rng.uniform(-0.3, 0.3, size=3)).as_matrix(),
+                          rng.uniform(-0.05, 0.05, size=3) + [0.0, 0.0, 0.03])
+    A0 = ur_forward(q0[None], dh["d"], dh["a"], dh["alpha"], np.zeros(6))[0] @ X
+    normal = A0[:3, 2]
+    eye = A0[:3, 3] + distance * normal
+    Y = _look_at(eye, A0[:3, 3])
+    span = np.deg2rad([8.0, 8.0, 8.0, 25.0, 25.0, 25.0])
+    q = np.empty((0, 6))
+    while len(q) < n:
+        cand = q0 + rng.uniform(-span, span, size=(4 * n, 6))
+        Bc = tf.invert(Y) @ ur_forward(cand, dh["d"], dh["a"], dh["alpha"], np.zeros(6)) @ X
+        facing = -Bc[:, 2, 2] > np.cos(np.deg2rad(60.0))          # marker normal towards the camera
+        q = np.vstack([q, cand[facing & (Bc[:, 2, 3] > 0.3)]])
+    q = q[:n]
+    A = ur_forward(q, dh["d"], dh["a"], dh["alpha"], np.zeros(6))
+    A_true = ur_forward(q, d_true, a_true, al_true, off_true)
+    A_true = A_true @ tf.from_rotvec_translation(rng.normal(scale=prof.repeatability_rad, size=(n, 3)),
+                                                 rng.normal(scale=prof.repeatability_m, size=(n, 3)))
+    B_true = tf.invert(Y) @ A_true @ X
+    p_true = B_true[:, :3, 3]
+    cov = default_point_cov(p_true)
+    p = p_true + np.einsum("nij,nj->ni", np.linalg.cholesky(cov), rng.normal(size=(n, 3)))
+    # Misregistration: the depth is read `misregistration_px` off on the tilted marker plane.
+    shift = prof.misregistration_px / FOCAL_PX * p[:, 2:3] * np.array([1.0, 0.0])
+    nrm = B_true[:, :3, 2]
+    dz = -(nrm[:, :2] * shift).sum(axis=1) / nrm[:, 2]
+    p = p * ((p[:, 2] + dz) / p[:, 2])[:, None]
+    camera = CameraCorrection(prof.depth_scale, prof.depth_offset, prof.focal_scale)
+    points = camera.measure(p)
+    B = B_true @ tf.from_rotvec_translation(rng.normal(scale=prof.orientation_noise_rad, size=(n, 3)), np.zeros((n, 3)))
+    B[:, :3, 3] = points
+    n_flip = int(round(prof.flip_fraction * n))
+    flipped = np.sort(rng.choice(n, size=n_flip, replace=False)) if n_flip else np.zeros(0, dtype=int)
+    if n_flip:
+        F = tf.make_transform(tf.so3_exp(np.array([0.0, 0.0, np.pi])), 2 * np.asarray(prof.board_center))
+        B[flipped] = B[flipped] @ F
+    robot_rms = float(np.sqrt(np.mean(np.sum((A[:, :3, 3] - A_true[:, :3, 3]) ** 2, axis=1) / 3)))
+    data = SimulatedData(A, B, points, cov, X, Y, A_true, B_true)
+    return RealisticData(data, camera, flipped, robot_rms, q)

@@ -52,6 +52,10 @@ from calib.setup import Setup, check_setup
 #: on a degenerate set gives ~1e-4 there and is still caught).
 DEGENERACY_RTOL = 1e-3
 
+#: Marker points closer than this to the camera origin (m) are refused: no depth
+#: camera measures there, and the viewing ray (the noise model's axis) is undefined.
+MIN_MARKER_DISTANCE = 1e-3
+
 _I3 = np.eye(3)
 
 
@@ -77,7 +81,7 @@ def check_point_pairs(A, p, minimum: int) -> tuple[np.ndarray, np.ndarray]:
 def check_measurements(A, B) -> tuple[np.ndarray, np.ndarray]:
     """Validate robot poses ``A`` (N, 4, 4) and marker measurements ``B`` (N, 3) or (N, 4, 4)."""
     A = tf.check_transforms(A, "A")
-    B = np.asarray(B, dtype=float)
+    B = tf.as_real_array(B, "B")
     if B.ndim == 2:
         B = tf.check_points(B, "B")
     elif B.ndim == 3:
@@ -86,6 +90,12 @@ def check_measurements(A, B) -> tuple[np.ndarray, np.ndarray]:
         raise CalibrationError(f"B must have shape (N, 4, 4) or (N, 3), got {B.shape}")
     if len(A) != len(B):
         raise CalibrationError(f"A and B must have the same number of samples, got {len(A)} and {len(B)}")
+    p = B if B.ndim == 2 else B[:, :3, 3]
+    far = np.einsum("ni,ni->n", p, p) >= MIN_MARKER_DISTANCE**2
+    if not far.all():
+        i = int(np.argmin(far))
+        raise CalibrationError(f"B[{i}]: marker point {p[i].tolist()} lies at the camera origin "
+                               f"(closer than {MIN_MARKER_DISTANCE * 1e3:g} mm): not a measurement")
     return A, B
 
 

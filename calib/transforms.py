@@ -19,6 +19,54 @@ _I3 = np.eye(3)
 _ROTATION_ENTRIES = [0, 1, 2, 4, 5, 6, 8, 9, 10]
 
 
+#: Largest magnitude (m, or m^2 for covariances) accepted in a solver input. Far beyond
+#: any robot cell, and far enough below the float range that squares and products in
+#: the solvers (e.g. a Gram matrix of 1e155 m coordinates) cannot overflow to inf/NaN.
+MAX_MAGNITUDE = 1e6
+
+
+def as_real_array(value, name: str, *, max_magnitude: float | None = MAX_MAGNITUDE) -> np.ndarray:
+    """``value`` as a finite float64 array, or CalibrationError naming ``name``.
+
+    Refuses what ``np.asarray(value, dtype=float)`` would crash on or silently
+    change: None, mappings, strings, ragged nesting, complex numbers (not cast
+    to their real part), booleans and object arrays holding anything but real
+    numbers. NaN/inf and, with ``max_magnitude``, entries larger in magnitude
+    are refused naming the first bad sample (index along the first axis).
+    """
+    if value is None or isinstance(value, (str, bytes, dict)):
+        raise CalibrationError(f"{name} must be a numeric array, got {type(value).__name__}")
+    try:
+        a = np.asarray(value)
+    except (ValueError, TypeError) as e:
+        raise CalibrationError(f"{name} is not a rectangular numeric array ({str(e).split('.')[0]})") from None
+    if a.dtype == object:
+        bad = [x for x in a.ravel() if isinstance(x, (bool, np.bool_))
+               or not isinstance(x, (int, float, np.integer, np.floating))][:1]
+        if bad:
+            bad = bad[0]
+            raise CalibrationError(f"{name} must hold real numbers, got {type(bad).__name__} {bad!r:.40}")
+    elif a.dtype.kind == "c":
+        raise CalibrationError(f"{name} is complex; handeye takes real arrays (no imaginary part is dropped)")
+    elif a.dtype.kind not in "iuf":
+        raise CalibrationError(f"{name} must hold real numbers, got dtype {a.dtype}")
+    a = a.astype(float)
+    if a.size:
+        flat = np.abs(a.reshape(len(a), -1)) if a.ndim else np.abs(a).reshape(1, 1)
+        finite = np.isfinite(flat).all(axis=1)
+        if not finite.all():
+            raise CalibrationError(f"{name}[{int(np.argmin(finite))}] contains NaN or inf" if a.ndim
+                                   else f"{name} is NaN or inf")
+        if max_magnitude is not None:
+            small = (flat <= max_magnitude).all(axis=1)
+            if not small.all():
+                i = int(np.argmin(small))
+                raise CalibrationError(f"{name}[{i}] has an entry of magnitude {flat[i].max():.3g}, "
+                                       f"beyond {max_magnitude:g} (metres?)" if a.ndim
+                                       else f"{name} is beyond {max_magnitude:g}")
+    return a
+
+
 def check_transforms(T, name: str = "T", *, atol: float = ROTATION_ATOL) -> np.ndarray:
     """Validate a stack of rigid transforms.
 
@@ -35,11 +83,12 @@ def check_transforms(T, name: str = "T", *, atol: float = ROTATION_ATOL) -> np.n
     Raises
     ------
     CalibrationError
-        On a wrong shape, NaN/inf, a non-orthonormal or reflecting rotation,
-        or a last row other than ``[0, 0, 0, 1]``; the message names the first
-        bad index.
+        On a non-numeric, complex or ragged input, a wrong shape, NaN/inf, a
+        translation beyond `MAX_MAGNITUDE`, a non-orthonormal or reflecting
+        rotation, or a last row other than ``[0, 0, 0, 1]``; the message
+        names the first bad index.
     """
-    T = np.asarray(T, dtype=float)
+    T = as_real_array(T, name)
     if T.ndim != 3 or T.shape[1:] != (4, 4):
         raise CalibrationError(f"{name} must have shape (N, 4, 4), got {T.shape}")
     # Entry-major layout (16, N): every check below is elementwise work on
@@ -68,20 +117,17 @@ def check_transforms(T, name: str = "T", *, atol: float = ROTATION_ATOL) -> np.n
 
 def check_transform(T, name: str = "T", *, atol: float = ROTATION_ATOL) -> np.ndarray:
     """Validate one rigid transform, shape (4, 4). See `check_transforms`."""
-    T = np.asarray(T, dtype=float)
+    T = as_real_array(T, name)
     if T.shape != (4, 4):
         raise CalibrationError(f"{name} must have shape (4, 4), got {T.shape}")
     return check_transforms(T[None], name, atol=atol)[0]
 
 
 def check_points(p, name: str = "points") -> np.ndarray:
-    """Validate a stack of 3D points, shape (N, 3), finite."""
-    p = np.asarray(p, dtype=float)
+    """Validate a stack of 3D points, shape (N, 3), finite and within `MAX_MAGNITUDE` (see `as_real_array`)."""
+    p = as_real_array(p, name)
     if p.ndim != 2 or p.shape[1] != 3:
         raise CalibrationError(f"{name} must have shape (N, 3), got {p.shape}")
-    finite = np.isfinite(p).all(axis=1)
-    if not finite.all():
-        raise CalibrationError(f"{name}[{int(np.argmin(finite))}] contains NaN or inf")
     return p
 
 

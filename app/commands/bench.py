@@ -14,6 +14,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--robot", action="store_true", help="also run the robot benchmark")
     p.add_argument("--faults", action="store_true",
                    help="run only the fault campaign (bench.faults: robot and simulator faults, minutes)")
+    p.add_argument("--plan", action="store_true", help="run only the pose-planning benchmark (bench.plan; "
+                   "other arguments go to it)")
+    p.add_argument("--model", action="store_true",
+                   help="only the measurement-model / solve('auto') benchmark (bench.model; --quick passes through)")
 
 
 def run(args) -> int:
@@ -21,6 +25,14 @@ def run(args) -> int:
         from bench import faults
 
         return int(faults.main(args.extra) or 0)
+    if args.plan:
+        from bench import plan
+
+        return int(plan.main(args.extra) or 0)
+    if args.model:
+        from bench import model
+
+        return int(model.main(args.extra) or 0)
     from bench import solvers
 
     rc = int(solvers.main(args.extra) or 0)

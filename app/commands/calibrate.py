@@ -1,4 +1,4 @@
-"""``handeye calibrate``: move the robot through random poses, sample each one, solve.
+"""``handeye calibrate``: move the robot through planned (or random, or listed) poses, sample each one, solve.
 
 Works for both setups. Eye-to-hand: static camera, marker on the flange,
 ``T_base_flange @ T_flange_marker = T_base_cam @ T_cam_marker``. Eye-in-hand:
@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import json
 import logging
 import time
 from dataclasses import dataclass, field
@@ -19,18 +20,18 @@ from typing import Callable
 
 import numpy as np
 
-from app import devices
+from app import devices, planning
 from app.acquire import take_sample
-from app.commands.common import add_run_options, confirm_motion, load_config_args, pose_line
+from app.commands.common import add_motion_options, add_run_options, confirm_motion, load_config_args, pose_line
 from app.config import CalibrateConfig, Config
 from app.errors import SessionError
 from app.progress import progress_bar, show_sigma
 from app.session import SessionWriter, read_session
 from app.viz import Viz
 from calib import transforms as tf
+from calib.auto import report
 from calib.errors import CalibrationError
 from calib.observation import Observation
-from calib.predict import predicted_pixel
 from calib.result import CalibrationResult
 from calib.setup import Setup
 from calib.vision.extract import MarkerMeasurement
@@ -40,8 +41,11 @@ from drivers.robot.base import Robot
 
 log = logging.getLogger(__name__)
 
+#: Samples before the first solve is tried (the fewest any solver takes; too few for one raises and is logged).
+MIN_ESTIMATE_SAMPLES = 3
+
 NAME = "calibrate"
-HELP = "active run: move the robot through random poses and calibrate"
+HELP = "active run: move the robot through planned (or random, or listed) poses and calibrate"
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -51,6 +55,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--seed", type=int, help="seed of the random poses (overrides calibrate.seed)")
     p.add_argument("--method", help="solver, paper name (overrides calibrate.method), e.g. \"YKronT'\"")
     p.add_argument("--resume", type=Path, help="continue this session (e.g. after a crash or Ctrl-C)")
+    add_motion_options(p)
 
 
 def run(args) -> int:
@@ -73,10 +78,15 @@ class RunReport:
         Session directory (samples, frames, result, .rrd).
     n_samples, n_skipped : int
     stopped_by : str
-        ``"samples"``, ``"target_sigma"``, ``"max_attempts"`` or ``"interrupted"``.
+        ``"samples"``, ``"target_sigma"``, ``"max_attempts"``, ``"interrupted"``, or the pose
+        source's end (``"plan_done"``, ``"no_valid_pose"``, ``"no_estimate_after_bootstrap"``).
     elapsed_s : float
     skip_reasons : dict
         ``{reason: count}`` of this run's skips.
+    n_motions : int
+        Motions the robot made to sample (the return to the start not counted).
+    robot_time_s : float
+        Time spent in those motions (until settled), s.
     """
 
     result: CalibrationResult | None
@@ -86,6 +96,8 @@ class RunReport:
     stopped_by: str
     elapsed_s: float
     skip_reasons: dict = field(default_factory=dict)
+    n_motions: int = 0
+    robot_time_s: float = 0.0
 
 
 @dataclass
@@ -120,6 +132,7 @@ def calibrate(cfg: Config, *, resume: Path | None = None, progress: bool = True)
         initial = previous.observations
     # A resumed run must not replay the poses it already visited.
     rng = np.random.default_rng([cfg.calibrate.seed, len(initial)])
+    devices.check_session_root(cfg)
     with devices.open_robot(cfg, read_only=False) as robot, devices.open_camera(cfg, robot) as camera:
         truth = devices.truth(camera)
         if resume is not None:
@@ -132,27 +145,27 @@ def calibrate(cfg: Config, *, resume: Path | None = None, progress: bool = True)
             T_true = devices.camera_truth(cfg.setup, truth)
             if T_true is not None:
                 viz.truth(T_true)
+            poses = planning.make_pose_source(cfg, robot, camera.intrinsics, robot.read().T_base_flange, rng)
             with progress_bar(total=cfg.calibrate.samples, initial=len(initial), enabled=progress) as bar:
                 report = run_calibration(robot, camera, devices.make_measure(cfg),
                                          devices.make_solve(cfg.calibrate, cfg.setup, rng), writer, cfg.calibrate,
                                          rng, viz, save_frames=cfg.session.save_frames, progress=bar,
-                                         initial=initial)
+                                         initial=initial, poses=poses)
     files = (devices.write_result(report.result, writer.path, cfg.session.exports, cfg.frames)
              if report.result is not None else {})
+    if "json" in files:
+        _add_run_summary(files["json"], report, cfg.calibrate.poses)
     return CalibrationOutput(report, cfg.setup, cfg.calibrate.method, files, devices.camera_truth(cfg.setup, truth),
                              recording, cfg.frames)
 
 
-def random_pose(T_start: np.ndarray, cfg: CalibrateConfig, rng: np.random.Generator) -> np.ndarray:
-    """A flange pose around ``T_start``: each axis offset uniform in +-range, tilt <= cfg.tilt_deg.
-
-    The rotation is applied about the flange origin (in the base frame), so the
-    tilt does not swing the flange away from its sampled position.
-    """
-    T_start = tf.check_transform(T_start, "T_start")
-    R = tf.random_rotations(1, np.deg2rad(cfg.tilt_deg), rng)[0]
-    dt = rng.uniform(-cfg.translation_range_m, cfg.translation_range_m, size=3)
-    return tf.make_transform(R @ T_start[:3, :3], T_start[:3, 3] + dt)
+def _add_run_summary(path: Path, report: RunReport, poses: str) -> None:
+    """Record how the run ended in result.json: samples used, skips, why it stopped, which poses, robot time."""
+    doc = json.loads(Path(path).read_text(encoding="utf-8"))
+    doc["run"] = {"n_samples": report.n_samples, "n_skipped": report.n_skipped, "stopped_by": report.stopped_by,
+                  "poses": poses, "n_motions": report.n_motions, "robot_time_s": report.robot_time_s,
+                  "elapsed_s": report.elapsed_s}
+    Path(path).write_text(json.dumps(doc, indent=2) + "\n", encoding="utf-8")
 
 
 def run_calibration(
@@ -168,8 +181,9 @@ def run_calibration(
     save_frames: bool = True,
     progress=None,
     initial: list[Observation] | None = None,
+    poses=None,
 ) -> RunReport:
-    """Active run: random poses, one sample each, until enough or precise enough.
+    """Active run: one sample per pose of ``poses``, until enough or precise enough.
 
     Parameters
     ----------
@@ -182,13 +196,16 @@ def run_calibration(
         Every sample and skip is appended and flushed as taken.
     cfg : CalibrateConfig
     rng : numpy.random.Generator
-        Source of the random poses (seeded from config/CLI).
+        Source of the random poses when ``poses`` is None (seeded from config/CLI).
     viz : Viz
     progress : tqdm-like, optional
         ``update(1)`` per sample.
     initial : list[Observation], optional
         Samples already in a resumed session; they count towards ``cfg.samples``
         and give the first estimate.
+    poses : pose source, optional
+        ``next(state, estimate, observations) -> Target | None`` (`app.planning`);
+        None draws uniform random poses around the start.
 
     Returns
     -------
@@ -198,49 +215,58 @@ def run_calibration(
     """
     t0 = time.monotonic()
     start = robot.read().T_base_flange
+    if poses is None:
+        poses = planning.RandomPoses(start, cfg, camera.intrinsics, rng)
     observations: list[Observation] = list(initial or [])
     estimate: CalibrationResult | None = None
-    if len(observations) >= cfg.min_samples:
+    if len(observations) >= MIN_ESTIMATE_SAMPLES:
         try:
             estimate = solve(observations, final=False)
         except CalibrationError as e:
             log.info("no estimate from the %d resumed samples: %s", len(observations), e)
-    n_skipped = 0
+    n_skipped = n_motions = 0
+    robot_time = 0.0
     stopped_by = "max_attempts"
-    intrinsics = camera.intrinsics
     try:
         for attempt in range(cfg.max_attempts):
             if len(observations) >= cfg.samples:
                 stopped_by = "samples"
                 break
-            target = random_pose(start, cfg, rng)
-            if estimate is not None:
-                px = predicted_pixel(estimate, target, intrinsics, cfg.image_margin_px)
-                if px is None:
-                    # Not worth a motion: the marker would leave the image (or face away).
-                    log.debug("pose %d skipped: marker predicted outside the image", attempt)
-                    writer.add_skip(time.time(), "marker predicted outside the image", T_base_flange=target)
-                    n_skipped += 1
-                    continue
+            target = poses.next(robot.read(), estimate, observations)
+            if target is None:
+                stopped_by = poses.done_reason
+                break
+            if target.skip is not None:
+                # Not worth a motion (e.g. the marker would leave the image).
+                log.debug("pose %d skipped: %s", attempt, target.skip)
+                writer.add_skip(time.time(), target.skip, T_base_flange=target.T_base_flange)
+                n_skipped += 1
+                continue
             try:
-                state = robot.move_to(target)
+                state = robot.read()
+                rot, dist = tf.pose_error(state.T_base_flange, target.T_base_flange)
+                if dist > 1e-3 or rot > np.deg2rad(0.1):  # (a target where the flange stands needs no motion)
+                    t_move = time.monotonic()
+                    state = robot.move_to(target.T_base_flange)
+                    robot_time += time.monotonic() - t_move
+                    n_motions += 1
             except LimitViolationError as e:
                 log.info("pose %d skipped: %s", attempt, e)
-                writer.add_skip(time.time(), f"limit: {e}", T_base_flange=target)
+                writer.add_skip(time.time(), f"limit: {e}", T_base_flange=target.T_base_flange)
                 n_skipped += 1
                 continue
             time.sleep(cfg.settle_s)
             # Only a frame exposed after the arm settled (plus settle_s for the plate to stop
             # vibrating) pairs with a still pose; older frames queued during the motion are dropped.
             obs = take_sample(robot, camera, measure, writer, viz, not_before=state.t_host + cfg.settle_s,
-                              save_frames=save_frames)
+                              save_frames=save_frames, pose_kind=target.kind)
             if obs is None:
                 n_skipped += 1
                 continue
             observations.append(obs)
             if progress is not None:
                 progress.update(1)
-            if len(observations) >= cfg.min_samples:
+            if len(observations) >= MIN_ESTIMATE_SAMPLES:
                 try:
                     estimate = solve(observations, final=False)
                 except CalibrationError as e:
@@ -250,7 +276,7 @@ def run_calibration(
                     viz.sample(obs, estimate.camera_transform)
                     viz.estimate(obs.t, estimate, observations)
                     show_sigma(progress, estimate)
-                    if _precise_enough(estimate, cfg):
+                    if len(observations) >= cfg.min_samples and _precise_enough(estimate, cfg):
                         stopped_by = "target_sigma"
                         break
             else:
@@ -266,6 +292,9 @@ def run_calibration(
         log.warning("interrupted: robot stopped, %d samples kept in %s", len(observations), writer.path)
         writer.add_event(time.time(), "interrupted", n_samples=len(observations))
         viz.event(time.time(), "interrupted by user; robot stopped", "WARN")
+    if stopped_by != "interrupted":  # (an interruption has its own event)
+        writer.add_event(time.time(), "stopped", stopped_by=stopped_by, n_samples=len(observations),
+                         n_skipped=n_skipped, n_motions=n_motions, robot_time_s=robot_time, poses=cfg.poses)
 
     result = None
     if len(observations) >= 3:
@@ -277,7 +306,7 @@ def run_calibration(
             log.error("final solve failed: %s", e)
             writer.add_event(time.time(), "solve_failed", error=str(e))
     return RunReport(result, writer.path, len(observations), n_skipped, stopped_by, time.monotonic() - t0,
-                     dict(writer.skip_reasons))
+                     dict(writer.skip_reasons), n_motions, robot_time)
 
 
 def _precise_enough(estimate: CalibrationResult, cfg: CalibrateConfig) -> bool:
@@ -300,7 +329,8 @@ def print_calibration_summary(out: CalibrationOutput) -> None:
     cam = Setup(out.setup).camera_name
     print(f"\nsession: {r.session}")
     print(f"setup: {out.setup}   solver: {out.method}   samples: {r.n_samples}   skipped: {r.n_skipped}   "
-          f"stopped by: {r.stopped_by}   time: {r.elapsed_s:.1f} s")
+          f"stopped by: {r.stopped_by}   time: {r.elapsed_s:.1f} s (robot motions: {r.n_motions}, "
+          f"{r.robot_time_s:.1f} s)")
     reasons = sorted(r.skip_reasons.items(), key=lambda kv: -kv[1])[:3]
     if reasons:
         print("most frequent skips: " + "; ".join(f"{n}x {why}" for why, n in reasons))
@@ -326,7 +356,33 @@ def print_calibration_summary(out: CalibrationOutput) -> None:
         print(f"| error vs truth [mm] | {trans * 1e3:.2f} |\n| error vs truth [deg] | {np.rad2deg(rot):.3f} |")
     for kind, path in out.files.items():
         print(f"| {kind} | {path} |")
+    print_model_summary(res)
     print_next_steps(out)
+
+
+def print_model_summary(res: CalibrationResult) -> None:
+    """Camera correction, noise levels and the self-check of ``res`` (`calib.auto.report`), then any warning."""
+    rep = report(res)
+    if rep is None:
+        return
+    rows = []
+    for name, c in rep.get("camera_correction", {}).items():
+        if c["estimated"]:
+            label = name.replace("_percent", " [%]").replace("_mm", " [mm]").replace("_", " ")
+            rows.append((label, f"{c['value']:+.2f} ± {c['sigma']:.2f}"))
+    if "noise" in rep:
+        rows.append(("robot error [mm] (estimated)", f"{rep['noise']['robot_mm']:.2f}"))
+    check = rep.get("self_check")
+    if check is not None:
+        rows.append(("held-out error [mm] observed / predicted",
+                     f"{check['heldout_observed_mm']:.2f} / {check['heldout_predicted_mm']:.2f}"))
+        rows.append(("chi-square vs camera noise model", f"{check['chi2']:.0f} for {check['dof']} dof"))
+    for name, value in rows:
+        print(f"| {name} | {value} |")
+    for note in rep.get("notes", []):
+        print(f"note: {note}")
+    if check is not None and check["warning"] and check["warning"] not in rep.get("notes", []):
+        print(f"warning: {check['warning']}")
 
 
 def print_next_steps(out: CalibrationOutput) -> None:

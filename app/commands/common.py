@@ -10,6 +10,7 @@ from pathlib import Path
 import numpy as np
 
 from calib import transforms as tf
+from app.errors import ConfigError
 from calib.errors import HandeyeError
 
 
@@ -23,6 +24,28 @@ def add_run_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("--no-frames", action="store_true", help="do not store color/depth PNGs in the session")
 
 
+def until_sigma(text: str) -> tuple[float, float]:
+    """``--until-sigma`` value: ``MM,DEG`` (e.g. ``1,0.1``) or ``off``."""
+    if text.strip().lower() in ("off", "0", "0,0"):
+        return 0.0, 0.0
+    try:
+        mm, deg = (float(v) for v in text.split(","))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected MM,DEG (e.g. 1,0.1) or 'off', got {text!r}") from None
+    if not (mm > 0 and deg > 0 and np.isfinite(mm) and np.isfinite(deg)):
+        raise argparse.ArgumentTypeError(f"both targets must be positive numbers, got {text!r}")
+    return mm, deg
+
+
+def add_motion_options(p: argparse.ArgumentParser) -> None:
+    """Where an active run moves (calibrate, demo)."""
+    p.add_argument("--poses", help="'optimal' (information-planned, default), 'random', or a plan.json "
+                   "from 'handeye plan' (overrides calibrate.poses)")
+    p.add_argument("--until-sigma", type=until_sigma, metavar="MM,DEG",
+                   help="stop once the camera's predicted 1-sigma is below both (e.g. 1,0.1; 'off' disables; "
+                   "overrides calibrate.target_sigma_mm/deg)")
+
+
 def apply_overrides(cfg, args):
     """Copy CLI overrides into the config, re-validating the touched sections."""
     cal = {}
@@ -33,6 +56,10 @@ def apply_overrides(cfg, args):
         cal["seed"] = args.seed
     if getattr(args, "method", None) is not None:
         cal["method"] = args.method
+    if getattr(args, "poses", None) is not None:
+        cal["poses"] = args.poses
+    if getattr(args, "until_sigma", None) is not None:
+        cal["target_sigma_mm"], cal["target_sigma_deg"] = args.until_sigma
     mon = {}
     if getattr(args, "duration", None) is not None:
         mon["duration_s"] = args.duration
@@ -65,9 +92,16 @@ def load_config_args(args):
     """Config file (or the embedded simulated cell) + CLI overrides, every section validated."""
     from app import devices
     from app.config import load_config
+    from app.planning import check_poses_option
 
     cfg = apply_overrides(load_config(args.config), args)
-    devices.validate(cfg)
+    try:
+        devices.validate(cfg)
+    except ConfigError as e:
+        if args.config is None:
+            raise
+        raise ConfigError(f"{args.config}: {e}") from None
+    check_poses_option(cfg.calibrate.poses)
     return cfg
 
 
@@ -84,7 +118,7 @@ def confirm_motion(yes_move: bool, *, stdin=None) -> None:
     stdin = stdin or sys.stdin
     if not stdin.isatty():
         raise HandeyeError("refusing to move the robot: no terminal to confirm on; pass --yes-move")
-    answer = input("The robot will move to random poses around its current pose. Continue? [y/N] ")
+    answer = input("The robot will move to calibration poses around its current pose. Continue? [y/N] ")
     if answer.strip().lower() not in ("y", "yes"):
         raise HandeyeError("robot motion not confirmed; nothing moved")
 

@@ -8,7 +8,7 @@ from pathlib import Path
 
 from app import devices
 from app.commands.calibrate import CalibrationOutput, calibrate, exit_code, print_calibration_summary
-from app.commands.common import add_run_options, load_config_args
+from app.commands.common import add_motion_options, add_run_options, load_config_args
 from app.config import Config
 from app.errors import ConfigError
 from app.production import Bump
@@ -26,7 +26,8 @@ DEMO_MONITOR = {"still_s": 0.2, "poll_s": 0.02, "reestimate_samples": 6,
 def add_arguments(p: argparse.ArgumentParser) -> None:
     add_run_options(p)
     p.add_argument("--samples", type=int, help="number of samples (default from the config)")
-    p.add_argument("--seed", type=int, help="seed of the random poses")
+    p.add_argument("--seed", type=int, help="seed of the pose candidates")
+    add_motion_options(p)
     p.add_argument("--monitor", action="store_true", help="passive monitoring instead: the simulated robot runs a "
                    "looping production program, the camera is bumped partway; exit status 3 on the alarm")
     p.add_argument("--bump-mm", type=float, default=10.0, help="--monitor: camera shift, mm (default 10; 0 and "

@@ -16,7 +16,6 @@ import contextlib
 import dataclasses
 import logging
 import os
-import shlex
 import subprocess
 import threading
 import time
@@ -30,13 +29,14 @@ import numpy as np
 from app import devices
 from app.acquire import take_sample
 from app.commands.common import add_run_options, load_config_args, pose_line
-from app.config import Config, MonitorConfig
-from app.errors import SessionError
+from app.config import Config, MonitorConfig, hook_argv
+from app.errors import ConfigError, SessionError
 from app.production import Bump, start_production
 from app.progress import progress_bar, say, show_monitor
 from app.session import SessionWriter, read_session
 from app.viz import Viz
 from calib import transforms as tf
+from calib.planner import least_informative
 from calib.errors import CalibrationError
 from calib.observation import Observation
 from calib.result import CalibrationResult
@@ -101,6 +101,9 @@ class MonitorReport:
         the start or the last alarm).
     samples_until_armed : int
         Change detector state at the end (0: armed).
+    kept : list[int]
+        Indices of the samples held at the end (since the start or the last
+        alarm, bounded by ``keep_samples``, chosen by information).
     """
 
     session: Path
@@ -114,6 +117,7 @@ class MonitorReport:
     estimate_sigma: tuple[float, float] | None = None
     drift: tuple[float, float] | None = None
     samples_until_armed: int = 0
+    kept: list[int] = field(default_factory=list)
 
     @property
     def last_alarm(self) -> Alarm | None:
@@ -159,6 +163,7 @@ def monitor(cfg: Config, *, reference: Path | None = None, stop=None, progress: 
             raise SessionError(f"reference session {reference}: cannot arm the change detector: {e}") from None
         T_reference = online.camera_transform
         say(f"reference {reference}: {len(usable)} samples, change detector armed from its estimate and covariance")
+    devices.check_session_root(cfg)
     publisher = make_publisher(cfg.mqtt, cfg.setup, check_frames(cfg.frames)) if publish is None else None
     with devices.open_robot(cfg, read_only=True) as robot, devices.open_camera(cfg, robot) as camera, \
             (publisher or contextlib.nullcontext()):
@@ -209,13 +214,17 @@ def _same_pose(T1: np.ndarray, T2: np.ndarray, *, mm: float = 1.0, deg: float = 
 
 
 def run_hook(command: str, env: dict) -> None:
-    """Run the alarm hook (no shell; arguments split like a shell would). Failures are logged, not raised."""
-    if not command:
-        return
+    """Run the alarm hook (no shell; arguments split like a shell would). Failures are logged, not raised.
+
+    The command was checked at config load (`app.config.hook_argv`); a failure
+    here (the program removed since) is logged so the alarm itself still counts.
+    """
     try:
-        done = subprocess.run(shlex.split(command), env={**os.environ, **env}, timeout=30,
-                              capture_output=True, text=True)
-    except (OSError, subprocess.TimeoutExpired) as e:
+        argv = hook_argv(command)
+        if not argv:
+            return
+        done = subprocess.run(argv, env={**os.environ, **env}, timeout=30, capture_output=True, text=True)
+    except (OSError, subprocess.TimeoutExpired, ConfigError) as e:
         log.error("alarm hook %r failed: %s", command, e)
         return
     if done.returncode != 0:
@@ -268,7 +277,8 @@ def run_monitor(
     t0 = time.monotonic()
     report = MonitorReport(writer.path, 0, 0)
     recent: deque = deque(maxlen=max(cfg.diversity_window, 1))
-    after_alarm: list[Observation] = []
+    kept: list[Observation] = []  # since the start or the last alarm; bounded by information
+    n_after_alarm = 0
     still_since: float | None = None
     still_pose: np.ndarray | None = None
     tried_pose: np.ndarray | None = None
@@ -311,6 +321,8 @@ def run_monitor(
             if on_sample is not None:
                 on_sample(obs)
             update = online.update(obs.T_base_flange, obs.point_cam, obs.point_cov)
+            kept.append(obs)
+            _bound(kept, cfg, online)
             viz.sample(obs, update.camera_transform)
             if update.camera_transform is not None:
                 if reference is None:
@@ -326,7 +338,7 @@ def run_monitor(
             if update.alarm:
                 _raise_alarm(report, obs, update, writer, viz, cfg)
                 # The reference stays: the drift of the re-learnt camera against it is how far it moved.
-                after_alarm = []
+                kept, n_after_alarm = [], 0
                 say(f"change detector: re-{detector_state(report.samples_until_armed)} "
                     "(learning the moved camera from new samples)")
             elif armed_before and not report.samples_until_armed:
@@ -336,15 +348,30 @@ def run_monitor(
             if update.alarm:
                 continue
             if report.alarms:
-                after_alarm.append(obs)
+                n_after_alarm += 1
                 # Re-solve every reestimate_samples new samples: cheap, and improves as they accrue.
-                if len(after_alarm) % cfg.reestimate_samples == 0:
-                    report.reestimate = _reestimate(after_alarm, solve, writer, viz) or report.reestimate
+                if n_after_alarm % cfg.reestimate_samples == 0:
+                    report.reestimate = _reestimate(kept, solve, writer, viz) or report.reestimate
     except KeyboardInterrupt:
         log.warning("monitor interrupted; %d samples kept in %s", report.n_samples, writer.path)
         writer.add_event(time.time(), "interrupted", n_samples=report.n_samples)
     report.elapsed_s = time.monotonic() - t0
+    report.kept = [o.index for o in kept]
+    writer.add_event(time.time(), "sample_set", indices=report.kept, keep_samples=cfg.keep_samples)
     return report
+
+
+def _bound(kept: list[Observation], cfg: MonitorConfig, online) -> None:
+    """Hold at most ``cfg.keep_samples``: drop the least informative at the online estimate
+    (`calib.planner.least_informative`), the oldest while there is no estimate yet."""
+    if not cfg.keep_samples or len(kept) <= cfg.keep_samples:
+        return
+    estimate = online.result()
+    if estimate is None:
+        kept.pop(0)
+        return
+    A = np.array([o.T_base_flange for o in kept])
+    kept.pop(least_informative(estimate.setup, estimate.X, estimate.Y, A, keep_recent=cfg.keep_recent))
 
 
 def _raise_alarm(report: MonitorReport, obs: Observation, update, writer: SessionWriter, viz: Viz,

@@ -49,6 +49,7 @@ from pathlib import Path
 import yaml
 
 from app.errors import SessionError
+from app.files import read_text_file
 
 from app.formats.common import DEFAULT_FRAMES, ImportedSamples
 from app.formats.export import EXPORT_FORMATS, result_to_dict, ros2_command, urdf_origin, write_result
@@ -94,9 +95,9 @@ def detect_format(path) -> str:
         except (OSError, UnicodeDecodeError, json.JSONDecodeError) as e:
             raise SessionError(f"{path}: cannot read JSON ({e})") from e
     try:
-        data = yaml.safe_load(path.read_text())
-    except (OSError, yaml.YAMLError, UnicodeDecodeError) as e:
-        raise SessionError(f"{path}: cannot read ({e})") from e
+        data = yaml.safe_load(read_text_file(path, SessionError))
+    except (yaml.YAMLError, RecursionError, ValueError) as e:
+        raise SessionError(f"{path}: cannot read ({str(e)[:200]})") from None
     if isinstance(data, dict):
         if "target_finder" in data and "data" in data:
             return "industrial_calibration"

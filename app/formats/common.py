@@ -16,6 +16,7 @@ from pathlib import Path
 import numpy as np
 import yaml
 
+from app.files import read_text_file
 from calib import transforms as tf
 from app.errors import SessionError
 from calib.errors import CalibrationError
@@ -62,11 +63,11 @@ class ImportedSamples:
 
 def read_yaml(path: Path, *, allow_list: bool = False) -> dict | list:
     """YAML mapping (or, with ``allow_list``, list) from ``path``; `SessionError` naming the file otherwise."""
+    text = read_text_file(path, SessionError)
     try:
-        with open(path) as f:
-            data = yaml.safe_load(f)
-    except (OSError, yaml.YAMLError) as e:
-        raise SessionError(f"{path}: cannot read YAML ({e})") from e
+        data = yaml.safe_load(text)
+    except (yaml.YAMLError, RecursionError, ValueError) as e:
+        raise SessionError(f"{path}: cannot read YAML ({str(e)[:200]})") from None
     if not isinstance(data, dict) and not (allow_list and isinstance(data, list)):
         raise SessionError(f"{path}: expected a YAML mapping at the top level, got {type(data).__name__}")
     return data
@@ -75,10 +76,12 @@ def read_yaml(path: Path, *, allow_list: bool = False) -> dict | list:
 def _number(d: dict, key: str, where: str) -> float:
     if not isinstance(d, dict) or key not in d:
         raise SessionError(f"{where}: missing field {key!r}")
+    if isinstance(d[key], bool):
+        raise SessionError(f"{where}.{key}: not a number ({d[key]!r})")
     try:
         return float(d[key])
-    except (TypeError, ValueError) as e:
-        raise SessionError(f"{where}.{key}: not a number ({d[key]!r})") from e
+    except (TypeError, ValueError, OverflowError):
+        raise SessionError(f"{where}.{key}: not a number ({d[key]!r:.60})") from None
 
 
 def transform_from_xyz_quat_fields(d: dict, where: str, keys=("x", "y", "z", "qx", "qy", "qz", "qw")) -> np.ndarray:
@@ -108,8 +111,12 @@ def transform_from_msg(d: dict, where: str) -> np.ndarray:
         d = d["transform"]
     if not isinstance(d, dict) or "translation" not in d or "rotation" not in d:
         raise SessionError(f"{where}: expected a Transform with 'translation' and 'rotation', got {d!r:.80}")
-    flat = {**{k: v for k, v in (d["translation"] or {}).items()},
-            **{"q" + k: v for k, v in (d["rotation"] or {}).items()}}
+    for part in ("translation", "rotation"):
+        if not isinstance(d[part], dict):
+            raise SessionError(f"{where}: {part} must be a mapping of x, y, z{', w' * (part == 'rotation')}, "
+                               f"got {d[part]!r:.60}")
+    flat = {**{k: v for k, v in d["translation"].items()},
+            **{"q" + str(k): v for k, v in d["rotation"].items()}}
     return transform_from_xyz_quat_fields(flat, where)
 
 

@@ -41,7 +41,7 @@ _SETUP_NAMES = {"eye_in_hand": Setup.EYE_IN_HAND, "eye_on_hand": Setup.EYE_IN_HA
 def _setup_from(value, path: Path, given: str | None) -> Setup:
     if given is not None:
         return check_setup(given, error=SessionError)
-    if value in _SETUP_NAMES:
+    if isinstance(value, str) and value in _SETUP_NAMES:
         return _SETUP_NAMES[value]
     raise SessionError(
         f"{path}: the file does not say whether the camera is on the hand or on the base "
@@ -49,12 +49,25 @@ def _setup_from(value, path: Path, given: str | None) -> Setup:
     )
 
 
+def _params(value, path: Path) -> dict:
+    """The ``parameters`` block: a mapping, or empty when absent."""
+    if value is None:
+        return {}
+    if not isinstance(value, dict):
+        raise SessionError(f"{path}: parameters must be a mapping, got {type(value).__name__}")
+    return value
+
+
 def _frames(params: dict) -> dict:
+    def name(key, default):
+        v = params.get(key)
+        return v if isinstance(v, str) and v else default
+
     return {
-        "base": params.get("robot_base_frame") or "base",
-        "flange": params.get("robot_effector_frame") or "flange",
-        "camera": params.get("tracking_base_frame") or "camera",
-        "marker": params.get("tracking_marker_frame") or "marker",
+        "base": name("robot_base_frame", "base"),
+        "flange": name("robot_effector_frame", "flange"),
+        "camera": name("tracking_base_frame", "camera"),
+        "marker": name("tracking_marker_frame", "marker"),
     }
 
 
@@ -88,11 +101,12 @@ def load_easy_handeye2(path, *, setup: str | None = None) -> ImportedSamples:
     """
     path = Path(path)
     data = read_yaml(path)
-    params = data.get("parameters") or {}
+    params = _params(data.get("parameters"), path)
     kind = params.get("calibration_type")
     calib_file = path.with_suffix(".calib")
     if not kind and setup is None and calib_file.exists():
-        params = {**(read_yaml(calib_file).get("parameters") or {}), **{k: v for k, v in params.items() if v}}
+        params = {**_params(read_yaml(calib_file).get("parameters"), calib_file),
+                  **{k: v for k, v in params.items() if v}}
         kind = params.get("calibration_type")
     samples = data.get("samples")
     if not isinstance(samples, list):
@@ -130,7 +144,7 @@ def load_easy_handeye(path, *, setup: str | None = None) -> ImportedSamples:
     data = read_yaml(path, allow_list=True)
     if isinstance(data, list):
         data = {"samples": data}
-    params = data.get("parameters") or {}
+    params = _params(data.get("parameters"), path)
     eye_on_hand = params.get("eye_on_hand", data.get("eye_on_hand"))
     kind = None if eye_on_hand is None else ("eye_in_hand" if eye_on_hand else "eye_on_base")
     setup = _setup_from(kind, path, setup)

@@ -20,6 +20,7 @@ from scipy.spatial.transform import Rotation
 
 from calib import transforms as tf
 from app.errors import ConfigError
+from calib.auto import report
 from calib.errors import CalibrationError
 from calib.result import CalibrationResult
 from calib.setup import Setup, check_setup
@@ -183,6 +184,7 @@ def result_to_dict(result: CalibrationResult, frames: dict | None = None) -> dic
         "iterations": int(result.iterations),
         "ros2_static_transform_publisher": ros2_command(result, frames),
         "urdf_origin": urdf_origin(result),
+        "model": report(result),
     }
 
 

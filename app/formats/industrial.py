@@ -27,6 +27,7 @@ import cv2
 import numpy as np
 
 from app.errors import ConfigError, SessionError
+from app.files import inside, read_regular_file
 from calib.errors import ExtractionError
 from calib.setup import Setup
 from calib.vision.circle_grid import CircleGridSpec, detect_circle_grid
@@ -55,6 +56,8 @@ def _dictionary_name(value) -> str:
 
 def make_detector(finder: dict, where: str):
     """``image -> Detection`` for a ``target_finder`` block; `ConfigError` names the bad field."""
+    if not isinstance(finder, dict):
+        raise ConfigError(f"{where}: target_finder must be a mapping, got {type(finder).__name__}")
     kind = finder.get("type")
     try:
         if kind == "CharucoGridTargetFinder":
@@ -72,6 +75,8 @@ def make_detector(finder: dict, where: str):
             return lambda image: detect_circle_grid(image, spec)
     except KeyError as e:
         raise ConfigError(f"{where}: target_finder needs field {e.args[0]!r}") from e
+    except (TypeError, ValueError, AttributeError) as e:
+        raise ConfigError(f"{where}: target_finder has a non-numeric or malformed field ({e})") from None
     raise ConfigError(f"{where}: target_finder.type {kind!r} is not supported "
                       f"(CharucoGridTargetFinder, ModifiedCircleGridTargetFinder)")
 
@@ -86,6 +91,15 @@ def pose_from_detection(det: Detection, K: np.ndarray) -> tuple[np.ndarray, np.n
     T, rms = solve_pnp(det.image_points, det.object_points, K, np.zeros(5), square=False)[0]
     cov = pnp_covariance(T, det.object_points, K, max(rms, SIGMA_PX_MIN))
     return T, cov, rms
+
+
+def _read_image(path: Path):
+    """Decoded image of a regular file, or None if it is not an image."""
+    data = read_regular_file(path, SessionError)
+    try:
+        return cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_UNCHANGED) if data else None
+    except cv2.error:
+        return None
 
 
 def load_industrial_calibration(path) -> ImportedSamples:
@@ -105,7 +119,7 @@ def load_industrial_calibration(path) -> ImportedSamples:
     """
     path = Path(path)
     if path.is_dir():
-        path = path / "cal_data.yaml"
+        path = inside(path, "cal_data.yaml", SessionError, what=str(path))
     data = read_yaml(path)
     root = path.parent
     for key in ("data", "target_finder", "intrinsics"):
@@ -121,14 +135,18 @@ def load_industrial_calibration(path) -> ImportedSamples:
     setup = Setup.EYE_TO_HAND if data.get("static_camera", False) else Setup.EYE_IN_HAND
 
     A, B, covs, per, skipped = [], [], [], [], []
+    if not isinstance(data["data"], list):
+        raise SessionError(f"{path}: data must be a list of {{pose, image}} entries")
     for i, entry in enumerate(data["data"]):
         if not isinstance(entry, dict) or "pose" not in entry or "image" not in entry:
             raise SessionError(f"{path}: data[{i}] needs 'pose' and 'image'")
-        pose_file = root / entry["pose"]
+        # File names come from the data set: read them only inside its directory.
+        pose_file = inside(root, entry["pose"], SessionError, what=f"{path}: data[{i}].pose")
         T_base_flange = transform_from_xyz_quat_fields(read_yaml(pose_file), str(pose_file))
-        image = cv2.imread(str(root / entry["image"]), cv2.IMREAD_UNCHANGED)
+        image_file = inside(root, entry["image"], SessionError, what=f"{path}: data[{i}].image")
+        image = _read_image(image_file)
         if image is None:
-            raise SessionError(f"{path}: cannot read image {entry['image']}")
+            raise SessionError(f"{path}: data[{i}]: cannot decode image {entry['image']!r}")
         try:
             det = detect(image)
             T_cam_marker, cov, rms = pose_from_detection(det, K)

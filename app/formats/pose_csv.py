@@ -29,14 +29,17 @@ the paired samples (both setups).
 from __future__ import annotations
 
 import gzip
+import io
 import logging
 import re
 import tomllib
+import zlib
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
+from app.files import MAX_FILE_BYTES, inside, read_regular_file, read_text_file
 from calib import timesync
 from calib import transforms as tf
 from app.errors import ConfigError, SessionError
@@ -80,14 +83,20 @@ def read_pose_csv(path) -> tuple[np.ndarray, np.ndarray]:
         (the message names the line).
     """
     path = Path(path)
+    data = read_regular_file(path, SessionError)
+    if path.suffix == ".gz":
+        try:
+            # Bounded: a small corrupt or hostile archive must not inflate without limit.
+            with gzip.GzipFile(fileobj=io.BytesIO(data)) as f:
+                data = f.read(MAX_FILE_BYTES + 1)
+        except (OSError, EOFError, zlib.error) as e:
+            raise SessionError(f"{path}: cannot decompress ({e})") from None
+        if len(data) > MAX_FILE_BYTES:
+            raise SessionError(f"{path}: decompresses to more than {MAX_FILE_BYTES} bytes")
     try:
-        if path.suffix == ".gz":
-            with gzip.open(path, "rt") as f:
-                lines = f.read().splitlines()
-        else:
-            lines = path.read_text().splitlines()
-    except (OSError, EOFError) as e:
-        raise SessionError(f"{path}: cannot read ({e})") from e
+        lines = data.decode("utf-8").splitlines()
+    except UnicodeDecodeError as e:
+        raise SessionError(f"{path}: not UTF-8 text (byte {e.start})") from None
     rows, line_nos = [], []
     for no, line in enumerate(lines, start=1):
         s = line.strip()
@@ -169,14 +178,13 @@ def read_manifest(path) -> StreamsConfig:
     """Parse and validate a pose-stream TOML manifest; `ConfigError` names the bad field."""
     path = Path(path)
     try:
-        with open(path, "rb") as f:
-            data = tomllib.load(f)
-    except (OSError, tomllib.TOMLDecodeError) as e:
-        raise ConfigError(f"{path}: cannot read TOML ({e})") from e
+        data = tomllib.loads(read_text_file(path, ConfigError, max_bytes=1024 * 1024))
+    except (tomllib.TOMLDecodeError, RecursionError) as e:
+        raise ConfigError(f"{path}: cannot read TOML ({str(e)[:200]})") from None
     try:
         return StreamsConfig(**data)
-    except TypeError as e:
-        raise ConfigError(f"{path}: {e}") from e
+    except (TypeError, ValueError) as e:
+        raise ConfigError(f"{path}: {e}") from None
 
 
 def residual_of_solve(method: str, setup: Setup):
@@ -224,12 +232,13 @@ def load_pose_streams(path, **overrides) -> ImportedSamples:
     """
     path = Path(path)
     if path.is_dir():
-        path = path / "streams.toml"
+        path = inside(path, "streams.toml", SessionError, what=str(path))
     cfg = read_manifest(path)
     if overrides:
         cfg = StreamsConfig(**{**cfg.__dict__, **overrides})
-    t_a, A = read_pose_csv(path.parent / cfg.robot)
-    t_b, B = read_pose_csv(path.parent / cfg.camera)
+    # The manifest names its CSVs relative to itself; they must stay beside it.
+    t_a, A = read_pose_csv(inside(path.parent, cfg.robot, SessionError, what=f"{path}: robot"))
+    t_b, B = read_pose_csv(inside(path.parent, cfg.camera, SessionError, what=f"{path}: camera"))
     if cfg.robot_transform == "T_flange_base":
         A = tf.invert(A)
     if cfg.camera_transform == "T_marker_cam":

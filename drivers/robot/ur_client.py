@@ -77,6 +77,8 @@ def _poll(rtde_r, send, stop: threading.Event, period: float) -> None:
             time.sleep(period)
     except RuntimeError as exc:
         send(("lost", f"RTDE read failed: {exc}"))
+    except OSError:
+        pass  # the parent is gone; the main thread notices and exits
 
 
 def serve(conn: Connection, host: str, frequency: float, read_only: bool, variables: list[str]) -> int:
@@ -226,7 +228,10 @@ class RTDEClient:
                 msg = self._conn.recv()
                 kind = msg[0]
                 if kind == "state":
-                    self._on_state(*msg[1:])
+                    try:
+                        self._on_state(*msg[1:])
+                    except Exception as exc:  # a malformed state must not silently end the stream
+                        self.kill(f"bad state from the RTDE client for {self.host}: {exc!r}")
                 elif kind in ("ret", "err"):
                     with self._cv:
                         self._replies[msg[1]] = msg

@@ -40,7 +40,8 @@ def test_replay_missing_source(tmp_path, capsys):
     _one_line_error(capsys, main(["replay", str(tmp_path / "nothing")]))
 
 
-def test_calibrate_refuses_without_tty_or_flag(capsys, monkeypatch):
+def test_calibrate_refuses_without_tty_or_flag(capsys, monkeypatch, tmp_path):
+    monkeypatch.chdir(tmp_path)  # the default session root ("sessions") is checked for writability here
     monkeypatch.setattr("sys.stdin", io.StringIO(""))
     line = _one_line_error(capsys, main(["calibrate"]))
     assert "--yes-move" in line

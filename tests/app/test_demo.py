@@ -1,4 +1,6 @@
-"""The full loop on the simulated cell: real ur_rtde client -> mocks.ur_sim, rendered frames, YKronT'."""
+"""The full loop on the simulated cell: real ur_rtde client -> mocks.ur_sim, rendered frames, solve("auto")."""
+
+import json
 
 import numpy as np
 import pytest
@@ -19,22 +21,29 @@ def test_sim_toml_is_the_embedded_default():
 
 
 def test_demo_recovers_true_camera_pose(sim_config, loopback):
-    """Reduced sample count; the shipped demo takes 20 (see docs/usage.md for its figures)."""
+    """The shipped demo: planned poses until the predicted 1-sigma is below 1 mm and 0.1 deg (at most 12 here)."""
     cfg = sim_config(loopback(1), samples=12)
     out = demo(cfg, progress=False)
     res = out.report.result
-    assert out.report.n_samples == 12 and res.method.startswith("YKronT'") and res.setup == "eye_to_hand"
+    assert out.report.stopped_by == "target_sigma" and out.report.n_samples <= 12
+    assert res.method == "auto" and res.setup == "eye_to_hand"
     rot, trans = tf.pose_error(res.T_base_cam, out.truth)
     assert trans < 3e-3 and np.rad2deg(rot) < 0.2, (trans, np.rad2deg(rot))
-    # everything was recorded: samples, frames, result files, rerun recording
+    # everything was recorded: samples (with the kind of pose), frames, result files, rerun recording
     session = read_session(out.report.session)
-    assert len(session.observations) == 12
+    assert len(session.observations) == out.report.n_samples
+    kinds = [o.meta["pose_kind"] for o in session.observations]
+    assert kinds[0] == "start" and "bootstrap" in kinds and "optimal" in kinds
+    run = json.loads((out.report.session / "result.json").read_text())["run"]
+    assert run["stopped_by"] == "target_sigma" and run["n_samples"] == out.report.n_samples
+    assert run["poses"] == "optimal"
     color, depth = session.load_frames(session.observations[0])
     assert color.shape == (480, 640, 3) and depth.max() > 0.3
     np.testing.assert_allclose(session.truth["T_base_cam"], out.truth)
     for name in ("result.yaml", "result.json", "handeye.calib", "recording.rrd"):
         assert (out.report.session / name).stat().st_size > 0, name
-    assert "T_base_cam" in (out.report.session / "result.yaml").read_text()
+    text = (out.report.session / "result.yaml").read_text()
+    assert "T_base_cam" in text and "heldout_observed_mm" in text and "camera_correction" in text
 
 
 def test_demo_refuses_hardware_config():
@@ -80,7 +89,7 @@ def test_targets_outside_the_workspace_are_skipped_not_sent(sim_config, loopback
     import dataclasses
 
     lo, hi = np.array([0.8, -0.05, 0.42]), np.array([1.0, 0.2, 0.62])
-    cfg = sim_config(loopback(11), samples=5, min_samples=5)
+    cfg = sim_config(loopback(11), samples=5, min_samples=5, poses="random")
     cfg = dataclasses.replace(cfg, robot={**cfg.robot, "workspace_min": lo.tolist(), "workspace_max": hi.tolist()},
                               viz=dataclasses.replace(cfg.viz, enabled=False),
                               session=dataclasses.replace(cfg.session, save_frames=False))

@@ -29,7 +29,7 @@ def test_sigkill_mid_run_then_replay_and_resume(tmp_path, capsys, sim_config, lo
     cfg.write_text(Path("config/sim.toml").read_text().replace('host = "127.0.0.2"', f'host = "{loopback(4)}"'))
     root = tmp_path / "sessions"
     proc = subprocess.Popen([sys.executable, "-m", "app.cli", "demo", "-c", str(cfg), "--samples", "40",
-                             "--session-root", str(root), "--no-viz"],
+                             "--until-sigma", "off", "--session-root", str(root), "--no-viz"],
                             stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, start_new_session=True)
     try:
         deadline = time.monotonic() + 60
@@ -54,7 +54,7 @@ def test_sigkill_mid_run_then_replay_and_resume(tmp_path, capsys, sim_config, lo
     assert f"eye_to_hand, {n} samples" in out and "| YKronT' |" in out and "err [mm]" in out
 
     # ... and the killed session can be resumed: two more samples, appended with fresh indices.
-    cfg2 = sim_config(loopback(4), samples=n + 2, min_samples=6)
+    cfg2 = sim_config(loopback(4), samples=n + 2, min_samples=6, target_sigma_mm=0.0, target_sigma_deg=0.0)
     cfg2 = dataclasses.replace(cfg2, viz=dataclasses.replace(cfg2.viz, enabled=False))
     resumed = calibrate(cfg2, resume=session_dir, progress=False)
     assert resumed.report.session == session_dir and resumed.report.n_samples == n + 2

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from app import devices
-from app.commands.calibrate import random_pose
+from app.planning import random_pose
 from app.commands.monitor import run_monitor
 from app.session import SessionWriter, read_session
 from calib import transforms as tf
@@ -32,6 +32,7 @@ def test_monitor_flags_camera_bump(sim_config, tmp_path, loopback):
     cfg = sim_config(loopback(5))
     cfg = dataclasses.replace(cfg, monitor=dataclasses.replace(
         cfg.monitor, still_s=0.05, poll_s=0.01, max_samples=BUMP_AT + 14, duration_s=90.0, reestimate_samples=8,
+        keep_samples=10, keep_recent=4,
         alarm_hook=f"touch {tmp_path / 'hook-ran'}",
         online={"bootstrap": 6, "warmup": 4, "detector": {"window": 6}}))
     rng = np.random.default_rng(5)
@@ -71,7 +72,12 @@ def test_monitor_flags_camera_bump(sim_config, tmp_path, loopback):
     assert report.reestimate is not None
     rot, trans = tf.pose_error(report.reestimate.T_base_cam, T_bumped)
     assert trans < 4e-3 and np.rad2deg(rot) < 0.4, (trans, np.rad2deg(rot))
+    # the bounded sample set: at most keep_samples, all taken after the move, the newest always among them
+    after = [i for i in n_seen if i > alarm.sample_index]
+    assert len(report.kept) == min(10, len(after)) and min(report.kept) > alarm.sample_index
+    assert report.kept[-4:] == sorted(report.kept)[-4:] and report.kept[-1] == n_seen[-1]
     session = read_session(report.session)
+    assert session.events[-1]["event"] == "sample_set" and session.events[-1]["indices"] == report.kept
     assert [e["event"] for e in session.events][:1] == ["alarm"]
     assert any(e["event"] == "reestimate" for e in session.events)
     assert len(session.observations) == report.n_samples

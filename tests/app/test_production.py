@@ -5,7 +5,7 @@ import time
 import numpy as np
 import pytest
 
-from app.commands.calibrate import random_pose
+from app.planning import random_pose
 from app.cli import main
 from app.config import load_config
 from app.session import SessionWriter, read_session

@@ -5,7 +5,7 @@ import dataclasses
 import numpy as np
 import pytest
 
-from app.commands.calibrate import random_pose
+from app.planning import random_pose
 from app.config import CalibrateConfig, Config, config_from_dict
 from app.commands.monitor import is_diverse
 from calib import transforms as tf
@@ -90,7 +90,7 @@ def test_config_sections_roundtrip():
                             "calibrate": {"samples": 5, "min_samples": 4}})
     assert cfg.setup == "eye_in_hand" and cfg.calibrate.samples == 5
     assert dataclasses.asdict(config_from_dict(cfg.to_dict())) == cfg.to_dict()
-    assert Config().calibrate.method == "YKronT'"
+    assert Config().calibrate.method == "auto" and Config().monitor.method == "YKronT'"
 
 
 def test_stop_on_predicted_uncertainty():
@@ -101,4 +101,4 @@ def test_stop_on_predicted_uncertainty():
     assert _precise_enough(res, CalibrateConfig(target_sigma_mm=0.5, target_sigma_deg=0.05))
     assert not _precise_enough(res, CalibrateConfig(target_sigma_mm=0.3, target_sigma_deg=0.05))
     assert not _precise_enough(res, CalibrateConfig(target_sigma_mm=0.5, target_sigma_deg=0.02))
-    assert not _precise_enough(res, CalibrateConfig())  # targets 0 = off
+    assert not _precise_enough(res, CalibrateConfig(target_sigma_mm=0.0, target_sigma_deg=0.0))  # 0 = off

@@ -95,7 +95,7 @@ def test_moveit_calibration_samples(cell, tmp_path, capsys):
 def test_image_folder(tmp_path, capsys, poses_format):
     """Rendered images of the simulated cell's marker, a pose per image, the intrinsics: the
     importer measures each image (depth-lifted center) and replay recovers the camera."""
-    from app.commands.calibrate import random_pose
+    from app.planning import random_pose
     from app.config import load_config
     from drivers.robot import ur_kinematics as kin
     from mocks.render.camera import RenderedCamera, RenderedCameraConfig

@@ -1,0 +1,334 @@
+"""Pose-planning benchmark: how many motions to a trusted result, and are the planned motions valid.
+
+Run ``python -m bench.plan [--seeds N] [--validity-poses N] [--out DIR]`` (also
+``handeye bench --plan``). Prints markdown and writes ``<out>/plan.md`` and
+``<out>/plan.png``.
+
+1. **Motions to target** on the simulated cells of ``config/sim.toml``
+   (eye-to-hand) and ``config/eye_in_hand.toml`` (eye-in-hand), through the
+   real driver (ur_rtde client against `mocks.ur_sim`) and the rendered
+   camera, one full ``calibrate`` run per strategy and seed (the seed drives
+   the pose candidates and the camera noise): robot motions until the
+   predicted 1-sigma of the camera transform (``T_base_cam`` eye-to-hand,
+   ``T_flange_cam`` eye-in-hand; refined YKronT') is below 1 mm and 0.1 deg
+   (first check after 5 samples, the solver's minimum; at most 40 samples).
+   Strategies: ``optimal`` (`calib.planner`), ``random`` (uniform in the same
+   box and tilt), and ``fixed17``: a 17-pose pattern of the kind ROS tools
+   ship (start, +-tilt about the flange x, y, z, +-offset along base x, y, z,
+   four combined), at 2/3 of the same ranges, replayed as a plan file.
+   Robot time is the time spent in ``move_to`` (until settled).
+2. **Validity**: the planning loop without rendering: cells with random true
+   mountings (marker within 10 cm of the flange, turned up to 30 deg; eye-in-
+   hand camera within 10 cm, marker anywhere in view), synthetic measurements
+   from the truth with the `calib.noise` depth model, the estimate re-solved
+   (YKronT' + refinement) after every sample. Every planned pose (bootstrap
+   and optimal) is checked independently: `URRobot.check_target` of the
+   simulated cell's driver from the previous joints (joint limits, workspace
+   box, tilt cone, path) and, under the TRUE mounting, all four marker
+   corners inside the image, depth within range and the marker facing the
+   camera within the view-angle limit. Planning time per pose is wall and
+   process CPU time of `PosePlanner.next_pose` with numpy single-threaded.
+"""
+
+from __future__ import annotations
+
+import os
+
+for _var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
+    os.environ.setdefault(_var, "1")
+
+import argparse  # noqa: E402
+import dataclasses  # noqa: E402
+import math  # noqa: E402
+import sys  # noqa: E402
+import tempfile  # noqa: E402
+import time  # noqa: E402
+from pathlib import Path  # noqa: E402
+
+import numpy as np  # noqa: E402
+
+from app import devices, planning  # noqa: E402
+from app.config import load_config  # noqa: E402
+from calib import planner as pl  # noqa: E402
+from calib import transforms as tf  # noqa: E402
+from calib.api import solve  # noqa: E402
+from calib.errors import CalibrationError, HandeyeError  # noqa: E402
+from calib.noise import default_point_cov  # noqa: E402
+from drivers.camera.base import CameraIntrinsics  # noqa: E402
+
+CELLS = {"eye_to_hand": "config/sim.toml", "eye_in_hand": "config/eye_in_hand.toml"}
+TARGET_MM, TARGET_DEG = 1.0, 0.1
+MAX_SAMPLES = 40
+INTR = CameraIntrinsics(640, 480, 570.0, 570.0, 319.5, 239.5)
+HOST_NET = "127.0.79"
+
+
+def fixed_pattern(T_start: np.ndarray, translation_m: float, tilt_deg: float) -> np.ndarray:
+    """17 flange poses (17, 4, 4): start, +-tilt about the flange x/y/z axes, +-offsets along base x/y/z,
+    and four tilts about x+-y with diagonal offsets (the kind of fixed pattern ROS calibration tools ship)."""
+    a, d = math.radians(tilt_deg), translation_m
+    s = 1 / math.sqrt(2)
+    steps = [([0, 0, 0], [0, 0, 0])]
+    steps += [(list(sg * a * np.eye(3)[i]), [0, 0, 0]) for i in range(3) for sg in (1, -1)]
+    steps += [([0, 0, 0], list(sg * d * np.eye(3)[i])) for i in range(3) for sg in (1, -1)]
+    steps += [([sx * a * s, sy * a * s, 0], [sx * d * s, sy * d * s, 0]) for sx in (1, -1) for sy in (1, -1)]
+    out = []
+    for rv, dt in steps:
+        R = T_start[:3, :3] @ tf.from_rotvec_translation(np.array(rv, float), np.zeros(3))[:3, :3]
+        out.append(tf.make_transform(R, T_start[:3, 3] + np.array(dt, float)))
+    return np.stack(out)
+
+
+# --------------------------------------------------------------------------- 1. motions to target
+
+
+def _cell_config(setup: str, seed: int, host: str, root: Path, poses: str):
+    cfg = load_config(CELLS[setup])
+    cal = dataclasses.replace(cfg.calibrate, poses=poses, seed=seed, target_sigma_mm=TARGET_MM,
+                              target_sigma_deg=TARGET_DEG, min_samples=5, samples=MAX_SAMPLES)
+    return dataclasses.replace(cfg, robot={**cfg.robot, "host": host}, camera={**cfg.camera, "seed": seed},
+                               calibrate=cal, session=dataclasses.replace(cfg.session, root=str(root), save_frames=False,
+                                                                          exports=["json"]),
+                               viz=dataclasses.replace(cfg.viz, enabled=False))
+
+
+def run_strategy(setup: str, strategy: str, seed: int, host: str, root: Path) -> dict:
+    """One full calibrate run on the simulated cell; motions, robot time and the outcome."""
+    from app.commands.calibrate import calibrate
+    from drivers.robot import ur_kinematics as kin
+
+    poses = strategy
+    if strategy == "fixed17":
+        cfg = _cell_config(setup, seed, host, root, "random")
+        T0 = kin.forward(np.array(cfg.robot["initial_q"]), cfg.robot["model"])
+        pattern = fixed_pattern(T0, 2 / 3 * cfg.calibrate.translation_range_m, 2 / 3 * cfg.calibrate.tilt_deg)
+        doc = {"format": planning.PLAN_FORMAT, "version": planning.PLAN_VERSION, "setup": setup,
+               "poses": [{"T_base_flange": T.tolist()} for T in pattern]}
+        poses = str(planning.write_plan(doc, root / f"fixed17_{setup}.json"))
+    cfg = _cell_config(setup, seed, host, root, poses)
+    out = calibrate(cfg, progress=False)
+    r = out.report
+    s_rot, s_t = r.result.sigma if r.result is not None and r.result.sigma is not None else (math.nan, math.nan)
+    s_deg, s_mm = math.degrees(s_rot), s_t * 1e3
+    err = tf.pose_error(r.result.camera_transform, out.truth) if r.result is not None else (math.nan, math.nan)
+    lost = sum(n for why, n in r.skip_reasons.items() if not why.startswith(("limit:", "marker predicted")))
+    return {"setup": setup, "strategy": strategy, "seed": seed, "reached": r.stopped_by == "target_sigma",
+            "stopped_by": r.stopped_by, "motions": r.n_motions, "samples": r.n_samples, "robot_s": r.robot_time_s,
+            "sigma_mm": s_mm, "sigma_deg": s_deg, "err_mm": float(err[1]) * 1e3, "err_deg": math.degrees(err[0]),
+            "lost_marker": lost, "limit_refused": sum(n for why, n in r.skip_reasons.items() if why.startswith("limit:"))}
+
+
+# --------------------------------------------------------------------------- 2. validity
+
+
+def _random_cell(setup: str, cfg, T0: np.ndarray, rng: np.random.Generator):
+    """True (X, Y) of a cell like the configured one, with a random mounting that sees the marker at T0."""
+    from mocks.render.camera import RenderedCameraConfig
+
+    base = RenderedCameraConfig(**cfg.camera)
+    view = planning.camera_view(cfg.calibrate, INTR, cfg.marker)
+    for _ in range(1000):
+        t = rng.normal(size=3)
+        t *= rng.uniform(0.0, 0.1) / np.linalg.norm(t)
+        if setup == "eye_to_hand":
+            X = tf.make_transform(tf.random_rotations(1, math.radians(30), rng)[0] @ base.X[:3, :3], t)
+            Y = base.Y
+        else:
+            X = tf.make_transform(tf.random_rotations(1, math.radians(10), rng)[0] @ base.X[:3, :3], t)
+            # The marker somewhere in the start view, turned up to 20 deg.
+            T_cm = tf.invert(T0 @ base.X) @ base.Y
+            T_cm = tf.make_transform(tf.random_rotations(1, math.radians(20), rng)[0] @ T_cm[:3, :3],
+                                     T_cm[:3, 3] + rng.uniform(-0.08, 0.08, 3) * [1, 1, 0.5])
+            Y = T0 @ X @ T_cm
+        if pl.PosePlanner(setup, X, Y, view, pl.PlannerConfig(uncertainty_k=0)).screen(T0[None])[0][0]:
+            return X, Y
+    raise RuntimeError("no visible random cell found")
+
+
+def _measure(setup, X, Y, A, rng):
+    """Synthetic marker point (depth-model noise) and a marker pose with 1 deg orientation noise."""
+    T_cm = (tf.invert(Y) @ A @ X) if setup == "eye_to_hand" else (tf.invert(A @ X) @ Y)
+    p = T_cm[:3, 3]
+    cov = default_point_cov(p[None])[0]
+    p_meas = p + np.linalg.cholesky(cov) @ rng.normal(size=3)
+    B = tf.make_transform(tf.from_rotvec_translation(rng.normal(0, math.radians(1.0), 3), np.zeros(3))[:3, :3]
+                          @ T_cm[:3, :3], p_meas)
+    return p_meas, cov, B
+
+
+def validity_run(setup: str, cfg, robot, state, rng: np.random.Generator, max_poses: int, stats: dict) -> int:
+    """One simulated calibration driven by the app's own pose source (`app.planning.OptimalPoses`) on
+    synthetic measurements; every pose it plans is checked independently. Returns the poses planned."""
+    from calib.observation import Observation
+    from drivers.robot.base import RobotState
+
+    X, Y = _random_cell(setup, cfg, state.T_base_flange, rng)
+    truth_view = dataclasses.replace(planning.camera_view(cfg.calibrate, INTR, cfg.marker), margin_px=0.0)
+    truth = pl.PosePlanner(setup, X, Y, truth_view, pl.PlannerConfig(uncertainty_k=0))
+    source = planning.OptimalPoses(cfg, state.T_base_flange, planning.camera_view(cfg.calibrate, INTR, cfg.marker),
+                                   robot, rng)
+    obs: list = []
+    cur = state
+    estimate = None
+    while len(obs) < max_poses:
+        w0, c0 = time.perf_counter(), time.process_time()
+        target = source.next(cur, estimate, obs)
+        wall, cpu = 1e3 * (time.perf_counter() - w0), 1e3 * (time.process_time() - c0)
+        if target is None:
+            stats[source.done_reason] = stats.get(source.done_reason, 0) + 1
+            break
+        if target.kind == "optimal":
+            stats["wall_ms"].append(wall)
+            stats["cpu_ms"].append(cpu)
+        T = target.T_base_flange
+        if target.kind != "start":
+            stats["poses"] += 1
+            try:
+                q = robot.check_target(T, q_start=cur.q)
+            except HandeyeError:
+                stats["invalid_robot"] += 1
+                break
+            if not truth.screen(T[None])[0][0]:
+                stats["invalid_view"] += 1
+        else:
+            q = cur.q
+        cur = RobotState(0.0, 0.0, T, q, np.zeros(6), 7, 1)
+        p, c, B = _measure(setup, X, Y, T, rng)
+        obs.append(Observation(len(obs), 0.0, T, p, c, B))
+        if len(obs) >= 3:
+            try:
+                estimate = solve("YKronT'", np.array([o.T_base_flange for o in obs]),
+                                 np.array([o.point_cam for o in obs]), setup=setup, refine=True,
+                                 point_cov=np.array([o.point_cov for o in obs]))
+            except CalibrationError:
+                estimate = None
+            if estimate is not None and len(obs) >= 5:
+                s_rot, s_t = estimate.sigma
+                if s_t * 1e3 <= TARGET_MM and math.degrees(s_rot) <= TARGET_DEG:
+                    stats["reached"].append(len(obs) - 1)
+                    break
+    return len(obs)
+
+
+# --------------------------------------------------------------------------- report
+
+
+def _median(values):
+    v = [x for x in values if x is not None and not (isinstance(x, float) and math.isnan(x))]
+    return float(np.median(v)) if v else math.nan
+
+
+def format_report(runs: list[dict], val: dict, elapsed: float) -> str:
+    lines = ["# Pose planning benchmark (`handeye bench --plan`)", "",
+             f"Target: predicted 1-sigma of the camera transform <= {TARGET_MM} mm and {TARGET_DEG} deg "
+             f"(refined YKronT', first check after 5 samples, at most {MAX_SAMPLES}). Simulated cells through the "
+             "real driver and the rendered camera; eye-to-hand: `T_base_cam`, eye-in-hand: `T_flange_cam`.", "",
+             "| cell | poses | runs | reached | motions (median) | motions (per seed) | robot time [s] (median) "
+             "| final 1-sigma [mm / deg] (median) | error vs truth [mm / deg] (median) | marker lost after a motion |",
+             "|---|---|---|---|---|---|---|---|---|---|"]
+    for setup in CELLS:
+        for strategy in ("optimal", "random", "fixed17"):
+            rs = [r for r in runs if r["setup"] == setup and r["strategy"] == strategy]
+            if not rs:
+                continue
+            reached = [r for r in rs if r["reached"]]
+            per_seed = ", ".join(str(r["motions"]) + ("" if r["reached"] else "*") for r in rs)
+            med = _median([r["motions"] for r in reached]) if len(reached) == len(rs) else math.nan
+            med_txt = f"{med:.0f}" if not math.isnan(med) else f"> {max(r['motions'] for r in rs)} (not all reached)"
+            lines.append(
+                f"| {setup} | {strategy} | {len(rs)} | {len(reached)} | {med_txt} | {per_seed} | "
+                f"{_median([r['robot_s'] for r in reached]) if reached else math.nan:.1f} | "
+                f"{_median([r['sigma_mm'] for r in rs]):.2f} / {_median([r['sigma_deg'] for r in rs]):.3f} | "
+                f"{_median([r['err_mm'] for r in rs]):.2f} / {_median([r['err_deg'] for r in rs]):.3f} | "
+                f"{sum(r['lost_marker'] for r in rs)} |")
+    lines += ["", "`*` = the run ended (max samples, or the fixed pattern was used up) before the target.", ""]
+    for setup in CELLS:
+        o = [r["motions"] for r in runs if r["setup"] == setup and r["strategy"] == "optimal" and r["reached"]]
+        rnd = [r["motions"] for r in runs if r["setup"] == setup and r["strategy"] == "random" and r["reached"]]
+        if o and rnd:
+            lines.append(f"- {setup}: optimal / random median motions = {np.median(o):.0f} / {np.median(rnd):.0f} "
+                         f"= {np.median(o) / np.median(rnd):.2f} (target <= 0.5)")
+    wall, cpu = np.array(val["wall_ms"]), np.array(val["cpu_ms"])
+    invalid = val["invalid_robot"] + val["invalid_view"]
+    lines += ["", "## Validity of planned poses (no rendering; independent checks)", "",
+              "| cells (random mountings) | planned poses | invalid: robot check | invalid: marker not in view "
+              "(truth) | runs ended without a valid pose | planning time per pose [ms] median / p95 / max (wall) "
+              "| CPU [ms] median / p95 / max |", "|---|---|---|---|---|---|---|",
+              f"| {val['cells']} | {val['poses']} | {val['invalid_robot']} | {val['invalid_view']} | "
+              f"{val['no_valid_pose']} | {np.median(wall):.1f} / {np.percentile(wall, 95):.1f} / {wall.max():.1f} | "
+              f"{np.median(cpu):.1f} / {np.percentile(cpu, 95):.1f} / {cpu.max():.1f} |", "",
+              f"{invalid} invalid of {val['poses']} planned poses. Samples to target in these synthetic runs "
+              f"(median): {_median(val['reached']):.0f}.", "", f"Total benchmark time {elapsed:.0f} s."]
+    return "\n".join(lines) + "\n"
+
+
+def plot(path: Path, runs: list[dict]) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, axes = plt.subplots(1, 2, figsize=(10, 4))
+    for ax, setup in zip(axes, CELLS):
+        data = [[r["motions"] for r in runs if r["setup"] == setup and r["strategy"] == s]
+                for s in ("optimal", "random", "fixed17")]
+        ax.boxplot(data, labels=["optimal", "random", "fixed 17"])
+        ax.set_title(f"{setup}: motions to 1 mm / 0.1 deg")
+        ax.set_ylabel("robot motions")
+    fig.tight_layout()
+    fig.savefig(path, dpi=100)
+    plt.close(fig)
+
+
+def main(argv=None) -> int:
+    """Run the benchmark; returns 0. See the module docstring."""
+    ap = argparse.ArgumentParser(prog="python -m bench.plan", description=__doc__.split("\n")[0])
+    ap.add_argument("--seeds", type=int, default=5, help="seeds per cell and strategy (full calibrate runs)")
+    ap.add_argument("--validity-poses", type=int, default=10000, help="planned poses to check at least")
+    ap.add_argument("--out", default="out/bench", help="output folder for plan.md and plan.png")
+    args = ap.parse_args(argv)
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    t0 = time.perf_counter()
+    runs = []
+    with tempfile.TemporaryDirectory() as tmp:
+        k = 0
+        for setup in CELLS:
+            for seed in range(args.seeds):
+                for strategy in ("optimal", "random", "fixed17"):
+                    for attempt in range(3):  # a simulator starved of CPU by other work may freeze its stream
+                        k += 1
+                        try:
+                            r = run_strategy(setup, strategy, seed, f"{HOST_NET}.{k % 200 + 1}", Path(tmp))
+                            break
+                        except HandeyeError as e:
+                            print(f"{setup} {strategy} seed {seed}: {e}; again", flush=True)
+                    else:
+                        raise RuntimeError(f"{setup} {strategy} seed {seed} failed three times")
+                    print(f"[{time.perf_counter() - t0:6.0f} s] {setup} {strategy} seed {seed}: {r['motions']} motions, "
+                          f"{r['stopped_by']}, {r['sigma_mm']:.2f} mm / {r['sigma_deg']:.3f} deg", flush=True)
+                    runs.append(r)
+    val = {"poses": 0, "invalid_robot": 0, "invalid_view": 0, "no_valid_pose": 0, "cells": 0,
+           "wall_ms": [], "cpu_ms": [], "reached": []}
+    per_setup = math.ceil(args.validity_poses / len(CELLS))
+    for i, setup in enumerate(CELLS):
+        cfg = load_config(CELLS[setup])
+        cfg = dataclasses.replace(cfg, robot={**cfg.robot, "host": f"{HOST_NET}.{210 + i}"})
+        rng = np.random.default_rng(100 + i)
+        with devices.open_robot(cfg, read_only=True) as robot:
+            state = robot.read()
+            start = val["poses"]
+            while val["poses"] - start < per_setup:
+                val["cells"] += 1
+                validity_run(setup, cfg, robot, state, rng, MAX_SAMPLES, val)
+        print(f"[{time.perf_counter() - t0:6.0f} s] validity {setup}: {val['poses']} poses so far", flush=True)
+    report = format_report(runs, val, time.perf_counter() - t0)
+    plot(out / "plan.png", runs)
+    report += "\nPlot: `plan.png`.\n"
+    (out / "plan.md").write_text(report)
+    print(report)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,137 @@
+"""Config files that used to validate and then fail: each is a one-line ConfigError naming field and file.
+
+Property test: any value in any field of config/sim.toml, and any byte
+damage to the file, gives a loaded config or a ConfigError -- never another
+exception -- and nothing opens a device (no robot address is used here).
+"""
+
+import dataclasses
+import os
+import re
+from pathlib import Path
+
+import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+
+from app import devices
+from app.cli import main
+from app.config import load_config
+from app.errors import ConfigError
+from calib.errors import HandeyeError
+
+SIM = Path(__file__).resolve().parents[2] / "config" / "sim.toml"
+SIM_LINES = SIM.read_text().splitlines()
+VALUE_LINES = [i for i, line in enumerate(SIM_LINES) if re.match(r"^[a-z_]+ *= ", line)]
+
+
+def _one_line_error(capsys, rc):
+    err = capsys.readouterr().err.strip().splitlines()
+    assert rc == 1
+    assert len(err) == 1 and "error:" in err[0], err
+    return err[0]
+
+
+def _edit(tmp_path, old, new, name="c.toml"):
+    text = SIM.read_text()
+    assert old in text
+    p = tmp_path / name
+    p.write_text(text.replace(old, new))
+    return p
+
+
+@pytest.mark.parametrize("old,new,field", [
+    ('alarm_hook = ""', 'alarm_hook = "echo \\"unbalanced"', "monitor.alarm_hook"),
+    ('alarm_hook = ""', 'alarm_hook = "no-such-program-xyz --now"', "monitor.alarm_hook"),
+    ("online = {}", "online = {detector = 5}", "monitor.online"),
+    ("online = {}", "online = {forgetting = \"fast\"}", "monitor.online"),
+    ("online = {}", "online = {reset_on_alarm = 1}", "monitor.online"),
+    ("online = {}", "online = {bootstrap = true}", "monitor.online"),
+    ('method = "auto"             # every measurement', 'method = "bogus"  # the paper', "calibrate.method"),
+    ('root = "sessions"', 'root = "/etc/hostname/sessions"', "session.root"),
+])
+def test_bad_field_is_one_line_naming_field_and_file(tmp_path, capsys, old, new, field):
+    p = _edit(tmp_path, old, new)
+    line = _one_line_error(capsys, main(["calibrate", "--yes-move", "--no-viz", "-c", str(p)]))
+    assert field in line and str(p) in line
+
+
+def test_unknown_method_on_the_command_line_fails_before_any_motion(capsys, loopback, tmp_path):
+    p = _edit(tmp_path, 'host = "127.0.0.2"', f'host = "{loopback(3)}"')
+    line = _one_line_error(capsys, main(["calibrate", "--yes-move", "-c", str(p), "--method", "bogus",
+                                         "--session-root", str(tmp_path / "s")]))
+    assert "calibrate.method" in line and "bogus" in line and "YKronT'" in line
+    assert not (tmp_path / "s").exists()  # failed before the session (and the robot) was opened
+
+
+def test_method_aliases_are_normalised(tmp_path):
+    cfg = load_config(_edit(tmp_path, 'method = "auto"             # every measurement', 'method = "yquatt"  # the paper'))
+    assert cfg.calibrate.method == "YQuatT'"
+
+
+@pytest.mark.parametrize("make,match", [
+    (lambda p: p.write_bytes(b'setup = "eye_to_hand"\n# caf\xe9 \xff\n'), "not UTF-8"),
+    (lambda p: p.write_text("a = " + "[" * 5000 + "]" * 5000 + "\n"), "nested deeper"),
+    (lambda p: p.write_text("a = " + "[" * 40 + "]" * 40 + "\n"), "nested deeper"),
+    (lambda p: p.mkdir(), "is a directory"),
+    (lambda p: os.mkfifo(p), "not a regular file"),
+    (lambda p: p.write_bytes(b"x" * (2 * 1024 * 1024)), "larger than"),
+])
+def test_unreadable_files_are_one_line(tmp_path, capsys, make, match):
+    p = tmp_path / "c.toml"
+    make(p)
+    line = _one_line_error(capsys, main(["calibrate", "--yes-move", "-c", str(p)]))
+    assert match in line and str(p) in line
+
+
+def test_hook_parsed_at_load_and_kept_as_argv():
+    from app.config import hook_argv
+
+    assert hook_argv("touch '/tmp/a b'") == ["touch", "/tmp/a b"]
+    assert hook_argv("  ") == []
+    with pytest.raises(ConfigError, match="monitor.alarm_hook.*closing quotation"):
+        hook_argv("touch 'x")
+
+
+# TOML values of every type, including ones no field takes.
+TOML_VALUES = st.sampled_from([
+    "true", "false", "0", "-1", "1e-7", "1e308", "inf", "-inf", "nan", "1_000_000_000_000", '""', '"x"',
+    '"\\u00e9"', "[]", "[1, 2]", '["a", 1]', "{}", "{a = 1}", "{detector = 5}", "1979-05-27", "[[1], [2]]",
+    "0.0", "-0.0", "3", '"YKronT\'"', '"eye_in_hand"', "[0.0, 0.0, 0.0]",
+])
+
+
+def _load_and_validate(text: str, tmp: Path):
+    p = tmp / "fuzz.toml"
+    p.write_text(text, encoding="utf-8", errors="surrogateescape")
+    try:
+        cfg = load_config(p)
+        # Never create directories where a mutated root points: validate the rest against a temp root.
+        cfg = dataclasses.replace(cfg, session=dataclasses.replace(cfg.session, root=str(tmp / "sessions")))
+        devices.validate(cfg)
+    except HandeyeError as e:
+        assert "\n" not in str(e) or "invalid TOML" in str(e)
+
+
+@settings(max_examples=60, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
+@given(line=st.sampled_from(VALUE_LINES), value=TOML_VALUES)
+def test_any_value_in_any_field_is_loaded_or_a_config_error(tmp_path, line, value):
+    lines = list(SIM_LINES)
+    key = lines[line].split("=")[0]
+    lines[line] = f"{key}= {value}"
+    _load_and_validate("\n".join(lines) + "\n", tmp_path)
+
+
+@settings(max_examples=60, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
+@given(pos=st.integers(0, len(SIM.read_bytes())), junk=st.binary(max_size=8), cut=st.integers(0, 12))
+def test_byte_damage_is_loaded_or_a_config_error(tmp_path, pos, junk, cut):
+    data = SIM.read_bytes()
+    damaged = data[:pos] + junk + data[pos + cut:]
+    p = tmp_path / "fuzz.toml"
+    p.write_bytes(damaged)
+    try:
+        cfg = load_config(p)
+        cfg = dataclasses.replace(cfg, session=dataclasses.replace(cfg.session, root=str(tmp_path / "sessions")))
+        devices.validate(cfg)
+    except HandeyeError:
+        pass
