@@ -140,9 +140,17 @@ class ReplayRow:
     heldout_error: str | None = None
 
 
+def _is_auto(method: str) -> bool:
+    from calib.api import AUTO
+
+    return isinstance(method, str) and method.strip().lower() == AUTO
+
+
 def _uses(method: str) -> str:
     from calib.api import resolve_method
 
+    if _is_auto(method):
+        return "auto"
     try:
         return resolve_method(method).needs
     except HandeyeError:
@@ -156,11 +164,16 @@ def heldout_error(method: str, observations, setup: Setup, *, refine: bool, robu
     from calib.api import observations_to_arrays, resolve_method
     from calib.crossval import cross_validate
 
-    info = resolve_method(method)
-    A, B, point_cov, _ = observations_to_arrays(observations, info.needs)
-    folds = None if len(A) <= 10 else 5
     try:
-        return cross_validate(info.name, A, B, setup=setup, folds=folds, rng=rng, refine=refine, robust=robust,
+        if _is_auto(method):
+            # As calib.api.solve_observations: "auto" takes the poses when every sample has one.
+            name, kind = method, "poses" if all(o.T_cam_marker is not None for o in observations) else "points"
+        else:
+            info = resolve_method(method)
+            name, kind = info.name, info.needs
+        A, B, point_cov, _ = observations_to_arrays(observations, kind)
+        folds = None if len(A) <= 10 else 5
+        return cross_validate(name, A, B, setup=setup, folds=folds, rng=rng, refine=refine, robust=robust,
                               point_cov=point_cov), None
     except HandeyeError as e:
         return None, str(e)
@@ -249,6 +262,7 @@ def format_table(rows: list[ReplayRow], setup: Setup) -> str:
     head.append("advice")
     out = []
     for uses, title in (("points", "solvers using marker points"), ("poses", "solvers using marker poses"),
+                        ("auto", "the solver 'auto' (calib.auto: camera and robot model)"),
                         ("?", "unknown solvers")):
         group = sorted((r for r in rows if r.uses == uses), key=_rank_key)
         if not group:

@@ -68,3 +68,12 @@ def test_recommendation_by_held_out_error():
     assert best.heldout.observed_rms == min(r.heldout.observed_rms for r in rows)
     assert "**recommended**" in format_table(rows, "eye_to_hand")
     assert advice(rows, obs, refine=False)[0].startswith(f"recommended: {best.method}")
+
+
+def test_auto_gets_its_own_group_and_a_held_out_error():
+    d = simulate.realistic_cell(15, np.random.default_rng(34))
+    obs = _observations(d)
+    rows = replay(obs, "eye_to_hand", ["auto", "YKronT'"], rng=np.random.default_rng(0))
+    auto = next(r for r in rows if r.method == "auto")
+    assert auto.uses == "auto" and auto.result is not None and auto.heldout is not None, auto.heldout_error
+    assert "the solver 'auto'" in format_table(rows, "eye_to_hand")
