@@ -1,85 +1,77 @@
-"""Application configuration: TOML files in ``config/`` -> validated dataclasses.
+"""Application configuration: a TOML file in ``config/`` -> one typed `Config`, parsed and validated once.
 
-The dataclass defaults ARE the simulated cell of ``config/sim.toml`` (the
-embedded default that ``handeye demo`` runs with no file); a test keeps the
-two identical. Every field is checked in ``__post_init__`` with a message that
-names it, and unknown keys are rejected naming the key, so a typo in a config
-never silently falls back to a default.
+Every table is a pydantic model (`calib.params.Params`: unknown keys rejected,
+numbers finite and never booleans): ``[calibrate]``, ``[monitor]`` (with
+``[monitor.online]`` = `calib.online.OnlineConfig`), ``[session]``, ``[viz]``,
+``[frames]``, ``[mqtt]`` (`app.mqtt.MqttConfig`),
+``[marker]`` = `calib.vision.extract.TargetConfig`, and ``[robot]`` /
+``[camera]``, a union over the registered backends selected by ``type`` /
+``backend`` (`drivers.robot.registry.ROBOTS`, `drivers.camera.registry.CAMERAS`;
+every backend is registered by `app.backends`). A bad field is a `ConfigError`
+naming the file and ``section.field``.
 
-The ``[robot]``, ``[camera]`` and ``[marker]`` tables are handed unchanged to
-the device and vision layers, whose own config dataclasses validate them
-(see `app.devices`); this module checks only what the application owns.
+The models are the one source of defaults: ``Config()`` is the simulated cell
+(a UR10 simulator driven through the real ur_rtde client, the rendered camera),
+which ``handeye demo`` runs without a file; ``config/sim.toml`` spells the same
+cell out for illustration, and a test keeps the two identical.
 """
 
 from __future__ import annotations
 
-import dataclasses
-import math
 import shlex
 import shutil
 import tomllib
-from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Annotated, Any, Literal, Union
 
-import numpy as np
+from pydantic import AfterValidator, Discriminator, Field, Tag, ValidationError, field_validator, model_validator
 
+from app import backends  # noqa: F401  every backend registers itself before the unions are built
 from app.errors import ConfigError
+from app.mqtt import MqttConfig
 from app.files import read_text_file
-from calib.setup import Setup, check_setup
+from calib.online import OnlineConfig
+from calib.params import (
+    Bool,
+    Float,
+    Int,
+    NonEmptyStr,
+    NonNegativeFloat,
+    NonNegativeInt,
+    Params,
+    PositiveFloat,
+    PositiveInt,
+    Str,
+    Vector3,
+    describe,
+)
+from calib.setup import Setup
+from calib.vision.extract import TargetConfig
+from drivers.camera.registry import CAMERAS
+from drivers.registry import Registry
+from drivers.robot.registry import ROBOTS
+from mocks.render.camera import RenderedCameraConfig
+from mocks.ur_sim.robot import URSimRobotConfig
 
-# Solver names as in the paper (or "auto", calib.auto); checked against calib.METHODS
-# when the solver layer is imported (calib.api), here only for shape.
+# Solver names as in the paper (or "auto", calib.auto), checked against calib.api at load.
 DEFAULT_METHOD = "auto"
 # The monitor re-estimates from a few samples after a move: the paper's point solver.
 MONITOR_METHOD = "YKronT'"
 # Result formats of app.formats.write_result (kept literal: config must load without the exporters).
 EXPORTS = ("yaml", "json", "easy_handeye", "easy_handeye2", "urdf", "ros2_launch")
-# [frames]: names every export uses (validated by app.formats.export.check_frames). "camera" is the
-# camera's optical frame (z forward, x right, y down), not a ROS camera_link.
-FRAMES = {"base": "base", "flange": "flange", "camera": "camera", "marker": "marker"}
 
 
-def _positive(obj, name: str, *, allow_zero: bool = False) -> None:
-    v = getattr(obj, name)
-    if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
-        raise ConfigError(f"{type(obj).SECTION}.{name} must be a finite number, got {v!r}")
-    if v < 0 or (v == 0 and not allow_zero):
-        raise ConfigError(f"{type(obj).SECTION}.{name} must be {'>= 0' if allow_zero else '> 0'}, got {v!r}")
-
-
-def _integer(obj, name: str, minimum: int) -> None:
-    v = getattr(obj, name)
-    if isinstance(v, bool) or not isinstance(v, int) or v < minimum:
-        raise ConfigError(f"{type(obj).SECTION}.{name} must be an integer >= {minimum}, got {v!r}")
-
-
-def _boolean(obj, name: str) -> None:
-    if not isinstance(getattr(obj, name), bool):
-        raise ConfigError(f"{type(obj).SECTION}.{name} must be true or false, got {getattr(obj, name)!r}")
-
-
-def _string(obj, name: str, *, choices=None, allow_empty: bool = True) -> None:
-    v = getattr(obj, name)
-    if not isinstance(v, str) or (not allow_empty and not v):
-        raise ConfigError(f"{type(obj).SECTION}.{name} must be a {'non-empty ' if not allow_empty else ''}string, got {v!r}")
-    if choices is not None and v not in choices:
-        raise ConfigError(f"{type(obj).SECTION}.{name} must be one of {list(choices)}, got {v!r}")
-
-
-def _method(obj, name: str) -> None:
-    """A solver name `calib.api.solve` knows, so a typo fails at load, before any robot motion."""
+def _method(name: str) -> str:
+    """A solver name `calib.api.solve` knows (its canonical spelling), so a typo fails at load, before any motion."""
     from calib.api import AUTO, resolve_method
     from calib.errors import CalibrationError
 
-    _string(obj, name, allow_empty=False)
-    if getattr(obj, name).strip().lower() == AUTO:
-        setattr(obj, name, AUTO)
-        return
+    if name.strip().lower() == AUTO:
+        return AUTO
     try:
-        setattr(obj, name, resolve_method(getattr(obj, name)).name)
+        return resolve_method(name).name
     except CalibrationError as e:
-        raise ConfigError(f"{type(obj).SECTION}.{name}: {e}") from None
+        raise ValueError(str(e)) from None
 
 
 def hook_argv(command: str) -> list[str]:
@@ -104,8 +96,30 @@ def hook_argv(command: str) -> list[str]:
     return argv
 
 
-@dataclass
-class CalibrateConfig:
+def _hook(command: str) -> str:
+    try:
+        hook_argv(command)
+    except ConfigError as e:
+        raise ValueError(str(e).removeprefix("monitor.alarm_hook: ")) from None
+    return command
+
+
+def _box(box):
+    if not all(lo < hi for lo, hi in zip(*box)):
+        raise ValueError(f"must be [[xmin, ymin, zmin], [xmax, ymax, zmax]] (m) with min < max, got {box!r}")
+    return box
+
+
+def _range(r):
+    if not r[0] < r[1]:
+        raise ValueError(f"must be [min, max] with min < max, got {list(r)}")
+    return r
+
+
+Method = Annotated[NonEmptyStr, AfterValidator(_method)]
+
+
+class CalibrateConfig(Params):
     """``[calibrate]``: the active run (robot moves through planned, random or listed poses).
 
     Poses lie around the start pose: each axis offset within
@@ -115,7 +129,7 @@ class CalibrateConfig:
     the camera per second of motion), ``"random"`` (uniform), or a file
     (``plan.json`` from ``handeye plan``). The run stops at ``samples`` or as
     soon as the predicted 1-sigma of the camera transform falls below both
-    targets (after ``min_samples``).
+    targets (after ``min_samples``; a target of 0 disables the stop).
 
     Planner validity (poses that fail are never sent): the marker's corners
     ``image_margin_px`` inside the image, its center's depth within
@@ -130,76 +144,35 @@ class CalibrateConfig:
     motion is worth.
     """
 
-    SECTION = "calibrate"
-    samples: int = 20
-    min_samples: int = 8
-    target_sigma_mm: float = 1.0
-    target_sigma_deg: float = 0.1
-    poses: str = "optimal"
-    translation_range_m: float = 0.15
-    tilt_deg: float = 40.0
-    settle_s: float = 0.1
-    max_attempts: int = 200
-    image_margin_px: int = 40
-    depth_range_m: list = field(default_factory=lambda: [0.4, 2.0])
-    max_view_angle_deg: float = 60.0
-    keep_out: list = field(default_factory=list)
-    clearance_m: float = 0.05
-    lever_max_m: float = 0.1
-    travel_weight: float = 0.05
-    method: str = DEFAULT_METHOD
-    refine: bool = True
-    robust: bool = False
-    seed: int = 0
+    samples: Annotated[Int, Field(ge=3)] = 20
+    min_samples: Annotated[Int, Field(ge=3)] = 8
+    target_sigma_mm: NonNegativeFloat = 1.0
+    target_sigma_deg: NonNegativeFloat = 0.1
+    poses: NonEmptyStr = "optimal"
+    translation_range_m: Annotated[PositiveFloat, Field(le=1.0)] = 0.15
+    tilt_deg: Annotated[PositiveFloat, Field(le=90.0)] = 40.0
+    settle_s: NonNegativeFloat = 0.1
+    max_attempts: PositiveInt = 200
+    image_margin_px: NonNegativeInt = 40
+    depth_range_m: Annotated[tuple[NonNegativeFloat, NonNegativeFloat], AfterValidator(_range)] = (0.4, 2.0)
+    max_view_angle_deg: Annotated[PositiveFloat, Field(lt=90.0)] = 60.0
+    keep_out: list[Annotated[tuple[Vector3, Vector3], AfterValidator(_box)]] = Field(default_factory=list)
+    clearance_m: NonNegativeFloat = 0.05
+    lever_max_m: NonNegativeFloat = 0.1
+    travel_weight: NonNegativeFloat = 0.05
+    method: Method = DEFAULT_METHOD
+    refine: Bool = True
+    robust: Bool = False
+    seed: NonNegativeInt = 0
 
-    def __post_init__(self):
-        _integer(self, "samples", 3)
-        _integer(self, "min_samples", 3)
+    @model_validator(mode="after")
+    def _enough(self):
         if self.min_samples > self.samples:
-            raise ConfigError(f"calibrate.min_samples ({self.min_samples}) must be <= calibrate.samples ({self.samples})")
-        _positive(self, "target_sigma_mm", allow_zero=True)
-        _positive(self, "target_sigma_deg", allow_zero=True)
-        _positive(self, "translation_range_m")
-        if self.translation_range_m > 1.0:
-            raise ConfigError(f"calibrate.translation_range_m must be <= 1.0 m, got {self.translation_range_m}")
-        _positive(self, "tilt_deg")
-        if self.tilt_deg > 90.0:
-            raise ConfigError(f"calibrate.tilt_deg must be <= 90, got {self.tilt_deg}")
-        _positive(self, "settle_s", allow_zero=True)
-        _integer(self, "max_attempts", 1)
-        _integer(self, "image_margin_px", 0)
-        _string(self, "poses", allow_empty=False)
-        r = self.depth_range_m
-        if (not isinstance(r, (list, tuple)) or len(r) != 2 or any(isinstance(v, bool) or not isinstance(v, (int, float))
-                                                                   or not math.isfinite(v) for v in r)
-                or not 0 <= r[0] < r[1]):
-            raise ConfigError(f"calibrate.depth_range_m must be [min, max] m with 0 <= min < max, got {r!r}")
-        _positive(self, "max_view_angle_deg")
-        if self.max_view_angle_deg >= 90.0:
-            raise ConfigError(f"calibrate.max_view_angle_deg must be < 90, got {self.max_view_angle_deg}")
-        if not isinstance(self.keep_out, list):
-            raise ConfigError(f"calibrate.keep_out must be a list of [[xmin, ymin, zmin], [xmax, ymax, zmax]], "
-                              f"got {self.keep_out!r}")
-        for i, box in enumerate(self.keep_out):
-            try:
-                lo, hi = (np.asarray(v, dtype=float) for v in box)
-                ok = lo.shape == hi.shape == (3,) and np.isfinite(lo).all() and np.isfinite(hi).all() and (lo < hi).all()
-            except (TypeError, ValueError):
-                ok = False
-            if not ok:
-                raise ConfigError(f"calibrate.keep_out[{i}] must be [[xmin, ymin, zmin], [xmax, ymax, zmax]] (m) with "
-                                  f"min < max, got {box!r}")
-        _positive(self, "clearance_m", allow_zero=True)
-        _positive(self, "lever_max_m", allow_zero=True)
-        _positive(self, "travel_weight", allow_zero=True)
-        _method(self, "method")
-        _boolean(self, "refine")
-        _boolean(self, "robust")
-        _integer(self, "seed", 0)
+            raise ValueError(f"min_samples ({self.min_samples}) must be <= samples ({self.samples})")
+        return self
 
 
-@dataclass
-class MonitorConfig:
+class MonitorConfig(Params):
     """``[monitor]``: passive sampling while something else moves the robot.
 
     A sample is taken when the robot has been still for ``still_s`` and its
@@ -208,100 +181,114 @@ class MonitorConfig:
     start (or the last alarm) are held in a set of at most ``keep_samples``
     (0 = unbounded): beyond it, the sample whose loss costs the estimate the
     least information goes, never one of the ``keep_recent`` newest
-    (`calib.planner.least_informative`, docs/planning.md).
+    (`calib.planner.least_informative`, docs/planning.md). ``alarm_hook`` is
+    split like a shell line and must name a program on ``PATH``.
+    ``[monitor.online]`` configures the online estimator and change detector
+    (its setup is the config's).
     """
 
-    SECTION = "monitor"
-    still_s: float = 0.3
-    poll_s: float = 0.05
-    min_translation_m: float = 0.03
-    min_rotation_deg: float = 5.0
-    diversity_window: int = 10
-    max_samples: int = 0
-    duration_s: float = 0.0
-    alarm_hook: str = ""
-    reestimate_samples: int = 8
-    keep_samples: int = 300
-    keep_recent: int = 50
-    method: str = MONITOR_METHOD
-    online: dict = field(default_factory=dict)
+    still_s: NonNegativeFloat = 0.3
+    poll_s: PositiveFloat = 0.05
+    min_translation_m: NonNegativeFloat = 0.03
+    min_rotation_deg: NonNegativeFloat = 5.0
+    diversity_window: NonNegativeInt = 10
+    max_samples: NonNegativeInt = 0
+    duration_s: NonNegativeFloat = 0.0
+    alarm_hook: Annotated[Str, AfterValidator(_hook)] = ""
+    reestimate_samples: Annotated[Int, Field(ge=3)] = 8
+    keep_samples: NonNegativeInt = 300
+    keep_recent: NonNegativeInt = 50
+    method: Method = MONITOR_METHOD
+    online: OnlineConfig = Field(default_factory=OnlineConfig)
 
-    def __post_init__(self):
-        _positive(self, "still_s", allow_zero=True)
-        _positive(self, "poll_s")
-        _positive(self, "min_translation_m", allow_zero=True)
-        _positive(self, "min_rotation_deg", allow_zero=True)
-        _integer(self, "diversity_window", 0)
-        _integer(self, "max_samples", 0)
-        _positive(self, "duration_s", allow_zero=True)
-        _string(self, "alarm_hook")
-        hook_argv(self.alarm_hook)
-        _integer(self, "reestimate_samples", 3)
-        _integer(self, "keep_samples", 0)
-        _integer(self, "keep_recent", 0)
+    @model_validator(mode="after")
+    def _keep(self):
         if self.keep_samples and self.keep_recent >= self.keep_samples:
-            raise ConfigError(f"monitor.keep_recent ({self.keep_recent}) must be below monitor.keep_samples "
-                              f"({self.keep_samples})")
-        _method(self, "method")
-        if not isinstance(self.online, dict):
-            raise ConfigError(f"monitor.online must be a table, got {self.online!r}")
+            raise ValueError(f"keep_recent ({self.keep_recent}) must be below keep_samples ({self.keep_samples})")
+        return self
 
 
-@dataclass
-class SessionConfig:
+class SessionConfig(Params):
     """``[session]``: where sessions (samples, frames, result, .rrd) are written.
 
     ``exports`` lists the result files written into the session at the end of
     a run (formats of `app.formats.write_result`).
     """
 
-    SECTION = "session"
-    root: str = "sessions"
-    save_frames: bool = True
-    exports: list = field(default_factory=lambda: list(EXPORTS))
-
-    def __post_init__(self):
-        _string(self, "root", allow_empty=False)
-        _boolean(self, "save_frames")
-        if not isinstance(self.exports, list) or any(e not in EXPORTS for e in self.exports):
-            raise ConfigError(f"session.exports must be a list of {list(EXPORTS)}, got {self.exports!r}")
+    root: NonEmptyStr = "sessions"
+    save_frames: Bool = True
+    exports: list[Literal[EXPORTS]] = Field(default_factory=lambda: list(EXPORTS))
 
 
-@dataclass
-class VizConfig:
+class VizConfig(Params):
     """``[viz]``: rerun logging (an ``.rrd`` beside the session; live viewer on request).
 
     ``viewer_bind`` is the address the live viewer listens on: loopback, so
     the recording is not served to the network, unless set otherwise.
     """
 
-    SECTION = "viz"
-    enabled: bool = True
-    viewer: bool = False
-    viewer_bind: str = "127.0.0.1"
-    log_images: bool = True
+    enabled: Bool = True
+    viewer: Bool = False
+    viewer_bind: NonEmptyStr = "127.0.0.1"
+    log_images: Bool = True
 
-    def __post_init__(self):
-        _boolean(self, "enabled")
-        _boolean(self, "viewer")
-        _string(self, "viewer_bind", allow_empty=False)
-        _boolean(self, "log_images")
 
+def _frame_name(name: str) -> str:
+    if any(c.isspace() for c in name):
+        raise ValueError(f"a frame name has no spaces, got {name!r}")
+    return name
+
+
+FrameName = Annotated[NonEmptyStr, AfterValidator(_frame_name)]
+
+
+class FramesConfig(Params):
+    """``[frames]``: the frame names every export uses (result files, ROS launch/URDF, MQTT).
+
+    ``camera`` is the camera's OPTICAL frame: z forward (the viewing direction),
+    x right, y down in the image (ROS REP 103's ``*_optical_frame``), not a ROS
+    ``camera_link``; ``flange`` is the flange or tool frame the marker (eye-to-hand)
+    or the camera (eye-in-hand) is mounted on, e.g. ``tool0``.
+    """
+
+    base: FrameName = "base"
+    flange: FrameName = "flange"
+    camera: FrameName = "camera"
+    marker: FrameName = "marker"
+
+
+def backend_union(registry: Registry):
+    """The config models of every registered backend, told apart by the registry's key field."""
+
+    def tag(value: Any):
+        if isinstance(value, dict):
+            return value.get(registry.key, registry.default)
+        return getattr(value, registry.key, None)
+
+    members = tuple(Annotated[b.config, Tag(b.name)] for b in registry.backends())
+    return Annotated[Union[members], Discriminator(  # noqa: UP007  a runtime-built union
+        tag, custom_error_type="backend",
+        custom_error_message=f"{registry.key} must be one of {registry.names()}")]
+
+
+RobotConfig = backend_union(ROBOTS)
+CameraConfig = backend_union(CAMERAS)
+#: Location parts pydantic adds for a union member (the backend names); left out of messages.
+_TAGS = frozenset(ROBOTS.names()) | frozenset(CAMERAS.names())
 
 # The simulated cell (config/sim.toml): a UR10 simulator (mocks.ur_sim, started by the
 # robot driver itself and driven through the real ur_rtde client) holding the
 # flange 0.9 m in front of the base with the marker facing the rendered camera,
 # whose true pose is the rendered camera's default (calib.simulate.realistic_cell).
-SIM_START_Q = [0.367792, -3.559685, 1.448735, -1.704477, -0.767569, 0.521542]
+SIM_START_Q = (0.367792, -3.559685, 1.448735, -1.704477, -0.767569, 0.521542)
 
 
-def _default_robot() -> dict:
-    return {
-        "type": "ur_sim",
-        "host": "127.0.0.2",
+def _sim_robot() -> URSimRobotConfig:
+    return URSimRobotConfig(**{
+                "host": "127.0.0.2",
         "model": "ur10",
         "controller": "3.15",
-        "initial_q": list(SIM_START_Q),
+        "initial_q": SIM_START_Q,
         "sim_tcp_offset": [0.0, 0.0, 0.1, 0.0, 0.0, 0.0],
         "tcp_offset": [0.0, 0.0, 0.1, 0.0, 0.0, 0.0],
         "speed": 0.5,
@@ -310,86 +297,60 @@ def _default_robot() -> dict:
         "workspace_max": [1.15, 0.35, 0.75],
         "tilt_reference": [-0.2476, -0.8666, 0.4333],
         "max_tilt_deg": 45.0,
-    }
+    })
 
 
-def _default_camera() -> dict:
-    return {"backend": "rendered", "setup": Setup.EYE_TO_HAND.value}
 
-
-def _default_marker() -> dict:
-    return {"kind": "aruco", "dictionary": "DICT_4X4_50", "marker_id": 0, "marker_size": 0.05}
-
-
-@dataclass
-class Config:
+class Config(Params):
     """The whole application configuration (one TOML file).
 
     ``setup`` is ``"eye_to_hand"`` (static camera, marker on the flange:
     ``X = T_flange_marker``, ``Y = T_base_cam``) or ``"eye_in_hand"`` (camera
-    on the flange, static marker: ``X = T_flange_cam``, ``Y = T_base_marker``).
+    on the flange, static marker: ``X = T_flange_cam``, ``Y = T_base_marker``);
+    a camera backend or the online estimator that has a setup of its own takes
+    this one unless its table states the same.
     """
 
-    SECTION = "config"
     setup: Setup = Setup.EYE_TO_HAND
-    robot: dict = field(default_factory=_default_robot)
-    camera: dict = field(default_factory=_default_camera)
-    marker: dict = field(default_factory=_default_marker)
-    calibrate: CalibrateConfig = field(default_factory=CalibrateConfig)
-    monitor: MonitorConfig = field(default_factory=MonitorConfig)
-    session: SessionConfig = field(default_factory=SessionConfig)
-    viz: VizConfig = field(default_factory=VizConfig)
-    frames: dict = field(default_factory=lambda: dict(FRAMES))
-    mqtt: dict = field(default_factory=dict)
+    robot: RobotConfig = Field(default_factory=_sim_robot)
+    camera: CameraConfig = Field(default_factory=RenderedCameraConfig)
+    marker: TargetConfig = Field(default_factory=TargetConfig)
+    calibrate: CalibrateConfig = Field(default_factory=CalibrateConfig)
+    monitor: MonitorConfig = Field(default_factory=MonitorConfig)
+    session: SessionConfig = Field(default_factory=SessionConfig)
+    viz: VizConfig = Field(default_factory=VizConfig)
+    frames: FramesConfig = Field(default_factory=FramesConfig)
+    mqtt: MqttConfig = Field(default_factory=MqttConfig)
 
-    def __post_init__(self):
-        self.setup = check_setup(self.setup, error=ConfigError)
-        for name in ("robot", "camera", "marker", "frames", "mqtt"):
-            if not isinstance(getattr(self, name), dict):
-                raise ConfigError(f"[{name}] must be a table, got {getattr(self, name)!r}")
-        backend = self.camera.get("backend")
-        if not isinstance(backend, str) or not backend:
-            raise ConfigError(f"camera.backend must be a non-empty string, got {backend!r}")
-        if "setup" in self.camera and self.camera["setup"] != self.setup:
-            raise ConfigError(f"camera.setup ({self.camera['setup']!r}) must match setup ({self.setup!r})")
+    @model_validator(mode="after")
+    def _one_setup(self):
+        for name, part in (("camera", self.camera), ("monitor.online", self.monitor.online)):
+            if "setup" not in type(part).model_fields:
+                continue
+            if "setup" in part.model_fields_set and part.setup != self.setup:
+                raise ValueError(f"{name}.setup ({part.setup.value!r}) must match setup ({self.setup.value!r})")
+            part.setup = self.setup
+        return self
 
     def to_dict(self) -> dict:
         """Plain-data form (for ``session.json``): the config that was actually used."""
-        return dataclasses.asdict(self)
+        return self.model_dump(mode="json")
 
 
-_SECTIONS = {f.name: f for f in dataclasses.fields(Config)}
-
-
-def _build(cls, data: Any, section: str):
-    if not isinstance(data, dict):
-        raise ConfigError(f"[{section}] must be a table, got {data!r}")
-    known = {f.name for f in dataclasses.fields(cls)}
-    for key in data:
-        if key not in known:
-            raise ConfigError(f"unknown key {section}.{key} (known: {', '.join(sorted(known))})")
-    return cls(**data)
-
-
-def config_from_dict(data: dict) -> Config:
+def config_from_dict(data: dict, where: str = "") -> Config:
     """Validate a parsed TOML document into a `Config`.
 
     Raises
     ------
     ConfigError
-        Naming the unknown key or the bad field.
+        Naming ``where`` (the file), the section and the field.
     """
     if not isinstance(data, dict):
-        raise ConfigError(f"config must be a table, got {type(data).__name__}")
-    kwargs: dict[str, Any] = {}
-    for key, value in data.items():
-        if key not in _SECTIONS:
-            raise ConfigError(f"unknown key {key!r} (known: {', '.join(sorted(_SECTIONS))})")
-        ftype = _SECTIONS[key].type
-        sub = {"CalibrateConfig": CalibrateConfig, "MonitorConfig": MonitorConfig,
-               "SessionConfig": SessionConfig, "VizConfig": VizConfig}.get(ftype)
-        kwargs[key] = _build(sub, value, key) if sub is not None else value
-    return Config(**kwargs)
+        raise ConfigError(f"{where}: config must be a table, got {type(data).__name__}".lstrip(": "))
+    try:
+        return Config.model_validate(data)
+    except ValidationError as e:
+        raise ConfigError(f"{where + ': ' if where else ''}{describe(e, skip=_TAGS)}") from None
 
 
 #: A config is a few kB; this bounds what a wrong path (a log, a disk image) can cost.
@@ -434,7 +395,4 @@ def load_config(path: str | Path | None = None) -> Config:
         raise ConfigError(f"{path}: nested deeper than the TOML parser allows") from None
     if _depth(data, MAX_CONFIG_DEPTH) > MAX_CONFIG_DEPTH:
         raise ConfigError(f"{path}: nested deeper than {MAX_CONFIG_DEPTH} levels; not a handeye config")
-    try:
-        return config_from_dict(data)
-    except ConfigError as e:
-        raise ConfigError(f"{path}: {e}") from None
+    return config_from_dict(data, str(path))

@@ -1,23 +1,19 @@
 """Build the parts a run needs from a `Config`: robot, camera, extraction, solver, online estimator, outputs.
 
-The only place the app knows the other layers' config classes; each section
-(``[robot]``, ``[camera]``, ``[marker]``, ``[monitor.online]``) is validated
-by its owner's dataclass, which rejects unknown keys naming them.
+The config arrives validated (`app.config`); the backends come from the
+registries by name, so nothing here knows a particular robot or camera.
 """
 
 from __future__ import annotations
 
-import dataclasses
 from pathlib import Path
 
 import numpy as np
 
-from app import backends  # noqa: F401  every backend registers itself
 from app.config import CalibrateConfig, Config
 from app.errors import ConfigError, SessionError
 from app.session import check_writable_root
 from app.viz import Viz
-from calib.errors import ParameterError
 from calib.setup import Setup
 from drivers.camera.registry import CAMERAS
 from drivers.robot.registry import ROBOTS
@@ -31,26 +27,6 @@ RESULT_FILES = {
     "urdf": "handeye.urdf.xacro",
     "ros2_launch": "handeye.launch.py",
 }
-
-
-def validate(cfg: Config) -> None:
-    """Validate the sections owned by the device, vision and online layers, and that the
-    session root is writable (raises ConfigError naming the field)."""
-    from calib.vision.extract import TargetConfig
-
-    for section, check in (("robot", ROBOTS.config_from_dict), ("camera", CAMERAS.config_from_dict),
-                           ("marker", TargetConfig.from_dict)):
-        try:
-            check(getattr(cfg, section))
-        except ParameterError as e:
-            raise ConfigError(f"[{section}]: {e}") from None
-    online_config(cfg)
-    check_session_root(cfg)
-    from app.formats.export import check_frames
-    from app.mqtt import MqttConfig
-
-    check_frames(cfg.frames)
-    MqttConfig.from_dict(cfg.mqtt)
 
 
 def check_session_root(cfg: Config) -> None:
@@ -67,10 +43,7 @@ def open_robot(cfg: Config, *, read_only: bool):
     ``read_only=True`` (monitor) forces the driver's read-only mode: it then
     refuses every motion command.
     """
-    rc = ROBOTS.config_from_dict(cfg.robot)
-    if read_only:
-        rc = dataclasses.replace(rc, read_only=True)
-    return ROBOTS.create(rc)
+    return ROBOTS.create(cfg.robot.model_copy(update={"read_only": True}) if read_only else cfg.robot)
 
 
 def open_camera(cfg: Config, robot):
@@ -82,8 +55,7 @@ def open_camera(cfg: Config, robot):
 
 def simulated(cfg: Config) -> bool:
     """True when both configured devices are simulators (the demo moves without asking)."""
-    return (ROBOTS.get(cfg.robot.get("type", ROBOTS.default)).device.simulated
-            and CAMERAS.get(cfg.camera.get("backend")).device.simulated)
+    return ROBOTS.of_config(cfg.robot).device.simulated and CAMERAS.of_config(cfg.camera).device.simulated
 
 
 def truth(camera) -> dict:
@@ -103,12 +75,10 @@ def make_measure(cfg: Config):
 
     Raises ``ExtractionError`` (marker not found, bad depth) so the caller skips the frame.
     """
-    from calib.vision.extract import TargetConfig, extract
-
-    target = TargetConfig.from_dict(cfg.marker)
+    from calib.vision.extract import extract
 
     def measure(frame):
-        return extract(frame.color, frame.depth, frame.intrinsics, target)
+        return extract(frame.color, frame.depth, frame.intrinsics, cfg.marker)
 
     return measure
 
@@ -138,35 +108,11 @@ def make_viz(cfg: Config, session: Path) -> Viz:
                log_images=cfg.viz.log_images)
 
 
-def online_config(cfg: Config):
-    """`calib.online.OnlineConfig` from ``[monitor.online]`` (setup taken from the config)."""
-    from calib.online import DetectorConfig, OnlineConfig
-
-    data = dict(cfg.monitor.online)
-    known = {f.name for f in dataclasses.fields(OnlineConfig)} - {"setup"}
-    for key in data:
-        if key not in known:
-            raise ConfigError(f"unknown key monitor.online.{key} (known: {', '.join(sorted(known))})")
-    if isinstance(data.get("detector"), dict):
-        dknown = {f.name for f in dataclasses.fields(DetectorConfig)}
-        for key in data["detector"]:
-            if key not in dknown:
-                raise ConfigError(f"unknown key monitor.online.detector.{key} (known: {', '.join(sorted(dknown))})")
-        try:
-            data["detector"] = DetectorConfig(**data["detector"])
-        except ParameterError as e:
-            raise ConfigError(f"monitor.online.detector: {e}") from None
-    try:
-        return OnlineConfig(setup=cfg.setup, **data)
-    except ParameterError as e:
-        raise ConfigError(f"monitor.online: {e}") from None
-
-
 def make_online(cfg: Config):
     """A fresh `calib.online.OnlineCalibrator` for the monitor."""
     from calib.online import OnlineCalibrator
 
-    return OnlineCalibrator(online_config(cfg))
+    return OnlineCalibrator(cfg.monitor.online)
 
 
 def write_result(result, session: Path, formats, frames: dict | None = None) -> dict:

@@ -24,18 +24,19 @@ meanwhile.
 
 from __future__ import annotations
 
-import dataclasses
 import json
 import logging
 import os
 import socket
 import threading
 import time
-from dataclasses import dataclass, field
+from typing import Annotated, Literal
 
 import numpy as np
+from pydantic import AfterValidator, Field, ValidationError, model_validator
 
 from app.errors import ConfigError
+from calib.params import Bool, Float, Int, NonEmptyStr, Params, Str, describe
 from calib import transforms as tf
 from calib.setup import Setup
 
@@ -48,8 +49,16 @@ TOPICS = ("status", "estimate", "drift", "alarm")
 _SECRET_KEYS = ("username", "password", "user", "passwd", "token")
 
 
-@dataclass
-class MqttConfig:
+def _topic(name: str) -> str:
+    if any(c in name for c in "+#"):
+        raise ValueError(f"a topic to publish on has no wildcards, got {name!r}")
+    return name
+
+
+Topic = Annotated[NonEmptyStr, AfterValidator(_topic)]
+
+
+class MqttConfig(Params):
     """``[mqtt]``: where and how the monitor publishes.
 
     Attributes
@@ -76,70 +85,43 @@ class MqttConfig:
         PEM files (client certificate optional).
     """
 
-    SECTION = "mqtt"
-    enabled: bool = False
-    host: str = "127.0.0.1"
-    port: int = 1883
-    client_id: str = ""
-    topic_prefix: str = "handeye"
-    topics: dict = field(default_factory=dict)
-    qos: int = 1
-    keepalive_s: int = 30
-    connect_timeout_s: float = 5.0
-    tls: bool = False
-    ca_file: str = ""
-    certfile: str = ""
-    keyfile: str = ""
+    enabled: Bool = False
+    host: NonEmptyStr = "127.0.0.1"
+    port: Annotated[Int, Field(ge=1, le=65535)] = 1883
+    client_id: Str = ""
+    topic_prefix: Topic = "handeye"
+    topics: dict[Literal[TOPICS], Topic] = Field(default_factory=dict)
+    qos: Literal[0, 1, 2] = 1
+    keepalive_s: Annotated[Int, Field(ge=5)] = 30
+    connect_timeout_s: Annotated[Float, Field(ge=0, le=60)] = 5.0
+    tls: Bool = False
+    ca_file: Str = ""
+    certfile: Str = ""
+    keyfile: Str = ""
 
-    def __post_init__(self):
-        def bad(name, what):
-            return ConfigError(f"mqtt.{name} must be {what}, got {getattr(self, name)!r}")
+    @model_validator(mode="before")
+    @classmethod
+    def _no_credentials(cls, data):
+        if isinstance(data, dict):
+            for key in data:
+                if key in _SECRET_KEYS:
+                    raise ValueError(f"{key}: credentials are never read from the config file; "
+                                     f"set {USERNAME_ENV} and {PASSWORD_ENV} in the environment")
+        return data
 
-        if not isinstance(self.enabled, bool):
-            raise bad("enabled", "true or false")
-        if not isinstance(self.tls, bool):
-            raise bad("tls", "true or false")
-        for name in ("host", "topic_prefix"):
-            if not isinstance(getattr(self, name), str) or not getattr(self, name):
-                raise bad(name, "a non-empty string")
-        for name in ("client_id", "ca_file", "certfile", "keyfile"):
-            if not isinstance(getattr(self, name), str):
-                raise bad(name, "a string")
-        if isinstance(self.port, bool) or not isinstance(self.port, int) or not 0 < self.port < 65536:
-            raise bad("port", "an integer in 1..65535")
-        if self.qos not in (0, 1, 2) or isinstance(self.qos, bool):
-            raise bad("qos", "0, 1 or 2")
-        if isinstance(self.keepalive_s, bool) or not isinstance(self.keepalive_s, int) or self.keepalive_s < 5:
-            raise bad("keepalive_s", "an integer >= 5")
-        if isinstance(self.connect_timeout_s, bool) or not isinstance(self.connect_timeout_s, (int, float)) \
-                or not 0 <= self.connect_timeout_s <= 60:
-            raise bad("connect_timeout_s", "a number of seconds in [0, 60]")
-        if not isinstance(self.topics, dict):
-            raise bad("topics", "a table")
-        for k, v in self.topics.items():
-            if k not in TOPICS:
-                raise ConfigError(f"unknown key mqtt.topics.{k} (known: {', '.join(TOPICS)})")
-            if not isinstance(v, str) or not v or any(c in v for c in "+#"):
-                raise ConfigError(f"mqtt.topics.{k} must be a topic name without wildcards, got {v!r}")
-        if any(c in self.topic_prefix for c in "+#"):
-            raise bad("topic_prefix", "a topic name without wildcards")
+    @model_validator(mode="after")
+    def _client_cert_needs_tls(self):
         if (self.certfile or self.keyfile) and not self.tls:
-            raise ConfigError("mqtt.certfile/keyfile need mqtt.tls = true")
+            raise ValueError("certfile/keyfile need tls = true")
+        return self
 
     @classmethod
     def from_dict(cls, data: dict) -> "MqttConfig":
-        """Validate an ``[mqtt]`` table; credentials in it are refused, naming the environment variables."""
-        if not isinstance(data, dict):
-            raise ConfigError(f"[mqtt] must be a table, got {data!r}")
-        for key in data:
-            if key in _SECRET_KEYS:
-                raise ConfigError(f"mqtt.{key}: credentials are never read from the config file; "
-                                  f"set {USERNAME_ENV} and {PASSWORD_ENV} in the environment")
-        known = {f.name for f in dataclasses.fields(cls)}
-        for key in data:
-            if key not in known:
-                raise ConfigError(f"unknown key mqtt.{key} (known: {', '.join(sorted(known))})")
-        return cls(**data)
+        """Validate an ``[mqtt]`` table; `ConfigError` naming ``mqtt.<field>`` (credentials refused)."""
+        try:
+            return cls.model_validate(data)
+        except ValidationError as e:
+            raise ConfigError(describe(e, "mqtt")) from None
 
     def topic(self, kind: str) -> str:
         return self.topics.get(kind) or f"{self.topic_prefix}/{kind}"
@@ -270,8 +252,7 @@ class MqttPublisher:
                                    "drift_deg": None if report.drift is None else report.drift[1]})
 
 
-def make_publisher(mqtt: dict, setup: Setup, frames: dict) -> MqttPublisher | None:
+def make_publisher(mqtt: MqttConfig, setup: Setup, frames: dict) -> MqttPublisher | None:
     """A publisher for an enabled ``[mqtt]`` table, else None."""
-    cfg = MqttConfig.from_dict(mqtt)
-    return MqttPublisher(cfg, setup, frames) if cfg.enabled else None
+    return MqttPublisher(mqtt, setup, frames) if mqtt.enabled else None
 

@@ -40,6 +40,7 @@ from calib.errors import CalibrationError
 from calib.predict import predicted_pixel
 from calib.result import worst_axis_sigma
 from calib.setup import Setup
+from calib.vision.extract import TargetConfig
 from drivers.errors import LimitViolationError
 
 log = logging.getLogger(__name__)
@@ -47,7 +48,7 @@ log = logging.getLogger(__name__)
 PLAN_FORMAT = "handeye-plan"
 PLAN_VERSION = 1
 #: Samples (with marker orientations) before a first estimate for planning is tried ...
-EARLY_SAMPLES = 4
+EARLY_SAMPLES = 3
 #: ... and the largest predicted 1-sigma (mm, deg) at which it is trusted to plan with.
 EARLY_MAX_SIGMA = (20.0, 2.0)
 #: Poses a plan file may hold at most (a plan is a handful of motions, not a trajectory).
@@ -68,9 +69,9 @@ class Target:
     skip: str | None = None
 
 
-def camera_view(cal: CalibrateConfig, intrinsics, marker: dict) -> pl.CameraView:
+def camera_view(cal: CalibrateConfig, intrinsics, marker: TargetConfig) -> pl.CameraView:
     """The planner's camera model from ``[calibrate]``, the camera intrinsics and ``[marker]``."""
-    size = marker.get("marker_size", marker.get("size", 0.1))
+    size = marker.marker_size
     return pl.CameraView(intrinsics.width, intrinsics.height, intrinsics.fx, intrinsics.fy, intrinsics.cx,
                          intrinsics.cy, margin_px=float(cal.image_margin_px), depth_min_m=float(cal.depth_range_m[0]),
                          depth_max_m=float(cal.depth_range_m[1]), max_view_angle_deg=float(cal.max_view_angle_deg),
@@ -80,13 +81,12 @@ def camera_view(cal: CalibrateConfig, intrinsics, marker: dict) -> pl.CameraView
 def planner_config(cfg: Config, **overrides) -> pl.PlannerConfig:
     """`calib.planner.PlannerConfig` from ``[calibrate]`` and the robot's workspace box."""
     cal, robot = cfg.calibrate, cfg.robot
-    speed = float(robot.get("speed", 0.25))
+    # Robot backends without these fields get the planner's defaults.
     kw = dict(translation_range_m=cal.translation_range_m, tilt_deg=cal.tilt_deg,
-              workspace_min=tuple(robot["workspace_min"]) if "workspace_min" in robot else None,
-              workspace_max=tuple(robot["workspace_max"]) if "workspace_max" in robot else None,
+              workspace_min=getattr(robot, "workspace_min", None), workspace_max=getattr(robot, "workspace_max", None),
               keep_out=tuple(pl.KeepOut(tuple(b[0]), tuple(b[1])) for b in cal.keep_out),
-              clearance_m=cal.clearance_m, travel_weight=cal.travel_weight, speed_m_s=speed,
-              acceleration_m_s2=float(robot.get("acceleration", 1.0)))
+              clearance_m=cal.clearance_m, travel_weight=cal.travel_weight,
+              speed_m_s=float(getattr(robot, "speed", 0.25)), acceleration_m_s2=float(getattr(robot, "acceleration", 1.0)))
     kw.update(overrides)
     return pl.PlannerConfig(**kw)
 

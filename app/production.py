@@ -17,7 +17,6 @@ has neither, and `start_production` then does nothing.
 
 from __future__ import annotations
 
-import dataclasses
 import logging
 from dataclasses import dataclass
 
@@ -64,8 +63,8 @@ def start_production(robot, cfg, rng: np.random.Generator, *, say=log.info) -> b
     if sim is None:
         return False
     state = robot.read()
-    cal = dataclasses.replace(cfg.calibrate, tilt_deg=min(cfg.calibrate.tilt_deg, 30.0))
-    program = production_program(state.T_base_flange, state.q, cfg.robot.get("model", "ur10"), cal, rng)
+    cal = cfg.calibrate.model_copy(update={"tilt_deg": min(cfg.calibrate.tilt_deg, 30.0)})
+    program = production_program(state.T_base_flange, state.q, getattr(cfg.robot, "model", "ur10"), cal, rng)
     sim.start_program(program)
     say(f"simulated robot: running a looping production program ({len(program['waypoints'])} waypoints, "
         f"{program['waypoints'][0]['pause_s']} s tool stops) so that there is something to monitor")

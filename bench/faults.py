@@ -40,7 +40,6 @@ from __future__ import annotations
 
 import argparse
 import collections
-import dataclasses
 import json
 import math
 import os
@@ -71,7 +70,7 @@ ROBOT_FAULTS = {  # name: (expected error, what its message must say)
     "emergency_stop": (RobotStoppedError, "emergency"),
 }
 RUN_TIMEOUT = 60.0
-DEFAULTS = dict(freeze=10, faults=5, app_freezes=5, parent_deaths=20, kills=8, targets=1000)
+DEFAULTS = dict(freeze=10, faults=5, app_freezes=5, parent_deaths=20, kills=6, targets=1000)
 QUICK = dict(freeze=2, faults=1, app_freezes=1, parent_deaths=3, kills=1, targets=100)
 FULL = dict(freeze=25, faults=10, app_freezes=10, parent_deaths=50, kills=100, targets=10000)
 
@@ -424,7 +423,7 @@ def _random_start(rng: np.random.Generator, robot) -> np.ndarray:
             return q
 
 
-def _sim_path_violation(motion, robot, limits, tick: float) -> str | None:
+def sim_path_violation(motion, robot, limits, tick: float) -> str | None:
     """Execute ``motion`` as the simulator does (one ``q_at`` per control tick); first problem or None."""
     from drivers.robot import ur_kinematics as kin
 
@@ -454,8 +453,8 @@ def run_targets(n: int, seed: int) -> dict:
 
     # Offline (check_target with explicit start joints); a wide box and tilt cone, so that the
     # joint limits and singularities, not the box, decide most targets.
-    cfg = dataclasses.replace(_robot_config("127.0.0.1"), workspace_min=(-1.4, -1.4, -0.2),
-                              workspace_max=(1.4, 1.4, 1.4), max_tilt_deg=120.0)
+    cfg = _robot_config("127.0.0.1").model_copy(update={"workspace_min": (-1.4, -1.4, -0.2),
+                                                        "workspace_max": (1.4, 1.4, 1.4), "max_tilt_deg": 120.0})
     robot = URRobot(cfg)
     limits = cfg.joint_limits
     rng = np.random.default_rng(seed)
@@ -482,7 +481,7 @@ def run_targets(n: int, seed: int) -> dict:
                              kin.UR_JOINT_LIMITS)
         else:
             m = JointMotion(q0, q_target, cfg.joint_speed, cfg.joint_acceleration)
-        problem = _sim_path_violation(m, robot, limits, tick=1.0 / 125.0)
+        problem = sim_path_violation(m, robot, limits, tick=1.0 / 125.0)
         if problem is None:
             row["clean"] += 1
         else:
@@ -492,7 +491,7 @@ def run_targets(n: int, seed: int) -> dict:
 
 
 # --------------------------------------------------------------------- main
-def _fmt(row: dict) -> str:
+def format_row(row: dict) -> str:
     det = f"{max(row['detect']):.2f}" if row["detect"] else "-"
     lost = "-" if row["lost"] is None else str(row["lost"])
     return (f"| {row['fault']} | {row['runs']} | {row['clean']} | {row['crashes']} | {row['hangs']} | {lost} | "
@@ -531,7 +530,7 @@ def main(argv: list[str] | None = None) -> int:
     print("| fault | runs | clean errors | crashes | hangs | samples lost | slowest detection s |")
     print("|---|---|---|---|---|---|---|")
     for row in rows:
-        print(_fmt(row))
+        print(format_row(row))
     freeze = [r for r in rows if r["fault"].startswith("freeze")]
     app_freeze = rows[len(ROBOT_FAULTS)]
     pd, kills, tg = rows[-3], rows[-2], rows[-1]

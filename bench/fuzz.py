@@ -576,8 +576,8 @@ def run_file_campaign(kind: str, n_cases: int, rng: np.random.Generator, work: P
         if name == "config":
             def fn(p=case / src.name, tmp=case):
                 cfg = load_config(p)
-                cfg = dataclasses.replace(cfg, session=dataclasses.replace(cfg.session, root=str(tmp / "sessions")))
-                devices.validate(cfg)
+                cfg = cfg.model_copy(update={"session": cfg.session.model_copy(update={"root": str(tmp / "sessions")})})
+                devices.check_session_root(cfg)
         elif name == "session":
             def fn(p=data_dir):
                 s = read_session(p)

@@ -40,20 +40,21 @@ from __future__ import annotations
 
 import math
 from collections import deque
-from dataclasses import dataclass
-from typing import NamedTuple
+from typing import Annotated, NamedTuple
 
 import numpy as np
+from pydantic import Field, model_validator
 from scipy.linalg.lapack import dposv
 from scipy.stats import chi2
 
 from calib import model
 from calib import refine as rf
 from calib import transforms as tf
-from calib.errors import CalibrationError, ParameterError
+from calib.errors import CalibrationError
 from calib.noise import default_point_cov
 from calib.result import CalibrationResult, Residuals
-from calib.setup import Setup, check_setup
+from calib.params import Bool, Float, Int, NonNegativeInt, Params
+from calib.setup import Setup
 
 _I3 = np.eye(3)
 _I6 = np.eye(6)
@@ -122,18 +123,7 @@ def _check_sample(T_base_flange, point_cam, point_cov):
     return A, a, p, S
 
 
-def _is_int(v) -> bool:
-    """An integer that is not a bool (TOML ``true`` must not pass as 1)."""
-    return isinstance(v, int) and not isinstance(v, bool)
-
-
-def _is_real(v) -> bool:
-    """A finite real number that is not a bool."""
-    return isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
-
-
-@dataclass
-class DetectorConfig:
+class DetectorConfig(Params):
     """Settings of `ChangeDetector`.
 
     Attributes
@@ -149,17 +139,15 @@ class DetectorConfig:
         (0, 0.1), split evenly between the two windows.
     """
 
-    window: int = 20
-    long_window: int | None = 100
-    false_alarm_rate: float = 1e-7
+    window: Annotated[Int, Field(ge=3)] = 20
+    long_window: Int | None = 100
+    false_alarm_rate: Annotated[Float, Field(gt=0, lt=0.1)] = 1e-7
 
-    def __post_init__(self):
-        if not _is_int(self.window) or self.window < 3:
-            raise ParameterError(f"window must be an int >= 3, got {self.window!r}")
-        if self.long_window is not None and (not _is_int(self.long_window) or self.long_window <= self.window):
-            raise ParameterError(f"long_window must be None or an int > window ({self.window}), got {self.long_window!r}")
-        if not _is_real(self.false_alarm_rate) or not 0.0 < self.false_alarm_rate < 0.1:
-            raise ParameterError(f"false_alarm_rate must be in (0, 0.1), got {self.false_alarm_rate!r}")
+    @model_validator(mode="after")
+    def _windows(self):
+        if self.long_window is not None and self.long_window <= self.window:
+            raise ValueError(f"long_window must be None or an int > window ({self.window}), got {self.long_window!r}")
+        return self
 
 
 class ChangeDetector:
@@ -235,8 +223,7 @@ def _glr(Fg):
     return float(g.dot(x)) if info == 0 else 0.0
 
 
-@dataclass
-class OnlineConfig:
+class OnlineConfig(Params):
     """Settings of `OnlineCalibrator`.
 
     Attributes
@@ -252,31 +239,16 @@ class OnlineConfig:
     reset_on_alarm : bool
         Restart from scratch after an alarm, so the new camera pose is learnt
         from post-change samples only.
-    detector : DetectorConfig, optional
+    detector : DetectorConfig
         Change-detector settings (default `DetectorConfig()`).
     """
 
     setup: Setup = Setup.EYE_TO_HAND
-    forgetting: float = 1.0
-    bootstrap: int = 10
-    warmup: int = 20
-    reset_on_alarm: bool = True
-    detector: DetectorConfig | None = None
-
-    def __post_init__(self):
-        self.setup = check_setup(self.setup, error=ParameterError)
-        if not _is_real(self.forgetting) or not 0.9 < self.forgetting <= 1.0:
-            raise ParameterError(f"forgetting must be in (0.9, 1], got {self.forgetting!r}")
-        if not _is_int(self.bootstrap) or self.bootstrap < 6:
-            raise ParameterError(f"bootstrap must be an int >= 6, got {self.bootstrap!r}")
-        if not _is_int(self.warmup) or self.warmup < 0:
-            raise ParameterError(f"warmup must be an int >= 0, got {self.warmup!r}")
-        if not isinstance(self.reset_on_alarm, bool):
-            raise ParameterError(f"reset_on_alarm must be true or false, got {self.reset_on_alarm!r}")
-        if self.detector is None:
-            self.detector = DetectorConfig()
-        elif not isinstance(self.detector, DetectorConfig):
-            raise ParameterError(f"detector must be a table (window, long_window, false_alarm_rate), got {self.detector!r}")
+    forgetting: Annotated[Float, Field(gt=0.9, le=1.0)] = 1.0
+    bootstrap: Annotated[Int, Field(ge=6)] = 10
+    warmup: NonNegativeInt = 20
+    reset_on_alarm: Bool = True
+    detector: DetectorConfig = Field(default_factory=DetectorConfig)
 
 
 class OnlineUpdate(NamedTuple):

@@ -35,7 +35,7 @@ from __future__ import annotations
 
 import math
 from collections import Counter
-from collections.abc import Callable, Sequence
+from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -282,19 +282,13 @@ def candidate_poses(T_start, config: PlannerConfig, rng: np.random.Generator) ->
     axes = rng.normal(size=(n, 3))
     axes /= np.linalg.norm(axes, axis=1, keepdims=True)
     angles = rng.uniform(0.0, np.deg2rad(config.tilt_deg), size=n) * scale
-    R = _rotvec_matrices(axes * angles[:, None])
+    R = tf.so3_exp(axes * angles[:, None])
     T = np.broadcast_to(np.eye(4), (n, 4, 4)).copy()
     T[:, :3, :3] = R @ T_start[:3, :3]
     T[:, :3, 3] = T_start[:3, 3] + rng.uniform(-1, 1, size=(n, 3)) * config.translation_range_m * scale[:, None]
     if config.workspace_min is not None:
         T[:, :3, 3] = np.clip(T[:, :3, 3], config.workspace_min, config.workspace_max)
     return T
-
-
-def _rotvec_matrices(v: np.ndarray) -> np.ndarray:
-    from scipy.spatial.transform import Rotation
-
-    return Rotation.from_rotvec(v).as_matrix()
 
 
 def travel_time(T_from, T_to, config: PlannerConfig) -> np.ndarray:
@@ -668,12 +662,7 @@ def bootstrap_poses(T_start, setup: str, view: CameraView, point_cam, config: Pl
     out = []
     for axis, offset in _BOOTSTRAP[:n]:
         ax = np.asarray(axis, float) / np.linalg.norm(axis)
-        R = T_start[:3, :3] @ _rotvec_matrices((ax * a * theta_max)[None])[0]
+        R = T_start[:3, :3] @ tf.so3_exp(ax * a * theta_max)
         dt = np.asarray(offset, float) * a * config.translation_range_m
         out.append(tf.make_transform(R, T_start[:3, 3] + dt))
     return np.stack(out)
-
-
-def sequence_travel(T: Sequence[np.ndarray], config: PlannerConfig) -> float:
-    """Estimated total motion time (s) along a sequence of flange poses (4, 4)."""
-    return float(sum(travel_time(a, b[None], config)[0] for a, b in zip(T[:-1], T[1:])))

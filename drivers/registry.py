@@ -13,15 +13,18 @@ backend module once (`app.backends`).
 
 from __future__ import annotations
 
-import dataclasses
 from dataclasses import dataclass
 
+from pydantic import ValidationError
+
 from calib.errors import ParameterError
+from calib.params import describe
 
 
 @dataclass(frozen=True)
 class Backend:
-    """One registered backend: its name, config class and device class."""
+    """One registered backend: its name, config model (a `calib.params.Params` with a ``Literal``
+    name field) and device class."""
 
     name: str
     config: type
@@ -81,26 +84,20 @@ class Registry:
         raise ParameterError(f"no {self.kind} backend for a config of type {type(config).__name__}")
 
     def config_from_dict(self, data: dict):
-        """Validate a config table into its backend's config object.
+        """Validate a config table into its backend's config model.
 
         Raises
         ------
         ParameterError
-            Unknown backend, unknown key (named) or a bad field (named).
+            Unknown backend, unknown key or a bad field, named as ``kind.field``.
         """
         if not isinstance(data, dict):
             raise ParameterError(f"[{self.kind}] must be a table, got {data!r}")
-        data = dict(data)
-        name = data.get(self.key, self.default)
-        backend = self.get(name)
-        known = {f.name for f in dataclasses.fields(backend.config)}
-        if self.key not in known:
-            data.pop(self.key, None)
-        unknown = sorted(set(data) - known)
-        if unknown:
-            raise ParameterError(f"unknown key {self.kind}.{unknown[0]} for {self.key} {name!r} "
-                                 f"(known: {', '.join(sorted(known))})")
-        return backend.config(**data)
+        backend = self.get(data.get(self.key, self.default))
+        try:
+            return backend.config.model_validate(data)
+        except ValidationError as e:
+            raise ParameterError(describe(e, self.kind)) from None
 
     def create(self, config, *args, **kwargs):
         """The (unconnected) device for a config object or table; extra arguments go to the device class."""

@@ -20,13 +20,13 @@ from __future__ import annotations
 
 import csv
 import time
-from dataclasses import dataclass
+from typing import Literal
 from pathlib import Path
 
 import cv2
 import numpy as np
 
-from calib.errors import ParameterError
+from calib.params import Bool, NonEmptyStr, Params
 from drivers.errors import ConnectionLostError, DeviceError
 from drivers.camera.base import Camera, CameraIntrinsics, RGBDFrame
 from drivers.camera.depth import depth_from_mm, depth_to_mm
@@ -36,8 +36,7 @@ from drivers.camera.registry import CAMERAS
 FIELDS = ["index", "t", "color", "depth"]
 
 
-@dataclass
-class RecordedCameraConfig:
+class RecordedCameraConfig(Params):
     """``[camera]`` table for ``backend = "recorded"``.
 
     Attributes
@@ -50,19 +49,10 @@ class RecordedCameraConfig:
         Pace `read` by the recorded timestamps (False: as fast as asked).
     """
 
-    backend: str = "recorded"
-    path: str = ""
-    loop: bool = False
-    realtime: bool = False
-
-    def __post_init__(self):
-        if self.backend != "recorded":
-            raise ParameterError(f"camera.backend must be 'recorded' for RecordedCameraConfig, got {self.backend!r}")
-        if not isinstance(self.path, str) or not self.path:
-            raise ParameterError(f"camera.path must name a recording directory, got {self.path!r}")
-        for name in ("loop", "realtime"):
-            if not isinstance(getattr(self, name), bool):
-                raise ParameterError(f"camera.{name} must be true or false, got {getattr(self, name)!r}")
+    backend: Literal["recorded"] = "recorded"
+    path: NonEmptyStr
+    loop: Bool = False
+    realtime: Bool = False
 
 
 @CAMERAS.register("recorded", RecordedCameraConfig)

@@ -151,12 +151,12 @@ def calibrate(cfg: Config, *, resume: Path | None = None, progress: bool = True)
                                          devices.make_solve(cfg.calibrate, cfg.setup, rng), writer, cfg.calibrate,
                                          rng, viz, save_frames=cfg.session.save_frames, progress=bar,
                                          initial=initial, poses=poses)
-    files = (devices.write_result(report.result, writer.path, cfg.session.exports, cfg.frames)
+    files = (devices.write_result(report.result, writer.path, cfg.session.exports, cfg.frames.model_dump())
              if report.result is not None else {})
     if "json" in files:
         _add_run_summary(files["json"], report, cfg.calibrate.poses)
     return CalibrationOutput(report, cfg.setup, cfg.calibrate.method, files, devices.camera_truth(cfg.setup, truth),
-                             recording, cfg.frames)
+                             recording, cfg.frames.model_dump())
 
 
 def _add_run_summary(path: Path, report: RunReport, poses: str) -> None:

@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import argparse
-import dataclasses
 import sys
 from pathlib import Path
 
@@ -47,7 +46,9 @@ def add_motion_options(p: argparse.ArgumentParser) -> None:
 
 
 def apply_overrides(cfg, args):
-    """Copy CLI overrides into the config, re-validating the touched sections."""
+    """The config with the CLI overrides, validated again (`ConfigError` names the field)."""
+    from app.config import config_from_dict
+
     cal = {}
     if getattr(args, "samples", None) is not None:
         cal["samples"] = args.samples
@@ -79,13 +80,10 @@ def apply_overrides(cfg, args):
         ses["root"] = str(args.session_root)
     if getattr(args, "no_frames", False):
         ses["save_frames"] = False
-    return dataclasses.replace(
-        cfg,
-        calibrate=dataclasses.replace(cfg.calibrate, **cal),
-        monitor=dataclasses.replace(cfg.monitor, **mon),
-        viz=dataclasses.replace(cfg.viz, **viz),
-        session=dataclasses.replace(cfg.session, **ses),
-    )
+    data = cfg.model_dump()
+    for section, changes in (("calibrate", cal), ("monitor", mon), ("viz", viz), ("session", ses)):
+        data[section].update(changes)
+    return config_from_dict(data, "command line")
 
 
 def load_config_args(args):
@@ -96,7 +94,7 @@ def load_config_args(args):
 
     cfg = apply_overrides(load_config(args.config), args)
     try:
-        devices.validate(cfg)
+        devices.check_session_root(cfg)
     except ConfigError as e:
         if args.config is None:
             raise

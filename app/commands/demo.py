@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import argparse
-import dataclasses
 from pathlib import Path
 
 from app import devices
@@ -85,18 +84,24 @@ def demo_monitor(cfg: Config, *, bump: Bump | None, reference: Path | None = Non
     ConfigError
         If the config names real hardware.
     """
-    from app import devices
     from app.commands.monitor import monitor
 
     if not devices.simulated(cfg):
         raise ConfigError("demo --monitor runs only a simulated cell (a simulated robot.type and camera.backend); "
                           "use 'handeye monitor' for hardware")
-    mon = dict(DEMO_MONITOR)
-    if cfg.monitor.online:  # the config's own estimator settings win
-        mon.pop("online")
+    from app.config import config_from_dict
+    from calib.online import OnlineConfig
+
+    data = cfg.model_dump()
+    mon = data["monitor"]
+    mon.update({k: v for k, v in DEMO_MONITOR.items() if k != "online"})
+    # The config's own estimator settings win over the demo's small bootstrap.
+    if cfg.monitor.online == OnlineConfig(setup=cfg.setup):
+        online = DEMO_MONITOR["online"]
+        mon["online"].update({k: v for k, v in online.items() if k != "detector"})
+        mon["online"]["detector"] = {**(mon["online"].get("detector") or {}), **online["detector"]}
     after = bump.after if bump is not None else 0
     mon["max_samples"] = max_samples or (after + 4 + mon["reestimate_samples"] + 6 if bump else 30)
     mon["duration_s"] = cfg.monitor.duration_s or 300.0
-    cfg = dataclasses.replace(cfg, monitor=dataclasses.replace(cfg.monitor, **mon))
-    devices.validate(cfg)
+    cfg = config_from_dict(data, "demo --monitor")
     return monitor(cfg, reference=reference, progress=progress, bump=bump, publish=publish)

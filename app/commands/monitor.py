@@ -144,7 +144,6 @@ def monitor(cfg: Config, *, reference: Path | None = None, stop=None, progress: 
     ``publish``: optional ``(obs, update, report)`` callback; by default the
     ``[mqtt]`` publisher when enabled (`app.mqtt`).
     """
-    from app.formats.export import check_frames
     from app.mqtt import make_publisher
 
     rng = np.random.default_rng(cfg.calibrate.seed)
@@ -164,7 +163,7 @@ def monitor(cfg: Config, *, reference: Path | None = None, stop=None, progress: 
         T_reference = online.camera_transform
         say(f"reference {reference}: {len(usable)} samples, change detector armed from its estimate and covariance")
     devices.check_session_root(cfg)
-    publisher = make_publisher(cfg.mqtt, cfg.setup, check_frames(cfg.frames)) if publish is None else None
+    publisher = make_publisher(cfg.mqtt, cfg.setup, cfg.frames.model_dump()) if publish is None else None
     with devices.open_robot(cfg, read_only=True) as robot, devices.open_camera(cfg, robot) as camera, \
             (publisher or contextlib.nullcontext()):
         publish = publish or publisher
@@ -173,7 +172,7 @@ def monitor(cfg: Config, *, reference: Path | None = None, stop=None, progress: 
         writer = SessionWriter.create(cfg.session.root, cfg.setup, config=cfg.to_dict(),
                                       intrinsics=dataclasses.asdict(camera.intrinsics), truth=devices.truth(camera),
                                       source="handeye monitor")
-        solve = devices.make_solve(dataclasses.replace(cfg.calibrate, method=cfg.monitor.method), cfg.setup, rng)
+        solve = devices.make_solve(cfg.calibrate.model_copy(update={"method": cfg.monitor.method}), cfg.setup, rng)
         with writer, devices.make_viz(cfg, writer.path) as viz, progress_bar(enabled=progress) as bar:
             seen = []
 

@@ -109,8 +109,8 @@ def _target(folder: Path, use_depth: bool):
     data = dict(read_yaml(folder / "target.yaml")) if (folder / "target.yaml").exists() else {}
     data.setdefault("use_depth", use_depth)
     try:
-        return TargetConfig.from_dict(data)
-    except (ParameterError, ConfigError) as e:
+        return TargetConfig(**data)
+    except (ParameterError, TypeError) as e:
         raise ConfigError(f"{folder / 'target.yaml'}: {e}") from None
 
 

@@ -34,10 +34,11 @@ import logging
 import re
 import tomllib
 import zlib
-from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Literal
 
 import numpy as np
+from pydantic import Field, ValidationError
 
 from app.files import MAX_FILE_BYTES, inside, read_regular_file, read_text_file
 from calib import timesync
@@ -45,7 +46,8 @@ from calib import transforms as tf
 from app.errors import ConfigError, SessionError
 from calib.errors import HandeyeError
 from calib.observation import Observation
-from calib.setup import Setup, check_setup
+from calib.params import Bool, Float, Params, PositiveFloat, PositiveInt, Str, describe
+from calib.setup import Setup
 
 from app.formats.common import DEFAULT_FRAMES, ImportedSamples
 
@@ -133,45 +135,32 @@ def read_pose_csv(path) -> tuple[np.ndarray, np.ndarray]:
     return a[:, 0], tf.from_xyz_quat(a[:, 1:4], a[:, 4:8] / qn[order][keep, None])
 
 
-@dataclass
-class StreamsConfig:
+class FramesConfig(Params):
+    """Frame names of the exported result (`app.formats.common.DEFAULT_FRAMES`)."""
+
+    base: Str = DEFAULT_FRAMES["base"]
+    flange: Str = DEFAULT_FRAMES["flange"]
+    camera: Str = DEFAULT_FRAMES["camera"]
+    marker: Str = DEFAULT_FRAMES["marker"]
+
+
+class StreamsConfig(Params):
     """The manifest of a pose-stream pair (see the module docstring); paths relative to it."""
 
     setup: Setup
-    robot: str
-    camera: str
-    robot_transform: str = "T_base_flange"
-    camera_transform: str = "T_cam_marker"
-    clock_offset: float | str = "estimate"
-    max_offset: float = 1.0
-    refine: bool = True
-    refine_method: str = "YKronT'"
-    refine_half_width: float = 0.05
-    max_gap: float = 0.1
-    stride: int = 1
-    frames: dict = field(default_factory=dict)
-    format: str = "pose_csv"
-
-    def __post_init__(self):
-        self.setup = check_setup(self.setup, error=ConfigError)
-        if self.robot_transform not in ("T_base_flange", "T_flange_base"):
-            raise ConfigError(f"robot_transform must be 'T_base_flange' or 'T_flange_base', got {self.robot_transform!r}")
-        if self.camera_transform not in ("T_cam_marker", "T_marker_cam"):
-            raise ConfigError(f"camera_transform must be 'T_cam_marker' or 'T_marker_cam', got {self.camera_transform!r}")
-        if isinstance(self.clock_offset, str) and self.clock_offset != "estimate":
-            raise ConfigError(f"clock_offset must be 'estimate' or seconds, got {self.clock_offset!r}")
-        if isinstance(self.clock_offset, bool) or not isinstance(self.clock_offset, (int, float, str)):
-            raise ConfigError(f"clock_offset must be 'estimate' or seconds, got {self.clock_offset!r}")
-        for name in ("max_offset", "refine_half_width", "max_gap"):
-            if not getattr(self, name) > 0:
-                raise ConfigError(f"{name} must be > 0 s, got {getattr(self, name)!r}")
-        if not (isinstance(self.stride, int) and self.stride >= 1):
-            raise ConfigError(f"stride must be an integer >= 1, got {self.stride!r}")
-        if self.format != "pose_csv":
-            raise ConfigError(f"format must be 'pose_csv' in a pose-stream manifest, got {self.format!r}")
-        unknown = set(self.frames) - set(DEFAULT_FRAMES)
-        if unknown:
-            raise ConfigError(f"frames: unknown keys {sorted(unknown)} (use {sorted(DEFAULT_FRAMES)})")
+    robot: Str
+    camera: Str
+    robot_transform: Literal["T_base_flange", "T_flange_base"] = "T_base_flange"
+    camera_transform: Literal["T_cam_marker", "T_marker_cam"] = "T_cam_marker"
+    clock_offset: Float | Literal["estimate"] = "estimate"
+    max_offset: PositiveFloat = 1.0
+    refine: Bool = True
+    refine_method: Str = "YKronT'"
+    refine_half_width: PositiveFloat = 0.05
+    max_gap: PositiveFloat = 0.1
+    stride: PositiveInt = 1
+    frames: FramesConfig = Field(default_factory=FramesConfig)
+    format: Literal["pose_csv"] = "pose_csv"
 
 
 def read_manifest(path) -> StreamsConfig:
@@ -182,9 +171,9 @@ def read_manifest(path) -> StreamsConfig:
     except (tomllib.TOMLDecodeError, RecursionError) as e:
         raise ConfigError(f"{path}: cannot read TOML ({str(e)[:200]})") from None
     try:
-        return StreamsConfig(**data)
-    except (TypeError, ValueError) as e:
-        raise ConfigError(f"{path}: {e}") from None
+        return StreamsConfig.model_validate(data)
+    except ValidationError as e:
+        raise ConfigError(f"{path}: {describe(e)}") from None
 
 
 def residual_of_solve(method: str, setup: Setup):
@@ -235,7 +224,10 @@ def load_pose_streams(path, **overrides) -> ImportedSamples:
         path = inside(path, "streams.toml", SessionError, what=str(path))
     cfg = read_manifest(path)
     if overrides:
-        cfg = StreamsConfig(**{**cfg.__dict__, **overrides})
+        try:
+            cfg = StreamsConfig.model_validate({**cfg.model_dump(), **overrides})
+        except ValidationError as e:
+            raise ConfigError(f"{path}: {describe(e)}") from None
     # The manifest names its CSVs relative to itself; they must stay beside it.
     t_a, A = read_pose_csv(inside(path.parent, cfg.robot, SessionError, what=f"{path}: robot"))
     t_b, B = read_pose_csv(inside(path.parent, cfg.camera, SessionError, what=f"{path}: camera"))
@@ -243,7 +235,7 @@ def load_pose_streams(path, **overrides) -> ImportedSamples:
         A = tf.invert(A)
     if cfg.camera_transform == "T_marker_cam":
         B = tf.invert(B)
-    meta = {"format": "pose_csv", "source": str(path), "frames": {**DEFAULT_FRAMES, **cfg.frames},
+    meta = {"format": "pose_csv", "source": str(path), "frames": cfg.frames.model_dump(),
             "n_robot_rows": len(t_a), "n_camera_rows": len(t_b), "time": "robot clock, s"}
     try:
         if cfg.clock_offset == "estimate":

@@ -18,12 +18,14 @@ target is ``marker`` in ``T_cam_marker``).
 from __future__ import annotations
 
 import functools
-from dataclasses import dataclass
+from typing import Annotated
 
 import cv2
 import numpy as np
+from pydantic import ConfigDict, Field, model_validator
 
-from calib.errors import MarkerNotFoundError, ParameterError
+from calib.errors import MarkerNotFoundError
+from calib.params import Fraction, Int, Params, PositiveFloat
 from calib.vision.markers import Detection, check_gray
 
 # A corner dot counts as the origin dot if its blob is this much larger than
@@ -32,8 +34,7 @@ from calib.vision.markers import Detection, check_gray
 ORIGIN_SIZE_RATIO = 1.3
 
 
-@dataclass(frozen=True)
-class CircleGridSpec:
+class CircleGridSpec(Params):
     """Geometry of the modified circle grid and the blob-detector limits.
 
     Attributes
@@ -48,22 +49,20 @@ class CircleGridSpec:
         Blobs less convex than this are rejected (print defects, glare).
     """
 
-    rows: int = 10
-    cols: int = 10
-    spacing: float = 0.0254
-    min_area: float = 25.0
-    max_area: float = 5000.0
-    min_convexity: float = 0.95
+    model_config = ConfigDict(frozen=True)
 
-    def __post_init__(self):
-        if self.rows < 2 or self.cols < 2:
-            raise ParameterError(f"rows and cols must be >= 2, got rows={self.rows!r}, cols={self.cols!r}")
-        if not self.spacing > 0:
-            raise ParameterError(f"spacing must be > 0 m, got {self.spacing!r}")
-        if not 0 < self.min_area < self.max_area:
-            raise ParameterError(f"need 0 < min_area < max_area px^2, got {self.min_area!r}, {self.max_area!r}")
-        if not 0 <= self.min_convexity <= 1:
-            raise ParameterError(f"min_convexity must be in [0, 1], got {self.min_convexity!r}")
+    rows: Annotated[Int, Field(ge=2)] = 10
+    cols: Annotated[Int, Field(ge=2)] = 10
+    spacing: PositiveFloat = 0.0254
+    min_area: PositiveFloat = 25.0
+    max_area: PositiveFloat = 5000.0
+    min_convexity: Fraction = 0.95
+
+    @model_validator(mode="after")
+    def _areas(self):
+        if not self.min_area < self.max_area:
+            raise ValueError(f"need min_area < max_area px^2, got {self.min_area!r}, {self.max_area!r}")
+        return self
 
     def object_points(self) -> np.ndarray:
         """Dot centers (rows*cols, 3) in the target frame, row-major, m."""

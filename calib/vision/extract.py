@@ -14,14 +14,25 @@ interprets X and Y differently.
 
 from __future__ import annotations
 
-import dataclasses
-import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass
+from typing import Annotated, Literal
 
 import cv2
 import numpy as np
+from pydantic import ConfigDict, Field, model_validator
 
-from calib.errors import DepthError, ExtractionError, MarkerNotFoundError, ParameterError
+from calib.errors import DepthError, ExtractionError, MarkerNotFoundError
+from calib.params import (
+    Bool,
+    Fraction,
+    Int,
+    NonNegativeFloat,
+    NonNegativeInt,
+    Params,
+    PositiveFloat,
+    PositiveInt,
+    Str,
+)
 from calib.transforms import skew
 from calib.vision.lift import (
     DepthNoiseModel,
@@ -42,11 +53,9 @@ from calib.vision.markers import (
     get_dictionary,
 )
 
-KINDS = ("aruco", "charuco", "chessboard")
 
 
-@dataclass(frozen=True)
-class TargetConfig:
+class TargetConfig(Params):
     """What to look for and how to lift it (the ``[marker]`` table of the app config).
 
     Attributes
@@ -84,77 +93,40 @@ class TargetConfig:
         Per-pixel depth noise; a dict with its fields is accepted.
     """
 
-    kind: str = "aruco"
-    dictionary: str = "DICT_4X4_50"
-    marker_id: int = 0
-    marker_size: float = 0.05
-    squares: tuple[int, int] = (5, 7)
-    square_size: float = 0.0
-    use_depth: bool = True
-    sigma_px: float = 0.25
-    small_marker_px: float = 40.0
-    border_margin_px: float = 2.0
-    depth_roi_scale: float = 0.9
-    min_depth_pixels: int = 30
-    min_valid_fraction: float = 0.3
-    max_chi2_ratio: float = 9.0
-    min_inlier_fraction: float = 0.6
-    depth_noise: DepthNoiseModel = field(default_factory=DepthNoiseModel)
+    model_config = ConfigDict(frozen=True)
 
-    def __post_init__(self):
-        if self.kind not in KINDS:
-            raise ParameterError(f"marker.kind must be one of {list(KINDS)}, got {self.kind!r}")
-        if not isinstance(self.dictionary, str):
-            raise ParameterError(f"marker.dictionary must be a string, got {self.dictionary!r}")
+    kind: Literal["aruco", "charuco", "chessboard"] = "aruco"
+    dictionary: Str = "DICT_4X4_50"
+    marker_id: NonNegativeInt = 0
+    marker_size: PositiveFloat = 0.05
+    squares: tuple[PositiveInt, PositiveInt] = (5, 7)
+    square_size: NonNegativeFloat = 0.0
+    use_depth: Bool = True
+    sigma_px: PositiveFloat = 0.25
+    small_marker_px: PositiveFloat = 40.0
+    border_margin_px: NonNegativeFloat = 2.0
+    depth_roi_scale: Annotated[PositiveFloat, Field(le=1)] = 0.9
+    min_depth_pixels: Annotated[Int, Field(ge=3)] = 30
+    min_valid_fraction: Fraction = 0.3
+    max_chi2_ratio: PositiveFloat = 9.0
+    min_inlier_fraction: Fraction = 0.6
+    depth_noise: DepthNoiseModel = Field(default_factory=DepthNoiseModel)
+
+    @model_validator(mode="after")
+    def _target(self):
         if self.kind != "chessboard":
             get_dictionary(self.dictionary)
-        if isinstance(self.marker_id, bool) or not isinstance(self.marker_id, int) or self.marker_id < 0:
-            raise ParameterError(f"marker.marker_id must be an integer >= 0, got {self.marker_id!r}")
-        for name in ("marker_size", "sigma_px", "small_marker_px", "depth_roi_scale", "max_chi2_ratio"):
-            v = getattr(self, name)
-            if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v) or v <= 0:
-                raise ParameterError(f"marker.{name} must be a finite number > 0, got {v!r}")
-        for name in ("border_margin_px", "square_size"):
-            v = getattr(self, name)
-            if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v) or v < 0:
-                raise ParameterError(f"marker.{name} must be a finite number >= 0, got {v!r}")
-        for name in ("min_valid_fraction", "min_inlier_fraction"):
-            v = getattr(self, name)
-            if not isinstance(v, (int, float)) or not 0 <= v <= 1:
-                raise ParameterError(f"marker.{name} must be in [0, 1], got {v!r}")
-        mdp = self.min_depth_pixels
-        if isinstance(mdp, bool) or not isinstance(mdp, int) or mdp < 3:
-            raise ParameterError(f"marker.min_depth_pixels must be an integer >= 3, got {self.min_depth_pixels!r}")
-        if self.depth_roi_scale > 1:
-            raise ParameterError(f"marker.depth_roi_scale must be <= 1, got {self.depth_roi_scale!r}")
-        if not isinstance(self.use_depth, bool):
-            raise ParameterError(f"marker.use_depth must be true or false, got {self.use_depth!r}")
-        object.__setattr__(self, "squares", tuple(self.squares))
-        if isinstance(self.depth_noise, dict):
-            try:
-                object.__setattr__(self, "depth_noise", DepthNoiseModel(**self.depth_noise))
-            except TypeError as e:
-                raise ParameterError(f"marker.depth_noise: {e}") from None
         if self.kind != "aruco":
             if self.square_size <= 0:
-                raise ParameterError(f"marker.square_size must be > 0 for a {self.kind}, got {self.square_size!r}")
+                raise ValueError(f"square_size must be > 0 for a {self.kind}, got {self.square_size!r}")
             self.board  # validates squares / sizes
-
-    @classmethod
-    def from_dict(cls, data: dict) -> "TargetConfig":
-        """Build from a TOML table; unknown keys raise ParameterError naming the key."""
-        known = {f.name for f in dataclasses.fields(cls)}
-        for key in data:
-            if key not in known:
-                raise ParameterError(f"unknown key marker.{key} (known: {', '.join(sorted(known))})")
-        return cls(**data)
+        return self
 
     @property
     def board(self) -> BoardSpec:
         """The board of a charuco / chessboard target."""
-        return BoardSpec(
-            self.squares, self.square_size, self.marker_size if self.kind == "charuco" else 0.0, self.dictionary
-        )
+        return BoardSpec(squares=self.squares, square_size=self.square_size,
+                         marker_size=self.marker_size if self.kind == "charuco" else 0.0, dictionary=self.dictionary)
 
 
 @dataclass(frozen=True)

@@ -20,12 +20,15 @@ Covariance convention (as `calib.result`): a pose perturbation is the
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Annotated
 
 import cv2
 import numpy as np
+from pydantic import ConfigDict, Field, model_validator
 
 from calib import transforms as tf
-from calib.errors import DepthError, MarkerNotFoundError, ParameterError
+from calib.errors import DepthError, MarkerNotFoundError
+from calib.params import Float, NonNegativeFloat, Params
 
 
 def _rotvec_to_matrix(rv) -> np.ndarray:
@@ -33,8 +36,7 @@ def _rotvec_to_matrix(rv) -> np.ndarray:
     return cv2.Rodrigues(np.asarray(rv, dtype=np.float64).reshape(3, 1))[0]
 
 
-@dataclass(frozen=True)
-class DepthNoiseModel:
+class DepthNoiseModel(Params):
     """Per-pixel depth noise of a structured-light (Xtion / Kinect v1) sensor.
 
     ``sigma_z(z) = sqrt(sigma_0^2 + (k z^2)^2)`` per pixel, independent between
@@ -52,20 +54,18 @@ class DepthNoiseModel:
     NEES honest on rendered Xtion-like frames at 0.5-1 m).
     """
 
-    k: float = 1.7e-3
-    sigma_0: float = 1e-3 / np.sqrt(12.0)
-    k_sys: float = 0.5e-3
-    max_independent_pixels: float = 200.0
+    model_config = ConfigDict(frozen=True)
 
-    def __post_init__(self):
-        for name in ("k", "sigma_0", "k_sys"):
-            v = getattr(self, name)
-            if not (np.isfinite(v) and v >= 0):
-                raise ParameterError(f"depth_noise.{name} must be finite and >= 0, got {v!r}")
+    k: NonNegativeFloat = 1.7e-3
+    sigma_0: NonNegativeFloat = 1e-3 / np.sqrt(12.0)
+    k_sys: NonNegativeFloat = 0.5e-3
+    max_independent_pixels: Annotated[Float, Field(ge=3)] = 200.0
+
+    @model_validator(mode="after")
+    def _some_noise(self):
         if self.k == 0 and self.sigma_0 == 0:
-            raise ParameterError("depth_noise.k and depth_noise.sigma_0 cannot both be 0")
-        if not self.max_independent_pixels >= 3:
-            raise ParameterError(f"depth_noise.max_independent_pixels must be >= 3, got {self.max_independent_pixels!r}")
+            raise ValueError("k and sigma_0 cannot both be 0")
+        return self
 
     def sigma(self, z) -> np.ndarray:
         """Per-pixel depth standard deviation (m) at depth(s) ``z`` (m)."""

@@ -16,11 +16,14 @@ from __future__ import annotations
 
 import functools
 from dataclasses import dataclass
+from typing import Annotated
 
 import cv2
 import numpy as np
+from pydantic import ConfigDict, Field, model_validator
 
 from calib.errors import MarkerNotFoundError, ParameterError
+from calib.params import Int, NonNegativeFloat, Params, PositiveFloat, Str
 
 
 @dataclass(frozen=True)
@@ -125,8 +128,7 @@ def detect_markers(image, dictionary: str = "DICT_4X4_50", size: float = 0.05) -
     return sorted(dets, key=lambda d: int(d.ids[0]))
 
 
-@dataclass(frozen=True)
-class BoardSpec:
+class BoardSpec(Params):
     """A ChArUco board or chessboard.
 
     ``squares = (columns, rows)`` as OpenCV's ``CharucoBoard((cols, rows), ...)``
@@ -134,20 +136,18 @@ class BoardSpec:
     a chessboard of ``squares`` has ``(cols - 1) x (rows - 1)`` inner corners.
     """
 
-    squares: tuple[int, int]
-    square_size: float
-    marker_size: float = 0.0
-    dictionary: str = "DICT_6X6_250"
+    model_config = ConfigDict(frozen=True)
 
-    def __post_init__(self):
-        if len(self.squares) != 2 or min(self.squares) < 2:
-            raise ParameterError(f"squares must be two integers >= 2 (columns, rows), got {self.squares!r}")
-        if not self.square_size > 0:
-            raise ParameterError(f"square_size must be > 0 m, got {self.square_size!r}")
-        if self.marker_size < 0 or self.marker_size >= self.square_size:
-            raise ParameterError(
-                f"marker_size must be in [0, square_size) m, got {self.marker_size!r}"
-            )
+    squares: tuple[Annotated[Int, Field(ge=2)], Annotated[Int, Field(ge=2)]]
+    square_size: PositiveFloat
+    marker_size: NonNegativeFloat = 0.0
+    dictionary: Str = "DICT_6X6_250"
+
+    @model_validator(mode="after")
+    def _marker_in_square(self):
+        if self.marker_size >= self.square_size:
+            raise ValueError(f"marker_size must be in [0, square_size) m, got {self.marker_size!r}")
+        return self
 
     def inner_corners(self, kind: str) -> np.ndarray:
         """All inner corners (N, 3) in the board frame of a ``"charuco"`` or ``"chessboard"`` target, m."""

@@ -19,12 +19,14 @@ import math
 import os
 import tempfile
 import time
-from dataclasses import dataclass
+from typing import Literal
 from pathlib import Path
 
 import numpy as np
+from pydantic import field_validator
 
 from calib.errors import ParameterError
+from calib.params import Bool, Params, PositiveFloat, PositiveInt, Str
 from drivers.errors import ConnectionLostError, DeviceError
 from drivers.camera.base import Camera, CameraIntrinsics, RGBDFrame
 from drivers.camera.depth import depth_from_mm
@@ -40,8 +42,7 @@ INSTALL_HINT = (
 _LIB = "libOpenNI2.so"
 
 
-@dataclass
-class OpenNI2CameraConfig:
+class OpenNI2CameraConfig(Params):
     """``[camera]`` table for ``backend = "openni2"``.
 
     Attributes
@@ -67,37 +68,24 @@ class OpenNI2CameraConfig:
         A frame not delivered within this time means the connection is lost.
     """
 
-    backend: str = "openni2"
-    uri: str = ""
-    width: int = 640
-    height: int = 480
-    fps: int = 30
-    registration: bool = True
-    sync: bool = True
-    max_skew_ms: float = 20.0
-    intrinsics_file: str = ""
-    library_dir: str = ""
-    timeout_s: float = 2.0
+    backend: Literal["openni2"] = "openni2"
+    uri: Str = ""
+    width: PositiveInt = 640
+    height: PositiveInt = 480
+    fps: PositiveInt = 30
+    registration: Bool = True
+    sync: Bool = True
+    max_skew_ms: PositiveFloat = 20.0
+    intrinsics_file: Str = ""
+    library_dir: Str = ""
+    timeout_s: PositiveFloat = 2.0
 
-    def __post_init__(self):
-        if self.backend != "openni2":
-            raise ParameterError(f"camera.backend must be 'openni2' for OpenNI2CameraConfig, got {self.backend!r}")
-        for name in ("uri", "intrinsics_file", "library_dir"):
-            if not isinstance(getattr(self, name), str):
-                raise ParameterError(f"camera.{name} must be a string, got {getattr(self, name)!r}")
-        for name in ("width", "height", "fps"):
-            v = getattr(self, name)
-            if isinstance(v, bool) or not isinstance(v, int) or v <= 0:
-                raise ParameterError(f"camera.{name} must be a positive integer, got {v!r}")
-        for name in ("max_skew_ms", "timeout_s"):
-            v = getattr(self, name)
-            if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v) or v <= 0:
-                raise ParameterError(f"camera.{name} must be a finite number > 0, got {v!r}")
-        for name in ("registration", "sync"):
-            if not isinstance(getattr(self, name), bool):
-                raise ParameterError(f"camera.{name} must be true or false, got {getattr(self, name)!r}")
-        if self.intrinsics_file and not Path(self.intrinsics_file).is_file():
-            raise ParameterError(f"camera.intrinsics_file {self.intrinsics_file!r} does not exist")
+    @field_validator("intrinsics_file")
+    @classmethod
+    def _exists(cls, path: str) -> str:
+        if path and not Path(path).is_file():
+            raise ValueError(f"{path!r} does not exist")
+        return path
 
 
 def _library_dirs(config: OpenNI2CameraConfig) -> list[Path]:

@@ -28,11 +28,13 @@ import logging
 import math
 import threading
 import time
-from dataclasses import dataclass, field, fields
+from typing import Annotated, Literal
 
 import numpy as np
+from pydantic import Field, field_validator, model_validator
 
 from calib.errors import ParameterError
+from calib.params import Bool, Float, NonEmptyStr, Params, PositiveFloat, Str, Vector3, Vector6
 from drivers.errors import ConnectionLostError, DeviceError, LimitViolationError, RobotStoppedError
 from calib.transforms import from_ur_pose, invert, pose_error, to_ur_pose
 from drivers.robot import ur_kinematics as kin
@@ -69,24 +71,15 @@ MAX_TOOL_SPEED, MAX_TOOL_ACC = 3.0, 150.0
 MAX_JOINT_SPEED, MAX_JOINT_ACC = 3.14, 40.0
 
 
-def _vec(value, n: int, name: str) -> tuple[float, ...]:
-    try:
-        arr = np.asarray(value, dtype=float)
-    except (TypeError, ValueError):
-        raise ParameterError(f"URRobotConfig.{name} must be {n} numbers, got {value!r}") from None
-    if arr.shape != (n,) or not np.isfinite(arr).all():
-        raise ParameterError(f"URRobotConfig.{name} must be {n} finite numbers, got {value!r}")
-    return tuple(float(x) for x in arr)
-
-
-@dataclass
-class URRobotConfig:
+class URRobotConfig(Params):
     """Configuration of a UR arm reached over RTDE (real robot or ``mocks.ur_sim``).
 
     Units: SI (m, s, rad) except ``max_tilt_deg`` (degrees, labelled).
 
     Attributes
     ----------
+    type : "ur"
+        Backend name of a ``[robot]`` table.
     host : str
         Controller address.
     model : str
@@ -139,83 +132,70 @@ class URRobotConfig:
         samples at which a motion path is checked against the limits.
     """
 
-    host: str
-    model: str = "ur10"
-    read_only: bool = False
-    frequency: float = -1.0
-    speed: float = 0.1
-    acceleration: float = 0.5
-    joint_speed: float = 0.5
-    joint_acceleration: float = 1.0
-    motion: str = "linear"
-    stop_deceleration: float = 2.0
-    settle_time: float = 0.1
-    settle_speed: float = 0.002
-    workspace_min: tuple[float, float, float] | None = None
-    workspace_max: tuple[float, float, float] | None = None
-    tilt_reference: tuple[float, float, float] = (0.0, 0.0, -1.0)
-    max_tilt_deg: float = 60.0
-    joint_min: tuple[float, ...] = field(default_factory=lambda: tuple(kin.UR_JOINT_LIMITS[:, 0]))
-    joint_max: tuple[float, ...] = field(default_factory=lambda: tuple(kin.UR_JOINT_LIMITS[:, 1]))
-    tcp_offset: tuple[float, ...] | None = None
-    reach_tolerance: float = 0.005
-    reach_tolerance_deg: float = 1.0
-    frozen_timeout: float = 0.5
-    connect_timeout: float = 5.0
-    move_timeout: float = 60.0
-    buffer_seconds: float = 5.0
-    path_step: float = 0.01
+    type: Literal["ur"] = "ur"
+    host: NonEmptyStr
+    model: Str = "ur10"
+    read_only: Bool = False
+    frequency: Float = -1.0
+    speed: Annotated[Float, Field(gt=0, le=MAX_TOOL_SPEED)] = 0.1
+    acceleration: Annotated[Float, Field(gt=0, le=MAX_TOOL_ACC)] = 0.5
+    joint_speed: Annotated[Float, Field(gt=0, le=MAX_JOINT_SPEED)] = 0.5
+    joint_acceleration: Annotated[Float, Field(gt=0, le=MAX_JOINT_ACC)] = 1.0
+    motion: Literal["linear", "joint"] = "linear"
+    stop_deceleration: Annotated[Float, Field(gt=0, le=MAX_TOOL_ACC)] = 2.0
+    settle_time: PositiveFloat = 0.1
+    settle_speed: PositiveFloat = 0.002
+    workspace_min: Vector3 | None = None
+    workspace_max: Vector3 | None = None
+    tilt_reference: Vector3 = (0.0, 0.0, -1.0)
+    max_tilt_deg: Annotated[Float, Field(gt=0, le=180)] = 60.0
+    joint_min: Vector6 = tuple(float(q) for q in kin.UR_JOINT_LIMITS[:, 0])
+    joint_max: Vector6 = tuple(float(q) for q in kin.UR_JOINT_LIMITS[:, 1])
+    tcp_offset: Vector6 | None = None
+    reach_tolerance: PositiveFloat = 0.005
+    reach_tolerance_deg: PositiveFloat = 1.0
+    frozen_timeout: PositiveFloat = 0.25
+    connect_timeout: PositiveFloat = 5.0
+    move_timeout: PositiveFloat = 60.0
+    buffer_seconds: PositiveFloat = 5.0
+    path_step: PositiveFloat = 0.01
 
-    def __post_init__(self):
-        if not isinstance(self.host, str) or not self.host.strip():
-            raise ParameterError(f"URRobotConfig.host must be a non-empty address, got {self.host!r}")
-        kin.geometry(self.model)
-        self.model = self.model.lower().replace("-", "")
-        if not isinstance(self.read_only, bool):
-            raise ParameterError(f"URRobotConfig.read_only must be true or false, got {self.read_only!r}")
-        if not (self.frequency == -1 or 0 < self.frequency <= 500):
-            raise ParameterError(f"URRobotConfig.frequency must be -1 or in (0, 500] Hz, got {self.frequency!r}")
-        for name, hi in (("speed", MAX_TOOL_SPEED), ("acceleration", MAX_TOOL_ACC), ("joint_speed", MAX_JOINT_SPEED),
-                         ("joint_acceleration", MAX_JOINT_ACC), ("stop_deceleration", MAX_TOOL_ACC)):
-            val = getattr(self, name)
-            if not isinstance(val, (int, float)) or not 0 < val <= hi:
-                raise ParameterError(f"URRobotConfig.{name} must be in (0, {hi}], got {val!r}")
-        if self.motion not in ("linear", "joint"):
-            raise ParameterError(f"URRobotConfig.motion must be 'linear' or 'joint', got {self.motion!r}")
-        for name in ("settle_time", "settle_speed", "reach_tolerance", "reach_tolerance_deg", "frozen_timeout",
-                     "connect_timeout", "move_timeout", "buffer_seconds", "path_step"):
-            val = getattr(self, name)
-            if not isinstance(val, (int, float)) or not math.isfinite(val) or val <= 0:
-                raise ParameterError(f"URRobotConfig.{name} must be a positive number, got {val!r}")
+    @field_validator("model")
+    @classmethod
+    def _known_model(cls, model: str) -> str:
+        kin.geometry(model)
+        return model.lower().replace("-", "")
+
+    @field_validator("frequency")
+    @classmethod
+    def _rate(cls, hz: float) -> float:
+        if not (hz == -1 or 0 < hz <= 500):
+            raise ValueError(f"must be -1 or in (0, 500] Hz, got {hz!r}")
+        return hz
+
+    @field_validator("tilt_reference")
+    @classmethod
+    def _direction(cls, v):
+        if np.linalg.norm(v) < 1e-9:
+            raise ValueError("must be a non-zero direction")
+        return v
+
+    @model_validator(mode="after")
+    def _limits(self):
         if (self.workspace_min is None) != (self.workspace_max is None):
-            raise ParameterError("URRobotConfig.workspace_min and workspace_max must be given together")
+            raise ValueError("workspace_min and workspace_max must be given together")
         if self.workspace_min is None:
             if not self.read_only:
-                raise ParameterError("URRobotConfig.workspace_min/workspace_max are required unless read_only is true")
-        else:
-            self.workspace_min = _vec(self.workspace_min, 3, "workspace_min")
-            self.workspace_max = _vec(self.workspace_max, 3, "workspace_max")
-            if not np.all(np.less(self.workspace_min, self.workspace_max)):
-                raise ParameterError(
-                    f"URRobotConfig.workspace_min {self.workspace_min} must be below workspace_max "
-                    f"{self.workspace_max} on every axis"
-                )
-        self.tilt_reference = _vec(self.tilt_reference, 3, "tilt_reference")
-        if np.linalg.norm(self.tilt_reference) < 1e-9:
-            raise ParameterError("URRobotConfig.tilt_reference must be a non-zero direction")
-        if not isinstance(self.max_tilt_deg, (int, float)) or not 0 < self.max_tilt_deg <= 180:
-            raise ParameterError(f"URRobotConfig.max_tilt_deg must be in (0, 180] degrees, got {self.max_tilt_deg!r}")
-        self.joint_min = _vec(self.joint_min, 6, "joint_min")
-        self.joint_max = _vec(self.joint_max, 6, "joint_max")
+                raise ValueError("workspace_min/workspace_max are required unless read_only is true")
+        elif not np.all(np.less(self.workspace_min, self.workspace_max)):
+            raise ValueError(f"workspace_min {self.workspace_min} must be below workspace_max "
+                             f"{self.workspace_max} on every axis")
         lim = kin.UR_JOINT_LIMITS
         if not (np.all(np.less(self.joint_min, self.joint_max)) and np.all(np.greater_equal(self.joint_min, lim[:, 0]))
                 and np.all(np.less_equal(self.joint_max, lim[:, 1]))):
-            raise ParameterError(
-                f"URRobotConfig.joint_min/joint_max must satisfy -2pi <= joint_min < joint_max <= 2pi rad, "
-                f"got {self.joint_min} / {self.joint_max}"
-            )
-        if self.tcp_offset is not None:
-            self.tcp_offset = _vec(self.tcp_offset, 6, "tcp_offset")
+            raise ValueError(f"joint_min/joint_max must satisfy -2pi <= joint_min < joint_max <= 2pi rad, "
+                             f"got {self.joint_min} / {self.joint_max}")
+        return self
 
     @property
     def max_tilt(self) -> float:
@@ -226,17 +206,6 @@ class URRobotConfig:
     def joint_limits(self) -> np.ndarray:
         """Joint limits, shape (6, 2), rad."""
         return np.stack([self.joint_min, self.joint_max], axis=1)
-
-    @classmethod
-    def from_dict(cls, d: dict) -> "URRobotConfig":
-        """Build from a TOML table; unknown keys are an error naming the key."""
-        known = {f.name for f in fields(cls)}
-        unknown = sorted(set(d) - known)
-        if unknown:
-            raise ParameterError(f"URRobotConfig: unknown field(s) {unknown}; known: {sorted(known)}")
-        if "host" not in d:
-            raise ParameterError("URRobotConfig.host is required")
-        return cls(**d)
 
 
 @ROBOTS.register("ur", URRobotConfig)
@@ -258,6 +227,7 @@ class URRobot(Robot):
         self._buffer = StateBuffer(config.buffer_seconds)
         self._clock = ClockMapper(config.buffer_seconds)
         self._new_state = threading.Condition()
+        self._state_lock = threading.Lock()  # the TCP offset and the states computed with it
         self._last_ts = None
         self._last_change = 0.0
         self._safety_bits = 0
@@ -294,6 +264,7 @@ class URRobot(Robot):
         self._buffer.clear()
         self._clock.reset()
         self._last_ts = None
+        self._last_change = time.monotonic()  # the stream's age counts from now, not from an old stream
         client = RTDEClient(cfg.host, cfg.frequency, cfg.read_only, RTDE_VARIABLES, self._on_state)
         try:
             client.start(cfg.connect_timeout)
@@ -302,6 +273,8 @@ class URRobot(Robot):
             raise DeviceError(str(exc)) from None
         self._client = client
         try:
+            # First a live stream, then the control calls (which watch the stream while they run).
+            self._wait_first_state()
             if not cfg.read_only:
                 tcp = np.asarray(self._call("getTCPOffset"), dtype=float)
                 if tcp.shape != (6,):
@@ -311,8 +284,9 @@ class URRobot(Robot):
                                 cfg.tcp_offset, tcp.tolist())
             else:
                 tcp = np.asarray(cfg.tcp_offset)
-            self._T_flange_tcp = from_ur_pose(tcp)
-            self._buffer.clear()  # states before the TCP was known carry the wrong flange pose
+            with self._state_lock:  # states before the TCP was known carry the wrong flange pose
+                self._T_flange_tcp = from_ur_pose(tcp)
+                self._buffer.clear()
             self._wait_first_state()
         except BaseException:
             self._close_interfaces()
@@ -367,17 +341,18 @@ class URRobot(Robot):
             return
         self._last_ts = ts
         self._safety_bits = safety_bits
-        self._buffer.append(
-            RobotState(
-                t_host=self._clock.update(ts, t_recv),
-                t_controller=ts,
-                T_base_flange=from_ur_pose(np.asarray(tcp)) @ invert(self._T_flange_tcp),
-                q=np.asarray(q),
-                qd=np.asarray(qd),
-                robot_mode=robot_mode,
-                safety_mode=safety_mode,
+        with self._state_lock:
+            self._buffer.append(
+                RobotState(
+                    t_host=self._clock.update(ts, t_recv),
+                    t_controller=ts,
+                    T_base_flange=from_ur_pose(np.asarray(tcp)) @ invert(self._T_flange_tcp),
+                    q=np.asarray(q),
+                    qd=np.asarray(qd),
+                    robot_mode=robot_mode,
+                    safety_mode=safety_mode,
+                )
             )
-        )
         with self._new_state:
             self._last_change = time.monotonic()
             self._new_state.notify_all()

@@ -17,22 +17,22 @@ in ``RGBDFrame.truth``.
 
 from __future__ import annotations
 
-import math
 import time
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from typing import Literal
 
 import numpy as np
+from pydantic import Field, field_validator, model_validator
 from scipy.spatial.transform import Rotation
 
 from calib import transforms as tf
 from calib.errors import CalibrationError, ParameterError
 from drivers.errors import DeviceError
-from calib.setup import Setup, check_setup
+from calib.params import Bool, Float, Int, NonNegativeInt, Params, PositiveFloat, PositiveInt, Str, Transform
+from calib.setup import Setup
 from calib.vision.markers import get_dictionary
 from drivers.camera.registry import CAMERAS
 from drivers.camera.base import Camera, CameraIntrinsics, RGBDFrame
-from drivers.camera.intrinsics import check_intrinsics
 from mocks.render.scene import MarkerSceneRenderer, RenderNoise
 
 
@@ -59,17 +59,12 @@ _DEFAULT_T_FLANGE_CAM = tf.make_transform(np.eye(3), [0.0, 0.05, 0.02])
 _DEFAULT_T_BASE_MARKER = tf.make_transform(np.eye(3), [0.9, 0.1, 0.004])
 
 
-def _mat(default: np.ndarray):
-    return field(default_factory=lambda: default.tolist())
-
-
-@dataclass
-class RenderedCameraConfig:
+class RenderedCameraConfig(Params):
     """``[camera]`` table for ``backend = "rendered"``.
 
     Attributes
     ----------
-    setup : str
+    setup : Setup
         ``"eye_to_hand"`` or ``"eye_in_hand"``.
     T_base_cam, T_flange_marker : 4x4 nested lists
         True mounting, eye-to-hand (m).
@@ -79,7 +74,7 @@ class RenderedCameraConfig:
         The marker (default DICT_4X4_50 id 0, 5 cm on an 8 cm plate, as in the paper's setup).
     width, height, fx, fy, cx, cy
         Pinhole intrinsics (Xtion-like VGA by default), no distortion.
-    noise : RenderNoise or dict
+    noise : RenderNoise
         Sensor model; see `mocks.render.scene.RenderNoise`.
     seed : int
         Seed of the per-frame noise.
@@ -87,53 +82,38 @@ class RenderedCameraConfig:
         Add the flange cylinder (eye-to-hand) / a floor plane at base z = 0.
     """
 
-    backend: str = "rendered"
+    backend: Literal["rendered"] = "rendered"
     setup: Setup = Setup.EYE_TO_HAND
-    T_base_cam: list = _mat(_DEFAULT_T_BASE_CAM)
-    T_flange_marker: list = _mat(_DEFAULT_T_FLANGE_MARKER)
-    T_flange_cam: list = _mat(_DEFAULT_T_FLANGE_CAM)
-    T_base_marker: list = _mat(_DEFAULT_T_BASE_MARKER)
-    dictionary: str = "DICT_4X4_50"
-    marker_id: int = 0
-    marker_size: float = 0.05
-    plate_size: float = 0.08
-    width: int = 640
-    height: int = 480
-    fx: float = 570.0
-    fy: float = 570.0
-    cx: float = 319.5
-    cy: float = 239.5
-    noise: RenderNoise = field(default_factory=RenderNoise)
-    seed: int = 0
-    draw_flange: bool = True
-    draw_floor: bool = True
+    T_base_cam: Transform = _DEFAULT_T_BASE_CAM.tolist()
+    T_flange_marker: Transform = _DEFAULT_T_FLANGE_MARKER.tolist()
+    T_flange_cam: Transform = _DEFAULT_T_FLANGE_CAM.tolist()
+    T_base_marker: Transform = _DEFAULT_T_BASE_MARKER.tolist()
+    dictionary: Str = "DICT_4X4_50"
+    marker_id: NonNegativeInt = 0
+    marker_size: PositiveFloat = 0.05
+    plate_size: PositiveFloat = 0.08
+    width: PositiveInt = 640
+    height: PositiveInt = 480
+    fx: PositiveFloat = 570.0
+    fy: PositiveFloat = 570.0
+    cx: Float = 319.5
+    cy: Float = 239.5
+    noise: RenderNoise = Field(default_factory=RenderNoise)
+    seed: Int = 0
+    draw_flange: Bool = True
+    draw_floor: Bool = True
 
-    def __post_init__(self):
-        if self.backend != "rendered":
-            raise ParameterError(f"camera.backend must be 'rendered' for RenderedCameraConfig, got {self.backend!r}")
-        self.setup = check_setup(self.setup, "camera.setup", ParameterError)
-        for name in ("T_base_cam", "T_flange_marker", "T_flange_cam", "T_base_marker"):
-            try:
-                tf.check_transform(getattr(self, name), f"camera.{name}")
-            except (CalibrationError, ValueError) as e:
-                raise ParameterError(str(e)) from None
-        get_dictionary(self.dictionary)
-        if isinstance(self.marker_id, bool) or not isinstance(self.marker_id, int) or self.marker_id < 0:
-            raise ParameterError(f"camera.marker_id must be an integer >= 0, got {self.marker_id!r}")
-        for name in ("marker_size", "plate_size"):
-            v = getattr(self, name)
-            if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v) or v <= 0:
-                raise ParameterError(f"camera.{name} must be a finite number > 0 (m), got {v!r}")
+    @field_validator("dictionary")
+    @classmethod
+    def _known_dictionary(cls, name: str) -> str:
+        get_dictionary(name)
+        return name
+
+    @model_validator(mode="after")
+    def _plate_holds_marker(self):
         if self.plate_size < 1.2 * self.marker_size:
-            raise ParameterError(f"camera.plate_size must be >= 1.2 x marker_size, got {self.plate_size!r}")
-        check_intrinsics(self.intrinsics, "camera")
-        if isinstance(self.noise, dict):
-            try:
-                self.noise = RenderNoise(**self.noise)
-            except TypeError as e:
-                raise ParameterError(f"camera.noise: {e}") from None
-        if isinstance(self.seed, bool) or not isinstance(self.seed, int):
-            raise ParameterError(f"camera.seed must be an integer, got {self.seed!r}")
+            raise ValueError(f"plate_size must be >= 1.2 x marker_size, got {self.plate_size!r}")
+        return self
 
     @property
     def intrinsics(self) -> CameraIntrinsics:

@@ -18,26 +18,32 @@ rendered (the intrinsics must have zero ``dist``).
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from typing import Annotated
 
 import cv2
 import numpy as np
 import open3d as o3d
+from pydantic import AfterValidator, Field, field_validator
 
 from calib import transforms as tf
 from calib.errors import ParameterError
+from calib.params import Float, NonNegativeFloat, Params, PositiveFloat
 from calib.vision.markers import get_dictionary
 
 _FLOOR, _FLANGE, _PLATE = 0, 1, 2
 
 
-def _range(name, v, lo=0.0):
-    if len(v) != 2 or not (np.isfinite(v).all() and lo <= v[0] <= v[1]):
-        raise ParameterError(f"noise.{name} must be [min, max] with {lo} <= min <= max, got {v!r}")
+def _ordered(v):
+    if v[0] > v[1]:
+        raise ValueError(f"must be [min, max] with min <= max, got {list(v)}")
+    return v
 
 
-@dataclass(frozen=True)
-class RenderNoise:
+#: ``[min, max]`` with ``0 <= min <= max``.
+Range = Annotated[tuple[NonNegativeFloat, NonNegativeFloat], AfterValidator(_ordered)]
+
+
+class RenderNoise(Params):
     """Noise and appearance of rendered frames (all fields validated, named in errors).
 
     Attributes
@@ -68,35 +74,25 @@ class RenderNoise:
         Max illumination change across the image, gray levels.
     """
 
-    disparity_sigma_px: float = 0.064
-    disparity_step_px: float = 0.125
-    baseline_m: float = 0.075
-    depth_bias_k: float = 0.5e-3
-    edge_jump_m: float = 0.03
-    dropout: float = 0.002
-    depth_range_m: tuple[float, float] = (0.4, 4.0)
-    image_noise: float = 2.0
-    blur_sigma_px: tuple[float, float] = (0.3, 0.9)
-    gain: tuple[float, float] = (0.7, 1.2)
-    offset: tuple[float, float] = (-15.0, 15.0)
-    gradient: float = 30.0
+    disparity_sigma_px: NonNegativeFloat = 0.064
+    disparity_step_px: NonNegativeFloat = 0.125
+    baseline_m: PositiveFloat = 0.075
+    depth_bias_k: NonNegativeFloat = 0.5e-3
+    edge_jump_m: PositiveFloat = 0.03
+    dropout: Annotated[NonNegativeFloat, Field(lt=1)] = 0.002
+    depth_range_m: Range = (0.4, 4.0)
+    image_noise: NonNegativeFloat = 2.0
+    blur_sigma_px: Range = (0.3, 0.9)
+    gain: Range = (0.7, 1.2)
+    offset: Annotated[tuple[Float, Float], AfterValidator(_ordered)] = (-15.0, 15.0)
+    gradient: NonNegativeFloat = 30.0
 
-    def __post_init__(self):
-        for name in ("disparity_sigma_px", "disparity_step_px", "depth_bias_k", "dropout", "image_noise", "gradient"):
-            v = getattr(self, name)
-            if isinstance(v, bool) or not isinstance(v, (int, float)) or not np.isfinite(v) or v < 0:
-                raise ParameterError(f"noise.{name} must be a finite number >= 0, got {v!r}")
-        for name in ("baseline_m", "edge_jump_m"):
-            v = getattr(self, name)
-            if isinstance(v, bool) or not isinstance(v, (int, float)) or not np.isfinite(v) or v <= 0:
-                raise ParameterError(f"noise.{name} must be a finite number > 0, got {v!r}")
-        if self.dropout >= 1:
-            raise ParameterError(f"noise.dropout must be < 1, got {self.dropout!r}")
-        for name in ("depth_range_m", "blur_sigma_px", "gain"):
-            object.__setattr__(self, name, tuple(float(x) for x in getattr(self, name)))
-            _range(name, getattr(self, name))
-        object.__setattr__(self, "offset", tuple(float(x) for x in self.offset))
-        _range("offset", self.offset, lo=-255.0)
+    @field_validator("offset")
+    @classmethod
+    def _gray_levels(cls, v):
+        if v[0] < -255.0:
+            raise ValueError(f"must be [min, max] with -255 <= min <= max, got {v!r}")
+        return v
 
 
 def _mesh_arrays(mesh: o3d.geometry.TriangleMesh) -> tuple[np.ndarray, np.ndarray]:

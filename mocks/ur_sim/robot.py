@@ -8,20 +8,19 @@ code path.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from typing import Literal
 
-import numpy as np
+from pydantic import field_validator
 
-from calib.errors import ParameterError
+from calib.params import Str, Vector6
 from drivers.robot.registry import ROBOTS
 from drivers.robot.ur import URRobot, URRobotConfig
 from mocks.ur_sim import SimProcess, launch
 from mocks.ur_sim.controller import parse_version
 
 
-@dataclass
 class URSimRobotConfig(URRobotConfig):
-    """`URRobotConfig` plus the simulated controller's settings.
+    """`URRobotConfig` plus the simulated controller's settings (``[robot] type = "ur_sim"``).
 
     Attributes
     ----------
@@ -33,29 +32,16 @@ class URSimRobotConfig(URRobotConfig):
         Active TCP configured on the simulated controller (UR pose, m / rad).
     """
 
-    controller: str = "5.11"
-    initial_q: tuple[float, ...] | None = None
-    sim_tcp_offset: tuple[float, ...] = (0.0, 0.0, 0.1, 0.0, 0.0, 0.0)
+    type: Literal["ur_sim"] = "ur_sim"
+    controller: Str = "5.11"
+    initial_q: Vector6 | None = None
+    sim_tcp_offset: Vector6 = (0.0, 0.0, 0.1, 0.0, 0.0, 0.0)
 
-    def __post_init__(self):
-        super().__post_init__()
-        try:
-            parse_version(self.controller)
-        except ValueError as exc:
-            raise ParameterError(f"URSimRobotConfig.controller: {exc}") from None
-        if self.initial_q is not None:
-            self.initial_q = _six(self.initial_q, "initial_q")
-        self.sim_tcp_offset = _six(self.sim_tcp_offset, "sim_tcp_offset")
-
-
-def _six(value, name: str) -> tuple[float, ...]:
-    try:
-        arr = np.asarray(value, dtype=float)
-    except (TypeError, ValueError):
-        arr = np.zeros(0)
-    if arr.shape != (6,) or not np.isfinite(arr).all():
-        raise ParameterError(f"URSimRobotConfig.{name} must be 6 finite numbers, got {value!r}")
-    return tuple(float(x) for x in arr)
+    @field_validator("controller")
+    @classmethod
+    def _known_version(cls, version: str) -> str:
+        parse_version(version)
+        return version
 
 
 @ROBOTS.register("ur_sim", URSimRobotConfig)

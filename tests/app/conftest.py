@@ -4,8 +4,6 @@ Each test gets its own loopback address (the `loopback` fixture) for the UR simu
 tests never collide on the RTDE/dashboard ports.
 """
 
-import dataclasses
-
 import pytest
 
 from app.config import Config, load_config
@@ -17,13 +15,11 @@ def sim_config(tmp_path):
 
     def make(host: str, base: Config | None = None, **calibrate) -> Config:
         cfg = base or load_config(None)
-        robot = {**cfg.robot, "host": host}
-        return dataclasses.replace(
-            cfg,
-            robot=robot,
-            calibrate=dataclasses.replace(cfg.calibrate, **calibrate),
-            session=dataclasses.replace(cfg.session, root=str(tmp_path / "sessions")),
-        )
+        data = cfg.model_dump()
+        data["robot"]["host"] = host
+        data["calibrate"].update(calibrate)
+        data["session"]["root"] = str(tmp_path / "sessions")
+        return Config.model_validate(data)
 
     return make
 

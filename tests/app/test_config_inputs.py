@@ -5,7 +5,6 @@ damage to the file, gives a loaded config or a ConfigError -- never another
 exception -- and nothing opens a device (no robot address is used here).
 """
 
-import dataclasses
 import os
 import re
 from pathlib import Path
@@ -107,8 +106,8 @@ def _load_and_validate(text: str, tmp: Path):
     try:
         cfg = load_config(p)
         # Never create directories where a mutated root points: validate the rest against a temp root.
-        cfg = dataclasses.replace(cfg, session=dataclasses.replace(cfg.session, root=str(tmp / "sessions")))
-        devices.validate(cfg)
+        cfg = cfg.model_copy(update={"session": cfg.session.model_copy(update={"root": str(tmp / "sessions")})})
+        devices.check_session_root(cfg)
     except HandeyeError as e:
         assert "\n" not in str(e) or "invalid TOML" in str(e)
 
@@ -131,7 +130,7 @@ def test_byte_damage_is_loaded_or_a_config_error(tmp_path, pos, junk, cut):
     p.write_bytes(damaged)
     try:
         cfg = load_config(p)
-        cfg = dataclasses.replace(cfg, session=dataclasses.replace(cfg.session, root=str(tmp_path / "sessions")))
-        devices.validate(cfg)
+        cfg = cfg.model_copy(update={"session": cfg.session.model_copy(update={"root": str(tmp_path / "sessions")})})
+        devices.check_session_root(cfg)
     except HandeyeError:
         pass

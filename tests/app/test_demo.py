@@ -5,7 +5,6 @@ import json
 import numpy as np
 import pytest
 
-from app import devices
 from app.config import Config, load_config
 from app.commands.calibrate import calibrate
 from app.commands.demo import demo
@@ -54,7 +53,7 @@ def test_demo_refuses_hardware_config():
 
 def test_eye_in_hand_config_runs_on_the_simulator(sim_config, loopback):
     cfg = sim_config(loopback(2), base=load_config("config/eye_in_hand.toml"), samples=8, min_samples=6)
-    out = calibrate(dataclasses_replace_viz_off(cfg), progress=False)
+    out = calibrate(viz_off(cfg), progress=False)
     res = out.report.result
     assert res is not None and res.setup == "eye_in_hand"
     rot, trans = tf.pose_error(res.T_flange_cam, out.truth)
@@ -65,34 +64,28 @@ def test_hardware_config_runs_against_simulators(sim_config, loopback):
     """The UR10 + Xtion config with its robot and camera swapped for the simulated ones:
     every other section (marker, calibrate with robust + target sigma, session, viz) as shipped."""
     hw = load_config("config/ur10_xtion_eye_to_hand.toml")
-    devices.validate(hw)
     sim = load_config(None)
-    import dataclasses
-
-    cfg = dataclasses.replace(hw, robot=sim.robot, camera=sim.camera)
+    cfg = hw.model_copy(update={"robot": sim.robot, "camera": sim.camera})
     cfg = sim_config(loopback(3), base=cfg, samples=10, min_samples=8, settle_s=0.05)
-    out = calibrate(dataclasses_replace_viz_off(cfg), progress=False)
+    out = calibrate(viz_off(cfg), progress=False)
     assert out.report.result is not None and out.report.n_samples >= 8
     rot, trans = tf.pose_error(out.report.result.T_base_cam, out.truth)
     assert trans < 5e-3 and np.rad2deg(rot) < 0.5
 
 
-def dataclasses_replace_viz_off(cfg):
-    import dataclasses
-
-    return dataclasses.replace(cfg, viz=dataclasses.replace(cfg.viz, enabled=False))
+def viz_off(cfg):
+    return cfg.model_copy(update={"viz": cfg.viz.model_copy(update={"enabled": False})})
 
 
 def test_targets_outside_the_workspace_are_skipped_not_sent(sim_config, loopback):
     """A box much smaller than the sampling range: out-of-box targets are skipped (reason recorded),
     and every pose the robot actually took stays inside the box."""
-    import dataclasses
-
     lo, hi = np.array([0.8, -0.05, 0.42]), np.array([1.0, 0.2, 0.62])
     cfg = sim_config(loopback(11), samples=5, min_samples=5, poses="random")
-    cfg = dataclasses.replace(cfg, robot={**cfg.robot, "workspace_min": lo.tolist(), "workspace_max": hi.tolist()},
-                              viz=dataclasses.replace(cfg.viz, enabled=False),
-                              session=dataclasses.replace(cfg.session, save_frames=False))
+    cfg = cfg.model_copy(update={
+        "robot": cfg.robot.model_copy(update={"workspace_min": tuple(lo), "workspace_max": tuple(hi)}),
+        "viz": cfg.viz.model_copy(update={"enabled": False}),
+        "session": cfg.session.model_copy(update={"save_frames": False})})
     out = calibrate(cfg, progress=False)
     assert out.report.n_samples == 5
     assert any(reason.startswith("limit:") for reason in out.report.skip_reasons)

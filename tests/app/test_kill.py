@@ -1,6 +1,5 @@
 """A session killed mid-run (SIGKILL, no cleanup) keeps every sample taken and replays."""
 
-import dataclasses
 import os
 import signal
 import subprocess
@@ -55,7 +54,7 @@ def test_sigkill_mid_run_then_replay_and_resume(tmp_path, capsys, sim_config, lo
 
     # ... and the killed session can be resumed: two more samples, appended with fresh indices.
     cfg2 = sim_config(loopback(4), samples=n + 2, min_samples=6, target_sigma_mm=0.0, target_sigma_deg=0.0)
-    cfg2 = dataclasses.replace(cfg2, viz=dataclasses.replace(cfg2.viz, enabled=False))
+    cfg2 = cfg2.model_copy(update={"viz": cfg2.viz.model_copy(update={"enabled": False})})
     resumed = calibrate(cfg2, resume=session_dir, progress=False)
     assert resumed.report.session == session_dir and resumed.report.n_samples == n + 2
     indices = [o.index for o in read_session(session_dir).observations]

@@ -1,6 +1,5 @@
 """monitor: passive sampling through a read-only robot connection flags a bumped camera."""
 
-import dataclasses
 import threading
 
 import numpy as np
@@ -9,6 +8,7 @@ import pytest
 from app import devices
 from app.planning import random_pose
 from app.commands.monitor import run_monitor
+from app.config import Config
 from app.session import SessionWriter, read_session
 from calib import transforms as tf
 from drivers.errors import DeviceError
@@ -30,11 +30,11 @@ def _mover(sim, start_T, start_q, cal_cfg, stop, rng):
 
 def test_monitor_flags_camera_bump(sim_config, tmp_path, loopback):
     cfg = sim_config(loopback(5))
-    cfg = dataclasses.replace(cfg, monitor=dataclasses.replace(
-        cfg.monitor, still_s=0.05, poll_s=0.01, max_samples=BUMP_AT + 14, duration_s=90.0, reestimate_samples=8,
-        keep_samples=10, keep_recent=4,
-        alarm_hook=f"touch {tmp_path / 'hook-ran'}",
-        online={"bootstrap": 6, "warmup": 4, "detector": {"window": 6}}))
+    data = cfg.model_dump()
+    data["monitor"].update(still_s=0.05, poll_s=0.01, max_samples=BUMP_AT + 14, duration_s=90.0, reestimate_samples=8,
+                           keep_samples=10, keep_recent=4, alarm_hook=f"touch {tmp_path / 'hook-ran'}",
+                           online={"bootstrap": 6, "warmup": 4, "detector": {"window": 6}})
+    cfg = Config.model_validate(data)
     rng = np.random.default_rng(5)
     stop = threading.Event()
     with devices.open_robot(cfg, read_only=True) as robot, devices.open_camera(cfg, robot) as camera:
@@ -51,7 +51,7 @@ def test_monitor_flags_camera_bump(sim_config, tmp_path, loopback):
                 camera.config.T_base_cam = T_bumped.tolist()
 
         mover = threading.Thread(target=_mover, args=(robot.sim, robot.read().T_base_flange,
-                                                      np.array(cfg.robot["initial_q"]), cfg.calibrate, stop, rng))
+                                                      np.array(cfg.robot.initial_q), cfg.calibrate, stop, rng))
         mover.start()
         try:
             writer = SessionWriter.create(cfg.session.root, cfg.setup, truth=devices.truth(camera))

@@ -6,6 +6,7 @@ import time
 import numpy as np
 import pytest
 
+from app.config import config_from_dict
 from app.errors import ConfigError
 from app.commands.monitor import Alarm, MonitorReport
 from app.mqtt import PASSWORD_ENV, USERNAME_ENV, MqttConfig, MqttPublisher
@@ -82,6 +83,8 @@ def test_credentials_come_from_the_environment_only(mosquitto, mqtt_inbox, tmp_p
         MqttConfig.from_dict({"enabled": True, "password": "s3cret"})
     with pytest.raises(ConfigError, match="mqtt.qos"):
         MqttConfig.from_dict({"qos": 3})
+    with pytest.raises(ConfigError, match=PASSWORD_ENV):   # the same through a config file's [mqtt] table
+        config_from_dict({"mqtt": {"enabled": True, "username": "plant"}})
 
 
 def test_tls(mosquitto, mqtt_inbox, tmp_path):

@@ -23,9 +23,7 @@ INTR = CameraIntrinsics(640, 480, 570.0, 570.0, 319.5, 239.5)
 
 
 def _truth(cfg):
-    from mocks.render.camera import RenderedCameraConfig
-
-    c = RenderedCameraConfig(**cfg.camera)
+    c = cfg.camera
     return c.X, c.Y
 
 
@@ -52,7 +50,7 @@ def test_planned_poses_pass_the_robots_own_check_and_keep_the_marker_in_view(con
     # Planned with a 40 px margin on a wrong estimate; under the truth the marker stays >= 10 px inside.
     truth = pl.PosePlanner(cfg.setup, X, Y, dataclasses.replace(view, margin_px=10), pl.PlannerConfig(uncertainty_k=0))
     assert truth.screen(np.stack([p.T_base_flange for p in poses]))[0].all()
-    lo, hi = np.array(cfg.robot["workspace_min"]), np.array(cfg.robot["workspace_max"])
+    lo, hi = np.array(cfg.robot.workspace_min), np.array(cfg.robot.workspace_max)
     A = np.stack([p.T_base_flange for p in poses])
     assert np.all(A[:, :3, 3] >= lo) and np.all(A[:, :3, 3] <= hi)
 
@@ -72,10 +70,11 @@ def test_plan_writes_a_plan_that_calibrate_replays(tmp_path, loopback, capsys):
     assert out.with_suffix(".rrd").stat().st_size > 0  # flange poses, frustum, marker view per pose
     # The plan is replayed pose by pose.
     cfg = load_config(cfg_file)
-    cfg = dataclasses.replace(cfg, calibrate=dataclasses.replace(cfg.calibrate, poses=str(out), target_sigma_mm=0.0,
-                                                                 target_sigma_deg=0.0, min_samples=5),
-                              session=dataclasses.replace(cfg.session, root=str(tmp_path / "s"), save_frames=False),
-                              viz=dataclasses.replace(cfg.viz, enabled=False))
+    cfg = cfg.model_copy(update={
+        "calibrate": cfg.calibrate.model_copy(update={"poses": str(out), "target_sigma_mm": 0.0, "target_sigma_deg": 0.0,
+                                                      "min_samples": 5}),
+        "session": cfg.session.model_copy(update={"root": str(tmp_path / "s"), "save_frames": False}),
+        "viz": cfg.viz.model_copy(update={"enabled": False})})
     run = calibrate(cfg, progress=False)
     assert run.report.stopped_by == "plan_done" and run.report.n_samples == 10 and run.report.n_skipped == 0
     A = np.array([o.T_base_flange for o in read_session(run.report.session).observations])

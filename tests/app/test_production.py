@@ -30,7 +30,7 @@ def _reference_session(root, n: int, rng) -> str:
     cfg = load_config(None)
     truth = RenderedCameraConfig(setup=cfg.setup)
     T_base_cam, T_flange_marker = np.array(truth.T_base_cam), np.array(truth.T_flange_marker)
-    T_start = kin.forward(np.array(cfg.robot["initial_q"]), "ur10")
+    T_start = kin.forward(np.array(cfg.robot.initial_q), "ur10")
     cov = np.eye(3) * 0.5e-3 ** 2
     with SessionWriter.create(root, "eye_to_hand", truth={"T_base_cam": T_base_cam}) as w:
         for i in range(n):
@@ -71,8 +71,8 @@ def test_demo_monitor_bump_alarms_and_exits_3(tmp_path, loopback, capsys, mosqui
     rc = main(["demo", "--monitor", "-c", _sim_toml(tmp_path, loopback(42), mqtt), "--reference", ref,
                "--bump-after", "3", "--bump-mm", "10", "--bump-deg", "0", "--max-samples", "14",
                "--no-frames", "--no-viz", "--session-root", str(tmp_path / "s")])
-    out = capsys.readouterr().out
-    assert rc == 3, out
+    out, err = capsys.readouterr()
+    assert rc == 3, out + err
     assert "change detector armed from its estimate and covariance" in out
     assert "running a looping production program" in out
     assert "simulated camera bumped by 10 mm" in out

@@ -69,15 +69,19 @@ def test_sigma_worst_axis():
 
 @pytest.mark.parametrize("data, match", [
     ({"setup": "sideways"}, "setup"),
-    ({"camera": {"setup": "eye_to_hand"}}, "camera.backend"),
-    ({"setup": "eye_in_hand"}, "camera.setup"),
+    ({"camera": {"setup": "eye_to_hand"}}, "camera: backend must be one of"),
+    ({"robot": {"type": "kuka"}}, "robot: type must be one of"),
+    ({"setup": "eye_in_hand", "camera": {"backend": "rendered", "setup": "eye_to_hand"}}, "camera.setup"),
+    ({"robot": {"type": "ur_sim", "host": "h", "speed": True}}, "robot.speed"),
+    ({"marker": {"marker_size": 0}}, "marker.marker_size"),
+    ({"monitor": {"online": {"forgetting": 2}}}, "monitor.online.forgetting"),
     ({"calibrate": {"samples": 2}}, "calibrate.samples"),
-    ({"calibrate": {"min_samples": 30}}, "calibrate.min_samples"),
+    ({"calibrate": {"min_samples": 30}}, "calibrate: min_samples"),
     ({"calibrate": {"refine": "yes"}}, "calibrate.refine"),
     ({"monitor": {"poll_s": 0}}, "monitor.poll_s"),
     ({"viz": {"enabled": 1}}, "viz.enabled"),
     ({"session": {"root": ""}}, "session.root"),
-    ({"bogus": 1}, "'bogus'"),
+    ({"bogus": 1}, "bogus: unknown key"),
     ({"viz": {"colour": True}}, "viz.colour"),
 ])
 def test_config_errors_name_the_field(data, match):
@@ -89,7 +93,10 @@ def test_config_sections_roundtrip():
     cfg = config_from_dict({"setup": "eye_in_hand", "camera": {"backend": "rendered", "setup": "eye_in_hand"},
                             "calibrate": {"samples": 5, "min_samples": 4}})
     assert cfg.setup == "eye_in_hand" and cfg.calibrate.samples == 5
-    assert dataclasses.asdict(config_from_dict(cfg.to_dict())) == cfg.to_dict()
+    assert config_from_dict(cfg.to_dict()) == cfg
+    # one setup: the rendered camera and the online estimator take the config's
+    assert cfg.camera.setup == "eye_in_hand" and cfg.monitor.online.setup == "eye_in_hand"
+    assert config_from_dict({"setup": "eye_in_hand"}).camera.setup == "eye_in_hand"
     assert Config().calibrate.method == "auto" and Config().monitor.method == "YKronT'"
 
 

@@ -23,9 +23,10 @@ def test_report_gives_the_ratio_and_marks_runs_that_missed_the_target():
                  lost_marker=0, limit_refused=0)
             for s, ms in (("optimal", (4, 5, 6)), ("random", (9, 10, 12)), ("fixed17", (17, 17, 17)))
             for k, m in enumerate(ms) for r in [not (s == "fixed17" and k == 0)]]
-    val = {"poses": 12000, "invalid_robot": 0, "invalid_view": 1, "no_valid_pose": 2, "cells": 300,
-           "wall_ms": [10.0, 20.0, 30.0], "cpu_ms": [10.0, 20.0, 30.0], "reached": [20, 30]}
+    val = {"poses": 12000, "invalid_robot": 0, "invalid_view": 1, "no_valid_pose": 2, "cells": 300, "check_calls": 4,
+           "check_cpu_s": 0.8, "wall_ms": [10.0, 20.0, 30.0], "cpu_ms": [10.0, 20.0, 30.0],
+           "cpu_planner_ms": [5.0, 6.0, 7.0], "reached": [20, 30]}
     text = format_report(runs, val, 1.0)
     assert "= 0.50 (target <= 0.5)" in text
     assert "| eye_to_hand | fixed17 | 3 | 2 | > 17 (not all reached) | 17*, 17, 17 |" in text
-    assert "1 invalid of 12000 planned poses" in text
+    assert "1 invalid of 12000 planned poses" in text and "| 200 (mean of 4) |" in text

@@ -102,7 +102,7 @@ def test_image_folder(tmp_path, capsys, poses_format):
 
     cfg = load_config(None)
     cam_cfg = RenderedCameraConfig(setup="eye_to_hand", seed=5)
-    T_start = kin.forward(np.array(cfg.robot["initial_q"]), "ur10")
+    T_start = kin.forward(np.array(cfg.robot.initial_q), "ur10")
     rng = np.random.default_rng(7)
     folder = tmp_path / "capture"
     folder.mkdir()

@@ -1,6 +1,5 @@
 """[frames]: the names every export uses; the camera frame is the optical frame, with a ROS camera_link beside it."""
 
-import dataclasses
 import json
 
 import numpy as np
@@ -8,7 +7,7 @@ import pytest
 import yaml
 
 from app import devices
-from app.config import load_config
+from app.config import config_from_dict, load_config
 from app.errors import ConfigError
 from app.formats.export import T_LINK_OPTICAL
 from calib import simulate
@@ -43,8 +42,9 @@ def test_every_export_uses_the_configured_frames(tmp_path):
 
 def test_frames_table_is_validated():
     cfg = load_config(None)
-    assert cfg.frames == {"base": "base", "flange": "flange", "camera": "camera", "marker": "marker"}
-    with pytest.raises(ConfigError, match="frames"):
-        devices.validate(dataclasses.replace(cfg, frames={"camera_link": "x"}))
+    assert cfg.frames.model_dump() == {"base": "base", "flange": "flange", "camera": "camera", "marker": "marker"}
+    assert config_from_dict({"frames": {"flange": "tool0"}}).frames.flange == "tool0"
+    with pytest.raises(ConfigError, match="frames.camera_link"):
+        config_from_dict({"frames": {"camera_link": "x"}})
     with pytest.raises(ConfigError, match="frames.camera"):
-        devices.validate(dataclasses.replace(cfg, frames={"camera": "has space"}))
+        config_from_dict({"frames": {"camera": "has space"}})

@@ -2,7 +2,7 @@
 
 import numpy as np
 
-from bench.faults import _fmt, _sim_path_violation, run_targets
+from bench.faults import format_row, sim_path_violation, run_targets
 from drivers.robot import ur_kinematics as kin
 from drivers.robot.ur import URRobot
 from mocks.ur_sim.motion import JointMotion, LinearMotion
@@ -16,11 +16,11 @@ def test_oracle_flags_a_singular_movel_and_a_box_violation():
     qb = qa.copy()
     qb[4] = -0.3
     m = LinearMotion(qa, kin.forward(qb, "ur10"), 0.25, 1.2, "ur10", np.eye(4), kin.UR_JOINT_LIMITS)
-    assert "wrist singularity" in _sim_path_violation(m, robot, robot.config.joint_limits, 0.008)
+    assert "wrist singularity" in sim_path_violation(m, robot, robot.config.joint_limits, 0.008)
     small = URRobot(robot_config("127.0.0.1", workspace_min=(0.0, -1.0, 0.0), workspace_max=(1.3, 1.0, 1.2)))
     q1 = np.array(START_Q)
     q1[0] = 2.5  # swings the arm behind the base, out of the box
-    assert "workspace" in _sim_path_violation(JointMotion(START_Q, q1, 1.0, 2.0), small, small.config.joint_limits,
+    assert "workspace" in sim_path_violation(JointMotion(START_Q, q1, 1.0, 2.0), small, small.config.joint_limits,
                                               0.008)
 
 
@@ -28,4 +28,4 @@ def test_target_campaign_sends_nothing_the_simulator_stops_on():
     row = run_targets(25, seed=3)
     assert row["accepted"] > 5 and row["refused"] > 0
     assert row["bad"] == 0 and row["clean"] == row["runs"] == 25
-    assert _fmt(row).startswith("| targets vs simulator execution | 25 | 25 | 0 | 0 | - |")
+    assert format_row(row).startswith("| targets vs simulator execution | 25 | 25 | 0 | 0 | - |")

@@ -123,15 +123,17 @@ def test_depth_problems_are_depth_errors(renderer):
 
 
 def test_target_config_validation_names_the_field():
-    with pytest.raises(ParameterError, match="marker.kind"):
+    with pytest.raises(ParameterError, match="TargetConfig.kind"):
         TargetConfig(kind="qr")
-    with pytest.raises(ParameterError, match="marker.marker_size"):
+    with pytest.raises(ParameterError, match="TargetConfig.marker_size"):
         TargetConfig(marker_size=-0.05)
-    with pytest.raises(ParameterError, match="unknown key marker.size"):
-        TargetConfig.from_dict({"size": 0.05})
+    with pytest.raises(ParameterError, match="TargetConfig.size: unknown key"):
+        TargetConfig(size=0.05)
+    with pytest.raises(ParameterError, match="TargetConfig.use_depth"):
+        TargetConfig(use_depth=1)  # no number for a boolean
     with pytest.raises(ParameterError, match="square_size"):
         TargetConfig(kind="charuco")
     with pytest.raises(ParameterError, match="depth_noise"):
         TargetConfig(depth_noise={"k": -1.0})
-    cfg = TargetConfig.from_dict({"dictionary": "DICT_APRILTAG_36h11", "depth_noise": {"k": 2e-3}})
+    cfg = TargetConfig(dictionary="DICT_APRILTAG_36h11", depth_noise={"k": 2e-3})
     assert cfg.depth_noise.k == 2e-3

@@ -38,7 +38,7 @@ def test_unknown_dictionary_is_named():
 
 
 def test_charuco_board_all_corners():
-    board = BoardSpec((5, 7), 0.04, 0.02, "DICT_6X6_250")
+    board = BoardSpec(squares=(5, 7), square_size=0.04, marker_size=0.02, dictionary="DICT_6X6_250")
     cv_board = cv2.aruco.CharucoBoard((5, 7), 0.04, 0.02, get_dictionary("DICT_6X6_250"))
     img = cv_board.generateImage((480, 640), marginSize=40)
     det = detect_charuco(img, board)
@@ -49,13 +49,13 @@ def test_charuco_board_all_corners():
 
 
 def test_charuco_too_few_corners_raises():
-    board = BoardSpec((5, 7), 0.04, 0.02, "DICT_6X6_250")
+    board = BoardSpec(squares=(5, 7), square_size=0.04, marker_size=0.02, dictionary="DICT_6X6_250")
     with pytest.raises(MarkerNotFoundError, match="0 corners"):
         detect_charuco(np.full((300, 300), 200, np.uint8), board)
 
 
 def test_chessboard():
-    board = BoardSpec((7, 5), 0.03)
+    board = BoardSpec(squares=(7, 5), square_size=0.03)
     sq = 40
     img = np.full((5 * sq + 80, 7 * sq + 80), 255, np.uint8)
     for r in range(5):
@@ -73,6 +73,6 @@ def test_chessboard():
 
 def test_board_spec_validation_names_field():
     with pytest.raises(ParameterError, match="marker_size"):
-        BoardSpec((5, 7), 0.03, 0.04)
+        BoardSpec(squares=(5, 7), square_size=0.03, marker_size=0.04)
     with pytest.raises(ParameterError, match="square_size"):
-        BoardSpec((5, 7), 0.0)
+        BoardSpec(squares=(5, 7), square_size=0.0)

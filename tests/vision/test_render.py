@@ -57,7 +57,7 @@ def test_renderer_rejects_distortion_and_tiny_plate():
                             0.05, 0.08, RenderNoise())
     with pytest.raises(ParameterError, match="plate_size"):
         MarkerSceneRenderer(INTR, "DICT_4X4_50", 0, 0.05, 0.05, RenderNoise())
-    with pytest.raises(ParameterError, match="noise.gain"):
+    with pytest.raises(ParameterError, match="RenderNoise.gain"):
         RenderNoise(gain=(1.2, 0.7))
 
 
