@@ -141,7 +141,8 @@ class CalibrateConfig(Params):
     ``lever_max_m`` bounds the flange-to-marker (eye-to-hand) or
     flange-to-camera (eye-in-hand) distance that the bootstrap's in-view
     guarantee assumes. ``travel_weight``: information (nats) one second of
-    motion is worth.
+    motion is worth. ``max_missed_frames``: the run gives up after this many
+    consecutive frames without a marker measurement, saying what the camera saw.
     """
 
     samples: Annotated[Int, Field(ge=3)] = 20
@@ -154,6 +155,7 @@ class CalibrateConfig(Params):
     settle_s: NonNegativeFloat = 0.1
     max_attempts: PositiveInt = 200
     image_margin_px: NonNegativeInt = 40
+    max_missed_frames: PositiveInt = 10
     depth_range_m: Annotated[tuple[NonNegativeFloat, NonNegativeFloat], AfterValidator(_range)] = (0.4, 2.0)
     max_view_angle_deg: Annotated[PositiveFloat, Field(lt=90.0)] = 60.0
     keep_out: list[Annotated[tuple[Vector3, Vector3], AfterValidator(_box)]] = Field(default_factory=list)
@@ -185,6 +187,11 @@ class MonitorConfig(Params):
     split like a shell line and must name a program on ``PATH``.
     ``[monitor.online]`` configures the online estimator and change detector
     (its setup is the config's).
+
+    Disk budget: frames (PNG) are kept for the last ``keep_frames`` samples
+    and skips only (default 100, the change detector's long window); the
+    rerun recording is rotated at ``max_recording_mb`` (the current file and
+    one previous, ``recording.old.rrd``, are kept).
     """
 
     still_s: NonNegativeFloat = 0.3
@@ -200,6 +207,8 @@ class MonitorConfig(Params):
     keep_recent: NonNegativeInt = 50
     method: Method = MONITOR_METHOD
     online: OnlineConfig = Field(default_factory=OnlineConfig)
+    keep_frames: NonNegativeInt = 100
+    max_recording_mb: PositiveFloat = 200.0
 
     @model_validator(mode="after")
     def _keep(self):

@@ -133,10 +133,9 @@ def import_observations(path: Path, setup: str | None):
     meta : dict
         What the importer found out (e.g. ``clock_offset_s`` of pose streams).
     """
-    from app.formats import SETUP_OPTION_FORMATS, detect_format, load
+    from app.formats import detect_format, get_format
 
-    fmt = detect_format(path)
-    # Only some formats may leave the setup open; the others state it.
-    options = {"setup": setup} if setup is not None and fmt in SETUP_OPTION_FORMATS else {}
-    imported = load(path, fmt, **options)
+    fmt = get_format(detect_format(path))
+    # Only formats whose files may leave the setup open take it; the others state it.
+    imported = fmt.load(path, **({"setup": setup} if setup is not None and fmt.open_setup else {}))
     return imported.observations, imported.setup, imported.meta

@@ -23,7 +23,7 @@ import logging
 import math
 import os
 import tempfile
-from collections import Counter
+from collections import Counter, deque
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -101,13 +101,17 @@ class Session:
         return {k: np.asarray(v, dtype=float) for k, v in (self.header.get("truth") or {}).items()}
 
     def load_frames(self, obs: Observation) -> tuple[np.ndarray | None, np.ndarray | None]:
-        """Color (H, W, 3) uint8 BGR and depth (H, W) float32 m of a sample, or None if not stored."""
+        """Color (H, W, 3) uint8 BGR and depth (H, W) float32 m of a sample, or None if not stored
+        (or pruned by a monitor's ``keep_frames`` budget)."""
         import cv2  # only needed when frames are asked for
 
         def load(key, flags):
             # Frame names come from the session's own lines: read them only inside the session.
             where = f"{self.path / 'samples.jsonl'} sample {obs.index}: {key}"
-            data = read_regular_file(inside(self.path, obs.meta[key], SessionError, what=where), SessionError)
+            file = inside(self.path, obs.meta[key], SessionError, what=where)
+            if not file.exists():
+                return None
+            data = read_regular_file(file, SessionError)
             try:
                 img = cv2.imdecode(np.frombuffer(data, np.uint8), flags) if data else None
             except cv2.error:
@@ -117,7 +121,9 @@ class Session:
             return img
 
         color = load("color", cv2.IMREAD_COLOR) if obs.meta.get("color") else None
-        depth = depth_from_mm(load("depth", cv2.IMREAD_UNCHANGED)) if obs.meta.get("depth") else None
+        depth = load("depth", cv2.IMREAD_UNCHANGED) if obs.meta.get("depth") else None
+        if depth is not None:
+            depth = depth_from_mm(depth)
         return color, depth
 
 
@@ -129,10 +135,14 @@ class SessionWriter:
     existing one (sample indices continue after the last recorded one).
     """
 
-    def __init__(self, path: Path, header: dict, next_index: int = 0):
+    def __init__(self, path: Path, header: dict, next_index: int = 0, *, keep_frames: int | None = None):
         self.path = Path(path)
         self.header = header
         self.next_index = next_index
+        # Disk budget (monitor): frames of only the last keep_frames samples/skips stay on disk.
+        self.keep_frames = keep_frames
+        self._frame_files: deque[list[Path]] = deque()
+        self.frames_pruned = 0
         self.n_samples = 0
         self.skip_reasons: Counter[str] = Counter()  # of this writer's run, for the summary
         self._lines = open(self.path / "samples.jsonl", "ab")
@@ -148,6 +158,7 @@ class SessionWriter:
         truth: dict | None = None,
         name: str | None = None,
         source: str = "handeye",
+        keep_frames: int | None = None,
     ) -> "SessionWriter":
         """Create ``root/<name or UTC timestamp>_<setup>/`` with ``session.json``.
 
@@ -160,6 +171,10 @@ class SessionWriter:
             ``width, height, fx, fy, cx, cy, dist`` of the color camera.
         truth : dict of (4, 4) arrays, optional
             Known true transforms (simulated cells), e.g. ``T_base_cam``.
+        keep_frames : int, optional
+            Keep the frame PNGs of only the last this many samples and skips
+            (older ones are deleted as new ones are written; their lines stay).
+            None keeps every frame.
         """
         setup = check_setup(setup, error=SessionError)
         now = _dt.datetime.now(_dt.timezone.utc)
@@ -182,7 +197,7 @@ class SessionWriter:
             "config": _jsonable(config) if config else None,
         }
         _fsync_write(path / "session.json", json.dumps(header, indent=2).encode())
-        return cls(path, header)
+        return cls(path, header, keep_frames=keep_frames)
 
     @classmethod
     def resume(cls, path: str | Path) -> "SessionWriter":
@@ -217,6 +232,12 @@ class SessionWriter:
                 raise SessionError(f"could not encode depth frame {index}")
             _fsync_write(self.path / name, buf.tobytes())
             files["depth"] = name
+        if files and self.keep_frames is not None:
+            self._frame_files.append([self.path / n for n in files.values()])
+            while len(self._frame_files) > self.keep_frames:
+                for old in self._frame_files.popleft():
+                    old.unlink(missing_ok=True)
+                self.frames_pruned += 1
         return files
 
     def add_sample(self, obs: Observation, *, color=None, depth=None) -> Observation:
@@ -259,6 +280,9 @@ class SessionWriter:
 
     def close(self) -> None:
         if not self._lines.closed:
+            if self.frames_pruned:
+                self.add_event(_dt.datetime.now(_dt.timezone.utc).timestamp(), "frames_pruned",
+                               n=self.frames_pruned, keep_frames=self.keep_frames)
             self._lines.close()
 
     def __enter__(self):

@@ -243,6 +243,7 @@ class Viz:
         self.viewer: Viewer | None = None
         self._recs: list = []
         self._live = None
+        self._file = None  # the stream writing rrd_path
         if not enabled:
             return
         # We report viewer trouble ourselves in one line; rerun's own log would repeat it every few seconds.
@@ -250,11 +251,10 @@ class Viz:
         import rerun as rr
 
         self._rr = rr
-        recording_id = str(uuid.uuid4())
+        recording_id = self._recording_id = str(uuid.uuid4())
         if rrd_path is not None:
-            rec = rr.RecordingStream("handeye", recording_id=recording_id)
-            rec.save(str(rrd_path), default_blueprint=blueprint(setup))
-            self._recs.append(rec)
+            self._file = self._open_file()
+            self._recs.append(self._file)
         if viewer:
             try:
                 self.viewer = Viewer.start(viewer_bind)
@@ -267,11 +267,35 @@ class Viz:
                 self._live.set_sinks(rr.GrpcSink(self.viewer.url))
                 self._live.send_blueprint(blueprint(setup))
                 self._recs.append(self._live)
-        self._log("world", rr.ViewCoordinates.RIGHT_HAND_Z_UP, static=True)
-        self._log("world/base", rr.TransformAxes3D(0.2), static=True)
-        self._log("events", rr.TextLog(f"setup: {setup}"), static=True)
+        for rec in self._recs:
+            self._log_static(rec)
         self._cam_path = "world/flange/camera" if self.setup.camera_on_flange else "world/camera"
         self._measured: list[np.ndarray] = []
+
+    def _open_file(self):
+        rec = self._rr.RecordingStream("handeye", recording_id=self._recording_id)
+        rec.save(str(self.rrd_path), default_blueprint=blueprint(self.setup))
+        return rec
+
+    def _log_static(self, rec) -> None:
+        rr = self._rr
+        rec.log("world", rr.ViewCoordinates.RIGHT_HAND_Z_UP, static=True)
+        rec.log("world/base", rr.TransformAxes3D(0.2), static=True)
+        rec.log("events", rr.TextLog(f"setup: {self.setup}"), static=True)
+
+    def rotate(self, max_bytes: float) -> None:
+        """Bounded disk for long runs: once the ``.rrd`` exceeds ``max_bytes``, it becomes
+        ``<name>.old.rrd`` (replacing the previous one) and a fresh file starts (same recording id)."""
+        if self._file is None or not self.rrd_path.exists() or self.rrd_path.stat().st_size <= max_bytes:
+            return
+        self._file.flush()
+        self._file.disconnect()
+        self._recs.remove(self._file)
+        self.rrd_path.replace(self.rrd_path.with_name(self.rrd_path.stem + ".old.rrd"))
+        self._file = self._open_file()
+        self._log_static(self._file)
+        self._recs.append(self._file)
+        log.info("rerun recording rotated at %.0f MB: %s", max_bytes / 1e6, self.rrd_path)
 
     def _drop_live(self, why: str) -> None:
         log.warning("rerun viewer %s; the run goes on%s", why,

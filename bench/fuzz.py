@@ -280,12 +280,28 @@ def _finite_result(res) -> str | None:
         v = getattr(res, name, None)
         if v is not None and not np.isfinite(np.asarray(v, dtype=float)).all():
             return f"{name} has NaN/inf"
+    bad = _nonfinite_in(getattr(res, "info", None), "info")
+    if bad:
+        return f"{bad} is NaN/inf"
     resid = getattr(res, "residuals", None)
     if resid is not None:
         for name in ("translation", "rotation"):
             v = getattr(resid, name, None)
             if v is not None and not np.isfinite(np.asarray(v, dtype=float)).all():
                 return f"residuals.{name} has NaN/inf"
+    return None
+
+
+def _nonfinite_in(value, where: str) -> str | None:
+    """Path of the first NaN/inf float inside nested dicts/lists/arrays, or None."""
+    if isinstance(value, dict):
+        return next((b for k, v in value.items() if (b := _nonfinite_in(v, f"{where}.{k}"))), None)
+    if isinstance(value, (list, tuple)):
+        return next((b for i, v in enumerate(value) if (b := _nonfinite_in(v, f"{where}[{i}]"))), None)
+    if isinstance(value, np.ndarray) and value.dtype.kind == "f":
+        return None if np.isfinite(value).all() else where
+    if isinstance(value, (float, np.floating)) and not np.isfinite(value):
+        return where
     return None
 
 
@@ -539,7 +555,6 @@ def _pick_file(case_dir: Path, rng: np.random.Generator) -> Path:
 
 def run_file_campaign(kind: str, n_cases: int, rng: np.random.Generator, work: Path, watch: _OpenWatch) -> Tally:
     """``n_cases`` damaged files of ``kind`` ("config", "session", "import")."""
-    import dataclasses
     import shutil
 
     from app import devices

@@ -14,6 +14,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--robot", action="store_true", help="also run the robot benchmark")
     p.add_argument("--faults", action="store_true",
                    help="run only the fault campaign (bench.faults: robot and simulator faults, minutes)")
+    p.add_argument("--fuzz", action="store_true",
+                   help="run only the input fuzz campaign (bench.fuzz: solver API, configs, sessions, imports; minutes)")
     p.add_argument("--plan", action="store_true", help="run only the pose-planning benchmark (bench.plan; "
                    "other arguments go to it)")
     p.add_argument("--model", action="store_true",
@@ -21,6 +23,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def run(args) -> int:
+    if args.fuzz:
+        from bench import fuzz
+
+        return int(fuzz.main(args.extra) or 0)
     if args.faults:
         from bench import faults
 

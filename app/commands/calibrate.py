@@ -78,8 +78,9 @@ class RunReport:
         Session directory (samples, frames, result, .rrd).
     n_samples, n_skipped : int
     stopped_by : str
-        ``"samples"``, ``"target_sigma"``, ``"max_attempts"``, ``"interrupted"``, or the pose
-        source's end (``"plan_done"``, ``"no_valid_pose"``, ``"no_estimate_after_bootstrap"``).
+        ``"samples"``, ``"target_sigma"``, ``"max_attempts"``, ``"interrupted"``, ``"no_marker"``
+        (gave up after ``calibrate.max_missed_frames`` consecutive frames without a marker), or the
+        pose source's end (``"plan_done"``, ``"no_valid_pose"``, ``"no_estimate_after_bootstrap"``).
     elapsed_s : float
     skip_reasons : dict
         ``{reason: count}`` of this run's skips.
@@ -226,6 +227,7 @@ def run_calibration(
             log.info("no estimate from the %d resumed samples: %s", len(observations), e)
     n_skipped = n_motions = 0
     robot_time = 0.0
+    missed = 0  # consecutive frames without a marker measurement
     stopped_by = "max_attempts"
     try:
         for attempt in range(cfg.max_attempts):
@@ -262,7 +264,17 @@ def run_calibration(
                               save_frames=save_frames, pose_kind=target.kind)
             if obs is None:
                 n_skipped += 1
+                missed += 1
+                if missed >= cfg.max_missed_frames:
+                    # The camera does not see the marker at all: more motions would not change that.
+                    stopped_by = "no_marker"
+                    saw = _what_the_camera_saw(writer.skip_reasons)
+                    log.error("gave up after %d consecutive frames without a marker; the camera saw: %s", missed, saw)
+                    writer.add_event(time.time(), "gave_up", missed_frames=missed, camera_saw=saw)
+                    viz.event(time.time(), f"gave up: {missed} frames without a marker ({saw})", "ERROR")
+                    break
                 continue
+            missed = 0
             observations.append(obs)
             if progress is not None:
                 progress.update(1)
@@ -309,6 +321,12 @@ def run_calibration(
                      dict(writer.skip_reasons), n_motions, robot_time)
 
 
+def _what_the_camera_saw(skip_reasons: dict) -> str:
+    """The most frequent skip reasons of this run, e.g. ``"10x marker 7 of DICT_4X4_50 not found"``."""
+    top = sorted(skip_reasons.items(), key=lambda kv: -kv[1])[:3]
+    return "; ".join(f"{n}x {why}" for why, n in top) or "nothing recorded"
+
+
 def _precise_enough(estimate: CalibrationResult, cfg: CalibrateConfig) -> bool:
     """Predicted 1-sigma of the camera transform below both targets (a target of 0 disables this)."""
     if estimate.sigma is None or cfg.target_sigma_mm <= 0 or cfg.target_sigma_deg <= 0:
@@ -334,6 +352,9 @@ def print_calibration_summary(out: CalibrationOutput) -> None:
     reasons = sorted(r.skip_reasons.items(), key=lambda kv: -kv[1])[:3]
     if reasons:
         print("most frequent skips: " + "; ".join(f"{n}x {why}" for why, n in reasons))
+    if r.stopped_by == "no_marker":
+        print("gave up: too many consecutive frames without a marker (calibrate.max_missed_frames); check that "
+              "the marker is in view and the [marker] section names it")
     if r.result is None:
         print(f"no calibration: {r.n_samples} samples are too few (every skip and its reason is in "
               f"{r.session / 'samples.jsonl'})")

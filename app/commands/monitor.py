@@ -43,6 +43,7 @@ from calib.result import CalibrationResult
 from calib.setup import Setup
 from calib.vision.extract import MarkerMeasurement
 from drivers.camera.base import Camera, RGBDFrame
+from drivers.errors import DeviceError
 from drivers.robot.base import Robot
 
 log = logging.getLogger(__name__)
@@ -171,7 +172,7 @@ def monitor(cfg: Config, *, reference: Path | None = None, stop=None, progress: 
             start_production(robot, cfg, rng, say=say)
         writer = SessionWriter.create(cfg.session.root, cfg.setup, config=cfg.to_dict(),
                                       intrinsics=dataclasses.asdict(camera.intrinsics), truth=devices.truth(camera),
-                                      source="handeye monitor")
+                                      source="handeye monitor", keep_frames=cfg.monitor.keep_frames)
         solve = devices.make_solve(cfg.calibrate.model_copy(update={"method": cfg.monitor.method}), cfg.setup, rng)
         with writer, devices.make_viz(cfg, writer.path) as viz, progress_bar(enabled=progress) as bar:
             seen = []
@@ -317,6 +318,7 @@ def run_monitor(
                 continue
             recent.append(obs.T_base_flange)
             report.n_samples += 1
+            viz.rotate(cfg.max_recording_mb * 1e6)
             if on_sample is not None:
                 on_sample(obs)
             update = online.update(obs.T_base_flange, obs.point_cam, obs.point_cov)
@@ -351,6 +353,11 @@ def run_monitor(
                 # Re-solve every reestimate_samples new samples: cheap, and improves as they accrue.
                 if n_after_alarm % cfg.reestimate_samples == 0:
                     report.reestimate = _reestimate(kept, solve, writer, viz) or report.reestimate
+    except DeviceError as e:
+        # As calibrate does: leave the reason in the session next to the samples it kept, then report it.
+        writer.add_event(time.time(), "device_error", error=str(e), n_samples=report.n_samples)
+        viz.event(time.time(), f"device error: {e}", "ERROR")
+        raise
     except KeyboardInterrupt:
         log.warning("monitor interrupted; %d samples kept in %s", report.n_samples, writer.path)
         writer.add_event(time.time(), "interrupted", n_samples=report.n_samples)

@@ -23,7 +23,9 @@ format                     path
 =========================  ===================================================
 
 ``format=None`` detects it from the file. Options: ``setup=`` for the formats
-that may not say (`SETUP_OPTION_FORMATS`); manifest overrides for ``pose_csv``.
+whose files may not say (``open_setup``); manifest overrides for ``pose_csv``. Each
+importer registers itself (`app.formats.registry.register_import`); a new
+format is one module plus its name in ``IMPORTER_MODULES``.
 
 Export (`app.formats.export`)::
 
@@ -43,120 +45,25 @@ This package imports neither rerun nor drivers.
 
 from __future__ import annotations
 
-import json
-from pathlib import Path
-
-import yaml
-
-from app.errors import SessionError
-from app.files import read_text_file
-
 from app.formats.common import DEFAULT_FRAMES, ImportedSamples
 from app.formats.export import EXPORT_FORMATS, result_to_dict, ros2_command, urdf_origin, write_result
-
-IMPORT_FORMATS = ("easy_handeye2", "easy_handeye", "industrial_calibration", "pose_csv", "visp", "image_folder",
-                  "opencv_storage", "moveit_calibration")
-#: Formats whose files may leave the setup open: they take a ``setup=`` option.
-SETUP_OPTION_FORMATS = ("easy_handeye2", "easy_handeye", "visp", "image_folder", "opencv_storage",
-                        "moveit_calibration")
-
-
-def detect_format(path) -> str:
-    """Name of the import format of ``path`` (one of `IMPORT_FORMATS`); `SessionError` if unknown."""
-    path = Path(path)
-    if path.is_dir():
-        if (path / "cal_data.yaml").exists():
-            return "industrial_calibration"
-        if (path / "streams.toml").exists():
-            return "pose_csv"
-        from app.formats.image_folder import is_image_folder
-        from app.formats.visp import is_visp_dir
-
-        if is_visp_dir(path):
-            return "visp"
-        if is_image_folder(path):
-            return "image_folder"
-        raise SessionError(f"{path}: directory holds none of cal_data.yaml, streams.toml, pose_fPe_<i>.yaml "
-                           "(ViSP), poses.csv|yaml|json + intrinsics.yaml|json (image folder)")
-    if path.suffix == ".toml":
-        return "pose_csv"
-    if path.suffix == ".samples":
-        return "easy_handeye2"
-    from app.formats.opencv_storage import is_opencv_storage
-
-    if is_opencv_storage(path):
-        return "opencv_storage"
-    if path.suffix == ".json":
-        from app.formats.moveit import looks_like_moveit
-
-        try:
-            if looks_like_moveit(json.loads(path.read_text())):
-                return "moveit_calibration"
-        except (OSError, UnicodeDecodeError, json.JSONDecodeError) as e:
-            raise SessionError(f"{path}: cannot read JSON ({e})") from e
-    try:
-        data = yaml.safe_load(read_text_file(path, SessionError))
-    except (yaml.YAMLError, RecursionError, ValueError) as e:
-        raise SessionError(f"{path}: cannot read ({str(e)[:200]})") from None
-    if isinstance(data, dict):
-        if "target_finder" in data and "data" in data:
-            return "industrial_calibration"
-        samples = data.get("samples", data)
-        if isinstance(samples, list) and samples and isinstance(samples[0], dict):
-            return "easy_handeye2" if "tracking" in samples[0] else "easy_handeye"
-        if isinstance(samples, dict) and "hand_world_samples" in samples:
-            return "easy_handeye"
-    if isinstance(data, list) and data and isinstance(data[0], dict) and "optical" in data[0]:
-        return "easy_handeye"
-    raise SessionError(f"{path}: not a known sample format ({', '.join(IMPORT_FORMATS)})")
+from app.formats.registry import detect_format, get_format, import_formats, register_import
 
 
 def load(path, format: str | None = None, **options) -> ImportedSamples:
     """Import samples from ``path`` (format detected if not given); see the module docstring."""
-    fmt = format or detect_format(path)
-    if fmt == "easy_handeye2":
-        from app.formats.easy_handeye import load_easy_handeye2
-
-        return load_easy_handeye2(path, **options)
-    if fmt == "easy_handeye":
-        from app.formats.easy_handeye import load_easy_handeye
-
-        return load_easy_handeye(path, **options)
-    if fmt == "industrial_calibration":
-        from app.formats.industrial import load_industrial_calibration
-
-        return load_industrial_calibration(path, **options)
-    if fmt == "pose_csv":
-        from app.formats.pose_csv import load_pose_streams
-
-        return load_pose_streams(path, **options)
-    if fmt == "visp":
-        from app.formats.visp import load_visp
-
-        return load_visp(path, **options)
-    if fmt == "image_folder":
-        from app.formats.image_folder import load_image_folder
-
-        return load_image_folder(path, **options)
-    if fmt == "opencv_storage":
-        from app.formats.opencv_storage import load_opencv_storage
-
-        return load_opencv_storage(path, **options)
-    if fmt == "moveit_calibration":
-        from app.formats.moveit import load_moveit
-
-        return load_moveit(path, **options)
-    raise SessionError(f"unknown import format {fmt!r} (use one of {IMPORT_FORMATS})")
+    return get_format(format or detect_format(path)).load(path, **options)
 
 
 __all__ = [
     "DEFAULT_FRAMES",
     "EXPORT_FORMATS",
-    "IMPORT_FORMATS",
-    "SETUP_OPTION_FORMATS",
     "ImportedSamples",
     "detect_format",
+    "get_format",
+    "import_formats",
     "load",
+    "register_import",
     "result_to_dict",
     "ros2_command",
     "urdf_origin",

@@ -32,6 +32,7 @@ from app.errors import SessionError
 from calib.setup import Setup, check_setup
 
 from app.formats.common import ImportedSamples, observations_from_poses, read_yaml, transform_from_msg
+from app.formats.registry import register_import
 
 # easy_handeye's names for the two setups (and ours).
 _SETUP_NAMES = {"eye_in_hand": Setup.EYE_IN_HAND, "eye_on_hand": Setup.EYE_IN_HAND,
@@ -85,6 +86,34 @@ def _build(robot, tracking, setup: Setup, path: Path, fmt: str, params: dict) ->
     return ImportedSamples(obs, setup, meta)
 
 
+def _sample_list(document):
+    """The first sample of an easy_handeye(2) YAML document's sample list, if it has one."""
+    data = document()
+    samples = data.get("samples", data) if isinstance(data, dict) else data
+    return samples[0] if isinstance(samples, list) and samples and isinstance(samples[0], dict) else None
+
+
+def _is_easy_handeye2(path: Path, document) -> bool:
+    if path.is_dir():
+        return False
+    if path.suffix == ".samples":
+        return True
+    first = _sample_list(document)
+    return isinstance(document(), dict) and first is not None and "tracking" in first
+
+
+def _is_easy_handeye(path: Path, document) -> bool:
+    if path.is_dir() or path.suffix in (".samples", ".toml"):
+        return False
+    data, first = document(), _sample_list(document)
+    if isinstance(data, dict):
+        samples = data.get("samples", data)
+        return ("tracking" not in first) if first is not None else (isinstance(samples, dict)
+                                                                     and "hand_world_samples" in samples)
+    return first is not None and "optical" in first
+
+
+@register_import("easy_handeye2", _is_easy_handeye2, open_setup=True)
 def load_easy_handeye2(path, *, setup: str | None = None) -> ImportedSamples:
     """Read an easy_handeye2 ``.samples`` file.
 
@@ -127,6 +156,7 @@ def _transform_list(value, where: str) -> list:
     return value
 
 
+@register_import("easy_handeye", _is_easy_handeye, open_setup=True)
 def load_easy_handeye(path, *, setup: str | None = None) -> ImportedSamples:
     """Read an easy_handeye (ROS 1) sample list (see the module docstring).
 

@@ -46,6 +46,7 @@ from calib.observation import Observation
 from calib.setup import Setup, check_setup
 
 from app.formats.common import ImportedSamples, read_yaml, transform_from_xyz_quat_fields
+from app.formats.registry import register_import
 
 log = logging.getLogger(__name__)
 
@@ -123,6 +124,11 @@ def _pose(row: dict, where: str) -> np.ndarray:
     return transform_from_xyz_quat_fields(row, where, _POSE_KEYS)
 
 
+def _detect(path: Path, document) -> bool:
+    return is_image_folder(Path(path))
+
+
+@register_import("image_folder", _detect, open_setup=True)
 def load_image_folder(path, setup: str | None = None) -> ImportedSamples:
     """Measure the target in every image of the folder and pair it with that image's robot pose."""
     from calib.vision.extract import extract

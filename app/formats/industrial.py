@@ -35,6 +35,7 @@ from calib.vision.lift import pnp_covariance, solve_pnp
 from calib.vision.markers import BoardSpec, Detection, detect_charuco
 
 from app.formats.common import ImportedSamples, observations_from_poses, read_yaml, transform_from_xyz_quat_fields
+from app.formats.registry import register_import
 
 log = logging.getLogger(__name__)
 
@@ -102,6 +103,14 @@ def _read_image(path: Path):
         return None
 
 
+def _is_industrial_calibration(path: Path, document) -> bool:
+    if path.is_dir():
+        return (path / "cal_data.yaml").exists()
+    data = document()
+    return isinstance(data, dict) and "target_finder" in data and "data" in data
+
+
+@register_import("industrial_calibration", _is_industrial_calibration)
 def load_industrial_calibration(path) -> ImportedSamples:
     """Read an industrial_calibration data set: poses, images -> target poses.
 
@@ -128,8 +137,11 @@ def load_industrial_calibration(path) -> ImportedSamples:
     intr = data["intrinsics"]
     try:
         fx, fy, cx, cy = (float(intr[k]) for k in ("fx", "fy", "cx", "cy"))
-    except (KeyError, TypeError, ValueError) as e:
-        raise ConfigError(f"{path}: intrinsics needs numeric fx, fy, cx, cy ({e})") from e
+    except (KeyError, TypeError, ValueError, OverflowError) as e:
+        raise ConfigError(f"{path}: intrinsics needs numeric fx, fy, cx, cy ({e})") from None
+    if not (np.isfinite([fx, fy, cx, cy]).all() and fx > 0 and fy > 0):
+        raise ConfigError(f"{path}: intrinsics fx, fy must be finite and > 0, cx, cy finite; "
+                          f"got {fx}, {fy}, {cx}, {cy}")
     K = np.array([[fx, 0, cx], [0, fy, cy], [0, 0, 1.0]])
     detect = make_detector(data["target_finder"], str(path))
     setup = Setup.EYE_TO_HAND if data.get("static_camera", False) else Setup.EYE_IN_HAND
@@ -150,6 +162,10 @@ def load_industrial_calibration(path) -> ImportedSamples:
         try:
             det = detect(image)
             T_cam_marker, cov, rms = pose_from_detection(det, K)
+        except (cv2.error, np.linalg.LinAlgError) as e:
+            # A board geometry no camera can see (e.g. a spacing of 1e300 m) breaks the PnP itself.
+            raise SessionError(f"{path}: data[{i}]: no target pose from {entry['image']!r} "
+                               f"(check target_finder and intrinsics): {str(e).splitlines()[0][:120]}") from None
         except ExtractionError as e:
             log.info("%s: skipping %s: %s", path, entry["image"], e)
             skipped.append({"image": entry["image"], "reason": str(e)})

@@ -29,6 +29,7 @@ from app.errors import SessionError
 from calib.setup import Setup, check_setup
 
 from app.formats.common import ImportedSamples, observations_from_poses
+from app.formats.registry import register_import
 
 
 def looks_like_moveit(data) -> bool:
@@ -39,6 +40,12 @@ def looks_like_moveit(data) -> bool:
         return False
 
 
+def _detect(path: Path, document) -> bool:
+    # JSON is YAML: the registry's parsed document serves.
+    return Path(path).suffix == ".json" and Path(path).is_file() and looks_like_moveit(document())
+
+
+@register_import("moveit_calibration", _detect, open_setup=True)
 def load_moveit(path, setup: str | None = None) -> ImportedSamples:
     """Read a MoveIt Calibration pose-sample JSON file (see the module docstring)."""
     path = Path(path)

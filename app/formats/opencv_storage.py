@@ -31,6 +31,7 @@ from calib import transforms as tf
 from calib.setup import Setup, check_setup
 
 from app.formats.common import ImportedSamples, observations_from_poses
+from app.formats.registry import register_import
 
 HEADER = "%YAML:1.0"
 
@@ -86,6 +87,11 @@ def _transforms(fs, name: str, path: Path) -> np.ndarray:
     return np.array(out).reshape(-1, 4, 4)
 
 
+def _detect(path: Path, document) -> bool:
+    return Path(path).is_file() and is_opencv_storage(Path(path))
+
+
+@register_import("opencv_storage", _detect, open_setup=True)
 def load_opencv_storage(path, setup: str | None = None) -> ImportedSamples:
     """Read gripper2base / target2cam pose pairs from an OpenCV FileStorage YAML file.
 

@@ -50,6 +50,7 @@ from calib.params import Bool, Float, Params, PositiveFloat, PositiveInt, Str, d
 from calib.setup import Setup
 
 from app.formats.common import DEFAULT_FRAMES, ImportedSamples
+from app.formats.registry import register_import
 
 log = logging.getLogger(__name__)
 
@@ -198,6 +199,11 @@ def residual_of_solve(method: str, setup: Setup):
     return f
 
 
+def _is_pose_streams(path: Path, document) -> bool:
+    return (path / "streams.toml").exists() if path.is_dir() else path.suffix == ".toml"
+
+
+@register_import("pose_csv", _is_pose_streams)
 def load_pose_streams(path, **overrides) -> ImportedSamples:
     """Pair a robot and a camera pose stream named by a TOML manifest.
 

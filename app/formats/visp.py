@@ -38,6 +38,7 @@ from calib import transforms as tf
 from calib.setup import Setup, check_setup
 
 from app.formats.common import ImportedSamples, observations_from_poses, read_yaml
+from app.formats.registry import register_import
 
 _NAME = re.compile(r"^pose_(fPe|cPo)_(\d+)\.yaml$")
 
@@ -59,6 +60,11 @@ def read_pose_vector(path: Path) -> np.ndarray:
     return tf.from_rotvec_translation(v[3:], v[:3])
 
 
+def _detect(path: Path, document) -> bool:
+    return is_visp_dir(Path(path))
+
+
+@register_import("visp", _detect, open_setup=True)
 def load_visp(path, setup: str | None = None) -> ImportedSamples:
     """Read a ViSP hand-eye data directory.
 

@@ -154,11 +154,13 @@ class URRobotConfig(Params):
     tcp_offset: Vector6 | None = None
     reach_tolerance: PositiveFloat = 0.005
     reach_tolerance_deg: PositiveFloat = 1.0
-    frozen_timeout: PositiveFloat = 0.25
+    frozen_timeout: PositiveFloat = 0.5
     connect_timeout: PositiveFloat = 5.0
     move_timeout: PositiveFloat = 60.0
     buffer_seconds: PositiveFloat = 5.0
-    path_step: PositiveFloat = 0.01
+    # Finer than 1 mm (1 mrad) only costs time (1e-7 made a target take 20 s); coarser
+    # than 5 cm could step over a limit or a singular region between two checks.
+    path_step: Annotated[Float, Field(ge=1e-3, le=0.05)] = 0.01
 
     @field_validator("model")
     @classmethod

@@ -21,6 +21,7 @@ from __future__ import annotations
 import math
 import re
 import threading
+from enum import IntEnum
 
 import numpy as np
 from scipy.spatial.transform import Rotation
@@ -37,21 +38,38 @@ SAFETY_BIT_NORMAL, SAFETY_BIT_PROTECTIVE = 1 << 0, 1 << 2
 SAFETY_BITS_EMERGENCY = (1 << 6) | (1 << 7)
 STATUS_POWER_ON, STATUS_PROGRAM_RUNNING = 1 << 0, 1 << 1
 
-CMD_NAMES = {
-    1: "movej",
-    2: "movej_ik",
-    3: "movel",
-    4: "movel_fk",
-    30: "get_inverse_kin",
-    31: "protective_stop",
-    33: "stopl",
-    34: "stopj",
-    40: "get_tcp_offset",
-    46: "get_inverse_kin",
-    47: "is_steady",
-    255: "stop_script",
-}
-MOTION_CMDS = {1, 2, 3, 4}
+class Command(IntEnum):
+    """Command codes of ur_rtde's control script (``input_int_register_0``) that the simulator executes."""
+
+    NONE = 0
+    MOVEJ = 1
+    MOVEJ_IK = 2
+    MOVEL = 3
+    MOVEL_FK = 4
+    GET_INVERSE_KIN = 30  # with q_near
+    PROTECTIVE_STOP = 31
+    STOPL = 33
+    STOPJ = 34
+    GET_TCP_OFFSET = 40
+    GET_INVERSE_KIN_AT_Q = 46  # near the current joints
+    IS_STEADY = 47
+    STOP_SCRIPT = 255
+
+    @property
+    def log_name(self) -> str:
+        """Name in the command log (``get_inverse_kin`` for both inverse-kinematics calls)."""
+        return "get_inverse_kin" if self is Command.GET_INVERSE_KIN_AT_Q else self.name.lower()
+
+
+class Reply(IntEnum):
+    """Script state the controller reports in ``output_int_register_0``."""
+
+    IDLE = 0
+    READY = 1  # signal_ready(): the next command may be written
+    DONE = 2  # signal_done_with_cmd()
+
+
+MOTION_CMDS = {Command.MOVEJ, Command.MOVEJ_IK, Command.MOVEL, Command.MOVEL_FK}
 N_REGISTERS = 48
 
 
@@ -263,7 +281,7 @@ class SimController:
             self.script_running = True
             self.executing = False
             self.pending_done = False
-            self._out_i(0, 1)  # signal_ready()
+            self._out_i(0, Reply.READY)
 
     def stop_script(self, reason: str) -> None:
         with self.lock:
@@ -272,7 +290,7 @@ class SimController:
             self.script_running = False
             self.executing = False
             self.pending_done = False
-            self._out_i(0, 0)
+            self._out_i(0, Reply.IDLE)
             if self.motion is not None and self.motion.kind != "stop":
                 self._stop_motion(decel=None)
 
@@ -327,27 +345,31 @@ class SimController:
             self._async_progress(False)
         self.motion_async = False
 
-    def _process(self, cmd: int) -> None:
+    def _process(self, code: int) -> None:
         """Start one script command (the register protocol of rtde_control.script)."""
-        name = CMD_NAMES.get(cmd, "unsupported")
+        try:
+            cmd = Command(code)
+        except ValueError:
+            cmd = None
+        name = "unsupported" if cmd is None else cmd.log_name
         args = self._in_d(0, 8).tolist()
-        self.log.append({"t": self.timestamp, "cmd": cmd, "name": name, "args": args})
+        self.log.append({"t": self.timestamp, "cmd": code, "name": name, "args": args})
         if cmd in MOTION_CMDS:
             target = self._in_d(0, 6)
             v, a = float(self._in_d(6)[0]), float(self._in_d(7)[0])
             asynchronous = self._in_i(1) == 1
-            if cmd == 2:
+            if cmd is Command.MOVEJ_IK:
                 q1 = kin.inverse_nearest(from_ur_pose(target) @ invert(self.T_flange_tcp), self.q, self.model, self.limits)
                 if q1 is None:
                     self.protective_stop("movej_ik: no inverse kinematics solution")
                     return
-                target, cmd = q1, 1
-            if cmd == 4:
-                target, cmd = to_ur_pose(kin.forward(target, self.model) @ self.T_flange_tcp), 3
+                target, cmd = q1, Command.MOVEJ
+            if cmd is Command.MOVEL_FK:
+                target, cmd = to_ur_pose(kin.forward(target, self.model) @ self.T_flange_tcp), Command.MOVEL
             if v <= 0 or a <= 0:
                 self.protective_stop(f"{name}: speed and acceleration must be positive")
                 return
-            if cmd == 1:
+            if cmd is Command.MOVEJ:
                 if np.any(target < self.limits[:, 0]) or np.any(target > self.limits[:, 1]):
                     self.protective_stop("movej: target outside joint limits")
                     return
@@ -355,25 +377,25 @@ class SimController:
             else:
                 motion = LinearMotion(self.q, from_ur_pose(target), v, a, self.model, self.T_flange_tcp, self.limits)
             self._start_motion(motion, asynchronous)
-        elif cmd in (33, 34):
-            self._stop_motion(decel=float(self._in_d(0)[0]) or None, linear=cmd == 33)
-        elif cmd == 40:
+        elif cmd in (Command.STOPL, Command.STOPJ):
+            self._stop_motion(decel=float(self._in_d(0)[0]) or None, linear=cmd is Command.STOPL)
+        elif cmd is Command.GET_TCP_OFFSET:
             self._out_d(0, self.tcp_offset)
-        elif cmd in (30, 46):
+        elif cmd in (Command.GET_INVERSE_KIN, Command.GET_INVERSE_KIN_AT_Q):
             pose = self._in_d(0, 6)
-            q_near = self._in_d(6, 6) if cmd == 30 else self.q
+            q_near = self._in_d(6, 6) if cmd is Command.GET_INVERSE_KIN else self.q
             q = kin.inverse_nearest(from_ur_pose(pose) @ invert(self.T_flange_tcp), q_near, self.model, self.limits)
             if q is None:
                 self.stop_script("get_inverse_kin: no solution")
                 return
             self._out_d(0, q)
-        elif cmd == 47:
+        elif cmd is Command.IS_STEADY:
             self._out_i(1, int(self.motion is None))
-        elif cmd == 31:
+        elif cmd is Command.PROTECTIVE_STOP:
             self.protective_stop("triggerProtectiveStop")
             return
         if not self.pending_done:
-            self._out_i(0, 2)  # signal_done_with_cmd()
+            self._out_i(0, Reply.DONE)
 
     def tick(self) -> None:
         """Advance one control cycle: script protocol, then arm motion."""
@@ -381,16 +403,17 @@ class SimController:
             self.ticks += 1
             if self.script_running:
                 cmd = self._in_i(0)
-                if cmd == 255:
-                    self.log.append({"t": self.timestamp, "cmd": 255, "name": "stop_script", "args": []})
+                if cmd == Command.STOP_SCRIPT:
+                    self.log.append({"t": self.timestamp, "cmd": int(Command.STOP_SCRIPT), "name": "stop_script",
+                                     "args": []})
                     self.stop_script("stopScript")
                 elif not self.executing:
-                    if cmd != 0:
+                    if cmd != Command.NONE:
                         self.executing = True
                         self._process(cmd)
-                elif cmd == 0 and not self.pending_done and self.script_running:
+                elif cmd == Command.NONE and not self.pending_done and self.script_running:
                     self.executing = False
-                    self._out_i(0, 1)
+                    self._out_i(0, Reply.READY)
             elif self.program is not None and self.safety_mode == SAFETY_NORMAL:
                 self.program.tick(self)
             self._advance()
@@ -419,7 +442,7 @@ class SimController:
                 self._async_progress(False)
             if self.pending_done and self.script_running:
                 self.pending_done = False
-                self._out_i(0, 2)
+                self._out_i(0, Reply.DONE)
 
     # ------------------------------------------------------------------ tools
     def set_q(self, q) -> None:

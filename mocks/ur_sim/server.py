@@ -32,6 +32,7 @@ import socket
 import struct
 import threading
 import time
+from enum import IntEnum
 
 from mocks.ur_sim.controller import SimController
 
@@ -40,8 +41,18 @@ log = logging.getLogger("ur_sim")
 PORT_DASHBOARD, PORT_SCRIPT, PORT_RTDE = 29999, 30003, 30004
 MAX_QUEUE_BYTES = 1 << 20
 
-# RTDE message types.
-V, v_, M, U, O, I, S, P = (ord(c) for c in "VvMUOISP")
+class MessageType(IntEnum):
+    """RTDE package types (RTDE guide), one ASCII letter each."""
+
+    REQUEST_PROTOCOL_VERSION = ord("V")
+    GET_URCONTROL_VERSION = ord("v")
+    TEXT_MESSAGE = ord("M")
+    DATA_PACKAGE = ord("U")
+    CONTROL_PACKAGE_SETUP_OUTPUTS = ord("O")
+    CONTROL_PACKAGE_SETUP_INPUTS = ord("I")
+    CONTROL_PACKAGE_START = ord("S")
+    CONTROL_PACKAGE_PAUSE = ord("P")
+
 
 TYPE_FMT = {
     "BOOL": "?",
@@ -207,14 +218,14 @@ class RTDEConnection(Connection):
 
     def handle(self, msg_type: int, body: bytes) -> None:
         ctl = self.server.controller
-        if msg_type == V:
+        if msg_type == MessageType.REQUEST_PROTOCOL_VERSION:
             (version,) = struct.unpack(">H", body[:2])
             ok = version in (1, 2)
             self.protocol = version if ok else self.protocol
-            self.send(_frame(V, struct.pack(">B", int(ok))))
-        elif msg_type == v_:
-            self.send(_frame(v_, struct.pack(">IIII", *ctl.version)))
-        elif msg_type == O:
+            self.send(_frame(MessageType.REQUEST_PROTOCOL_VERSION, struct.pack(">B", int(ok))))
+        elif msg_type == MessageType.GET_URCONTROL_VERSION:
+            self.send(_frame(MessageType.GET_URCONTROL_VERSION, struct.pack(">IIII", *ctl.version)))
+        elif msg_type == MessageType.CONTROL_PACKAGE_SETUP_OUTPUTS:
             freq = struct.unpack(">d", body[:8])[0] if self.protocol >= 2 else ctl.frequency
             names = [n for n in body[8 if self.protocol >= 2 else 0 :].decode().split(",") if n]
             types = [OUTPUT_TYPES.get(n, "NOT_FOUND") for n in names]
@@ -225,8 +236,9 @@ class RTDEConnection(Connection):
                 self.out_register = [ctl.register(n) is not None for n in names]
                 freq = min(max(freq, 1.0), ctl.frequency)
                 self.out_every = max(1, int(round(ctl.frequency / freq)))
-            self.send(_frame(O, struct.pack(">B", 1 if "NOT_FOUND" not in types else 0) + ",".join(types).encode()))
-        elif msg_type == I:
+            self.send(_frame(MessageType.CONTROL_PACKAGE_SETUP_OUTPUTS,
+                             struct.pack(">B", 1 if "NOT_FOUND" not in types else 0) + ",".join(types).encode()))
+        elif msg_type == MessageType.CONTROL_PACKAGE_SETUP_INPUTS:
             names = [n for n in body.decode().split(",") if n]
             types = [INPUT_TYPES.get(n, "NOT_FOUND") for n in names]
             in_use = self.server.claim_inputs(self, names)
@@ -236,14 +248,15 @@ class RTDEConnection(Connection):
                 recipe_id = self.next_in_id
                 self.next_in_id += 1
                 self.in_recipes[recipe_id] = (names, struct.Struct(">B" + "".join(TYPE_FMT[t] for t in types)))
-            self.send(_frame(I, struct.pack(">B", recipe_id) + ",".join(types).encode()))
-        elif msg_type == S:
+            self.send(_frame(MessageType.CONTROL_PACKAGE_SETUP_INPUTS,
+                             struct.pack(">B", recipe_id) + ",".join(types).encode()))
+        elif msg_type == MessageType.CONTROL_PACKAGE_START:
             self.started = self.out_struct is not None or bool(self.in_recipes)
-            self.send(_frame(S, struct.pack(">B", int(self.started))))
-        elif msg_type == P:
+            self.send(_frame(MessageType.CONTROL_PACKAGE_START, struct.pack(">B", int(self.started))))
+        elif msg_type == MessageType.CONTROL_PACKAGE_PAUSE:
             self.started = False
-            self.send(_frame(P, struct.pack(">B", 1)))
-        elif msg_type == U and body:
+            self.send(_frame(MessageType.CONTROL_PACKAGE_PAUSE, struct.pack(">B", 1)))
+        elif msg_type == MessageType.DATA_PACKAGE and body:
             recipe = self.in_recipes.get(body[0])
             if recipe is None or len(body) < recipe[1].size:
                 log.warning("input package for unknown recipe %d or too short (%d bytes)", body[0], len(body))
@@ -272,7 +285,7 @@ class RTDEConnection(Connection):
                 flat.extend(val)
             else:
                 flat.append(val)
-        self.send(_frame(U, self.out_struct.pack(*flat)))
+        self.send(_frame(MessageType.DATA_PACKAGE, self.out_struct.pack(*flat)))
 
 
 class SimServer:

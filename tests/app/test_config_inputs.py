@@ -46,8 +46,12 @@ def _edit(tmp_path, old, new, name="c.toml"):
     ("online = {}", "online = {forgetting = \"fast\"}", "monitor.online"),
     ("online = {}", "online = {reset_on_alarm = 1}", "monitor.online"),
     ("online = {}", "online = {bootstrap = true}", "monitor.online"),
-    ('method = "auto"             # every measurement', 'method = "bogus"  # the paper', "calibrate.method"),
+    ('method = "auto"', 'method = "bogus"', "calibrate.method"),
     ('root = "sessions"', 'root = "/etc/hostname/sessions"', "session.root"),
+    ("speed = 0.5", "speed = true", "speed"),
+    ("acceleration = 2.0", "acceleration = false", "acceleration"),
+    ("speed = 0.5", "speed = 0.5\npath_step = 1e-7", "path_step"),
+    ("speed = 0.5", "speed = 0.5\npath_step = 2.0", "path_step"),
 ])
 def test_bad_field_is_one_line_naming_field_and_file(tmp_path, capsys, old, new, field):
     p = _edit(tmp_path, old, new)
@@ -64,7 +68,7 @@ def test_unknown_method_on_the_command_line_fails_before_any_motion(capsys, loop
 
 
 def test_method_aliases_are_normalised(tmp_path):
-    cfg = load_config(_edit(tmp_path, 'method = "auto"             # every measurement', 'method = "yquatt"  # the paper'))
+    cfg = load_config(_edit(tmp_path, 'method = "auto"', 'method = "yquatt"'))
     assert cfg.calibrate.method == "YQuatT'"
 
 

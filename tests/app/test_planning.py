@@ -1,0 +1,85 @@
+"""app.planning without devices: the optimal pose source's stages, and plan files."""
+
+import json
+
+import numpy as np
+import pytest
+
+from app import planning
+from app.config import load_config
+from app.errors import SessionError
+from calib import transforms as tf
+from calib.observation import Observation
+from calib.planner import PlannerConfig, PosePlanner
+from drivers.camera.base import CameraIntrinsics
+from drivers.robot import ur_kinematics as kin
+from drivers.robot.base import RobotState
+
+INTR = CameraIntrinsics(640, 480, 570.0, 570.0, 319.5, 239.5)
+
+
+def _cell():
+    from mocks.render.camera import RenderedCameraConfig
+
+    cfg = load_config(None)
+    cam = RenderedCameraConfig(setup="eye_to_hand")
+    T0 = kin.forward(np.array(cfg.robot.initial_q), "ur10")
+    return cfg, cam.X, cam.Y, T0
+
+
+def _observe(X, Y, T, i):
+    B = tf.invert(Y) @ T @ X
+    return Observation(i, 0.0, T, B[:3, 3], np.eye(3) * 1e-7, B)
+
+
+def _state(T):
+    return RobotState(0.0, 0.0, T, np.zeros(6), np.zeros(6), 7, 1)
+
+
+def test_optimal_source_samples_the_start_then_bootstraps_then_plans():
+    cfg, X, Y, T0 = _cell()
+    view = planning.camera_view(cfg.calibrate, INTR, cfg.marker)
+    source = planning.OptimalPoses(cfg, T0, view, None, np.random.default_rng(0))
+    obs, kinds, state = [], [], _state(T0)
+    truth = PosePlanner(cfg.setup, X, Y, view, PlannerConfig(uncertainty_k=0))
+    for i in range(8):
+        target = source.next(state, None, obs)
+        kinds.append(target.kind)
+        assert truth.screen(target.T_base_flange[None])[0][0]  # in view under the truth
+        obs.append(_observe(X, Y, target.T_base_flange, i))
+        state = _state(target.T_base_flange)
+    # the early estimate (YQuatT' + ML, noise-free here) takes over after 3 samples
+    assert kinds[:3] == ["start", "bootstrap", "bootstrap"] and set(kinds[3:]) == {"optimal"}
+
+
+def test_optimal_source_gives_up_when_the_marker_is_never_seen_at_the_start():
+    cfg, X, Y, T0 = _cell()
+    source = planning.OptimalPoses(cfg, T0, planning.camera_view(cfg.calibrate, INTR, cfg.marker), None,
+                                   np.random.default_rng(0))
+    kinds = [getattr(source.next(_state(T0), None, []), "kind", None) for _ in range(planning.START_TRIES + 1)]
+    assert kinds == ["start"] * planning.START_TRIES + [None]
+    assert source.done_reason == "marker_not_seen_at_start"
+
+
+def test_resumed_session_without_a_start_sample_goes_back_to_the_start_first():
+    cfg, X, Y, T0 = _cell()
+    elsewhere = T0.copy()
+    elsewhere[:3, 3] += [0.05, 0.0, 0.0]
+    source = planning.OptimalPoses(cfg, T0, planning.camera_view(cfg.calibrate, INTR, cfg.marker), None,
+                                   np.random.default_rng(0))
+    target = source.next(_state(elsewhere), None, [_observe(X, Y, elsewhere, 0)])
+    assert target.kind == "start" and np.allclose(target.T_base_flange, T0)
+
+
+def test_plan_file_round_trip_and_named_errors(tmp_path):
+    cfg, X, Y, T0 = _cell()
+    doc, poses, _ = planning.make_plan(cfg, X, Y, T0, None, INTR, None, np.random.default_rng(0), prior="test", n=6)
+    path = planning.write_plan(doc, tmp_path / "plan.json")
+    back = planning.read_plan(path)
+    assert [p["kind"] for p in back["poses"]] == ["start"] + ["optimal"] * 5 and back["camera_transform"] == "T_base_cam"
+    assert np.allclose(back["poses"][3]["T_base_flange"], poses[3].T_base_flange)
+    bad = json.loads(path.read_text())
+    bad["version"] = 99
+    (tmp_path / "v.json").write_text(json.dumps(bad))
+    with pytest.raises(SessionError, match="version"):
+        planning.read_plan(tmp_path / "v.json")

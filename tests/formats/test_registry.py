@@ -1,0 +1,35 @@
+"""Import formats register themselves: a new one is found by detection, loaded, and named in errors."""
+
+import numpy as np
+import pytest
+
+from app.errors import SessionError
+from app.formats import ImportedSamples, detect_format, import_formats, load, register_import
+from calib.observation import Observation
+
+
+def _is_toy(path, document) -> bool:
+    return path.suffix == ".toyfmt"
+
+
+@register_import("toy", _is_toy)
+def load_toy(path) -> ImportedSamples:
+    n = int(path.read_text())
+    return ImportedSamples([Observation(i, float(i), np.eye(4), np.zeros(3)) for i in range(n)], "eye_to_hand",
+                           {"format": "toy"})
+
+
+def test_a_registered_format_is_detected_and_loaded(tmp_path):
+    p = tmp_path / "three.toyfmt"
+    p.write_text("3")
+    assert detect_format(p) == "toy" and len(load(p).observations) == 3
+    assert {"easy_handeye2", "easy_handeye", "industrial_calibration", "pose_csv", "toy"} <= set(import_formats())
+
+
+def test_unknown_files_and_formats_name_the_known_ones(tmp_path):
+    p = tmp_path / "x.txt"
+    p.write_text("just: text\n")
+    with pytest.raises(SessionError, match=r"not a known sample format \(.*pose_csv"):
+        detect_format(p)
+    with pytest.raises(SessionError, match="unknown import format 'nope'"):
+        load(p, "nope")
