@@ -188,10 +188,11 @@ class MonitorConfig(Params):
     ``[monitor.online]`` configures the online estimator and change detector
     (its setup is the config's).
 
-    Disk budget: frames (PNG) are kept for the last ``keep_frames`` samples
-    and skips only (default 100, the change detector's long window); the
-    rerun recording is rotated at ``max_recording_mb`` (the current file and
-    one previous, ``recording.old.rrd``, are kept).
+    Disk budget: frames (PNG) are kept only for samples the bounded set
+    still holds, and for at most the last ``keep_frames`` samples and skips
+    (default 100, the change detector's long window); the rerun recording is
+    rotated at ``max_recording_mb`` (the current file and one previous,
+    ``recording.old.rrd``, are kept).
     """
 
     still_s: NonNegativeFloat = 0.3

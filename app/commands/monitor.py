@@ -323,7 +323,9 @@ def run_monitor(
                 on_sample(obs)
             update = online.update(obs.T_base_flange, obs.point_cam, obs.point_cov)
             kept.append(obs)
-            _bound(kept, cfg, online)
+            dropped = _bound(kept, cfg, online)
+            if dropped is not None:
+                writer.drop_frames(dropped.index)  # disk budget: frames only for samples the estimate holds
             viz.sample(obs, update.camera_transform)
             if update.camera_transform is not None:
                 if reference is None:
@@ -363,21 +365,21 @@ def run_monitor(
         writer.add_event(time.time(), "interrupted", n_samples=report.n_samples)
     report.elapsed_s = time.monotonic() - t0
     report.kept = [o.index for o in kept]
-    writer.add_event(time.time(), "sample_set", indices=report.kept, keep_samples=cfg.keep_samples)
+    writer.add_event(time.time(), "sample_set", indices=report.kept, keep_samples=cfg.keep_samples,
+                     frames_pruned=writer.frames_pruned)
     return report
 
 
-def _bound(kept: list[Observation], cfg: MonitorConfig, online) -> None:
+def _bound(kept: list[Observation], cfg: MonitorConfig, online) -> Observation | None:
     """Hold at most ``cfg.keep_samples``: drop the least informative at the online estimate
-    (`calib.planner.least_informative`), the oldest while there is no estimate yet."""
+    (`calib.planner.least_informative`), the oldest while there is no estimate yet; returns the dropped one."""
     if not cfg.keep_samples or len(kept) <= cfg.keep_samples:
-        return
+        return None
     estimate = online.result()
     if estimate is None:
-        kept.pop(0)
-        return
+        return kept.pop(0)
     A = np.array([o.T_base_flange for o in kept])
-    kept.pop(least_informative(estimate.setup, estimate.X, estimate.Y, A, keep_recent=cfg.keep_recent))
+    return kept.pop(least_informative(estimate.setup, estimate.X, estimate.Y, A, keep_recent=cfg.keep_recent))
 
 
 def _raise_alarm(report: MonitorReport, obs: Observation, update, writer: SessionWriter, viz: Viz,
