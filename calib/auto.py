@@ -123,8 +123,11 @@ class _Candidate:
         self.fit, self.C, self.K, self.theta, self.noise, self.prob = fit, C, K, theta, noise, prob
         self.iterations, self.converged = iterations, converged
         cof = model.robot_cofactor(C, K, prob.M, fit.setup)
-        errors, _ = model.leave_one_out(prob, C, K, theta, noise.point_cov(fit.shape, cof))
-        self.loo = float(np.sqrt(np.mean(errors**2)))
+        try:
+            errors, _ = model.leave_one_out(prob, C, K, theta, noise.point_cov(fit.shape, cof))
+            self.loo = float(np.sqrt(np.mean(errors**2)))
+        except InsufficientDataError:
+            self.loo = float("inf")   # a sample the fit cannot do without: no held-out comparison
 
 
 def _better(cand: _Candidate, best: _Candidate) -> bool:

@@ -408,11 +408,17 @@ class URRobot(Robot):
 
         Raises
         ------
+        ConnectionLostError
+            ``t_host`` is not buffered because the stream dropped or froze.
         DeviceError
             ``t_host`` outside the buffered interval.
         """
         self._require_connected()
-        return self._buffer.pose_at(t_host)
+        try:
+            return self._buffer.pose_at(t_host)
+        except DeviceError:
+            self._check_stream()  # a frozen stream is the reason, not the time asked for
+            raise
 
     def buffered_span(self) -> tuple[float, float] | None:
         """(oldest, newest) host time in the pose buffer, or None if empty."""
