@@ -51,8 +51,6 @@ PLAN_VERSION = 1
 EARLY_SAMPLES = 3
 #: ... and the largest predicted 1-sigma (mm, deg) at which it is trusted to plan with.
 EARLY_MAX_SIGMA = (20.0, 2.0)
-#: Samples tried at the start pose before the run gives up (the marker must be seen there).
-START_TRIES = 3
 #: Poses a plan file may hold at most (a plan is a handful of motions, not a trajectory).
 MAX_PLAN_POSES = 1000
 
@@ -199,18 +197,14 @@ class OptimalPoses:
         self.pcfg = planner_config(cfg)
         self.reachable = reachable(robot)
         self.bootstrap: list[np.ndarray] | None = None
-        self.start_tries = 0
         self.done_reason = "max_attempts"
 
     def next(self, state, estimate, observations) -> Target | None:
         setup = self.cfg.setup
-        # The bootstrap's guarantee rests on a sample at the start pose (a resumed session may not have one).
+        # The bootstrap's guarantee rests on a sample at the start pose (a resumed session may not have one);
+        # while the marker is not seen there, the run's max_missed_frames ends it.
         at_start = [o for o in observations if _same_pose(o.T_base_flange, self.start)]
         if self.bootstrap is None and not at_start and estimate is None:
-            self.start_tries += 1
-            if self.start_tries > START_TRIES:
-                self.done_reason = "marker_not_seen_at_start"
-                return None
             return Target(self.start, "start", q=state.q if _same_pose(state.T_base_flange, self.start) else None)
         if self.bootstrap is None and at_start:
             first = at_start[0]
