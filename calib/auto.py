@@ -271,6 +271,7 @@ def solve_auto(A, B, *, setup: str, point_cov=None, camera_correction: str = "au
         notes.append(f"camera correction not attempted: {len(A_in)} samples, it needs {MIN_SAMPLES_CAMERA}")
         wanted = (False, False, False)
     fit, free = best.fit, np.zeros(3, dtype=bool)
+    data_sigma: dict[str, float] = {}
     for k, name in enumerate(model.CAMERA_PARAMS):
         if not wanted[k]:
             continue
@@ -278,6 +279,7 @@ def solve_auto(A, B, *, setup: str, point_cov=None, camera_correction: str = "au
         trial[k] = True
         probe, _ = fit.problem(best.C, best.K, best.noise, trial)
         sigmas = identifiability(model.information(probe, best.C, best.K, best.theta), trial, probe.n_pose)
+        data_sigma[name] = sigmas[name]
         if sigmas[name] > IDENTIFIABLE_SIGMA[name]:
             notes.append(f"{name} is not determined by these motions (1-sigma {_fmt(name, sigmas[name])}); "
                          f"kept at nominal: {_MOTION_HINT[name]}")
@@ -301,7 +303,7 @@ def solve_auto(A, B, *, setup: str, point_cov=None, camera_correction: str = "au
     full_cov = np.linalg.inv(info_mat)
     cov = model.camera_block(info_mat)
     if camera_correction != "none" and not free.all():
-        cov = cov + _consider(fit, C, K, theta, noise, free)
+        cov = cov + _consider(fit, C, K, theta, noise, free, data_sigma)
     sig_theta = np.zeros(3)
     sig_theta[free] = np.sqrt(np.diag(full_cov)[prob.n_pose:])
     correction = {
@@ -344,12 +346,15 @@ def solve_auto(A, B, *, setup: str, point_cov=None, camera_correction: str = "au
     )
 
 
-def _consider(fit, C, K, theta, noise, free) -> np.ndarray:
+def _consider(fit, C, K, theta, noise, free, data_sigma) -> np.ndarray:
     """Camera covariance (6, 6) added by the camera parameters left at nominal ("consider" covariance).
 
-    They are not estimated, but a real camera has such errors (`CONSIDER_SIGMA`):
-    the estimate moves by ``S dtheta_c`` with ``S = -N_xx^-1 N_xc`` for an
-    error ``dtheta_c``, so ``S diag(sigma_c^2) S^T`` joins the covariance.
+    They are not estimated, but a real camera has such errors: the estimate
+    moves by ``S dtheta_c`` with ``S = -N_xx^-1 N_xc`` for an error
+    ``dtheta_c``, so ``S diag(sigma_c^2) S^T`` joins the covariance, with
+    ``sigma_c`` the typical error (`CONSIDER_SIGMA`) or, if smaller, what the
+    data bound it to (``data_sigma``: 1-sigma with the parameter free; it was
+    left out because estimating it did not predict better).
     """
     prob, _ = fit.problem(C, K, noise, (True, True, True))
     info = model.information(prob, C, K, theta)
@@ -357,7 +362,8 @@ def _consider(fit, C, K, theta, noise, free) -> np.ndarray:
     x = np.r_[np.arange(n_pose), n_pose + np.flatnonzero(free)]
     c = n_pose + np.flatnonzero(~free)
     S = np.linalg.solve(info[np.ix_(x, x)], info[np.ix_(x, c)])[:6]
-    sig = np.array([CONSIDER_SIGMA[model.CAMERA_PARAMS[i - n_pose]] for i in c])
+    names = [model.CAMERA_PARAMS[i - n_pose] for i in c]
+    sig = np.array([min(CONSIDER_SIGMA[m], data_sigma.get(m, np.inf)) for m in names])
     out = (S * sig**2) @ S.T
     return 0.5 * (out + out.T)
 

@@ -56,6 +56,10 @@ class RenderNoise(Params):
         Projector-camera baseline, m.
     depth_bias_k : float
         Std of the per-frame systematic error coefficient ``eps`` in ``z += eps z^2``, 1/m.
+    depth_scale, depth_offset_m : float
+        Fixed systematic error of the sensor, ``z -> (1 + depth_scale) z + depth_offset_m``
+        before the disparity (an uncorrected structured-light camera: 1-2%, a few mm;
+        the ``realistic`` demo config, `calib.model.CameraCorrection`).
     edge_jump_m : float
         Depth jump between neighbours that leaves a hole, m.
     dropout : float
@@ -78,6 +82,8 @@ class RenderNoise(Params):
     disparity_step_px: NonNegativeFloat = 0.125
     baseline_m: PositiveFloat = 0.075
     depth_bias_k: NonNegativeFloat = 0.5e-3
+    depth_scale: Annotated[float, Field(gt=-0.5, lt=0.5)] = 0.0
+    depth_offset_m: Annotated[float, Field(gt=-0.1, lt=0.1)] = 0.0
     edge_jump_m: PositiveFloat = 0.03
     dropout: Annotated[NonNegativeFloat, Field(lt=1)] = 0.002
     depth_range_m: Range = (0.4, 4.0)
@@ -259,7 +265,7 @@ class MarkerSceneRenderer:
         valid &= rng.random(z_true.shape) >= nz.dropout
         eps = float(rng.normal(0.0, nz.depth_bias_k)) if nz.depth_bias_k > 0 else 0.0
         z = np.where(valid, z_true, 1.0).astype(float)
-        z = z + eps * z**2
+        z = (1.0 + nz.depth_scale) * z + nz.depth_offset_m + eps * z**2
         fb = self.intr.fx * nz.baseline_m
         disp = fb / z + rng.normal(0.0, nz.disparity_sigma_px, size=z.shape) if nz.disparity_sigma_px > 0 else fb / z
         if nz.disparity_step_px > 0:

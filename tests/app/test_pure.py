@@ -109,3 +109,12 @@ def test_stop_on_predicted_uncertainty():
     assert not _precise_enough(res, CalibrateConfig(target_sigma_mm=0.3, target_sigma_deg=0.05))
     assert not _precise_enough(res, CalibrateConfig(target_sigma_mm=0.5, target_sigma_deg=0.02))
     assert not _precise_enough(res, CalibrateConfig(target_sigma_mm=0.0, target_sigma_deg=0.0))  # 0 = off
+
+
+def test_realistic_demo_config_has_the_camera_depth_error():
+    """config/sim_realistic.toml: the simulated cell with a 1.5% / 3 mm depth error in the rendered camera."""
+    from app.config import load_config
+
+    cfg = load_config("config/sim_realistic.toml")
+    assert cfg.camera.noise.depth_scale == 0.015 and cfg.camera.noise.depth_offset_m == 0.003
+    assert cfg.calibrate.method == "auto"
