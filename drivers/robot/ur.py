@@ -154,7 +154,7 @@ class URRobotConfig(Params):
     tcp_offset: Vector6 | None = None
     reach_tolerance: PositiveFloat = 0.005
     reach_tolerance_deg: PositiveFloat = 1.0
-    frozen_timeout: PositiveFloat = 0.25
+    frozen_timeout: PositiveFloat = 0.5
     connect_timeout: PositiveFloat = 5.0
     move_timeout: PositiveFloat = 60.0
     buffer_seconds: PositiveFloat = 5.0
