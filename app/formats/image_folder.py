@@ -31,6 +31,7 @@ default eye-to-hand.
 from __future__ import annotations
 
 import csv
+import io
 import json
 import logging
 from pathlib import Path
@@ -40,6 +41,7 @@ import cv2
 import numpy as np
 
 from app.errors import ConfigError, SessionError
+from app.files import inside, read_regular_file, read_text_file
 from calib import transforms as tf
 from calib.errors import ExtractionError, HandeyeError, ParameterError
 from calib.observation import Observation
@@ -60,22 +62,31 @@ def is_image_folder(path: Path) -> bool:
         and any((path / f).exists() for f in INTRINSICS_FILES)
 
 
+def _image(path: Path, flags):
+    """Decoded image of a regular file, or None if it is not an image."""
+    data = read_regular_file(path, SessionError)
+    try:
+        return cv2.imdecode(np.frombuffer(data, np.uint8), flags) if data else None
+    except cv2.error:
+        return None
+
+
 def _read_mapping(path: Path):
     if path.suffix == ".json":
         try:
-            return json.loads(path.read_text())
-        except (OSError, UnicodeDecodeError, json.JSONDecodeError) as e:
-            raise SessionError(f"{path}: cannot read JSON ({e})") from None
+            return json.loads(read_text_file(path, SessionError))
+        except (ValueError, RecursionError) as e:  # JSONDecodeError is a ValueError
+            raise SessionError(f"{path}: cannot read JSON ({str(e)[:200]})") from None
     return read_yaml(path, allow_list=True)
 
 
 def _poses(folder: Path) -> tuple[list[dict], str | None, Path]:
     path = next(folder / f for f in POSE_FILES if (folder / f).exists())
     if path.suffix == ".csv":
+        text = read_text_file(path, SessionError)
         try:
-            with open(path, newline="") as f:
-                rows = list(csv.DictReader(f))
-        except (OSError, csv.Error, UnicodeDecodeError) as e:
+            rows = list(csv.DictReader(io.StringIO(text, newline="")))
+        except csv.Error as e:
             raise SessionError(f"{path}: cannot read CSV ({e})") from None
         return rows, None, path
     data = _read_mapping(path)
@@ -147,12 +158,13 @@ def load_image_folder(path, setup: str | None = None) -> ImportedSamples:
         if not isinstance(row, dict) or not row.get("image"):
             raise SessionError(f"{where}: needs an 'image' name")
         T_base_flange = _pose(row, where)
-        color = cv2.imread(str(folder / row["image"]), cv2.IMREAD_COLOR)
+        # Image names come from the pose file: read them only inside the folder.
+        color = _image(inside(folder, row["image"], SessionError, what=f"{where}: image"), cv2.IMREAD_COLOR)
         if color is None:
             raise SessionError(f"{where}: cannot read image {row['image']}")
         depth = None
         if row.get("depth"):
-            raw = cv2.imread(str(folder / row["depth"]), cv2.IMREAD_UNCHANGED)
+            raw = _image(inside(folder, row["depth"], SessionError, what=f"{where}: depth"), cv2.IMREAD_UNCHANGED)
             if raw is None or raw.ndim != 2:
                 raise SessionError(f"{where}: cannot read depth image {row['depth']} (16-bit PNG, mm)")
             depth = raw.astype(float) * 1e-3

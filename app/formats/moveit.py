@@ -26,6 +26,7 @@ from pathlib import Path
 import numpy as np
 
 from app.errors import SessionError
+from app.files import read_text_file
 from calib.setup import Setup, check_setup
 
 from app.formats.common import ImportedSamples, observations_from_poses
@@ -50,9 +51,9 @@ def load_moveit(path, setup: str | None = None) -> ImportedSamples:
     """Read a MoveIt Calibration pose-sample JSON file (see the module docstring)."""
     path = Path(path)
     try:
-        data = json.loads(path.read_text())
-    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as e:
-        raise SessionError(f"{path}: cannot read JSON ({e})") from None
+        data = json.loads(read_text_file(path, SessionError))
+    except (ValueError, RecursionError) as e:  # JSONDecodeError is a ValueError
+        raise SessionError(f"{path}: cannot read JSON ({str(e)[:200]})") from None
     if not isinstance(data, list) or not data:
         raise SessionError(f"{path}: expected a non-empty list of [effector_wrt_world, object_wrt_sensor] pairs")
     pairs = []

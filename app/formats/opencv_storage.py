@@ -27,6 +27,7 @@ import cv2
 import numpy as np
 
 from app.errors import SessionError
+from app.files import read_text_file
 from calib import transforms as tf
 from calib.setup import Setup, check_setup
 
@@ -38,6 +39,8 @@ HEADER = "%YAML:1.0"
 
 def is_opencv_storage(path: Path) -> bool:
     """True if the file starts with OpenCV's ``%YAML:1.0`` header (plain YAML readers reject it)."""
+    if not Path(path).is_file():  # a FIFO must never block detection
+        return False
     try:
         with open(path, "rb") as f:
             return f.read(len(HEADER)).decode(errors="replace") == HEADER
@@ -101,8 +104,10 @@ def load_opencv_storage(path, setup: str | None = None) -> ImportedSamples:
         ``T_base_flange`` from ``gripper2base``, ``T_cam_marker`` from ``target2cam``.
     """
     path = Path(path)
+    # Read through app.files (regular file, bounded, UTF-8), then parsed from memory by OpenCV.
+    text = read_text_file(path, SessionError)
     try:
-        fs = cv2.FileStorage(str(path), cv2.FILE_STORAGE_READ)
+        fs = cv2.FileStorage(text, cv2.FILE_STORAGE_READ | cv2.FILE_STORAGE_MEMORY)
     except cv2.error as e:
         raise SessionError(f"{path}: not an OpenCV FileStorage file ({str(e).strip().splitlines()[-1]})") from None
     if not fs.isOpened():

@@ -195,3 +195,37 @@ def test_industrial_any_value_anywhere(industrial, where, value):
     _set_path(doc, where, value)
     (root / "cal_data.yaml").write_text(yaml.safe_dump(doc))
     _load_or_error(root)
+
+
+@pytest.mark.parametrize("name", ["../../../../../../../../etc/hostname", "/etc/hostname"])
+def test_image_folder_cannot_read_outside_its_directory(tmp_path, name):
+    import json
+
+    (tmp_path / "intrinsics.yaml").write_text(
+        "image_width: 640\nimage_height: 480\ncamera_matrix:\n  rows: 3\n  cols: 3\n"
+        "  data: [500, 0, 320, 0, 500, 240, 0, 0, 1]\n"
+        "distortion_coefficients:\n  rows: 1\n  cols: 5\n  data: [0, 0, 0, 0, 0]\n")
+    row = {"image": name, "x": 0.5, "y": 0.0, "z": 0.5, "qx": 0.0, "qy": 0.0, "qz": 0.0, "qw": 1.0}
+    (tmp_path / "poses.json").write_text(json.dumps([row]))
+    with pytest.raises(SessionError, match="outside"):
+        load(tmp_path)
+
+
+@pytest.mark.timeout(20)
+def test_moveit_fifo_and_latin1_are_session_errors(tmp_path):
+    p = tmp_path / "samples.json"
+    p.write_bytes(b'[[caf\xe9]]')
+    with pytest.raises(SessionError, match="not UTF-8"):
+        load(p, format="moveit_calibration")
+    p.unlink()
+    os.mkfifo(p)
+    with pytest.raises(SessionError, match="not a regular file"):
+        load(p, format="moveit_calibration")
+
+
+@pytest.mark.timeout(20)
+def test_opencv_storage_fifo_is_refused_not_waited_on(tmp_path):
+    p = tmp_path / "calib.yaml"
+    os.mkfifo(p)
+    with pytest.raises(SessionError, match="not a regular file"):
+        load(p, format="opencv_storage")
