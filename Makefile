@@ -40,7 +40,8 @@ $(STAMP): pyproject.toml | sysdeps
 	@command -v $(PYTHON) >/dev/null || { echo "need $(PYTHON) (set PYTHON=...)"; exit 1; }
 	$(PYTHON) -m venv $(VENV)
 	$(BIN)/python -m pip install -q --upgrade pip
-	$(BIN)/python -m pip install -q -e '.[test,openni]'
+	@# setuptools' notice about editable installs is not actionable; keep the install quiet.
+	PYTHONWARNINGS=ignore $(BIN)/python -m pip install -q -e '.[test,openni]'
 	touch $(STAMP)
 
 clean:

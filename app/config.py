@@ -3,6 +3,7 @@
 Every table is a pydantic model (`calib.params.Params`: unknown keys rejected,
 numbers finite and never booleans): ``[calibrate]``, ``[monitor]`` (with
 ``[monitor.online]`` = `calib.online.OnlineConfig`), ``[session]``, ``[viz]``,
+``[frames]``, ``[mqtt]`` (`app.mqtt.MqttConfig`),
 ``[marker]`` = `calib.vision.extract.TargetConfig`, and ``[robot]`` /
 ``[camera]``, a union over the registered backends selected by ``type`` /
 ``backend`` (`drivers.robot.registry.ROBOTS`, `drivers.camera.registry.CAMERAS`;
@@ -27,6 +28,7 @@ from pydantic import AfterValidator, Discriminator, Field, Tag, ValidationError,
 
 from app import backends  # noqa: F401  every backend registers itself before the unions are built
 from app.errors import ConfigError
+from app.mqtt import MqttConfig
 from app.files import read_text_file
 from calib.online import OnlineConfig
 from calib.params import (
@@ -186,10 +188,11 @@ class MonitorConfig(Params):
     ``[monitor.online]`` configures the online estimator and change detector
     (its setup is the config's).
 
-    Disk budget: frames (PNG) are kept for the last ``keep_frames`` samples
-    and skips only (default 100, the change detector's long window); the
-    rerun recording is rotated at ``max_recording_mb`` (the current file and
-    one previous, ``recording.old.rrd``, are kept).
+    Disk budget: frames (PNG) are kept only for samples the bounded set
+    still holds, and for at most the last ``keep_frames`` samples and skips
+    (default 100, the change detector's long window); the rerun recording is
+    rotated at ``max_recording_mb`` (the current file and one previous,
+    ``recording.old.rrd``, are kept).
     """
 
     still_s: NonNegativeFloat = 0.3
@@ -238,6 +241,30 @@ class VizConfig(Params):
     viewer: Bool = False
     viewer_bind: NonEmptyStr = "127.0.0.1"
     log_images: Bool = True
+
+
+def _frame_name(name: str) -> str:
+    if any(c.isspace() for c in name):
+        raise ValueError(f"a frame name has no spaces, got {name!r}")
+    return name
+
+
+FrameName = Annotated[NonEmptyStr, AfterValidator(_frame_name)]
+
+
+class FramesConfig(Params):
+    """``[frames]``: the frame names every export uses (result files, ROS launch/URDF, MQTT).
+
+    ``camera`` is the camera's OPTICAL frame: z forward (the viewing direction),
+    x right, y down in the image (ROS REP 103's ``*_optical_frame``), not a ROS
+    ``camera_link``; ``flange`` is the flange or tool frame the marker (eye-to-hand)
+    or the camera (eye-in-hand) is mounted on, e.g. ``tool0``.
+    """
+
+    base: FrameName = "base"
+    flange: FrameName = "flange"
+    camera: FrameName = "camera"
+    marker: FrameName = "marker"
 
 
 def backend_union(registry: Registry):
@@ -302,6 +329,8 @@ class Config(Params):
     monitor: MonitorConfig = Field(default_factory=MonitorConfig)
     session: SessionConfig = Field(default_factory=SessionConfig)
     viz: VizConfig = Field(default_factory=VizConfig)
+    frames: FramesConfig = Field(default_factory=FramesConfig)
+    mqtt: MqttConfig = Field(default_factory=MqttConfig)
 
     @model_validator(mode="after")
     def _one_setup(self):

@@ -115,11 +115,12 @@ def make_online(cfg: Config):
     return OnlineCalibrator(cfg.monitor.online)
 
 
-def write_result(result, session: Path, formats) -> dict:
-    """Write the result in each export format into the session directory; returns ``{format: path}``."""
+def write_result(result, session: Path, formats, frames: dict | None = None) -> dict:
+    """Write the result in each export format into the session directory, with the ``[frames]``
+    names; returns ``{format: path}``."""
     from app.formats import write_result as export
 
-    return {fmt: export(result, Path(session) / RESULT_FILES[fmt], fmt) for fmt in formats}
+    return {fmt: export(result, Path(session) / RESULT_FILES[fmt], fmt, frames) for fmt in formats}
 
 
 def import_observations(path: Path, setup: str | None):

@@ -31,3 +31,26 @@ def show_sigma(bar, result) -> None:
         return
     s_rot, s_t = result.sigma
     bar.set_postfix_str(f"1σ {s_t * 1e3:.2f} mm {np.rad2deg(s_rot):.3f}°")
+
+
+def say(text: str) -> None:
+    """A status line for the user, above any open progress bar."""
+    from tqdm import tqdm
+
+    tqdm.write(text)
+
+
+def show_monitor(bar, report) -> None:
+    """Change detector state, live 1-sigma and drift beside the monitor's bar (``MonitorReport`` of `app.commands.monitor`)."""
+    if bar is None or not hasattr(bar, "set_postfix_str"):
+        return
+    n = report.samples_until_armed
+    parts = ["armed" if n == 0 else f"armed after {n}"]
+    if report.estimate_sigma is not None:
+        s_rot, s_t = report.estimate_sigma
+        parts.append(f"1σ {s_t * 1e3:.2f} mm {np.rad2deg(s_rot):.3f}°")
+    if report.drift is not None:
+        parts.append(f"drift {report.drift[0]:.1f} mm {report.drift[1]:.2f}°")
+    if report.alarms:
+        parts.append(f"ALARMS {len(report.alarms)}")
+    bar.set_postfix_str(", ".join(parts))

@@ -141,7 +141,7 @@ class SessionWriter:
         self.next_index = next_index
         # Disk budget (monitor): frames of only the last keep_frames samples/skips stay on disk.
         self.keep_frames = keep_frames
-        self._frame_files: deque[list[Path]] = deque()
+        self._frame_files: deque[int] = deque()  # indices whose frames are on disk, oldest first
         self.frames_pruned = 0
         self.n_samples = 0
         self.skip_reasons: Counter[str] = Counter()  # of this writer's run, for the summary
@@ -233,12 +233,20 @@ class SessionWriter:
             _fsync_write(self.path / name, buf.tobytes())
             files["depth"] = name
         if files and self.keep_frames is not None:
-            self._frame_files.append([self.path / n for n in files.values()])
+            self._frame_files.append(index)
             while len(self._frame_files) > self.keep_frames:
-                for old in self._frame_files.popleft():
-                    old.unlink(missing_ok=True)
-                self.frames_pruned += 1
+                self.drop_frames(self._frame_files.popleft())
         return files
+
+    def drop_frames(self, index: int) -> None:
+        """Delete the frame PNGs of sample/skip ``index`` (disk budget; its line stays and names them)."""
+        removed = False
+        for kind in ("color", "depth"):
+            f = self.path / f"frames/{index:06d}_{kind}.png"
+            if f.exists():
+                f.unlink()
+                removed = True
+        self.frames_pruned += removed
 
     def add_sample(self, obs: Observation, *, color=None, depth=None) -> Observation:
         """Record an accepted sample (frames first, then its line). Returns it with its index and file names.
@@ -280,9 +288,6 @@ class SessionWriter:
 
     def close(self) -> None:
         if not self._lines.closed:
-            if self.frames_pruned:
-                self.add_event(_dt.datetime.now(_dt.timezone.utc).timestamp(), "frames_pruned",
-                               n=self.frames_pruned, keep_frames=self.keep_frames)
             self._lines.close()
 
     def __enter__(self):

@@ -127,10 +127,17 @@ def errors(X, Y, d, n):
 # --------------------------------------------------------------------------- experiments
 
 
+def _steps(iterable, desc: str, total: int | None = None):
+    """The loop with a progress bar on stderr (tqdm; off when stderr is not a terminal)."""
+    from tqdm import tqdm
+
+    return tqdm(iterable, desc=desc, total=total, file=sys.stderr, leave=False, mininterval=0.5, disable=None)
+
+
 def experiment_sample_count(rng, counts, rounds):
     """errs[solver] -> array (len(counts), rounds, 3) of (rot deg, trans mm, reproj mm^2); NaN on failure."""
     errs = {s: np.full((len(counts), rounds, 3), np.nan) for s in SOLVERS}
-    for r in range(rounds):
+    for r in _steps(range(rounds), "rounds"):
         d = simulate.paper_setup(max(counts), rng)
         for k, n in enumerate(counts):
             for s in SOLVERS:
@@ -144,7 +151,7 @@ def experiment_sample_count(rng, counts, rounds):
 
 def experiment_noise(rng, levels, rounds, n):
     errs = {s: np.full((len(levels), rounds, 3), np.nan) for s in SOLVERS}
-    for k, s_level in enumerate(levels):
+    for k, s_level in _steps(enumerate(levels), "noise levels", len(levels)):
         for r in range(rounds):
             d = simulate.paper_setup(
                 n, rng,
@@ -164,7 +171,7 @@ def experiment_realistic(rng, rounds, n):
     names = SOLVERS + ["YKronT'+ML"]
     errs = {s: np.full((rounds, 3), np.nan) for s in names}
     crlb = np.zeros((rounds, 2))
-    for r in range(rounds):
+    for r in _steps(range(rounds), "rounds"):
         d = simulate.realistic_cell(n, rng)
         for s in SOLVERS:
             try:
@@ -187,7 +194,7 @@ def experiment_efficiency(rng, trials, counts):
             se = np.zeros((trials, 2))
             bound = np.zeros((trials, 2))
             ne = {"ML, given cov": [], "ML, default model": [], "closed form (delta)": [], "poses YQuatT'+ML": []}
-            for k in range(trials):
+            for k in _steps(range(trials), f"{setup} N={n}"):
                 d = simulate.realistic_cell(n, rng, setup=setup)
                 truth = d.Y if setup == Setup.EYE_TO_HAND else d.X
                 res = solve("YKronT'", d.A, d.points, setup=setup, refine=True, point_cov=d.point_cov)
@@ -214,7 +221,7 @@ def experiment_nees_methods(rng, trials, n):
     Returns {method: (cov_kind closed form, NEES closed form, NEES refined, ms per closed-form solve with cov)}.
     """
     rows = {m: ([], [], [], []) for m in METHODS}
-    for _ in range(trials):
+    for _ in _steps(range(trials), "trials"):
         d = simulate.realistic_cell(n, rng)
         for m, info in METHODS.items():
             B = d.points if info.needs == "points" else d.B
@@ -234,7 +241,7 @@ def experiment_nees_methods(rng, trials, n):
 
 def experiment_robust(rng, trials, n=60):
     rows = []
-    for fraction in (0.0, 0.1, 0.2, 0.3):
+    for fraction in _steps((0.0, 0.1, 0.2, 0.3), "outlier fractions"):
         err, ref, found, n_bad, false_rej, times = [], [], 0, 0, 0, []
         for _ in range(trials):
             d = simulate.realistic_cell(n, rng)
@@ -265,7 +272,7 @@ def experiment_online(rng, trials, n_quiet):
     cal = OnlineCalibrator(OnlineConfig(forgetting=0.999))
     d = simulate.realistic_cell(n_quiet, rng)
     times, alarms, max_stat = [], 0, 0.0
-    for i in range(n_quiet):
+    for i in _steps(range(n_quiet), "unchanged cell"):
         t0 = time.perf_counter()
         u = cal.update(d.A[i], d.points[i], d.point_cov[i])
         times.append(time.perf_counter() - t0)
@@ -281,7 +288,7 @@ def experiment_online(rng, trials, n_quiet):
     limit = 120
     for kind in ("1 cm, random direction", "0.5 deg, random axis", "0.5 deg, about the optical axis"):
         got = []
-        for _ in range(trials):
+        for _ in _steps(range(trials), kind):
             axis = rng.normal(size=3)
             axis /= np.linalg.norm(axis)
             if kind.startswith("1 cm"):
@@ -441,99 +448,110 @@ def _plot_realistic(path, errs, crlb):
     plt.close(fig)
 
 
-def _format_report(cfg, exp1, exp2, real, eff, nees_m, rob, onl, timing, elapsed):
+def _format_report(cfg, exp1=None, exp2=None, real=None, eff=None, nees_m=None, rob=None, onl=None, timing=None,
+                   elapsed=None):
+    """The markdown report of the experiments run so far (None = not run: its section is left out)."""
     counts, levels = cfg["counts"], cfg["levels"]
     out = [
         "# Solver benchmark (simulation, eye-to-hand unless noted)",
         "",
         f"`python -m bench.solvers{' --quick' if cfg['quick'] else ''}` — seed {cfg['seed']}, "
-        f"{elapsed:.0f} s on this machine, single-threaded BLAS. Errors of `Y = T_base_cam`: "
+        "single-threaded BLAS (run time at the end). Errors of `Y = T_base_cam`: "
         "rotation (deg), translation (mm), mean ± sd over rounds; reprojection = mean squared distance (mm²) "
         "between the marker point mapped through `A_i X` and through `Y B_i` (noise-free poses). "
         "YKronT' uses only the marker center (translation of B).",
         "",
-        f"## Experiment 1: error vs sample count (paper sec. V-A, {cfg['rounds1']} rounds, "
-        "|N_A| < 15° / 20 mm, |N_B| < 10° / 10 mm)",
-        "",
     ]
-    show = [k for k, n in enumerate(counts) if n in cfg["show_counts"]]
-    headers = ["method"] + [f"{h} N={counts[k]}" for k in show for h in ("rot", "trans", "reproj")]
-    rows = []
-    for s in SOLVERS:
-        row = [s]
-        for k in show:
-            row += [_ms(exp1[s][k, :, j]) for j in range(3)]
-        rows.append(row)
-    out += [_md_table(headers, rows), ""]
+    if exp1 is not None:
+        out += [f"## Experiment 1: error vs sample count (paper sec. V-A, {cfg['rounds1']} rounds, "
+                "|N_A| < 15° / 20 mm, |N_B| < 10° / 10 mm)", ""]
+        show = [k for k, n in enumerate(counts) if n in cfg["show_counts"]]
+        headers = ["method"] + [f"{h} N={counts[k]}" for k in show for h in ("rot", "trans", "reproj")]
+        rows = []
+        for s in SOLVERS:
+            row = [s]
+            for k in show:
+                row += [_ms(exp1[s][k, :, j]) for j in range(3)]
+            rows.append(row)
+        out += [_md_table(headers, rows), ""]
 
-    out += [f"## Experiment 2: error vs noise (N = {cfg['n_noise']}, {cfg['rounds2']} rounds; level 1 = "
-            "|N_A| < 30° / 60 mm, |N_B| < 20° / 30 mm)", ""]
-    show = cfg["show_levels"]
-    headers = ["method"] + [f"{h} @{levels[k]:.2f}" for k in show for h in ("rot", "trans")]
-    rows = [[s] + [_ms(exp2[s][k, :, j]) for k in show for j in range(2)] for s in SOLVERS]
-    out += [_md_table(headers, rows), ""]
+    if exp2 is not None:
+        out += [f"## Experiment 2: error vs noise (N = {cfg['n_noise']}, {cfg['rounds2']} rounds; level 1 = "
+                "|N_A| < 30° / 60 mm, |N_B| < 20° / 30 mm)", ""]
+        show = cfg["show_levels"]
+        headers = ["method"] + [f"{h} @{levels[k]:.2f}" for k in show for h in ("rot", "trans")]
+        rows = [[s] + [_ms(exp2[s][k, :, j]) for k in show for j in range(2)] for s in SOLVERS]
+        out += [_md_table(headers, rows), ""]
 
-    errs, crlb = real
-    out += [f"## Realistic cell (N = {cfg['n_real']}, {cfg['rounds_real']} rounds; camera 0.7 m away, flange "
-            "±0.15 m / ±40°, point noise 1 mm lateral / 3 mm along the ray, marker pose noise 1°)", ""]
-    rows = [[s, _ms(errs[s][:, 0]), _ms(errs[s][:, 1]), _ms(errs[s][:, 2])] for s in errs]
-    rows.append(["Cramér-Rao bound (RMS)", f"{np.sqrt(np.mean(crlb[:, 0] ** 2)):.3g}",
-                 f"{np.sqrt(np.mean(crlb[:, 1] ** 2)):.3g}", "—"])
-    out += [_md_table(["method", "rot (deg)", "trans (mm)", "reproj (mm²)"], rows), ""]
+    if real is not None:
+        errs, crlb = real
+        out += [f"## Realistic cell (N = {cfg['n_real']}, {cfg['rounds_real']} rounds; camera 0.7 m away, flange "
+                "±0.15 m / ±40°, point noise 1 mm lateral / 3 mm along the ray, marker pose noise 1°)", ""]
+        rows = [[s, _ms(errs[s][:, 0]), _ms(errs[s][:, 1]), _ms(errs[s][:, 2])] for s in errs]
+        rows.append(["Cramér-Rao bound (RMS)", f"{np.sqrt(np.mean(crlb[:, 0] ** 2)):.3g}",
+                     f"{np.sqrt(np.mean(crlb[:, 1] ** 2)):.3g}", "—"])
+        out += [_md_table(["method", "rot (deg)", "trans (mm)", "reproj (mm²)"], rows), ""]
 
-    out += [f"## ML refinement vs the Cramér-Rao bound, covariance honesty ({cfg['trials_eff']} trials each)", "",
-            "RMS error of the camera transform (`T_base_cam` eye-to-hand, `T_flange_cam` eye-in-hand) of "
-            "YKronT'+ML with the true point covariance, against the CRLB (sqrt of the trace of the rotation / "
-            "translation block of the inverse Fisher information at the truth). NEES should average 6.", ""]
-    rows = []
-    for setup, n, rms, bound, ne in eff:
-        rows.append([setup, n, f"{np.rad2deg(rms[0]):.4f} / {np.rad2deg(bound[0]):.4f} = {rms[0] / bound[0]:.3f}",
-                     f"{1e3 * rms[1]:.3f} / {1e3 * bound[1]:.3f} = {rms[1] / bound[1]:.3f}"]
-                    + [f"{v:.2f}" for v in ne.values()])
-    out += [_md_table(["setup", "N", "rot RMS / CRLB (deg)", "trans RMS / CRLB (mm)"]
-                      + [f"NEES {k}" for k in eff[0][4]], rows), ""]
+    if eff is not None:
+        out += [f"## ML refinement vs the Cramér-Rao bound, covariance honesty ({cfg['trials_eff']} trials each)", "",
+                "RMS error of the camera transform (`T_base_cam` eye-to-hand, `T_flange_cam` eye-in-hand) of "
+                "YKronT'+ML with the true point covariance, against the CRLB (sqrt of the trace of the rotation / "
+                "translation block of the inverse Fisher information at the truth). NEES should average 6.", ""]
+        rows = []
+        for setup, n, rms, bound, ne in eff:
+            rows.append([setup, n, f"{np.rad2deg(rms[0]):.4f} / {np.rad2deg(bound[0]):.4f} = {rms[0] / bound[0]:.3f}",
+                         f"{1e3 * rms[1]:.3f} / {1e3 * bound[1]:.3f} = {rms[1] / bound[1]:.3f}"]
+                        + [f"{v:.2f}" for v in ne.values()])
+        out += [_md_table(["setup", "N", "rot RMS / CRLB (deg)", "trans RMS / CRLB (mm)"]
+                          + [f"NEES {k}" for k in eff[0][4]], rows), ""]
 
-    out += [f"## Covariance honesty per method ({cfg['trials_nees']} trials, realistic cell N = {cfg['n_nees']}, "
-            "eye-to-hand, true point covariance given)", "",
-            "Mean NEES of `solve(...).cov` for `Y = T_base_cam` (6 if honest). Closed form: the first-order "
-            "covariance of the closed-form estimator itself (`info[\"cov_kind\"]`: delta-analytic for YKronT', "
-            "delta-numerical for the pose methods up to 100 samples); refined: the inverse Fisher information "
-            "of the ML estimate (method+ML). Time: median ms of one closed-form `solve` including its covariance.", ""]
-    rows = [[m, kind, f"{a:.2f}", f"{b:.2f}", f"{t:.3g}"] for m, (kind, a, b, t) in nees_m.items()]
-    out += [_md_table(["method", "cov_kind (closed form)", "NEES closed form", "NEES refined (+ML)",
-                       "closed form + cov (ms)"], rows), ""]
+    if nees_m is not None:
+        out += [f"## Covariance honesty per method ({cfg['trials_nees']} trials, realistic cell N = {cfg['n_nees']}, "
+                "eye-to-hand, true point covariance given)", "",
+                "Mean NEES of `solve(...).cov` for `Y = T_base_cam` (6 if honest). Closed form: the first-order "
+                "covariance of the closed-form estimator itself (`info[\"cov_kind\"]`: delta-analytic for YKronT', "
+                "delta-numerical for the pose methods up to 100 samples); refined: the inverse Fisher information "
+                "of the ML estimate (method+ML). Time: median ms of one closed-form `solve` including its covariance.", ""]
+        rows = [[m, kind, f"{a:.2f}", f"{b:.2f}", f"{t:.3g}"] for m, (kind, a, b, t) in nees_m.items()]
+        out += [_md_table(["method", "cov_kind (closed form)", "NEES closed form", "NEES refined (+ML)",
+                           "closed form + cov (ms)"], rows), ""]
 
-    out += [f"## Robustness: gross outliers (N = 60, {cfg['trials_rob']} trials; half wrong depth +5..30%, "
-            "half wrong marker 5..20 cm off)", "",
-            "Ratio = RMS error of YKronT' + LMedS over that of YKronT' on the uncorrupted samples alone.", ""]
-    rows = [[f"{100 * f:.0f}%", f"{r[0]:.3f}", f"{r[1]:.3f}", f"{rr:.3f}", f"{100 * found:.1f}%",
-             f"{100 * fr:.2f}%", f"{t:.0f}"]
-            for f, r, found, fr, t, rr, rt in [(x[0], x[1], x[2], x[3], x[4], x[5], x[6]) for x in rob]]
-    out += [_md_table(["outliers", "rot ratio", "trans ratio", "rot RMS (deg)", "outliers found",
-                       "inliers rejected", "time (ms)"], rows), ""]
+    if rob is not None:
+        out += [f"## Robustness: gross outliers (N = 60, {cfg['trials_rob']} trials; half wrong depth +5..30%, "
+                "half wrong marker 5..20 cm off)", "",
+                "Ratio = RMS error of YKronT' + LMedS over that of YKronT' on the uncorrupted samples alone.", ""]
+        rows = [[f"{100 * f:.0f}%", f"{r[0]:.3f}", f"{r[1]:.3f}", f"{rr:.3f}", f"{100 * found:.1f}%",
+                 f"{100 * fr:.2f}%", f"{t:.0f}"]
+                for f, r, found, fr, t, rr, rt in [(x[0], x[1], x[2], x[3], x[4], x[5], x[6]) for x in rob]]
+        out += [_md_table(["outliers", "rot ratio", "trans ratio", "rot RMS (deg)", "outliers found",
+                           "inliers rejected", "time (ms)"], rows), ""]
 
-    quiet, delays = onl
-    out += ["## Online calibrator and change detector", "",
-            f"Unchanged cell, {quiet['samples']} samples, forgetting 0.999: **{quiet['alarms']} false alarms** "
-            f"(max GLR statistic {quiet['max_stat']:.1f}, threshold {quiet['threshold']:.1f}); final error "
-            f"{quiet['rot_deg']:.4f} deg / {quiet['t_mm']:.3f} mm, NEES {quiet['nees']:.2f}; "
-            f"update {quiet['update_us']:.0f} µs (median, one thread; {quiet['update_us_1']:.0f} µs with forgetting 1, "
-            "the default). "
-            f"Mean NEES after 200 samples (forgetting 1) over the {quiet['nees_trials']} streams below: "
-            f"{quiet['nees_mean']:.2f}.", "",
-            f"Detection delay after the camera moves (samples; {cfg['trials_onl']} trials, "
-            "GLR windows 20 and 100, false-alarm rate 1e-7 per sample, inf = not within 120):", ""]
-    rows = []
-    for kind, v in delays.items():
-        fin = v[np.isfinite(v)]
-        rows.append([kind, f"{np.median(v):.0f}", f"{np.max(v):.0f}", f"{100 * np.mean(v <= 20):.0f}%",
-                     f"{np.mean(fin):.1f}" if len(fin) else "—"])
-    out += [_md_table(["move", "median delay", "max delay", "detected within 20", "mean delay (detected)"],
-                      rows), ""]
+    if onl is not None:
+        quiet, delays = onl
+        out += ["## Online calibrator and change detector", "",
+                f"Unchanged cell, {quiet['samples']} samples, forgetting 0.999: **{quiet['alarms']} false alarms** "
+                f"(max GLR statistic {quiet['max_stat']:.1f}, threshold {quiet['threshold']:.1f}); final error "
+                f"{quiet['rot_deg']:.4f} deg / {quiet['t_mm']:.3f} mm, NEES {quiet['nees']:.2f}; "
+                f"update {quiet['update_us']:.0f} µs (median, one thread; {quiet['update_us_1']:.0f} µs with forgetting 1, "
+                "the default). "
+                f"Mean NEES after 200 samples (forgetting 1) over the {quiet['nees_trials']} streams below: "
+                f"{quiet['nees_mean']:.2f}.", "",
+                f"Detection delay after the camera moves (samples; {cfg['trials_onl']} trials, "
+                "GLR windows 20 and 100, false-alarm rate 1e-7 per sample, inf = not within 120):", ""]
+        rows = []
+        for kind, v in delays.items():
+            fin = v[np.isfinite(v)]
+            rows.append([kind, f"{np.median(v):.0f}", f"{np.max(v):.0f}", f"{100 * np.mean(v <= 20):.0f}%",
+                         f"{np.mean(fin):.1f}" if len(fin) else "—"])
+        out += [_md_table(["move", "median delay", "max delay", "detected within 20", "mean delay (detected)"],
+                          rows), ""]
 
-    out += ["## Timing (median ms, realistic-cell data, one thread; — = skipped in --quick)", ""]
-    rows = [[s] + [f"{v:.3g}" if np.isfinite(v) else "—" for v in vals] for s, vals in timing.items()]
-    out += [_md_table(["solver"] + [f"N={n}" for n in cfg["time_counts"]], rows), ""]
+    if timing is not None:
+        out += ["## Timing (median ms, realistic-cell data, one thread; — = skipped in --quick)", ""]
+        rows = [[s] + [f"{v:.3g}" if np.isfinite(v) else "—" for v in vals] for s, vals in timing.items()]
+        out += [_md_table(["solver"] + [f"N={n}" for n in cfg["time_counts"]], rows), ""]
+    if elapsed is not None:
+        out += [f"Run time: {elapsed:.0f} s on this machine."]
     return "\n".join(out)
 
 
@@ -572,25 +590,56 @@ def main(argv=None) -> int:
     out.mkdir(parents=True, exist_ok=True)
     rng = np.random.default_rng(args.seed)
     t0 = time.perf_counter()
+    # In report order: each section is printed (and flushed) as soon as its experiment is done.
+    stages = [
+        ("exp1", "experiment 1: error vs sample count",
+         lambda: experiment_sample_count(rng, cfg["counts"], cfg["rounds1"])),
+        ("exp2", "experiment 2: error vs noise", lambda: experiment_noise(rng, cfg["levels"], cfg["rounds2"], cfg["n_noise"])),
+        ("real", "realistic cell", lambda: experiment_realistic(rng, cfg["rounds_real"], cfg["n_real"])),
+        ("eff", "ML refinement vs the Cramér-Rao bound", lambda: experiment_efficiency(rng, cfg["trials_eff"],
+                                                                                       cfg["eff_counts"])),
+        ("nees_m", "covariance honesty per method", lambda: experiment_nees_methods(rng, cfg["trials_nees"],
+                                                                                   cfg["n_nees"])),
+        ("rob", "robustness to gross outliers", lambda: experiment_robust(rng, cfg["trials_rob"])),
+        ("onl", "online calibrator and change detector", lambda: experiment_online(rng, cfg["trials_onl"],
+                                                                                   cfg["n_quiet"])),
+        ("timing", "timing", lambda: experiment_timing(rng, cfg["time_counts"], cfg["time_repeats"],
+                                                       skip_slow=cfg["quick"])),
+    ]
+    results: dict = {}
+    printed = ""
+    interrupted, current = False, ""
+    try:
+        for i, (key, title, run) in enumerate(stages, start=1):
+            current = title
+            print(f"bench.solvers [{i}/{len(stages)}] {title} ({time.perf_counter() - t0:.0f} s so far)",
+                  file=sys.stderr, flush=True)
+            results[key] = run()
+            text = _format_report(cfg, **results)
+            print(text[len(printed):], end="", flush=True)
+            printed = text
+    except KeyboardInterrupt:
+        interrupted = True
 
-    exp1 = experiment_sample_count(rng, cfg["counts"], cfg["rounds1"])
-    exp2 = experiment_noise(rng, cfg["levels"], cfg["rounds2"], cfg["n_noise"])
-    real = experiment_realistic(rng, cfg["rounds_real"], cfg["n_real"])
-    eff = experiment_efficiency(rng, cfg["trials_eff"], cfg["eff_counts"])
-    nees_m = experiment_nees_methods(rng, cfg["trials_nees"], cfg["n_nees"])
-    rob = experiment_robust(rng, cfg["trials_rob"])
-    onl = experiment_online(rng, cfg["trials_onl"], cfg["n_quiet"])
-    timing = experiment_timing(rng, cfg["time_counts"], cfg["time_repeats"], skip_slow=cfg["quick"])
-
-    _plot_curves(out / "solvers_samples.png", cfg["counts"], exp1, "number of samples",
-                 "Experiment 1: error vs sample count")
-    _plot_curves(out / "solvers_noise.png", cfg["levels"], exp2, "noise level (1 = 30°/60 mm on A, 20°/30 mm on B)",
-                 "Experiment 2: error vs noise")
-    _plot_realistic(out / "solvers_realistic.png", *real)
-    report = _format_report(cfg, exp1, exp2, real, eff, nees_m, rob, onl, timing, time.perf_counter() - t0)
-    report += "\nPlots: `solvers_samples.png`, `solvers_noise.png`, `solvers_realistic.png`.\n"
+    if "exp1" in results:
+        _plot_curves(out / "solvers_samples.png", cfg["counts"], results["exp1"], "number of samples",
+                     "Experiment 1: error vs sample count")
+    if "exp2" in results:
+        _plot_curves(out / "solvers_noise.png", cfg["levels"], results["exp2"],
+                     "noise level (1 = 30°/60 mm on A, 20°/30 mm on B)", "Experiment 2: error vs noise")
+    if "real" in results:
+        _plot_realistic(out / "solvers_realistic.png", *results["real"])
+    report = _format_report(cfg, **results, elapsed=time.perf_counter() - t0)
+    if interrupted:
+        report += (f"\n**Interrupted** during {current}: the sections above are complete, the rest did not "
+                   "run.\n")
+    else:
+        report += "\nPlots: `solvers_samples.png`, `solvers_noise.png`, `solvers_realistic.png`.\n"
     (out / "solvers.md").write_text(report)
-    print(report)
+    print(report[len(printed):], flush=True)
+    if interrupted:
+        print(f"bench.solvers: interrupted; partial results in {out / 'solvers.md'}", file=sys.stderr, flush=True)
+        return 130
     return 0
 
 

@@ -370,13 +370,22 @@ def solve_observations(method: str, observations: Sequence[Observation], setup: 
     Point methods (YKronT') get the depth-lifted marker centers ``point_cam``
     with their covariances; the others the marker poses ``T_cam_marker``
     (``METHODS[...].needs``). Samples lacking that measurement are left out.
-    ``"auto"`` gets the poses when every sample has one, else the centers
-    (``refine``/``robust`` do not apply: it always does both).
+    ``"auto"`` gets the marker centers (``point_cam``, with ``point_cov``)
+    and, when every sample has a pose, the poses' orientations (the center
+    takes the place of the pose's origin); ``refine``/``robust`` do not apply,
+    it always does both.
     """
     if isinstance(method, str) and method.strip().lower() == AUTO:
-        # Every measurement the samples carry: poses when all have one, else the marker centers.
-        kind = "poses" if all(o.T_cam_marker is not None for o in observations) else "points"
-        A, B, point_cov, _ = observations_to_arrays(observations, kind)
+        # Every measurement the samples carry: the marker centers (depth-lifted when the extractor
+        # gives them) and, when every sample has a pose, its orientation. A center replaces the pose's
+        # origin: both are fixed on the marker, so the marker frame just moves to the center.
+        has_pose = all(o.T_cam_marker is not None for o in observations)
+        has_point = all(o.point_cam is not None for o in observations)
+        A, B, point_cov, _ = observations_to_arrays(observations, "poses" if has_pose else "points")
+        if has_pose and has_point:
+            _, centers, point_cov, _ = observations_to_arrays(observations, "points")
+            B = B.copy()
+            B[:, :3, 3] = centers
         return solve(AUTO, A, B, setup=setup, point_cov=point_cov, rng=rng)
     info = resolve_method(method)
     A, B, point_cov, _ = observations_to_arrays(observations, info.needs)

@@ -45,6 +45,10 @@ IDENTIFIABLE_SIGMA = {"depth_scale": 0.1, "depth_offset": 0.05, "focal_scale": 0
 #: Only the depth errors, the most common ones (1-2% and millimetres for structured light
 #: and stereo), which also shift predictions most when extrapolating in depth.
 WELL_DETERMINED_SIGMA = {"depth_scale": 0.01, "depth_offset": 0.01, "focal_scale": 0.0}
+#: Systematic camera errors assumed for a parameter left at nominal, 1-sigma: they widen the
+#: covariance of the result ("consider" covariance) instead of being silently taken as zero.
+#: Structured-light figures before an infield correction: 1% scale, 3 mm offset, 1% focal.
+CONSIDER_SIGMA = {"depth_scale": 0.01, "depth_offset": 0.003, "focal_scale": 0.01}
 #: Fewest samples before camera parameters are considered: below it the held-out test that
 #: admits them is too noisy (with 8 samples it admits metre-scale nonsense).
 MIN_SAMPLES_CAMERA = 12
@@ -119,8 +123,11 @@ class _Candidate:
         self.fit, self.C, self.K, self.theta, self.noise, self.prob = fit, C, K, theta, noise, prob
         self.iterations, self.converged = iterations, converged
         cof = model.robot_cofactor(C, K, prob.M, fit.setup)
-        errors, _ = model.leave_one_out(prob, C, K, theta, noise.point_cov(fit.shape, cof))
-        self.loo = float(np.sqrt(np.mean(errors**2)))
+        try:
+            errors, _ = model.leave_one_out(prob, C, K, theta, noise.point_cov(fit.shape, cof))
+            self.loo = float(np.sqrt(np.mean(errors**2)))
+        except InsufficientDataError:
+            self.loo = float("inf")   # a sample the fit cannot do without: no held-out comparison
 
 
 def _better(cand: _Candidate, best: _Candidate) -> bool:
@@ -203,7 +210,9 @@ def solve_auto(A, B, *, setup: str, point_cov=None, camera_correction: str = "au
         ``info``: ``start`` (closed form used), ``measurements``,
         ``camera_correction`` (per parameter: value, sigma, estimated,
         note), ``noise`` (point_scale, robot_m, rotation_rad),
-        ``self_check`` (see `self_check`), ``cov_kind`` "fisher-extended".
+        ``self_check`` (see `self_check`), ``cov_kind`` "fisher-extended"
+        (plus the "consider" covariance of camera parameters left at nominal,
+        `CONSIDER_SIGMA`, unless ``camera_correction="none"``).
     """
     from calib.robust import robust_solve
     from calib.symmetry import resolve_flips
@@ -291,6 +300,8 @@ def solve_auto(A, B, *, setup: str, point_cov=None, camera_correction: str = "au
     info_mat = model.information(prob, C, K, theta)
     full_cov = np.linalg.inv(info_mat)
     cov = model.camera_block(info_mat)
+    if camera_correction != "none" and not free.all():
+        cov = cov + _consider(fit, C, K, theta, noise, free)
     sig_theta = np.zeros(3)
     sig_theta[free] = np.sqrt(np.diag(full_cov)[prob.n_pose:])
     correction = {
@@ -331,6 +342,24 @@ def solve_auto(A, B, *, setup: str, point_cov=None, camera_correction: str = "au
             "cost": float(prob.cost(C, K, theta)),
         },
     )
+
+
+def _consider(fit, C, K, theta, noise, free) -> np.ndarray:
+    """Camera covariance (6, 6) added by the camera parameters left at nominal ("consider" covariance).
+
+    They are not estimated, but a real camera has such errors (`CONSIDER_SIGMA`):
+    the estimate moves by ``S dtheta_c`` with ``S = -N_xx^-1 N_xc`` for an
+    error ``dtheta_c``, so ``S diag(sigma_c^2) S^T`` joins the covariance.
+    """
+    prob, _ = fit.problem(C, K, noise, (True, True, True))
+    info = model.information(prob, C, K, theta)
+    n_pose = prob.n_pose
+    x = np.r_[np.arange(n_pose), n_pose + np.flatnonzero(free)]
+    c = n_pose + np.flatnonzero(~free)
+    S = np.linalg.solve(info[np.ix_(x, x)], info[np.ix_(x, c)])[:6]
+    sig = np.array([CONSIDER_SIGMA[model.CAMERA_PARAMS[i - n_pose]] for i in c])
+    out = (S * sig**2) @ S.T
+    return 0.5 * (out + out.T)
 
 
 def _fmt(name: str, sigma: float) -> str:

@@ -366,25 +366,85 @@ class OnlineCalibrator:
             As = np.array([b[0] for b in self._buffer])
             ps = np.array([b[1] for b in self._buffer])
             covs = np.array([b[2] for b in self._buffer])
-            # Imported here: calib.api imports this package's refine/robust lazily too.
-            from calib.api import closed_form
-
             try:
-                start = closed_form("YKronT'", As, ps, setup=self.config.setup)
-                res = rf.refine(start, As, ps, point_cov=covs)
+                self._start(As, ps, covs)
             except CalibrationError:
                 # Degenerate motions so far: keep buffering (the deque drops the oldest).
                 return OnlineUpdate(self._n, None, None, None, None, 0.0, False)
-            C, K, M = model.split(res.X, res.Y, As, self.config.setup)
-            problem = model.Problem(M, ps, model.whitener(covs))
-            self._cols = [tuple(c) for c in C[:3, :3].T.tolist()]
-            self._tC, self._tK = tuple(C[:3, 3].tolist()), tuple(K[:3, 3].tolist())
-            info = model.information(problem, C, K)
-            self._P = np.linalg.inv(info)
-            self._I2 = info
             self._buffer.clear()
             return OnlineUpdate(self._n, self.camera_transform, self.cov, None, None, 0.0, False)
         return OnlineUpdate(self._n, None, None, None, None, 0.0, False)
+
+    def _start(self, As, ps, covs) -> None:
+        """Filter state from a batch: YKronT' (paper eq. 20) + ML refinement, and its information."""
+        # Imported here: calib.api imports this package's refine/robust lazily too.
+        from calib.api import closed_form
+
+        start = closed_form("YKronT'", As, ps, setup=self.config.setup)
+        res = rf.refine(start, As, ps, point_cov=covs)
+        C, K, M = model.split(res.X, res.Y, As, self.config.setup)
+        problem = model.Problem(M, ps, model.whitener(covs))
+        self._cols = [tuple(c) for c in C[:3, :3].T.tolist()]
+        self._tC, self._tK = tuple(C[:3, 3].tolist()), tuple(K[:3, 3].tolist())
+        info = model.information(problem, C, K)
+        self._P = np.linalg.inv(info)
+        self._I2 = info
+
+    def arm(self, T_base_flange, points_cam, point_cov=None) -> OnlineUpdate:
+        """Start from a reference calibration's samples, with the change detector armed at once.
+
+        The reference samples are solved in one batch (YKronT' + ML
+        refinement); the estimate and its information (covariance) become the
+        filter state, and the warm-up is skipped: the reference batch already
+        is a settled estimate, so the very next sample is tested.
+
+        Parameters
+        ----------
+        T_base_flange : array_like, shape (N, 4, 4)
+            Flange poses of the reference samples (N >= ``bootstrap``'s minimum of 6).
+        points_cam : array_like, shape (N, 3)
+            Their marker centers in the camera frame, m.
+        point_cov : array_like, shape (N, 3, 3), optional
+            Their covariances, m^2 (default: the depth model of `calib.noise`).
+
+        Raises
+        ------
+        CalibrationError
+            Malformed, too few or degenerate reference samples (the state is reset).
+        """
+        self.reset()
+        samples = [_check_sample(A, p, None if point_cov is None else point_cov[i])
+                   for i, (A, p) in enumerate(zip(T_base_flange, points_cam))]
+        if len(samples) < 6:
+            raise CalibrationError(f"a reference needs at least 6 samples, got {len(samples)}")
+        As = np.array([s_[0] for s_ in samples])
+        ps = np.array([s_[2] for s_ in samples])
+        if point_cov is None:
+            covs = default_point_cov(ps)
+            self._given_cov = False
+        else:
+            covs = np.array([s_[3] for s_ in samples])
+        try:
+            self._start(As, ps, covs)
+        except CalibrationError:
+            self.reset()
+            raise
+        self._n = len(samples)
+        self._filtered = self.config.warmup
+        return OnlineUpdate(self._n, self.camera_transform, self.cov, None, None, 0.0, False)
+
+    @property
+    def samples_until_armed(self) -> int:
+        """New samples before the change detector can fire (0: armed).
+
+        Bootstrap, then warm-up, then the detector's first three innovations
+        (two points cannot separate a 6-dof move); while bootstrapping this
+        assumes the bootstrap solve succeeds.
+        """
+        warm = self.config.warmup + 2
+        if self._cols is None:
+            return max(self.config.bootstrap - len(self._buffer), 1) + warm
+        return max(warm - self._filtered, 0)
 
     def _filter(self, a, p, Sigma) -> OnlineUpdate:
         # Covariance form of the information filter with forgetting (recursive

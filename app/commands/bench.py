@@ -42,6 +42,8 @@ def run(args) -> int:
     from bench import solvers
 
     rc = int(solvers.main(args.extra) or 0)
+    if rc == 130:  # Ctrl-C: the finished sections are printed and saved; skip the other benchmarks
+        return rc
     if args.vision:
         from bench import vision
 

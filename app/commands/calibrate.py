@@ -111,6 +111,7 @@ class CalibrationOutput:
     files: dict
     truth: np.ndarray | None = None
     recording: Path | None = None
+    frames: dict | None = None
 
 
 def calibrate(cfg: Config, *, resume: Path | None = None, progress: bool = True) -> CalibrationOutput:
@@ -151,11 +152,12 @@ def calibrate(cfg: Config, *, resume: Path | None = None, progress: bool = True)
                                          devices.make_solve(cfg.calibrate, cfg.setup, rng), writer, cfg.calibrate,
                                          rng, viz, save_frames=cfg.session.save_frames, progress=bar,
                                          initial=initial, poses=poses)
-    files = devices.write_result(report.result, writer.path, cfg.session.exports) if report.result is not None else {}
+    files = (devices.write_result(report.result, writer.path, cfg.session.exports, cfg.frames.model_dump())
+             if report.result is not None else {})
     if "json" in files:
         _add_run_summary(files["json"], report, cfg.calibrate.poses)
     return CalibrationOutput(report, cfg.setup, cfg.calibrate.method, files, devices.camera_truth(cfg.setup, truth),
-                             recording)
+                             recording, cfg.frames.model_dump())
 
 
 def _add_run_summary(path: Path, report: RunReport, poses: str) -> None:
@@ -413,4 +415,4 @@ def print_next_steps(out: CalibrationOutput) -> None:
     if out.recording is not None and out.recording.exists():
         print(f"open the recording:  {open_command(out.recording)}")
     if out.report.result is not None:
-        print(f"publish in ROS 2:    {ros2_command(out.report.result)}")
+        print(f"publish in ROS 2:    {ros2_command(out.report.result, out.frames)}")

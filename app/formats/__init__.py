@@ -15,10 +15,15 @@ format                     path
                            naming two ``t,x,y,z,qx,qy,qz,qw`` CSV streams;
                            the clock offset is estimated and reported in
                            ``meta["clock_offset_s"]``
+``visp``                   directory of ViSP's ``pose_fPe_<i>.yaml`` + ``pose_cPo_<i>.yaml``
+``image_folder``           directory of images + ``poses.csv|yaml|json`` + ``intrinsics.yaml|json``
+``opencv_storage``         OpenCV FileStorage YAML (``%YAML:1.0``) with ``R_/t_gripper2base``,
+                           ``R_/t_target2cam`` sequences
+``moveit_calibration``     MoveIt Calibration's JSON list of [effector_wrt_world, object_wrt_sensor]
 =========================  ===================================================
 
-``format=None`` detects it from the file. Options: ``setup=`` for the easy_handeye
-formats when the file does not say; manifest overrides for ``pose_csv``. Each
+``format=None`` detects it from the file. Options: ``setup=`` for the formats
+whose files may not say (``open_setup``); manifest overrides for ``pose_csv``. Each
 importer registers itself (`app.formats.registry.register_import`); a new
 format is one module plus its name in ``IMPORTER_MODULES``.
 

@@ -45,7 +45,7 @@ def _represent_list(dumper, data):
 _Dumper.add_representer(list, _represent_list)
 
 
-def _frames(frames: dict | None) -> dict:
+def check_frames(frames: dict | None) -> dict:
     frames = {**DEFAULT_FRAMES, **(frames or {})}
     unknown = set(frames) - set(DEFAULT_FRAMES)
     if unknown:
@@ -119,7 +119,7 @@ def _transform_dict(T, name: str, parent: str, child: str, cov=None) -> dict:
 def ros2_command(result: CalibrationResult, frames: dict | None = None) -> str:
     """``ros2 run tf2_ros static_transform_publisher ...`` for the camera transform (ROS 2 Humble+ flags)."""
     check_result(result)
-    frames = _frames(frames)
+    frames = check_frames(frames)
     parent, child = _parent_child(result.setup, frames)
     t, q = tf.to_xyz_quat(result.camera_transform)
     args = " ".join(f"--{k} {_fmt(v)}" for k, v in zip(("x", "y", "z", "qx", "qy", "qz", "qw"), [*t, *q]))
@@ -152,7 +152,7 @@ def result_to_dict(result: CalibrationResult, frames: dict | None = None) -> dic
         (deg, mm) when the result has a covariance.
     """
     check_result(result)
-    frames = _frames(frames)
+    frames = check_frames(frames)
     setup = Setup(result.setup)
     marker_T = result.X if setup == Setup.EYE_TO_HAND else result.Y
     res = result.residuals
@@ -176,6 +176,7 @@ def result_to_dict(result: CalibrationResult, frames: dict | None = None) -> dic
         "camera_transform": _transform_dict(result.camera_transform, setup.camera_name, *_parent_child(setup, frames),
                                             cov=result.cov),
         "marker_transform": marker,
+        "camera_frame": camera_frame_note(result, frames),
         "residuals": resid,
         "n_samples": int(result.n_samples),
         "rejected_samples": result.rejected.tolist(),
@@ -187,6 +188,29 @@ def result_to_dict(result: CalibrationResult, frames: dict | None = None) -> dic
     }
 
 
+#: Rotation from a ROS ``camera_link`` (x forward, y left, z up) to the camera's optical frame
+#: (z forward, x right, y down): ``T_camera_link_optical``, origin shared.
+T_LINK_OPTICAL = np.array([[0.0, 0.0, 1.0, 0.0], [-1.0, 0.0, 0.0, 0.0], [0.0, -1.0, 0.0, 0.0], [0.0, 0.0, 0.0, 1.0]])
+
+
+def camera_frame_note(result: CalibrationResult, frames: dict | None = None) -> dict:
+    """What the camera frame is (the optical frame) and the pose of a ROS ``camera_link`` at the same origin."""
+    frames = check_frames(frames)
+    parent, child = _parent_child(result.setup, frames)
+    link = result.camera_transform @ tf.invert(T_LINK_OPTICAL)
+    t, q = tf.to_xyz_quat(link)
+    return {
+        "name": child,
+        "convention": "optical frame: z forward (viewing direction), x right, y down in the image "
+                      "(ROS REP 103 *_optical_frame); not a ROS camera_link",
+        "camera_link_to_optical": {"quaternion_xyzw": [-0.5, 0.5, -0.5, 0.5], "rpy_deg": [-90.0, 0.0, -90.0],
+                                   "note": "T_camera_link_optical: camera_link (x forward, y left, z up) to the "
+                                           "optical frame, same origin"},
+        "camera_link_transform": {"parent_frame": parent, "translation_m": t.tolist(), "quaternion_xyzw": q.tolist(),
+                                  "note": f"T_{parent}_camera_link = camera_transform @ inv(T_camera_link_optical)"},
+    }
+
+
 def easy_handeye_dict(result: CalibrationResult, frames: dict | None = None, *, namespace: str = "handeye") -> dict:
     """easy_handeye (ROS 1) calibration file: ``parameters`` + ``transformation`` {x..qw}.
 
@@ -195,7 +219,7 @@ def easy_handeye_dict(result: CalibrationResult, frames: dict | None = None, *, 
     camera transform.
     """
     check_result(result)
-    frames = _frames(frames)
+    frames = check_frames(frames)
     t, q = tf.to_xyz_quat(result.camera_transform)
     return {
         "parameters": {
@@ -211,7 +235,7 @@ def easy_handeye_dict(result: CalibrationResult, frames: dict | None = None, *, 
 def easy_handeye2_dict(result: CalibrationResult, frames: dict | None = None, *, name: str = "handeye") -> dict:
     """easy_handeye2 ``.calib`` file: ``parameters`` + ``transform`` {translation, rotation}."""
     check_result(result)
-    frames = _frames(frames)
+    frames = check_frames(frames)
     t, q = tf.to_xyz_quat(result.camera_transform)
     return {
         "parameters": {
@@ -232,7 +256,7 @@ def urdf_joint(result: CalibrationResult, frames: dict | None = None) -> str:
     robot description, which must define both links.
     """
     check_result(result)
-    frames = _frames(frames)
+    frames = check_frames(frames)
     parent, child = _parent_child(result.setup, frames)
     cam_name = Setup(result.setup).camera_name
     return (
@@ -251,7 +275,7 @@ def urdf_joint(result: CalibrationResult, frames: dict | None = None) -> str:
 def ros2_launch(result: CalibrationResult, frames: dict | None = None) -> str:
     """A ROS 2 Python launch file starting ``static_transform_publisher`` with the camera transform."""
     check_result(result)
-    frames = _frames(frames)
+    frames = check_frames(frames)
     parent, child = _parent_child(result.setup, frames)
     t, q = tf.to_xyz_quat(result.camera_transform)
     args = []
@@ -306,6 +330,8 @@ def write_result(result: CalibrationResult, path, fmt: str = "yaml", frames: dic
     path.parent.mkdir(parents=True, exist_ok=True)
     if fmt == "yaml":
         text = (f"# handeye calibration result ({result.setup}); camera_transform = {Setup(result.setup).camera_name}\n"
+                "# The camera frame is the OPTICAL frame (z forward, x right, y down); camera_frame gives a ROS "
+                "camera_link.\n"
                 + yaml.dump(result_to_dict(result, frames), Dumper=_Dumper, sort_keys=False, width=1000))
     elif fmt == "json":
         text = json.dumps(result_to_dict(result, frames), indent=2) + "\n"

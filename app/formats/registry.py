@@ -23,7 +23,8 @@ from app.files import read_text_file
 from app.formats.common import ImportedSamples
 
 #: Importer modules of `app.formats`, in the order their formats are tried on a file.
-IMPORTER_MODULES = ("pose_csv", "easy_handeye", "industrial")
+#: opencv_storage comes first: its ``%YAML:1.0`` header is not YAML the others' detectors could parse.
+IMPORTER_MODULES = ("opencv_storage", "pose_csv", "easy_handeye", "industrial", "visp", "image_folder", "moveit")
 
 
 @dataclass(frozen=True)

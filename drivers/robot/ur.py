@@ -154,7 +154,7 @@ class URRobotConfig(Params):
     tcp_offset: Vector6 | None = None
     reach_tolerance: PositiveFloat = 0.005
     reach_tolerance_deg: PositiveFloat = 1.0
-    frozen_timeout: PositiveFloat = 0.25
+    frozen_timeout: PositiveFloat = 0.5
     connect_timeout: PositiveFloat = 5.0
     move_timeout: PositiveFloat = 60.0
     buffer_seconds: PositiveFloat = 5.0
@@ -408,11 +408,17 @@ class URRobot(Robot):
 
         Raises
         ------
+        ConnectionLostError
+            ``t_host`` is not buffered because the stream dropped or froze.
         DeviceError
             ``t_host`` outside the buffered interval.
         """
         self._require_connected()
-        return self._buffer.pose_at(t_host)
+        try:
+            return self._buffer.pose_at(t_host)
+        except DeviceError:
+            self._check_stream()  # a frozen stream is the reason, not the time asked for
+            raise
 
     def buffered_span(self) -> tuple[float, float] | None:
         """(oldest, newest) host time in the pose buffer, or None if empty."""

@@ -48,6 +48,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--initial-q", type=float, nargs=6, metavar="Q", help="start joint positions, rad")
     ap.add_argument("--tcp-offset", type=float, nargs=6, metavar="P", default=[0.0, 0.0, 0.1, 0.0, 0.0, 0.0],
                     help="active TCP in the flange frame: x y z (m) rx ry rz (rad)")
+    ap.add_argument("--program", help="JSON file: a looping production program to run (mocks.ur_sim.program)")
     ap.add_argument("--parent-pid", type=int, metavar="PID",
                     help="stop as soon as this process is no longer our parent (it died)")
     ap.add_argument("-v", "--verbose", action="store_true")
@@ -58,6 +59,15 @@ def main(argv: list[str] | None = None) -> int:
     except Exception as exc:  # bad model / version: one line, exit 2 like argparse
         print(f"ur_sim: {exc}", file=sys.stderr)
         return 2
+    if args.program:
+        from mocks.ur_sim.program import Program
+
+        try:
+            with open(args.program) as f:
+                ctl.program = Program.from_dict(json.load(f))
+        except (OSError, ValueError) as exc:
+            print(f"ur_sim: --program {args.program}: {exc}", file=sys.stderr)
+            return 2
     server = SimServer(args.host, ctl)
     server.parent_pid = args.parent_pid
     if args.parent_pid is not None and os.getppid() != args.parent_pid:
@@ -135,6 +145,15 @@ class SimProcess:
 
     def set_q(self, q) -> None:
         self.command("sim set_q " + " ".join(f"{x:.12g}" for x in q))
+
+    def start_program(self, program: dict) -> None:
+        """Run a looping production program (JSON form of `mocks.ur_sim.program`) until `stop_program`."""
+        reply = self.command("sim program " + json.dumps(program))
+        if reply != "ok":
+            raise DeviceError(f"simulated controller refused the production program: {reply}")
+
+    def stop_program(self) -> None:
+        self.command("sim program stop")
 
     def stop(self, timeout: float = 5.0) -> int:
         """SIGTERM the simulator and wait; returns its exit code."""

@@ -136,6 +136,8 @@ class SimController:
         self.log: list[dict] = []
         self.motion = None
         self.motion_t0 = 0.0
+        # A looping production program (mocks.ur_sim.program.Program) the controller runs by itself.
+        self.program = None
         self.motion_async = False
         self.executing = False
         self.pending_done = False
@@ -412,6 +414,8 @@ class SimController:
                 elif cmd == Command.NONE and not self.pending_done and self.script_running:
                     self.executing = False
                     self._out_i(0, Reply.READY)
+            elif self.program is not None and self.safety_mode == SAFETY_NORMAL:
+                self.program.tick(self)
             self._advance()
 
     def _advance(self) -> None:
@@ -466,5 +470,6 @@ class SimController:
                 "safety_mode": self.safety_mode,
                 "script_running": self.script_running,
                 "script_uploads": self.script_uploads,
+                "program": None if self.program is None else self.program.state(),
                 "commands": list(self.log),
             }

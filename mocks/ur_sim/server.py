@@ -18,6 +18,8 @@ line each, answered with one line:
 ``sim drop <seconds>``        close every client connection and refuse new ones for <seconds>
 ``sim freeze <seconds>``      keep connections open but send no RTDE data for <seconds>
 ``sim set_q q1 ... q6``       teleport the idle arm (rad)
+``sim program <json>``        run a looping production program (`mocks.ur_sim.program`)
+``sim program stop``          end it (the arm finishes its current motion)
 """
 
 from __future__ import annotations
@@ -453,12 +455,30 @@ class SimServer:
             if cmd == "drop":
                 seconds = float(words[1]) if len(words) > 1 else 0.0
                 return "ok", lambda: self.drop_all(seconds)
+            if cmd == "program":
+                return self._program_command(" ".join(words[1:])), None
             if cmd == "set_q":
                 ctl.set_q([float(w) for w in words[1:7]])
                 return "ok", None
         except (IndexError, ValueError) as exc:
             return f"error: {exc}", None
         return f"error: unknown sim command {cmd!r}", None
+
+    def _program_command(self, arg: str) -> str:
+        from mocks.ur_sim.program import Program
+
+        ctl = self.controller
+        if arg == "stop":
+            with ctl.lock:
+                ctl.program = None
+            return "ok"
+        try:
+            program = Program.from_dict(json.loads(arg))
+        except ValueError as exc:  # json.JSONDecodeError is a ValueError too
+            return f"error: {exc}"
+        with ctl.lock:
+            ctl.program = program
+        return "ok"
 
     # --------------------------------------------------------------- script
     def _serve_script(self, conn: Connection) -> None:

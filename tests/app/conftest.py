@@ -22,3 +22,81 @@ def sim_config(tmp_path):
         return Config.model_validate(data)
 
     return make
+
+
+MOSQUITTO = "/usr/sbin/mosquitto"
+
+
+@pytest.fixture
+def mosquitto(tmp_path):
+    """A real mosquitto broker on 127.0.0.1 at a free port (``make sysdeps`` installs it).
+
+    ``mosquitto(extra_lines)`` starts one with extra config lines (e.g. a password file)
+    and returns its port; every broker is stopped after the test.
+    """
+    import os
+    import socket
+    import subprocess
+    import time
+
+    if not os.access(MOSQUITTO, os.X_OK):
+        pytest.fail(f"{MOSQUITTO} missing: run `make sysdeps` (installs the Debian package mosquitto)")
+    procs = []
+
+    def start(extra: str = "allow_anonymous true") -> int:
+        with socket.socket() as s:
+            s.bind(("127.0.0.1", 0))
+            port = s.getsockname()[1]
+        conf = tmp_path / f"mosquitto-{port}.conf"
+        # "user root": as root, mosquitto would drop to user mosquitto, who cannot read pytest's tmp files.
+        conf.write_text(f"listener {port} 127.0.0.1\n{extra}\npersistence false\nuser root\n")
+        proc = subprocess.Popen([MOSQUITTO, "-c", str(conf)], stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
+        procs.append(proc)
+        deadline = time.monotonic() + 10
+        while time.monotonic() < deadline:
+            if proc.poll() is not None:
+                pytest.fail(f"mosquitto exited: {proc.stderr.read().decode()[-300:]}")
+            try:
+                socket.create_connection(("127.0.0.1", port), timeout=0.2).close()
+                return port
+            except OSError:
+                time.sleep(0.05)
+        pytest.fail("mosquitto did not listen within 10 s")
+
+    yield start
+    for proc in procs:
+        proc.terminate()
+        proc.wait(5)
+
+
+@pytest.fixture
+def mqtt_inbox():
+    """``mqtt_inbox(port, topic="#", **tls)`` subscribes with paho and returns a list that fills with
+    ``(topic, json payload, retain)`` as messages arrive; clients are stopped after the test."""
+    import json
+    import threading
+
+    import paho.mqtt.client as mqtt
+
+    clients = []
+
+    def subscribe(port: int, topic: str = "#", *, username=None, password=None, ca_file=None) -> list:
+        inbox, ready = [], threading.Event()
+        c = mqtt.Client(mqtt.CallbackAPIVersion.VERSION2, client_id=f"test-sub-{port}-{len(clients)}")
+        if username:
+            c.username_pw_set(username, password)
+        if ca_file:
+            c.tls_set(ca_certs=ca_file)
+        c.on_connect = lambda cl, u, f, rc, p: cl.subscribe(topic, qos=1)
+        c.on_subscribe = lambda *a: ready.set()
+        c.on_message = lambda cl, u, m: inbox.append((m.topic, json.loads(m.payload), bool(m.retain)))
+        c.connect("127.0.0.1" if not ca_file else "localhost", port)
+        c.loop_start()
+        clients.append(c)
+        assert ready.wait(10), "subscription not acknowledged"
+        return inbox
+
+    yield subscribe
+    for c in clients:
+        c.disconnect()
+        c.loop_stop()

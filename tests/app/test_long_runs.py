@@ -29,7 +29,9 @@ def test_calibrate_gives_up_when_the_marker_is_never_seen(tmp_path, capsys, loop
     p = tmp_path / "c.toml"
     text = SIM_TOML.replace('host = "127.0.0.2"', f'host = "{loopback(20)}"').replace("marker_id = 0", "marker_id = 7")
     p.write_text(text.replace("max_missed_frames = 10", "max_missed_frames = 4"))
-    assert main(["calibrate", "--yes-move", "-c", str(p), "--session-root", str(tmp_path), "--no-viz"]) == 1
+    # Random poses: the planner's own start check (3 tries at the start pose) would stop first.
+    assert main(["calibrate", "--yes-move", "-c", str(p), "--session-root", str(tmp_path), "--no-viz",
+                 "--poses", "random"]) == 1
     captured = capsys.readouterr()
     out = captured.out
     assert "stopped by: no_marker" in out and "gave up" in out, captured.err
@@ -68,6 +70,7 @@ def test_frames_kept_only_for_the_last_samples(tmp_path):
         for i in range(5):
             w.add_sample(Observation(i, float(i), d.A[i], d.points[i], d.point_cov[i]), color=img, depth=depth)
         w.add_skip(9.0, "marker not found", color=img, depth=depth)
+        w.drop_frames(3)  # already pruned: nothing to do, not counted twice
     frames = sorted(p.name for p in (tmp_path / "s" / "frames").iterdir())
     assert frames == ["000004_color.png", "000004_depth.png", "000005_color.png", "000005_depth.png"]
     s = read_session(tmp_path / "s")
@@ -75,7 +78,28 @@ def test_frames_kept_only_for_the_last_samples(tmp_path):
     assert s.load_frames(s.observations[0]) == (None, None)  # pruned: not stored any more
     color, dep = s.load_frames(s.observations[4])
     assert color.shape == (8, 8, 3) and dep.shape == (8, 8)
-    assert s.events[-1]["event"] == "frames_pruned" and s.events[-1]["n"] == 4
+    assert w.frames_pruned == 4  # monitor reports it in its sample_set event
+
+
+def test_monitor_drops_the_frames_of_samples_its_bounded_set_drops(tmp_path):
+    from app.commands import monitor as mon
+    from app.config import MonitorConfig
+
+    d = simulate.realistic_cell(4, np.random.default_rng(3))
+    img = np.zeros((8, 8, 3), np.uint8)
+
+    class NoEstimate:  # before the online estimator has one, the oldest sample goes
+        def result(self):
+            return None
+
+    cfg = MonitorConfig(keep_samples=3, keep_recent=1)
+    with SessionWriter.create(tmp_path, "eye_to_hand", name="s") as w:
+        kept = [w.add_sample(Observation(i, float(i), d.A[i], d.points[i]), color=img) for i in range(4)]
+        dropped = mon._bound(kept, cfg, NoEstimate())
+        w.drop_frames(dropped.index)
+    assert dropped.index == 0 and [o.index for o in kept] == [1, 2, 3]
+    assert sorted(p.name for p in (tmp_path / "s" / "frames").iterdir()) == [
+        "000001_color.png", "000002_color.png", "000003_color.png"]
 
 
 def test_recording_is_rotated(tmp_path):

@@ -76,17 +76,17 @@ def test_viewer_dying_mid_run_leaves_the_recording_whole(tmp_path, monkeypatch, 
         _log_some(v)
         v.viewer.proc.wait(10)
         _log_some(v)  # notices the dead viewer: one warning, then goes on with the file only
-        _log_some(v)
+        v.drift(10.0, 1.5, 0.1)  # logged only after the viewer died
         v.close()
     (msg,) = _viewer_warnings(caplog)
     assert "window closed" in msg, msg
     # Loopback only unless the config says otherwise (issue 11).
     args = (tmp_path / "fake_viewer.py.args").read_text().split()
     assert args[args.index("--bind") + 1] == "127.0.0.1"
-    # Everything logged after the viewer died is in the file: the third batch's flange transforms.
+    # What was logged after the viewer died is in the file.
     if REAL_VIEWER is not None:
         out = subprocess.run([*REAL_VIEWER, "rrd", "print", str(rrd)], capture_output=True, text=True, timeout=60).stdout
-        assert out.count("/world/flange") >= 1
+        assert "/drift/translation_mm" in out and "/world/flange" in out
     assert rrd.stat().st_size > 0
 
 
@@ -95,7 +95,7 @@ def test_demo_with_viewer_and_no_display_writes_result(tmp_path, monkeypatch, ca
     for var in ("DISPLAY", "WAYLAND_DISPLAY", "WAYLAND_SOCKET"):
         monkeypatch.delenv(var, raising=False)
     cfg = tmp_path / "sim.toml"
-    text = open("config/sim.toml").read().replace('host = "127.0.0.2"', f'host = "{loopback(7)}"')
+    text = open("config/sim.toml").read().replace('host = "127.0.0.2"', f'host = "{loopback(40)}"')
     cfg.write_text(text)
     with caplog.at_level(logging.WARNING):
         rc = main(["demo", "-c", str(cfg), "--viewer", "--samples", "5", "--session-root", str(tmp_path / "s")])

@@ -109,3 +109,12 @@ def test_self_check_is_in_every_auto_result_and_warns_when_the_model_is_wrong():
     # Any estimate can be checked, its noise levels estimated at the estimate.
     cf = solve("YKronT'", d.A, d.points)
     assert 1 / 1.5 < self_check(cf.X, cf.Y, d.A, d.points, setup="eye_to_hand")["loo_ratio"] < 1.5
+
+
+@pytest.mark.parametrize("n", [5, 6])
+def test_few_samples_solve_with_a_self_check(n):
+    """At the minimum sample count every sample is needed: no held-out comparison of variants, still a result."""
+    d = realistic_cell(n, np.random.default_rng(n))
+    for B in (d.points, d.B):
+        res = solve("auto", d.A, B)
+        assert res.residuals.rms_translation < 0.01 and res.info["self_check"] is not None

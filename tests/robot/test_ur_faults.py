@@ -142,3 +142,16 @@ def test_a_native_crash_of_the_rtde_client_is_a_connection_lost_error(robot, sim
         robot.read()
     robot.reconnect()
     assert robot.move_to(_moved(robot, 0.02)).is_still
+
+
+def test_pose_at_after_a_freeze_names_the_frozen_stream(robot, sim):
+    robot.read()
+    sim.freeze(1.0)
+    try:
+        time.sleep(0.7)
+        with pytest.raises(ConnectionLostError, match="frozen"):
+            robot.pose_at(time.time())
+    finally:
+        time.sleep(0.4)
+    robot.reconnect()
+    assert robot.read().t_controller > 0

@@ -1,0 +1,258 @@
+"""Alarms a plant can hear: the monitor's live estimate, drift and alarms as JSON over MQTT.
+
+Configured by the ``[mqtt]`` table (`MqttConfig`); credentials come only
+from the environment (``HANDEYE_MQTT_USERNAME``, ``HANDEYE_MQTT_PASSWORD``),
+never from the config file, which is often committed or copied around.
+
+Topics (``<prefix>`` = ``topic_prefix``, each overridable in ``[mqtt.topics]``)
+and messages, every one a JSON object with ``schema`` naming it (the full
+schema is in docs/mqtt.md)::
+
+    <prefix>/status    retained  {"schema": "handeye/status/1", "state": "online" | "offline", ...}
+    <prefix>/estimate  retained  {"schema": "handeye/estimate/1", "translation_m", "quaternion_xyzw", "sigma_mm", ...}
+    <prefix>/drift               {"schema": "handeye/drift/1", "translation_mm", "rotation_deg", ...}
+    <prefix>/alarm               {"schema": "handeye/alarm/1", "event": "camera_moved", "sample", "statistic", ...}
+
+The estimate is ``T_base_cam`` (eye-to-hand) or ``T_flange_cam``
+(eye-in-hand) of the camera's optical frame (z forward, x right, y down),
+named by ``parent_frame`` / ``child_frame`` from ``[frames]``.
+
+A broker that cannot be reached costs a warning, not the monitoring run:
+paho keeps reconnecting in its network thread and queues what is published
+meanwhile.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import os
+import socket
+import threading
+import time
+from typing import Annotated, Literal
+
+import numpy as np
+from pydantic import AfterValidator, Field, ValidationError, model_validator
+
+from app.errors import ConfigError
+from calib.params import Bool, Float, Int, NonEmptyStr, Params, Str, describe
+from calib import transforms as tf
+from calib.setup import Setup
+
+log = logging.getLogger(__name__)
+
+USERNAME_ENV = "HANDEYE_MQTT_USERNAME"
+PASSWORD_ENV = "HANDEYE_MQTT_PASSWORD"
+SCHEMA_VERSION = 1
+TOPICS = ("status", "estimate", "drift", "alarm")
+_SECRET_KEYS = ("username", "password", "user", "passwd", "token")
+
+
+def _topic(name: str) -> str:
+    if any(c in name for c in "+#"):
+        raise ValueError(f"a topic to publish on has no wildcards, got {name!r}")
+    return name
+
+
+Topic = Annotated[NonEmptyStr, AfterValidator(_topic)]
+
+
+class MqttConfig(Params):
+    """``[mqtt]``: where and how the monitor publishes.
+
+    Attributes
+    ----------
+    enabled : bool
+    host : str
+        Broker address.
+    port : int
+        1883 (plain) or 8883 (TLS) by convention.
+    client_id : str
+        Empty: ``handeye-<hostname>-<pid>``.
+    topic_prefix : str
+        Topics are ``<prefix>/status``, ``/estimate``, ``/drift``, ``/alarm``.
+    topics : dict
+        Per-topic overrides, keys from ``status, estimate, drift, alarm``.
+    qos : int
+        0, 1 or 2, for every message.
+    keepalive_s : int
+    connect_timeout_s : float
+        How long the start waits for the broker before going on without it.
+    tls : bool
+        TLS with the system's CAs, or ``ca_file``.
+    ca_file, certfile, keyfile : str
+        PEM files (client certificate optional).
+    """
+
+    enabled: Bool = False
+    host: NonEmptyStr = "127.0.0.1"
+    port: Annotated[Int, Field(ge=1, le=65535)] = 1883
+    client_id: Str = ""
+    topic_prefix: Topic = "handeye"
+    topics: dict[Literal[TOPICS], Topic] = Field(default_factory=dict)
+    qos: Literal[0, 1, 2] = 1
+    keepalive_s: Annotated[Int, Field(ge=5)] = 30
+    connect_timeout_s: Annotated[Float, Field(ge=0, le=60)] = 5.0
+    tls: Bool = False
+    ca_file: Str = ""
+    certfile: Str = ""
+    keyfile: Str = ""
+
+    @model_validator(mode="before")
+    @classmethod
+    def _no_credentials(cls, data):
+        if isinstance(data, dict):
+            for key in data:
+                if key in _SECRET_KEYS:
+                    raise ValueError(f"{key}: credentials are never read from the config file; "
+                                     f"set {USERNAME_ENV} and {PASSWORD_ENV} in the environment")
+        return data
+
+    @model_validator(mode="after")
+    def _client_cert_needs_tls(self):
+        if (self.certfile or self.keyfile) and not self.tls:
+            raise ValueError("certfile/keyfile need tls = true")
+        return self
+
+    @classmethod
+    def from_dict(cls, data: dict) -> "MqttConfig":
+        """Validate an ``[mqtt]`` table; `ConfigError` naming ``mqtt.<field>`` (credentials refused)."""
+        try:
+            return cls.model_validate(data)
+        except ValidationError as e:
+            raise ConfigError(describe(e, "mqtt")) from None
+
+    def topic(self, kind: str) -> str:
+        return self.topics.get(kind) or f"{self.topic_prefix}/{kind}"
+
+
+class MqttPublisher:
+    """Publishes the monitor's state (see the module docstring); use as a context manager.
+
+    Parameters
+    ----------
+    config : MqttConfig
+    setup : Setup
+    frames : dict
+        ``base``, ``flange``, ``camera``, ``marker`` names (``[frames]``).
+    environ : mapping, optional
+        Where the credentials are read (default ``os.environ``).
+    """
+
+    def __init__(self, config: MqttConfig, setup: Setup, frames: dict, *, environ=None):
+        self.config, self.setup, self.frames = config, Setup(setup), dict(frames)
+        self.environ = os.environ if environ is None else environ
+        self.connected = threading.Event()
+        self.client = None
+        self.session: str | None = None
+        self._last_error = ""
+
+    # ------------------------------------------------------------ connection
+    def connect(self) -> "MqttPublisher":
+        import paho.mqtt.client as mqtt
+
+        c = self.config
+        client_id = c.client_id or f"handeye-{socket.gethostname()}-{os.getpid()}"
+        client = mqtt.Client(mqtt.CallbackAPIVersion.VERSION2, client_id=client_id)
+        user = self.environ.get(USERNAME_ENV)
+        if user:
+            client.username_pw_set(user, self.environ.get(PASSWORD_ENV))
+        if c.tls:
+            try:
+                client.tls_set(ca_certs=c.ca_file or None, certfile=c.certfile or None, keyfile=c.keyfile or None)
+            except (OSError, ValueError) as e:
+                raise ConfigError(f"mqtt TLS files: {e}") from None
+        # A monitor that dies leaves "offline" behind (last will), so a dashboard never trusts a stale estimate.
+        client.will_set(c.topic("status"), json.dumps(self._status("offline")), qos=c.qos, retain=True)
+        client.on_connect = self._on_connect
+        client.on_disconnect = self._on_disconnect
+        client.max_queued_messages_set(10000)
+        self.client = client
+        try:
+            client.connect_async(c.host, c.port, keepalive=c.keepalive_s)
+        except (OSError, ValueError) as e:
+            raise ConfigError(f"mqtt broker {c.host}:{c.port}: {e}") from None
+        client.loop_start()
+        if not self.connected.wait(c.connect_timeout_s):
+            log.warning("MQTT broker %s:%d not reachable%s; monitoring goes on and keeps retrying",
+                        c.host, c.port, f" ({self._last_error})" if self._last_error else "")
+        self.publish("status", self._status("online"), retain=True)
+        return self
+
+    def _on_connect(self, client, userdata, flags, reason_code, properties):
+        if reason_code.is_failure:
+            self._last_error = str(reason_code)
+            return
+        self.connected.set()
+
+    def _on_disconnect(self, client, userdata, flags, reason_code, properties):
+        self.connected.clear()
+        if reason_code.is_failure:
+            self._last_error = str(reason_code)
+
+    def close(self) -> None:
+        """Publish ``offline`` (retained), wait briefly for the queue to drain, disconnect."""
+        if self.client is None:
+            return
+        info = self.publish("status", self._status("offline"), retain=True)
+        if self.connected.is_set() and info is not None:
+            try:
+                info.wait_for_publish(timeout=3.0)
+            except (RuntimeError, ValueError):
+                pass
+        self.client.disconnect()
+        self.client.loop_stop()
+        self.client = None
+
+    def __enter__(self):
+        return self.connect()
+
+    def __exit__(self, *exc):
+        self.close()
+        return False
+
+    # -------------------------------------------------------------- messages
+    def publish(self, kind: str, payload: dict, *, retain: bool = False):
+        """Publish one JSON message on the topic of ``kind``; returns paho's MQTTMessageInfo."""
+        if self.client is None:
+            return None
+        return self.client.publish(self.config.topic(kind), json.dumps(payload), qos=self.config.qos, retain=retain)
+
+    def _base(self, schema: str) -> dict:
+        return {"schema": f"handeye/{schema}/{SCHEMA_VERSION}", "t": time.time(), "setup": str(self.setup),
+                "session": self.session}
+
+    def _status(self, state: str) -> dict:
+        return {**self._base("status"), "state": state}
+
+    def __call__(self, obs, update, report) -> None:
+        """`app.commands.monitor.run_monitor`'s ``on_update``: estimate (retained), drift, and the alarm if one fired."""
+        self.session = str(report.session)
+        if report.estimate is not None:
+            xyz, q = tf.to_xyz_quat(report.estimate)
+            parent = self.frames["flange"] if self.setup.camera_on_flange else self.frames["base"]
+            msg = {**self._base("estimate"), "sample": obs.index, "transform": self.setup.camera_name,
+                   "parent_frame": parent, "child_frame": self.frames["camera"],
+                   "translation_m": xyz.tolist(), "quaternion_xyzw": q.tolist(),
+                   "sigma_mm": None, "sigma_deg": None, "n_samples": report.n_samples,
+                   "samples_until_armed": report.samples_until_armed, "alarms": len(report.alarms)}
+            if report.estimate_sigma is not None:
+                msg["sigma_deg"] = float(np.rad2deg(report.estimate_sigma[0]))
+                msg["sigma_mm"] = report.estimate_sigma[1] * 1e3
+            self.publish("estimate", msg, retain=True)
+        if report.drift is not None:
+            self.publish("drift", {**self._base("drift"), "sample": obs.index, "translation_mm": report.drift[0],
+                                   "rotation_deg": report.drift[1]})
+        if update.alarm:
+            a = report.alarms[-1]
+            self.publish("alarm", {**self._base("alarm"), "event": "camera_moved", "sample": a.sample_index,
+                                   "statistic": a.info.get("statistic"), "alarm_count": len(report.alarms),
+                                   "drift_mm": None if report.drift is None else report.drift[0],
+                                   "drift_deg": None if report.drift is None else report.drift[1]})
+
+
+def make_publisher(mqtt: MqttConfig, setup: Setup, frames: dict) -> MqttPublisher | None:
+    """A publisher for an enabled ``[mqtt]`` table, else None."""
+    return MqttPublisher(mqtt, setup, frames) if mqtt.enabled else None
+

@@ -1,0 +1,101 @@
+"""The simulated cell at work: a production program, a bumped camera, the alarm and exit status 3."""
+
+import time
+
+import numpy as np
+import pytest
+
+from app.planning import random_pose
+from app.cli import main
+from app.config import load_config
+from app.session import SessionWriter, read_session
+from calib import transforms as tf
+from calib.observation import Observation
+from mocks.render.camera import RenderedCameraConfig
+from drivers.robot import ur_kinematics as kin
+from mocks.ur_sim import launch
+
+pytestmark = pytest.mark.slow
+
+
+def _sim_toml(tmp_path, host: str, extra: str = "") -> str:
+    text = open("config/sim.toml").read().replace('host = "127.0.0.2"', f'host = "{host}"') + extra
+    path = tmp_path / "sim.toml"
+    path.write_text(text)
+    return str(path)
+
+
+def _reference_session(root, n: int, rng) -> str:
+    """A 12-sample calibration session of the simulated cell (marker centers with 0.5 mm noise)."""
+    cfg = load_config(None)
+    truth = RenderedCameraConfig(setup=cfg.setup)
+    T_base_cam, T_flange_marker = np.array(truth.T_base_cam), np.array(truth.T_flange_marker)
+    T_start = kin.forward(np.array(cfg.robot.initial_q), "ur10")
+    cov = np.eye(3) * 0.5e-3 ** 2
+    with SessionWriter.create(root, "eye_to_hand", truth={"T_base_cam": T_base_cam}) as w:
+        for i in range(n):
+            A = random_pose(T_start, cfg.calibrate, rng)
+            p = tf.transform_points(tf.invert(T_base_cam) @ A, T_flange_marker[:3, 3]) + rng.normal(0, 0.5e-3, 3)
+            w.add_sample(Observation(i, float(i), A, p, cov))
+    return str(w.path)
+
+
+def test_production_program_loops_with_tool_stops(loopback):
+    wp = [{"q": q, "pause_s": 0.2, "tool": t} for q, t in
+          [([0.3, -1.3, 1.6, -1.9, -1.5, 0.0], "pick"), ([0.5, -1.2, 1.5, -1.9, -1.5, 0.2], "place")]]
+    with launch(loopback(41), "ur10", "3.15", initial_q=wp[0]["q"]) as sim:
+        assert sim.command("sim program {not json").startswith("error")
+        sim.start_program({"waypoints": wp, "speed": 3.0, "acceleration": 12.0})
+        seen = set()
+        for _ in range(60):
+            st = sim.state()
+            seen.add(st["moving"])
+            if st["program"]["cycles"] >= 1:
+                break
+            time.sleep(0.1)
+        assert st["program"]["cycles"] >= 1 and seen == {True, False}
+        names = [c["name"] for c in st["commands"]]
+        assert "program:stop 0 tool pick" in names and "program:stop 1 tool place" in names
+        sim.stop_program()
+        assert sim.state()["program"] is None
+
+
+def test_demo_monitor_bump_alarms_and_exits_3(tmp_path, loopback, capsys, mosquitto, mqtt_inbox):
+    """Reference-armed: a 12-sample session arms the detector at once; the 10 mm bump after
+    3 samples is flagged within a few samples; the re-estimate finds the moved camera; the
+    alarm reaches an MQTT subscriber through a real broker."""
+    ref = _reference_session(tmp_path / "ref", 12, np.random.default_rng(3))
+    port = mosquitto()
+    inbox = mqtt_inbox(port, "cell7/#")
+    mqtt = f"\n[mqtt]\nenabled = true\nport = {port}\ntopic_prefix = \"cell7\"\n"
+    rc = main(["demo", "--monitor", "-c", _sim_toml(tmp_path, loopback(42), mqtt), "--reference", ref,
+               "--bump-after", "3", "--bump-mm", "10", "--bump-deg", "0", "--max-samples", "14",
+               "--no-frames", "--no-viz", "--session-root", str(tmp_path / "s")])
+    out, err = capsys.readouterr()
+    assert rc == 3, out + err
+    assert "change detector armed from its estimate and covariance" in out
+    assert "running a looping production program" in out
+    assert "simulated camera bumped by 10 mm" in out
+    (session,) = (tmp_path / "s").iterdir()
+    s = read_session(session)
+    bump = next(e for e in s.events if e["event"] == "simulated_bump")
+    alarm = next(e for e in s.events if e["event"] == "alarm")
+    assert 0 < alarm["sample_index"] - bump["sample_index"] <= 20
+    assert "ALARM camera moved" in out and "drift vs. reference" in out and "re-estimate after the move" in out
+    deadline = time.monotonic() + 5
+    while not any(t == "cell7/status" and m["state"] == "offline" for t, m, _ in inbox) and time.monotonic() < deadline:
+        time.sleep(0.05)
+    alarms = [m for t, m, _ in inbox if t == "cell7/alarm"]
+    assert [a["sample"] for a in alarms] == [alarm["sample_index"]] and alarms[0]["session"] == str(session)
+    estimates = [m for t, m, _ in inbox if t == "cell7/estimate"]
+    assert len(estimates) >= 10 and estimates[0]["samples_until_armed"] <= 2
+
+
+def test_monitor_with_the_shipped_config_samples(tmp_path, loopback, capsys):
+    rc = main(["monitor", "-c", _sim_toml(tmp_path, loopback(43)), "--max-samples", "3", "--no-frames", "--no-viz",
+               "--session-root", str(tmp_path / "s")])
+    out = capsys.readouterr().out
+    assert rc == 0
+    assert "running a looping production program" in out
+    assert "change detector: armed after 32 more samples" in out
+    assert "samples: 3 " in out and "estimate: none yet" in out
