@@ -84,15 +84,14 @@ def make_measure(cfg: Config):
 
 
 def make_solve(cal: CalibrateConfig, setup: Setup, rng: np.random.Generator):
-    """``solve(observations, *, final)``: the configured solver, refined while running too if configured (the
-    stop on the predicted 1-sigma and the pose planner then see the covariance of the result that will be
-    reported); outlier rejection only at the end."""
+    """``solve(observations, *, final)``: the configured solver, refined while running too if configured, so
+    that the stop on the predicted 1-sigma and the pose planner see the covariance of the result that will
+    be reported (with "auto": the camera-correction uncertainty too, until the samples determine it);
+    outlier rejection only at the end."""
     from calib.api import solve_observations
 
     def solve(observations, *, final: bool):
-        # While running, "auto" gives way to its fast closed-form start.
-        method = "YKronT'" if cal.method.strip().lower() == "auto" and not final else cal.method
-        return solve_observations(method, observations, setup,
+        return solve_observations(cal.method, observations, setup,
                                   refine=cal.refine, robust=cal.robust and final, rng=rng)
 
     return solve
