@@ -206,6 +206,8 @@ def run_robot_fault(fault: str, runs: int, slots, seed: int) -> dict:
 
 
 # ------------------------------------------------------------- parent death
+# A parent like a calibrate run: the simulator is launched from a worker thread that then
+# exits (PR_SET_PDEATHSIG would fire here), and 31 more threads are alive when it dies.
 PARENT = """
 import sys, threading, time
 from mocks.ur_sim import launch
@@ -219,7 +221,7 @@ time.sleep(3600)
 """
 
 
-def _alive(pid: int) -> bool:
+def process_alive(pid: int) -> bool:
     """Running; a zombie waiting for init to reap it holds no ports and counts as gone."""
     try:
         with open(f"/proc/{pid}/stat") as f:
@@ -255,16 +257,16 @@ def run_parent_deaths(runs: int, slots) -> dict:
             parent.kill()
             parent.wait()
             t0 = time.monotonic()
-            while _alive(sim_pid) and time.monotonic() - t0 < 3.0:
+            while process_alive(sim_pid) and time.monotonic() - t0 < 3.0:
                 time.sleep(0.02)
-            gone = not _alive(sim_pid)
+            gone = not process_alive(sim_pid)
             if gone and _ports_free(host):
                 row["clean"] += 1
                 row["detect"].append(time.monotonic() - t0)
             else:
                 row["orphans"] += 1
                 row["errors"].append(f"orphaned simulator on {host}")
-                if _alive(sim_pid):
+                if process_alive(sim_pid):
                     os.kill(sim_pid, signal.SIGKILL)
         finally:
             if parent.poll() is None:

@@ -10,36 +10,14 @@ import time
 
 import pytest
 
+from bench.faults import PARENT, process_alive
 from mocks.ur_sim import launch
 from .conftest import free_host
-
-# A parent like a calibrate run: the simulator is launched from a worker thread that then
-# exits (PR_SET_PDEATHSIG would fire here), and 31 more threads are alive when it dies.
-PARENT = """
-import sys, threading, time
-from mocks.ur_sim import launch
-box = []
-t = threading.Thread(target=lambda: box.append(launch(sys.argv[1])))
-t.start(); t.join()
-for _ in range(31):
-    threading.Thread(target=time.sleep, args=(3600,), daemon=True).start()
-print(box[0].proc.pid, flush=True)
-time.sleep(3600)
-"""
-
-
-def _alive(pid: int) -> bool:
-    """Running (a zombie waiting for init to reap it holds no ports and counts as gone)."""
-    try:
-        with open(f"/proc/{pid}/stat") as f:
-            return f.read().rsplit(")", 1)[1].split()[0] != "Z"
-    except FileNotFoundError:
-        return False
 
 
 def _wait_gone(pid: int, timeout: float) -> bool:
     deadline = time.monotonic() + timeout
-    while _alive(pid):
+    while process_alive(pid):
         if time.monotonic() > deadline:
             return False
         time.sleep(0.02)
@@ -64,7 +42,7 @@ def test_sim_exits_when_its_many_threaded_parent_is_killed(slot):
     try:
         sim_pid = int(parent.stdout.readline())
         time.sleep(0.5)
-        assert _alive(sim_pid), "the simulator must survive the exit of the thread that launched it"
+        assert process_alive(sim_pid), "the simulator must survive the exit of the thread that launched it"
         parent.kill()
         parent.wait()
         assert _wait_gone(sim_pid, 3.0), "orphaned simulator"
