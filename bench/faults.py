@@ -230,7 +230,8 @@ def process_alive(pid: int) -> bool:
         return False
 
 
-def _ports_free(host: str) -> bool:
+def ports_free(host: str) -> bool:
+    """The simulator's three ports can be bound on ``host`` (nothing holds them)."""
     for port in (29999, 30003, 30004):
         with socket.socket() as s:
             s.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
@@ -260,7 +261,7 @@ def run_parent_deaths(runs: int, slots) -> dict:
             while process_alive(sim_pid) and time.monotonic() - t0 < 3.0:
                 time.sleep(0.02)
             gone = not process_alive(sim_pid)
-            if gone and _ports_free(host):
+            if gone and ports_free(host):
                 row["clean"] += 1
                 row["detect"].append(time.monotonic() - t0)
             else:
@@ -286,17 +287,21 @@ def _sample_indices(session: Path) -> tuple[set[int], int]:
     return {o.index for o in s.observations}, missing
 
 
+def _sim_config(path: Path, host: str) -> Path:
+    """The shipped simulated-cell config with its controller on ``host``, written to ``path``."""
+    base = Path(__file__).resolve().parent.parent / "config" / "sim.toml"
+    path.write_text(base.read_text().replace('host = "127.0.0.2"', f'host = "{host}"'))
+    return path
+
+
 def run_kills(runs: int, slots, seed: int, samples: int = 8) -> dict:
     row = {"fault": "kill -9 of calibrate + --resume", "runs": 0, "clean": 0, "crashes": 0, "hangs": 0, "lost": 0,
            "detect": [], "errors": [], "resumable": 0}
     rng = random.Random(seed)
-    base = Path(__file__).resolve().parent.parent / "config" / "sim.toml"
     tmp = Path(tempfile.mkdtemp(prefix="handeye-faults-"))
     try:
         for i in range(runs):
-            host = f"{_net()}.{next(slots)}"
-            cfg = tmp / f"sim{i}.toml"
-            cfg.write_text(base.read_text().replace('host = "127.0.0.2"', f'host = "{host}"'))
+            cfg = _sim_config(tmp / f"sim{i}.toml", f"{_net()}.{next(slots)}")
             root = tmp / f"sessions{i}"
             cmd = [sys.executable, "-m", "app.cli", "calibrate", "--yes-move", "-c", str(cfg), "--session-root",
                    str(root), "--no-viz", "--samples", str(samples), "--seed", str(i)]
@@ -357,13 +362,11 @@ def run_app_freezes(runs: int, slots, seed: int, seconds: float = 60.0) -> dict:
     row = {"fault": f"calibrate, stream frozen {seconds:.0f} s mid-run", "runs": 0, "clean": 0, "crashes": 0,
            "hangs": 0, "lost": 0, "detect": [], "errors": []}
     rng = random.Random(seed)
-    base = Path(__file__).resolve().parent.parent / "config" / "sim.toml"
     tmp = Path(tempfile.mkdtemp(prefix="handeye-faults-"))
     try:
         for i in range(runs):
             host = f"{_net()}.{next(slots)}"
-            cfg = tmp / f"sim{i}.toml"
-            cfg.write_text(base.read_text().replace('host = "127.0.0.2"', f'host = "{host}"'))
+            cfg = _sim_config(tmp / f"sim{i}.toml", host)
             root = tmp / f"sessions{i}"
             row["runs"] += 1
             proc = subprocess.Popen([sys.executable, "-m", "app.cli", "calibrate", "--yes-move", "-c", str(cfg),

@@ -3,14 +3,13 @@ that process and however many threads it has, and always frees its ports."""
 
 import os
 import signal
-import socket
 import subprocess
 import sys
 import time
 
 import pytest
 
-from bench.faults import PARENT, process_alive
+from bench.faults import PARENT, ports_free, process_alive
 from mocks.ur_sim import launch
 from .conftest import free_host
 
@@ -21,17 +20,6 @@ def _wait_gone(pid: int, timeout: float) -> bool:
         if time.monotonic() > deadline:
             return False
         time.sleep(0.02)
-    return True
-
-
-def _ports_free(host: str) -> bool:
-    for port in (29999, 30003, 30004):
-        with socket.socket() as s:
-            s.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
-            try:
-                s.bind((host, port))
-            except OSError:
-                return False
     return True
 
 
@@ -46,7 +34,7 @@ def test_sim_exits_when_its_many_threaded_parent_is_killed(slot):
         parent.kill()
         parent.wait()
         assert _wait_gone(sim_pid, 3.0), "orphaned simulator"
-        assert _ports_free(host)
+        assert ports_free(host)
     finally:
         parent.kill()
 
@@ -57,4 +45,4 @@ def test_sigterm_storm_stops_the_sim():
         os.kill(sim.proc.pid, signal.SIGTERM)
     assert _wait_gone(sim.proc.pid, 3.0)
     assert sim.proc.wait(1.0) == 0
-    assert _ports_free(sim.host)
+    assert ports_free(sim.host)
