@@ -1,6 +1,7 @@
 """The layering, read from the code: no module imports a layer above its own.
 
-calib < drivers < mocks < app; bench may import calib, drivers and mocks;
+calib < drivers < mocks < app; bench (library and device benchmarks) may import calib, drivers and
+mocks, the end-to-end benchmarks live in app/benchmarks;
 production code never imports tests nor reads its data. Every import
 statement counts, also the ones inside functions (a lazy import is still a
 dependency).
@@ -20,10 +21,6 @@ ALLOWED = {
     "bench": {"calib", "drivers", "mocks", "bench"},
 }
 PROJECT = set(ALLOWED) | {"tests"}
-#: Benchmarks that still exercise the application (sessions, importers, config files) or read tests/data;
-#: each entry must still violate the rule (the test below says when one can go). Their app-level parts
-#: belong in an app command or in tests/.
-BENCH_EXCEPTIONS = {"bench/faults.py", "bench/fuzz.py", "bench/model.py", "bench/plan.py"}
 
 
 def imported_packages(path: Path) -> set[tuple[str, int]]:
@@ -53,8 +50,7 @@ def wrong_imports(path: Path, layer: str) -> list[str]:
 @pytest.mark.parametrize("layer", sorted(ALLOWED))
 def test_no_module_imports_a_layer_above_its_own(layer):
     assert modules(layer), f"no modules found under {layer}/"
-    wrong = [w for p in modules(layer) if str(p.relative_to(ROOT)) not in BENCH_EXCEPTIONS
-             for w in wrong_imports(p, layer)]
+    wrong = [w for p in modules(layer) for w in wrong_imports(p, layer)]
     assert not wrong, "\n".join(wrong)
 
 
@@ -74,15 +70,8 @@ def reads_tests(path: Path) -> list[int]:
 
 @pytest.mark.parametrize("layer", sorted(ALLOWED))
 def test_production_code_does_not_read_the_tests_folder(layer):
-    wrong = [f"{p.relative_to(ROOT)}:{line}" for p in modules(layer) if str(p.relative_to(ROOT)) not in BENCH_EXCEPTIONS
-             for line in reads_tests(p)]
+    wrong = [f"{p.relative_to(ROOT)}:{line}" for p in modules(layer) for line in reads_tests(p)]
     assert not wrong, "\n".join(wrong)
-
-
-def test_every_bench_exception_is_still_one():
-    fixed = [name for name in BENCH_EXCEPTIONS
-             if not wrong_imports(ROOT / name, "bench") and not reads_tests(ROOT / name)]
-    assert not fixed, f"no longer crossing layers, remove from BENCH_EXCEPTIONS: {fixed}"
 
 
 def test_the_check_sees_a_path_into_tests(tmp_path):

@@ -13,30 +13,30 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--vision", action="store_true", help="also run the vision benchmark")
     p.add_argument("--robot", action="store_true", help="also run the robot benchmark")
     p.add_argument("--faults", action="store_true",
-                   help="run only the fault campaign (bench.faults: robot and simulator faults, minutes)")
+                   help="run only the fault campaign (app.benchmarks.faults: robot and simulator faults, minutes)")
     p.add_argument("--fuzz", action="store_true",
-                   help="run only the input fuzz campaign (bench.fuzz: solver API, configs, sessions, imports; minutes)")
-    p.add_argument("--plan", action="store_true", help="run only the pose-planning benchmark (bench.plan; "
+                   help="run only the input fuzz campaign (app.benchmarks.fuzz: solver API, configs, sessions, imports; minutes)")
+    p.add_argument("--plan", action="store_true", help="run only the pose-planning benchmark (app.benchmarks.plan; "
                    "other arguments go to it)")
     p.add_argument("--model", action="store_true",
-                   help="only the measurement-model / solve('auto') benchmark (bench.model; --quick passes through)")
+                   help="only the measurement-model / solve('auto') benchmark (app.benchmarks.model; --quick passes through)")
 
 
 def run(args) -> int:
     if args.fuzz:
-        from bench import fuzz
+        from app.benchmarks import fuzz
 
         return int(fuzz.main(args.extra) or 0)
     if args.faults:
-        from bench import faults
+        from app.benchmarks import faults
 
         return int(faults.main(args.extra) or 0)
     if args.plan:
-        from bench import plan
+        from app.benchmarks import plan
 
         return int(plan.main(args.extra) or 0)
     if args.model:
-        from bench import model
+        from app.benchmarks import model
 
         return int(model.main(args.extra) or 0)
     from bench import solvers

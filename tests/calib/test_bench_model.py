@@ -2,7 +2,7 @@
 
 import numpy as np
 
-from bench import model as bench_model
+from app.benchmarks import model as bench_model
 
 
 def test_model_benchmark_sections_run():

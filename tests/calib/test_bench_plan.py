@@ -1,8 +1,8 @@
-"""bench.plan: the fixed 17-pose baseline and the report table."""
+"""app.benchmarks.plan: the fixed 17-pose baseline and the report table."""
 
 import numpy as np
 
-from bench.plan import fixed_pattern, format_report
+from app.benchmarks.plan import fixed_pattern, format_report
 from calib import transforms as tf
 
 

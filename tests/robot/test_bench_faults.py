@@ -1,8 +1,8 @@
-"""bench.faults: the target campaign's oracle (the simulator's own execution) and its table row."""
+"""app.benchmarks.faults: the target campaign's oracle (the simulator's own execution) and its table row."""
 
 import numpy as np
 
-from bench.faults import format_row, sim_path_violation, run_targets
+from app.benchmarks.faults import format_row, sim_path_violation, run_targets
 from drivers.robot import ur_kinematics as kin
 from drivers.robot.ur import URRobot
 from mocks.ur_sim.motion import JointMotion, LinearMotion

@@ -9,7 +9,7 @@ import time
 
 import pytest
 
-from bench.faults import PARENT, ports_free, process_alive
+from app.benchmarks.faults import PARENT, ports_free, process_alive
 from mocks.ur_sim import launch
 from .conftest import free_host
 

@@ -1,6 +1,6 @@
 """Pose-planning benchmark: how many motions to a trusted result, and are the planned motions valid.
 
-Run ``python -m bench.plan [--seeds N] [--validity-poses N] [--out DIR]`` (also
+Run ``python -m app.benchmarks.plan [--seeds N] [--validity-poses N] [--out DIR]`` (also
 ``handeye bench --plan``). Prints markdown and writes ``<out>/plan.md`` and
 ``<out>/plan.png``.
 
@@ -334,7 +334,7 @@ def plot(path: Path, runs: list[dict]) -> None:
 
 def main(argv=None) -> int:
     """Run the benchmark; returns 0. See the module docstring."""
-    ap = argparse.ArgumentParser(prog="python -m bench.plan", description=__doc__.split("\n")[0])
+    ap = argparse.ArgumentParser(prog="python -m app.benchmarks.plan", description=__doc__.split("\n")[0])
     ap.add_argument("--seeds", type=int, default=5, help="seeds per cell and strategy (full calibrate runs)")
     ap.add_argument("--validity-poses", type=int, default=10000, help="planned poses to check at least")
     ap.add_argument("--out", default="out/bench", help="output folder for plan.md and plan.png")

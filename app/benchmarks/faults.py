@@ -1,6 +1,6 @@
 """Fault campaign for the robot side: repeat each controller/simulator fault many times, count the outcomes.
 
-Run ``python -m bench.faults [--quick | --full] [--freeze N] [--faults N] [--app-freezes N]
+Run ``python -m app.benchmarks.faults [--quick | --full] [--freeze N] [--faults N] [--app-freezes N]
 [--parent-deaths N] [--kills N] [--targets N] [--seed S]`` or ``handeye bench --faults``. Prints a
 markdown table:
 fault, runs, clean errors, crashes (native signals), hangs, samples lost, and the slowest
@@ -165,7 +165,7 @@ def run_robot_fault(fault: str, runs: int, slots, seed: int) -> dict:
     while row["runs"] < runs:
         host = f"{_net()}.{next(slots)}"
         # Own session: a hung worker is killed with its simulator and RTDE client.
-        proc = subprocess.Popen([sys.executable, "-m", "bench.faults", "--worker", fault, host,
+        proc = subprocess.Popen([sys.executable, "-m", "app.benchmarks.faults", "--worker", fault, host,
                                  str(runs - row["runs"]), str(seed + row["runs"])],
                                 stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, start_new_session=True)
         lines: queue.Queue = queue.Queue()
@@ -289,7 +289,7 @@ def _sample_indices(session: Path) -> tuple[set[int], int]:
 
 def _sim_config(path: Path, host: str) -> Path:
     """The shipped simulated-cell config with its controller on ``host``, written to ``path``."""
-    base = Path(__file__).resolve().parent.parent / "config" / "sim.toml"
+    base = Path(__file__).resolve().parents[2] / "config" / "sim.toml"
     path.write_text(base.read_text().replace('host = "127.0.0.2"', f'host = "{host}"'))
     return path
 
@@ -504,7 +504,7 @@ def format_row(row: dict) -> str:
 
 
 def main(argv: list[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(prog="python -m bench.faults", description=__doc__.splitlines()[0])
+    ap = argparse.ArgumentParser(prog="python -m app.benchmarks.faults", description=__doc__.splitlines()[0])
     ap.add_argument("--worker", nargs=4, metavar=("FAULT", "HOST", "RUNS", "SEED"), help=argparse.SUPPRESS)
     size = ap.add_mutually_exclusive_group()
     size.add_argument("--quick", action="store_true", help=f"smoke-test counts {QUICK}")

@@ -9,13 +9,13 @@ Sections:
 2. Eight poses of a board with good orientations: ``auto`` vs every pose-based
    solver, ours and OpenCV's.
 3. Symmetric board: 30% of the marker poses flipped by a half turn.
-4. Every real set (tests/data and /work/shared/datasets): held-out (leave-one-out,
+4. Every real set in the shared datasets (`app.benchmarks.datasets`): held-out (leave-one-out,
    10-fold above 60 samples) prediction error of the marker point, ``auto`` vs
    every closed form and the paper's refinement; predicted vs observed.
 5. Plain cell: the paper's refined YKronT' vs the Cramér-Rao bound.
 6. Speed at N = 1000 (one thread).
 
-Run: ``handeye bench --model`` or ``python -m bench.model [--quick]``.
+Run: ``handeye bench --model`` or ``python -m app.benchmarks.model [--quick]``.
 """
 
 from __future__ import annotations
@@ -26,12 +26,14 @@ os.environ.setdefault("OMP_NUM_THREADS", "1")
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
 import argparse  # noqa: E402
+import tempfile  # noqa: E402
 import time  # noqa: E402
 from pathlib import Path  # noqa: E402
 
 import cv2  # noqa: E402
 import numpy as np  # noqa: E402
 
+from app.benchmarks.datasets import real_sets  # noqa: E402
 from bench.solvers import OPENCV_HAND_EYE, OPENCV_ROBOT_WORLD, run_solver  # noqa: E402
 from calib import model, solve, solvers  # noqa: E402
 from calib import simulate  # noqa: E402
@@ -41,8 +43,6 @@ from calib.errors import CalibrationError  # noqa: E402
 from calib.refine import cramer_rao_bound, error_vector, nees  # noqa: E402
 from calib.setup import Setup  # noqa: E402
 
-ROOT = Path(__file__).resolve().parents[1]
-SHARED = Path("/work/shared/datasets")
 POSE_METHODS = [m for m, i in METHODS.items() if i.needs == "poses"]
 
 
@@ -183,25 +183,14 @@ def section_flips(rng, trials: int, n: int = 19) -> str:
     ])
 
 
-def real_sets():
-    """(name, import) of every real recording the project can load."""
-    from app.formats import load
-
-    sets = [
-        ("industrial_calibration ChArUco (eye-to-hand)", SHARED / "industrial_calibration" / "test_set_charuco" / "cal_data.yaml"),
-        ("industrial_calibration 10x10 circles (eye-in-hand)", SHARED / "industrial_calibration" / "test_set_10x10"),
-        ("ETH robot_arm SR300 (eye-in-hand)", ROOT / "tests" / "data" / "ethz" / "robot_arm"),
-        ("ETH robot_arm simulated", ROOT / "tests" / "data" / "ethz" / "robot_arm_sim"),
-        ("ETH prime_sense_1 Vicon", ROOT / "tests" / "data" / "ethz" / "prime_sense_1"),
-    ]
-    for name, path in sets:
-        if path.exists():
-            yield name, load(path)
-
-
 def section_real(quick: bool) -> str:
+    with tempfile.TemporaryDirectory(prefix="handeye-bench-") as work:
+        return _real_rows(quick, Path(work))
+
+
+def _real_rows(quick: bool, work: Path) -> str:
     rows = []
-    for name, imp in real_sets():
+    for name, imp in real_sets(work):
         A, B, setup = imp.A, imp.B, imp.setup
         n = len(A)
         folds = None if n <= 60 else 10
@@ -277,7 +266,7 @@ def section_speed(rng, repeats: int, n: int = 1000) -> str:
 
 
 def main(argv=None) -> int:
-    ap = argparse.ArgumentParser(prog="python -m bench.model", description=__doc__.split("\n")[0])
+    ap = argparse.ArgumentParser(prog="python -m app.benchmarks.model", description=__doc__.split("\n")[0])
     ap.add_argument("--quick", action="store_true", help="few trials, small real sets only")
     ap.add_argument("--out", default="out/bench")
     ap.add_argument("--seed", type=int, default=0)

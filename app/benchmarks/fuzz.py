@@ -1,6 +1,6 @@
 """Input fuzzing: the solver API, the config loader, the session reader and the importers.
 
-Run ``python -m bench.fuzz [--solver-cases N] [--file-cases N] [--seed S] [--out out/bench]``
+Run ``python -m app.benchmarks.fuzz [--solver-cases N] [--file-cases N] [--seed S] [--out out/bench]``
 (also ``handeye bench --faults``). Prints a markdown table and writes
 ``<out>/fuzz.md``.
 
@@ -488,12 +488,13 @@ def _seed_files(work: Path, rng: np.random.Generator) -> dict[str, Path]:
 
     import yaml
 
+    from app.benchmarks.datasets import datasets_dir
     from app.session import SessionWriter
     from calib.observation import Observation
 
     seeds = work / "seeds"
     seeds.mkdir(parents=True)
-    repo = Path(__file__).resolve().parents[1]
+    repo = Path(__file__).resolve().parents[2]
     shutil.copy(repo / "config" / "sim.toml", seeds / "config.toml")
 
     d = simulate.realistic_cell(8, rng)
@@ -523,7 +524,10 @@ def _seed_files(work: Path, rng: np.random.Generator) -> dict[str, Path]:
     ind = seeds / "industrial"
     (ind / "images").mkdir(parents=True)
     (ind / "poses").mkdir()
-    src = repo / "tests" / "data" / "circle_grid"
+    src = datasets_dir() / "industrial_calibration" / "test_set_10x10"
+    if not (src / "cal_data.yaml").exists():
+        raise SystemExit(f"the industrial_calibration seed needs the shared datasets: {src} is missing "
+                         "(set HANDEYE_DATASETS)")
     doc = yaml.safe_load((src / "cal_data.yaml").read_text())
     doc["data"] = doc["data"][:3]  # three views keep a case fast
     for e in doc["data"]:
@@ -633,7 +637,7 @@ def format_table(rows: dict[str, Tally], elapsed: float) -> str:
 
 def main(argv=None) -> int:
     """Run the campaign; returns 1 if any case failed, else 0."""
-    ap = argparse.ArgumentParser(prog="python -m bench.fuzz", description=__doc__.split("\n")[0])
+    ap = argparse.ArgumentParser(prog="python -m app.benchmarks.fuzz", description=__doc__.split("\n")[0])
     ap.add_argument("--solver-cases", type=int, default=10_000)
     ap.add_argument("--file-cases", type=int, default=500, help="cases for each of configs, sessions, imports")
     ap.add_argument("--seed", type=int, default=0)
