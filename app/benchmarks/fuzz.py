@@ -1,7 +1,7 @@
 """Input fuzzing: the solver API, the config loader, the session reader and the importers.
 
 Run ``python -m app.benchmarks.fuzz [--solver-cases N] [--file-cases N] [--seed S] [--out out/bench]``
-(also ``handeye bench --faults``). Prints a markdown table and writes
+(also ``handeye bench --fuzz``). Prints a markdown table and writes
 ``<out>/fuzz.md``.
 
 What counts as a failure:
@@ -11,7 +11,8 @@ What counts as a failure:
   exception that is not a `calib.errors.HandeyeError`, a warning (e.g. complex
   inputs silently cast), or a result carrying NaN/inf (X, Y, residuals, cov);
 - files (TOML configs, session directories, import files: easy_handeye,
-  easy_handeye2, industrial_calibration, pose-stream CSV manifests): an
+  easy_handeye2, industrial_calibration, pose-stream CSV manifests, ViSP
+  pose files, an image folder, OpenCV FileStorage, MoveIt Calibration): an
   exception that is not a `HandeyeError` (a traceback), a read that does not
   return within ``HANG_S`` seconds, or a file opened outside the data
   directory (seen by an audit hook on ``open``).
@@ -84,6 +85,16 @@ class Tally:
     @property
     def failures(self) -> int:
         return self.crashes + self.nan_results + self.warned + self.hangs + self.outside_reads
+
+    @classmethod
+    def total(cls, tallies) -> Tally:
+        """The counts of several tallies summed (their examples stay with them)."""
+        out = cls()
+        for t in tallies:
+            for name in ("cases", "ok", "clean_errors", "crashes", "nan_results", "warned", "hangs", "outside_reads"):
+                setattr(out, name, getattr(out, name) + getattr(t, name))
+            out.crash_types.update(t.crash_types)
+        return out
 
 
 # ------------------------------------------------------------------ solver cases
@@ -482,21 +493,122 @@ def _fs_mutation(path: Path, rng: np.random.Generator, canary: Path) -> str:
     return kind
 
 
-def _seed_files(work: Path, rng: np.random.Generator) -> dict[str, Path]:
-    """Valid inputs to damage: a config, a session with frames, and one file set per importer."""
+#: Importers of the "import" file campaign, in rotation order (names of `write_import_seed`).
+IMPORT_KINDS = ("eh2", "eh1", "industrial", "pose_csv", "visp", "image_folder", "opencv_storage", "moveit")
+
+#: The file each import kind hands to `app.formats.load` (the others load their directory).
+IMPORT_MAIN = {"eh2": "cell.samples", "eh1": "samples.yaml", "opencv_storage": "pairs.yaml",
+               "moveit": "pose_samples.json"}
+
+
+def _msg(T) -> dict:
+    t, q = tf.to_xyz_quat(T)
+    return {"translation": dict(zip("xyz", map(float, t))), "rotation": dict(zip("xyzw", map(float, q)))}
+
+
+def _write_image_folder(folder: Path, d) -> None:
+    """Three tiny (96 px) rendered views of a 5 cm DICT_4X4_50 marker, flat depth, plain intrinsics.
+
+    The robot poses are the simulated cell's; the images are not consistent with
+    them (a fuzz seed only has to load, not to calibrate), which keeps a case ~0.1 s.
+    """
+    import json
+
+    import cv2
+
+    marker = cv2.aruco.generateImageMarker(cv2.aruco.getPredefinedDictionary(cv2.aruco.DICT_4X4_50), 0, 40)
+    rows = []
+    for i in range(3):
+        img = np.full((96, 96), 255, np.uint8)
+        img[24 + 4 * i:64 + 4 * i, 28:68] = marker
+        cv2.imwrite(str(folder / f"img_{i}.png"), img)
+        cv2.imwrite(str(folder / f"depth_{i}.png"), np.full((96, 96), 250, np.uint16))  # mm
+        xyz, q = tf.to_xyz_quat(d.A[i])
+        rows.append({"image": f"img_{i}.png", "depth": f"depth_{i}.png",
+                     **dict(zip(("x", "y", "z", "qx", "qy", "qz", "qw"), map(float, [*xyz, *q])))})
+    (folder / "poses.json").write_text(json.dumps({"setup": "eye_to_hand", "poses": rows}, indent=1))
+    (folder / "intrinsics.yaml").write_text("fx: 200.0\nfy: 200.0\ncx: 48.0\ncy: 48.0\ndist: [0.0, 0.0, 0.0, 0.0, 0.0]\n")
+
+
+def write_import_seed(kind: str, seeds: Path, rng: np.random.Generator) -> Path:
+    """A valid file set of importer ``kind`` (`IMPORT_KINDS`) in ``seeds / kind``, from simulated data.
+
+    Returns the directory; `app.formats.load` takes it, or its `IMPORT_MAIN` file.
+    The industrial_calibration seed copies three views of the shared data set
+    (`app.benchmarks.datasets.datasets_dir`); `SystemExit` if it is missing.
+    """
     import shutil
 
     import yaml
 
     from app.benchmarks.datasets import datasets_dir
+    from app.formats.moveit import write_moveit
+    from app.formats.opencv_storage import write_opencv_storage
+    from app.formats.visp import write_visp
+
+    out = seeds / kind
+    out.mkdir(parents=True)
+    d = simulate.realistic_cell(8, rng)
+    stored = tf.invert(d.A)  # eye-on-base files of easy_handeye store T_effector_base
+    if kind == "eh2":
+        (out / IMPORT_MAIN[kind]).write_text(yaml.safe_dump(
+            {"parameters": {"name": "cell", "calibration_type": "eye_on_base"},
+             "samples": [{"robot": _msg(R), "tracking": _msg(B)} for R, B in zip(stored, d.B)]}))
+    elif kind == "eh1":
+        (out / IMPORT_MAIN[kind]).write_text(yaml.safe_dump(
+            {"parameters": {"eye_on_hand": False},
+             "samples": {"hand_world_samples": [_msg(R) for R in stored],
+                         "camera_marker_samples": [_msg(B) for B in d.B]}}))
+    elif kind == "industrial":
+        src = datasets_dir() / "industrial_calibration" / "test_set_10x10"
+        if not (src / "cal_data.yaml").exists():
+            raise SystemExit(f"the industrial_calibration seed needs the shared datasets: {src} is missing "
+                             "(set HANDEYE_DATASETS)")
+        (out / "images").mkdir()
+        (out / "poses").mkdir()
+        doc = yaml.safe_load((src / "cal_data.yaml").read_text())
+        doc["data"] = doc["data"][:3]  # three views keep a case fast
+        for e in doc["data"]:
+            shutil.copy(src / e["image"], out / e["image"])
+            shutil.copy(src / e["pose"], out / e["pose"])
+        (out / "cal_data.yaml").write_text(yaml.safe_dump(doc))
+    elif kind == "pose_csv":
+        t = np.arange(60) * 0.05
+        A = simulate.realistic_cell(60, rng).A
+        for name, T in (("hand.csv", A), ("target.csv", tf.invert(A))):
+            xyz, q = tf.to_xyz_quat(T)
+            rows = np.column_stack([t, xyz, q])
+            (out / name).write_text("t,x,y,z,qx,qy,qz,qw\n" + "\n".join(",".join(f"{v:.9f}" for v in r)
+                                                                         for r in rows))
+        (out / "streams.toml").write_text('format = "pose_csv"\nsetup = "eye_in_hand"\nrobot = "hand.csv"\n'
+                                          'camera = "target.csv"\nclock_offset = 0.0\nrefine = false\n')
+    elif kind == "visp":
+        write_visp(out, d.A, d.B)
+    elif kind == "image_folder":
+        _write_image_folder(out, d)
+    elif kind == "opencv_storage":
+        write_opencv_storage(out / IMPORT_MAIN[kind], d.A, d.B, setup="eye_to_hand")
+    elif kind == "moveit":
+        write_moveit(out / IMPORT_MAIN[kind], d.A, d.B)
+    else:
+        raise ValueError(f"unknown import kind {kind!r} (one of {IMPORT_KINDS})")
+    return out
+
+
+def _seed_files(work: Path, kind: str, rng: np.random.Generator) -> dict[str, Path]:
+    """Valid inputs to damage for campaign ``kind``: a config, a session with frames, or one file set per importer."""
+    import shutil
+
     from app.session import SessionWriter
     from calib.observation import Observation
 
     seeds = work / "seeds"
     seeds.mkdir(parents=True)
-    repo = Path(__file__).resolve().parents[2]
-    shutil.copy(repo / "config" / "sim.toml", seeds / "config.toml")
-
+    if kind == "config":
+        shutil.copy(Path(__file__).resolve().parents[2] / "config" / "sim.toml", seeds / "config.toml")
+        return {"config": seeds / "config.toml"}
+    if kind == "import":
+        return {name: write_import_seed(name, seeds, rng) for name in IMPORT_KINDS}
     d = simulate.realistic_cell(8, rng)
     with SessionWriter.create(seeds, "eye_to_hand", name="session", truth={"T_base_cam": d.Y}) as w:
         img = np.zeros((8, 8, 3), np.uint8)
@@ -506,60 +618,27 @@ def _seed_files(work: Path, rng: np.random.Generator) -> dict[str, Path]:
             if i == 3:
                 w.add_skip(3.5, "marker not found", T_base_flange=d.A[i])
                 w.add_event(3.6, "note", text="x")
+    return {"session": seeds / "session"}
 
-    def msg(T):
-        t, q = tf.to_xyz_quat(T)
-        return {"translation": dict(zip("xyz", map(float, t))), "rotation": dict(zip("xyzw", map(float, q)))}
 
-    stored = tf.invert(d.A)  # eye-on-base files store T_effector_base
-    (seeds / "eh2").mkdir()
-    (seeds / "eh2" / "cell.samples").write_text(yaml.safe_dump(
-        {"parameters": {"name": "cell", "calibration_type": "eye_on_base"},
-         "samples": [{"robot": msg(R), "tracking": msg(B)} for R, B in zip(stored, d.B)]}))
-    (seeds / "eh1").mkdir()
-    (seeds / "eh1" / "samples.yaml").write_text(yaml.safe_dump(
-        {"parameters": {"eye_on_hand": False},
-         "samples": {"hand_world_samples": [msg(R) for R in stored], "camera_marker_samples": [msg(B) for B in d.B]}}))
-
-    ind = seeds / "industrial"
-    (ind / "images").mkdir(parents=True)
-    (ind / "poses").mkdir()
-    src = datasets_dir() / "industrial_calibration" / "test_set_10x10"
-    if not (src / "cal_data.yaml").exists():
-        raise SystemExit(f"the industrial_calibration seed needs the shared datasets: {src} is missing "
-                         "(set HANDEYE_DATASETS)")
-    doc = yaml.safe_load((src / "cal_data.yaml").read_text())
-    doc["data"] = doc["data"][:3]  # three views keep a case fast
-    for e in doc["data"]:
-        shutil.copy(src / e["image"], ind / e["image"])
-        shutil.copy(src / e["pose"], ind / e["pose"])
-    (ind / "cal_data.yaml").write_text(yaml.safe_dump(doc))
-
-    csv = seeds / "pose_csv"
-    csv.mkdir()
-    t = np.arange(60) * 0.05
-    A = simulate.realistic_cell(60, rng).A
-    for name, T in (("hand.csv", A), ("target.csv", tf.invert(A))):
-        xyz, q = tf.to_xyz_quat(T)
-        rows = np.column_stack([t, xyz, q])
-        (csv / name).write_text("t,x,y,z,qx,qy,qz,qw\n" + "\n".join(",".join(f"{v:.9f}" for v in r) for r in rows))
-    (csv / "streams.toml").write_text('format = "pose_csv"\nsetup = "eye_in_hand"\nrobot = "hand.csv"\n'
-                                      'camera = "target.csv"\nclock_offset = 0.0\nrefine = false\n')
-    return {"config": seeds / "config.toml", "session": seeds / "session", "eh2": seeds / "eh2",
-            "eh1": seeds / "eh1", "industrial": ind, "pose_csv": csv}
+#: The main file of each kind: damaged most of the time, so the damage reaches its parser.
+MAIN_FILES = ("samples.jsonl", "session.json", "cal_data.yaml", "streams.toml", "poses.json", "intrinsics.yaml",
+              "config.toml", *IMPORT_MAIN.values())
 
 
 def _pick_file(case_dir: Path, rng: np.random.Generator) -> Path:
     files = sorted(p for p in case_dir.rglob("*") if p.is_file())
-    # The main file of each kind most of the time, so the damage reaches its parser.
-    main = [p for p in files if p.name in ("samples.jsonl", "session.json", "cal_data.yaml", "streams.toml",
-                                           "cell.samples", "samples.yaml", "config.toml")]
+    main = [p for p in files if p.name in MAIN_FILES]
     pool = main if main and rng.random() < 0.7 else files
     return pool[int(rng.integers(len(pool)))]
 
 
-def run_file_campaign(kind: str, n_cases: int, rng: np.random.Generator, work: Path, watch: _OpenWatch) -> Tally:
-    """``n_cases`` damaged files of ``kind`` ("config", "session", "import")."""
+def run_file_campaign(kind: str, n_cases: int, rng: np.random.Generator, work: Path,
+                      watch: _OpenWatch) -> dict[str, Tally]:
+    """``n_cases`` damaged files of ``kind`` ("config", "session", "import"), tallied by seed.
+
+    The import cases rotate over `IMPORT_KINDS`, so each importer gets ``n_cases / 8``.
+    """
     import shutil
 
     from app import devices
@@ -567,13 +646,13 @@ def run_file_campaign(kind: str, n_cases: int, rng: np.random.Generator, work: P
     from app.formats import load
     from app.session import SessionWriter, read_session
 
-    seeds = _seed_files(work / kind, rng)
+    seeds = _seed_files(work / kind, kind, rng)
     outside = work / kind / "cases" / "outside"
     outside.mkdir(parents=True)
     canary = outside / "secret.txt"
     canary.write_text("not yours\n")
-    t = Tally()
-    names = {"config": ["config"], "session": ["session"], "import": ["eh2", "eh1", "industrial", "pose_csv"]}[kind]
+    names = list(seeds)
+    tallies = {name: Tally() for name in names}
     for i in range(n_cases):
         name = names[i % len(names)]
         case = work / kind / "cases" / f"{i:04d}"
@@ -586,7 +665,7 @@ def run_file_campaign(kind: str, n_cases: int, rng: np.random.Generator, work: P
         data_dir = case / src.name if src.is_dir() else case
         target = _pick_file(case, rng)
         # A config is named by the user, who may well symlink it: only data files must stay inside.
-        if rng.random() < 0.12 and target.name not in ("config.toml", "cell.samples", "samples.yaml"):
+        if rng.random() < 0.12 and target.name not in ("config.toml", *IMPORT_MAIN.values()):
             mut = f"{target.name}:{_fs_mutation(target, rng, canary)}"
         else:
             m, damaged = _mutate_bytes(target.read_bytes(), rng, canary)
@@ -605,13 +684,11 @@ def run_file_campaign(kind: str, n_cases: int, rng: np.random.Generator, work: P
                     s.load_frames(obs)
                 SessionWriter.resume(p).close()
         else:
-            main = {"eh2": "cell.samples", "eh1": "samples.yaml"}.get(name)
-
-            def fn(p=data_dir if main is None else data_dir / main):
+            def fn(p=data_dir / IMPORT_MAIN[name] if name in IMPORT_MAIN else data_dir):
                 load(p)
-        _run_file_case(t, watch, data_dir, desc, fn)
+        _run_file_case(tallies[name], watch, data_dir, desc, fn)
         shutil.rmtree(case, ignore_errors=True)
-    return t
+    return tallies
 
 
 # -------------------------------------------------------------------- reporting
@@ -655,7 +732,12 @@ def main(argv=None) -> int:
         watch = _OpenWatch(Path(tmp))
         for kind, label in (("config", "config files"), ("session", "session directories"),
                             ("import", "import files")):
-            rows[label] = run_file_campaign(kind, args.file_cases, rng, Path(tmp), watch)
+            by_seed = run_file_campaign(kind, args.file_cases, rng, Path(tmp), watch)
+            if kind == "import":  # the total, then one row per importer
+                rows[label] = Tally.total(by_seed.values())
+                rows.update({f"- {name}": t for name, t in by_seed.items()})
+            else:
+                rows[label] = by_seed[kind]
     report = "## Input fuzzing\n\n" + format_table(rows, time.perf_counter() - t0)
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)

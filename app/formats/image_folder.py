@@ -55,6 +55,8 @@ log = logging.getLogger(__name__)
 POSE_FILES = ("poses.csv", "poses.yaml", "poses.json")
 INTRINSICS_FILES = ("intrinsics.yaml", "intrinsics.json")
 _POSE_KEYS = ("x", "y", "z", "qx", "qy", "qz", "qw")
+#: Lengths of OpenCV's distortion models (k1 k2 p1 p2 [k3 [k4 k5 k6 [s1..s4 [tx ty]]]]).
+DIST_SIZES = (4, 5, 8, 12, 14)
 
 
 def is_image_folder(path: Path) -> bool:
@@ -80,8 +82,14 @@ def _read_mapping(path: Path):
     return read_yaml(path, allow_list=True)
 
 
+def _own_file(folder: Path, names) -> Path:
+    """The first of ``names`` present in ``folder``, if it resolves inside it (it may be a symlink)."""
+    name = next(f for f in names if (folder / f).exists())
+    return inside(folder, name, SessionError, what=str(folder / name))
+
+
 def _poses(folder: Path) -> tuple[list[dict], str | None, Path]:
-    path = next(folder / f for f in POSE_FILES if (folder / f).exists())
+    path = _own_file(folder, POSE_FILES)
     if path.suffix == ".csv":
         text = read_text_file(path, SessionError)
         try:
@@ -97,7 +105,7 @@ def _poses(folder: Path) -> tuple[list[dict], str | None, Path]:
 
 def read_intrinsics(folder: Path) -> SimpleNamespace:
     """``K`` (3, 3) and ``dist`` of ``intrinsics.yaml|json`` (plain fields or a ROS camera_info)."""
-    path = next(folder / f for f in INTRINSICS_FILES if (folder / f).exists())
+    path = _own_file(folder, INTRINSICS_FILES)
     d = _read_mapping(path)
     if not isinstance(d, dict):
         raise ConfigError(f"{path}: expected a mapping")
@@ -108,17 +116,21 @@ def read_intrinsics(folder: Path) -> SimpleNamespace:
         else:
             K = np.array([[float(d["fx"]), 0.0, float(d["cx"])], [0.0, float(d["fy"]), float(d["cy"])], [0, 0, 1.0]])
             dist = np.asarray(d.get("dist", []), dtype=float)
-    except (KeyError, TypeError, ValueError) as e:
+    except (KeyError, TypeError, ValueError, AttributeError, OverflowError) as e:
         raise ConfigError(f"{path}: needs fx, fy, cx, cy (or a camera_info camera_matrix): {e}") from None
     if not np.isfinite(K).all() or K[0, 0] <= 0 or K[1, 1] <= 0:
         raise ConfigError(f"{path}: focal lengths must be finite and > 0")
+    if dist.size not in (0, *DIST_SIZES) or not np.isfinite(dist).all():
+        raise ConfigError(f"{path}: distortion coefficients must be {', '.join(map(str, DIST_SIZES))} finite "
+                          f"numbers (OpenCV's models), got {dist.tolist()!r:.100}")
+    dist = dist.reshape(-1)
     return SimpleNamespace(K=K, dist=dist if dist.size else np.zeros(5))
 
 
 def _target(folder: Path, use_depth: bool):
     from calib.vision.extract import TargetConfig
 
-    data = dict(read_yaml(folder / "target.yaml")) if (folder / "target.yaml").exists() else {}
+    data = dict(read_yaml(_own_file(folder, ["target.yaml"]))) if (folder / "target.yaml").exists() else {}
     data.setdefault("use_depth", use_depth)
     try:
         return TargetConfig(**data)

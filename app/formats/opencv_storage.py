@@ -21,6 +21,7 @@ file or the ``setup=`` option says otherwise. `write_opencv_storage` writes this
 
 from __future__ import annotations
 
+import re
 from pathlib import Path
 
 import cv2
@@ -46,6 +47,13 @@ def is_opencv_storage(path: Path) -> bool:
             return f.read(len(HEADER)).decode(errors="replace") == HEADER
     except OSError:
         return False
+
+
+def _cv_message(e: BaseException) -> str:
+    """The last line of an OpenCV error (the parser's own words), e.g. ``parseValue ... Missing , between the elements``."""
+    cause = e.__cause__ or e.__context__ or e
+    line = (str(cause).strip().splitlines() or [type(cause).__name__])[-1]
+    return re.sub(r"^OpenCV\([^)]*\) \S+: error: ", "", line)[:200]
 
 
 def _matrices(fs, key: str, path: Path) -> list[np.ndarray] | None:
@@ -108,17 +116,18 @@ def load_opencv_storage(path, setup: str | None = None) -> ImportedSamples:
     text = read_text_file(path, SessionError)
     try:
         fs = cv2.FileStorage(text, cv2.FILE_STORAGE_READ | cv2.FILE_STORAGE_MEMORY)
-    except cv2.error as e:
-        raise SessionError(f"{path}: not an OpenCV FileStorage file ({str(e).strip().splitlines()[-1]})") from None
-    if not fs.isOpened():
-        raise SessionError(f"{path}: cannot open as an OpenCV FileStorage file")
-    try:
-        A = _transforms(fs, "gripper2base", path)
-        B = _transforms(fs, "target2cam", path)
-        node = fs.getNode("setup")
-        file_setup = node.string() if not node.empty() else None
-    finally:
-        fs.release()
+        if not fs.isOpened():
+            raise SessionError(f"{path}: cannot open as an OpenCV FileStorage file")
+        try:
+            A = _transforms(fs, "gripper2base", path)
+            B = _transforms(fs, "target2cam", path)
+            node = fs.getNode("setup")
+            file_setup = node.string() if not node.empty() else None
+        finally:
+            fs.release()
+    # The bindings raise a parse error of the constructor as a SystemError whose cause is the cv2.error.
+    except (cv2.error, SystemError) as e:
+        raise SessionError(f"{path}: not a valid OpenCV FileStorage file ({_cv_message(e)})") from None
     if setup is None:
         setup = file_setup or Setup.EYE_IN_HAND
     return ImportedSamples(observations_from_poses(A, B), check_setup(setup, error=SessionError),

@@ -34,6 +34,7 @@ from pathlib import Path
 import numpy as np
 
 from app.errors import SessionError
+from app.files import inside
 from calib import transforms as tf
 from calib.setup import Setup, check_setup
 
@@ -88,7 +89,8 @@ def load_visp(path, setup: str | None = None) -> ImportedSamples:
     for p in path.iterdir():
         m = _NAME.match(p.name)
         if m:
-            files[m.group(1)][int(m.group(2))] = p
+            # A pose file may be a symlink: read it only if it resolves inside the directory.
+            files[m.group(1)][int(m.group(2))] = inside(path, p.name, SessionError, what=str(p))
     paired = sorted(set(files["fPe"]) & set(files["cPo"]))
     if not paired:
         raise SessionError(f"{path}: no index has both pose_fPe_<i>.yaml and pose_cPo_<i>.yaml")
