@@ -1,6 +1,8 @@
 """Fixtures shared by every test folder."""
 
+import contextlib
 import os
+import sys
 
 import pytest
 from hypothesis import settings
@@ -25,3 +27,38 @@ def loopback():
     """``loopback(n)`` -> this process's address ``n`` for a simulated controller (n < 100;
     the robot tests' own simulators use the lower slots, so these start at .100)."""
     return lambda n: f"{process_net()}.{100 + n}"
+
+
+class OutsideReads:
+    """Audit hook on ``open``, installed once: while armed by ``watch(data)``, records files opened
+    outside ``data`` but beside it (its parent's tree: the canaries tests plant) or in /etc."""
+
+    def __init__(self):
+        self.data = self.area = None
+        self.opened: list[str] = []
+        sys.addaudithook(self._hook)
+
+    def _hook(self, event, args):
+        if event != "open" or self.data is None or not isinstance(args[0], (str, bytes, os.PathLike)):
+            return
+        p = os.path.realpath(os.fsdecode(args[0]))
+        if not (p == self.data or p.startswith(self.data + os.sep)) and \
+                (p.startswith(self.area + os.sep) or p.startswith("/etc/")):
+            self.opened.append(p)
+
+    @contextlib.contextmanager
+    def watch(self, data):
+        """Arm for the ``with`` body; on leaving it, fail the test if anything outside ``data`` was opened."""
+        self.data = os.path.realpath(data)
+        self.area, self.opened = os.path.dirname(self.data), []
+        try:
+            yield self
+        finally:
+            self.data = None
+        assert not self.opened, f"read outside the data directory {data}: {self.opened}"
+
+
+@pytest.fixture(scope="session")
+def outside_reads() -> OutsideReads:
+    """An `OutsideReads` watcher: ``with outside_reads.watch(data_dir): load(...)``."""
+    return OutsideReads()

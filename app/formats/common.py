@@ -93,6 +93,8 @@ def transform_from_xyz_quat_fields(d: dict, where: str, keys=("x", "y", "z", "qx
     v = np.array([_number(d, k, where) for k in keys])
     if not np.isfinite(v).all():
         raise SessionError(f"{where}: NaN or inf in {dict(zip(keys, v))}")
+    if np.abs(v).max() > tf.MAX_MAGNITUDE:  # before the norm below overflows
+        raise SessionError(f"{where}: a value beyond {tf.MAX_MAGNITUDE:g} in {dict(zip(keys, v.tolist()))}")
     q = v[3:]
     n = np.linalg.norm(q)
     # Files store quaternions with ~6-17 digits; anything further off is not a rotation.
@@ -120,20 +122,21 @@ def transform_from_msg(d: dict, where: str) -> np.ndarray:
     return transform_from_xyz_quat_fields(flat, where)
 
 
-def observations_from_poses(A, B, *, t=None, meta=None) -> list[Observation]:
+def observations_from_poses(A, B, *, source, t=None, meta=None) -> list[Observation]:
     """Observations from paired ``T_base_flange`` (N, 4, 4) and ``T_cam_marker`` (N, 4, 4).
 
     ``point_cam`` is the marker origin ``B[:, :3, 3]`` (for the point-only
     solvers); ``t`` defaults to the sample index; ``meta`` is a list of
-    per-sample dicts.
+    per-sample dicts. ``source`` (the file or directory read) starts every
+    `SessionError` message, e.g. ``<file>: T_cam_marker[3] rotation is not a proper rotation``.
     """
     try:
         A = tf.check_transforms(A, "T_base_flange")
         B = tf.check_transforms(B, "T_cam_marker", atol=1e-5)
     except CalibrationError as e:
-        raise SessionError(str(e)) from e
+        raise SessionError(f"{source}: {e}") from e
     if len(A) != len(B):
-        raise SessionError(f"{len(A)} robot poses but {len(B)} camera poses")
+        raise SessionError(f"{source}: {len(A)} robot poses but {len(B)} camera poses")
     t = np.arange(len(A), dtype=float) if t is None else np.asarray(t, dtype=float)
     meta = meta or [{} for _ in range(len(A))]
     return [

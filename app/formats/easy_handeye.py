@@ -81,7 +81,7 @@ def _build(robot, tracking, setup: Setup, path: Path, fmt: str, params: dict) ->
     B = [transform_from_msg(d, f"{path}: sample {i} tracking") for i, d in enumerate(tracking)]
     # eye-on-base samples store T_effector_base (the tools invert it for their solver).
     A = R if setup == Setup.EYE_IN_HAND else list(tf.invert(R))
-    obs = observations_from_poses(A, B)
+    obs = observations_from_poses(A, B, source=path)
     meta = {"format": fmt, "source": str(path), "frames": _frames(params), "time": "sample index"}
     return ImportedSamples(obs, setup, meta)
 

@@ -193,7 +193,9 @@ def load_image_folder(path, setup: str | None = None) -> ImportedSamples:
                                m.pose_cov, {"image": row["image"], "depth": bool(use_depth)}))
     if not obs:
         raise SessionError(f"{folder}: the target was found in none of the {len(rows)} images")
-    setup = check_setup(setup or file_setup or Setup.EYE_TO_HAND, error=SessionError)
+    if setup is None:  # the file's own word, named in the message if it is not a setup
+        setup = check_setup(file_setup or Setup.EYE_TO_HAND, f"{pose_path}: setup", error=SessionError)
+    setup = check_setup(setup, error=SessionError)
     return ImportedSamples(obs, setup, {"format": "image_folder", "source": str(folder), "time": "image index",
                                         "frames": {"base": "base", "flange": "flange", "camera": "camera",
                                                    "marker": "marker"},

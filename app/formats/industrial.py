@@ -177,7 +177,7 @@ def load_industrial_calibration(path) -> ImportedSamples:
                     "reprojection_rms_px": rms})
     if not A:
         raise SessionError(f"{path}: the target was found in none of the {len(data['data'])} images")
-    obs = observations_from_poses(np.array(A), np.array(B), meta=per)
+    obs = observations_from_poses(np.array(A), np.array(B), source=path, meta=per)
     for o, cov in zip(obs, covs):
         # Translation block = covariance of the target origin, the point the point-only solvers use.
         o.pose_cov, o.point_cov = cov, cov[3:, 3:].copy()

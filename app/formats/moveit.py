@@ -67,7 +67,7 @@ def load_moveit(path, setup: str | None = None) -> ImportedSamples:
         pairs.append(p)
     pairs = np.array(pairs)
     setup = Setup.EYE_TO_HAND if setup is None else check_setup(setup, error=SessionError)
-    return ImportedSamples(observations_from_poses(pairs[:, 0], pairs[:, 1]), setup,
+    return ImportedSamples(observations_from_poses(pairs[:, 0], pairs[:, 1], source=path), setup,
                            {"format": "moveit_calibration", "source": str(path), "time": "sample index",
                             "frames": {"base": "world", "flange": "effector", "camera": "sensor", "marker": "object"}})
 

@@ -128,9 +128,9 @@ def load_opencv_storage(path, setup: str | None = None) -> ImportedSamples:
     # The bindings raise a parse error of the constructor as a SystemError whose cause is the cv2.error.
     except (cv2.error, SystemError) as e:
         raise SessionError(f"{path}: not a valid OpenCV FileStorage file ({_cv_message(e)})") from None
-    if setup is None:
-        setup = file_setup or Setup.EYE_IN_HAND
-    return ImportedSamples(observations_from_poses(A, B), check_setup(setup, error=SessionError),
+    if setup is None:  # the file's own word, named in the message if it is not a setup
+        setup = check_setup(file_setup or Setup.EYE_IN_HAND, f"{path}: setup", error=SessionError)
+    return ImportedSamples(observations_from_poses(A, B, source=path), check_setup(setup, error=SessionError),
                            {"format": "opencv_storage", "source": str(path), "time": "sample index",
                             "frames": {"base": "base", "flange": "gripper", "camera": "cam", "marker": "target"}})
 

@@ -96,7 +96,7 @@ def load_visp(path, setup: str | None = None) -> ImportedSamples:
         raise SessionError(f"{path}: no index has both pose_fPe_<i>.yaml and pose_cPo_<i>.yaml")
     A = np.array([read_pose_vector(files["fPe"][i]) for i in paired])
     B = np.array([read_pose_vector(files["cPo"][i]) for i in paired])
-    obs = observations_from_poses(A, B, meta=[{"index": i} for i in paired])
+    obs = observations_from_poses(A, B, source=path, meta=[{"index": i} for i in paired])
     unpaired = sorted(set(files["fPe"]) ^ set(files["cPo"]))
     setup = Setup.EYE_IN_HAND if setup is None else check_setup(setup, error=SessionError)
     return ImportedSamples(obs, setup, {"format": "visp", "source": str(path), "time": "sample index",

@@ -1,10 +1,13 @@
 """Importers on damaged files: a HandeyeError naming the file, never a traceback, a hang or a read outside.
 
-One property test per importer (easy_handeye2, easy_handeye, industrial_calibration,
-pose-stream CSV) plus the cases the fuzz campaign found.
+Property tests for every importer (easy_handeye2, easy_handeye, industrial_calibration,
+pose-stream CSV, ViSP, image folder, OpenCV FileStorage, MoveIt Calibration) plus the
+cases the fuzz campaign found.
 """
 
+import json
 import os
+import re
 import shutil
 from pathlib import Path
 
@@ -14,13 +17,15 @@ import yaml
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
+from app.benchmarks.fuzz import IMPORT_MAIN, write_import_seed
 from app.formats import load
 from calib import simulate
 from calib import transforms as tf
-from app.errors import SessionError
+from app.errors import ConfigError, SessionError
 from calib.errors import HandeyeError
 
-SETTINGS = settings(max_examples=25, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
+SETTINGS = settings(max_examples=25, deadline=None,
+                    suppress_health_check=[HealthCheck.function_scoped_fixture, HealthCheck.too_slow])
 DATA_DIR = Path(__file__).resolve().parents[1] / "data"
 
 YAML_VALUES = st.recursive(
@@ -229,3 +234,197 @@ def test_opencv_storage_fifo_is_refused_not_waited_on(tmp_path):
     os.mkfifo(p)
     with pytest.raises(SessionError, match="not a regular file"):
         load(p, format="opencv_storage")
+
+
+# ------------------------------------------------ ViSP, image folder, OpenCV FileStorage, MoveIt
+# Seeded from the fuzz campaign's own valid file sets (app.benchmarks.fuzz.write_import_seed), damaged
+# here by hypothesis; each load runs under an audit hook (conftest.OutsideReads) that catches any file
+# opened outside the set.
+
+#: More examples than the older importers' tests: these cover every file of a set at once.
+DAMAGE_SETTINGS = settings(SETTINGS, max_examples=100)
+
+#: What replaces a value: wrong types, absurd numbers, OpenCV tags, nesting, names outside the set.
+TOKENS = st.sampled_from(["null", "[]", "{}", '"abc"', "true", "-1", "1e400", "nan", ".nan", "1e155", "[[1, 2], [3]]",
+                          '"../outside.txt"', '"/etc/hostname"', "0", '""', "[" * 40 + "]" * 40, "!!opencv-matrix",
+                          "dt: x", "rows: 100000", "4294967297", "-0.0", "1e-320"])
+_VALUE = re.compile(rb'-?\d+(?:\.\d+)?(?:e-?\d+)?|"[^"\n]*"|\w+')
+DAMAGE = dict(how=st.sampled_from(["insert", "truncate", "token", "token"]), pos=st.integers(0, 10_000),
+              junk=st.binary(min_size=1, max_size=64), token=TOKENS)
+
+
+def _damage(data: bytes, how, pos, junk, token) -> bytes:
+    pos %= len(data) + 1
+    if how == "insert":
+        return data[:pos] + junk + data[pos:]
+    if how == "truncate":
+        return data[:pos]
+    spans = [m.span() for m in _VALUE.finditer(data)] or [(pos, pos)]
+    a, b = spans[pos % len(spans)]
+    return data[:a] + token.encode() + data[b:]
+
+
+@pytest.fixture(scope="module")
+def seeds(tmp_path_factory):
+    root = tmp_path_factory.mktemp("seeds")
+    return {kind: write_import_seed(kind, root, np.random.default_rng(3))
+            for kind in ("visp", "image_folder", "opencv_storage", "moveit")}
+
+
+def _fresh(seeds, kind, tmp_path) -> Path:
+    """A new copy of ``kind``'s seed (hypothesis reuses ``tmp_path`` across examples), a canary beside it."""
+    case = tmp_path / "case"
+    shutil.rmtree(case, ignore_errors=True)
+    shutil.copytree(seeds[kind], case / kind)
+    (case / "outside.txt").write_text("not yours\n")
+    return case / kind
+
+
+def _load_checked(folder: Path, kind: str, outside_reads):
+    """Load the (damaged) set: a result or a HandeyeError naming the file, never another exception or an outside read."""
+    path = folder / IMPORT_MAIN[kind] if kind in IMPORT_MAIN else folder
+    with outside_reads.watch(folder):
+        try:
+            imp = load(path)
+        except HandeyeError as e:
+            assert str(folder) in str(e), f"message does not name the file: {e}"
+            return None
+    assert len(imp.observations) >= 1
+    assert all(np.isfinite(o.T_base_flange).all() and np.isfinite(o.point_cam).all() for o in imp.observations)
+    return imp
+
+
+def _files(folder: Path) -> list[Path]:
+    return sorted(p for p in folder.iterdir() if p.is_file())
+
+
+@DAMAGE_SETTINGS
+@given(kind=st.sampled_from(["visp", "image_folder", "opencv_storage", "moveit"]), which=st.integers(0, 100),
+       **DAMAGE)
+def test_new_importers_any_damage_to_any_file(seeds, tmp_path, outside_reads, kind, which, how, pos, junk, token):
+    folder = _fresh(seeds, kind, tmp_path)
+    files = _files(folder)
+    target = files[which % len(files)]
+    target.write_bytes(_damage(target.read_bytes(), how, pos, junk, token))
+    _load_checked(folder, kind, outside_reads)
+
+
+@DAMAGE_SETTINGS
+@given(kind=st.sampled_from(["opencv_storage", "moveit", "image_folder"]), **DAMAGE)
+def test_new_importers_damage_to_the_main_file(seeds, tmp_path, outside_reads, kind, how, pos, junk, token):
+    folder = _fresh(seeds, kind, tmp_path)
+    target = folder / IMPORT_MAIN.get(kind, "poses.json")
+    target.write_bytes(_damage(target.read_bytes(), how, pos, junk, token))
+    _load_checked(folder, kind, outside_reads)
+
+
+VISP_PATHS = [("rows",), ("cols",), ("data",), ("data", 0), ("data", 4), ("data", 2, 0), ("data", 5, 0)]
+
+
+@SETTINGS
+@given(name=st.sampled_from(["pose_fPe_1.yaml", "pose_cPo_2.yaml"]), where=st.sampled_from(VISP_PATHS),
+       value=YAML_VALUES)
+def test_visp_any_value_anywhere(seeds, tmp_path, outside_reads, name, where, value):
+    folder = _fresh(seeds, "visp", tmp_path)
+    doc = yaml.safe_load((folder / name).read_text())
+    _set_path(doc, where, value)
+    (folder / name).write_text(yaml.safe_dump(doc))
+    _load_checked(folder, "visp", outside_reads)
+
+
+MOVEIT_PATHS = [(0,), (1, 0), (2, 1), (3, 0, 1), (4, 1, 3), (5, 0, 2, 3), (6, 1, 0, 0), (7, 0, 3, 3)]
+
+
+@SETTINGS
+@given(where=st.sampled_from(MOVEIT_PATHS), value=YAML_VALUES)
+def test_moveit_any_value_anywhere(seeds, tmp_path, outside_reads, where, value):
+    folder = _fresh(seeds, "moveit", tmp_path)
+    path = folder / IMPORT_MAIN["moveit"]
+    doc = json.loads(path.read_text())
+    _set_path(doc, where, value)
+    path.write_text(json.dumps(doc))
+    _load_checked(folder, "moveit", outside_reads)
+
+
+IMAGE_FOLDER_FIELDS = ["image", "depth", "x", "qw", "matrix"]
+INTRINSICS_FIELDS = ["fx", "fy", "cx", "cy", "dist", "camera_matrix", "distortion_coefficients"]
+
+
+@SETTINGS
+@given(where=st.one_of(st.tuples(st.just("poses"), st.integers(0, 2), st.sampled_from(IMAGE_FOLDER_FIELDS)),
+                       st.sampled_from([("setup",), ("poses",), ("poses", 1)]),
+                       st.tuples(st.just("intrinsics"), st.sampled_from(INTRINSICS_FIELDS))),
+       value=YAML_VALUES)
+def test_image_folder_any_value_anywhere(seeds, tmp_path, outside_reads, where, value):
+    folder = _fresh(seeds, "image_folder", tmp_path)
+    if where[0] == "intrinsics":
+        doc = yaml.safe_load((folder / "intrinsics.yaml").read_text())
+        doc[where[1]] = value
+        (folder / "intrinsics.yaml").write_text(yaml.safe_dump(doc))
+    else:
+        doc = json.loads((folder / "poses.json").read_text())
+        _set_path(doc, where, value)
+        (folder / "poses.json").write_text(json.dumps(doc))
+    _load_checked(folder, "image_folder", outside_reads)
+
+
+# -- what the campaign found in these four (regressions)
+
+@pytest.mark.parametrize("kind,name", [("visp", "pose_fPe_1.yaml"), ("image_folder", "poses.json"),
+                                       ("image_folder", "intrinsics.yaml")])
+def test_files_of_a_set_symlinked_out_are_refused(seeds, tmp_path, kind, name):
+    folder = _fresh(seeds, kind, tmp_path)
+    (folder / name).unlink()
+    (folder / name).symlink_to(folder.parent / "outside.txt")
+    with pytest.raises(SessionError, match="outside"):
+        load(folder)
+
+
+@pytest.mark.parametrize("damage", [lambda t: t[:200], lambda t: t.replace("dt: d", "dt: x", 1),
+                                    lambda t: t.replace("rows: 3", "rows: 1000000000", 1), lambda t: ""])
+def test_opencv_storage_parse_errors_are_session_errors(seeds, tmp_path, damage):
+    folder = _fresh(seeds, "opencv_storage", tmp_path)
+    path = folder / IMPORT_MAIN["opencv_storage"]
+    path.write_text(damage(path.read_text()))
+    with pytest.raises(SessionError, match=r"pairs\.yaml: not a valid OpenCV FileStorage file \(\("):
+        load(path, format="opencv_storage")
+
+
+@pytest.mark.parametrize("dist", ["[0.1, 0.2]", "[1, 2, 3, 4, 5, 6]", "[0, 0, 0, 0, .nan]"])
+def test_image_folder_distortion_of_no_opencv_model_is_a_config_error(seeds, tmp_path, dist):
+    folder = _fresh(seeds, "image_folder", tmp_path)
+    text = (folder / "intrinsics.yaml").read_text()
+    (folder / "intrinsics.yaml").write_text(text.replace("dist: [0.0, 0.0, 0.0, 0.0, 0.0]", f"dist: {dist}"))
+    with pytest.raises(ConfigError, match="intrinsics.yaml: distortion coefficients must be 4, 5, 8, 12, 14"):
+        load(folder)
+
+
+def test_a_non_rotation_names_the_file(seeds, tmp_path):
+    folder = _fresh(seeds, "moveit", tmp_path)
+    path = folder / IMPORT_MAIN["moveit"]
+    doc = json.loads(path.read_text())
+    doc[2][1][0][0] = 3.0
+    path.write_text(json.dumps(doc))
+    with pytest.raises(SessionError, match=r"pose_samples\.json: T_cam_marker\[2\] rotation is not a proper rotation"):
+        load(path)
+
+
+def test_a_wrong_setup_in_the_pose_file_names_it(seeds, tmp_path):
+    folder = _fresh(seeds, "image_folder", tmp_path)
+    text = (folder / "poses.json").read_text()
+    (folder / "poses.json").write_text(text.replace('"eye_to_hand"', '"abc"'))
+    with pytest.raises(SessionError, match=r"poses\.json: setup must be one of"):
+        load(folder)
+
+
+def test_a_huge_pose_value_is_refused_without_overflow(seeds, tmp_path):
+    import warnings
+
+    folder = _fresh(seeds, "image_folder", tmp_path)
+    doc = json.loads((folder / "poses.json").read_text())
+    doc["poses"][1]["qx"] = 1e155
+    (folder / "poses.json").write_text(json.dumps(doc))
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # the quaternion norm overflowed to inf with a RuntimeWarning
+        with pytest.raises(SessionError, match=r"poses\.json: pose 1: a value beyond 1e\+06"):
+            load(folder)
