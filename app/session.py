@@ -111,7 +111,10 @@ class Session:
             file = inside(self.path, obs.meta[key], SessionError, what=where)
             if not file.exists():
                 return None
-            data = read_regular_file(file, SessionError)
+            try:
+                data = read_regular_file(file, SessionError)
+            except SessionError as e:  # e.g. a name of "." or "frames": say which sample named it
+                raise SessionError(f"{where}: {e}") from None
             try:
                 img = cv2.imdecode(np.frombuffer(data, np.uint8), flags) if data else None
             except cv2.error:

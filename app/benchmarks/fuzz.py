@@ -527,7 +527,8 @@ def _write_image_folder(folder: Path, d) -> None:
         rows.append({"image": f"img_{i}.png", "depth": f"depth_{i}.png",
                      **dict(zip(("x", "y", "z", "qx", "qy", "qz", "qw"), map(float, [*xyz, *q])))})
     (folder / "poses.json").write_text(json.dumps({"setup": "eye_to_hand", "poses": rows}, indent=1))
-    (folder / "intrinsics.yaml").write_text("fx: 200.0\nfy: 200.0\ncx: 48.0\ncy: 48.0\ndist: [0.0, 0.0, 0.0, 0.0, 0.0]\n")
+    (folder / "intrinsics.yaml").write_text("fx: 200.0\nfy: 200.0\ncx: 48.0\ncy: 48.0\n"
+                                            "dist: [0.0, 0.0, 0.0, 0.0, 0.0]\n")
 
 
 def write_import_seed(kind: str, seeds: Path, rng: np.random.Generator) -> Path:

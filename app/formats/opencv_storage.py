@@ -50,7 +50,7 @@ def is_opencv_storage(path: Path) -> bool:
 
 
 def _cv_message(e: BaseException) -> str:
-    """The last line of an OpenCV error (the parser's own words), e.g. ``parseValue ... Missing , between the elements``."""
+    """The last line of an OpenCV error (the parser's own words, e.g. ``parseValue ... Missing , between ...``)."""
     cause = e.__cause__ or e.__context__ or e
     line = (str(cause).strip().splitlines() or [type(cause).__name__])[-1]
     return re.sub(r"^OpenCV\([^)]*\) \S+: error: ", "", line)[:200]

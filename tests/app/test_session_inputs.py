@@ -187,3 +187,42 @@ def test_session_files_symlinked_out_are_refused(session, tmp_path):
     (session / "samples.jsonl").symlink_to(tmp_path / "elsewhere.jsonl")
     with pytest.raises(SessionError, match="outside"):
         read_session(session)
+
+
+FRAME_NAMES = st.sampled_from(["../outside.png", "/etc/hostname", "../../../../../../../../etc/hostname", "..", ".",
+                               "frames", "samples.jsonl", "session.json", "frames/000000_color.png"]) \
+    | st.text(max_size=8)
+
+
+@SETTINGS
+@given(line=st.integers(0, 7), key=st.sampled_from(["color", "depth"]), name=FRAME_NAMES,
+       junk=st.binary(max_size=40), pos=st.integers(0, 4000))
+def test_damaged_sessions_never_read_outside(seed_session, tmp_path, outside_reads, line, key, name, junk, pos):
+    """Any frame name on any line, then bytes of junk: reading the session and every frame
+    gives a result or a SessionError, and opens nothing outside the session directory."""
+    session = tmp_path / "case" / "s"  # a fresh copy per example (hypothesis reuses tmp_path)
+    shutil.rmtree(session.parent, ignore_errors=True)
+    shutil.copytree(seed_session, session)
+    (session.parent / "outside.png").write_bytes(b"x")
+    recs = _lines(session)
+    recs[line].setdefault("meta", {})[key] = name
+    _write_lines(session, recs)
+    data = (session / "samples.jsonl").read_bytes()
+    (session / "samples.jsonl").write_bytes(data[:pos] + junk + data[pos:])
+    with outside_reads.watch(session):
+        s = _read_or_session_error(session)
+        for obs in s.observations if s else []:
+            try:
+                s.load_frames(obs)
+            except SessionError as e:
+                assert "samples.jsonl" in str(e), str(e)
+
+
+@pytest.mark.parametrize("name", [".", "frames"])
+def test_a_frame_name_that_is_a_directory_names_the_sample(session, name):
+    recs = _lines(session)
+    recs[0]["meta"]["color"] = name
+    _write_lines(session, recs)
+    s = read_session(session)
+    with pytest.raises(SessionError, match=r"samples\.jsonl sample 0: color: .*is a directory"):
+        s.load_frames(s.observations[0])

@@ -281,7 +281,7 @@ def _fresh(seeds, kind, tmp_path) -> Path:
 
 
 def _load_checked(folder: Path, kind: str, outside_reads):
-    """Load the (damaged) set: a result or a HandeyeError naming the file, never another exception or an outside read."""
+    """Load the damaged set: a result or a HandeyeError naming the file; never another exception, an outside read."""
     path = folder / IMPORT_MAIN[kind] if kind in IMPORT_MAIN else folder
     with outside_reads.watch(folder):
         try:
