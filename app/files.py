@@ -20,6 +20,9 @@ from calib.errors import HandeyeError
 #: below (a sample line is ~2 kB); anything larger is not one of our files.
 MAX_FILE_BYTES = 512 * 1024 * 1024
 
+#: Linux limits of one path component and of a whole path (bytes).
+NAME_MAX, PATH_MAX = 255, 4096
+
 
 def read_regular_file(path, error: type[HandeyeError], *, max_bytes: int = MAX_FILE_BYTES) -> bytes:
     """The bytes of ``path`` if it is a readable regular file, else ``error`` naming it.
@@ -81,7 +84,13 @@ def inside(directory, name, error: type[HandeyeError], *, what: str) -> Path:
     if not isinstance(name, str) or not name or "\0" in name:
         raise error(f"{what}: expected a file name, got {name!r:.80}")
     base = Path(directory).resolve()
-    target = (base / name).resolve()
+    try:
+        target = (base / name).resolve()
+    except RuntimeError:  # Python 3.11 raises this for a symlink loop
+        raise error(f"{what}: {name!r:.80} is a symlink loop") from None
+    # A name the OS refuses would raise OSError (ENAMETOOLONG) later, at exists() or open().
+    if len(os.fsencode(target)) > PATH_MAX or any(len(os.fsencode(p)) > NAME_MAX for p in target.parts):
+        raise error(f"{what}: {name!r:.80} is too long for a file name")
     if target != base and base not in target.parents:
         raise error(f"{what}: {name!r} points outside {base}; files must be inside the data directory")
     return target

@@ -226,3 +226,17 @@ def test_a_frame_name_that_is_a_directory_names_the_sample(session, name):
     s = read_session(session)
     with pytest.raises(SessionError, match=r"samples\.jsonl sample 0: color: .*is a directory"):
         s.load_frames(s.observations[0])
+
+
+@pytest.mark.parametrize("name,match", [("frames" + "[" * 3000, "too long for a file name"),
+                                        ("loop.png", "symlink loop")])
+def test_frame_names_the_os_refuses_are_session_errors(session, name, match):
+    """Found by the fuzz campaign (3,000 brackets in a line: OSError ENAMETOOLONG; a loop: RuntimeError)."""
+    (session / "loop.png").symlink_to(session / "loop2.png")
+    (session / "loop2.png").symlink_to(session / "loop.png")
+    recs = _lines(session)
+    recs[0]["meta"]["color"] = name
+    _write_lines(session, recs)
+    s = read_session(session)
+    with pytest.raises(SessionError, match=match):
+        s.load_frames(s.observations[0])
