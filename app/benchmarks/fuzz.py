@@ -493,12 +493,13 @@ def _fs_mutation(path: Path, rng: np.random.Generator, canary: Path) -> str:
     return kind
 
 
-#: Importers of the "import" file campaign, in rotation order (names of `write_import_seed`).
-IMPORT_KINDS = ("eh2", "eh1", "industrial", "pose_csv", "visp", "image_folder", "opencv_storage", "moveit")
+#: Import formats of the "import" file campaign (`app.formats` names), in rotation order.
+IMPORT_KINDS = ("easy_handeye2", "easy_handeye", "industrial_calibration", "pose_csv", "visp", "image_folder",
+                "opencv_storage", "moveit_calibration")
 
 #: The file each import kind hands to `app.formats.load` (the others load their directory).
-IMPORT_MAIN = {"eh2": "cell.samples", "eh1": "samples.yaml", "opencv_storage": "pairs.yaml",
-               "moveit": "pose_samples.json"}
+IMPORT_MAIN = {"easy_handeye2": "cell.samples", "easy_handeye": "samples.yaml", "opencv_storage": "pairs.yaml",
+               "moveit_calibration": "pose_samples.json"}
 
 
 def _msg(T) -> dict:
@@ -551,16 +552,16 @@ def write_import_seed(kind: str, seeds: Path, rng: np.random.Generator) -> Path:
     out.mkdir(parents=True)
     d = simulate.realistic_cell(8, rng)
     stored = tf.invert(d.A)  # eye-on-base files of easy_handeye store T_effector_base
-    if kind == "eh2":
+    if kind == "easy_handeye2":
         (out / IMPORT_MAIN[kind]).write_text(yaml.safe_dump(
             {"parameters": {"name": "cell", "calibration_type": "eye_on_base"},
              "samples": [{"robot": _msg(R), "tracking": _msg(B)} for R, B in zip(stored, d.B)]}))
-    elif kind == "eh1":
+    elif kind == "easy_handeye":
         (out / IMPORT_MAIN[kind]).write_text(yaml.safe_dump(
             {"parameters": {"eye_on_hand": False},
              "samples": {"hand_world_samples": [_msg(R) for R in stored],
                          "camera_marker_samples": [_msg(B) for B in d.B]}}))
-    elif kind == "industrial":
+    elif kind == "industrial_calibration":
         src = datasets_dir() / "industrial_calibration" / "test_set_10x10"
         if not (src / "cal_data.yaml").exists():
             raise SystemExit(f"the industrial_calibration seed needs the shared datasets: {src} is missing "
@@ -589,7 +590,7 @@ def write_import_seed(kind: str, seeds: Path, rng: np.random.Generator) -> Path:
         _write_image_folder(out, d)
     elif kind == "opencv_storage":
         write_opencv_storage(out / IMPORT_MAIN[kind], d.A, d.B, setup="eye_to_hand")
-    elif kind == "moveit":
+    elif kind == "moveit_calibration":
         write_moveit(out / IMPORT_MAIN[kind], d.A, d.B)
     else:
         raise ValueError(f"unknown import kind {kind!r} (one of {IMPORT_KINDS})")

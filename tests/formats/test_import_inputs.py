@@ -264,11 +264,14 @@ def _damage(data: bytes, how, pos, junk, token) -> bytes:
     return data[:a] + token.encode() + data[b:]
 
 
+NEW_KINDS = ["visp", "image_folder", "opencv_storage", "moveit_calibration"]
+
+
 @pytest.fixture(scope="module")
 def seeds(tmp_path_factory):
     root = tmp_path_factory.mktemp("seeds")
     return {kind: write_import_seed(kind, root, np.random.default_rng(3))
-            for kind in ("visp", "image_folder", "opencv_storage", "moveit")}
+            for kind in NEW_KINDS}
 
 
 def _fresh(seeds, kind, tmp_path) -> Path:
@@ -299,8 +302,7 @@ def _files(folder: Path) -> list[Path]:
 
 
 @DAMAGE_SETTINGS
-@given(kind=st.sampled_from(["visp", "image_folder", "opencv_storage", "moveit"]), which=st.integers(0, 100),
-       **DAMAGE)
+@given(kind=st.sampled_from(NEW_KINDS), which=st.integers(0, 100), **DAMAGE)
 def test_new_importers_any_damage_to_any_file(seeds, tmp_path, outside_reads, kind, which, how, pos, junk, token):
     folder = _fresh(seeds, kind, tmp_path)
     files = _files(folder)
@@ -310,7 +312,7 @@ def test_new_importers_any_damage_to_any_file(seeds, tmp_path, outside_reads, ki
 
 
 @DAMAGE_SETTINGS
-@given(kind=st.sampled_from(["opencv_storage", "moveit", "image_folder"]), **DAMAGE)
+@given(kind=st.sampled_from(["opencv_storage", "moveit_calibration", "image_folder"]), **DAMAGE)
 def test_new_importers_damage_to_the_main_file(seeds, tmp_path, outside_reads, kind, how, pos, junk, token):
     folder = _fresh(seeds, kind, tmp_path)
     target = folder / IMPORT_MAIN.get(kind, "poses.json")
@@ -338,12 +340,12 @@ MOVEIT_PATHS = [(0,), (1, 0), (2, 1), (3, 0, 1), (4, 1, 3), (5, 0, 2, 3), (6, 1,
 @SETTINGS
 @given(where=st.sampled_from(MOVEIT_PATHS), value=YAML_VALUES)
 def test_moveit_any_value_anywhere(seeds, tmp_path, outside_reads, where, value):
-    folder = _fresh(seeds, "moveit", tmp_path)
-    path = folder / IMPORT_MAIN["moveit"]
+    folder = _fresh(seeds, "moveit_calibration", tmp_path)
+    path = folder / IMPORT_MAIN["moveit_calibration"]
     doc = json.loads(path.read_text())
     _set_path(doc, where, value)
     path.write_text(json.dumps(doc))
-    _load_checked(folder, "moveit", outside_reads)
+    _load_checked(folder, "moveit_calibration", outside_reads)
 
 
 IMAGE_FOLDER_FIELDS = ["image", "depth", "x", "qw", "matrix"]
@@ -400,8 +402,8 @@ def test_image_folder_distortion_of_no_opencv_model_is_a_config_error(seeds, tmp
 
 
 def test_a_non_rotation_names_the_file(seeds, tmp_path):
-    folder = _fresh(seeds, "moveit", tmp_path)
-    path = folder / IMPORT_MAIN["moveit"]
+    folder = _fresh(seeds, "moveit_calibration", tmp_path)
+    path = folder / IMPORT_MAIN["moveit_calibration"]
     doc = json.loads(path.read_text())
     doc[2][1][0][0] = 3.0
     path.write_text(json.dumps(doc))
