@@ -16,8 +16,8 @@ qw, depth}, ...]}`` (``setup`` optional; a 4x4 ``matrix`` may replace the
 seven numbers); a bare list is accepted too.
 
 ``intrinsics``: ``{fx, fy, cx, cy, dist: [k1, k2, p1, p2, k3]}`` (``dist``
-optional), or a ROS ``camera_info`` YAML (``camera_matrix: {data: [9]}``,
-``distortion_coefficients: {data: [...]}``).
+optional; 4, 5, 8, 12 or 14 values, OpenCV's models), or a ROS ``camera_info``
+YAML (``camera_matrix: {data: [9]}``, ``distortion_coefficients: {data: [...]}``).
 
 ``target.yaml`` (`calib.vision.extract.TargetConfig` fields; default: a 5 cm
 DICT_4X4_50 ArUco, id 0): each image is measured like a live frame
