@@ -637,7 +637,7 @@ def _pick_file(case_dir: Path, rng: np.random.Generator) -> Path:
 
 def run_file_campaign(kind: str, n_cases: int, rng: np.random.Generator, work: Path,
                       watch: _OpenWatch) -> dict[str, Tally]:
-    """``n_cases`` damaged files of ``kind`` ("config", "session", "import"), tallied by seed.
+    """``n_cases`` damaged files of ``kind`` ("config", "session", "import"): a tally per seed file set.
 
     The import cases rotate over `IMPORT_KINDS`, so each importer gets ``n_cases / 8``.
     """

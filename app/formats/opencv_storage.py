@@ -36,6 +36,10 @@ from app.formats.common import ImportedSamples, observations_from_poses
 from app.formats.registry import register_import
 
 HEADER = "%YAML:1.0"
+#: A matrix header's sizes: ``rows``/``cols`` in YAML or JSON (``rows: 3``) or XML (``<rows>3</rows>``),
+#: an n-d matrix's ``sizes: [a, b, ...]`` (``<sizes>a b</sizes>``).
+_MATRIX_SIZE = re.compile(r"\b(?:rows|cols)\"?\s*:\s*(\d+)|<(?:rows|cols)>\s*(\d+)"
+                          r"|\bsizes\"?\s*:\s*\[([^\]]*)|<sizes>([^<]*)")
 
 
 def is_opencv_storage(path: Path) -> bool:
@@ -114,6 +118,11 @@ def load_opencv_storage(path, setup: str | None = None) -> ImportedSamples:
     path = Path(path)
     # Read through app.files (regular file, bounded, UTF-8), then parsed from memory by OpenCV.
     text = read_text_file(path, SessionError)
+    # OpenCV allocates what a matrix header asks for before reading its data: refuse sizes
+    # no pose matrix has (the largest is 4x4) before a header can ask for gigabytes.
+    for m in _MATRIX_SIZE.finditer(text):
+        if any(int(n) > 4 for n in re.findall(r"\d+", next(g for g in m.groups() if g is not None))):
+            raise SessionError(f"{path}: a matrix with {m.group(0).strip()!r:.40}; pose matrices are at most 4x4")
     try:
         fs = cv2.FileStorage(text, cv2.FILE_STORAGE_READ | cv2.FILE_STORAGE_MEMORY)
         if not fs.isOpened():

@@ -383,7 +383,7 @@ def test_files_of_a_set_symlinked_out_are_refused(seeds, tmp_path, kind, name):
 
 
 @pytest.mark.parametrize("damage", [lambda t: t[:200], lambda t: t.replace("dt: d", "dt: x", 1),
-                                    lambda t: t.replace("rows: 3", "rows: 1000000000", 1), lambda t: ""])
+                                    lambda t: t.replace("rows: 3", "rows: 1", 1), lambda t: ""])
 def test_opencv_storage_parse_errors_are_session_errors(seeds, tmp_path, damage):
     folder = _fresh(seeds, "opencv_storage", tmp_path)
     path = folder / IMPORT_MAIN["opencv_storage"]
@@ -430,3 +430,12 @@ def test_a_huge_pose_value_is_refused_without_overflow(seeds, tmp_path):
         warnings.simplefilter("error")  # the quaternion norm overflowed to inf with a RuntimeWarning
         with pytest.raises(SessionError, match=r"poses\.json: pose 1: a value beyond 1e\+06"):
             load(folder)
+
+
+@pytest.mark.parametrize("header", ["rows: 200000", "cols: 5", "sizes: [ 100000, 100000 ]"])
+def test_opencv_storage_matrix_sizes_are_bounded_before_opencv_allocates(seeds, tmp_path, header):
+    folder = _fresh(seeds, "opencv_storage", tmp_path)
+    path = folder / IMPORT_MAIN["opencv_storage"]
+    path.write_text(path.read_text().replace("rows: 3", header, 1))
+    with pytest.raises(SessionError, match=r"pairs\.yaml: a matrix with .*pose matrices are at most 4x4"):
+        load(path)
