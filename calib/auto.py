@@ -91,9 +91,16 @@ class _Fit:
         self.shape = shape
         self.use_rotation = use_rotation
         self.M = model.split(np.eye(4), np.eye(4), A, setup)[2]
+        self._cof_at = None
+
+    def cofactor(self, C, K):
+        """`calib.model.robot_cofactor` at ``(C, K)``; the last one is kept (rounds re-weight at a fixed estimate)."""
+        if self._cof_at is None or not (np.array_equal(self._cof_at[0], C) and np.array_equal(self._cof_at[1], K)):
+            self._cof_at = (C, K, model.robot_cofactor(C, K, self.M, self.setup))
+        return self._cof_at[2]
 
     def problem(self, C, K, noise, free):
-        cof = model.robot_cofactor(C, K, self.M, self.setup)
+        cof = self.cofactor(C, K)
         W = model.whitener(noise.point_cov(self.shape, cof))
         return model.Problem(self.M, self.B, W, sigma_rot=noise.rotation, free=free,
                              use_rotation=self.use_rotation), cof
@@ -117,17 +124,45 @@ class _Fit:
 
 
 class _Candidate:
-    """One fitted model variant and its linearised leave-one-out RMS point prediction error (m)."""
+    """One fitted model variant; its linearised leave-one-out point prediction error and its
+    information with every camera parameter free are computed when first asked for, once."""
 
     def __init__(self, fit, C, K, theta, noise, prob, iterations, converged):
         self.fit, self.C, self.K, self.theta, self.noise, self.prob = fit, C, K, theta, noise, prob
         self.iterations, self.converged = iterations, converged
-        cof = model.robot_cofactor(C, K, prob.M, fit.setup)
-        try:
-            errors, _ = model.leave_one_out(prob, C, K, theta, noise.point_cov(fit.shape, cof))
-            self.loo = float(np.sqrt(np.mean(errors**2)))
-        except InsufficientDataError:
-            self.loo = float("inf")   # a sample the fit cannot do without: no held-out comparison
+        self._loo = None
+        self._info_all = None
+
+    @property
+    def loo_errors(self):
+        """Held-out errors and their predicted RMS, m (`calib.model.leave_one_out`), or None if undetermined."""
+        if self._loo is None:
+            cof = self.fit.cofactor(self.C, self.K)
+            try:
+                self._loo = model.leave_one_out(self.prob, self.C, self.K, self.theta,
+                                                self.noise.point_cov(self.fit.shape, cof))
+            except InsufficientDataError:
+                self._loo = False     # a sample the fit cannot do without: no held-out comparison
+        return self._loo or None
+
+    @property
+    def loo(self) -> float:
+        """RMS linearised leave-one-out point prediction error, m (inf when undetermined)."""
+        out = self.loo_errors
+        return float("inf") if out is None else float(np.sqrt(np.mean(out[0] ** 2)))
+
+    def information(self, free) -> tuple[np.ndarray, int]:
+        """Information of the pose unknowns and the ``free`` camera parameters, and the number of pose unknowns.
+
+        A sub-block of the information with all three camera parameters free
+        (their Jacobian columns do not depend on which are free), computed once.
+        """
+        if self._info_all is None:
+            prob, _ = self.fit.problem(self.C, self.K, self.noise, (True, True, True))
+            self._info_all = (model.information(prob, self.C, self.K, self.theta), prob.n_pose)
+        info, n_pose = self._info_all
+        idx = np.r_[np.arange(n_pose), n_pose + np.flatnonzero(free)]
+        return info[np.ix_(idx, idx)], n_pose
 
 
 def _better(cand: _Candidate, best: _Candidate) -> bool:
@@ -164,7 +199,7 @@ def _needs_robust(start: CalibrationResult, A, p, shape) -> bool:
     return bool(np.any(d2 > chi2.ppf(0.9999, 3) * scale * 4.0))
 
 
-def identifiability(info: np.ndarray, free, n_pose: int) -> dict[str, float]:
+def identifiability(info: np.ndarray, n_pose: int, free) -> dict[str, float]:
     """1-sigma of each free camera parameter from the information matrix (inf if singular)."""
     names = [n for n, f in zip(model.CAMERA_PARAMS, free) if f]
     try:
@@ -277,8 +312,7 @@ def solve_auto(A, B, *, setup: str, point_cov=None, camera_correction: str = "au
             continue
         trial = free.copy()
         trial[k] = True
-        probe, _ = fit.problem(best.C, best.K, best.noise, trial)
-        sigmas = identifiability(model.information(probe, best.C, best.K, best.theta), trial, probe.n_pose)
+        sigmas = identifiability(*best.information(trial), free=trial)
         data_sigma[name] = sigmas[name]
         if sigmas[name] > IDENTIFIABLE_SIGMA[name]:
             notes.append(f"{name} is not determined by these motions (1-sigma {_fmt(name, sigmas[name])}); "
@@ -299,11 +333,11 @@ def solve_auto(A, B, *, setup: str, point_cov=None, camera_correction: str = "au
                          f"{_MOTION_HINT[name]}")
     C, K, theta, noise, prob = best.C, best.K, best.theta, best.noise, best.prob
     iters, converged, use_rotation = best.iterations, best.converged, fit.use_rotation
-    info_mat = model.information(prob, C, K, theta)
+    info_mat, _ = best.information(free)
     full_cov = np.linalg.inv(info_mat)
     cov = model.camera_block(info_mat)
     if camera_correction != "none" and not free.all():
-        cov = cov + _consider(fit, C, K, theta, noise, free, data_sigma)
+        cov = cov + _consider(best, free, data_sigma)
     sig_theta = np.zeros(3)
     sig_theta[free] = np.sqrt(np.diag(full_cov)[prob.n_pose:])
     correction = {
@@ -311,11 +345,9 @@ def solve_auto(A, B, *, setup: str, point_cov=None, camera_correction: str = "au
         for i, name in enumerate(model.CAMERA_PARAMS)
     }
     X, Y = model.join(C, K, setup)
-    try:
-        check = self_check(X, Y, A_in, B_in, setup=setup, point_cov=shape_in, noise=noise, theta=theta, free=free,
-                           use_rotation=use_rotation)
-    except InsufficientDataError:
-        check = None  # too few samples to hold one out: no self-check, the result stands
+    loo = best.loo_errors
+    # Too few samples to hold one out: no self-check, the result stands.
+    check = None if loo is None else _consistency(fit, prob, C, K, theta, *loo)
     if check is not None and check["warning"]:
         notes.append(check["warning"])
     r_all = _residuals(X, Y, A, B, setup, theta, use_rotation)
@@ -346,7 +378,7 @@ def solve_auto(A, B, *, setup: str, point_cov=None, camera_correction: str = "au
     )
 
 
-def _consider(fit, C, K, theta, noise, free, data_sigma) -> np.ndarray:
+def _consider(best: _Candidate, free, data_sigma) -> np.ndarray:
     """Camera covariance (6, 6) added by the camera parameters left at nominal ("consider" covariance).
 
     They are not estimated, but a real camera has such errors: the estimate
@@ -356,9 +388,7 @@ def _consider(fit, C, K, theta, noise, free, data_sigma) -> np.ndarray:
     data bound it to (``data_sigma``: 1-sigma with the parameter free; it was
     left out because estimating it did not predict better).
     """
-    prob, _ = fit.problem(C, K, noise, (True, True, True))
-    info = model.information(prob, C, K, theta)
-    n_pose = prob.n_pose
+    info, n_pose = best.information((True, True, True))
     x = np.r_[np.arange(n_pose), n_pose + np.flatnonzero(free)]
     c = n_pose + np.flatnonzero(~free)
     S = np.linalg.solve(info[np.ix_(x, x)], info[np.ix_(x, c)])[:6]
@@ -485,14 +515,18 @@ def self_check(X, Y, A, B, *, setup: str, point_cov=None, noise: model.NoiseLeve
     if noise is None:
         noise = _noise_at(fit, C, K, theta, free)
     prob, _ = fit.problem(C, K, noise, free)
+    errors, predicted = model.leave_one_out(prob, C, K, theta, noise.point_cov(fit.shape, fit.cofactor(C, K)))
+    return _consistency(fit, prob, C, K, theta, errors, predicted)
+
+
+def _consistency(fit, prob, C, K, theta, errors, predicted) -> dict:
+    """`self_check`'s numbers from the fitted problem and its leave-one-out errors / predicted RMS."""
     p = prob.p
     pred = model.predict_points(C, K[:3, 3], prob.M, theta)
     r = p - pred
     d2 = float(np.einsum("ni,nij,nj->", r, np.linalg.inv(fit.shape), r))
     dof = max(3 * len(p) - prob.n_params, 1)
     p_value = float(chi2.sf(d2, dof))
-    cof = model.robot_cofactor(C, K, prob.M, fit.setup)
-    errors, predicted = model.leave_one_out(prob, C, K, theta, noise.point_cov(fit.shape, cof))
     obs = float(np.sqrt(np.mean(errors**2)))
     pre = float(np.sqrt(np.mean(predicted**2)))
     ratio = obs / pre if pre > 0 else float("inf")

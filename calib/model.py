@@ -144,6 +144,12 @@ def measure(p, theta):
     return h, J_p, J_theta
 
 
+def _measured(p, theta) -> np.ndarray:
+    """``h(p; theta)`` (N, 3) alone (`measure` without its Jacobians, for cost evaluations)."""
+    s, d, f = theta
+    return p * ((1.0 + s + d / p[:, 2])[:, None] * np.array([1.0 + f, 1.0 + f, 1.0]))
+
+
 # --------------------------------------------------------------------------- residuals
 
 
@@ -168,7 +174,7 @@ def predict_points(C, t_K, M, theta=None) -> np.ndarray:
     p = (M[:, :3, :3] @ t_K + M[:, :3, 3] - t_C) @ R_C
     if theta is None or not np.any(theta):
         return p
-    return measure(p, np.asarray(theta, dtype=float))[0]
+    return _measured(p, np.asarray(theta, dtype=float))
 
 
 def inv_right_jacobian(e):
@@ -206,11 +212,11 @@ def robot_cofactor(C, K, M, setup: str) -> np.ndarray:
     lever = M[:, :3, :3] @ K[:3, 3]
     if setup != Setup.EYE_TO_HAND:
         lever = lever + M[:, :3, 3]
-    # [l]x [l]x^T = |l|^2 I - l l^T
+    # [l]x [l]x^T = |l|^2 I - l l^T, and R^T (a I - l l^T) R = a I - (R^T l)(R^T l)^T.
     rho2 = ROBOT_ROTATION_PER_M**2
-    cov_parent = ((1.0 + rho2 * np.einsum("ni,ni->n", lever, lever))[:, None, None] * _I3
-                  - rho2 * lever[:, :, None] * lever[:, None, :])
-    return R_C.T @ cov_parent @ R_C
+    lc = lever @ R_C
+    return ((1.0 + rho2 * np.sum(lc * lc, axis=1))[:, None, None] * _I3
+            - rho2 * lc[:, :, None] * lc[:, None, :])
 
 
 # --------------------------------------------------------------------------- weights
@@ -311,27 +317,47 @@ class Problem:
 
     def raw(self, C, K, theta=None):
         """Unwhitened residuals and Jacobians: ``r (N,3), e (N,3)|None, J_t (N,3,P), J_e (N,3,P)|None``."""
-        r, J_dC, J_tC, J_tK = point_residuals(C, K[:3, 3], self.M, self.p)
+        R_C, t_C = C[:3, :3], C[:3, 3]
+        R_M = self.M[:, :3, :3]
+        w = R_M @ K[:3, 3] + self.M[:, :3, 3] - t_C       # marker center minus camera origin, C's parent frame
+        q = w @ R_C                                       # == (R_C^T w_i)_i, the point without camera error
+        n, n_pose = len(q), self.n_pose
+        tK = 9 if self.rotations else 6
+        # Filled in place (no concatenation): [dC, tC, (dK), tK, nuisances].
+        J_t = np.zeros((n, 3, self.n_params))
+        J_t[:, :, 0:3] = -(R_C.T @ tf.skew(w))
+        J_t[:, :, 3:6] = R_C.T
+        J_t[:, :, tK:tK + 3] = -(R_C.T @ R_M)
         if theta is not None and (np.any(theta) or self.free.any()):
-            pred = self.p - r
-            h, J_p, J_theta = measure(pred, theta)
-            r = self.p - h
-            J_dC, J_tC, J_tK = J_p @ J_dC, J_p @ J_tC, J_p @ J_tK
-            J_nuis = -J_theta[:, :, self.free]
+            s, d, f = theta
+            z = q[:, 2]
+            g = 1.0 + s + d / z
+            D = np.array([1.0 + f, 1.0 + f, 1.0])
+            Dq = D * q
+            r = self.p - Dq * g[:, None]
+            # J_p = g diag(D) + c e_z^T with c = -(D q) d / z^2 (`measure`): applied without a batched matmul.
+            c = Dq * (-d / z**2)[:, None]
+            Jp = J_t[:, :, :n_pose]
+            J_t[:, :, :n_pose] = (g[:, None] * D)[:, :, None] * Jp + c[:, :, None] * Jp[:, 2:3, :]
+            k = n_pose
+            for j, col in enumerate((Dq, Dq / z[:, None], q * g[:, None] * np.array([1.0, 1.0, 0.0]))):
+                if self.free[j]:
+                    J_t[:, :, k] = -col
+                    k += 1
         else:
-            J_nuis = np.zeros((len(r), 3, int(self.free.sum())))
+            r = self.p - q
         if not self.rotations:
-            return r, None, np.concatenate([J_dC, J_tC, J_tK, J_nuis], axis=2), None
+            return r, None, J_t, None
         e, JeC, JeK = rotation_residuals(C, K, self.M, self.R_B)
-        zeros = np.zeros_like(J_dC)
-        J_t = np.concatenate([J_dC, J_tC, zeros, J_tK, J_nuis], axis=2)
-        J_e = np.concatenate([JeC, zeros, JeK, zeros, np.zeros_like(J_nuis)], axis=2)
+        J_e = np.zeros_like(J_t)
+        J_e[:, :, 0:3] = JeC
+        J_e[:, :, 6:9] = JeK
         return r, e, J_t, J_e
 
     def whitened(self, C, K, theta=None):
         """Whitened residual vector (3N or 6N,) and Jacobian (3N or 6N, n_params)."""
         r, e, J_t, J_e = self.raw(C, K, theta)
-        rw = np.einsum("nij,nj->ni", self.W_t, r).reshape(-1)
+        rw = (self.W_t @ r[:, :, None]).reshape(-1)
         Jw = (self.W_t @ J_t).reshape(-1, self.n_params)
         if self.rotations:
             rw = np.concatenate([rw, (e / self.sigma_rot).reshape(-1)])
@@ -341,7 +367,7 @@ class Problem:
     def cost(self, C, K, theta=None) -> float:
         """Whitened residual square sum (chi-square statistic)."""
         p = predict_points(C, K[:3, 3], self.M, theta)
-        r = np.einsum("nij,nj->ni", self.W_t, self.p - p)
+        r = self.W_t @ (self.p - p)[:, :, None]
         cost = float(np.sum(r**2))
         if self.rotations:
             E = np.swapaxes(self.R_B, 1, 2) @ C[:3, :3].T @ self.M[:, :3, :3] @ K[:3, :3]
@@ -479,23 +505,28 @@ def variance_components(problem: Problem, C, K, theta, shape, robot_cof, noise: 
     """
     r, e, J_t, J_e = problem.raw(C, K, theta)
     u = J_t.shape[2]
-    P = np.swapaxes(problem.W_t, 1, 2) @ problem.W_t
-    Pv = np.einsum("nij,nj->ni", P, r)
-    PJ = P @ J_t
-    PJ_flat = PJ.reshape(-1, u)
+    W = problem.W_t
+    P = np.swapaxes(W, 1, 2) @ W
+    Pv = (P @ r[:, :, None])[:, :, 0]
+    PJ_flat = (P @ J_t).reshape(-1, u)
     Nmat = J_t.reshape(-1, u).T @ PJ_flat
     if e is not None:
         s2 = problem.sigma_rot**2
         Je_flat = J_e.reshape(-1, u)
         Nmat = Nmat + Je_flat.T @ Je_flat / s2
     Ninv = np.linalg.inv(Nmat)
+    # P_i J_i N^-1 J_i^T P_i (N, 3, 3): tr(Q_k N^-1 J^T P Q_k P J) summed over samples is sum(Q_k * it).
+    PJ = PJ_flat.reshape(-1, 3, u)
+    hat = (PJ_flat @ Ninv).reshape(-1, 3, u) @ np.swapaxes(PJ, 1, 2)
     Q = [shape, robot_cof]
     QP = [Qk @ P for Qk in Q]
-    q = np.array([float(np.sum(Pv * np.einsum("nij,nj->ni", Qk, Pv))) for Qk in Q])
-    tr1 = np.array([float(np.trace(QPk, axis1=1, axis2=2).sum()) for QPk in QP])
-    tr2 = np.array([float(np.sum(Ninv * (PJ_flat.T @ (Qk @ PJ).reshape(-1, u)))) for Qk in Q])
+    q = np.array([float(np.sum(Pv * (Qk @ Pv[:, :, None])[:, :, 0])) for Qk in Q])
+    # P and Q_k symmetric: tr(Q_k P) = sum(Q_k * P), tr(QP_k QP_l) = sum(QP_k * QP_l^T).
+    tr1 = np.array([float(np.sum(Qk * P)) for Qk in Q])
+    tr2 = np.array([float(np.sum(Qk * hat)) for Qk in Q])
     red = tr1 - tr2
-    H = np.array([[float(np.einsum("nij,nji->", QP[k], QP[m])) for m in range(2)] for k in range(2)])
+    QPt = [np.swapaxes(QPk, 1, 2) for QPk in QP]
+    H = np.array([[float(np.sum(QP[k] * QPt[m])) for m in range(2)] for k in range(2)])
     H *= (red / np.maximum(tr1, 1e-300))[:, None]
     current = np.array([noise.point_scale, noise.robot**2])
     active = np.array(estimate[:2], dtype=bool)
@@ -563,24 +594,63 @@ def leave_one_out(problem: Problem, C, K, theta=None, point_cov=None) -> tuple[n
     n, u = len(r), J_t.shape[2]
     W = problem.W_t
     G = W @ J_t
-    rw = np.einsum("nij,nj->ni", W, r)
+    rw = (W @ r[:, :, None])[:, :, 0]
     if e is not None:
         G = np.concatenate([G, J_e / problem.sigma_rot], axis=1)
         rw = np.concatenate([rw, e / problem.sigma_rot], axis=1)
     k = G.shape[1]
-    Ninv = np.linalg.inv(G.reshape(-1, u).T @ G.reshape(-1, u))
-    GN = G @ Ninv
-    H = GN @ np.swapaxes(G, 1, 2)
+    G_flat = G.reshape(-1, u)
+    Ninv = np.linalg.inv(G_flat.T @ G_flat)
+    H = (G_flat @ Ninv).reshape(n, k, u) @ np.swapaxes(G, 1, 2)
     S = np.eye(k) - H
     # Leverage 1 (an eigenvalue of S at 0): without sample i the others do not determine the unknowns.
-    if np.linalg.eigvalsh(S).min() <= 1e-9:
+    min_eig = _sym3_min_eigenvalue(S) if k == 3 else np.linalg.eigvalsh(S)[:, 0]
+    if min_eig.min() <= 1e-9:
         raise InsufficientDataError(f"leave-one-out needs more than {n} samples: without one of them the "
                                     "others do not determine every unknown")
-    r_loo = np.linalg.solve(S, rw[:, :, None])[:, :, 0]
-    Winv = np.linalg.inv(W)
-    errors = np.linalg.norm(np.einsum("nij,nj->ni", Winv, r_loo[:, :3]), axis=1)
     Hp = H[:, :3, :]
-    A = H[:, :3, :3] + Hp @ np.linalg.solve(S, np.swapaxes(Hp, 1, 2))
-    Sigma = Winv @ np.swapaxes(Winv, 1, 2) if point_cov is None else point_cov
-    pred_cov = Sigma + Winv @ A @ np.swapaxes(Winv, 1, 2)
-    return errors, np.sqrt(np.trace(pred_cov, axis1=1, axis2=2))
+    if k == 3:
+        # 3x3 blocks (points): closed-form inverses, a batched LAPACK call costs ~1 us per sample.
+        S_inv = _inv3(S)
+        r_loo = (S_inv @ rw[:, :, None])[:, :, 0]
+        A = H + H @ S_inv @ H
+    else:
+        r_loo = np.linalg.solve(S, rw[:, :, None])[:, :, 0]
+        A = H[:, :3, :3] + Hp @ np.linalg.solve(S, np.swapaxes(Hp, 1, 2))
+    Winv = _inv3(W)
+    errors = np.linalg.norm((Winv @ r_loo[:, :3, None])[:, :, 0], axis=1)
+    # trace(Sigma + Winv A Winv^T), the second term as sum(A * Winv^T Winv).
+    tr_sigma = (np.sum(Winv * Winv, axis=(1, 2)) if point_cov is None
+                else np.trace(point_cov, axis1=1, axis2=2))
+    tr_fit = np.sum(A * (np.swapaxes(Winv, 1, 2) @ Winv), axis=(1, 2))
+    return errors, np.sqrt(tr_sigma + tr_fit)
+
+
+def _inv3(a) -> np.ndarray:
+    """Inverses (N, 3, 3) of 3x3 matrices by the adjugate (a batched LAPACK call costs ~100x more per matrix)."""
+    c = np.empty_like(a)
+    c[:, 0, 0] = a[:, 1, 1] * a[:, 2, 2] - a[:, 1, 2] * a[:, 2, 1]
+    c[:, 0, 1] = a[:, 0, 2] * a[:, 2, 1] - a[:, 0, 1] * a[:, 2, 2]
+    c[:, 0, 2] = a[:, 0, 1] * a[:, 1, 2] - a[:, 0, 2] * a[:, 1, 1]
+    c[:, 1, 0] = a[:, 1, 2] * a[:, 2, 0] - a[:, 1, 0] * a[:, 2, 2]
+    c[:, 1, 1] = a[:, 0, 0] * a[:, 2, 2] - a[:, 0, 2] * a[:, 2, 0]
+    c[:, 1, 2] = a[:, 0, 2] * a[:, 1, 0] - a[:, 0, 0] * a[:, 1, 2]
+    c[:, 2, 0] = a[:, 1, 0] * a[:, 2, 1] - a[:, 1, 1] * a[:, 2, 0]
+    c[:, 2, 1] = a[:, 0, 1] * a[:, 2, 0] - a[:, 0, 0] * a[:, 2, 1]
+    c[:, 2, 2] = a[:, 0, 0] * a[:, 1, 1] - a[:, 0, 1] * a[:, 1, 0]
+    det = a[:, 0, 0] * c[:, 0, 0] + a[:, 0, 1] * c[:, 1, 0] + a[:, 0, 2] * c[:, 2, 0]
+    return c / det[:, None, None]
+
+
+def _sym3_min_eigenvalue(a) -> np.ndarray:
+    """Smallest eigenvalue (N,) of symmetric 3x3 matrices, closed form (trigonometric solution of the cubic)."""
+    q = np.trace(a, axis1=1, axis2=2) / 3.0
+    off = a[:, 0, 1] ** 2 + a[:, 0, 2] ** 2 + a[:, 1, 2] ** 2
+    d0, d1, d2 = a[:, 0, 0] - q, a[:, 1, 1] - q, a[:, 2, 2] - q
+    p = np.sqrt((d0**2 + d1**2 + d2**2 + 2.0 * off) / 6.0)
+    ps = np.where(p > 0, p, 1.0)
+    b00, b11, b22 = d0 / ps, d1 / ps, d2 / ps
+    b01, b02, b12 = a[:, 0, 1] / ps, a[:, 0, 2] / ps, a[:, 1, 2] / ps
+    det_b = b00 * (b11 * b22 - b12**2) - b01 * (b01 * b22 - b12 * b02) + b02 * (b01 * b12 - b11 * b02)
+    phi = np.arccos(np.clip(det_b / 2.0, -1.0, 1.0)) / 3.0
+    return np.where(p > 0, q + 2.0 * p * np.cos(phi + 2.0 * np.pi / 3.0), q)
