@@ -92,6 +92,7 @@ class _Fit:
         self.use_rotation = use_rotation
         self.M = model.split(np.eye(4), np.eye(4), A, setup)[2]
         self._cof_at = None
+        self._memo: dict = {}      # per free set: the last raw evaluation, shared by its re-weighted problems
 
     def cofactor(self, C, K):
         """`calib.model.robot_cofactor` at ``(C, K)``; the last one is kept (rounds re-weight at a fixed estimate)."""
@@ -102,23 +103,37 @@ class _Fit:
     def problem(self, C, K, noise, free):
         cof = self.cofactor(C, K)
         W = model.whitener(noise.point_cov(self.shape, cof))
-        return model.Problem(self.M, self.B, W, sigma_rot=noise.rotation, free=free,
-                             use_rotation=self.use_rotation), cof
+        return model.Problem(self.M, self.B, W, sigma_rot=noise.rotation, free=free, use_rotation=self.use_rotation,
+                             memo=self._memo.setdefault(tuple(bool(f) for f in free), {})), cof
 
     def run(self, C, K, theta, noise, free, estimate=(True, True, True)):
-        """Alternate LM and variance components until the noise levels settle."""
-        iters, converged = 0, True
+        """Variance components and the fit to them, until both settle.
+
+        Rounds of one LM (Gauss-Newton) step and one variance-component update
+        (Fisher scoring of the restricted likelihood in both) while the noise
+        levels still move by 1% or more; then the fit is converged with those
+        levels and the components are updated once more. The fixed point is
+        the one of alternating full fits and updates, without 3-4 LM
+        iterations per round on a fit to levels that are about to change
+        (at N = 1000 that was two thirds of the time of ``solve("auto")``).
+        """
+        iters, converged, polish = 0, False, False
         for _ in range(MAX_ROUNDS):
             prob, cof = self.problem(C, K, noise, free)
-            C, K, theta, _, it, converged = model.minimize(prob, C, K, theta, max_iterations=50)
+            C, K, theta, _, it, converged = model.minimize(prob, C, K, theta, max_iterations=50 if polish else 1)
             iters += it
             prob, cof = self.problem(C, K, noise, free)
             new, shares = model.variance_components(prob, C, K, theta, self.shape, cof, noise, estimate=estimate)
             change = max(abs(new.point_scale / noise.point_scale - 1), abs(new.robot / max(noise.robot, 1e-12) - 1),
                          0.0 if new.rotation is None else abs(new.rotation / noise.rotation - 1))
             noise = new
-            if change < 0.01:
+            if change < 0.01 and polish:
                 break
+            polish = change < 0.01
+        else:
+            prob, _ = self.problem(C, K, noise, free)
+            C, K, theta, _, it, converged = model.minimize(prob, C, K, theta, max_iterations=50)
+            iters += it
         prob, _ = self.problem(C, K, noise, free)
         return C, K, theta, noise, prob, iters, converged
 
@@ -127,9 +142,10 @@ class _Candidate:
     """One fitted model variant; its linearised leave-one-out point prediction error and its
     information with every camera parameter free are computed when first asked for, once."""
 
-    def __init__(self, fit, C, K, theta, noise, prob, iterations, converged):
+    def __init__(self, fit, C, K, theta, noise, prob, iterations, converged, *, fitted=True):
         self.fit, self.C, self.K, self.theta, self.noise, self.prob = fit, C, K, theta, noise, prob
         self.iterations, self.converged = iterations, converged
+        self.fitted = fitted          # False: a start (closed form, initial noise levels), not yet fitted
         self._loo = None
         self._info_all = None
 
@@ -194,7 +210,7 @@ def _needs_robust(start: CalibrationResult, A, p, shape) -> bool:
     """Whether the start's whitened point residuals show outliers at a robust (median) scale."""
     C, K, M = model.split(start.X, start.Y, A, start.setup)
     r = model.point_residuals(C, K[:3, 3], M, p)[0]
-    d2 = np.einsum("ni,nij,nj->n", r, np.linalg.inv(shape), r)
+    d2 = np.sum((model.whitener(shape) @ r[:, :, None]) ** 2, axis=(1, 2))
     scale = np.median(d2) / chi2.ppf(0.5, 3)
     return bool(np.any(d2 > chi2.ppf(0.9999, 3) * scale * 4.0))
 
@@ -292,45 +308,29 @@ def solve_auto(A, B, *, setup: str, point_cov=None, camera_correction: str = "au
         if rot and not start.marker_rotation_known:
             K = tf.make_transform(model.marker_rotation(C0, fit.M, B_in[:, :3, :3]), K0[:3, 3])
         noise = _initial_noise(C0, K, fit.M, p[inliers], shape_in, B_in[:, :3, :3] if rot else None)
+        if not use_rotation:
+            # Points only: nothing to compare before the camera parameters, which start from here (`_select_camera`).
+            best = _Candidate(fit, C0, K, theta, noise, fit.problem(C0, K, noise, (False, False, False))[0], 0, False,
+                              fitted=False)
+            break
         cand = _Candidate(fit, *fit.run(C0, K, theta, noise, (False, False, False)))
         if best is None or _better(cand, best):
             if best is not None:
                 notes.append(f"marker orientations left out: held-out points {best.loo * 1e3:.2f} mm with them, "
                              f"{cand.loo * 1e3:.2f} mm without (systematic orientation error, e.g. intrinsics)")
             best = cand
-    # Camera parameters, forward selection in the order of how common the error is (depth scale,
-    # depth offset, focal): one joins if the motions determine it well (information matrix), or
-    # determine it at all and it lowers the held-out prediction error of the points.
     wanted = _free_for(camera_correction)
     if any(wanted) and len(A_in) < MIN_SAMPLES_CAMERA:
         notes.append(f"camera correction not attempted: {len(A_in)} samples, it needs {MIN_SAMPLES_CAMERA}")
         wanted = (False, False, False)
-    fit, free = best.fit, np.zeros(3, dtype=bool)
-    data_sigma: dict[str, float] = {}
-    for k, name in enumerate(model.CAMERA_PARAMS):
-        if not wanted[k]:
-            continue
-        trial = free.copy()
-        trial[k] = True
-        sigmas = identifiability(*best.information(trial), free=trial)
-        data_sigma[name] = sigmas[name]
-        if sigmas[name] > IDENTIFIABLE_SIGMA[name]:
-            notes.append(f"{name} is not determined by these motions (1-sigma {_fmt(name, sigmas[name])}); "
-                         f"kept at nominal: {_MOTION_HINT[name]}")
-            continue
-        cand = _Candidate(fit, *fit.run(best.C, best.K, best.theta, best.noise, tuple(trial)))
-        wild = [n for i, n in enumerate(model.CAMERA_PARAMS) if trial[i] and abs(cand.theta[i]) > PLAUSIBLE[n]]
-        if wild:
-            notes.append(f"{name} not estimated: with it, {', '.join(wild)} came out implausibly large "
-                         "(the model would absorb another error)")
-            continue
-        if sigmas[name] <= WELL_DETERMINED_SIGMA[name] or _better(cand, best):
-            cand.iterations += best.iterations
-            best, free = cand, trial
-        else:
-            notes.append(f"{name} not estimated: these motions determine it to {_fmt(name, sigmas[name])} "
-                         f"(1-sigma) and it did not improve held-out predictions; to pin it down, "
-                         f"{_MOTION_HINT[name]}")
+    selected = _select_camera(best, wanted)
+    if selected is None:
+        # A parameter taken without a fit of its own came out implausible: choose one at a time, each fitted.
+        selected = _select_camera(_Candidate(best.fit, *best.fit.run(best.C, best.K, best.theta, best.noise,
+                                                                      (False, False, False))), wanted)
+    best, free, data_sigma, camera_notes = selected
+    notes.extend(camera_notes)
+    fit = best.fit
     C, K, theta, noise, prob = best.C, best.K, best.theta, best.noise, best.prob
     iters, converged, use_rotation = best.iterations, best.converged, fit.use_rotation
     info_mat, _ = best.information(free)
@@ -378,6 +378,75 @@ def solve_auto(A, B, *, setup: str, point_cov=None, camera_correction: str = "au
     )
 
 
+def _select_camera(best: _Candidate, wanted):
+    """Camera parameters, forward selection in the order of how common the error is.
+
+    Depth scale, depth offset, focal: one joins if the motions determine it
+    well (1-sigma from the information matrix below `WELL_DETERMINED_SIGMA`),
+    or determine it at all (below `IDENTIFIABLE_SIGMA`) and it lowers the
+    held-out prediction error of the points. ``best`` may be an unfitted start
+    (points only): then the well-determined parameters found there are fitted
+    together, in one run of variance components and fit, instead of one run
+    each after a run without them (the same fixed point; at N = 1000 it halves
+    the time of ``solve("auto")``); their 1-sigma at the start decides (the
+    thresholds are an order of magnitude apart, the start is close).
+
+    Returns ``(best, free, data_sigma, notes)``, or None when a parameter taken
+    that way came out implausible (`PLAUSIBLE`): the caller then selects again
+    from a fitted start, one parameter at a time.
+    """
+    fit, free = best.fit, np.zeros(3, dtype=bool)
+    data_sigma: dict[str, float] = {}
+    notes: list[str] = []
+    for k, name in enumerate(model.CAMERA_PARAMS):
+        if not wanted[k]:
+            continue
+        trial = free.copy()
+        trial[k] = True
+        sigmas = identifiability(*best.information(trial), free=trial)
+        if sigmas[name] <= IDENTIFIABLE_SIGMA[name] and sigmas[name] > WELL_DETERMINED_SIGMA[name] and not best.fitted:
+            # A held-out comparison needs a fitted model to compare with: fit what was taken so far, probe again.
+            best = _fitted(best, free)
+            if best is None:
+                return None
+            sigmas = identifiability(*best.information(trial), free=trial)
+        data_sigma[name] = sigmas[name]
+        if sigmas[name] > IDENTIFIABLE_SIGMA[name]:
+            notes.append(f"{name} is not determined by these motions (1-sigma {_fmt(name, sigmas[name])}); "
+                         f"kept at nominal: {_MOTION_HINT[name]}")
+            continue
+        if not best.fitted and sigmas[name] <= WELL_DETERMINED_SIGMA[name]:
+            free = trial              # fitted with the others taken this way, below
+            continue
+        cand = _Candidate(fit, *fit.run(best.C, best.K, best.theta, best.noise, tuple(trial)))
+        wild = [n for i, n in enumerate(model.CAMERA_PARAMS) if trial[i] and abs(cand.theta[i]) > PLAUSIBLE[n]]
+        if wild:
+            notes.append(f"{name} not estimated: with it, {', '.join(wild)} came out implausibly large "
+                         "(the model would absorb another error)")
+            continue
+        if sigmas[name] <= WELL_DETERMINED_SIGMA[name] or _better(cand, best):
+            cand.iterations += best.iterations
+            best, free = cand, trial
+        else:
+            notes.append(f"{name} not estimated: these motions determine it to {_fmt(name, sigmas[name])} "
+                         f"(1-sigma) and it did not improve held-out predictions; to pin it down, "
+                         f"{_MOTION_HINT[name]}")
+    if not best.fitted:
+        best = _fitted(best, free)
+        if best is None:
+            return None
+    return best, free, data_sigma, notes
+
+
+def _fitted(start: _Candidate, free) -> _Candidate | None:
+    """``start`` fitted with the camera parameters ``free``; None if one of them comes out implausible."""
+    fit = start.fit
+    cand = _Candidate(fit, *fit.run(start.C, start.K, start.theta, start.noise, tuple(bool(f) for f in free)))
+    if any(free[i] and abs(cand.theta[i]) > PLAUSIBLE[n] for i, n in enumerate(model.CAMERA_PARAMS)):
+        return None
+    return cand
+
+
 def _consider(best: _Candidate, free, data_sigma) -> np.ndarray:
     """Camera covariance (6, 6) added by the camera parameters left at nominal ("consider" covariance).
 
@@ -417,7 +486,7 @@ def _residuals(X, Y, A, B, setup, theta, use_rotation) -> Residuals:
 def _initial_noise(C, K, M, p, shape, R_B) -> model.NoiseLevels:
     """Starting noise levels: the camera model at the scale of the residuals, a small robot error."""
     r0 = model.point_residuals(C, K[:3, 3], M, p)[0]
-    d2 = np.einsum("ni,nij,nj->n", r0, np.linalg.inv(shape), r0)
+    d2 = np.sum((model.whitener(shape) @ r0[:, :, None]) ** 2, axis=(1, 2))
     rot0 = None
     if R_B is not None:
         e0 = model.rotation_residuals(C, K, M, R_B)[0]
@@ -524,7 +593,7 @@ def _consistency(fit, prob, C, K, theta, errors, predicted) -> dict:
     p = prob.p
     pred = model.predict_points(C, K[:3, 3], prob.M, theta)
     r = p - pred
-    d2 = float(np.einsum("ni,nij,nj->", r, np.linalg.inv(fit.shape), r))
+    d2 = float(np.sum((model.whitener(fit.shape) @ r[:, :, None]) ** 2))
     dof = max(3 * len(p) - prob.n_params, 1)
     p_value = float(chi2.sf(d2, dof))
     obs = float(np.sqrt(np.mean(errors**2)))

@@ -279,6 +279,13 @@ def point_weights(B, point_cov) -> tuple[np.ndarray, bool]:
 # --------------------------------------------------------------------------- problem
 
 
+def _same_point(a, b) -> bool:
+    """Whether two ``(C, K, theta)`` are the same estimate (theta None and zeros differ: different Jacobians)."""
+    if (a[2] is None) != (b[2] is None):
+        return False
+    return all(x is y or np.array_equal(x, y) for x, y in zip(a, b) if x is not None or y is not None)
+
+
 class Problem:
     """Whitened residual vector and Jacobian of one data set (see the module docstring).
 
@@ -297,10 +304,17 @@ class Problem:
     use_rotation : bool
         Whether pose data contribute their orientation residual (else only
         the translation of ``B`` is used and ``K``'s rotation is not estimated).
+    memo : dict, optional
+        Shared by problems of the same ``M``, ``B``, ``free`` and
+        ``use_rotation`` that differ only in their weights: `raw` keeps its
+        last evaluation there, so re-weighting at a fixed estimate (variance
+        components, then the next fit) does not evaluate it twice. The arrays
+        it returns are then shared and must not be modified.
     """
 
-    def __init__(self, M, B, W_t, sigma_rot=None, free=(False, False, False), use_rotation=True):
+    def __init__(self, M, B, W_t, sigma_rot=None, free=(False, False, False), use_rotation=True, memo=None):
         self.M = M
+        self._memo = memo
         self.rotations = B.ndim == 3 and use_rotation
         self.p = B if B.ndim == 2 else B[:, :3, 3]
         self.R_B = B[:, :3, :3] if self.rotations else None
@@ -317,6 +331,16 @@ class Problem:
 
     def raw(self, C, K, theta=None):
         """Unwhitened residuals and Jacobians: ``r (N,3), e (N,3)|None, J_t (N,3,P), J_e (N,3,P)|None``."""
+        if self._memo is not None:
+            last = self._memo.get("raw")
+            if last is not None and _same_point(last[0], (C, K, theta)):
+                return last[1]
+            out = self._raw(C, K, theta)
+            self._memo["raw"] = ((C, K, theta), out)
+            return out
+        return self._raw(C, K, theta)
+
+    def _raw(self, C, K, theta):
         R_C, t_C = C[:3, :3], C[:3, 3]
         R_M = self.M[:, :3, :3]
         w = R_M @ K[:3, 3] + self.M[:, :3, 3] - t_C       # marker center minus camera origin, C's parent frame
@@ -613,7 +637,7 @@ def leave_one_out(problem: Problem, C, K, theta=None, point_cov=None) -> tuple[n
         # 3x3 blocks (points): closed-form inverses, a batched LAPACK call costs ~1 us per sample.
         S_inv = _inv3(S)
         r_loo = (S_inv @ rw[:, :, None])[:, :, 0]
-        A = H + H @ S_inv @ H
+        A = H @ S_inv                 # = H + H S^-1 H, as S + H = I
     else:
         r_loo = np.linalg.solve(S, rw[:, :, None])[:, :, 0]
         A = H[:, :3, :3] + Hp @ np.linalg.solve(S, np.swapaxes(Hp, 1, 2))
