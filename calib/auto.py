@@ -73,6 +73,9 @@ CHI2_ALPHA = 0.001
 ROBOT_SIGMA_START = 2e-4
 #: Variance-component rounds: stop when no level changes by more than 1% or after this many.
 MAX_ROUNDS = 12
+#: Once no noise level changes by more than this, the fit is converged before the next update
+#: (that update then usually moves them by under 1%: the last round).
+POLISH_CHANGE = 0.05
 #: Rounds of the noise-level estimate at a fixed estimate (self-check of any method; 3% is plenty there).
 CHECK_ROUNDS = 5
 
@@ -111,8 +114,9 @@ class _Fit:
 
         Rounds of one LM (Gauss-Newton) step and one variance-component update
         (Fisher scoring of the restricted likelihood in both) while the noise
-        levels still move by 1% or more; then the fit is converged with those
-        levels and the components are updated once more. The fixed point is
+        levels still move by `POLISH_CHANGE` or more; then the fit is converged
+        with those levels and the components are updated once more, until
+        that update moves them by less than 1%. The fixed point is
         the one of alternating full fits and updates, without 3-4 LM
         iterations per round on a fit to levels that are about to change
         (at N = 1000 that was two thirds of the time of ``solve("auto")``).
@@ -129,7 +133,7 @@ class _Fit:
             noise = new
             if change < 0.01 and polish:
                 break
-            polish = change < 0.01
+            polish = change < POLISH_CHANGE
         else:
             prob, _ = self.problem(C, K, noise, free)
             C, K, theta, _, it, converged = model.minimize(prob, C, K, theta, max_iterations=50)
@@ -418,6 +422,9 @@ def _select_camera(best: _Candidate, wanted):
         if not best.fitted and sigmas[name] <= WELL_DETERMINED_SIGMA[name]:
             free = trial              # fitted with the others taken this way, below
             continue
+        if sigmas[name] > WELL_DETERMINED_SIGMA[name] and not _step_helps(best, trial):
+            notes.append(_not_helpful(name, sigmas[name]))
+            continue
         cand = _Candidate(fit, *fit.run(best.C, best.K, best.theta, best.noise, tuple(trial)))
         wild = [n for i, n in enumerate(model.CAMERA_PARAMS) if trial[i] and abs(cand.theta[i]) > PLAUSIBLE[n]]
         if wild:
@@ -428,14 +435,43 @@ def _select_camera(best: _Candidate, wanted):
             cand.iterations += best.iterations
             best, free = cand, trial
         else:
-            notes.append(f"{name} not estimated: these motions determine it to {_fmt(name, sigmas[name])} "
-                         f"(1-sigma) and it did not improve held-out predictions; to pin it down, "
-                         f"{_MOTION_HINT[name]}")
+            notes.append(_not_helpful(name, sigmas[name]))
     if not best.fitted:
         best = _fitted(best, free)
         if best is None:
             return None
     return best, free, data_sigma, notes
+
+
+def _not_helpful(name: str, sigma: float) -> str:
+    return (f"{name} not estimated: these motions determine it to {_fmt(name, sigma)} (1-sigma) and it did not "
+            f"improve held-out predictions; to pin it down, {_MOTION_HINT[name]}")
+
+
+def _step_helps(best: _Candidate, trial) -> bool:
+    """Whether freeing the camera parameters ``trial`` is worth a refit: its held-out error after one step.
+
+    The Gauss-Newton step from ``best`` with ``trial`` free, at ``best``'s
+    noise levels (`calib.model.leave_one_out_after_step`): if even that does
+    not lower the held-out point error at all, the refit would not lower it
+    by `MIN_LOO_GAIN` either (a refit with its own noise levels moves the
+    estimate by much less than the step). Otherwise the refit decides, as
+    before. A step to an implausible value also goes to the refit, which
+    reports it. Saves one fit with its variance components per parameter
+    that does not help (the focal scale, usually).
+    """
+    fit = best.fit
+    prob, _ = fit.problem(best.C, best.K, best.noise, tuple(bool(f) for f in trial))
+    try:
+        errors, _, delta = model.leave_one_out_after_step(prob, best.C, best.K, best.theta,
+                                                          best.noise.point_cov(fit.shape, fit.cofactor(best.C, best.K)))
+    except InsufficientDataError:
+        return True
+    theta = np.array(best.theta, dtype=float)
+    theta[np.asarray(trial, dtype=bool)] += delta[prob.n_pose:]
+    if any(abs(theta[i]) > PLAUSIBLE[n] for i, n in enumerate(model.CAMERA_PARAMS)):
+        return True
+    return float(np.sqrt(np.mean(errors**2))) < best.loo
 
 
 def _fitted(start: _Candidate, free) -> _Candidate | None:
