@@ -542,10 +542,9 @@ def _noise_at(fit, C, K, theta, free) -> model.NoiseLevels:
     """Variance components at a fixed estimate (no refit)."""
     p = fit.B if fit.B.ndim == 2 else fit.B[:, :3, 3]
     noise = _initial_noise(C, K, fit.M, p, fit.shape, fit.B[:, :3, :3] if fit.use_rotation else None)
-    cof = model.robot_cofactor(C, K, fit.M, fit.setup)          # fixed estimate: computed once
     for _ in range(CHECK_ROUNDS):
-        prob = model.Problem(fit.M, fit.B, model.whitener(noise.point_cov(fit.shape, cof)), sigma_rot=noise.rotation,
-                             free=free, use_rotation=fit.use_rotation)
+        # Fixed estimate: the robot cofactor and the Jacobians are computed once (`_Fit.problem`).
+        prob, cof = fit.problem(C, K, noise, free)
         new, _ = model.variance_components(prob, C, K, theta, fit.shape, cof, noise)
         settled = abs(new.point_scale / noise.point_scale - 1) < 0.03 and abs(new.robot / noise.robot - 1) < 0.03
         noise = new
