@@ -292,6 +292,10 @@ def section_flips(rng, trials: int, n: int = 19) -> str:
     ])
 
 
+#: Short names of the camera parameters in the real-set table.
+_SHORT = {"depth_scale": "scale", "depth_offset": "offset", "focal_scale": "focal"}
+
+
 def section_real(quick: bool) -> str:
     with tempfile.TemporaryDirectory(prefix="handeye-bench-") as work:
         return _real_rows(quick, Path(work))
@@ -326,7 +330,7 @@ def _real_rows(quick: bool, work: Path) -> str:
             ok,
             f"{start} {start_cv.observed_rms * 1e3:.2f}" if start_cv else start,
             f"{ml.observed_rms * 1e3:.2f} / {ml.predicted_rms * 1e3:.2f}",
-            ", ".join(f"{k.split('_')[1]} {v['value'] * (1e3 if k == 'depth_offset' else 100):+.2f}"
+            ", ".join(f"{_SHORT[k]} {v['value'] * (1e3 if k == 'depth_offset' else 100):+.2f}"
                       f"{'mm' if k == 'depth_offset' else '%'}"
                       for k, v in auto_res.info["camera_correction"].items() if v["estimated"]) or "none",
             " + ".join(auto_res.info["measurements"]),
