@@ -12,14 +12,21 @@ eye-in-hand ``X = T_flange_cam``, ``Y = T_base_marker``; paper eq. 1):
 3. Maximum likelihood on the inliers with the extended model: marker points
    (always), marker orientations (pose data), robot pose error propagated
    into the points, and the camera's depth scale / depth offset / focal
-   scale (`camera_correction`), alternating with the variance-component
-   estimate of the noise levels (`calib.model.variance_components`).
+   scale (`camera_correction`), in rounds with the variance-component
+   estimate of the noise levels (`calib.model.variance_components`,
+   `_Fit.run`). Orientations and camera parameters are model choices made
+   by held-out error (`_select_camera`); the well-determined ones are fitted
+   together, and a choice that a Gauss-Newton step already shows to be
+   useless is not refitted (`_step_helps`).
 4. Camera parameters the motions do not determine (from the information
    matrix: their 1-sigma would exceed `IDENTIFIABLE_SIGMA`) stay at nominal
    (zero), with a message naming the motion that would fix it.
 5. Self-check (`self_check`): chi-square of the residuals against the
    camera's a-priori noise model, and the linearised leave-one-out
-   prediction error of the marker point beside the predicted one.
+   prediction error of the marker point beside the predicted one (the
+   hat-matrix formula of `calib.model.leave_one_out`: no refit, so it runs
+   inside every ``solve`` also at N = 1000, where a k-fold refit of ``auto``
+   would cost k fits).
 """
 
 from __future__ import annotations
