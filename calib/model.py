@@ -529,28 +529,28 @@ def variance_components(problem: Problem, C, K, theta, shape, robot_cof, noise: 
     """
     r, e, J_t, J_e = problem.raw(C, K, theta)
     u = J_t.shape[2]
+    # In whitened terms (W^T W = P): v^T P Q P v = v~^T Q~ v~, tr(Q P) = tr(Q~), tr(Q_k P Q_l P) = tr(Q~_k Q~_l),
+    # tr(Q P J N^-1 J^T P) = tr(Q~ G N^-1 G^T), with v~ = W v, G = W J, Q~ = W Q W^T: fewer 3x3 products.
     W = problem.W_t
-    P = np.ascontiguousarray(np.swapaxes(W, 1, 2)) @ W        # (matmul on a transposed view is 2x slower)
-    Pv = (P @ r[:, :, None])[:, :, 0]
-    PJ_flat = (P @ J_t).reshape(-1, u)
-    Nmat = J_t.reshape(-1, u).T @ PJ_flat
+    Wt = np.ascontiguousarray(np.swapaxes(W, 1, 2))          # (matmul on a transposed view is 2x slower)
+    G = W @ J_t
+    v = (W @ r[:, :, None])[:, :, 0]
+    G_flat = G.reshape(-1, u)
+    Nmat = G_flat.T @ G_flat
     if e is not None:
         s2 = problem.sigma_rot**2
         Je_flat = J_e.reshape(-1, u)
         Nmat = Nmat + Je_flat.T @ Je_flat / s2
     Ninv = np.linalg.inv(Nmat)
-    # P_i J_i N^-1 J_i^T P_i (N, 3, 3): tr(Q_k N^-1 J^T P Q_k P J) summed over samples is sum(Q_k * it).
-    PJ = PJ_flat.reshape(-1, 3, u)
-    hat = (PJ_flat @ Ninv).reshape(-1, 3, u) @ np.ascontiguousarray(np.swapaxes(PJ, 1, 2))
-    Q = [shape, robot_cof]
-    QP = [Qk @ P for Qk in Q]
-    q = np.array([float(np.sum(Pv * (Qk @ Pv[:, :, None])[:, :, 0])) for Qk in Q])
-    # P and Q_k symmetric: tr(Q_k P) = sum(Q_k * P), tr(QP_k QP_l) = sum(QP_k * QP_l^T).
-    tr1 = np.array([float(np.sum(Qk * P)) for Qk in Q])
-    tr2 = np.array([float(np.sum(Qk * hat)) for Qk in Q])
+    hat = (G_flat @ Ninv).reshape(-1, 3, u) @ np.ascontiguousarray(np.swapaxes(G, 1, 2))
+    Qw = [W @ Qk @ Wt for Qk in (shape, robot_cof)]
+    q = np.array([float(np.sum(v * (Qk @ v[:, :, None])[:, :, 0])) for Qk in Qw])
+    tr1 = np.array([float(np.trace(Qk, axis1=1, axis2=2).sum()) for Qk in Qw])
+    tr2 = np.array([float(np.sum(Qk * hat)) for Qk in Qw])
     red = tr1 - tr2
-    QPt = [np.swapaxes(QPk, 1, 2) for QPk in QP]
-    H = np.array([[float(np.sum(QP[k] * QPt[m])) for m in range(2)] for k in range(2)])
+    H = np.empty((2, 2))
+    H[0, 0], H[1, 1] = float(np.sum(Qw[0] * Qw[0])), float(np.sum(Qw[1] * Qw[1]))
+    H[0, 1] = H[1, 0] = float(np.sum(Qw[0] * Qw[1]))
     H *= (red / np.maximum(tr1, 1e-300))[:, None]
     current = np.array([noise.point_scale, noise.robot**2])
     active = np.array(estimate[:2], dtype=bool)
