@@ -80,6 +80,9 @@ CHI2_ALPHA = 0.001
 ROBOT_SIGMA_START = 2e-4
 #: Variance-component rounds: stop when no level changes by more than 1% or after this many.
 MAX_ROUNDS = 12
+#: LM step (rad, m) below which the fit counts as converged: 10 nm, ~1e-4 of any 1-sigma here (the
+#: default 1e-10 of `calib.model.minimize` often costs one more iteration, ~1 ms at N = 1000).
+FIT_TOL = 1e-8
 #: Once no noise level changes by more than this, the fit is converged before the next update
 #: (that update then usually moves them by under 1%: the last round).
 POLISH_CHANGE = 0.05
@@ -131,7 +134,8 @@ class _Fit:
         iters, converged, polish = 0, False, False
         for _ in range(MAX_ROUNDS):
             prob, cof = self.problem(C, K, noise, free)
-            C, K, theta, _, it, converged = model.minimize(prob, C, K, theta, max_iterations=50 if polish else 1)
+            C, K, theta, _, it, converged = model.minimize(prob, C, K, theta, max_iterations=50 if polish else 1,
+                                                           tol=FIT_TOL)
             iters += it
             prob, cof = self.problem(C, K, noise, free)
             new, shares = model.variance_components(prob, C, K, theta, self.shape, cof, noise, estimate=estimate)
@@ -143,7 +147,7 @@ class _Fit:
             polish = change < POLISH_CHANGE
         else:
             prob, _ = self.problem(C, K, noise, free)
-            C, K, theta, _, it, converged = model.minimize(prob, C, K, theta, max_iterations=50)
+            C, K, theta, _, it, converged = model.minimize(prob, C, K, theta, max_iterations=50, tol=FIT_TOL)
             iters += it
         prob, _ = self.problem(C, K, noise, free)
         return C, K, theta, noise, prob, iters, converged

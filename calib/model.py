@@ -445,6 +445,10 @@ def minimize(problem: Problem, C, K, theta=None, *, max_iterations: int = 50, to
                 delta = -np.linalg.solve(H + lam * np.diag(np.diag(H)), g)
             except np.linalg.LinAlgError:
                 raise DegenerateMotionError("the motions do not constrain every unknown (singular normal equations)") from None
+            if np.abs(delta).max() < tol:
+                # At the minimum to the tolerance: a step this small need not lower the cost (rounding), and
+                # raising the damping until it does cost up to 16 more evaluations.
+                return C, K, theta, cost, it, True
             C2, K2, theta2 = problem.retract(C, K, theta, delta)
             cost2 = problem.cost(C2, K2, theta2)
             if cost2 <= cost:
