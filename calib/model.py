@@ -67,6 +67,9 @@ CAMERA_PARAMS = ("depth_scale", "depth_offset", "focal_scale")
 ROBOT_ROTATION_PER_M = 1.0
 #: Smallest eigenvalue ratio of the information before the motions are called degenerate.
 MIN_INFORMATION_RATIO = 1e-14
+#: Leave-one-out: a sample whose residual block has an eigenvalue of ``I - H_ii`` at or below this is one
+#: the others cannot do without (leverage 1).
+LEVERAGE_MARGIN = 1e-9
 
 _I3 = np.eye(3)
 
@@ -659,21 +662,31 @@ def _leave_one_out(problem, C, K, theta, point_cov, *, step):
     H = (G_flat @ Ninv).reshape(n, k, u) @ np.swapaxes(G, 1, 2)
     S = np.eye(k) - H
     # Leverage 1 (an eigenvalue of S at 0): without sample i the others do not determine the unknowns.
-    min_eig = _sym3_min_eigenvalue(S) if k == 3 else np.linalg.eigvalsh(S)[:, 0]
-    if min_eig.min() <= 1e-9:
+    # Only the point rows of S^-1 are needed: r_loo = S^-1 r and A = H + H S^-1 H = S^-1 - I (S + H = I),
+    # both from 3x3 closed forms (a batched LAPACK call costs ~1 us per sample).
+    if k == 3:
+        singular = _sym3_min_eigenvalue(S).min() <= LEVERAGE_MARGIN
+        S_inv, rp = (None if singular else _inv3(S)), rw
+    else:
+        # Points and orientations: the point rows of S^-1 = [T^-1, -T^-1 X] with X = S12 S22^-1 and the
+        # Schur complement T = S11 - X S21; S - margin I is positive definite iff its orientation block
+        # and that block's Schur complement are.
+        S11, S12, S21, S22 = S[:, :3, :3], S[:, :3, 3:], S[:, 3:, :3], S[:, 3:, 3:]
+        shift = LEVERAGE_MARGIN * np.eye(3)
+        X_m = S12 @ _inv3(S22 - shift)
+        singular = min(_sym3_min_eigenvalue(S22 - shift).min(),
+                       _sym3_min_eigenvalue(S11 - shift - X_m @ S21).min()) <= 0.0
+        if not singular:
+            X = S12 @ _inv3(S22)
+            S_inv = _inv3(S11 - X @ S21)
+            rp = rw[:, :3] - (X @ rw[:, 3:, None])[:, :, 0]
+    if singular:
         raise InsufficientDataError(f"leave-one-out needs more than {n} samples: without one of them the "
                                     "others do not determine every unknown")
-    Hp = H[:, :3, :]
-    if k == 3:
-        # 3x3 blocks (points): closed-form inverses, a batched LAPACK call costs ~1 us per sample.
-        S_inv = _inv3(S)
-        r_loo = (S_inv @ rw[:, :, None])[:, :, 0]
-        A = H @ S_inv                 # = H + H S^-1 H, as S + H = I
-    else:
-        r_loo = np.linalg.solve(S, rw[:, :, None])[:, :, 0]
-        A = H[:, :3, :3] + Hp @ np.linalg.solve(S, np.swapaxes(Hp, 1, 2))
+    r_loo = (S_inv @ rp[:, :, None])[:, :, 0]        # point rows of S^-1 r
+    A = S_inv - np.eye(3)
     Winv = _inv3(W)
-    errors = np.linalg.norm((Winv @ r_loo[:, :3, None])[:, :, 0], axis=1)
+    errors = np.linalg.norm((Winv @ r_loo[:, :, None])[:, :, 0], axis=1)
     # trace(Sigma + Winv A Winv^T), the second term as sum(A * Winv^T Winv).
     tr_sigma = (np.sum(Winv * Winv, axis=(1, 2)) if point_cov is None
                 else np.trace(point_cov, axis1=1, axis2=2))
