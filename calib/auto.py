@@ -230,7 +230,7 @@ def _needs_robust(start: CalibrationResult, A, p, shape) -> bool:
     return bool(np.any(d2 > chi2.ppf(0.9999, 3) * scale * 4.0))
 
 
-def identifiability(info: np.ndarray, n_pose: int, free) -> dict[str, float]:
+def identifiability(info: np.ndarray, free, n_pose: int) -> dict[str, float]:
     """1-sigma of each free camera parameter from the information matrix (inf if singular)."""
     names = [n for n, f in zip(model.CAMERA_PARAMS, free) if f]
     try:
@@ -422,13 +422,13 @@ def _select_camera(best: _Candidate, wanted, *, defer: bool):
             continue
         trial = free.copy()
         trial[k] = True
-        sigmas = identifiability(*best.information(trial), free=trial)
+        sigmas = _sigmas(best, trial)
         if sigmas[name] <= IDENTIFIABLE_SIGMA[name] and sigmas[name] > WELL_DETERMINED_SIGMA[name] and not fitted:
             # A held-out comparison needs a fitted model to compare with: fit what was taken so far, probe again.
             best, fitted = _fitted(best, free), True
             if best is None:
                 return None
-            sigmas = identifiability(*best.information(trial), free=trial)
+            sigmas = _sigmas(best, trial)
         data_sigma[name] = sigmas[name]
         if sigmas[name] > IDENTIFIABLE_SIGMA[name]:
             notes.append(f"{name} is not determined by these motions (1-sigma {_fmt(name, sigmas[name])}); "
@@ -456,6 +456,12 @@ def _select_camera(best: _Candidate, wanted, *, defer: bool):
         if best is None:
             return None
     return best, free, data_sigma, notes
+
+
+def _sigmas(best: _Candidate, trial) -> dict[str, float]:
+    """`identifiability` of the camera parameters ``trial`` at ``best``."""
+    info, n_pose = best.information(trial)
+    return identifiability(info, trial, n_pose)
 
 
 def _not_helpful(name: str, sigma: float) -> str:
@@ -496,6 +502,7 @@ def _fitted(start: _Candidate, free) -> _Candidate | None:
     """``start`` fitted with the camera parameters ``free``; None if one of them comes out implausible."""
     fit = start.fit
     cand = _Candidate(fit, *fit.run(start.C, start.K, start.theta, start.noise, tuple(bool(f) for f in free)))
+    cand.iterations += start.iterations
     if any(free[i] and abs(cand.theta[i]) > PLAUSIBLE[n] for i, n in enumerate(model.CAMERA_PARAMS)):
         return None
     return cand
