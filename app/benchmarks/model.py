@@ -36,7 +36,7 @@ from pathlib import Path  # noqa: E402
 import cv2  # noqa: E402
 import numpy as np  # noqa: E402
 
-from app.benchmarks.datasets import real_sets  # noqa: E402
+from app.benchmarks.datasets import datasets_dir, real_sets  # noqa: E402
 from bench.solvers import OPENCV_HAND_EYE, OPENCV_ROBOT_WORLD, run_solver  # noqa: E402
 from calib import model, solve, solvers  # noqa: E402
 from calib import simulate  # noqa: E402
@@ -335,6 +335,8 @@ def _real_rows(quick: bool, work: Path) -> str:
                       for k, v in auto_res.info["camera_correction"].items() if v["estimated"]) or "none",
             " + ".join(auto_res.info["measurements"]),
         ])
+    if not rows:
+        return f"### Real recordings: none found under {datasets_dir()} (set HANDEYE_DATASETS)"
     return "\n".join([
         "### Real recordings: held-out prediction error of the marker point [mm]",
         "",
