@@ -1,7 +1,7 @@
 """The real recordings the benchmarks measure on, read from their upstream copies.
 
 The folder is ``$HANDEYE_DATASETS``, else ``../shared/datasets`` beside the
-repository (``industrial_calibration/``, ``ethz_hand_eye/``; licenses there).
+repository (or beside a folder above it) (``industrial_calibration/``, ``ethz_hand_eye/``; licenses there).
 The suite's trimmed copies in ``tests/data`` are for tests only. The ETH
 pose streams come without a manifest: `real_sets` stages each pair with its
 ``streams.toml`` in a work folder, because a manifest may only name files
@@ -22,7 +22,11 @@ from app.formats.common import ImportedSamples
 def datasets_dir() -> Path:
     """Where the shared real recordings are (may not exist on a fresh machine)."""
     env = os.environ.get("HANDEYE_DATASETS")
-    return Path(env) if env else Path(__file__).resolve().parents[3] / "shared" / "datasets"
+    if env:
+        return Path(env)
+    # The nearest ``shared/datasets`` above the checkout, so a git worktree nested deeper finds it too.
+    beside = [p / "shared" / "datasets" for p in Path(__file__).resolve().parents[3:]]
+    return next((d for d in beside if d.is_dir()), beside[0])
 
 
 #: ETH pose-stream pairs: (name, folder, robot CSV, camera CSV, frames). Both eye-in-hand; the camera
