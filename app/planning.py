@@ -51,6 +51,8 @@ PLAN_VERSION = 1
 EARLY_SAMPLES = 3
 #: ... and the largest predicted 1-sigma (mm, deg) at which it is trusted to plan with.
 EARLY_MAX_SIGMA = (20.0, 2.0)
+#: 1-sigma of a measured marker orientation that comes without a covariance, deg (a single-marker PnP pose).
+MARKER_ANGLE_SIGMA_DEG = 2.0
 #: Poses a plan file may hold at most (a plan is a handful of motions, not a trajectory).
 MAX_PLAN_POSES = 1000
 
@@ -72,8 +74,9 @@ class Target:
 def camera_view(cal: CalibrateConfig, intrinsics, marker: TargetConfig) -> pl.CameraView:
     """The planner's camera model from ``[calibrate]``, the camera intrinsics and ``[marker]``."""
     size = marker.marker_size
-    return pl.CameraView(intrinsics.width, intrinsics.height, intrinsics.fx, intrinsics.fy, intrinsics.cx,
-                         intrinsics.cy, margin_px=float(cal.image_margin_px), depth_min_m=float(cal.depth_range_m[0]),
+    return pl.CameraView(width=intrinsics.width, height=intrinsics.height, fx=intrinsics.fx, fy=intrinsics.fy,
+                         cx=intrinsics.cx, cy=intrinsics.cy, margin_px=float(cal.image_margin_px),
+                         depth_min_m=float(cal.depth_range_m[0]),
                          depth_max_m=float(cal.depth_range_m[1]), max_view_angle_deg=float(cal.max_view_angle_deg),
                          marker_size_m=float(size))
 
@@ -84,7 +87,7 @@ def planner_config(cfg: Config, **overrides) -> pl.PlannerConfig:
     # Robot backends without these fields get the planner's defaults.
     kw = dict(translation_range_m=cal.translation_range_m, tilt_deg=cal.tilt_deg,
               workspace_min=getattr(robot, "workspace_min", None), workspace_max=getattr(robot, "workspace_max", None),
-              keep_out=tuple(pl.KeepOut(tuple(b[0]), tuple(b[1])) for b in cal.keep_out),
+              keep_out=tuple(pl.KeepOut(min=b[0], max=b[1]) for b in cal.keep_out),
               clearance_m=cal.clearance_m, travel_weight=cal.travel_weight,
               speed_m_s=float(getattr(robot, "speed", 0.25)), acceleration_m_s2=float(getattr(robot, "acceleration", 1.0)))
     kw.update(overrides)
@@ -208,13 +211,9 @@ class OptimalPoses:
             return Target(self.start, "start", q=state.q if _same_pose(state.T_base_flange, self.start) else None)
         if self.bootstrap is None and at_start:
             first = at_start[0]
-            angle = 0.0
-            if first.T_cam_marker is not None:
-                B = first.T_cam_marker
-                angle = float(np.degrees(np.arccos(np.clip(-B[:3, 2] @ B[:3, 3] / np.linalg.norm(B[:3, 3]), -1, 1))))
             self.bootstrap = list(pl.bootstrap_poses(self.start, setup, self.view, first.point_cam, self.pcfg,
                                                      lever_max_m=self.cfg.calibrate.lever_max_m,
-                                                     view_angle_deg=angle))
+                                                     view_angle_deg=view_angle_bound(first, self.pcfg.uncertainty_k)))
             if not self.bootstrap:
                 log.warning("the marker is too close to the image border (or too oblique) for a safe bootstrap")
         if estimate is None:
@@ -239,6 +238,22 @@ class OptimalPoses:
                         dict(planner.stats.reasons))
             return None
         return Target(pose.T_base_flange, "optimal", q=pose.q)
+
+
+def view_angle_bound(observation, k: float) -> float:
+    """The marker's view angle at a sample, deg, plus ``k`` standard deviations of its measured orientation
+    (`pose_cov`; `MARKER_ANGLE_SIGMA_DEG` without one): what the bootstrap may rely on.
+
+    0 when the sample has no marker orientation (the bootstrap then assumes the marker faces the camera).
+    """
+    B = observation.T_cam_marker
+    if B is None:
+        return 0.0
+    angle = float(np.degrees(np.arccos(np.clip(-B[:3, 2] @ B[:3, 3] / np.linalg.norm(B[:3, 3]), -1, 1))))
+    cov = observation.pose_cov
+    sigma = MARKER_ANGLE_SIGMA_DEG if cov is None else \
+        float(np.degrees(np.sqrt(max(np.linalg.eigvalsh(np.asarray(cov)[:3, :3])[-1], 0.0))))
+    return angle + k * sigma
 
 
 def _early_estimate(setup: str, observations):

@@ -38,7 +38,6 @@ for _var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
     os.environ.setdefault(_var, "1")
 
 import argparse  # noqa: E402
-import dataclasses  # noqa: E402
 import math  # noqa: E402
 import sys  # noqa: E402
 import tempfile  # noqa: E402
@@ -148,15 +147,22 @@ def _random_cell(setup: str, cfg, T0: np.ndarray, rng: np.random.Generator):
     raise RuntimeError("no visible random cell found")
 
 
+#: Orientation noise of the synthetic marker poses, rad per axis.
+MARKER_ROT_SIGMA = math.radians(1.0)
+
+
 def _measure(setup, X, Y, A, rng):
-    """Synthetic marker point (depth-model noise) and a marker pose with 1 deg orientation noise."""
+    """Synthetic marker point (depth-model noise) and a marker pose with `MARKER_ROT_SIGMA` orientation noise,
+    with their covariances."""
     T_cm = (tf.invert(Y) @ A @ X) if setup == Setup.EYE_TO_HAND else (tf.invert(A @ X) @ Y)
     p = T_cm[:3, 3]
     cov = default_point_cov(p[None])[0]
     p_meas = p + np.linalg.cholesky(cov) @ rng.normal(size=3)
-    B = tf.make_transform(tf.so3_exp(rng.normal(0, math.radians(1.0), 3))
-                          @ T_cm[:3, :3], p_meas)
-    return p_meas, cov, B
+    B = tf.make_transform(tf.so3_exp(rng.normal(0, MARKER_ROT_SIGMA, 3)) @ T_cm[:3, :3], p_meas)
+    pose_cov = np.zeros((6, 6))
+    pose_cov[:3, :3] = MARKER_ROT_SIGMA**2 * np.eye(3)
+    pose_cov[3:, 3:] = cov
+    return p_meas, cov, B, pose_cov
 
 
 class CheckedRobot:
@@ -195,7 +201,7 @@ def validity_run(setup: str, cfg, robot, state, rng: np.random.Generator, max_po
     from drivers.robot.base import RobotState
 
     X, Y = _random_cell(setup, cfg, state.T_base_flange, rng)
-    truth_view = dataclasses.replace(planning.camera_view(cfg.calibrate, INTR, cfg.marker), margin_px=0.0)
+    truth_view = planning.camera_view(cfg.calibrate, INTR, cfg.marker).model_copy(update={"margin_px": 0.0})
     truth = pl.PosePlanner(setup, X, Y, truth_view, pl.PlannerConfig(uncertainty_k=0))
     checked = CheckedRobot(robot)
     source = planning.OptimalPoses(cfg, state.T_base_flange, planning.camera_view(cfg.calibrate, INTR, cfg.marker),
@@ -233,8 +239,8 @@ def validity_run(setup: str, cfg, robot, state, rng: np.random.Generator, max_po
         else:
             q = cur.q
         cur = RobotState(0.0, 0.0, T, q, np.zeros(6), 7, 1)
-        p, c, B = _measure(setup, X, Y, T, rng)
-        obs.append(Observation(len(obs), 0.0, T, p, c, B))
+        p, c, B, pose_cov = _measure(setup, X, Y, T, rng)
+        obs.append(Observation(len(obs), 0.0, T, p, c, B, pose_cov))
         if len(obs) >= 3:
             try:
                 estimate = solve("YKronT'", np.array([o.T_base_flange for o in obs]),

@@ -1,6 +1,5 @@
 """Planned poses against the robot's own limit checks, `handeye plan`, and replaying a plan."""
 
-import dataclasses
 import json
 from pathlib import Path
 
@@ -48,7 +47,7 @@ def test_planned_poses_pass_the_robots_own_check_and_keep_the_marker_in_view(con
             np.testing.assert_allclose(robot.check_target(p.T_base_flange, q_start=q), p.q)
             q = p.q
     # Planned with a 40 px margin on a wrong estimate; under the truth the marker stays >= 10 px inside.
-    truth = pl.PosePlanner(cfg.setup, X, Y, dataclasses.replace(view, margin_px=10), pl.PlannerConfig(uncertainty_k=0))
+    truth = pl.PosePlanner(cfg.setup, X, Y, view.model_copy(update={"margin_px": 10.0}), pl.PlannerConfig(uncertainty_k=0))
     assert truth.screen(np.stack([p.T_base_flange for p in poses]))[0].all()
     lo, hi = np.array(cfg.robot.workspace_min), np.array(cfg.robot.workspace_max)
     A = np.stack([p.T_base_flange for p in poses])
