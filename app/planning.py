@@ -229,8 +229,7 @@ class OptimalPoses:
             return None
         X, Y = _estimate_transforms(setup, estimate, observations)
         planner = pl.PosePlanner(setup, X, Y, self.view, self.pcfg, correction=camera_correction(estimate))
-        for o in observations:
-            planner.add(o.T_base_flange)
+        planner.add(np.array([o.T_base_flange for o in observations]))
         pose = planner.next_pose(self.start, state.T_base_flange, state.q, self.rng, self.reachable)
         if pose is None:
             self.done_reason = "no_valid_pose"

@@ -361,9 +361,10 @@ class PosePlanner:
         return self._information(*self.predict(A))
 
     def add(self, T_base_flange) -> None:
-        """Account for a sample taken at ``T_base_flange`` (4, 4)."""
-        T = tf.check_transform(T_base_flange, "T_base_flange")
-        self.information = self.information + self.sample_information(T[None])[0]
+        """Account for a sample taken at ``T_base_flange`` (4, 4), or for one at each of (N, 4, 4)."""
+        T = np.asarray(T_base_flange, dtype=float)
+        A = tf.check_transform(T, "T_base_flange")[None] if T.ndim == 2 else tf.check_transforms(T, "T_base_flange")
+        self.information = self.information + self.sample_information(A).sum(axis=0)
 
     def camera_cov(self, information=None) -> np.ndarray:
         """Predicted covariance (6, 6) of the camera transform (`calib.result` convention)."""
