@@ -313,12 +313,16 @@ class PosePlanner:
     point_cov : callable, optional
         ``point_cov(points (N, 3)) -> (N, 3, 3)`` m^2; default the depth model
         `calib.noise.default_point_cov`.
-    correction : (theta, free), optional
+    correction : (theta, free) or (theta, free, sigma), optional
         Camera correction of the measurement model (`calib.model.CAMERA_PARAMS`:
         depth scale, depth offset, focal scale): current values ``theta`` (3,)
-        and which are estimated ``free`` (3 bools). The free ones are unknowns
-        of the information matrix and count in the D-optimal criterion with
-        the camera transform.
+        and which are unknowns ``free`` (3 bools), with a prior standard
+        deviation ``sigma`` (3,) each (default `CORRECTION_PRIOR_SIGMA`). The
+        free ones are unknowns of the information matrix and count in the
+        D-optimal criterion with the camera transform. A parameter a solver
+        keeps at nominal but whose typical error widens its covariance
+        (`calib.auto`'s "consider" covariance) is free with that error as
+        its prior: the predicted covariance then matches it to first order.
     """
 
     def __init__(self, setup: str, X, Y, view: CameraView, config: PlannerConfig | None = None,
@@ -328,15 +332,19 @@ class PosePlanner:
         self.config = config or PlannerConfig()
         self._point_cov = point_cov
         self.X, self.Y = tf.check_transform(X, "X"), tf.check_transform(Y, "Y")
-        theta, free = correction if correction is not None else (np.zeros(3), (False, False, False))
+        correction = (np.zeros(3), (False, False, False)) if correction is None else tuple(correction)
+        theta, free = correction[:2]
+        sigma = np.asarray(correction[2] if len(correction) == 3 else [CORRECTION_PRIOR_SIGMA] * 3, dtype=float)
         self.theta = np.asarray(theta, dtype=float)
         self.free = tuple(bool(f) for f in free)
-        if self.theta.shape != (3,) or len(self.free) != 3 or not np.isfinite(self.theta).all():
-            raise CalibrationError(f"correction must be (theta (3,), free (3 bools)), got {correction!r}")
+        if self.theta.shape != (3,) or len(self.free) != 3 or not np.isfinite(self.theta).all() \
+                or len(correction) not in (2, 3) or sigma.shape != (3,) or not np.all(sigma > 0):
+            raise CalibrationError(f"correction must be (theta (3,), free (3 bools)[, sigma (3,) > 0]), "
+                                   f"got {correction!r}")
         n_free = sum(self.free)
         c = self.config
-        self._prior = np.diag([c.prior_sigma_rad ** -2] * 3 + [c.prior_sigma_m ** -2] * 6
-                              + [CORRECTION_PRIOR_SIGMA ** -2] * n_free)
+        self._prior = np.diag(np.r_[[c.prior_sigma_rad ** -2] * 3, [c.prior_sigma_m ** -2] * 6,
+                                    sigma[list(self.free)] ** -2])
         #: Unknowns the criterion is about: the camera transform (6) and the free camera corrections.
         self._interest = np.r_[np.arange(6), N_PARAMS + np.arange(n_free)].astype(int)
         self.information = self._prior.copy()
@@ -370,6 +378,21 @@ class PosePlanner:
         """Predicted covariance (6, 6) of the camera transform (`calib.result` convention)."""
         cov = np.linalg.inv(self.information if information is None else information)[..., :6, :6]
         return 0.5 * (cov + np.swapaxes(cov, -1, -2))
+
+    def consider_cov(self) -> np.ndarray:
+        """Predicted covariance (6, 6) of the camera transform if the free camera corrections are kept at
+        nominal, their prior standard deviations taken as typical errors: ``N_xx^-1 + S diag(sigma^2) S^T``,
+        ``S = N_xx^-1 N_xc`` (`calib.auto`'s "consider" covariance, which ``auto`` reports before it has enough
+        samples to estimate camera parameters). Equal to `camera_cov` without free corrections."""
+        n = self.information.shape[0]
+        if n == N_PARAMS:
+            return self.camera_cov()
+        c = np.arange(N_PARAMS, n)
+        prior_c = np.diag(self._prior)[c]
+        N_xx = self.information[:N_PARAMS, :N_PARAMS]
+        S = np.linalg.solve(N_xx, self.information[:N_PARAMS, c])
+        cov = (np.linalg.inv(N_xx) + (S / prior_c) @ S.T)[:6, :6]
+        return 0.5 * (cov + cov.T)
 
     def gains(self, A) -> np.ndarray:
         """Expected D-optimal gain (nats) of sampling at each flange pose of A (N, 4, 4)."""

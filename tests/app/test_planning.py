@@ -87,6 +87,22 @@ def test_view_angle_bound_covers_the_error_of_the_measured_orientation():
     assert no_cov == pytest.approx(28.6 + 3 * planning.MARKER_ANGLE_SIGMA_DEG, abs=1e-6)
 
 
+def test_auto_runs_plan_for_the_camera_corrections_auto_estimates_or_considers():
+    from types import SimpleNamespace
+
+    from calib.auto import CONSIDER_SIGMA
+
+    assert planning.camera_correction("YKronT'", None) is None
+    theta, free, sigma = planning.camera_correction("auto", None)
+    assert free == (True, True, True) and np.all(theta == 0)
+    assert list(sigma) == [CONSIDER_SIGMA[n] for n in ("depth_scale", "depth_offset", "focal_scale")]
+    est = SimpleNamespace(info={"camera_correction": {
+        "depth_scale": {"value": 0.01, "estimated": True}, "depth_offset": {"value": 0.0, "estimated": False},
+        "focal_scale": {"value": 0.0, "estimated": False}}})
+    theta, free, sigma = planning.camera_correction("auto", est)
+    assert theta[0] == 0.01 and sigma[0] == 1.0 and sigma[1] == CONSIDER_SIGMA["depth_offset"]
+
+
 def test_plan_file_round_trip_and_named_errors(tmp_path):
     cfg, X, Y, T0 = _cell()
     doc, poses, _ = planning.make_plan(cfg, X, Y, T0, None, INTR, None, np.random.default_rng(0), prior="test", n=6)

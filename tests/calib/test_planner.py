@@ -5,6 +5,7 @@ import pytest
 
 from calib import transforms as tf
 from calib.errors import CalibrationError, ParameterError
+from calib.noise import default_point_cov
 from calib.planner import (
     CameraView,
     KeepOut,
@@ -288,3 +289,46 @@ def test_camera_correction_is_planned_for_when_it_is_estimated():
             cov = np.linalg.inv(judge.information + judge.sample_information(A).sum(axis=0))
             sig[aware].append(np.sqrt(np.diag(cov)[9:11]))  # depth scale, depth offset
     assert np.all(np.mean(sig[True], axis=0) < np.mean(sig[False], axis=0))
+
+
+@pytest.mark.parametrize("n", [8, 16])
+def test_predicted_covariance_is_what_auto_reports(n):
+    """With the camera corrections as unknowns with calib.auto's typical errors as priors, the planner predicts
+    the camera 1-sigma solve("auto") reports: below MIN_SAMPLES_CAMERA the consider covariance (corrections
+    at nominal), from it on the estimated one (synthetic samples at planned poses, 0.3 mm along the ray)."""
+    from calib.api import solve
+    from calib.auto import CONSIDER_SIGMA, MIN_SAMPLES_CAMERA
+    from calib.model import CAMERA_PARAMS
+    from calib.result import worst_axis_sigma
+
+    def quiet(p):
+        return 0.01 * default_point_cov(p)
+
+    X, Y, T0 = _cell("eye_to_hand")
+    rng = np.random.default_rng(0)
+    prior = np.array([CONSIDER_SIGMA[m] for m in CAMERA_PARAMS])
+    planner = PosePlanner("eye_to_hand", X, Y, VIEW, PlannerConfig(uncertainty_k=0), quiet,
+                          correction=(np.zeros(3), (True, True, True), prior))
+    A = np.array([p.T_base_flange for p in planner.plan(T0, None, n, rng)])
+    P = (tf.invert(Y) @ A @ X)[:, :3, 3]
+    cov = quiet(P)
+    measured = P + np.einsum("nij,nj->ni", np.linalg.cholesky(cov), rng.normal(size=P.shape))
+    reported = worst_axis_sigma(solve("auto", A, measured, setup="eye_to_hand", point_cov=cov).cov)
+    predicted = worst_axis_sigma(planner.consider_cov() if n < MIN_SAMPLES_CAMERA else planner.camera_cov())
+    assert np.allclose(predicted, reported, rtol=0.15)
+    if n < MIN_SAMPLES_CAMERA:  # the corrections' typical errors dominate: 1 % depth scale is 7 mm at 0.7 m
+        assert worst_axis_sigma(planner.camera_cov())[1] < 0.3 * reported[1]
+    with pytest.raises(CalibrationError, match="sigma"):
+        PosePlanner("eye_to_hand", X, Y, VIEW, correction=(np.zeros(3), (False, True, False), [1, 0, 1]))
+
+
+def test_anchored_noise_model_keeps_the_default_depth_law_at_the_measured_level():
+    from calib.noise import anchored_point_cov
+
+    p0 = np.array([0.1, -0.05, 0.7])
+    S0 = default_point_cov(p0[None])[0]
+    points = np.array([[0.2, -0.1, 1.1], [0.0, 0.0, 0.5]])
+    assert np.allclose(anchored_point_cov(p0, S0)(points), default_point_cov(points), rtol=1e-9, atol=0)
+    assert np.allclose(anchored_point_cov(p0, 0.01 * S0)(points), 0.01 * default_point_cov(points), rtol=1e-9, atol=0)
+    with pytest.raises(CalibrationError, match="positive definite"):
+        anchored_point_cov(p0, np.zeros((3, 3)))
