@@ -17,29 +17,74 @@ A ROS ``camera_info`` YAML (``image_width``, ``camera_matrix``,
 
 from __future__ import annotations
 
-import math
 from pathlib import Path
 
 import yaml
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator
 
 from calib.errors import ParameterError
+from calib.params import Float, Params, PositiveFloat, PositiveInt, describe
 from drivers.camera.base import CameraIntrinsics
+
+#: Lengths of the OpenCV distortion vectors (k1 k2 p1 p2 [k3 [k4 k5 k6 [s1..s4 [tx ty]]]]).
+DIST_LENGTHS = (4, 5, 8, 12, 14)
+
+
+def _dist_length(dist: tuple[float, ...]) -> tuple[float, ...]:
+    if len(dist) not in DIST_LENGTHS:
+        raise ValueError(f"must be 4, 5, 8, 12 or 14 OpenCV coefficients, got {len(dist)}")
+    return dist
+
+
+class IntrinsicsParams(Params):
+    """This module's YAML keys (pixels): a usable pinhole model."""
+
+    width: PositiveInt
+    height: PositiveInt
+    fx: PositiveFloat
+    fy: PositiveFloat
+    cx: Float
+    cy: Float
+    dist: tuple[Float, ...] = (0.0,) * 5
+
+    _dist = field_validator("dist")(_dist_length)
+
+    def intrinsics(self) -> CameraIntrinsics:
+        return CameraIntrinsics(self.width, self.height, self.fx, self.fy, self.cx, self.cy, self.dist)
+
+
+class _RosMatrix(BaseModel):
+    # rows / cols are implied by the field; only the data are read.
+    model_config = ConfigDict(extra="ignore")
+    data: list[Float]
+
+
+class RosCameraInfo(BaseModel):
+    """A ROS ``camera_info`` YAML; its other keys (distortion model, R, P, name) are not used here."""
+
+    model_config = ConfigDict(extra="ignore")
+    image_width: PositiveInt
+    image_height: PositiveInt
+    camera_matrix: _RosMatrix
+    distortion_coefficients: _RosMatrix = Field(default_factory=lambda: _RosMatrix(data=[0.0] * 5))
+
+    @field_validator("camera_matrix")
+    @classmethod
+    def _three_by_three(cls, m: _RosMatrix) -> _RosMatrix:
+        if len(m.data) != 9:
+            raise ValueError(f"data must hold the 9 entries of K, got {len(m.data)}")
+        return m
+
+    def as_keys(self) -> dict:
+        """This module's keys, to be validated as `IntrinsicsParams`."""
+        k = self.camera_matrix.data
+        return {"width": self.image_width, "height": self.image_height, "fx": k[0], "fy": k[4], "cx": k[2],
+                "cy": k[5], "dist": tuple(self.distortion_coefficients.data)}
 
 
 def check_intrinsics(intr: CameraIntrinsics, name: str = "intrinsics") -> CameraIntrinsics:
-    """Raise ParameterError naming the field if ``intr`` is not a usable pinhole model."""
-    for f in ("width", "height"):
-        v = getattr(intr, f)
-        if isinstance(v, bool) or not isinstance(v, int) or v <= 0:
-            raise ParameterError(f"{name}.{f} must be a positive integer, got {v!r}")
-    for f in ("fx", "fy", "cx", "cy"):
-        v = getattr(intr, f)
-        if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
-            raise ParameterError(f"{name}.{f} must be a finite number, got {v!r}")
-    if intr.fx <= 0 or intr.fy <= 0:
-        raise ParameterError(f"{name}.fx and {name}.fy must be > 0, got {intr.fx}, {intr.fy}")
-    if len(intr.dist) not in (4, 5, 8, 12, 14) or not all(math.isfinite(float(d)) for d in intr.dist):
-        raise ParameterError(f"{name}.dist must be 4, 5, 8, 12 or 14 finite OpenCV coefficients, got {intr.dist!r}")
+    """``intr`` if it is a usable pinhole model, else `ParameterError` naming the field."""
+    intrinsics_from_dict({f: getattr(intr, f) for f in IntrinsicsParams.model_fields}, name)
     return intr
 
 
@@ -47,21 +92,10 @@ def intrinsics_from_dict(d: dict, name: str = "intrinsics") -> CameraIntrinsics:
     """`CameraIntrinsics` from this module's YAML keys or a ROS camera_info dict."""
     try:
         if "camera_matrix" in d:
-            k = d["camera_matrix"]["data"]
-            intr = CameraIntrinsics(
-                int(d["image_width"]), int(d["image_height"]), float(k[0]), float(k[4]), float(k[2]), float(k[5]),
-                tuple(float(x) for x in d.get("distortion_coefficients", {}).get("data", [0.0] * 5)),
-            )
-        else:
-            intr = CameraIntrinsics(
-                int(d["width"]), int(d["height"]), float(d["fx"]), float(d["fy"]), float(d["cx"]), float(d["cy"]),
-                tuple(float(x) for x in d.get("dist", (0.0,) * 5)),
-            )
-    except KeyError as e:
-        raise ParameterError(f"{name}: missing key {e.args[0]!r}") from None
-    except (TypeError, ValueError, IndexError) as e:
-        raise ParameterError(f"{name}: {e}") from None
-    return check_intrinsics(intr, name)
+            d = RosCameraInfo.model_validate(d).as_keys()
+        return IntrinsicsParams.model_validate(d).intrinsics()
+    except ValidationError as e:
+        raise ParameterError(describe(e, name)) from None
 
 
 def load_intrinsics(path) -> CameraIntrinsics:

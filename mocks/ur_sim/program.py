@@ -21,21 +21,30 @@ precedence: the program holds while either is active.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from typing import Annotated
 
 import numpy as np
+from pydantic import Field, ValidationError
 
-from drivers.robot import ur_kinematics as kin
+from calib.errors import ParameterError
+from calib.params import NonNegativeFloat, Params, PositiveFloat, Str, Vector6, describe
 from mocks.ur_sim.motion import JointMotion
 
 
-@dataclass
-class Waypoint:
+class Waypoint(Params):
     """One stop of the program: joints (rad), how long the arm holds there (s), the tool's job there."""
 
-    q: np.ndarray
-    pause_s: float = 0.8
-    tool: str = ""
+    q: Vector6
+    pause_s: NonNegativeFloat = 0.8
+    tool: Str = ""
+
+
+class ProgramSpec(Params):
+    """The JSON form of the module docstring; speed (rad/s) and acceleration (rad/s^2) of the leading joint."""
+
+    waypoints: Annotated[list[Waypoint], Field(min_length=2)]
+    speed: PositiveFloat = 1.0
+    acceleration: PositiveFloat = 4.0
 
 
 class Program:
@@ -43,9 +52,7 @@ class Program:
 
     Parameters
     ----------
-    waypoints : list of Waypoint (>= 2)
-    speed, acceleration : float
-        Of the leading joint, rad/s and rad/s^2 (> 0).
+    spec : ProgramSpec
 
     Attributes
     ----------
@@ -55,16 +62,9 @@ class Program:
         Waypoints reached so far.
     """
 
-    def __init__(self, waypoints: list[Waypoint], speed: float = 1.0, acceleration: float = 4.0):
-        if len(waypoints) < 2:
-            raise ValueError(f"a production program needs >= 2 waypoints, got {len(waypoints)}")
-        if not (speed > 0 and acceleration > 0):
-            raise ValueError(f"speed and acceleration must be > 0, got {speed}, {acceleration}")
-        for i, w in enumerate(waypoints):
-            w.q = kin.check_q(w.q, f"waypoints[{i}].q")
-            if not (np.isfinite(w.pause_s) and w.pause_s >= 0):
-                raise ValueError(f"waypoints[{i}].pause_s must be >= 0, got {w.pause_s}")
-        self.waypoints, self.speed, self.acceleration = waypoints, float(speed), float(acceleration)
+    def __init__(self, spec: ProgramSpec):
+        self.spec = spec
+        self.targets = [np.array(w.q) for w in spec.waypoints]
         self.index = 0
         self.hold_until: float | None = None
         self.moving = False
@@ -72,18 +72,15 @@ class Program:
         self.stops = 0
 
     @classmethod
-    def from_dict(cls, data: dict) -> "Program":
-        """From the JSON form of the module docstring (raises ValueError naming the bad field)."""
+    def from_dict(cls, data) -> "Program":
+        """From the JSON form of the module docstring (`calib.errors.ParameterError`, a ValueError, names the field)."""
         try:
-            wps = [Waypoint(np.asarray(w["q"], dtype=float), float(w.get("pause_s", 0.8)), str(w.get("tool", "")))
-                   for w in data["waypoints"]]
-            return cls(wps, float(data.get("speed", 1.0)), float(data.get("acceleration", 4.0)))
-        except (KeyError, TypeError) as exc:
-            raise ValueError(f"production program: bad or missing field {exc}") from None
+            return cls(ProgramSpec.model_validate(data))
+        except ValidationError as e:
+            raise ParameterError(describe(e, "program")) from None
 
     def to_dict(self) -> dict:
-        return {"waypoints": [{"q": w.q.tolist(), "pause_s": w.pause_s, "tool": w.tool} for w in self.waypoints],
-                "speed": self.speed, "acceleration": self.acceleration}
+        return self.spec.model_dump()
 
     def tick(self, ctl) -> None:
         """Advance the program by one control cycle of ``ctl`` (a `SimController`, idle or moving by us)."""
@@ -94,7 +91,7 @@ class Program:
             # Arrived: the tool works while the arm holds still.
             self.moving = False
             self.stops += 1
-            wp = self.waypoints[self.index]
+            wp = self.spec.waypoints[self.index]
             self.hold_until = now + wp.pause_s
             ctl.log.append({"t": now, "cmd": None, "name": f"program:stop {self.index}"
                             + (f" tool {wp.tool}" if wp.tool else ""), "args": []})
@@ -102,13 +99,13 @@ class Program:
         if ctl.motion is not None or (self.hold_until is not None and now < self.hold_until):
             return
         if self.hold_until is not None:
-            self.index = (self.index + 1) % len(self.waypoints)
+            self.index = (self.index + 1) % len(self.targets)
             if self.index == 0:
                 self.cycles += 1
-        ctl.motion = JointMotion(ctl.q, self.waypoints[self.index].q, self.speed, self.acceleration)
+        ctl.motion = JointMotion(ctl.q, self.targets[self.index], self.spec.speed, self.spec.acceleration)
         ctl.motion_t0, ctl.motion_async = now, False
         self.moving = True
 
     def state(self) -> dict:
-        return {"waypoints": len(self.waypoints), "index": self.index, "moving": self.moving,
+        return {"waypoints": len(self.targets), "index": self.index, "moving": self.moving,
                 "cycles": self.cycles, "stops": self.stops}

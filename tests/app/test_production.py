@@ -1,5 +1,6 @@
 """The simulated cell at work: a production program, a bumped camera, the alarm and exit status 3."""
 
+import json
 import time
 
 import numpy as np
@@ -45,6 +46,9 @@ def test_production_program_loops_with_tool_stops(loopback):
           [([0.3, -1.3, 1.6, -1.9, -1.5, 0.0], "pick"), ([0.5, -1.2, 1.5, -1.9, -1.5, 0.2], "place")]]
     with launch(loopback(41), "ur10", "3.15", initial_q=wp[0]["q"]) as sim:
         assert sim.command("sim program {not json").startswith("error")
+        bad = {"waypoints": [{"q": [0.0] * 5}, {"q": [0.0] * 6, "pause_s": -1}], "speed": True}
+        reply = sim.command("sim program " + json.dumps(bad))
+        assert reply.startswith("error") and all(f in reply for f in ("waypoints.0.q", "waypoints.1.pause_s", "speed"))
         sim.start_program({"waypoints": wp, "speed": 3.0, "acceleration": 12.0})
         seen = set()
         for _ in range(60):
