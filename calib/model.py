@@ -67,6 +67,9 @@ CAMERA_PARAMS = ("depth_scale", "depth_offset", "focal_scale")
 ROBOT_ROTATION_PER_M = 1.0
 #: Smallest eigenvalue ratio of the information before the motions are called degenerate.
 MIN_INFORMATION_RATIO = 1e-14
+#: Leave-one-out: a sample whose residual block has an eigenvalue of ``I - H_ii`` at or below this is one
+#: the others cannot do without (leverage 1).
+LEVERAGE_MARGIN = 1e-9
 
 _I3 = np.eye(3)
 
@@ -144,6 +147,12 @@ def measure(p, theta):
     return h, J_p, J_theta
 
 
+def _measured(p, theta) -> np.ndarray:
+    """``h(p; theta)`` (N, 3) alone (`measure` without its Jacobians, for cost evaluations)."""
+    s, d, f = theta
+    return p * ((1.0 + s + d / p[:, 2])[:, None] * np.array([1.0 + f, 1.0 + f, 1.0]))
+
+
 # --------------------------------------------------------------------------- residuals
 
 
@@ -168,7 +177,7 @@ def predict_points(C, t_K, M, theta=None) -> np.ndarray:
     p = (M[:, :3, :3] @ t_K + M[:, :3, 3] - t_C) @ R_C
     if theta is None or not np.any(theta):
         return p
-    return measure(p, np.asarray(theta, dtype=float))[0]
+    return _measured(p, np.asarray(theta, dtype=float))
 
 
 def inv_right_jacobian(e):
@@ -206,11 +215,11 @@ def robot_cofactor(C, K, M, setup: str) -> np.ndarray:
     lever = M[:, :3, :3] @ K[:3, 3]
     if setup != Setup.EYE_TO_HAND:
         lever = lever + M[:, :3, 3]
-    # [l]x [l]x^T = |l|^2 I - l l^T
+    # [l]x [l]x^T = |l|^2 I - l l^T, and R^T (a I - l l^T) R = a I - (R^T l)(R^T l)^T.
     rho2 = ROBOT_ROTATION_PER_M**2
-    cov_parent = ((1.0 + rho2 * np.einsum("ni,ni->n", lever, lever))[:, None, None] * _I3
-                  - rho2 * lever[:, :, None] * lever[:, None, :])
-    return R_C.T @ cov_parent @ R_C
+    lc = lever @ R_C
+    return ((1.0 + rho2 * np.sum(lc * lc, axis=1))[:, None, None] * _I3
+            - rho2 * lc[:, :, None] * lc[:, None, :])
 
 
 # --------------------------------------------------------------------------- weights
@@ -273,6 +282,13 @@ def point_weights(B, point_cov) -> tuple[np.ndarray, bool]:
 # --------------------------------------------------------------------------- problem
 
 
+def _same_point(a, b) -> bool:
+    """Whether two ``(C, K, theta)`` are the same estimate (theta None and zeros differ: different Jacobians)."""
+    if (a[2] is None) != (b[2] is None):
+        return False
+    return all(x is y or np.array_equal(x, y) for x, y in zip(a, b) if x is not None or y is not None)
+
+
 class Problem:
     """Whitened residual vector and Jacobian of one data set (see the module docstring).
 
@@ -291,10 +307,17 @@ class Problem:
     use_rotation : bool
         Whether pose data contribute their orientation residual (else only
         the translation of ``B`` is used and ``K``'s rotation is not estimated).
+    memo : dict, optional
+        Shared by problems of the same ``M``, ``B``, ``free`` and
+        ``use_rotation`` that differ only in their weights: `raw` keeps its
+        last evaluation there, so re-weighting at a fixed estimate (variance
+        components, then the next fit) does not evaluate it twice. The arrays
+        it returns are then shared and must not be modified.
     """
 
-    def __init__(self, M, B, W_t, sigma_rot=None, free=(False, False, False), use_rotation=True):
+    def __init__(self, M, B, W_t, sigma_rot=None, free=(False, False, False), use_rotation=True, memo=None):
         self.M = M
+        self._memo = memo
         self.rotations = B.ndim == 3 and use_rotation
         self.p = B if B.ndim == 2 else B[:, :3, 3]
         self.R_B = B[:, :3, :3] if self.rotations else None
@@ -311,27 +334,57 @@ class Problem:
 
     def raw(self, C, K, theta=None):
         """Unwhitened residuals and Jacobians: ``r (N,3), e (N,3)|None, J_t (N,3,P), J_e (N,3,P)|None``."""
-        r, J_dC, J_tC, J_tK = point_residuals(C, K[:3, 3], self.M, self.p)
+        if self._memo is not None:
+            last = self._memo.get("raw")
+            if last is not None and _same_point(last[0], (C, K, theta)):
+                return last[1]
+            out = self._raw(C, K, theta)
+            self._memo["raw"] = ((C, K, theta), out)
+            return out
+        return self._raw(C, K, theta)
+
+    def _raw(self, C, K, theta):
+        R_C, t_C = C[:3, :3], C[:3, 3]
+        R_M = self.M[:, :3, :3]
+        w = R_M @ K[:3, 3] + self.M[:, :3, 3] - t_C       # marker center minus camera origin, C's parent frame
+        q = w @ R_C                                       # == (R_C^T w_i)_i, the point without camera error
+        n, n_pose = len(q), self.n_pose
+        tK = 9 if self.rotations else 6
+        # Filled in place (no concatenation): [dC, tC, (dK), tK, nuisances].
+        J_t = np.zeros((n, 3, self.n_params))
+        J_t[:, :, 0:3] = -(R_C.T @ tf.skew(w))
+        J_t[:, :, 3:6] = R_C.T
+        J_t[:, :, tK:tK + 3] = -(R_C.T @ R_M)
         if theta is not None and (np.any(theta) or self.free.any()):
-            pred = self.p - r
-            h, J_p, J_theta = measure(pred, theta)
-            r = self.p - h
-            J_dC, J_tC, J_tK = J_p @ J_dC, J_p @ J_tC, J_p @ J_tK
-            J_nuis = -J_theta[:, :, self.free]
+            s, d, f = theta
+            z = q[:, 2]
+            g = 1.0 + s + d / z
+            D = np.array([1.0 + f, 1.0 + f, 1.0])
+            Dq = D * q
+            r = self.p - Dq * g[:, None]
+            # J_p = g diag(D) + c e_z^T with c = -(D q) d / z^2 (`measure`): applied without a batched matmul.
+            c = Dq * (-d / z**2)[:, None]
+            Jp = J_t[:, :, :n_pose]
+            J_t[:, :, :n_pose] = (g[:, None] * D)[:, :, None] * Jp + c[:, :, None] * Jp[:, 2:3, :]
+            k = n_pose
+            for j, col in enumerate((Dq, Dq / z[:, None], q * g[:, None] * np.array([1.0, 1.0, 0.0]))):
+                if self.free[j]:
+                    J_t[:, :, k] = -col
+                    k += 1
         else:
-            J_nuis = np.zeros((len(r), 3, int(self.free.sum())))
+            r = self.p - q
         if not self.rotations:
-            return r, None, np.concatenate([J_dC, J_tC, J_tK, J_nuis], axis=2), None
+            return r, None, J_t, None
         e, JeC, JeK = rotation_residuals(C, K, self.M, self.R_B)
-        zeros = np.zeros_like(J_dC)
-        J_t = np.concatenate([J_dC, J_tC, zeros, J_tK, J_nuis], axis=2)
-        J_e = np.concatenate([JeC, zeros, JeK, zeros, np.zeros_like(J_nuis)], axis=2)
+        J_e = np.zeros_like(J_t)
+        J_e[:, :, 0:3] = JeC
+        J_e[:, :, 6:9] = JeK
         return r, e, J_t, J_e
 
     def whitened(self, C, K, theta=None):
         """Whitened residual vector (3N or 6N,) and Jacobian (3N or 6N, n_params)."""
         r, e, J_t, J_e = self.raw(C, K, theta)
-        rw = np.einsum("nij,nj->ni", self.W_t, r).reshape(-1)
+        rw = (self.W_t @ r[:, :, None]).reshape(-1)
         Jw = (self.W_t @ J_t).reshape(-1, self.n_params)
         if self.rotations:
             rw = np.concatenate([rw, (e / self.sigma_rot).reshape(-1)])
@@ -341,7 +394,7 @@ class Problem:
     def cost(self, C, K, theta=None) -> float:
         """Whitened residual square sum (chi-square statistic)."""
         p = predict_points(C, K[:3, 3], self.M, theta)
-        r = np.einsum("nij,nj->ni", self.W_t, self.p - p)
+        r = self.W_t @ (self.p - p)[:, :, None]
         cost = float(np.sum(r**2))
         if self.rotations:
             E = np.swapaxes(self.R_B, 1, 2) @ C[:3, :3].T @ self.M[:, :3, :3] @ K[:3, :3]
@@ -395,6 +448,10 @@ def minimize(problem: Problem, C, K, theta=None, *, max_iterations: int = 50, to
                 delta = -np.linalg.solve(H + lam * np.diag(np.diag(H)), g)
             except np.linalg.LinAlgError:
                 raise DegenerateMotionError("the motions do not constrain every unknown (singular normal equations)") from None
+            if np.abs(delta).max() < tol:
+                # At the minimum to the tolerance: a step this small need not lower the cost (rounding), and
+                # raising the damping until it does cost up to 16 more evaluations.
+                return C, K, theta, cost, it, True
             C2, K2, theta2 = problem.retract(C, K, theta, delta)
             cost2 = problem.cost(C2, K2, theta2)
             if cost2 <= cost:
@@ -479,23 +536,28 @@ def variance_components(problem: Problem, C, K, theta, shape, robot_cof, noise: 
     """
     r, e, J_t, J_e = problem.raw(C, K, theta)
     u = J_t.shape[2]
-    P = np.swapaxes(problem.W_t, 1, 2) @ problem.W_t
-    Pv = np.einsum("nij,nj->ni", P, r)
-    PJ = P @ J_t
-    PJ_flat = PJ.reshape(-1, u)
-    Nmat = J_t.reshape(-1, u).T @ PJ_flat
+    # In whitened terms (W^T W = P): v^T P Q P v = v~^T Q~ v~, tr(Q P) = tr(Q~), tr(Q_k P Q_l P) = tr(Q~_k Q~_l),
+    # tr(Q P J N^-1 J^T P) = tr(Q~ G N^-1 G^T), with v~ = W v, G = W J, Q~ = W Q W^T: fewer 3x3 products.
+    W = problem.W_t
+    Wt = np.ascontiguousarray(np.swapaxes(W, 1, 2))          # (matmul on a transposed view is 2x slower)
+    G = W @ J_t
+    v = (W @ r[:, :, None])[:, :, 0]
+    G_flat = G.reshape(-1, u)
+    Nmat = G_flat.T @ G_flat
     if e is not None:
         s2 = problem.sigma_rot**2
         Je_flat = J_e.reshape(-1, u)
         Nmat = Nmat + Je_flat.T @ Je_flat / s2
     Ninv = np.linalg.inv(Nmat)
-    Q = [shape, robot_cof]
-    QP = [Qk @ P for Qk in Q]
-    q = np.array([float(np.sum(Pv * np.einsum("nij,nj->ni", Qk, Pv))) for Qk in Q])
-    tr1 = np.array([float(np.trace(QPk, axis1=1, axis2=2).sum()) for QPk in QP])
-    tr2 = np.array([float(np.sum(Ninv * (PJ_flat.T @ (Qk @ PJ).reshape(-1, u)))) for Qk in Q])
+    hat = (G_flat @ Ninv).reshape(-1, 3, u) @ np.ascontiguousarray(np.swapaxes(G, 1, 2))
+    Qw = [W @ Qk @ Wt for Qk in (shape, robot_cof)]
+    q = np.array([float(np.sum(v * (Qk @ v[:, :, None])[:, :, 0])) for Qk in Qw])
+    tr1 = np.array([float(np.trace(Qk, axis1=1, axis2=2).sum()) for Qk in Qw])
+    tr2 = np.array([float(np.sum(Qk * hat)) for Qk in Qw])
     red = tr1 - tr2
-    H = np.array([[float(np.einsum("nij,nji->", QP[k], QP[m])) for m in range(2)] for k in range(2)])
+    H = np.empty((2, 2))
+    H[0, 0], H[1, 1] = float(np.sum(Qw[0] * Qw[0])), float(np.sum(Qw[1] * Qw[1]))
+    H[0, 1] = H[1, 0] = float(np.sum(Qw[0] * Qw[1]))
     H *= (red / np.maximum(tr1, 1e-300))[:, None]
     current = np.array([noise.point_scale, noise.robot**2])
     active = np.array(estimate[:2], dtype=bool)
@@ -559,28 +621,104 @@ def leave_one_out(problem: Problem, C, K, theta=None, point_cov=None) -> tuple[n
     InsufficientDataError
         When some sample left out leaves the others short of determining the unknowns.
     """
+    return _leave_one_out(problem, C, K, theta, point_cov, step=False)[:2]
+
+
+def leave_one_out_after_step(problem: Problem, C, K, theta=None, point_cov=None):
+    """`leave_one_out` of the Gauss-Newton step from ``(C, K, theta)``, without taking it.
+
+    The model linearised at the given estimate: the residuals after the step
+    are ``r + J delta`` with ``delta = -N^-1 J^T W r``, the Jacobian is kept.
+    For a model variant fitted from a nearby estimate (one more free
+    parameter), this is its held-out error to first order, at the cost of one
+    Jacobian instead of a refit.
+
+    Returns
+    -------
+    errors, predicted : ndarray, shape (N,)
+        As `leave_one_out`, m.
+    delta : ndarray, shape (n_params,)
+        The step (`Problem.retract` order).
+    """
+    return _leave_one_out(problem, C, K, theta, point_cov, step=True)
+
+
+def _leave_one_out(problem, C, K, theta, point_cov, *, step):
     r, e, J_t, J_e = problem.raw(C, K, theta)
     n, u = len(r), J_t.shape[2]
     W = problem.W_t
     G = W @ J_t
-    rw = np.einsum("nij,nj->ni", W, r)
+    rw = (W @ r[:, :, None])[:, :, 0]
     if e is not None:
         G = np.concatenate([G, J_e / problem.sigma_rot], axis=1)
         rw = np.concatenate([rw, e / problem.sigma_rot], axis=1)
     k = G.shape[1]
-    Ninv = np.linalg.inv(G.reshape(-1, u).T @ G.reshape(-1, u))
-    GN = G @ Ninv
-    H = GN @ np.swapaxes(G, 1, 2)
+    G_flat = G.reshape(-1, u)
+    Ninv = np.linalg.inv(G_flat.T @ G_flat)
+    delta = None
+    if step:
+        delta = -Ninv @ (G_flat.T @ rw.reshape(-1))
+        rw = rw + (G_flat @ delta).reshape(n, k)
+    H = (G_flat @ Ninv).reshape(n, k, u) @ np.swapaxes(G, 1, 2)
     S = np.eye(k) - H
     # Leverage 1 (an eigenvalue of S at 0): without sample i the others do not determine the unknowns.
-    if np.linalg.eigvalsh(S).min() <= 1e-9:
+    # Only the point rows of S^-1 are needed: r_loo = S^-1 r and A = H + H S^-1 H = S^-1 - I (S + H = I),
+    # both from 3x3 closed forms (a batched LAPACK call costs ~1 us per sample).
+    if k == 3:
+        singular = _sym3_min_eigenvalue(S).min() <= LEVERAGE_MARGIN
+        S_inv, rp = (None if singular else _inv3(S)), rw
+    else:
+        # Points and orientations: the point rows of S^-1 = [T^-1, -T^-1 X] with X = S12 S22^-1 and the
+        # Schur complement T = S11 - X S21; S - margin I is positive definite iff its orientation block
+        # and that block's Schur complement are.
+        S11, S12, S21, S22 = S[:, :3, :3], S[:, :3, 3:], S[:, 3:, :3], S[:, 3:, 3:]
+        shift = LEVERAGE_MARGIN * np.eye(3)
+        X_m = S12 @ _inv3(S22 - shift)
+        singular = min(_sym3_min_eigenvalue(S22 - shift).min(),
+                       _sym3_min_eigenvalue(S11 - shift - X_m @ S21).min()) <= 0.0
+        if not singular:
+            X = S12 @ _inv3(S22)
+            S_inv = _inv3(S11 - X @ S21)
+            rp = rw[:, :3] - (X @ rw[:, 3:, None])[:, :, 0]
+    if singular:
         raise InsufficientDataError(f"leave-one-out needs more than {n} samples: without one of them the "
                                     "others do not determine every unknown")
-    r_loo = np.linalg.solve(S, rw[:, :, None])[:, :, 0]
-    Winv = np.linalg.inv(W)
-    errors = np.linalg.norm(np.einsum("nij,nj->ni", Winv, r_loo[:, :3]), axis=1)
-    Hp = H[:, :3, :]
-    A = H[:, :3, :3] + Hp @ np.linalg.solve(S, np.swapaxes(Hp, 1, 2))
-    Sigma = Winv @ np.swapaxes(Winv, 1, 2) if point_cov is None else point_cov
-    pred_cov = Sigma + Winv @ A @ np.swapaxes(Winv, 1, 2)
-    return errors, np.sqrt(np.trace(pred_cov, axis1=1, axis2=2))
+    r_loo = (S_inv @ rp[:, :, None])[:, :, 0]        # point rows of S^-1 r
+    A = S_inv - np.eye(3)
+    Winv = _inv3(W)
+    errors = np.linalg.norm((Winv @ r_loo[:, :, None])[:, :, 0], axis=1)
+    # trace(Sigma + Winv A Winv^T), the second term as sum(A * Winv^T Winv).
+    tr_sigma = (np.sum(Winv * Winv, axis=(1, 2)) if point_cov is None
+                else np.trace(point_cov, axis1=1, axis2=2))
+    tr_fit = np.sum(A * (np.swapaxes(Winv, 1, 2) @ Winv), axis=(1, 2))
+    return errors, np.sqrt(tr_sigma + tr_fit), delta
+
+
+def _inv3(a) -> np.ndarray:
+    """Inverses (N, 3, 3) of 3x3 matrices by the adjugate (a batched LAPACK call costs ~100x more per matrix)."""
+    c = np.empty_like(a)
+    c[:, 0, 0] = a[:, 1, 1] * a[:, 2, 2] - a[:, 1, 2] * a[:, 2, 1]
+    c[:, 0, 1] = a[:, 0, 2] * a[:, 2, 1] - a[:, 0, 1] * a[:, 2, 2]
+    c[:, 0, 2] = a[:, 0, 1] * a[:, 1, 2] - a[:, 0, 2] * a[:, 1, 1]
+    c[:, 1, 0] = a[:, 1, 2] * a[:, 2, 0] - a[:, 1, 0] * a[:, 2, 2]
+    c[:, 1, 1] = a[:, 0, 0] * a[:, 2, 2] - a[:, 0, 2] * a[:, 2, 0]
+    c[:, 1, 2] = a[:, 0, 2] * a[:, 1, 0] - a[:, 0, 0] * a[:, 1, 2]
+    c[:, 2, 0] = a[:, 1, 0] * a[:, 2, 1] - a[:, 1, 1] * a[:, 2, 0]
+    c[:, 2, 1] = a[:, 0, 1] * a[:, 2, 0] - a[:, 0, 0] * a[:, 2, 1]
+    c[:, 2, 2] = a[:, 0, 0] * a[:, 1, 1] - a[:, 0, 1] * a[:, 1, 0]
+    det = a[:, 0, 0] * c[:, 0, 0] + a[:, 0, 1] * c[:, 1, 0] + a[:, 0, 2] * c[:, 2, 0]
+    return c / det[:, None, None]
+
+
+def _sym3_min_eigenvalue(a) -> np.ndarray:
+    """Smallest eigenvalue (N,) of symmetric 3x3 matrices, closed form (trigonometric solution of the cubic)."""
+    q = np.trace(a, axis1=1, axis2=2) / 3.0
+    off = a[:, 0, 1] ** 2 + a[:, 0, 2] ** 2 + a[:, 1, 2] ** 2
+    d0, d1, d2 = a[:, 0, 0] - q, a[:, 1, 1] - q, a[:, 2, 2] - q
+    p = np.sqrt((d0**2 + d1**2 + d2**2 + 2.0 * off) / 6.0)
+    ps = np.where(p > 0, p, 1.0)
+    b00, b11, b22 = d0 / ps, d1 / ps, d2 / ps
+    b01, b02, b12 = a[:, 0, 1] / ps, a[:, 0, 2] / ps, a[:, 1, 2] / ps
+    det_b = b00 * (b11 * b22 - b12**2) - b01 * (b01 * b22 - b12 * b02) + b02 * (b01 * b12 - b11 * b02)
+    phi = np.arccos(np.clip(det_b / 2.0, -1.0, 1.0)) / 3.0
+    return np.where(p > 0, q + 2.0 * p * np.cos(phi + 2.0 * np.pi / 3.0), q)

@@ -294,7 +294,10 @@ class RealisticData:
     ``X = T_flange_marker``, ``Y = T_base_cam``, and ``A_true`` (actual flange
     poses). ``camera`` is the true `calib.model.CameraCorrection`; ``flipped``
     the indices of half-turned marker poses; ``robot_rms_m`` the RMS flange
-    position error of the measured poses (kinematics + repeatability).
+    position error of the measured poses (kinematics + repeatability); ``q``
+    the joint angles (N, 6), rad; ``kinematics`` the robot's actual standard-DH
+    parameters (`ur_forward`: ``d``, ``a``, ``alpha``, ``offsets``, each (6,)),
+    of which ``A`` uses the nominal `UR10_DH` with zero offsets.
     """
 
     data: SimulatedData
@@ -302,6 +305,7 @@ class RealisticData:
     flipped: np.ndarray
     robot_rms_m: float
     q: np.ndarray
+    kinematics: dict
 
 
 def ur_forward(q: np.ndarray, d: np.ndarray, a: np.ndarray, alpha: np.ndarray, offsets: np.ndarray) -> np.ndarray:
@@ -383,4 +387,5 @@ def realistic_profile(n: int, rng: np.random.Generator, profile: RealisticProfil
         B[flipped] = B[flipped] @ F
     robot_rms = float(np.sqrt(np.mean(np.sum((A[:, :3, 3] - A_true[:, :3, 3]) ** 2, axis=1) / 3)))
     data = SimulatedData(A, B, points, cov, X, Y, A_true, B_true)
-    return RealisticData(data, camera, flipped, robot_rms, q)
+    kinematics = {"d": d_true, "a": a_true, "alpha": al_true, "offsets": off_true}
+    return RealisticData(data, camera, flipped, robot_rms, q, kinematics)

@@ -4,8 +4,10 @@ Sections:
 
 1. Realistic profile (`calib.simulate.realistic_profile`: UR10 DH error, 1.5% depth
    scale, 3 mm depth offset, 1% focal, 2 px misregistration), N = 30: error of
-   ``auto`` vs the Cramér-Rao bound of the extended model and vs ``auto`` on the
-   same cell without systematic errors; NEES of its covariance.
+   ``auto`` vs the Cramér-Rao bound of the extended model, vs the bound of the
+   model that generated the data (`generating_bound`) and vs ``auto`` on the
+   same cell without systematic errors; NEES of its covariance. Then the same
+   with each systematic effect switched off, and each alone (`section_effects`).
 2. Eight poses of a board with good orientations: ``auto`` vs every pose-based
    solver, ours and OpenCV's.
 3. Symmetric board: 30% of the marker poses flipped by a half turn.
@@ -26,6 +28,7 @@ os.environ.setdefault("OMP_NUM_THREADS", "1")
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
 import argparse  # noqa: E402
+import dataclasses  # noqa: E402
 import tempfile  # noqa: E402
 import time  # noqa: E402
 from pathlib import Path  # noqa: E402
@@ -33,10 +36,11 @@ from pathlib import Path  # noqa: E402
 import cv2  # noqa: E402
 import numpy as np  # noqa: E402
 
-from app.benchmarks.datasets import real_sets  # noqa: E402
+from app.benchmarks.datasets import datasets_dir, real_sets  # noqa: E402
 from bench.solvers import OPENCV_HAND_EYE, OPENCV_ROBOT_WORLD, run_solver  # noqa: E402
 from calib import model, solve, solvers  # noqa: E402
 from calib import simulate  # noqa: E402
+from calib import transforms as tf  # noqa: E402
 from calib.api import METHODS, closed_form  # noqa: E402
 from calib.crossval import cross_validate  # noqa: E402
 from calib.errors import CalibrationError  # noqa: E402
@@ -78,10 +82,64 @@ def extended_crlb(d: simulate.SimulatedData, robot_rms: float, orientation_sigma
     return float(np.sqrt(np.trace(block[3:, 3:])))
 
 
+def generating_bound(real: simulate.RealisticData, prof: simulate.RealisticProfile) -> float:
+    """RMS translation bound (m) of the camera under the model that generated ``real`` (Bayesian CRLB).
+
+    Unknowns: camera (6), marker translation (3), depth scale and offset
+    (flat prior: estimated from the data, as `auto` does), and with priors of
+    the profile's magnitudes (1-sigma): the focal scale, the 24 DH parameters
+    of the robot (joint offsets, link lengths d and a, twists) and the
+    colour/depth misregistration (px); an effect of magnitude zero is known
+    (not an unknown). Noise: the true point covariance plus
+    the repeatability (white) through the lever arm. Jacobian by central
+    differences of the simulator's measurement chain at the truth, so the
+    bound sees the robot error as what it is (a few parameters shared by all
+    samples), not as white noise. Marker points only (eye-to-hand).
+    """
+    from calib.noise import FOCAL_PX
+
+    d, kin = real.data, real.kinematics
+    base = np.array([prof.depth_scale, prof.depth_offset, prof.focal_scale])
+
+    def measured(phi):
+        C = tf.make_transform(tf.so3_exp(phi[0:3]) @ d.Y[:3, :3], d.Y[:3, 3] + phi[3:6])
+        X = d.X.copy()
+        X[:3, 3] += phi[6:9]
+        A = simulate.ur_forward(real.q, kin["d"] + phi[18:24], kin["a"] + phi[24:30], kin["alpha"] + phi[30:36],
+                                kin["offsets"] + phi[12:18])
+        B = tf.invert(C) @ A @ X
+        p = B[:, :3, 3]
+        shift = (prof.misregistration_px + phi[36]) / FOCAL_PX * p[:, 2]
+        dz = -B[:, 0, 2] * shift / B[:, 2, 2]
+        return model.measure(p * ((p[:, 2] + dz) / p[:, 2])[:, None], base + phi[9:12])[0].reshape(-1)
+
+    k, h = 37, 1e-6
+    J = np.empty((3 * len(d.A), k))
+    for j in range(k):
+        e = np.zeros(k)
+        e[j] = h
+        J[:, j] = (measured(e) - measured(-e)) / (2 * h)
+    C, K, M = model.split(d.X, d.Y, d.A_true, Setup.EYE_TO_HAND)
+    cov = d.point_cov + prof.repeatability_m**2 * model.robot_cofactor(C, K, M, Setup.EYE_TO_HAND)
+    G = (model.whitener(cov) @ J.reshape(len(d.A), 3, k)).reshape(-1, k)
+    # Prior 1-sigma per unknown: inf = no prior (estimated from the data), 0 = known (left out).
+    sigma = np.full(k, np.inf)
+    sigma[11] = prof.focal_scale
+    sigma[12:18] = np.deg2rad(prof.joint_offset_deg)
+    sigma[18:30] = prof.link_length_m
+    sigma[30:36] = np.deg2rad(prof.twist_deg)
+    sigma[36] = prof.misregistration_px
+    keep = sigma > 0
+    with np.errstate(divide="ignore"):
+        prior = np.where(np.isinf(sigma), 0.0, 1.0 / sigma**2)[keep]
+    cov_est = np.linalg.inv(G[:, keep].T @ G[:, keep] + np.diag(prior))
+    return float(np.sqrt(np.trace(cov_est[3:6, 3:6])))
+
+
 def section_realistic(rng, trials: int, n: int = 30) -> str:
     prof = simulate.RealisticProfile()
     rows, errs = [], {}
-    crlb, crlb_rot, crlb_depth, nees_auto, est = [], [], [], [], {}
+    crlb, crlb_rot, crlb_depth, crlb_gen, nees_auto, est = [], [], [], [], [], {}
     for t in range(trials):
         seed = int(rng.integers(1 << 31))
         real = simulate.realistic_profile(n, np.random.default_rng(seed), prof)
@@ -90,6 +148,7 @@ def section_realistic(rng, trials: int, n: int = 30) -> str:
         crlb.append(extended_crlb(d, real.robot_rms_m))
         crlb_rot.append(extended_crlb(d, real.robot_rms_m, prof.orientation_noise_rad))
         crlb_depth.append(extended_crlb(d, real.robot_rms_m, free=(True, True, False)))
+        crlb_gen.append(generating_bound(real, prof))
         for name, fn in [
             ("auto (points)", lambda dd: solve("auto", dd.A, dd.points)),
             ("auto (points + orientations)", lambda dd: solve("auto", dd.A, dd.B)),
@@ -104,12 +163,12 @@ def section_realistic(rng, trials: int, n: int = 30) -> str:
                     nees_auto.append(nees(res.Y, data.Y, res.cov))
                     for k, v in res.info["camera_correction"].items():
                         est.setdefault(k, []).append(v["value"] if v["estimated"] else np.nan)
-    c, c_rot, c_depth = _rms(crlb), _rms(crlb_rot), _rms(crlb_depth)
+    c, c_rot, c_depth, c_gen = _rms(crlb), _rms(crlb_rot), _rms(crlb_depth), _rms(crlb_gen)
     for name in dict.fromkeys(k[0] for k in errs):
         e, e0 = _rms(errs[(name, "real")]), _rms(errs[(name, "bias-free")])
         bound = c_rot if "orientations" in name or "YQuat" in name else c
         rows.append([name, f"{e * 1e3:.2f}", f"{e0 * 1e3:.2f}", f"{e / e0:.2f}", f"{e / bound:.2f}",
-                     f"{e / c_depth:.2f}"])
+                     f"{e / c_depth:.2f}", f"{e / c_gen:.2f}"])
     truth = {"depth_scale": prof.depth_scale, "depth_offset": prof.depth_offset, "focal_scale": prof.focal_scale}
     chosen = ", ".join(f"{k} in {np.mean(np.isfinite(v)) * 100:.0f}% (mean {np.nanmean(v) if np.isfinite(v).any() else 0:+.4f},"
                        f" true {truth[k]:+.4f})" for k, v in est.items())
@@ -121,13 +180,63 @@ def section_realistic(rng, trials: int, n: int = 30) -> str:
         f"{prof.misregistration_px:.0f} px; camera 0.8 m away)",
         "",
         _md(["estimator", "RMS error T_base_cam [mm]", "same, bias-free cell [mm]", "ratio to bias-free",
-             "ratio to extended CRLB (depth + focal)", "ratio to CRLB (depth only)"], rows),
+             "ratio to extended CRLB (depth + focal)", "ratio to CRLB (depth only)",
+             "ratio to bound of the generating model"], rows),
         "",
         f"Extended-model CRLB (camera translation, RMS over cells): {c * 1e3:.2f} mm from points, "
         f"{c_rot * 1e3:.2f} mm with orientations, {c_depth * 1e3:.2f} mm from points with depth scale and offset "
         "only (focal known); robot error taken as white at its simulated RMS. "
-        f"NEES of `auto (points)`: mean {np.mean(nees_auto):.2f} (6 if honest), median {np.median(nees_auto):.2f}. "
+        f"Bound of the generating model (`generating_bound`: DH error, focal scale and misregistration as "
+        f"unknowns with the profile's magnitudes as prior 1-sigma, depth scale and offset free): {c_gen * 1e3:.2f} mm. "
+        f"NEES of `auto (points)`: mean {np.mean(nees_auto):.2f} ± {np.std(nees_auto) / np.sqrt(len(nees_auto)):.2f} "
+        f"(standard error; 6 if honest), median {np.median(nees_auto):.2f}. "
         f"Camera parameters estimated: {chosen}.",
+    ])
+
+
+#: Effects of the realistic profile that `section_effects` switches off one at a time (fields set to zero).
+EFFECTS = {
+    "robot DH error": ("joint_offset_deg", "link_length_m", "twist_deg"),
+    "repeatability": ("repeatability_m", "repeatability_rad"),
+    "depth scale": ("depth_scale",),
+    "depth offset": ("depth_offset",),
+    "focal scale": ("focal_scale",),
+    "misregistration": ("misregistration_px",),
+}
+
+
+def section_effects(rng, trials: int, n: int = 30) -> str:
+    """Which unmodelled effect makes `auto` miss the bias-free error: each switched off, and each alone."""
+    base = simulate.RealisticProfile()
+    off = {name: {f: 0.0 for f in fields} for name, fields in EFFECTS.items()}
+    variants = [("all effects", {}), ("none (repeatability only)", {k: v for name, o in off.items()
+                                                                    if name != "repeatability" for k, v in o.items()})]
+    variants += [(f"all but {name}", o) for name, o in off.items()]
+    variants += [(f"{name} only", {k: v for other, o in off.items() if other not in (name, "repeatability")
+                                   for k, v in o.items()}) for name in EFFECTS if name != "repeatability"]
+    seeds = [int(rng.integers(1 << 31)) for _ in range(trials)]
+    rows, ref = [], None
+    for label, changes in variants:
+        prof = dataclasses.replace(base, **changes)
+        err, err_depth, nees_v = [], [], []
+        for seed in seeds:
+            d = simulate.realistic_profile(n, np.random.default_rng(seed), prof).data
+            res = solve("auto", d.A, d.points)
+            err.append(np.linalg.norm(error_vector(res.Y, d.Y)[3:]))
+            nees_v.append(nees(res.Y, d.Y, res.cov))
+            err_depth.append(np.linalg.norm(error_vector(solve("auto", d.A, d.points, camera_correction="depth").Y,
+                                                         d.Y)[3:]))
+        e = _rms(err)
+        ref = e if label.startswith("none") else ref
+        rows.append([label, f"{e * 1e3:.2f}", f"{_rms(err_depth) * 1e3:.2f}",
+                     f"{np.mean(nees_v):.2f} ± {np.std(nees_v) / np.sqrt(len(nees_v)):.2f}"])
+    for r in rows:
+        r.insert(2, f"{float(r[1]) / (ref * 1e3):.2f}")
+    return "\n".join([
+        f"### Realistic profile, one effect at a time (N = {n}, the same {trials} cells in every row; marker points)",
+        "",
+        _md(["systematic errors present", "auto: RMS error T_base_cam [mm]", "ratio to none",
+             "auto, camera_correction=\"depth\" [mm]", "NEES of auto (± s.e.)"], rows),
     ])
 
 
@@ -183,6 +292,10 @@ def section_flips(rng, trials: int, n: int = 19) -> str:
     ])
 
 
+#: Short names of the camera parameters in the real-set table.
+_SHORT = {"depth_scale": "scale", "depth_offset": "offset", "focal_scale": "focal"}
+
+
 def section_real(quick: bool) -> str:
     with tempfile.TemporaryDirectory(prefix="handeye-bench-") as work:
         return _real_rows(quick, Path(work))
@@ -217,11 +330,13 @@ def _real_rows(quick: bool, work: Path) -> str:
             ok,
             f"{start} {start_cv.observed_rms * 1e3:.2f}" if start_cv else start,
             f"{ml.observed_rms * 1e3:.2f} / {ml.predicted_rms * 1e3:.2f}",
-            ", ".join(f"{k.split('_')[1]} {v['value'] * (1e3 if k == 'depth_offset' else 100):+.2f}"
+            ", ".join(f"{_SHORT[k]} {v['value'] * (1e3 if k == 'depth_offset' else 100):+.2f}"
                       f"{'mm' if k == 'depth_offset' else '%'}"
                       for k, v in auto_res.info["camera_correction"].items() if v["estimated"]) or "none",
             " + ".join(auto_res.info["measurements"]),
         ])
+    if not rows:
+        return f"### Real recordings: none found under {datasets_dir()} (set HANDEYE_DATASETS)"
     return "\n".join([
         "### Real recordings: held-out prediction error of the marker point [mm]",
         "",
@@ -242,14 +357,20 @@ def section_plain(rng, trials: int, n: int = 30) -> str:
             f"CRLB {b * 1e3:.3f} mm, ratio {e / b:.3f}")
 
 
-def _median_ms(fn, repeats: int) -> float:
+def _times_ms(fn, repeats: int) -> tuple[float, float, float, float]:
+    """Wall-clock and process CPU time of ``fn`` (ms): min and median over ``repeats`` after one warm-up call.
+
+    CPU time is the steadier figure on a shared machine (it leaves out the
+    time the process waited for a core); min of either is the usual one.
+    """
     fn()
-    ts = []
+    wall, cpu = [], []
     for _ in range(repeats):
-        t0 = time.perf_counter()
+        t0, c0 = time.perf_counter(), time.process_time()
         fn()
-        ts.append(time.perf_counter() - t0)
-    return 1e3 * float(np.median(ts))
+        wall.append(time.perf_counter() - t0)
+        cpu.append(time.process_time() - c0)
+    return tuple(1e3 * float(f(v)) for v in (wall, cpu) for f in (np.min, np.median))
 
 
 def section_speed(rng, repeats: int, n: int = 1000) -> str:
@@ -258,11 +379,13 @@ def section_speed(rng, repeats: int, n: int = 1000) -> str:
     cases = [
         ("YKronT' closed form (calib.solvers.y_kron_t_prime)", lambda: solvers.y_kron_t_prime(d.A, p)),
         ("solve(\"YKronT'\") with covariance and self-check", lambda: solve("YKronT'", d.A, p)),
-        ("solve(\"auto\") points, with covariance", lambda: solve("auto", d.A, p)),
-        ("solve(\"auto\") poses, with covariance", lambda: solve("auto", d.A, d.B)),
+        ("solve(\"auto\") points, with covariance and self-check", lambda: solve("auto", d.A, p)),
+        ("solve(\"auto\") poses, with covariance and self-check", lambda: solve("auto", d.A, d.B)),
     ]
-    rows = [[name, f"{_median_ms(fn, repeats):.2f}"] for name, fn in cases]
-    return "\n".join([f"### Speed at N = {n} (median ms, one thread)", "", _md(["what", "ms"], rows)])
+    rows = [[name] + [f"{v:.2f}" for v in _times_ms(fn, repeats)] for name, fn in cases]
+    load = os.getloadavg()[0] if hasattr(os, "getloadavg") else float("nan")
+    return "\n".join([f"### Speed at N = {n} (one thread, {repeats} repeats; load average {load:.1f} at the end)", "",
+                       _md(["what", "wall min [ms]", "wall median [ms]", "CPU min [ms]", "CPU median [ms]"], rows)])
 
 
 def main(argv=None) -> int:
@@ -277,11 +400,13 @@ def main(argv=None) -> int:
     parts = [
         "## Measurement model and solve(\"auto\") (`handeye bench --model`)",
         section_realistic(rng, 40 // t // (2 if args.quick else 1)),
+        # Its own stream, so the cells of the sections after it are those of runs without it.
+        section_effects(np.random.default_rng([args.seed, 1]), 40 // t // (2 if args.quick else 1)),
         section_board(rng, 60 // t),
         section_flips(rng, 20 // t),
         section_real(args.quick),
         section_plain(rng, 200 // t),
-        section_speed(rng, 3 if args.quick else 7),
+        section_speed(rng, 5 if args.quick else 15),
     ]
     parts.append(f"_{time.perf_counter() - t0:.0f} s, seed {args.seed}{', --quick' if args.quick else ''}_")
     text = "\n\n".join(parts) + "\n"

@@ -96,6 +96,28 @@ def test_linearised_leave_one_out_matches_refits():
     assert np.all(predicted > np.sqrt(np.trace(d.point_cov, axis1=1, axis2=2)))
 
 
+def test_leave_one_out_after_step_matches_a_refit_with_the_parameter_freed():
+    """Held-out errors after one Gauss-Newton step with the depth scale freed, from the fit without it,
+    match those of the converged fit with it: the step decides whether that refit is worth making."""
+    rng = np.random.default_rng(8)
+    d = realistic_cell(30, rng)
+    p = d.points * 1.02
+    C, K, M = model.split(d.X, d.Y, d.A, "eye_to_hand")
+    W = model.whitener(d.point_cov)
+    C0, K0, _, _, _, _ = model.minimize(model.Problem(M, p, W), C, K)
+    freed = model.Problem(M, p, W, free=(True, False, False))
+    theta0 = np.zeros(3)
+    errors, predicted, delta = model.leave_one_out_after_step(freed, C0, K0, theta0, point_cov=d.point_cov)
+    C1, K1, theta1, _, _, _ = model.minimize(freed, C0, K0, theta0)
+    exact, exact_pred = model.leave_one_out(freed, C1, K1, theta1, point_cov=d.point_cov)
+    assert theta1[0] == pytest.approx(delta[-1], rel=1e-3)          # the step is the fit, to first order
+    np.testing.assert_allclose(errors, exact, rtol=1e-3, atol=1e-6)
+    np.testing.assert_allclose(predicted, exact_pred, rtol=1e-3)
+    # Freeing the scale of a 2% depth error lowers the held-out error.
+    before, _ = model.leave_one_out(model.Problem(M, p, W), C0, K0, point_cov=d.point_cov)
+    assert np.sqrt(np.mean(errors**2)) < 0.9 * np.sqrt(np.mean(before**2))
+
+
 def test_skew_and_so3_live_in_transforms():
     v = np.array([0.1, -0.2, 0.3])
     np.testing.assert_allclose(tf.skew(v) @ np.array([1.0, 2.0, 3.0]), np.cross(v, [1.0, 2.0, 3.0]), atol=1e-15)

@@ -97,3 +97,18 @@ def test_check_transforms_names_first_bad_index_in_a_stack(rng):
 def test_rotation_angle_small_and_half_turn():
     R = tf.from_rotvec_translation(np.array([[1e-9, 0, 0], [0, 0, np.pi], [0, 2.0, 0]]), np.zeros((3, 3)))[:, :3, :3]
     np.testing.assert_allclose(tf.rotation_angle(R), [1e-9, np.pi, 2.0], rtol=1e-9)
+
+
+@pytest.mark.parametrize("angle", [0.0, 1e-12, 1e-6, 1e-4, 0.3, 2.0, np.pi - 1e-6, np.pi])
+def test_so3_exp_and_log_agree_with_scipy_at_every_angle(rng, angle):
+    """The written-out SO(3) exp/log (Rodrigues, quaternion log) match scipy's Rotation, near 0 and pi too."""
+    from scipy.spatial.transform import Rotation
+
+    axes = rng.normal(size=(50, 3))
+    v = axes / np.linalg.norm(axes, axis=1, keepdims=True) * angle
+    R = Rotation.from_rotvec(v).as_matrix()
+    np.testing.assert_allclose(tf.so3_exp(v), R, atol=1e-15)
+    # At pi the rotation vector's sign is ambiguous: compare the rotations it gives.
+    np.testing.assert_allclose(Rotation.from_rotvec(tf.so3_log(R)).as_matrix(), R, atol=2e-15)
+    if angle < 3.0:
+        np.testing.assert_allclose(tf.so3_log(R), v, atol=1e-15)
