@@ -24,6 +24,7 @@ after that pose is sampled) in mm and deg, as labelled.
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import logging
 from dataclasses import dataclass
@@ -36,7 +37,10 @@ from app.errors import ConfigError, SessionError
 from calib import model
 from calib import planner as pl
 from calib import transforms as tf
+from calib.api import AUTO
+from calib.auto import CONSIDER_SIGMA, MIN_SAMPLES_CAMERA
 from calib.errors import CalibrationError
+from calib.noise import anchored_point_cov, default_point_cov
 from calib.predict import predicted_pixel
 from calib.result import worst_axis_sigma
 from calib.setup import Setup
@@ -51,6 +55,10 @@ PLAN_VERSION = 1
 EARLY_SAMPLES = 3
 #: ... and the largest predicted 1-sigma (mm, deg) at which it is trusted to plan with.
 EARLY_MAX_SIGMA = (20.0, 2.0)
+#: 1-sigma of a measured marker orientation that comes without a covariance, deg (a single-marker PnP pose).
+MARKER_ANGLE_SIGMA_DEG = 2.0
+#: How plan.json names the default noise model.
+NOISE_DEFAULT = "calib.noise.default_point_cov (depth-dependent marker-center covariance)"
 #: Poses a plan file may hold at most (a plan is a handful of motions, not a trajectory).
 MAX_PLAN_POSES = 1000
 
@@ -72,8 +80,9 @@ class Target:
 def camera_view(cal: CalibrateConfig, intrinsics, marker: TargetConfig) -> pl.CameraView:
     """The planner's camera model from ``[calibrate]``, the camera intrinsics and ``[marker]``."""
     size = marker.marker_size
-    return pl.CameraView(intrinsics.width, intrinsics.height, intrinsics.fx, intrinsics.fy, intrinsics.cx,
-                         intrinsics.cy, margin_px=float(cal.image_margin_px), depth_min_m=float(cal.depth_range_m[0]),
+    return pl.CameraView(width=intrinsics.width, height=intrinsics.height, fx=intrinsics.fx, fy=intrinsics.fy,
+                         cx=intrinsics.cx, cy=intrinsics.cy, margin_px=float(cal.image_margin_px),
+                         depth_min_m=float(cal.depth_range_m[0]),
                          depth_max_m=float(cal.depth_range_m[1]), max_view_angle_deg=float(cal.max_view_angle_deg),
                          marker_size_m=float(size))
 
@@ -84,7 +93,7 @@ def planner_config(cfg: Config, **overrides) -> pl.PlannerConfig:
     # Robot backends without these fields get the planner's defaults.
     kw = dict(translation_range_m=cal.translation_range_m, tilt_deg=cal.tilt_deg,
               workspace_min=getattr(robot, "workspace_min", None), workspace_max=getattr(robot, "workspace_max", None),
-              keep_out=tuple(pl.KeepOut(tuple(b[0]), tuple(b[1])) for b in cal.keep_out),
+              keep_out=tuple(pl.KeepOut(min=b[0], max=b[1]) for b in cal.keep_out),
               clearance_m=cal.clearance_m, travel_weight=cal.travel_weight,
               speed_m_s=float(getattr(robot, "speed", 0.25)), acceleration_m_s2=float(getattr(robot, "acceleration", 1.0)))
     kw.update(overrides)
@@ -135,14 +144,23 @@ def with_marker_rotation(setup: str, X, Y, rotation_known: bool, A, T_cam_marker
     return pl.marker_rotation(setup, X, Y, np.asarray(A[0])[None], _facing(np.asarray(point_cam, float))[None])
 
 
-def camera_correction(estimate) -> tuple | None:
-    """``(theta, free)`` of the camera correction a ``solve("auto")`` result estimated (None otherwise),
-    so the planner also plans for the depth scale / offset (and focal scale) it is estimating."""
-    cc = estimate.info.get("camera_correction") if estimate is not None else None
-    if not cc:
+def camera_correction(method: str, estimate) -> tuple | None:
+    """``(theta, free, sigma)`` of the camera correction for the planner when the run's solver is ``auto``
+    (None otherwise), so that it plans for, and predicts the covariance of, what ``auto`` reports.
+
+    ``auto`` estimates the depth scale / offset and focal scale the samples
+    determine and widens the covariance by a typical error (`calib.auto.CONSIDER_SIGMA`)
+    for the others: all three are unknowns here, the estimated ones with a
+    weak prior at their estimate, the others with that typical error as prior.
+    """
+    if method != AUTO:
         return None
-    return (np.array([cc[n]["value"] for n in model.CAMERA_PARAMS]),
-            tuple(bool(cc[n]["estimated"]) for n in model.CAMERA_PARAMS))
+    cc = estimate.info.get("camera_correction") if estimate is not None else None
+    cc = cc or {}
+    theta = np.array([cc[n]["value"] if n in cc else 0.0 for n in model.CAMERA_PARAMS])
+    sigma = np.array([pl.CORRECTION_PRIOR_SIGMA if cc.get(n, {}).get("estimated") else CONSIDER_SIGMA[n]
+                      for n in model.CAMERA_PARAMS])
+    return theta, (True, True, True), sigma
 
 
 def _estimate_transforms(setup: str, estimate, observations) -> tuple:
@@ -208,13 +226,9 @@ class OptimalPoses:
             return Target(self.start, "start", q=state.q if _same_pose(state.T_base_flange, self.start) else None)
         if self.bootstrap is None and at_start:
             first = at_start[0]
-            angle = 0.0
-            if first.T_cam_marker is not None:
-                B = first.T_cam_marker
-                angle = float(np.degrees(np.arccos(np.clip(-B[:3, 2] @ B[:3, 3] / np.linalg.norm(B[:3, 3]), -1, 1))))
             self.bootstrap = list(pl.bootstrap_poses(self.start, setup, self.view, first.point_cam, self.pcfg,
                                                      lever_max_m=self.cfg.calibrate.lever_max_m,
-                                                     view_angle_deg=angle))
+                                                     view_angle_deg=view_angle_bound(first, self.pcfg.uncertainty_k)))
             if not self.bootstrap:
                 log.warning("the marker is too close to the image border (or too oblique) for a safe bootstrap")
         if estimate is None:
@@ -229,9 +243,9 @@ class OptimalPoses:
             self.done_reason = "no_estimate_after_bootstrap"
             return None
         X, Y = _estimate_transforms(setup, estimate, observations)
-        planner = pl.PosePlanner(setup, X, Y, self.view, self.pcfg, correction=camera_correction(estimate))
-        for o in observations:
-            planner.add(o.T_base_flange)
+        planner = pl.PosePlanner(setup, X, Y, self.view, self.pcfg,
+                                 correction=camera_correction(self.cfg.calibrate.method, estimate))
+        planner.add(np.array([o.T_base_flange for o in observations]))
         pose = planner.next_pose(self.start, state.T_base_flange, state.q, self.rng, self.reachable)
         if pose is None:
             self.done_reason = "no_valid_pose"
@@ -239,6 +253,22 @@ class OptimalPoses:
                         dict(planner.stats.reasons))
             return None
         return Target(pose.T_base_flange, "optimal", q=pose.q)
+
+
+def view_angle_bound(observation, k: float) -> float:
+    """The marker's view angle at a sample, deg, plus ``k`` standard deviations of its measured orientation
+    (`pose_cov`; `MARKER_ANGLE_SIGMA_DEG` without one): what the bootstrap may rely on.
+
+    0 when the sample has no marker orientation (the bootstrap then assumes the marker faces the camera).
+    """
+    B = observation.T_cam_marker
+    if B is None:
+        return 0.0
+    angle = float(np.degrees(np.arccos(np.clip(-B[:3, 2] @ B[:3, 3] / np.linalg.norm(B[:3, 3]), -1, 1))))
+    cov = observation.pose_cov
+    sigma = MARKER_ANGLE_SIGMA_DEG if cov is None else \
+        float(np.degrees(np.sqrt(max(np.linalg.eigvalsh(np.asarray(cov)[:3, :3])[-1], 0.0))))
+    return angle + k * sigma
 
 
 def _early_estimate(setup: str, observations):
@@ -317,25 +347,44 @@ def _m(T) -> list:
 
 
 def make_plan(cfg: Config, X, Y, T_start, q_start, intrinsics, robot, rng: np.random.Generator, *,
-              prior: str, n: int | None = None) -> tuple[dict, list[pl.PlannedPose], pl.PosePlanner]:
+              prior: str, n: int | None = None, start_measurement=None
+              ) -> tuple[dict, list[pl.PlannedPose], pl.PosePlanner]:
     """A pose list from a known cell (prior X, Y), without moving: the plan document and the planned poses.
 
     The first pose is the start pose itself (the run samples where it
     stands); then optimal poses until the expected 1-sigma is below the
     ``[calibrate]`` targets (after ``min_samples``) or ``samples`` poses.
+    ``start_measurement``: ``(point_cam, point_cov)`` the camera measured at
+    the start pose; the expected 1-sigma then uses this camera's noise level
+    (`calib.noise.anchored_point_cov`), else the default depth model's.
     """
     cal = cfg.calibrate
     n = cal.samples if n is None else n
     view = camera_view(cal, intrinsics, cfg.marker)
-    planner = pl.PosePlanner(cfg.setup, X, Y, view, planner_config(cfg, uncertainty_k=0.0))
+    if start_measurement is None:
+        point_cov, noise = default_point_cov, NOISE_DEFAULT
+    else:
+        point_cov = anchored_point_cov(*start_measurement)
+        S, p = np.asarray(start_measurement[1]), np.asarray(start_measurement[0])
+        r = p / np.linalg.norm(p)
+        noise = (f"calib.noise.anchored_point_cov: the default depth dependence at the levels measured at the start "
+                 f"({np.sqrt(r @ S @ r) * 1e3:.2f} mm along the ray at {p[2]:.2f} m)")
+    planner = pl.PosePlanner(cfg.setup, X, Y, view, planner_config(cfg, uncertainty_k=0.0), point_cov=point_cov,
+                             correction=camera_correction(cal.method, None))
     start_ok = planner.screen(np.asarray(T_start)[None])[0][0]
     if not start_ok:
         raise CalibrationError("with the prior calibration the marker is not in view at the current robot pose: "
                                "jog the robot to where the camera sees the marker, or check --prior")
     planner.add(T_start)
+
+    def expected(n_samples: int) -> np.ndarray:
+        # auto keeps the camera parameters at nominal, widened by their typical errors, below MIN_SAMPLES_CAMERA.
+        considered = cal.method == AUTO and n_samples < MIN_SAMPLES_CAMERA
+        return planner.consider_cov() if considered else planner.camera_cov()
+
     p0 = planner.marker_in_camera(np.asarray(T_start)[None])[0, :3, 3]
     start = pl.PlannedPose(np.asarray(T_start, float), None if q_start is None else np.asarray(q_start, float), 0.0,
-                           0.0, view.project(p0), p0, planner.camera_cov())
+                           0.0, view.project(p0), p0, expected(1))
     poses = [start]
     T_cur, q_cur = np.asarray(T_start, float), q_start
     check = reachable(robot) if robot is not None else None
@@ -349,12 +398,13 @@ def make_plan(cfg: Config, X, Y, T_start, q_start, intrinsics, robot, rng: np.ra
             log.warning("plan stops after %d poses: no valid candidate (%s)", len(poses), dict(planner.stats.reasons))
             break
         planner.add(pose.T_base_flange)
-        poses.append(pose)
+        poses.append(dataclasses.replace(pose, cov=expected(len(poses) + 1)))
         T_cur, q_cur = pose.T_base_flange, pose.q
-    return plan_document(cfg.setup, poses, prior, T_start, q_start), poses, planner
+    return plan_document(cfg.setup, poses, prior, T_start, q_start, noise), poses, planner
 
 
-def plan_document(setup: str, poses: list[pl.PlannedPose], prior: str, T_start, q_start) -> dict:
+def plan_document(setup: str, poses: list[pl.PlannedPose], prior: str, T_start, q_start,
+                  noise_model: str = NOISE_DEFAULT) -> dict:
     """The ``plan.json`` document (module docstring) of planned poses."""
     rows = []
     for i, p in enumerate(poses):
@@ -370,7 +420,7 @@ def plan_document(setup: str, poses: list[pl.PlannedPose], prior: str, T_start, 
     equation = f"A_i X = Y B_i, X = {setup.x_name}, Y = {setup.y_name}"
     return {"format": PLAN_FORMAT, "version": PLAN_VERSION, "setup": setup, "equation": equation,
             "camera_transform": cam, "prior": prior,
-            "noise_model": "calib.noise.default_point_cov (depth-dependent marker-center covariance)",
+            "noise_model": noise_model,
             "start": {"T_base_flange": _m(T_start), "q": None if q_start is None else np.asarray(q_start).tolist()},
             "expected_robot_time_s": float(sum(p.travel_s for p in poses)), "poses": rows}
 

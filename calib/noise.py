@@ -72,3 +72,32 @@ def default_point_cov(points) -> np.ndarray:
     p = check_points(points, "points")
     z = np.maximum(p[:, 2], 0.1)
     return ray_covariance(p, z * SIGMA_PX / FOCAL_PX, DEPTH_K * z**2)
+
+
+def anchored_point_cov(point, cov):
+    """``point_cov(points (N, 3)) -> (N, 3, 3)``: the default model's growth with depth, at the levels of one
+    measured covariance.
+
+    The lateral and along-ray standard deviations of ``cov`` (3, 3) at ``point``
+    (3,) (depth ``z0``) are scaled like the default model: lateral by ``z / z0``,
+    along the ray by ``(z / z0)^2``. Predicts what a particular camera will
+    measure elsewhere from what it measured once (e.g. at the start pose of a
+    plan), where the default model would assume a structured-light camera's level.
+    """
+    p0 = check_points(np.asarray(point, dtype=float)[None], "point")[0]
+    S = np.asarray(cov, dtype=float)
+    if S.shape != (3, 3) or not np.isfinite(S).all() or p0[2] <= 0:
+        raise CalibrationError(f"need a point in front of the camera and its (3, 3) covariance, got {point!r}, {S.shape}")
+    r = p0 / np.linalg.norm(p0)
+    var_depth = float(r @ S @ r)
+    var_lat = 0.5 * (float(np.trace(S)) - var_depth)
+    if not (var_depth > 0 and var_lat > 0):
+        raise CalibrationError("the measured covariance must be positive definite")
+    z0 = float(p0[2])
+
+    def point_cov(points) -> np.ndarray:
+        p = check_points(points, "points")
+        z = np.maximum(p[:, 2], 0.1) / z0
+        return ray_covariance(p, np.sqrt(var_lat) * z, np.sqrt(var_depth) * z**2)
+
+    return point_cov

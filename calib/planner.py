@@ -37,13 +37,16 @@ import math
 from collections import Counter
 from collections.abc import Callable
 from dataclasses import dataclass, field
+from typing import Annotated
 
 import numpy as np
+from pydantic import BeforeValidator, ConfigDict, Field, model_validator
 
 from calib import model
 from calib import transforms as tf
 from calib.errors import CalibrationError
 from calib.noise import default_point_cov
+from calib.params import Float, Fraction, NonNegativeFloat, Params, PositiveFloat, PositiveInt, Vector3
 from calib.setup import Setup, check_setup
 
 #: ``reachable(T_base_flange (4, 4), q_from (6,) or None) -> q (6,) or None``.
@@ -55,8 +58,7 @@ N_PARAMS = 9
 CORRECTION_PRIOR_SIGMA = 1.0
 
 
-@dataclass(frozen=True)
-class CameraView:
+class CameraView(Params):
     """What the camera can measure (pinhole, no distortion needed at this accuracy).
 
     Attributes
@@ -75,53 +77,57 @@ class CameraView:
         Side of the marker's black square, m (its corners are checked).
     """
 
-    width: int
-    height: int
-    fx: float
-    fy: float
-    cx: float
-    cy: float
-    margin_px: float = 40.0
-    depth_min_m: float = 0.4
-    depth_max_m: float = 2.0
-    max_view_angle_deg: float = 60.0
-    marker_size_m: float = 0.05
+    model_config = ConfigDict(frozen=True)
 
-    def __post_init__(self):
-        for name in ("width", "height", "fx", "fy", "marker_size_m", "depth_max_m"):
-            v = getattr(self, name)
-            if not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0):
-                raise CalibrationError(f"CameraView.{name} must be a positive number, got {v!r}")
-        if not 0 <= self.depth_min_m < self.depth_max_m:
-            raise CalibrationError(f"CameraView: need 0 <= depth_min_m < depth_max_m, got "
-                                   f"{self.depth_min_m}, {self.depth_max_m}")
-        if not 0 < self.max_view_angle_deg < 90:
-            raise CalibrationError(f"CameraView.max_view_angle_deg must be in (0, 90), got {self.max_view_angle_deg}")
-        if not 0 <= self.margin_px < min(self.width, self.height) / 2:
-            raise CalibrationError(f"CameraView.margin_px must be in [0, {min(self.width, self.height) / 2}), "
-                                   f"got {self.margin_px}")
+    width: PositiveInt
+    height: PositiveInt
+    fx: PositiveFloat
+    fy: PositiveFloat
+    cx: Float
+    cy: Float
+    margin_px: NonNegativeFloat = 40.0
+    depth_min_m: NonNegativeFloat = 0.4
+    depth_max_m: PositiveFloat = 2.0
+    max_view_angle_deg: Annotated[PositiveFloat, Field(lt=90)] = 60.0
+    marker_size_m: PositiveFloat = 0.05
+
+    @model_validator(mode="after")
+    def _consistent(self):
+        if not self.depth_min_m < self.depth_max_m:
+            raise ValueError(f"need depth_min_m < depth_max_m, got {self.depth_min_m}, {self.depth_max_m}")
+        if not self.margin_px < min(self.width, self.height) / 2:
+            raise ValueError(f"margin_px must be below half the image ({min(self.width, self.height) / 2} px), "
+                             f"got {self.margin_px}")
+        return self
 
     def project(self, p: np.ndarray) -> np.ndarray:
         """Pixels (..., 2) of camera-frame points (..., 3) (z must be positive)."""
         return np.stack([self.fx * p[..., 0] / p[..., 2] + self.cx, self.fy * p[..., 1] / p[..., 2] + self.cy], -1)
 
 
-@dataclass(frozen=True)
-class KeepOut:
+class KeepOut(Params):
     """An axis-aligned box in the base frame (m) that the flange and the marker/camera must not enter."""
 
-    min: tuple[float, float, float]
-    max: tuple[float, float, float]
+    model_config = ConfigDict(frozen=True)
 
-    def __post_init__(self):
-        lo, hi = np.asarray(self.min, float), np.asarray(self.max, float)
-        if lo.shape != (3,) or hi.shape != (3,) or not (np.isfinite(lo).all() and np.isfinite(hi).all()) \
-                or not np.all(lo < hi):
-            raise CalibrationError(f"KeepOut: min {self.min} must be below max {self.max} on every axis")
+    min: Vector3
+    max: Vector3
+
+    @model_validator(mode="after")
+    def _ordered(self):
+        if not all(lo < hi for lo, hi in zip(self.min, self.max)):
+            raise ValueError(f"min {self.min} must be below max {self.max} on every axis")
+        return self
 
 
-@dataclass(frozen=True)
-class PlannerConfig:
+def _boxes(value):
+    """``keep_out`` entries may be given as ``(min, max)`` pairs."""
+    if isinstance(value, (list, tuple)):
+        return tuple({"min": k[0], "max": k[1]} if isinstance(k, (list, tuple)) and len(k) == 2 else k for k in value)
+    return value
+
+
+class PlannerConfig(Params):
     """Candidate generation, scoring and the travel model.
 
     Attributes
@@ -158,44 +164,34 @@ class PlannerConfig:
         Reachability callbacks per planned pose at most (best scores first).
     """
 
-    n_candidates: int = 300
-    translation_range_m: float = 0.15
-    tilt_deg: float = 40.0
-    local_fraction: float = 0.3
-    workspace_min: tuple[float, float, float] | None = None
-    workspace_max: tuple[float, float, float] | None = None
-    keep_out: tuple[KeepOut, ...] = ()
-    clearance_m: float = 0.05
-    travel_weight: float = 0.05
-    speed_m_s: float = 0.25
-    acceleration_m_s2: float = 1.0
-    rotation_radius_m: float = 0.1
-    prior_sigma_rad: float = 1.0
-    prior_sigma_m: float = 1.0
-    uncertainty_k: float = 3.0
-    max_checks: int = 40
+    model_config = ConfigDict(frozen=True)
 
-    def __post_init__(self):
-        if isinstance(self.n_candidates, bool) or not isinstance(self.n_candidates, int) or self.n_candidates < 1:
-            raise CalibrationError(f"PlannerConfig.n_candidates must be an integer >= 1, got {self.n_candidates!r}")
-        for name in ("translation_range_m", "tilt_deg", "speed_m_s", "acceleration_m_s2", "rotation_radius_m",
-                     "prior_sigma_rad", "prior_sigma_m"):
-            v = getattr(self, name)
-            if not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0):
-                raise CalibrationError(f"PlannerConfig.{name} must be a positive number, got {v!r}")
-        for name in ("travel_weight", "uncertainty_k", "clearance_m"):
-            v = getattr(self, name)
-            if not (isinstance(v, (int, float)) and math.isfinite(v) and v >= 0):
-                raise CalibrationError(f"PlannerConfig.{name} must be a number >= 0, got {v!r}")
-        if not 0 <= self.local_fraction <= 1:
-            raise CalibrationError(f"PlannerConfig.local_fraction must be in [0, 1], got {self.local_fraction!r}")
+    n_candidates: PositiveInt = 300
+    translation_range_m: PositiveFloat = 0.15
+    tilt_deg: PositiveFloat = 40.0
+    local_fraction: Fraction = 0.3
+    workspace_min: Vector3 | None = None
+    workspace_max: Vector3 | None = None
+    keep_out: Annotated[tuple[KeepOut, ...], BeforeValidator(_boxes)] = ()
+    clearance_m: NonNegativeFloat = 0.05
+    travel_weight: NonNegativeFloat = 0.05
+    speed_m_s: PositiveFloat = 0.25
+    acceleration_m_s2: PositiveFloat = 1.0
+    rotation_radius_m: PositiveFloat = 0.1
+    prior_sigma_rad: PositiveFloat = 1.0
+    prior_sigma_m: PositiveFloat = 1.0
+    uncertainty_k: NonNegativeFloat = 3.0
+    max_checks: PositiveInt = 40
+
+    @model_validator(mode="after")
+    def _workspace(self):
         if (self.workspace_min is None) != (self.workspace_max is None):
-            raise CalibrationError("PlannerConfig.workspace_min and workspace_max go together")
-        object.__setattr__(self, "keep_out", tuple(k if isinstance(k, KeepOut) else KeepOut(*k) for k in self.keep_out))
+            raise ValueError("workspace_min and workspace_max go together")
+        return self
 
 
 #: A camera model for uses that never screen poses (`least_informative`).
-_NO_VIEW = CameraView(1, 1, 1.0, 1.0, 0.0, 0.0, margin_px=0.0)
+_NO_VIEW = CameraView(width=1, height=1, fx=1.0, fy=1.0, cx=0.0, cy=0.0, margin_px=0.0)
 
 
 @dataclass(frozen=True)
@@ -317,12 +313,16 @@ class PosePlanner:
     point_cov : callable, optional
         ``point_cov(points (N, 3)) -> (N, 3, 3)`` m^2; default the depth model
         `calib.noise.default_point_cov`.
-    correction : (theta, free), optional
+    correction : (theta, free) or (theta, free, sigma), optional
         Camera correction of the measurement model (`calib.model.CAMERA_PARAMS`:
         depth scale, depth offset, focal scale): current values ``theta`` (3,)
-        and which are estimated ``free`` (3 bools). The free ones are unknowns
-        of the information matrix and count in the D-optimal criterion with
-        the camera transform.
+        and which are unknowns ``free`` (3 bools), with a prior standard
+        deviation ``sigma`` (3,) each (default `CORRECTION_PRIOR_SIGMA`). The
+        free ones are unknowns of the information matrix and count in the
+        D-optimal criterion with the camera transform. A parameter a solver
+        keeps at nominal but whose typical error widens its covariance
+        (`calib.auto`'s "consider" covariance) is free with that error as
+        its prior: the predicted covariance then matches it to first order.
     """
 
     def __init__(self, setup: str, X, Y, view: CameraView, config: PlannerConfig | None = None,
@@ -332,15 +332,19 @@ class PosePlanner:
         self.config = config or PlannerConfig()
         self._point_cov = point_cov
         self.X, self.Y = tf.check_transform(X, "X"), tf.check_transform(Y, "Y")
-        theta, free = correction if correction is not None else (np.zeros(3), (False, False, False))
+        correction = (np.zeros(3), (False, False, False)) if correction is None else tuple(correction)
+        theta, free = correction[:2]
+        sigma = np.asarray(correction[2] if len(correction) == 3 else [CORRECTION_PRIOR_SIGMA] * 3, dtype=float)
         self.theta = np.asarray(theta, dtype=float)
         self.free = tuple(bool(f) for f in free)
-        if self.theta.shape != (3,) or len(self.free) != 3 or not np.isfinite(self.theta).all():
-            raise CalibrationError(f"correction must be (theta (3,), free (3 bools)), got {correction!r}")
+        if self.theta.shape != (3,) or len(self.free) != 3 or not np.isfinite(self.theta).all() \
+                or len(correction) not in (2, 3) or sigma.shape != (3,) or not np.all(sigma > 0):
+            raise CalibrationError(f"correction must be (theta (3,), free (3 bools)[, sigma (3,) > 0]), "
+                                   f"got {correction!r}")
         n_free = sum(self.free)
         c = self.config
-        self._prior = np.diag([c.prior_sigma_rad ** -2] * 3 + [c.prior_sigma_m ** -2] * 6
-                              + [CORRECTION_PRIOR_SIGMA ** -2] * n_free)
+        self._prior = np.diag(np.r_[[c.prior_sigma_rad ** -2] * 3, [c.prior_sigma_m ** -2] * 6,
+                                    sigma[list(self.free)] ** -2])
         #: Unknowns the criterion is about: the camera transform (6) and the free camera corrections.
         self._interest = np.r_[np.arange(6), N_PARAMS + np.arange(n_free)].astype(int)
         self.information = self._prior.copy()
@@ -365,14 +369,30 @@ class PosePlanner:
         return self._information(*self.predict(A))
 
     def add(self, T_base_flange) -> None:
-        """Account for a sample taken at ``T_base_flange`` (4, 4)."""
-        T = tf.check_transform(T_base_flange, "T_base_flange")
-        self.information = self.information + self.sample_information(T[None])[0]
+        """Account for a sample taken at ``T_base_flange`` (4, 4), or for one at each of (N, 4, 4)."""
+        T = np.asarray(T_base_flange, dtype=float)
+        A = tf.check_transform(T, "T_base_flange")[None] if T.ndim == 2 else tf.check_transforms(T, "T_base_flange")
+        self.information = self.information + self.sample_information(A).sum(axis=0)
 
     def camera_cov(self, information=None) -> np.ndarray:
         """Predicted covariance (6, 6) of the camera transform (`calib.result` convention)."""
         cov = np.linalg.inv(self.information if information is None else information)[..., :6, :6]
         return 0.5 * (cov + np.swapaxes(cov, -1, -2))
+
+    def consider_cov(self) -> np.ndarray:
+        """Predicted covariance (6, 6) of the camera transform if the free camera corrections are kept at
+        nominal, their prior standard deviations taken as typical errors: ``N_xx^-1 + S diag(sigma^2) S^T``,
+        ``S = N_xx^-1 N_xc`` (`calib.auto`'s "consider" covariance, which ``auto`` reports before it has enough
+        samples to estimate camera parameters). Equal to `camera_cov` without free corrections."""
+        n = self.information.shape[0]
+        if n == N_PARAMS:
+            return self.camera_cov()
+        c = np.arange(N_PARAMS, n)
+        prior_c = np.diag(self._prior)[c]
+        N_xx = self.information[:N_PARAMS, :N_PARAMS]
+        S = np.linalg.solve(N_xx, self.information[:N_PARAMS, c])
+        cov = (np.linalg.inv(N_xx) + (S / prior_c) @ S.T)[:6, :6]
+        return 0.5 * (cov + cov.T)
 
     def gains(self, A) -> np.ndarray:
         """Expected D-optimal gain (nats) of sampling at each flange pose of A (N, 4, 4)."""
@@ -613,12 +633,22 @@ def bootstrap_poses(T_start, setup: str, view: CameraView, point_cam, config: Pl
     along a different base axis. The amplitude is the largest fraction ``a <= 1``
     of ``(translation_range_m, tilt_deg)`` for which the marker provably stays
     in view whatever the unknown transforms are, given only the first
-    measurement (marker center ``point_cam`` and its ``view_angle_deg``) and a
-    bound on the lever arm (flange to marker, eye-to-hand; flange to camera,
-    eye-in-hand): the marker moves relative to the camera by at most
-    ``delta = |d| + theta (L + z0 [eye-in-hand])``, which must fit in the pixel
-    room to the image margin (``f delta / (z0 - delta)``), the depth range, and
-    the view angle budget (``theta``).
+    measurement (marker center ``point_cam`` at distance ``r0`` and depth
+    ``z0``, and a bound ``view_angle_deg`` on its view angle) and a bound ``L``
+    on the lever arm (flange to marker, eye-to-hand; flange to camera,
+    eye-in-hand). A turn by ``theta`` with an offset ``d`` moves
+
+    - the marker relative to the camera by at most
+      ``delta = |d| + theta (L + r0 [eye-in-hand])``: every marker corner (at
+      ``s = marker_size_m / sqrt 2`` from the center) then lies within
+      ``delta + s`` of the first center, whose pixel moves by at most
+      ``f (delta + s) sqrt(1 + (x0/z0)^2) / (z0 - delta - s)`` along u (y0 for
+      v), which must fit in the room to the image margin; the center's depth
+      stays within ``z0 +- delta``;
+    - the viewing ray by at most ``asin(delta_p / r0)``, with ``delta_p`` the
+      displacement of the marker (eye-to-hand: ``delta``) or of the camera
+      (eye-in-hand: ``|d| + theta L``), and eye-to-hand the marker's normal by
+      ``theta``: the view angle stays below ``view_angle_deg`` plus these.
 
     Returns
     -------
@@ -632,21 +662,29 @@ def bootstrap_poses(T_start, setup: str, view: CameraView, point_cam, config: Pl
         raise CalibrationError(f"point_cam must be a finite 3-vector in front of the camera, got {point_cam!r}")
     if not 1 <= n <= len(_BOOTSTRAP):
         raise CalibrationError(f"n must be in 1..{len(_BOOTSTRAP)}, got {n}")
-    z0, f = float(p0[2]), max(view.fx, view.fy)
+    z0, r0 = float(p0[2]), float(np.linalg.norm(p0))
     u, v = view.project(p0)
-    half_px = f * view.marker_size_m / 2 * math.sqrt(2) / z0
-    room_px = min(u, view.width - u, v, view.height - v) - view.margin_px - 2 * half_px
+    m = view.margin_px
+    room_u, room_v = min(u - m, view.width - m - u), min(v - m, view.height - m - v)
+    # Pixel shift per metre of 3-D displacement near the first center (the projection's slope, bounded).
+    gain_u = view.fx * math.hypot(1.0, p0[0] / z0)
+    gain_v = view.fy * math.hypot(1.0, p0[1] / z0)
+    s = view.marker_size_m / math.sqrt(2)
     theta_max = math.radians(config.tilt_deg)
-    lever = lever_max_m + (z0 if setup == Setup.EYE_IN_HAND else 0.0)
+    eye_in_hand = setup == Setup.EYE_IN_HAND
+    room_px = min(room_u, room_v)
 
     def safe(a: float) -> bool:
         theta = a * theta_max
-        delta = a * config.translation_range_m + theta * lever
-        if delta >= z0 - view.depth_min_m or z0 + delta > view.depth_max_m:
+        moved = a * config.translation_range_m + theta * lever_max_m  # the carried marker / camera origin
+        delta = moved + (theta * r0 if eye_in_hand else 0.0)
+        if delta >= z0 - view.depth_min_m or z0 + delta > view.depth_max_m or moved >= r0:
             return False
-        if view_angle_deg + math.degrees(theta) > view.max_view_angle_deg:
+        ray = math.degrees(math.asin(moved / r0))
+        if view_angle_deg + ray + (0.0 if eye_in_hand else math.degrees(theta)) > view.max_view_angle_deg:
             return False
-        return f * delta / (z0 - delta) <= room_px
+        e = delta + s
+        return e < z0 and gain_u * e / (z0 - e) <= room_u and gain_v * e / (z0 - e) <= room_v
 
     if room_px <= 0 or not safe(0.02):
         return np.zeros((0, 4, 4))

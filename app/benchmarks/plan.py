@@ -10,18 +10,21 @@ Run ``python -m app.benchmarks.plan [--seeds N] [--validity-poses N] [--out DIR]
    camera, one full ``calibrate`` run per strategy and seed (the seed drives
    the pose candidates and the camera noise): robot motions until the
    predicted 1-sigma of the camera transform (``T_base_cam`` eye-to-hand,
-   ``T_flange_cam`` eye-in-hand; refined YKronT') is below 1 mm and 0.1 deg
-   (first check after 5 samples, the solver's minimum; at most 40 samples).
-   Strategies: ``optimal`` (`calib.planner`), ``random`` (uniform in the same
-   box and tilt), and ``fixed17``: a 17-pose pattern of the kind ROS tools
-   ship (start, +-tilt about the flange x, y, z, +-offset along base x, y, z,
-   four combined), at 2/3 of the same ranges, replayed as a plan file.
-   Robot time is the time spent in ``move_to`` (until settled).
+   ``T_flange_cam`` eye-in-hand; the cell's configured solver, ``auto``, as
+   ``calibrate`` runs it) is below 1 mm and 0.1 deg (first check after 5
+   samples; at most 40 samples). Strategies: ``optimal`` (`calib.planner`),
+   ``random`` (uniform in the same box and tilt), ``fixed17``: a 17-pose
+   pattern of the kind ROS tools ship (start, +-tilt about the flange x, y, z,
+   +-offset along base x, y, z, four combined), at 2/3 of the same ranges,
+   replayed as a plan file, and ``plan``: ``handeye plan`` (prior: the
+   simulator's truth, noise measured at the start) replayed, its expected
+   1-sigma compared with what the run reached. Robot time is the time spent
+   in ``move_to`` (until settled).
 2. **Validity**: the planning loop without rendering: cells with random true
    mountings (marker within 10 cm of the flange, turned up to 30 deg; eye-in-
    hand camera within 10 cm, marker anywhere in view), synthetic measurements
    from the truth with the `calib.noise` depth model, the estimate re-solved
-   (YKronT' + refinement) after every sample. Every planned pose (bootstrap
+   (the cell's solver, ``auto``) after every sample. Every planned pose (bootstrap
    and optimal) is checked independently: `URRobot.check_target` of the
    simulated cell's driver from the previous joints (joint limits, workspace
    box, tilt cone, path) and, under the TRUE mounting, all four marker
@@ -38,7 +41,6 @@ for _var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
     os.environ.setdefault(_var, "1")
 
 import argparse  # noqa: E402
-import dataclasses  # noqa: E402
 import math  # noqa: E402
 import sys  # noqa: E402
 import tempfile  # noqa: E402
@@ -51,7 +53,7 @@ from app import devices, planning  # noqa: E402
 from app.config import load_config  # noqa: E402
 from calib import planner as pl  # noqa: E402
 from calib import transforms as tf  # noqa: E402
-from calib.api import solve  # noqa: E402
+from calib.api import solve_observations  # noqa: E402
 from calib.errors import CalibrationError, HandeyeError  # noqa: E402
 from calib.noise import default_point_cov  # noqa: E402
 from calib.setup import Setup  # noqa: E402
@@ -60,6 +62,7 @@ from drivers.camera.base import CameraIntrinsics  # noqa: E402
 CELLS = {Setup.EYE_TO_HAND: "config/sim.toml", Setup.EYE_IN_HAND: "config/eye_in_hand.toml"}
 TARGET_MM, TARGET_DEG = 1.0, 0.1
 MAX_SAMPLES = 40
+STRATEGIES = ("optimal", "random", "fixed17", "plan")
 INTR = CameraIntrinsics(640, 480, 570.0, 570.0, 319.5, 239.5)
 HOST_NET = "127.0.79"
 
@@ -86,10 +89,9 @@ def fixed_pattern(T_start: np.ndarray, translation_m: float, tilt_deg: float) ->
 def _cell_config(setup: str, seed: int, host: str, root: Path, poses: str):
     cfg = load_config(CELLS[setup])
     data = cfg.model_dump()
-    # The paper's solver, refined, for every strategy: the comparison is about the poses, not the model
-    # ("auto" adds camera corrections only from 12 samples on, which would hide the difference).
+    # The cell's own solver (`auto` in the shipped configs), as `calibrate` runs it.
     data["calibrate"].update(poses=poses, seed=seed, target_sigma_mm=TARGET_MM, target_sigma_deg=TARGET_DEG,
-                             min_samples=5, samples=MAX_SAMPLES, method="YKronT'", refine=True)
+                             min_samples=5, samples=MAX_SAMPLES)
     data["robot"]["host"] = host
     data["camera"]["seed"] = seed
     data["session"].update(root=str(root), save_frames=False, exports=["json"])
@@ -103,6 +105,12 @@ def run_strategy(setup: str, strategy: str, seed: int, host: str, root: Path) ->
     from drivers.robot import ur_kinematics as kin
 
     poses = strategy
+    planned = None
+    if strategy == "plan":
+        from app.commands.plan import plan
+
+        planned = plan(_cell_config(setup, seed, host, root, "optimal"), root / f"plan_{setup}_{seed}.json").document
+        poses = str(root / f"plan_{setup}_{seed}.json")
     if strategy == "fixed17":
         cfg = _cell_config(setup, seed, host, root, "random")
         T0 = kin.forward(np.array(cfg.robot.initial_q), cfg.robot.model)
@@ -120,7 +128,15 @@ def run_strategy(setup: str, strategy: str, seed: int, host: str, root: Path) ->
     return {"setup": setup, "strategy": strategy, "seed": seed, "reached": r.stopped_by == "target_sigma",
             "stopped_by": r.stopped_by, "motions": r.n_motions, "samples": r.n_samples, "robot_s": r.robot_time_s,
             "sigma_mm": s_mm, "sigma_deg": s_deg, "err_mm": float(err[1]) * 1e3, "err_deg": math.degrees(err[0]),
-            "lost_marker": lost, "limit_refused": sum(n for why, n in r.skip_reasons.items() if why.startswith("limit:"))}
+            "lost_marker": lost, "limit_refused": sum(n for why, n in r.skip_reasons.items() if why.startswith("limit:")),
+            **(_expected(planned, r.n_samples) if planned is not None else {})}
+
+
+def _expected(doc: dict, n_samples: int) -> dict:
+    """What ``plan.json`` expected: its motions and the 1-sigma after the pose where the replay stopped."""
+    row = doc["poses"][max(min(n_samples, len(doc["poses"])) - 1, 0)]
+    return {"planned_motions": len(doc["poses"]) - 1, "expected_mm": row["expected_sigma_mm"],
+            "expected_deg": row["expected_sigma_deg"], "noise_model": doc["noise_model"]}
 
 
 # --------------------------------------------------------------------------- 2. validity
@@ -148,15 +164,22 @@ def _random_cell(setup: str, cfg, T0: np.ndarray, rng: np.random.Generator):
     raise RuntimeError("no visible random cell found")
 
 
+#: Orientation noise of the synthetic marker poses, rad per axis.
+MARKER_ROT_SIGMA = math.radians(1.0)
+
+
 def _measure(setup, X, Y, A, rng):
-    """Synthetic marker point (depth-model noise) and a marker pose with 1 deg orientation noise."""
+    """Synthetic marker point (depth-model noise) and a marker pose with `MARKER_ROT_SIGMA` orientation noise,
+    with their covariances."""
     T_cm = (tf.invert(Y) @ A @ X) if setup == Setup.EYE_TO_HAND else (tf.invert(A @ X) @ Y)
     p = T_cm[:3, 3]
     cov = default_point_cov(p[None])[0]
     p_meas = p + np.linalg.cholesky(cov) @ rng.normal(size=3)
-    B = tf.make_transform(tf.so3_exp(rng.normal(0, math.radians(1.0), 3))
-                          @ T_cm[:3, :3], p_meas)
-    return p_meas, cov, B
+    B = tf.make_transform(tf.so3_exp(rng.normal(0, MARKER_ROT_SIGMA, 3)) @ T_cm[:3, :3], p_meas)
+    pose_cov = np.zeros((6, 6))
+    pose_cov[:3, :3] = MARKER_ROT_SIGMA**2 * np.eye(3)
+    pose_cov[3:, 3:] = cov
+    return p_meas, cov, B, pose_cov
 
 
 class CheckedRobot:
@@ -195,7 +218,7 @@ def validity_run(setup: str, cfg, robot, state, rng: np.random.Generator, max_po
     from drivers.robot.base import RobotState
 
     X, Y = _random_cell(setup, cfg, state.T_base_flange, rng)
-    truth_view = dataclasses.replace(planning.camera_view(cfg.calibrate, INTR, cfg.marker), margin_px=0.0)
+    truth_view = planning.camera_view(cfg.calibrate, INTR, cfg.marker).model_copy(update={"margin_px": 0.0})
     truth = pl.PosePlanner(setup, X, Y, truth_view, pl.PlannerConfig(uncertainty_k=0))
     checked = CheckedRobot(robot)
     source = planning.OptimalPoses(cfg, state.T_base_flange, planning.camera_view(cfg.calibrate, INTR, cfg.marker),
@@ -233,13 +256,11 @@ def validity_run(setup: str, cfg, robot, state, rng: np.random.Generator, max_po
         else:
             q = cur.q
         cur = RobotState(0.0, 0.0, T, q, np.zeros(6), 7, 1)
-        p, c, B = _measure(setup, X, Y, T, rng)
-        obs.append(Observation(len(obs), 0.0, T, p, c, B))
+        p, c, B, pose_cov = _measure(setup, X, Y, T, rng)
+        obs.append(Observation(len(obs), 0.0, T, p, c, B, pose_cov))
         if len(obs) >= 3:
             try:
-                estimate = solve("YKronT'", np.array([o.T_base_flange for o in obs]),
-                                 np.array([o.point_cam for o in obs]), setup=setup, refine=True,
-                                 point_cov=np.array([o.point_cov for o in obs]))
+                estimate = solve_observations(cfg.calibrate.method, obs, setup, refine=cfg.calibrate.refine)
             except CalibrationError:
                 estimate = None
             if estimate is not None and len(obs) >= 5:
@@ -263,13 +284,14 @@ def _median(values):
 def format_report(runs: list[dict], val: dict, elapsed: float) -> str:
     lines = ["# Pose planning benchmark (`handeye bench --plan`)", "",
              f"Target: predicted 1-sigma of the camera transform <= {TARGET_MM} mm and {TARGET_DEG} deg "
-             f"(refined YKronT', first check after 5 samples, at most {MAX_SAMPLES}). Simulated cells through the "
+             f"(the cells' solver, `auto`, as `calibrate` runs it; first check after 5 samples, at most "
+             f"{MAX_SAMPLES}). Simulated cells through the "
              "real driver and the rendered camera; eye-to-hand: `T_base_cam`, eye-in-hand: `T_flange_cam`.", "",
              "| cell | poses | runs | reached | motions (median) | motions (per seed) | robot time [s] (median) "
              "| final 1-sigma [mm / deg] (median) | error vs truth [mm / deg] (median) | marker lost after a motion |",
              "|---|---|---|---|---|---|---|---|---|---|"]
     for setup in CELLS:
-        for strategy in ("optimal", "random", "fixed17"):
+        for strategy in STRATEGIES:
             rs = [r for r in runs if r["setup"] == setup and r["strategy"] == strategy]
             if not rs:
                 continue
@@ -283,7 +305,24 @@ def format_report(runs: list[dict], val: dict, elapsed: float) -> str:
                 f"{_median([r['sigma_mm'] for r in rs]):.2f} / {_median([r['sigma_deg'] for r in rs]):.3f} | "
                 f"{_median([r['err_mm'] for r in rs]):.2f} / {_median([r['err_deg'] for r in rs]):.3f} | "
                 f"{sum(r['lost_marker'] for r in rs)} |")
-    lines += ["", "`*` = the run ended (max samples, or the fixed pattern was used up) before the target.", ""]
+    lines += ["", "`*` = the run ended (max samples, or the fixed pattern / plan was used up) before the target.", ""]
+    plans = [r for r in runs if r["strategy"] == "plan"]
+    if plans:
+        lines += ["`handeye plan` (plan.json) against its replay: motions planned to reach the target and made; "
+                  "expected 1-sigma after the pose where the replay stopped and the 1-sigma it reached there "
+                  "(medians; expected / reached per seed in mm).", "",
+                  "| cell | runs | motions planned / made | expected 1-sigma [mm / deg] | reached [mm / deg] "
+                  "| expected / reached, mm, per seed |", "|---|---|---|---|---|---|"]
+        for setup in CELLS:
+            rs = [r for r in plans if r["setup"] == setup]
+            if rs:
+                lines.append(
+                    f"| {setup} | {len(rs)} | {_median([r['planned_motions'] for r in rs]):.0f} / "
+                    f"{_median([r['motions'] for r in rs]):.0f} | {_median([r['expected_mm'] for r in rs]):.2f} / "
+                    f"{_median([r['expected_deg'] for r in rs]):.3f} | {_median([r['sigma_mm'] for r in rs]):.2f} / "
+                    f"{_median([r['sigma_deg'] for r in rs]):.3f} | "
+                    + ", ".join(f"{r['expected_mm']:.2f} / {r['sigma_mm']:.2f}" for r in rs) + " |")
+        lines += ["", f"Noise model of the plans: {plans[0]['noise_model']}.", ""]
     for setup in CELLS:
         o = [r["motions"] for r in runs if r["setup"] == setup and r["strategy"] == "optimal" and r["reached"]]
         rnd = [r["motions"] for r in runs if r["setup"] == setup and r["strategy"] == "random" and r["reached"]]
@@ -321,10 +360,9 @@ def plot(path: Path, runs: list[dict]) -> None:
 
     fig, axes = plt.subplots(1, 2, figsize=(10, 4))
     for ax, setup in zip(axes, CELLS):
-        data = [[r["motions"] for r in runs if r["setup"] == setup and r["strategy"] == s]
-                for s in ("optimal", "random", "fixed17")]
+        data = [[r["motions"] for r in runs if r["setup"] == setup and r["strategy"] == s] for s in STRATEGIES]
         ax.boxplot(data)
-        ax.set_xticks([1, 2, 3], ["optimal", "random", "fixed 17"])
+        ax.set_xticks(range(1, len(STRATEGIES) + 1), ["optimal", "random", "fixed 17", "plan.json"])
         ax.set_title(f"{setup}: motions to 1 mm / 0.1 deg")
         ax.set_ylabel("robot motions")
     fig.tight_layout()
@@ -350,7 +388,7 @@ def main(argv=None) -> int:
         k = 0
         for setup in (CELLS if args.part != "validity" else ()):
             for seed in range(args.seed, args.seed + args.seeds):
-                for strategy in ("optimal", "random", "fixed17"):
+                for strategy in STRATEGIES:
                     for attempt in range(3):  # a simulator starved of CPU by other work may freeze its stream
                         k += 1
                         try:

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import logging
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -24,8 +25,10 @@ from app.session import read_session
 from app.viz import Viz
 from calib import transforms as tf
 from calib.api import solve_observations
-from calib.errors import HandeyeError
+from calib.errors import ExtractionError, HandeyeError
 from calib.setup import Setup
+
+log = logging.getLogger(__name__)
 
 NAME = "plan"
 HELP = "plan the calibration poses without moving: plan.json + a rerun recording (replay: calibrate --poses plan.json)"
@@ -103,6 +106,17 @@ def load_prior(cfg: Config, prior: Path | None, camera, T_start: np.ndarray) -> 
     return X, Y, f"result {prior}"
 
 
+def measure_start(cfg: Config, camera) -> tuple | None:
+    """``(point_cam, point_cov)`` of the marker in one frame where the robot stands, so that the plan expects
+    this camera's noise (None, with a warning, when the frame shows no marker: the default model is used)."""
+    try:
+        m = devices.make_measure(cfg)(camera.read())
+    except ExtractionError as e:
+        log.warning("no marker measurement at the start pose (%s): expected 1-sigma from the default noise model", e)
+        return None
+    return m.point_cam, m.point_cov
+
+
 def plan(cfg: Config, out: Path, *, prior: Path | None = None) -> PlanOutput:
     """Plan the poses of an active run without moving (read-only robot connection): write ``out``
     (plan.json, see `app.planning`) and a rerun recording beside it."""
@@ -111,7 +125,7 @@ def plan(cfg: Config, out: Path, *, prior: Path | None = None) -> PlanOutput:
         state = robot.read()
         X, Y, prior_name = load_prior(cfg, prior, camera, state.T_base_flange)
         doc, poses, _ = planning.make_plan(cfg, X, Y, state.T_base_flange, state.q, camera.intrinsics, robot, rng,
-                                           prior=prior_name)
+                                           prior=prior_name, start_measurement=measure_start(cfg, camera))
         intrinsics = camera.intrinsics
     path = planning.write_plan(doc, out)
     rrd = None

@@ -55,12 +55,29 @@ class ClockMapper:
 
 def interpolate_pose(T0: np.ndarray, T1: np.ndarray, s: float) -> np.ndarray:
     """Pose a fraction ``s`` in [0, 1] of the way from ``T0`` to ``T1`` (lerp + SLERP)."""
-    r0 = Rotation.from_matrix(T0[:3, :3])
-    dr = (r0.inv() * Rotation.from_matrix(T1[:3, :3])).as_rotvec()
-    T = np.eye(4)
-    T[:3, :3] = (r0 * Rotation.from_rotvec(s * dr)).as_matrix()
-    T[:3, 3] = (1.0 - s) * T0[:3, 3] + s * T1[:3, 3]
-    return T
+    return pose_path(T0, T1)(s)
+
+
+def pose_path(T0: np.ndarray, T1: np.ndarray):
+    """``s -> interpolate_pose(T0, T1, s)`` with the relative rotation's axis and angle taken once
+    (a path check evaluates a hundred fractions of one motion)."""
+    R0, t0, t1 = T0[:3, :3], T0[:3, 3], T1[:3, 3]
+    dr = Rotation.from_matrix(R0.T @ T1[:3, :3]).as_rotvec()
+    angle = float(np.linalg.norm(dr))
+    K = np.zeros((3, 3))
+    if angle > 0:
+        kx, ky, kz = dr / angle
+        K = np.array([[0.0, -kz, ky], [kz, 0.0, -kx], [-ky, kx, 0.0]])
+    K2 = K @ K
+
+    def at(s: float) -> np.ndarray:
+        a = s * angle
+        T = np.eye(4)
+        T[:3, :3] = R0 @ (np.eye(3) + np.sin(a) * K + (1.0 - np.cos(a)) * K2)  # Rodrigues
+        T[:3, 3] = (1.0 - s) * t0 + s * t1
+        return T
+
+    return at
 
 
 class StateBuffer:

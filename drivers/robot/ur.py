@@ -40,7 +40,7 @@ from calib.transforms import from_ur_pose, invert, pose_error, to_ur_pose
 from drivers.robot import ur_kinematics as kin
 from drivers.robot.base import Robot, RobotState
 from drivers.robot.registry import ROBOTS
-from drivers.robot.buffer import ClockMapper, StateBuffer, interpolate_pose
+from drivers.robot.buffer import ClockMapper, StateBuffer, pose_path
 from drivers.robot.ur_client import ClientDied, RTDEClient
 
 log = logging.getLogger(__name__)
@@ -519,13 +519,19 @@ class URRobot(Robot):
         cfg = self.config
         limits = cfg.joint_limits
         T_tcp_flange = invert(self._T_flange_tcp)
+        path = pose_path(T0_tcp, T1_tcp)
         n = max(1, math.ceil(length / cfg.path_step))
         todo = list(np.linspace(0.0, 1.0, n + 1)[:0:-1])  # stack, next sample last
+        # A sample refused for a large joint step comes back after the finer ones: its IK solutions are kept.
+        solved: dict[float, tuple] = {}
         q, s_prev = q0, 0.0
         while todo:
             s = todo.pop()
-            Ts = interpolate_pose(T0_tcp, T1_tcp, s) @ T_tcp_flange
-            qs = kin.inverse_nearest(Ts, q, cfg.model, limits)
+            if s not in solved:
+                Ts = path(s) @ T_tcp_flange
+                solved[s] = Ts, kin.inverse_all(Ts, cfg.model)
+            Ts, solutions = solved[s]
+            qs = kin.nearest_solution(solutions, q, limits)
             dq = np.inf if qs is None else float(np.max(np.abs(qs - q)))
             if dq > MAX_PATH_DQ and (s - s_prev) * length > MIN_PATH_STEP:
                 todo += [s, 0.5 * (s_prev + s)]

@@ -272,10 +272,15 @@ def inverse_nearest(T_base_flange, q_near, model: str | URGeometry, limits=UR_JO
     -------
     q : ndarray, shape (6,), or None when no solution is reachable within the limits.
     """
+    return nearest_solution(inverse_all(T_base_flange, model), q_near, limits)
+
+
+def nearest_solution(solutions: np.ndarray, q_near, limits=UR_JOINT_LIMITS) -> np.ndarray | None:
+    """`inverse_nearest` on the solutions (K, 6) of `inverse_all` (computed once, chosen from many ``q_near``)."""
     q_near = check_q(q_near, "q_near").tolist()
     lims = np.asarray(limits, dtype=float).tolist()
     best, best_cost = None, math.inf
-    for sol in inverse_all(T_base_flange, model).tolist():
+    for sol in solutions.tolist():
         # Each joint: the 2-pi multiple nearest q_near among those inside the limits.
         q, cost = [], 0.0
         for x, near, (lo, hi) in zip(sol, q_near, lims):

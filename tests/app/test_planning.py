@@ -71,6 +71,38 @@ def test_resumed_session_without_a_start_sample_goes_back_to_the_start_first():
     assert target.kind == "start" and np.allclose(target.T_base_flange, T0)
 
 
+def test_view_angle_bound_covers_the_error_of_the_measured_orientation():
+    """Regression (bench validity run, seed 0): the first sample measured the marker at 28.6 deg, 0.9 deg below
+    its true 29.5 deg; the bootstrap relied on the measured figure. The bound adds k sigma of the orientation."""
+    B_true = tf.make_transform(tf.so3_exp([0.0, np.radians(29.5), 0.0]), [0.0, 0.0, 0.84])
+    B_true[:3, :3] = B_true[:3, :3] @ np.diag([1.0, -1.0, -1.0])  # the marker faces the camera, turned 29.5 deg
+    B_meas = B_true.copy()
+    B_meas[:3, :3] = tf.so3_exp([0.0, np.radians(-0.9), 0.0]) @ B_true[:3, :3]
+    pose_cov = np.diag([np.radians(1.0) ** 2] * 3 + [1e-6] * 3)
+    measured = planning.view_angle_bound(Observation(0, 0.0, np.eye(4), B_meas[:3, 3], None, B_meas), 0.0)
+    assert measured == pytest.approx(28.6, abs=1e-6)
+    bound = planning.view_angle_bound(Observation(0, 0.0, np.eye(4), B_meas[:3, 3], None, B_meas, pose_cov), 3.0)
+    assert bound == pytest.approx(31.6, abs=1e-6) and bound > 29.5
+    no_cov = planning.view_angle_bound(Observation(0, 0.0, np.eye(4), B_meas[:3, 3], None, B_meas), 3.0)
+    assert no_cov == pytest.approx(28.6 + 3 * planning.MARKER_ANGLE_SIGMA_DEG, abs=1e-6)
+
+
+def test_auto_runs_plan_for_the_camera_corrections_auto_estimates_or_considers():
+    from types import SimpleNamespace
+
+    from calib.auto import CONSIDER_SIGMA
+
+    assert planning.camera_correction("YKronT'", None) is None
+    theta, free, sigma = planning.camera_correction("auto", None)
+    assert free == (True, True, True) and np.all(theta == 0)
+    assert list(sigma) == [CONSIDER_SIGMA[n] for n in ("depth_scale", "depth_offset", "focal_scale")]
+    est = SimpleNamespace(info={"camera_correction": {
+        "depth_scale": {"value": 0.01, "estimated": True}, "depth_offset": {"value": 0.0, "estimated": False},
+        "focal_scale": {"value": 0.0, "estimated": False}}})
+    theta, free, sigma = planning.camera_correction("auto", est)
+    assert theta[0] == 0.01 and sigma[0] == 1.0 and sigma[1] == CONSIDER_SIGMA["depth_offset"]
+
+
 def test_plan_file_round_trip_and_named_errors(tmp_path):
     cfg, X, Y, T0 = _cell()
     doc, poses, _ = planning.make_plan(cfg, X, Y, T0, None, INTR, None, np.random.default_rng(0), prior="test", n=6)

@@ -23,10 +23,13 @@ def test_report_gives_the_ratio_and_marks_runs_that_missed_the_target():
                  lost_marker=0, limit_refused=0)
             for s, ms in (("optimal", (4, 5, 6)), ("random", (9, 10, 12)), ("fixed17", (17, 17, 17)))
             for k, m in enumerate(ms) for r in [not (s == "fixed17" and k == 0)]]
+    runs += [dict(runs[0], strategy="plan", seed=k, motions=5, planned_motions=6, expected_mm=e, expected_deg=0.09,
+                  noise_model="anchored") for k, e in enumerate((1.1, 1.2, 1.3))]
     val = {"poses": 12000, "invalid_robot": 0, "invalid_view": 1, "no_valid_pose": 2, "cells": 300, "check_calls": 4,
            "check_cpu_s": 0.8, "wall_ms": [10.0, 20.0, 30.0], "cpu_ms": [10.0, 20.0, 30.0],
            "cpu_planner_ms": [5.0, 6.0, 7.0], "reached": [20, 30]}
     text = format_report(runs, val, 1.0)
     assert "= 0.50 (target <= 0.5)" in text
     assert "| eye_to_hand | fixed17 | 3 | 2 | > 17 (not all reached) | 17*, 17, 17 |" in text
+    assert "| eye_to_hand | 3 | 6 / 5 | 1.20 / 0.090 | 0.90 / 0.080 | 1.10 / 0.90, 1.20 / 0.90, 1.30 / 0.90 |" in text
     assert "1 invalid of 12000 planned poses" in text and "| 200 (mean of 4) |" in text

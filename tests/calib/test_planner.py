@@ -4,7 +4,8 @@ import numpy as np
 import pytest
 
 from calib import transforms as tf
-from calib.errors import CalibrationError
+from calib.errors import CalibrationError, ParameterError
+from calib.noise import default_point_cov
 from calib.planner import (
     CameraView,
     KeepOut,
@@ -18,7 +19,7 @@ from calib.planner import (
 )
 from calib.simulate import realistic_cell
 
-VIEW = CameraView(640, 480, 570.0, 570.0, 319.5, 239.5, margin_px=40, depth_min_m=0.4, depth_max_m=2.0,
+VIEW = CameraView(width=640, height=480, fx=570.0, fy=570.0, cx=319.5, cy=239.5, margin_px=40, depth_min_m=0.4, depth_max_m=2.0,
                   max_view_angle_deg=60.0, marker_size_m=0.05)
 
 
@@ -129,7 +130,7 @@ def test_keep_out_box_on_the_path_rejects_the_candidate():
     target = T0.copy()
     target[:3, 3] += [0.0, 0.0, -0.2]
     mid = 0.5 * (T0[:3, 3] + target[:3, 3])
-    box = KeepOut(tuple(mid - 0.01), tuple(mid + 0.01))
+    box = KeepOut(min=tuple(mid - 0.01), max=tuple(mid + 0.01))
     free = PosePlanner("eye_to_hand", X, Y, VIEW, PlannerConfig(uncertainty_k=0))
     blocked = PosePlanner("eye_to_hand", X, Y, VIEW, PlannerConfig(uncertainty_k=0, keep_out=(box,)))
     assert free.screen(target[None], T0)[0][0]
@@ -190,6 +191,23 @@ def test_bootstrap_keeps_the_marker_in_view_for_any_mounting_within_the_lever_bo
     assert truth.screen(B)[0].all()
 
 
+def test_bootstrap_bounds_the_turn_of_the_viewing_ray():
+    """Regression (bench validity run, seed 0, cell 26): an oblique marker (29.5 deg) off the flange axis.
+
+    The bound used to budget the view angle for the marker's own turn only; the offset also turns the ray
+    from the camera, and the second bootstrap pose showed the marker at 60.9 deg (limit 60)."""
+    X = tf.make_transform(tf.so3_exp([0.149881, 0.481381, 0.531920]), [0.013413, -0.012891, -0.029743])
+    Y = tf.make_transform(tf.so3_exp([-2.003830, 0.280646, -0.176471]), [0.7, -0.6, 0.85])
+    T0 = tf.make_transform(tf.so3_exp([-0.216067, -1.542730, 2.453443]), [0.9, 0.1, 0.5])
+    truth = PosePlanner("eye_to_hand", X, Y, VIEW.model_copy(update={"margin_px": 0.0}), PlannerConfig(uncertainty_k=0))
+    first = truth.marker_in_camera(T0[None])[0]
+    angle = np.degrees(np.arccos(-first[:3, 2] @ first[:3, 3] / np.linalg.norm(first[:3, 3])))
+    assert 29 < angle < 30
+    B = bootstrap_poses(T0, "eye_to_hand", VIEW, first[:3, 3], PlannerConfig(tilt_deg=40.0, translation_range_m=0.15),
+                        lever_max_m=0.1, view_angle_deg=angle)
+    assert len(B) == 5 and truth.screen(B)[0].all(), dict(truth.stats.reasons)
+
+
 def test_marker_rotation_recovers_the_flange_marker_rotation():
     d = realistic_cell(8, np.random.default_rng(2))
     X_point_only = tf.make_transform(np.eye(3), d.X[:3, 3])
@@ -199,12 +217,31 @@ def test_marker_rotation_recovers_the_flange_marker_rotation():
 
 
 def test_bad_inputs_are_named():
-    with pytest.raises(CalibrationError, match="margin_px"):
-        CameraView(640, 480, 570, 570, 320, 240, margin_px=300)
-    with pytest.raises(CalibrationError, match="n_candidates"):
+    with pytest.raises(ParameterError, match="margin_px"):
+        CameraView(**{**VIEW.model_dump(), "margin_px": 300})
+    with pytest.raises(ParameterError, match="CameraView.fx"):
+        CameraView(width=640, height=480, fx=True, fy=570, cx=320, cy=240)
+    with pytest.raises(ParameterError, match="depth_min_m < depth_max_m"):
+        CameraView(width=640, height=480, fx=570, fy=570, cx=320, cy=240, depth_min_m=2.5)
+    with pytest.raises(ParameterError, match="CameraView.max_view_angle_deg"):
+        CameraView(width=640, height=480, fx=570, fy=570, cx=320, cy=240, max_view_angle_deg=90)
+    with pytest.raises(ParameterError, match="PlannerConfig.n_candidates"):
         PlannerConfig(n_candidates=0)
-    with pytest.raises(CalibrationError, match="KeepOut"):
-        KeepOut((0, 0, 0), (0, 1, 1))
+    with pytest.raises(ParameterError, match="PlannerConfig.n_candidates"):
+        PlannerConfig(n_candidates=300.0)
+    with pytest.raises(ParameterError, match="PlannerConfig.travel_weight"):
+        PlannerConfig(travel_weight=float("nan"))
+    with pytest.raises(ParameterError, match="PlannerConfig.local_fraction"):
+        PlannerConfig(local_fraction=1.5)
+    with pytest.raises(ParameterError, match="workspace_min and workspace_max go together"):
+        PlannerConfig(workspace_min=(0, 0, 0))
+    with pytest.raises(ParameterError, match="KeepOut: min"):
+        KeepOut(min=(0, 0, 0), max=(0, 1, 1))
+    with pytest.raises(ParameterError, match="PlannerConfig.keep_out.0: min"):
+        PlannerConfig(keep_out=[((0, 0, 0), (0, 1, 1))])
+    with pytest.raises(ParameterError, match="PlannerConfig.speed_m_s"):
+        PlannerConfig(speed_m_s=0)
+    assert PlannerConfig(keep_out=[((0, 0, 0), (1, 1, 1))]).keep_out == (KeepOut(min=(0, 0, 0), max=(1, 1, 1)),)
     with pytest.raises(CalibrationError, match="point_cam"):
         bootstrap_poses(np.eye(4), "eye_to_hand", VIEW, [0, 0, -1], PlannerConfig())
 
@@ -252,3 +289,46 @@ def test_camera_correction_is_planned_for_when_it_is_estimated():
             cov = np.linalg.inv(judge.information + judge.sample_information(A).sum(axis=0))
             sig[aware].append(np.sqrt(np.diag(cov)[9:11]))  # depth scale, depth offset
     assert np.all(np.mean(sig[True], axis=0) < np.mean(sig[False], axis=0))
+
+
+@pytest.mark.parametrize("n", [8, 16])
+def test_predicted_covariance_is_what_auto_reports(n):
+    """With the camera corrections as unknowns with calib.auto's typical errors as priors, the planner predicts
+    the camera 1-sigma solve("auto") reports: below MIN_SAMPLES_CAMERA the consider covariance (corrections
+    at nominal), from it on the estimated one (synthetic samples at planned poses, 0.3 mm along the ray)."""
+    from calib.api import solve
+    from calib.auto import CONSIDER_SIGMA, MIN_SAMPLES_CAMERA
+    from calib.model import CAMERA_PARAMS
+    from calib.result import worst_axis_sigma
+
+    def quiet(p):
+        return 0.01 * default_point_cov(p)
+
+    X, Y, T0 = _cell("eye_to_hand")
+    rng = np.random.default_rng(0)
+    prior = np.array([CONSIDER_SIGMA[m] for m in CAMERA_PARAMS])
+    planner = PosePlanner("eye_to_hand", X, Y, VIEW, PlannerConfig(uncertainty_k=0), quiet,
+                          correction=(np.zeros(3), (True, True, True), prior))
+    A = np.array([p.T_base_flange for p in planner.plan(T0, None, n, rng)])
+    P = (tf.invert(Y) @ A @ X)[:, :3, 3]
+    cov = quiet(P)
+    measured = P + np.einsum("nij,nj->ni", np.linalg.cholesky(cov), rng.normal(size=P.shape))
+    reported = worst_axis_sigma(solve("auto", A, measured, setup="eye_to_hand", point_cov=cov).cov)
+    predicted = worst_axis_sigma(planner.consider_cov() if n < MIN_SAMPLES_CAMERA else planner.camera_cov())
+    assert np.allclose(predicted, reported, rtol=0.15)
+    if n < MIN_SAMPLES_CAMERA:  # the corrections' typical errors dominate: 1 % depth scale is 7 mm at 0.7 m
+        assert worst_axis_sigma(planner.camera_cov())[1] < 0.3 * reported[1]
+    with pytest.raises(CalibrationError, match="sigma"):
+        PosePlanner("eye_to_hand", X, Y, VIEW, correction=(np.zeros(3), (False, True, False), [1, 0, 1]))
+
+
+def test_anchored_noise_model_keeps_the_default_depth_law_at_the_measured_level():
+    from calib.noise import anchored_point_cov
+
+    p0 = np.array([0.1, -0.05, 0.7])
+    S0 = default_point_cov(p0[None])[0]
+    points = np.array([[0.2, -0.1, 1.1], [0.0, 0.0, 0.5]])
+    assert np.allclose(anchored_point_cov(p0, S0)(points), default_point_cov(points), rtol=1e-9, atol=0)
+    assert np.allclose(anchored_point_cov(p0, 0.01 * S0)(points), 0.01 * default_point_cov(points), rtol=1e-9, atol=0)
+    with pytest.raises(CalibrationError, match="positive definite"):
+        anchored_point_cov(p0, np.zeros((3, 3)))
