@@ -25,8 +25,10 @@ detection. Everything runs on this process's own loopback /24 (``127.a.b.x``).
   its ports are still bound.
 - **kill -9 + resume** (``--kills``): ``handeye calibrate`` on the simulated cell is SIGKILLed
   (the process only, not its children) at a random moment after its first sample, then
-  ``handeye calibrate --resume`` completes the session. Lost = a sample readable right after
-  the kill that is missing (or has missing frames) after the resume.
+  ``handeye calibrate --resume`` completes the session; a resume that ends with a clean
+  one-line error is run again (up to 3 times, as a user would; the summary says how many
+  completed at the first). Lost = a sample readable right after the kill that is missing
+  (or has missing frames) after the resume.
 - **Targets vs the simulator's execution** (``--targets``): random moveL/moveJ targets from
   random start joints, 30 % aimed at the wrist/elbow singularities, checked by
   `URRobot.check_target` offline; every accepted one is executed by the simulator's own motion
@@ -72,6 +74,8 @@ ROBOT_FAULTS = {  # name: (expected error, what its message must say)
 RUN_TIMEOUT = 60.0
 DEFAULTS = dict(freeze=10, faults=5, app_freezes=5, parent_deaths=20, kills=6, targets=1000)
 QUICK = dict(freeze=2, faults=1, app_freezes=1, parent_deaths=3, kills=1, targets=100)
+#: --resume runs per killed session while each ends with a clean one-line error.
+RESUME_ATTEMPTS = 3
 FULL = dict(freeze=25, faults=10, app_freezes=10, parent_deaths=50, kills=100, targets=10000)
 
 
@@ -296,7 +300,7 @@ def _sim_config(path: Path, host: str) -> Path:
 
 def run_kills(runs: int, slots, seed: int, samples: int = 8) -> dict:
     row = {"fault": "kill -9 of calibrate + --resume", "runs": 0, "clean": 0, "crashes": 0, "hangs": 0, "lost": 0,
-           "detect": [], "errors": [], "resumable": 0}
+           "detect": [], "errors": [], "resumable": 0, "resumed_first": 0}
     rng = random.Random(seed)
     tmp = Path(tempfile.mkdtemp(prefix="handeye-faults-"))
     try:
@@ -330,10 +334,19 @@ def run_kills(runs: int, slots, seed: int, samples: int = 8) -> dict:
             except HandeyeError as exc:
                 row["errors"].append(f"killed session unreadable: {exc}")
                 continue
-            try:
-                res = subprocess.run([*cmd[:cmd.index("--seed")], "--resume", str(session)], capture_output=True,
-                                     text=True, timeout=180)
-            except subprocess.TimeoutExpired:
+            # A resume that ends with a clean one-line error (exit 1, e.g. a stream starved by host load) leaves
+            # the session as it was: the user runs --resume again. Up to RESUME_ATTEMPTS, each counted.
+            for attempt in range(1, RESUME_ATTEMPTS + 1):
+                try:
+                    res = subprocess.run([*cmd[:cmd.index("--seed")], "--resume", str(session)],
+                                         capture_output=True, text=True, timeout=180)
+                except subprocess.TimeoutExpired:
+                    res = None
+                    break
+                if res.returncode != 1:
+                    break
+                row["errors"].append(f"resume attempt {attempt} exit 1: {res.stderr.strip()[-200:]}")
+            if res is None:
                 row["hangs"] += 1
                 row["errors"].append("resume hung")
                 continue
@@ -349,6 +362,7 @@ def run_kills(runs: int, slots, seed: int, samples: int = 8) -> dict:
             row["lost"] += lost
             ok = res.returncode == 0 and len(after) >= samples and (session / "result.yaml").exists()
             row["resumable"] += int(ok)
+            row["resumed_first"] += int(ok and attempt == 1)
             row["clean"] += int(ok and lost == 0)
             if not ok:
                 row["errors"].append(f"resume exit {res.returncode}: {res.stderr.strip()[-300:]}")
@@ -546,7 +560,9 @@ def main(argv: list[str] | None = None) -> int:
     print(f"- calibrate with the stream frozen 60 s: {app_freeze['runs']}, native crashes {app_freeze['crashes']}, "
           f"hangs {app_freeze['hangs']}, clean one-line errors {app_freeze['clean']}")
     print(f"- parent deaths: {pd['runs']}, orphaned simulators {pd['orphans']}")
-    print(f"- kill -9 + resume: {kills['runs']}, samples lost {kills['lost']}, resumable {kills['resumable']}")
+    print(f"- kill -9 + resume: {kills['runs']}, samples lost {kills['lost']}, resumed to completion "
+          f"{kills['resumable']} ({kills['resumed_first']} at the first --resume, the others within "
+          f"{RESUME_ATTEMPTS})")
     print(f"- targets: {tg['runs']} ({tg['accepted']} accepted, {tg['refused']} refused of which "
           f"{tg['singular_refused']} near a singularity); accepted but outside the limits or through a singular "
           f"path in the simulator's execution: {tg['bad']}")
