@@ -431,14 +431,20 @@ def run_app_freezes(runs: int, slots, seed: int, seconds: float = 60.0) -> dict:
 
 
 # ---------------------------------------------------- targets vs simulator
-def _random_start(rng: np.random.Generator, robot) -> np.ndarray:
+def random_valid_start(rng: np.random.Generator, robot) -> np.ndarray:
     from drivers.robot import ur_kinematics as kin
 
-    lo, hi = np.asarray(robot.config.workspace_min), np.asarray(robot.config.workspace_max)
+    # A state the driver could have left the arm in: flange and TCP inside the box, tool inside the tilt cone.
+    # (Starts outside the cone made the oracle flag motions that only bring the arm back in.)
+    cfg = robot.config
+    lo, hi = np.asarray(cfg.workspace_min), np.asarray(cfg.workspace_max)
+    ref = np.asarray(cfg.tilt_reference) / np.linalg.norm(cfg.tilt_reference)
     while True:
         q = np.array(START_Q) + rng.uniform(-1.0, 1.0, 6) * [1.5, 0.8, 1.0, 1.5, 1.5, 2.0]
-        p = kin.forward(q, "ur10")[:3, 3]
-        if np.all(p > lo) and np.all(p < hi):
+        T = kin.forward(q, "ur10")
+        points = (T[:3, 3], (T @ robot.T_flange_tcp)[:3, 3])
+        tilt = math.degrees(math.acos(float(np.clip(T[:3, 2] @ ref, -1, 1))))
+        if all(np.all(p > lo) and np.all(p < hi) for p in points) and tilt < cfg.max_tilt_deg:
             return q
 
 
@@ -480,7 +486,7 @@ def run_targets(n: int, seed: int) -> dict:
     row = {"fault": "targets vs simulator execution", "runs": n, "clean": 0, "crashes": 0, "hangs": 0, "lost": None,
            "detect": [], "errors": [], "accepted": 0, "refused": 0, "bad": 0, "singular_refused": 0}
     for _ in range(n):
-        q0 = _random_start(rng, robot)
+        q0 = random_valid_start(rng, robot)
         q1 = q0 + rng.normal(0.0, 0.3, 6)
         if rng.random() < 0.3:  # aim at a singularity: the wrist (q5) or the elbow (q3) crosses zero
             j = 4 if rng.random() < 0.6 else 2
