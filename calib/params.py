@@ -92,3 +92,14 @@ class Params(BaseModel):
             err = ParameterError(describe(e, type(self).__name__))
             err.details = _details(e)
             raise err from None
+
+
+class PinholeParams(Params):
+    """Image size and pinhole intrinsics (px): the fields every camera description shares."""
+
+    width: PositiveInt
+    height: PositiveInt
+    fx: PositiveFloat
+    fy: PositiveFloat
+    cx: Float
+    cy: Float

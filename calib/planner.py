@@ -46,7 +46,7 @@ from calib import model
 from calib import transforms as tf
 from calib.errors import CalibrationError
 from calib.noise import default_point_cov
-from calib.params import Float, Fraction, NonNegativeFloat, Params, PositiveFloat, PositiveInt, Vector3
+from calib.params import Fraction, NonNegativeFloat, Params, PinholeParams, PositiveFloat, PositiveInt, Vector3
 from calib.setup import Setup, check_setup
 
 #: ``reachable(T_base_flange (4, 4), q_from (6,) or None) -> q (6,) or None``.
@@ -58,7 +58,7 @@ N_PARAMS = 9
 CORRECTION_PRIOR_SIGMA = 1.0
 
 
-class CameraView(Params):
+class CameraView(PinholeParams):
     """What the camera can measure (pinhole, no distortion needed at this accuracy).
 
     Attributes
@@ -79,12 +79,6 @@ class CameraView(Params):
 
     model_config = ConfigDict(frozen=True)
 
-    width: PositiveInt
-    height: PositiveInt
-    fx: PositiveFloat
-    fy: PositiveFloat
-    cx: Float
-    cy: Float
     margin_px: NonNegativeFloat = 40.0
     depth_min_m: NonNegativeFloat = 0.4
     depth_max_m: PositiveFloat = 2.0

@@ -23,7 +23,7 @@ import yaml
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator
 
 from calib.errors import ParameterError
-from calib.params import Float, Params, PositiveFloat, PositiveInt, describe
+from calib.params import Float, PinholeParams, PositiveInt, describe
 from drivers.camera.base import CameraIntrinsics
 
 #: Lengths of the OpenCV distortion vectors (k1 k2 p1 p2 [k3 [k4 k5 k6 [s1..s4 [tx ty]]]]).
@@ -36,15 +36,9 @@ def _dist_length(dist: tuple[float, ...]) -> tuple[float, ...]:
     return dist
 
 
-class IntrinsicsParams(Params):
+class IntrinsicsParams(PinholeParams):
     """This module's YAML keys (pixels): a usable pinhole model."""
 
-    width: PositiveInt
-    height: PositiveInt
-    fx: PositiveFloat
-    fy: PositiveFloat
-    cx: Float
-    cy: Float
     dist: tuple[Float, ...] = (0.0,) * 5
 
     _dist = field_validator("dist")(_dist_length)
