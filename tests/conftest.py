@@ -2,6 +2,7 @@
 
 import contextlib
 import os
+import signal
 import sys
 
 import pytest
@@ -11,6 +12,12 @@ from hypothesis import settings
 # so CI cannot turn red by chance) and keep no example database in the checkout.
 settings.register_profile("handeye", derandomize=True, database=None)
 settings.load_profile("handeye")
+
+# A suite started in the background (`make test &`, nohup) has SIGINT ignored, and an ignored signal
+# survives exec: the Ctrl-C tests' children would never see their SIGINT. A handled one is reset to
+# the default on exec, so the children get Python's Ctrl-C behaviour, as from a terminal.
+if signal.getsignal(signal.SIGINT) is signal.SIG_IGN:
+    signal.signal(signal.SIGINT, signal.default_int_handler)
 
 import app.backends  # noqa: F401  every robot and camera backend registered by name, as in the app
 
