@@ -1,7 +1,8 @@
 """The real recordings the benchmarks measure on, read from their upstream copies.
 
-The folder is ``$HANDEYE_DATASETS``, else ``../shared/datasets`` beside the
-repository (or beside a folder above it) (``industrial_calibration/``, ``ethz_hand_eye/``; licenses there).
+The folder (``industrial_calibration/``, ``ethz_hand_eye/``, licenses there)
+is ``$HANDEYE_DATASETS``, else the nearest ``shared/datasets`` above the
+repository (``../shared/datasets`` for a plain checkout).
 The suite's trimmed copies in ``tests/data`` are for tests only. The ETH
 pose streams come without a manifest: `real_sets` stages each pair with its
 ``streams.toml`` in a work folder, because a manifest may only name files
@@ -29,7 +30,7 @@ def datasets_dir() -> Path:
     return next((d for d in beside if d.is_dir()), beside[0])
 
 
-#: ETH pose-stream pairs: (name, folder, robot CSV, camera CSV, frames). Both eye-in-hand; the camera
+#: ETH pose-stream pairs: (name, folder, robot CSV, camera CSV). Both eye-in-hand; the camera
 #: stream holds T_marker_cam (ethz-asl/hand_eye_calibration, datasets/).
 ETH_STREAMS = [
     ("ETH robot_arm SR300 (eye-in-hand)", "robot_arm",

@@ -74,9 +74,9 @@ ROBOT_FAULTS = {  # name: (expected error, what its message must say)
 RUN_TIMEOUT = 60.0
 DEFAULTS = dict(freeze=10, faults=5, app_freezes=5, parent_deaths=20, kills=6, targets=1000)
 QUICK = dict(freeze=2, faults=1, app_freezes=1, parent_deaths=3, kills=1, targets=100)
+FULL = dict(freeze=25, faults=10, app_freezes=10, parent_deaths=50, kills=100, targets=10000)
 #: --resume runs per killed session while each ends with a clean one-line error.
 RESUME_ATTEMPTS = 3
-FULL = dict(freeze=25, faults=10, app_freezes=10, parent_deaths=50, kills=100, targets=10000)
 
 
 def _net() -> str:
@@ -432,20 +432,19 @@ def run_app_freezes(runs: int, slots, seed: int, seconds: float = 60.0) -> dict:
 
 # ---------------------------------------------------- targets vs simulator
 def random_valid_start(rng: np.random.Generator, robot) -> np.ndarray:
+    """Random start joints in a state the driver allows (`URRobot.check_pose`: box and tilt cone).
+
+    Starts outside the cone made the oracle flag motions that only brought the arm back in.
+    """
     from drivers.robot import ur_kinematics as kin
 
-    # A state the driver could have left the arm in: flange and TCP inside the box, tool inside the tilt cone.
-    # (Starts outside the cone made the oracle flag motions that only bring the arm back in.)
-    cfg = robot.config
-    lo, hi = np.asarray(cfg.workspace_min), np.asarray(cfg.workspace_max)
-    ref = np.asarray(cfg.tilt_reference) / np.linalg.norm(cfg.tilt_reference)
     while True:
         q = np.array(START_Q) + rng.uniform(-1.0, 1.0, 6) * [1.5, 0.8, 1.0, 1.5, 1.5, 2.0]
-        T = kin.forward(q, "ur10")
-        points = (T[:3, 3], (T @ robot.T_flange_tcp)[:3, 3])
-        tilt = math.degrees(math.acos(float(np.clip(T[:3, 2] @ ref, -1, 1))))
-        if all(np.all(p > lo) and np.all(p < hi) for p in points) and tilt < cfg.max_tilt_deg:
-            return q
+        try:
+            robot.check_pose(kin.forward(q, "ur10"), "start")
+        except LimitViolationError:
+            continue
+        return q
 
 
 def sim_path_violation(motion, robot, limits, tick: float) -> str | None:

@@ -425,7 +425,8 @@ class URRobot(Robot):
         return self._buffer.span()
 
     # ---------------------------------------------------------------- limits
-    def _check_pose(self, T_base_flange: np.ndarray, what: str) -> None:
+    def check_pose(self, T_base_flange: np.ndarray, what: str) -> None:
+        """`LimitViolationError` (message starting with ``what``) if the flange or TCP leaves the box or the tilt cone."""
         cfg = self.config
         T_tcp = T_base_flange @ self._T_flange_tcp
         lo, hi = np.asarray(cfg.workspace_min), np.asarray(cfg.workspace_max)
@@ -488,7 +489,7 @@ class URRobot(Robot):
             raise LimitViolationError("target T_base_flange is not a rigid transform")
         q0 = np.asarray(self.read().q if q_start is None else q_start, dtype=float)
         limits = cfg.joint_limits
-        self._check_pose(T, "target")
+        self.check_pose(T, "target")
         if q_target is not None:
             q1 = kin.check_q(q_target, "q_target")
             if np.any(q1 < limits[:, 0]) or np.any(q1 > limits[:, 1]):
@@ -502,7 +503,7 @@ class URRobot(Robot):
         if motion == "joint":
             n = max(1, math.ceil(np.max(np.abs(q1 - q0)) / cfg.path_step))
             for s in np.linspace(0.0, 1.0, n + 1)[1:-1]:
-                self._check_pose(kin.forward(q0 + s * (q1 - q0), cfg.model), f"moveJ path at {s:.0%}")
+                self.check_pose(kin.forward(q0 + s * (q1 - q0), cfg.model), f"moveJ path at {s:.0%}")
         else:
             T0 = kin.forward(q0, cfg.model)
             T0_tcp, T1_tcp = T0 @ self._T_flange_tcp, T @ self._T_flange_tcp
@@ -539,7 +540,7 @@ class URRobot(Robot):
             where = f"moveL path at {s:.0%}"
             if qs is None or dq > 0.5:
                 raise LimitViolationError(f"{where}: leaves the joint limits or passes a singularity; use motion='joint'")
-            self._check_pose(Ts, where)
+            self.check_pose(Ts, where)
             margins = kin.singularity_margins(qs, cfg.model)
             low = margins < kin.SINGULARITY_REFUSE
             if low.any():
