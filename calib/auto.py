@@ -98,7 +98,7 @@ def _free_for(mode: str) -> tuple[bool, bool, bool]:
 class _Fit:
     """State of the extended fit: transforms, camera error, noise levels and the problem."""
 
-    def __init__(self, A, B, setup, shape, use_rotation):
+    def __init__(self, A, B, setup, shape, use_rotation, shape_whitener=None):
         self.setup = setup
         self.A, self.B = A, B
         self.shape = shape
@@ -106,6 +106,8 @@ class _Fit:
         self.M = model.split(np.eye(4), np.eye(4), A, setup)[2]
         self._cof_at = None
         self._memo: dict = {}      # per free set: the last raw evaluation, shared by its re-weighted problems
+        self._whitener_at = None   # the last point whitener, with its noise levels and robot cofactor
+        self._shape_whitener = shape_whitener
 
     def cofactor(self, C, K):
         """`calib.model.robot_cofactor` at ``(C, K)``; the last one is kept (rounds re-weight at a fixed estimate)."""
@@ -113,9 +115,19 @@ class _Fit:
             self._cof_at = (C, K, model.robot_cofactor(C, K, self.M, self.setup))
         return self._cof_at[2]
 
+    @property
+    def shape_whitener(self) -> np.ndarray:
+        """`calib.model.whitener` of the camera's point covariance shape alone (no robot error)."""
+        if self._shape_whitener is None:
+            self._shape_whitener = model.whitener(self.shape)
+        return self._shape_whitener
+
     def problem(self, C, K, noise, free):
         cof = self.cofactor(C, K)
-        W = model.whitener(noise.point_cov(self.shape, cof))
+        # The same levels at the same estimate (a fit's final problem, its information, its held-out step).
+        if self._whitener_at is None or self._whitener_at[0] != noise or self._whitener_at[1] is not cof:
+            self._whitener_at = (noise, cof, model.whitener(noise.point_cov(self.shape, cof)))
+        W = self._whitener_at[2]
         return model.Problem(self.M, self.B, W, sigma_rot=noise.rotation, free=free, use_rotation=self.use_rotation,
                              memo=self._memo.setdefault(tuple(bool(f) for f in free), {})), cof
 
@@ -221,13 +233,23 @@ def _start(A, B, setup, use_rotation):
     return best, tried
 
 
-def _needs_robust(start: CalibrationResult, A, p, shape) -> bool:
-    """Whether the start's whitened point residuals show outliers at a robust (median) scale."""
+def _needs_robust(start: CalibrationResult, A, p, W_shape) -> bool:
+    """Whether the start's point residuals, whitened by ``W_shape``, show outliers at a robust (median) scale."""
     C, K, M = model.split(start.X, start.Y, A, start.setup)
-    r = model.point_residuals(C, K[:3, 3], M, p)[0]
-    d2 = np.sum((model.whitener(shape) @ r[:, :, None]) ** 2, axis=(1, 2))
-    scale = np.median(d2) / chi2.ppf(0.5, 3)
-    return bool(np.any(d2 > chi2.ppf(0.9999, 3) * scale * 4.0))
+    d2 = _whitened_squares(W_shape, p - model.predict_points(C, K[:3, 3], M))
+    scale = np.median(d2) / _CHI2_3_MEDIAN
+    return bool(np.any(d2 > _CHI2_3_OUTLIER * scale * 4.0))
+
+
+#: Quantiles of chi-square with 3 dof used by `_needs_robust` (scipy's ppf costs ~50 us a call).
+_CHI2_3_MEDIAN = float(chi2.ppf(0.5, 3))
+_CHI2_3_OUTLIER = float(chi2.ppf(0.9999, 3))
+
+
+def _whitened_squares(W, r) -> np.ndarray:
+    """``|W_i r_i|^2`` (N,) for whitening matrices (N, 3, 3) and residuals (N, 3)."""
+    wr = np.einsum("nij,nj->ni", W, r)
+    return np.sum(wr * wr, axis=1)
 
 
 def identifiability(info: np.ndarray, free, n_pose: int) -> dict[str, float]:
@@ -298,7 +320,8 @@ def solve_auto(A, B, *, setup: str, point_cov=None, camera_correction: str = "au
     start, tried = _start(A, B, setup, use_rotation)
     p = B if B.ndim == 2 else B[:, :3, 3]
     inliers = np.ones(n, dtype=bool)
-    if robust and n >= 8 and _needs_robust(start, A, p, shape):
+    W_shape = model.whitener(shape)
+    if robust and n >= 8 and _needs_robust(start, A, p, W_shape):
         from calib.api import closed_form
 
         name = start.method
@@ -318,11 +341,11 @@ def solve_auto(A, B, *, setup: str, point_cov=None, camera_correction: str = "au
     # Measurement sets: marker orientations are used unless they make held-out points worse.
     best = None
     for rot in ([True, False] if use_rotation else [False]):
-        fit = _Fit(A_in, B_in, setup, shape_in, rot)
+        fit = _Fit(A_in, B_in, setup, shape_in, rot, shape_whitener=W_shape[inliers])
         K = K0
         if rot and not start.marker_rotation_known:
             K = tf.make_transform(model.marker_rotation(C0, fit.M, B_in[:, :3, :3]), K0[:3, 3])
-        noise = _initial_noise(C0, K, fit.M, p[inliers], shape_in, B_in[:, :3, :3] if rot else None)
+        noise = _initial_noise(C0, K, fit.M, p[inliers], fit.shape_whitener, B_in[:, :3, :3] if rot else None)
         if not use_rotation:
             # Points only: nothing to compare before the camera parameters, which start from here (`_select_camera`).
             best = _Candidate(fit, C0, K, theta, noise, fit.problem(C0, K, noise, (False, False, False))[0], 0, False,
@@ -544,10 +567,9 @@ def _residuals(X, Y, A, B, setup, theta, use_rotation) -> Residuals:
     return Residuals(translation=np.linalg.norm(r, axis=1), rotation=rot)
 
 
-def _initial_noise(C, K, M, p, shape, R_B) -> model.NoiseLevels:
-    """Starting noise levels: the camera model at the scale of the residuals, a small robot error."""
-    r0 = model.point_residuals(C, K[:3, 3], M, p)[0]
-    d2 = np.sum((model.whitener(shape) @ r0[:, :, None]) ** 2, axis=(1, 2))
+def _initial_noise(C, K, M, p, W_shape, R_B) -> model.NoiseLevels:
+    """Starting noise levels: the camera model (whitening ``W_shape``) at the scale of the residuals, a small robot error."""
+    d2 = _whitened_squares(W_shape, p - model.predict_points(C, K[:3, 3], M))
     rot0 = None
     if R_B is not None:
         e0 = model.rotation_residuals(C, K, M, R_B)[0]
@@ -559,7 +581,7 @@ def _initial_noise(C, K, M, p, shape, R_B) -> model.NoiseLevels:
 def _noise_at(fit, C, K, theta, free) -> model.NoiseLevels:
     """Variance components at a fixed estimate (no refit)."""
     p = fit.B if fit.B.ndim == 2 else fit.B[:, :3, 3]
-    noise = _initial_noise(C, K, fit.M, p, fit.shape, fit.B[:, :3, :3] if fit.use_rotation else None)
+    noise = _initial_noise(C, K, fit.M, p, fit.shape_whitener, fit.B[:, :3, :3] if fit.use_rotation else None)
     for _ in range(CHECK_ROUNDS):
         # Fixed estimate: the robot cofactor and the Jacobians are computed once (`_Fit.problem`).
         prob, cof = fit.problem(C, K, noise, free)
@@ -653,7 +675,7 @@ def _consistency(fit, prob, C, K, theta, errors, predicted) -> dict:
     p = prob.p
     pred = model.predict_points(C, K[:3, 3], prob.M, theta)
     r = p - pred
-    d2 = float(np.sum((model.whitener(fit.shape) @ r[:, :, None]) ** 2))
+    d2 = float(np.sum(_whitened_squares(fit.shape_whitener, r)))
     dof = max(3 * len(p) - prob.n_params, 1)
     p_value = float(chi2.sf(d2, dof))
     obs = float(np.sqrt(np.mean(errors**2)))

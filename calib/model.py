@@ -72,6 +72,8 @@ MIN_INFORMATION_RATIO = 1e-14
 LEVERAGE_MARGIN = 1e-9
 
 _I3 = np.eye(3)
+#: ``[e_k]x`` for the unit vectors (3, 3, 3): ``[v]x = sum_k v_k [e_k]x``.
+_GENERATORS = tf.skew(np.eye(3))
 
 
 # --------------------------------------------------------------------------- frames
@@ -212,7 +214,7 @@ def robot_cofactor(C, K, M, setup: str) -> np.ndarray:
     ``R_C^T (I + rho^2 [l]x [l]x^T) R_C``.
     """
     R_C = C[:3, :3]
-    lever = M[:, :3, :3] @ K[:3, 3]
+    lever = np.einsum("nij,j->ni", M[:, :3, :3], K[:3, 3])
     if setup != Setup.EYE_TO_HAND:
         lever = lever + M[:, :3, 3]
     # [l]x [l]x^T = |l|^2 I - l l^T, and R^T (a I - l l^T) R = a I - (R^T l)(R^T l)^T.
@@ -245,23 +247,27 @@ def check_point_cov(point_cov, n: int) -> np.ndarray | None:
 def whitener(cov) -> np.ndarray:
     """Inverse Cholesky factors ``W`` (N, 3, 3) so that ``W r`` has unit covariance (``W^T W = cov^-1``).
 
-    Written out for 3x3 (a batched LAPACK call costs ~100x more per sample).
+    Written out for 3x3 (a batched LAPACK call costs ~100x more per sample), on
+    the entries as contiguous rows (9, N): strided columns of (N, 3, 3) cost 2-3x.
     """
     a = np.asarray(cov, dtype=float)
+    n = len(a)
+    a00, _, _, a10, a11, _, a20, a21, a22 = np.ascontiguousarray(a.reshape(n, 9).T)
     with np.errstate(invalid="ignore", divide="ignore"):
-        l00 = np.sqrt(a[:, 0, 0])
-        l10, l20 = a[:, 1, 0] / l00, a[:, 2, 0] / l00
-        l11 = np.sqrt(a[:, 1, 1] - l10**2)
-        l21 = (a[:, 2, 1] - l20 * l10) / l11
-        l22 = np.sqrt(a[:, 2, 2] - l20**2 - l21**2)
-    if not (np.all(np.isfinite(l22)) and np.all(l00 > 0) and np.all(l11 > 0) and np.all(l22 > 0)):
+        l00 = np.sqrt(a00)
+        l10, l20 = a10 / l00, a20 / l00
+        l11 = np.sqrt(a11 - l10**2)
+        l21 = (a21 - l20 * l10) / l11
+        l22 = np.sqrt(a22 - l20**2 - l21**2)
+        ok = np.isfinite(l22).all() and (l00 > 0).all() and (l11 > 0).all() and (l22 > 0).all()
+    if not ok:
         raise CalibrationError("point_cov is not positive definite")
-    W = np.zeros_like(a)
-    W[:, 0, 0], W[:, 1, 1], W[:, 2, 2] = 1.0 / l00, 1.0 / l11, 1.0 / l22
-    W[:, 1, 0] = -l10 * W[:, 0, 0] / l11
-    W[:, 2, 1] = -l21 * W[:, 1, 1] / l22
-    W[:, 2, 0] = -(l20 * W[:, 0, 0] + l21 * W[:, 1, 0]) / l22
-    return W
+    W = np.zeros((9, n))
+    W[0], W[4], W[8] = 1.0 / l00, 1.0 / l11, 1.0 / l22
+    W[3] = -l10 * W[0] / l11
+    W[7] = -l21 * W[4] / l22
+    W[6] = -(l20 * W[0] + l21 * W[3]) / l22
+    return np.ascontiguousarray(W.T).reshape(n, 3, 3)
 
 
 def point_shape(B, point_cov) -> tuple[np.ndarray, bool]:
@@ -318,6 +324,10 @@ class Problem:
     def __init__(self, M, B, W_t, sigma_rot=None, free=(False, False, False), use_rotation=True, memo=None):
         self.M = M
         self._memo = memo
+        # Contiguous copies: products with them are single BLAS calls (views of M are strided).
+        self._R_M = np.ascontiguousarray(M[:, :3, :3])
+        self._t_M = np.ascontiguousarray(M[:, :3, 3])
+        self._R_Mt = np.ascontiguousarray(np.swapaxes(M[:, :3, :3], 1, 2))
         self.rotations = B.ndim == 3 and use_rotation
         self.p = B if B.ndim == 2 else B[:, :3, 3]
         self.R_B = B[:, :3, :3] if self.rotations else None
@@ -345,46 +355,61 @@ class Problem:
 
     def _raw(self, C, K, theta):
         R_C, t_C = C[:3, :3], C[:3, 3]
-        R_M = self.M[:, :3, :3]
-        w = R_M @ K[:3, 3] + self.M[:, :3, 3] - t_C       # marker center minus camera origin, C's parent frame
+        n, n_pose = len(self._R_M), self.n_pose
+        # Marker center minus camera origin, C's parent frame, as one matrix-vector product over all samples.
+        w = (self._R_M.reshape(-1, 3) @ K[:3, 3]).reshape(n, 3) + (self._t_M - t_C)
         q = w @ R_C                                       # == (R_C^T w_i)_i, the point without camera error
-        n, n_pose = len(q), self.n_pose
         tK = 9 if self.rotations else 6
-        # Filled in place (no concatenation): [dC, tC, (dK), tK, nuisances].
-        J_t = np.zeros((n, 3, self.n_params))
-        J_t[:, :, 0:3] = -(R_C.T @ tf.skew(w))
-        J_t[:, :, 3:6] = R_C.T
-        J_t[:, :, tK:tK + 3] = -(R_C.T @ R_M)
-        if theta is not None and (np.any(theta) or self.free.any()):
+        # Filled in place (no concatenation): [dC, tC, (dK), tK, nuisances]. Blocks as single matrix
+        # products instead of batched 3x3 ones: -R_C^T [w]x = -[q]x R_C^T = -sum_k q_k [e_k]x R_C^T, and
+        # (R_C^T R_M)^T = R_M^T R_C.
+        Jp = np.empty((n, 3, n_pose))
+        Jp[:, :, 0:3] = (q @ -(_GENERATORS @ R_C.T).reshape(3, 9)).reshape(n, 3, 3)
+        Jp[:, :, 3:6] = R_C.T
+        if self.rotations:
+            Jp[:, :, 6:9] = 0.0
+        Jp[:, :, tK:tK + 3] = np.swapaxes((self._R_Mt.reshape(-1, 3) @ -R_C).reshape(n, 3, 3), 1, 2)
+        if not (theta is not None and (np.any(theta) or self.free.any())):
+            r = self.p - q
+            if not self.free.any():
+                return (r, None, Jp, None) if not self.rotations else (r, *self._rotation_part(C, K, Jp))
+            J_t = np.zeros((n, 3, self.n_params))
+            J_t[:, :, :n_pose] = Jp
+        else:
             s, d, f = theta
             z = q[:, 2]
             g = 1.0 + s + d / z
             D = np.array([1.0 + f, 1.0 + f, 1.0])
             Dq = D * q
             r = self.p - Dq * g[:, None]
-            # J_p = g diag(D) + c e_z^T with c = -(D q) d / z^2 (`measure`): applied without a batched matmul.
-            c = Dq * (-d / z**2)[:, None]
-            Jp = J_t[:, :, :n_pose]
-            J_t[:, :, :n_pose] = (g[:, None] * D)[:, :, None] * Jp + c[:, :, None] * Jp[:, 2:3, :]
+            # J_p = g diag(D) + c e_z^T with c = -(D q) d / z^2 (`measure`), built as rows (N, 9); one batched
+            # product into place (broadcasting over the 3-long axis costs 3x more).
+            J_p = np.zeros((n, 9))
+            J_p[:, ::4] = g[:, None] * D
+            J_p[:, 2::3] += Dq * (-d / z**2)[:, None]
+            J_t = np.empty((n, 3, self.n_params))
+            np.matmul(J_p.reshape(n, 3, 3), Jp, out=J_t[:, :, :n_pose])
             k = n_pose
-            for j, col in enumerate((Dq, Dq / z[:, None], q * g[:, None] * np.array([1.0, 1.0, 0.0]))):
-                if self.free[j]:
-                    J_t[:, :, k] = -col
-                    k += 1
-        else:
-            r = self.p - q
+            for j in np.flatnonzero(self.free):
+                col = Dq if j == 0 else (Dq / z[:, None] if j == 1 else q * g[:, None] * np.array([1.0, 1.0, 0.0]))
+                J_t[:, :, k] = -col
+                k += 1
         if not self.rotations:
             return r, None, J_t, None
+        return (r, *self._rotation_part(C, K, J_t))
+
+    def _rotation_part(self, C, K, J_t):
+        """``e, J_t, J_e`` of `raw`: the orientation residuals and their Jacobian (`rotation_residuals`)."""
         e, JeC, JeK = rotation_residuals(C, K, self.M, self.R_B)
         J_e = np.zeros_like(J_t)
         J_e[:, :, 0:3] = JeC
         J_e[:, :, 6:9] = JeK
-        return r, e, J_t, J_e
+        return e, J_t, J_e
 
     def whitened(self, C, K, theta=None):
         """Whitened residual vector (3N or 6N,) and Jacobian (3N or 6N, n_params)."""
         r, e, J_t, J_e = self.raw(C, K, theta)
-        rw = (self.W_t @ r[:, :, None]).reshape(-1)
+        rw = np.einsum("nij,nj->ni", self.W_t, r).reshape(-1)
         Jw = (self.W_t @ J_t).reshape(-1, self.n_params)
         if self.rotations:
             rw = np.concatenate([rw, (e / self.sigma_rot).reshape(-1)])
@@ -393,9 +418,10 @@ class Problem:
 
     def cost(self, C, K, theta=None) -> float:
         """Whitened residual square sum (chi-square statistic)."""
-        p = predict_points(C, K[:3, 3], self.M, theta)
-        r = self.W_t @ (self.p - p)[:, :, None]
-        cost = float(np.sum(r**2))
+        q = ((self._R_M.reshape(-1, 3) @ K[:3, 3]).reshape(-1, 3) + (self._t_M - C[:3, 3])) @ C[:3, :3]
+        p = q if theta is None or not np.any(theta) else _measured(q, np.asarray(theta, dtype=float))
+        r = np.einsum("nij,nj->ni", self.W_t, self.p - p)
+        cost = float(np.sum(r * r))
         if self.rotations:
             E = np.swapaxes(self.R_B, 1, 2) @ C[:3, :3].T @ self.M[:, :3, :3] @ K[:3, :3]
             cost += float(np.sum(tf.so3_log(E) ** 2)) / self.sigma_rot**2
@@ -541,7 +567,7 @@ def variance_components(problem: Problem, C, K, theta, shape, robot_cof, noise: 
     W = problem.W_t
     Wt = np.ascontiguousarray(np.swapaxes(W, 1, 2))          # (matmul on a transposed view is 2x slower)
     G = W @ J_t
-    v = (W @ r[:, :, None])[:, :, 0]
+    v = np.einsum("nij,nj->ni", W, r)
     G_flat = G.reshape(-1, u)
     Nmat = G_flat.T @ G_flat
     if e is not None:
@@ -549,11 +575,11 @@ def variance_components(problem: Problem, C, K, theta, shape, robot_cof, noise: 
         Je_flat = J_e.reshape(-1, u)
         Nmat = Nmat + Je_flat.T @ Je_flat / s2
     Ninv = np.linalg.inv(Nmat)
-    hat = (G_flat @ Ninv).reshape(-1, 3, u) @ np.ascontiguousarray(np.swapaxes(G, 1, 2))
     Qw = [W @ Qk @ Wt for Qk in (shape, robot_cof)]
-    q = np.array([float(np.sum(v * (Qk @ v[:, :, None])[:, :, 0])) for Qk in Qw])
-    tr1 = np.array([float(np.trace(Qk, axis1=1, axis2=2).sum()) for Qk in Qw])
-    tr2 = np.array([float(np.sum(Qk * hat)) for Qk in Qw])
+    q = np.array([float(np.sum(v * np.einsum("nij,nj->ni", Qk, v))) for Qk in Qw])
+    tr1 = np.array([float(Qk.reshape(-1, 9)[:, ::4].sum()) for Qk in Qw])
+    # tr(Q~ G N^-1 G^T) = sum(N^-1 * G^T Q~ G): no (N, 3, 3) hat-matrix blocks.
+    tr2 = np.array([float(np.sum(Ninv * (G_flat.T @ (Qk @ G).reshape(-1, u)))) for Qk in Qw])
     red = tr1 - tr2
     H = np.empty((2, 2))
     H[0, 0], H[1, 1] = float(np.sum(Qw[0] * Qw[0])), float(np.sum(Qw[1] * Qw[1]))
