@@ -220,8 +220,9 @@ def robot_cofactor(C, K, M, setup: str) -> np.ndarray:
     # [l]x [l]x^T = |l|^2 I - l l^T, and R^T (a I - l l^T) R = a I - (R^T l)(R^T l)^T.
     rho2 = ROBOT_ROTATION_PER_M**2
     lc = lever @ R_C
-    return ((1.0 + rho2 * np.sum(lc * lc, axis=1))[:, None, None] * _I3
-            - rho2 * lc[:, :, None] * lc[:, None, :])
+    out = lc[:, :, None] * (-rho2 * lc)[:, None, :]
+    out.reshape(-1, 9)[:, ::4] += (1.0 + rho2 * np.sum(lc * lc, axis=1))[:, None]
+    return out
 
 
 # --------------------------------------------------------------------------- weights
@@ -317,17 +318,23 @@ class Problem:
         Shared by problems of the same ``M``, ``B``, ``free`` and
         ``use_rotation`` that differ only in their weights: `raw` keeps its
         last evaluation there, so re-weighting at a fixed estimate (variance
-        components, then the next fit) does not evaluate it twice. The arrays
-        it returns are then shared and must not be modified.
+        components, then the next fit) does not evaluate it twice, and the
+        contiguous copies of ``M``'s blocks are made once. The arrays `raw`
+        returns are then shared and must not be modified.
     """
 
     def __init__(self, M, B, W_t, sigma_rot=None, free=(False, False, False), use_rotation=True, memo=None):
         self.M = M
         self._memo = memo
-        # Contiguous copies: products with them are single BLAS calls (views of M are strided).
-        self._R_M = np.ascontiguousarray(M[:, :3, :3])
-        self._t_M = np.ascontiguousarray(M[:, :3, 3])
-        self._R_Mt = np.ascontiguousarray(np.swapaxes(M[:, :3, :3], 1, 2))
+        # Contiguous copies: products with them are single BLAS calls (views of M are strided). Shared through
+        # the memo by the re-weighted problems of a fit.
+        geometry = None if memo is None else memo.get("geometry")
+        if geometry is None:
+            geometry = (np.ascontiguousarray(M[:, :3, :3]), np.ascontiguousarray(M[:, :3, 3]),
+                        np.ascontiguousarray(np.swapaxes(M[:, :3, :3], 1, 2)))
+            if memo is not None:
+                memo["geometry"] = geometry
+        self._R_M, self._t_M, self._R_Mt = geometry
         self.rotations = B.ndim == 3 and use_rotation
         self.p = B if B.ndim == 2 else B[:, :3, 3]
         self.R_B = B[:, :3, :3] if self.rotations else None
@@ -463,10 +470,14 @@ def minimize(problem: Problem, C, K, theta=None, *, max_iterations: int = 50, to
 
     Returns ``C, K, theta, cost, iterations, converged``.
     """
-    cost = problem.cost(C, K, theta)
+    if max_iterations < 1:
+        return C, K, theta, problem.cost(C, K, theta), 0, False
+    cost = None
     lam = 1e-6
     for it in range(1, max_iterations + 1):
         r, J = problem.whitened(C, K, theta)
+        if cost is None:
+            cost = float(r @ r)       # the starting cost; later ones come from the accepted steps
         H = J.T @ J
         g = J.T @ r
         while True:
@@ -565,7 +576,7 @@ def variance_components(problem: Problem, C, K, theta, shape, robot_cof, noise: 
     # In whitened terms (W^T W = P): v^T P Q P v = v~^T Q~ v~, tr(Q P) = tr(Q~), tr(Q_k P Q_l P) = tr(Q~_k Q~_l),
     # tr(Q P J N^-1 J^T P) = tr(Q~ G N^-1 G^T), with v~ = W v, G = W J, Q~ = W Q W^T: fewer 3x3 products.
     W = problem.W_t
-    Wt = np.ascontiguousarray(np.swapaxes(W, 1, 2))          # (matmul on a transposed view is 2x slower)
+    n = len(r)
     G = W @ J_t
     v = np.einsum("nij,nj->ni", W, r)
     G_flat = G.reshape(-1, u)
@@ -575,15 +586,24 @@ def variance_components(problem: Problem, C, K, theta, shape, robot_cof, noise: 
         Je_flat = J_e.reshape(-1, u)
         Nmat = Nmat + Je_flat.T @ Je_flat / s2
     Ninv = np.linalg.inv(Nmat)
-    Qw = [W @ Qk @ Wt for Qk in (shape, robot_cof)]
-    q = np.array([float(np.sum(v * np.einsum("nij,nj->ni", Qk, v))) for Qk in Qw])
-    tr1 = np.array([float(Qk.reshape(-1, 9)[:, ::4].sum()) for Qk in Qw])
-    # tr(Q~ G N^-1 G^T) = sum(N^-1 * G^T Q~ G): no (N, 3, 3) hat-matrix blocks.
-    tr2 = np.array([float(np.sum(Ninv * (G_flat.T @ (Qk @ G).reshape(-1, u)))) for Qk in Qw])
+    # W (s_p S + sigma_R^2 T) W^T = I: the camera share Q~_0 follows from the robot's, Q~_0 = (I - sigma_R^2 Q~_1) / s_p,
+    # exact to rounding relative to I (the robot share is the one computed, its subtraction does not cancel
+    # when it is small, and s_p >= MIN_POINT_SCALE). Rows (N, 9).
+    Q1 = (W @ robot_cof @ np.ascontiguousarray(np.swapaxes(W, 1, 2))).reshape(n, 9)
+    Q0 = Q1 * (-noise.robot**2 / noise.point_scale)
+    Q0[:, ::4] += 1.0 / noise.point_scale
+    Qw = (Q0, Q1)
+    # v~^T Q~ v~ = sum over entries of Q~ * (v~ v~^T); the hat blocks G_i N^-1 G_i^T as F_i F_i^T with F = G L,
+    # L L^T = N^-1, entry by entry (batched 3x3 products of (N, 3, u) cost 3x more).
+    vv = (v[:, :, None] * v[:, None, :]).reshape(n, 9)
+    q = np.array([float(np.sum(Qk * vv)) for Qk in Qw])
+    tr1 = np.array([float(Qk[:, ::4].sum()) for Qk in Qw])
+    hat = _hat_blocks(G, Ninv)
+    tr2 = np.array([float(np.sum(Qk * hat)) for Qk in Qw])
     red = tr1 - tr2
     H = np.empty((2, 2))
-    H[0, 0], H[1, 1] = float(np.sum(Qw[0] * Qw[0])), float(np.sum(Qw[1] * Qw[1]))
-    H[0, 1] = H[1, 0] = float(np.sum(Qw[0] * Qw[1]))
+    H[0, 0], H[1, 1] = float(np.sum(Q0 * Q0)), float(np.sum(Q1 * Q1))
+    H[0, 1] = H[1, 0] = float(np.sum(Q0 * Q1))
     H *= (red / np.maximum(tr1, 1e-300))[:, None]
     current = np.array([noise.point_scale, noise.robot**2])
     active = np.array(estimate[:2], dtype=bool)
@@ -617,6 +637,20 @@ def variance_components(problem: Problem, C, K, theta, shape, robot_cof, noise: 
         rotation=rot,
     )
     return new, np.array(shares)
+
+
+def _hat_blocks(G, Ninv) -> np.ndarray:
+    """Diagonal blocks ``G_i N^-1 G_i^T`` (N, k*k, row-major) of the hat matrix for whitened Jacobian blocks G (N, k, u)."""
+    n, k, u = G.shape
+    try:
+        F = (G.reshape(-1, u) @ np.linalg.cholesky(Ninv)).reshape(n, k, u)
+    except np.linalg.LinAlgError:
+        return ((G.reshape(-1, u) @ Ninv).reshape(n, k, u) @ np.swapaxes(G, 1, 2)).reshape(n, k * k)
+    out = np.empty((n, k, k))
+    for a in range(k):
+        for b in range(a + 1):
+            out[:, a, b] = out[:, b, a] = np.einsum("nu,nu->n", F[:, a], F[:, b])
+    return out.reshape(n, k * k)
 
 
 def leave_one_out(problem: Problem, C, K, theta=None, point_cov=None) -> tuple[np.ndarray, np.ndarray]:
