@@ -105,7 +105,7 @@ class _Fit:
         self.use_rotation = use_rotation
         self.M = model.split(np.eye(4), np.eye(4), A, setup)[2]
         self._cof_at = None
-        self._memo: dict = {}      # per free set: the last raw evaluation, shared by its re-weighted problems
+        self._memo: dict = {}      # the last raw evaluation, shared by the problems of this fit (`model.Problem`)
         self._whitener_at = None   # the last point whitener, with its noise levels and robot cofactor
         self._shape_whitener = shape_whitener
 
@@ -129,7 +129,7 @@ class _Fit:
             self._whitener_at = (noise, cof, model.whitener(noise.point_cov(self.shape, cof)))
         W = self._whitener_at[2]
         return model.Problem(self.M, self.B, W, sigma_rot=noise.rotation, free=free, use_rotation=self.use_rotation,
-                             memo=self._memo.setdefault(tuple(bool(f) for f in free), {})), cof
+                             memo=self._memo), cof
 
     def run(self, C, K, theta, noise, free, estimate=(True, True, True)):
         """Variance components and the fit to them, until both settle.

@@ -315,12 +315,13 @@ class Problem:
         Whether pose data contribute their orientation residual (else only
         the translation of ``B`` is used and ``K``'s rotation is not estimated).
     memo : dict, optional
-        Shared by problems of the same ``M``, ``B``, ``free`` and
-        ``use_rotation`` that differ only in their weights: `raw` keeps its
-        last evaluation there, so re-weighting at a fixed estimate (variance
-        components, then the next fit) does not evaluate it twice, and the
-        contiguous copies of ``M``'s blocks are made once. The arrays `raw`
-        returns are then shared and must not be modified.
+        Shared by problems of the same ``M``, ``B`` and ``use_rotation``
+        that differ only in their weights and free camera parameters: `raw`
+        keeps its last evaluation there, so re-weighting at a fixed estimate
+        (variance components, then the next fit) or freeing another camera
+        parameter does not evaluate it twice, and the contiguous copies of
+        ``M``'s blocks are made once. The arrays `raw` returns are then
+        shared and must not be modified.
     """
 
     def __init__(self, M, B, W_t, sigma_rot=None, free=(False, False, False), use_rotation=True, memo=None):
@@ -351,18 +352,26 @@ class Problem:
 
     def raw(self, C, K, theta=None):
         """Unwhitened residuals and Jacobians: ``r (N,3), e (N,3)|None, J_t (N,3,P), J_e (N,3,P)|None``."""
-        if self._memo is not None:
-            last = self._memo.get("raw")
-            if last is not None and _same_point(last[0], (C, K, theta)):
-                return last[1]
-            out = self._raw(C, K, theta)
-            self._memo["raw"] = ((C, K, theta), out)
-            return out
-        return self._raw(C, K, theta)
+        if self._memo is None:
+            return self._raw(C, K, theta, self.free)
+        # Kept with every camera column: a problem with fewer free takes its columns (they do not depend on
+        # which are free), so fits of different camera parameters at one estimate share one evaluation.
+        last = self._memo.get("raw")
+        if last is None or not _same_point(last[0], (C, K, theta)):
+            last = ((C, K, theta), {(True, True, True): self._raw(C, K, theta, np.ones(3, dtype=bool))})
+            self._memo["raw"] = last
+        by_free = last[1]
+        key = tuple(bool(f) for f in self.free)
+        if key not in by_free:
+            r, e, J_t, J_e = by_free[(True, True, True)]
+            cols = np.r_[np.arange(self.n_pose), self.n_pose + np.flatnonzero(self.free)]
+            by_free[key] = (r, e, J_t[:, :, cols], None if J_e is None else J_e[:, :, cols])
+        return by_free[key]
 
-    def _raw(self, C, K, theta):
+    def _raw(self, C, K, theta, free):
         R_C, t_C = C[:3, :3], C[:3, 3]
         n, n_pose = len(self._R_M), self.n_pose
+        n_params = n_pose + int(free.sum())
         # Marker center minus camera origin, C's parent frame, as one matrix-vector product over all samples.
         w = (self._R_M.reshape(-1, 3) @ K[:3, 3]).reshape(n, 3) + (self._t_M - t_C)
         q = w @ R_C                                       # == (R_C^T w_i)_i, the point without camera error
@@ -376,11 +385,11 @@ class Problem:
         if self.rotations:
             Jp[:, :, 6:9] = 0.0
         Jp[:, :, tK:tK + 3] = np.swapaxes((self._R_Mt.reshape(-1, 3) @ -R_C).reshape(n, 3, 3), 1, 2)
-        if not (theta is not None and (np.any(theta) or self.free.any())):
+        if not (theta is not None and (np.any(theta) or free.any())):
             r = self.p - q
-            if not self.free.any():
+            if not free.any():
                 return (r, None, Jp, None) if not self.rotations else (r, *self._rotation_part(C, K, Jp))
-            J_t = np.zeros((n, 3, self.n_params))
+            J_t = np.zeros((n, 3, n_params))
             J_t[:, :, :n_pose] = Jp
         else:
             s, d, f = theta
@@ -394,10 +403,10 @@ class Problem:
             J_p = np.zeros((n, 9))
             J_p[:, ::4] = g[:, None] * D
             J_p[:, 2::3] += Dq * (-d / z**2)[:, None]
-            J_t = np.empty((n, 3, self.n_params))
+            J_t = np.empty((n, 3, n_params))
             np.matmul(J_p.reshape(n, 3, 3), Jp, out=J_t[:, :, :n_pose])
             k = n_pose
-            for j in np.flatnonzero(self.free):
+            for j in np.flatnonzero(free):
                 col = Dq if j == 0 else (Dq / z[:, None] if j == 1 else q * g[:, None] * np.array([1.0, 1.0, 0.0]))
                 J_t[:, :, k] = -col
                 k += 1
@@ -708,7 +717,7 @@ def _leave_one_out(problem, C, K, theta, point_cov, *, step):
     n, u = len(r), J_t.shape[2]
     W = problem.W_t
     G = W @ J_t
-    rw = (W @ r[:, :, None])[:, :, 0]
+    rw = np.einsum("nij,nj->ni", W, r)
     if e is not None:
         G = np.concatenate([G, J_e / problem.sigma_rot], axis=1)
         rw = np.concatenate([rw, e / problem.sigma_rot], axis=1)
@@ -719,8 +728,8 @@ def _leave_one_out(problem, C, K, theta, point_cov, *, step):
     if step:
         delta = -Ninv @ (G_flat.T @ rw.reshape(-1))
         rw = rw + (G_flat @ delta).reshape(n, k)
-    H = (G_flat @ Ninv).reshape(n, k, u) @ np.swapaxes(G, 1, 2)
-    S = np.eye(k) - H
+    S = -_hat_blocks(G, Ninv).reshape(n, k, k)
+    S.reshape(n, k * k)[:, ::k + 1] += 1.0
     # Leverage 1 (an eigenvalue of S at 0): without sample i the others do not determine the unknowns.
     # Only the point rows of S^-1 are needed: r_loo = S^-1 r and A = H + H S^-1 H = S^-1 - I (S + H = I),
     # both from 3x3 closed forms (a batched LAPACK call costs ~1 us per sample).
@@ -743,42 +752,49 @@ def _leave_one_out(problem, C, K, theta, point_cov, *, step):
     if singular:
         raise InsufficientDataError(f"leave-one-out needs more than {n} samples: without one of them the "
                                     "others do not determine every unknown")
-    r_loo = (S_inv @ rp[:, :, None])[:, :, 0]        # point rows of S^-1 r
+    r_loo = np.einsum("nij,nj->ni", S_inv, rp)          # point rows of S^-1 r
     A = S_inv - np.eye(3)
     Winv = _inv3(W)
-    errors = np.linalg.norm((Winv @ r_loo[:, :, None])[:, :, 0], axis=1)
-    # trace(Sigma + Winv A Winv^T), the second term as sum(A * Winv^T Winv).
-    tr_sigma = (np.sum(Winv * Winv, axis=(1, 2)) if point_cov is None
-                else np.trace(point_cov, axis1=1, axis2=2))
-    tr_fit = np.sum(A * (np.swapaxes(Winv, 1, 2) @ Winv), axis=(1, 2))
+    errors = np.linalg.norm(np.einsum("nij,nj->ni", Winv, r_loo), axis=1)
+    # trace(Sigma + Winv A Winv^T), the second term as sum((Winv A) * Winv).
+    tr_sigma = (np.sum((Winv * Winv).reshape(n, 9), axis=1) if point_cov is None
+                else np.reshape(point_cov, (n, 9))[:, ::4].sum(axis=1))
+    tr_fit = np.sum((Winv @ A * Winv).reshape(n, 9), axis=1)
     return errors, np.sqrt(tr_sigma + tr_fit), delta
+
+
+def _rows(a) -> np.ndarray:
+    """Entries of 3x3 matrices (N, 3, 3) as contiguous rows (9, N), row-major order (strided columns cost 2-3x)."""
+    return np.ascontiguousarray(np.reshape(a, (-1, 9)).T)
 
 
 def _inv3(a) -> np.ndarray:
     """Inverses (N, 3, 3) of 3x3 matrices by the adjugate (a batched LAPACK call costs ~100x more per matrix)."""
-    c = np.empty_like(a)
-    c[:, 0, 0] = a[:, 1, 1] * a[:, 2, 2] - a[:, 1, 2] * a[:, 2, 1]
-    c[:, 0, 1] = a[:, 0, 2] * a[:, 2, 1] - a[:, 0, 1] * a[:, 2, 2]
-    c[:, 0, 2] = a[:, 0, 1] * a[:, 1, 2] - a[:, 0, 2] * a[:, 1, 1]
-    c[:, 1, 0] = a[:, 1, 2] * a[:, 2, 0] - a[:, 1, 0] * a[:, 2, 2]
-    c[:, 1, 1] = a[:, 0, 0] * a[:, 2, 2] - a[:, 0, 2] * a[:, 2, 0]
-    c[:, 1, 2] = a[:, 0, 2] * a[:, 1, 0] - a[:, 0, 0] * a[:, 1, 2]
-    c[:, 2, 0] = a[:, 1, 0] * a[:, 2, 1] - a[:, 1, 1] * a[:, 2, 0]
-    c[:, 2, 1] = a[:, 0, 1] * a[:, 2, 0] - a[:, 0, 0] * a[:, 2, 1]
-    c[:, 2, 2] = a[:, 0, 0] * a[:, 1, 1] - a[:, 0, 1] * a[:, 1, 0]
-    det = a[:, 0, 0] * c[:, 0, 0] + a[:, 0, 1] * c[:, 1, 0] + a[:, 0, 2] * c[:, 2, 0]
-    return c / det[:, None, None]
+    a00, a01, a02, a10, a11, a12, a20, a21, a22 = _rows(a)
+    c = np.empty((9, len(a00)))
+    c[0] = a11 * a22 - a12 * a21
+    c[1] = a02 * a21 - a01 * a22
+    c[2] = a01 * a12 - a02 * a11
+    c[3] = a12 * a20 - a10 * a22
+    c[4] = a00 * a22 - a02 * a20
+    c[5] = a02 * a10 - a00 * a12
+    c[6] = a10 * a21 - a11 * a20
+    c[7] = a01 * a20 - a00 * a21
+    c[8] = a00 * a11 - a01 * a10
+    c /= a00 * c[0] + a01 * c[3] + a02 * c[6]
+    return np.ascontiguousarray(c.T).reshape(-1, 3, 3)
 
 
 def _sym3_min_eigenvalue(a) -> np.ndarray:
     """Smallest eigenvalue (N,) of symmetric 3x3 matrices, closed form (trigonometric solution of the cubic)."""
-    q = np.trace(a, axis1=1, axis2=2) / 3.0
-    off = a[:, 0, 1] ** 2 + a[:, 0, 2] ** 2 + a[:, 1, 2] ** 2
-    d0, d1, d2 = a[:, 0, 0] - q, a[:, 1, 1] - q, a[:, 2, 2] - q
+    a00, a01, a02, _, a11, a12, _, _, a22 = _rows(a)
+    q = (a00 + a11 + a22) / 3.0
+    off = a01**2 + a02**2 + a12**2
+    d0, d1, d2 = a00 - q, a11 - q, a22 - q
     p = np.sqrt((d0**2 + d1**2 + d2**2 + 2.0 * off) / 6.0)
     ps = np.where(p > 0, p, 1.0)
     b00, b11, b22 = d0 / ps, d1 / ps, d2 / ps
-    b01, b02, b12 = a[:, 0, 1] / ps, a[:, 0, 2] / ps, a[:, 1, 2] / ps
+    b01, b02, b12 = a01 / ps, a02 / ps, a12 / ps
     det_b = b00 * (b11 * b22 - b12**2) - b01 * (b01 * b22 - b12 * b02) + b02 * (b01 * b12 - b11 * b02)
     phi = np.arccos(np.clip(det_b / 2.0, -1.0, 1.0)) / 3.0
     return np.where(p > 0, q + 2.0 * p * np.cos(phi + 2.0 * np.pi / 3.0), q)
