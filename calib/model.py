@@ -74,6 +74,8 @@ LEVERAGE_MARGIN = 1e-9
 _I3 = np.eye(3)
 #: ``[e_k]x`` for the unit vectors (3, 3, 3): ``[v]x = sum_k v_k [e_k]x``.
 _GENERATORS = tf.skew(np.eye(3))
+#: Row and column of each entry of a 3x3 matrix in row-major order: ``(a b^T).flat == a[_ROW] * b[_COL]``.
+_ROW, _COL = np.divmod(np.arange(9), 3)
 
 
 # --------------------------------------------------------------------------- frames
@@ -220,9 +222,9 @@ def robot_cofactor(C, K, M, setup: str) -> np.ndarray:
     # [l]x [l]x^T = |l|^2 I - l l^T, and R^T (a I - l l^T) R = a I - (R^T l)(R^T l)^T.
     rho2 = ROBOT_ROTATION_PER_M**2
     lc = lever @ R_C
-    out = lc[:, :, None] * (-rho2 * lc)[:, None, :]
-    out.reshape(-1, 9)[:, ::4] += (1.0 + rho2 * np.sum(lc * lc, axis=1))[:, None]
-    return out
+    out = lc[:, _ROW] * (-rho2 * lc)[:, _COL]         # entries of -rho^2 l l^T as rows (N, 9)
+    out[:, ::4] += (1.0 + rho2 * np.sum(lc * lc, axis=1))[:, None]
+    return out.reshape(-1, 3, 3)
 
 
 # --------------------------------------------------------------------------- weights
@@ -365,7 +367,9 @@ class Problem:
         if key not in by_free:
             r, e, J_t, J_e = by_free[(True, True, True)]
             cols = np.r_[np.arange(self.n_pose), self.n_pose + np.flatnonzero(self.free)]
-            by_free[key] = (r, e, J_t[:, :, cols], None if J_e is None else J_e[:, :, cols])
+            # (Indexing the last axis leaves it outermost in memory: copied back, products are 2x faster.)
+            by_free[key] = (r, e, np.ascontiguousarray(J_t[:, :, cols]),
+                            None if J_e is None else np.ascontiguousarray(J_e[:, :, cols]))
         return by_free[key]
 
     def _raw(self, C, K, theta, free):
@@ -589,7 +593,8 @@ def variance_components(problem: Problem, C, K, theta, shape, robot_cof, noise: 
     G = W @ J_t
     v = np.einsum("nij,nj->ni", W, r)
     G_flat = G.reshape(-1, u)
-    Nmat = G_flat.T @ G_flat
+    NG = G_flat.T @ G_flat
+    Nmat = NG
     if e is not None:
         s2 = problem.sigma_rot**2
         Je_flat = J_e.reshape(-1, u)
@@ -598,21 +603,22 @@ def variance_components(problem: Problem, C, K, theta, shape, robot_cof, noise: 
     # W (s_p S + sigma_R^2 T) W^T = I: the camera share Q~_0 follows from the robot's, Q~_0 = (I - sigma_R^2 Q~_1) / s_p,
     # exact to rounding relative to I (the robot share is the one computed, its subtraction does not cancel
     # when it is small, and s_p >= MIN_POINT_SCALE). Rows (N, 9).
-    Q1 = (W @ robot_cof @ np.ascontiguousarray(np.swapaxes(W, 1, 2))).reshape(n, 9)
-    Q0 = Q1 * (-noise.robot**2 / noise.point_scale)
-    Q0[:, ::4] += 1.0 / noise.point_scale
-    Qw = (Q0, Q1)
-    # v~^T Q~ v~ = sum over entries of Q~ * (v~ v~^T); the hat blocks G_i N^-1 G_i^T as F_i F_i^T with F = G L,
-    # L L^T = N^-1, entry by entry (batched 3x3 products of (N, 3, u) cost 3x more).
-    vv = (v[:, :, None] * v[:, None, :]).reshape(n, 9)
-    q = np.array([float(np.sum(Qk * vv)) for Qk in Qw])
-    tr1 = np.array([float(Qk[:, ::4].sum()) for Qk in Qw])
-    hat = _hat_blocks(G, Ninv)
-    tr2 = np.array([float(np.sum(Qk * hat)) for Qk in Qw])
+    s_p, s_r = noise.point_scale, noise.robot**2
+    Q = np.empty((2, n, 9))
+    Q[1] = (W @ robot_cof @ np.ascontiguousarray(np.swapaxes(W, 1, 2))).reshape(n, 9)
+    np.multiply(Q[1], -s_r / s_p, out=Q[0])
+    Q[0, :, ::4] += 1.0 / s_p
+    Q_flat = Q.reshape(2, -1)
+    H = Q_flat @ Q_flat.T                                   # tr(Q~_k Q~_l) summed (Q~ symmetric)
+    # v~^T Q~ v~ = sum of Q~ * (v~ v~^T) entry by entry.
+    q = Q_flat @ (v[:, _ROW] * v[:, _COL]).reshape(-1)
+    tr1 = Q[:, :, ::4].sum(axis=(1, 2))
+    # tr(Q~ G N^-1 G^T) = tr(N^-1 G^T Q~ G), for the robot share; the camera's follows from
+    # s_p tr(Q~_0 .) + sigma_R^2 tr(Q~_1 .) = tr(.) (no cancellation when it is the larger share).
+    tr_rob = float(np.sum(Ninv * (G_flat.T @ (Q[1].reshape(n, 3, 3) @ G).reshape(-1, u))))
+    tr_all = float(np.sum(Ninv * NG))
+    tr2 = np.array([(tr_all - s_r * tr_rob) / s_p, tr_rob])
     red = tr1 - tr2
-    H = np.empty((2, 2))
-    H[0, 0], H[1, 1] = float(np.sum(Q0 * Q0)), float(np.sum(Q1 * Q1))
-    H[0, 1] = H[1, 0] = float(np.sum(Q0 * Q1))
     H *= (red / np.maximum(tr1, 1e-300))[:, None]
     current = np.array([noise.point_scale, noise.robot**2])
     active = np.array(estimate[:2], dtype=bool)
