@@ -329,6 +329,7 @@ class Problem:
     def __init__(self, M, B, W_t, sigma_rot=None, free=(False, False, False), use_rotation=True, memo=None):
         self.M = M
         self._memo = memo
+        self._store = memo if memo is not None else {}     # where `_system` keeps its last result
         # Contiguous copies: products with them are single BLAS calls (views of M are strided). Shared through
         # the memo by the re-weighted problems of a fit.
         geometry = None if memo is None else memo.get("geometry")
@@ -426,11 +427,47 @@ class Problem:
         J_e[:, :, 6:9] = JeK
         return e, J_t, J_e
 
+    def _system(self, C, K, theta):
+        """``raw``, the whitened point residuals ``v`` (N, 3) and Jacobian ``G`` (N, 3, P), ``G^T G`` and the
+        normal matrix (with the orientation rows).
+
+        The last one is kept (in the memo when there is one): a fit's last step, the variance components
+        and the information at one estimate with one whitening share it.
+        """
+        raw = self.raw(C, K, theta)
+        last = self._store.get("system")
+        if last is not None and last[0] is self.W_t and last[1] is raw and last[2] == self.sigma_rot:
+            return last[3]
+        r, e, J_t, J_e = raw
+        v = np.einsum("nij,nj->ni", self.W_t, r)
+        G = self.W_t @ J_t
+        G_flat = G.reshape(-1, self.n_params)
+        N_points = G_flat.T @ G_flat
+        N = N_points
+        if self.rotations:
+            Je_flat = J_e.reshape(-1, self.n_params)
+            N = N + Je_flat.T @ Je_flat / self.sigma_rot**2
+        out = (raw, v, G, N_points, N)
+        self._store["system"] = (self.W_t, raw, self.sigma_rot, out)
+        return out
+
+    def _normal(self, C, K, theta):
+        """Normal matrix ``J^T J``, gradient ``J^T r`` and cost ``r^T r`` of the whitened problem."""
+        (r, e, _, J_e), v, G, _, N = self._system(C, K, theta)
+        v_flat = v.reshape(-1)
+        g = G.reshape(-1, self.n_params).T @ v_flat
+        cost = float(v_flat @ v_flat)
+        if self.rotations:
+            s2 = self.sigma_rot**2
+            g = g + J_e.reshape(-1, self.n_params).T @ e.reshape(-1) / s2
+            cost += float(np.sum(e * e)) / s2
+        return N, g, cost
+
     def whitened(self, C, K, theta=None):
         """Whitened residual vector (3N or 6N,) and Jacobian (3N or 6N, n_params)."""
-        r, e, J_t, J_e = self.raw(C, K, theta)
-        rw = np.einsum("nij,nj->ni", self.W_t, r).reshape(-1)
-        Jw = (self.W_t @ J_t).reshape(-1, self.n_params)
+        (_, e, _, J_e), v, G, _, _ = self._system(C, K, theta)
+        rw = v.reshape(-1)
+        Jw = G.reshape(-1, self.n_params)
         if self.rotations:
             rw = np.concatenate([rw, (e / self.sigma_rot).reshape(-1)])
             Jw = np.concatenate([Jw, (J_e / self.sigma_rot).reshape(-1, self.n_params)])
@@ -462,8 +499,7 @@ class Problem:
 
 def information(problem: Problem, C, K, theta=None) -> np.ndarray:
     """Fisher information ``J^T W J`` (n_params, n_params) of ``problem`` at ``(C, K, theta)``."""
-    _, J = problem.whitened(C, K, theta)
-    return J.T @ J
+    return problem._system(C, K, theta)[4]
 
 
 def camera_block(info) -> np.ndarray:
@@ -488,11 +524,9 @@ def minimize(problem: Problem, C, K, theta=None, *, max_iterations: int = 50, to
     cost = None
     lam = 1e-6
     for it in range(1, max_iterations + 1):
-        r, J = problem.whitened(C, K, theta)
+        H, g, cost_here = problem._normal(C, K, theta)
         if cost is None:
-            cost = float(r @ r)       # the starting cost; later ones come from the accepted steps
-        H = J.T @ J
-        g = J.T @ r
+            cost = cost_here          # the starting cost; later ones come from the accepted steps
         while True:
             try:
                 delta = -np.linalg.solve(H + lam * np.diag(np.diag(H)), g)
@@ -584,21 +618,16 @@ def variance_components(problem: Problem, C, K, theta, shape, robot_cof, noise: 
     redundancy : ndarray, shape (3,)
         Degrees of freedom of the redundancy taken by (point, robot, rotation).
     """
-    r, e, J_t, J_e = problem.raw(C, K, theta)
+    (r, e, J_t, J_e), v, G, NG, Nmat = problem._system(C, K, theta)
     u = J_t.shape[2]
     # In whitened terms (W^T W = P): v^T P Q P v = v~^T Q~ v~, tr(Q P) = tr(Q~), tr(Q_k P Q_l P) = tr(Q~_k Q~_l),
     # tr(Q P J N^-1 J^T P) = tr(Q~ G N^-1 G^T), with v~ = W v, G = W J, Q~ = W Q W^T: fewer 3x3 products.
     W = problem.W_t
     n = len(r)
-    G = W @ J_t
-    v = np.einsum("nij,nj->ni", W, r)
     G_flat = G.reshape(-1, u)
-    NG = G_flat.T @ G_flat
-    Nmat = NG
     if e is not None:
         s2 = problem.sigma_rot**2
         Je_flat = J_e.reshape(-1, u)
-        Nmat = Nmat + Je_flat.T @ Je_flat / s2
     Ninv = np.linalg.inv(Nmat)
     # W (s_p S + sigma_R^2 T) W^T = I: the camera share Q~_0 follows from the robot's, Q~_0 = (I - sigma_R^2 Q~_1) / s_p,
     # exact to rounding relative to I (the robot share is the one computed, its subtraction does not cancel
@@ -719,17 +748,15 @@ def leave_one_out_after_step(problem: Problem, C, K, theta=None, point_cov=None)
 
 
 def _leave_one_out(problem, C, K, theta, point_cov, *, step):
-    r, e, J_t, J_e = problem.raw(C, K, theta)
+    (r, e, J_t, J_e), rw, G, _, Nmat = problem._system(C, K, theta)
     n, u = len(r), J_t.shape[2]
     W = problem.W_t
-    G = W @ J_t
-    rw = np.einsum("nij,nj->ni", W, r)
     if e is not None:
         G = np.concatenate([G, J_e / problem.sigma_rot], axis=1)
         rw = np.concatenate([rw, e / problem.sigma_rot], axis=1)
     k = G.shape[1]
     G_flat = G.reshape(-1, u)
-    Ninv = np.linalg.inv(G_flat.T @ G_flat)
+    Ninv = np.linalg.inv(Nmat)
     delta = None
     if step:
         delta = -Ninv @ (G_flat.T @ rw.reshape(-1))
