@@ -357,21 +357,30 @@ class Problem:
         """Unwhitened residuals and Jacobians: ``r (N,3), e (N,3)|None, J_t (N,3,P), J_e (N,3,P)|None``."""
         if self._memo is None:
             return self._raw(C, K, theta, self.free)
-        # Kept with every camera column: a problem with fewer free takes its columns (they do not depend on
-        # which are free), so fits of different camera parameters at one estimate share one evaluation.
+        # Kept per free set at the last estimate; a problem with fewer free takes its columns from the one with
+        # all free (they do not depend on which are free) when that was evaluated there.
         last = self._memo.get("raw")
         if last is None or not _same_point(last[0], (C, K, theta)):
-            last = ((C, K, theta), {(True, True, True): self._raw(C, K, theta, np.ones(3, dtype=bool))})
+            last = ((C, K, theta), {})
             self._memo["raw"] = last
         by_free = last[1]
         key = tuple(bool(f) for f in self.free)
         if key not in by_free:
-            r, e, J_t, J_e = by_free[(True, True, True)]
-            cols = np.r_[np.arange(self.n_pose), self.n_pose + np.flatnonzero(self.free)]
-            # (Indexing the last axis leaves it outermost in memory: copied back, products are 2x faster.)
-            by_free[key] = (r, e, np.ascontiguousarray(J_t[:, :, cols]),
-                            None if J_e is None else np.ascontiguousarray(J_e[:, :, cols]))
+            full = by_free.get((True, True, True))
+            if full is None:
+                by_free[key] = self._raw(C, K, theta, self.free)
+            else:
+                r, e, J_t, J_e = full
+                by_free[key] = (r, e, self._columns(J_t), None if J_e is None else self._columns(J_e))
         return by_free[key]
+
+    def _columns(self, J) -> np.ndarray:
+        """The columns of this problem's parameters from a Jacobian with every camera parameter, contiguous
+        (an index array on the last axis leaves it outermost in memory: products with it are 2x slower)."""
+        out = np.empty(J.shape[:2] + (self.n_params,))
+        out[:, :, :self.n_pose] = J[:, :, :self.n_pose]
+        out[:, :, self.n_pose:] = J[:, :, self.n_pose + np.flatnonzero(self.free)]
+        return out
 
     def _raw(self, C, K, theta, free):
         R_C, t_C = C[:3, :3], C[:3, 3]
@@ -435,20 +444,33 @@ class Problem:
         and the information at one estimate with one whitening share it.
         """
         raw = self.raw(C, K, theta)
+        key = tuple(bool(f) for f in self.free)
         last = self._store.get("system")
-        if last is not None and last[0] is self.W_t and last[1] is raw and last[2] == self.sigma_rot:
-            return last[3]
-        r, e, J_t, J_e = raw
-        v = np.einsum("nij,nj->ni", self.W_t, r)
-        G = self.W_t @ J_t
-        G_flat = G.reshape(-1, self.n_params)
-        N_points = G_flat.T @ G_flat
-        N = N_points
-        if self.rotations:
-            Je_flat = J_e.reshape(-1, self.n_params)
-            N = N + Je_flat.T @ Je_flat / self.sigma_rot**2
-        out = (raw, v, G, N_points, N)
-        self._store["system"] = (self.W_t, raw, self.sigma_rot, out)
+        if last is None or not (last[0] is self.W_t and _same_point(last[1], (C, K, theta))
+                                and last[2] == self.sigma_rot):
+            last = (self.W_t, (C, K, theta), self.sigma_rot, {})
+            self._store["system"] = last
+        systems = last[3]
+        if key in systems:
+            return systems[key]
+        full = systems.get((True, True, True))
+        if full is not None:
+            # Fewer camera parameters free at the same estimate and whitening: their rows and columns.
+            cols = np.r_[np.arange(self.n_pose), self.n_pose + np.flatnonzero(self.free)]
+            sub = np.ix_(cols, cols)
+            out = (raw, full[1], self._columns(full[2]), full[3][sub], full[4][sub])
+        else:
+            r, e, J_t, J_e = raw
+            v = np.einsum("nij,nj->ni", self.W_t, r)
+            G = self.W_t @ J_t
+            G_flat = G.reshape(-1, self.n_params)
+            N_points = G_flat.T @ G_flat
+            N = N_points
+            if self.rotations:
+                Je_flat = J_e.reshape(-1, self.n_params)
+                N = N + Je_flat.T @ Je_flat / self.sigma_rot**2
+            out = (raw, v, G, N_points, N)
+        systems[key] = out
         return out
 
     def _normal(self, C, K, theta):
