@@ -676,8 +676,7 @@ def self_check(X, Y, A, B, *, setup: str, point_cov=None, noise: model.NoiseLeve
 def _consistency(fit, prob, C, K, theta, errors, predicted) -> dict:
     """`self_check`'s numbers from the fitted problem and its leave-one-out errors / predicted RMS."""
     p = prob.p
-    pred = model.predict_points(C, K[:3, 3], prob.M, theta)
-    r = p - pred
+    r = prob.raw(C, K, theta)[0]          # p minus the prediction (at the fit's estimate: evaluated already)
     d2 = float(np.sum(_whitened_squares(fit.shape_whitener, r)))
     dof = max(3 * len(p) - prob.n_params, 1)
     p_value = float(chi2.sf(d2, dof))

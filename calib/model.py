@@ -497,6 +497,10 @@ class Problem:
 
     def cost(self, C, K, theta=None) -> float:
         """Whitened residual square sum (chi-square statistic)."""
+        last = self._store.get("system")
+        if (last is not None and last[0] is self.W_t and last[2] == self.sigma_rot
+                and _same_point(last[1], (C, K, theta))):
+            return self._normal(C, K, theta)[2]      # evaluated at this estimate already
         q = ((self._R_M.reshape(-1, 3) @ K[:3, 3]).reshape(-1, 3) + (self._t_M - C[:3, 3])) @ C[:3, :3]
         p = q if theta is None or not np.any(theta) else _measured(q, np.asarray(theta, dtype=float))
         r = np.einsum("nij,nj->ni", self.W_t, self.p - p)
@@ -789,7 +793,7 @@ def _leave_one_out(problem, C, K, theta, point_cov, *, step):
     # Only the point rows of S^-1 are needed: r_loo = S^-1 r and A = H + H S^-1 H = S^-1 - I (S + H = I),
     # both from 3x3 closed forms (a batched LAPACK call costs ~1 us per sample).
     if k == 3:
-        singular = _sym3_min_eigenvalue(S).min() <= LEVERAGE_MARGIN
+        singular = not _sym3_positive(S, LEVERAGE_MARGIN).all()
         S_inv, rp = (None if singular else _inv3(S)), rw
     else:
         # Points and orientations: the point rows of S^-1 = [T^-1, -T^-1 X] with X = S12 S22^-1 and the
@@ -798,8 +802,8 @@ def _leave_one_out(problem, C, K, theta, point_cov, *, step):
         S11, S12, S21, S22 = S[:, :3, :3], S[:, :3, 3:], S[:, 3:, :3], S[:, 3:, 3:]
         shift = LEVERAGE_MARGIN * np.eye(3)
         X_m = S12 @ _inv3(S22 - shift)
-        singular = min(_sym3_min_eigenvalue(S22 - shift).min(),
-                       _sym3_min_eigenvalue(S11 - shift - X_m @ S21).min()) <= 0.0
+        singular = not (_sym3_positive(S22, LEVERAGE_MARGIN).all()
+                        and _sym3_positive(S11 - X_m @ S21, LEVERAGE_MARGIN).all())
         if not singular:
             X = S12 @ _inv3(S22)
             S_inv = _inv3(S11 - X @ S21)
@@ -809,7 +813,7 @@ def _leave_one_out(problem, C, K, theta, point_cov, *, step):
                                     "others do not determine every unknown")
     r_loo = np.einsum("nij,nj->ni", S_inv, rp)          # point rows of S^-1 r
     A = S_inv - np.eye(3)
-    Winv = _inv3(W)
+    Winv = _inv_lower3(W)
     errors = np.linalg.norm(np.einsum("nij,nj->ni", Winv, r_loo), axis=1)
     # trace(Sigma + Winv A Winv^T), the second term as sum((Winv A) * Winv).
     tr_sigma = (np.sum((Winv * Winv).reshape(n, 9), axis=1) if point_cov is None
@@ -840,16 +844,22 @@ def _inv3(a) -> np.ndarray:
     return np.ascontiguousarray(c.T).reshape(-1, 3, 3)
 
 
-def _sym3_min_eigenvalue(a) -> np.ndarray:
-    """Smallest eigenvalue (N,) of symmetric 3x3 matrices, closed form (trigonometric solution of the cubic)."""
+def _inv_lower3(a) -> np.ndarray:
+    """Inverses (N, 3, 3) of lower-triangular 3x3 matrices (the whiteners), by forward substitution."""
+    a00, _, _, a10, a11, _, a20, a21, a22 = _rows(a)
+    c = np.zeros((9, len(a00)))
+    c[0], c[4], c[8] = 1.0 / a00, 1.0 / a11, 1.0 / a22
+    c[3] = -a10 * c[0] * c[4]
+    c[7] = -a21 * c[4] * c[8]
+    c[6] = -(a20 * c[0] + a21 * c[3]) * c[8]
+    return np.ascontiguousarray(c.T).reshape(-1, 3, 3)
+
+
+def _sym3_positive(a, margin: float) -> np.ndarray:
+    """Whether each symmetric 3x3 matrix (N, 3, 3) minus ``margin I`` is positive definite (N,), i.e. its smallest
+    eigenvalue exceeds ``margin`` (Sylvester's criterion: the leading minors; the upper triangle is read)."""
     a00, a01, a02, _, a11, a12, _, _, a22 = _rows(a)
-    q = (a00 + a11 + a22) / 3.0
-    off = a01**2 + a02**2 + a12**2
-    d0, d1, d2 = a00 - q, a11 - q, a22 - q
-    p = np.sqrt((d0**2 + d1**2 + d2**2 + 2.0 * off) / 6.0)
-    ps = np.where(p > 0, p, 1.0)
-    b00, b11, b22 = d0 / ps, d1 / ps, d2 / ps
-    b01, b02, b12 = a01 / ps, a02 / ps, a12 / ps
-    det_b = b00 * (b11 * b22 - b12**2) - b01 * (b01 * b22 - b12 * b02) + b02 * (b01 * b12 - b11 * b02)
-    phi = np.arccos(np.clip(det_b / 2.0, -1.0, 1.0)) / 3.0
-    return np.where(p > 0, q + 2.0 * p * np.cos(phi + 2.0 * np.pi / 3.0), q)
+    b00, b11, b22 = a00 - margin, a11 - margin, a22 - margin
+    m2 = b00 * b11 - a01 * a01
+    det = b00 * (b11 * b22 - a12 * a12) - a01 * (a01 * b22 - a12 * a02) + a02 * (a01 * a12 - b11 * a02)
+    return (b00 > 0) & (m2 > 0) & (det > 0)
