@@ -124,12 +124,16 @@ def _check_inputs(info: MethodInfo, A, B) -> tuple[np.ndarray, np.ndarray]:
             f"point-only methods: {point_methods}"
         )
     A, B = solvers.check_measurements(A, B)
-    if len(A) < info.min_samples:
-        raise InsufficientDataError(f"{info.name} needs at least {info.min_samples} samples, got {len(A)}")
+    _check_count(info, len(A))
     return A, B
 
 
-def closed_form(method: str, A, B, *, setup: Setup = Setup.EYE_TO_HAND) -> CalibrationResult:
+def _check_count(info: MethodInfo, n: int) -> None:
+    if n < info.min_samples:
+        raise InsufficientDataError(f"{info.name} needs at least {info.min_samples} samples, got {n}")
+
+
+def closed_form(method: str, A, B, *, setup: Setup = Setup.EYE_TO_HAND, validate: bool = True) -> CalibrationResult:
     """Run one closed-form method of Table I and wrap it in a CalibrationResult (no refinement, no cov).
 
     Parameters
@@ -144,6 +148,10 @@ def closed_form(method: str, A, B, *, setup: Setup = Setup.EYE_TO_HAND) -> Calib
     setup : {"eye_to_hand", "eye_in_hand"}
         Eye-to-hand: ``X = T_flange_marker``, ``Y = T_base_cam``.
         Eye-in-hand: ``X = T_flange_cam``, ``Y = T_base_marker``.
+    validate : bool
+        False when ``A`` and ``B`` are arrays `solvers.check_measurements`
+        has passed already (as inside ``solve("auto")``): its checks cost
+        ~0.25 ms at N = 1000. The sample count is checked either way.
 
     Returns
     -------
@@ -152,7 +160,10 @@ def closed_form(method: str, A, B, *, setup: Setup = Setup.EYE_TO_HAND) -> Calib
     """
     info = resolve_method(method)
     setup = check_setup(setup)
-    A, B = _check_inputs(info, A, B)
+    if validate:
+        A, B = _check_inputs(info, A, B)
+    else:
+        _check_count(info, len(A))
     return _closed_form(info, A, B, setup)
 
 

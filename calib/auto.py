@@ -224,7 +224,7 @@ def _start(A, B, setup, use_rotation):
     best, best_med, tried = None, np.inf, []
     for name in names:
         try:
-            res = closed_form(name, A, B, setup=setup)
+            res = closed_form(name, A, B, setup=setup, validate=False)     # validated by `solve`
         except CalibrationError:
             continue
         med = float(np.median(res.residuals.translation))

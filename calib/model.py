@@ -356,23 +356,48 @@ class Problem:
     def raw(self, C, K, theta=None):
         """Unwhitened residuals and Jacobians: ``r (N,3), e (N,3)|None, J_t (N,3,P), J_e (N,3,P)|None``."""
         if self._memo is None:
-            return self._raw(C, K, theta, self.free)
-        # Kept per free set at the last estimate; a problem with fewer free takes its columns from the one with
-        # all free (they do not depend on which are free) when that was evaluated there.
+            return self._raw(C, K, theta, self.free)[0]
+        # Kept per free set at the last estimate; another free set there takes the residuals and the pose
+        # columns (they do not depend on which camera parameters are free) and adds its camera columns.
         last = self._memo.get("raw")
         if last is None or not _same_point(last[0], (C, K, theta)):
-            last = ((C, K, theta), {})
+            out, q = self._raw(C, K, theta, self.free)
+            last = ((C, K, theta), {}, q)
             self._memo["raw"] = last
-        by_free = last[1]
-        key = tuple(bool(f) for f in self.free)
-        if key not in by_free:
-            full = by_free.get((True, True, True))
-            if full is None:
-                by_free[key] = self._raw(C, K, theta, self.free)
+        else:
+            out = last[1].get(tuple(bool(f) for f in self.free))
+            if out is None:
+                r, e, J_t, J_e = next(iter(last[1].values()))
+                n, n_pose = len(r), self.n_pose
+                J_t2 = np.empty((n, 3, self.n_params))
+                J_t2[:, :, :n_pose] = J_t[:, :, :n_pose]
+                J_t2[:, :, n_pose:] = self._camera_columns(last[2], theta, self.free)
+                J_e2 = None
+                if J_e is not None:
+                    J_e2 = np.zeros((n, 3, self.n_params))
+                    J_e2[:, :, :n_pose] = J_e[:, :, :n_pose]
+                out = (r, e, J_t2, J_e2)
+        last[1][tuple(bool(f) for f in self.free)] = out
+        return out
+
+    @staticmethod
+    def _camera_columns(q, theta, free) -> np.ndarray:
+        """Jacobian columns (N, 3, k) of the point residual w.r.t. the ``free`` camera parameters at the
+        uncorrected points ``q`` (N, 3) (zero without ``theta``): minus ``dh/dtheta`` of `measure`."""
+        out = np.zeros((len(q), 3, int(np.count_nonzero(free))))
+        if theta is None:
+            return out
+        s, d, f = theta
+        z = q[:, 2]
+        D = np.array([1.0 + f, 1.0 + f, 1.0])
+        for k, j in enumerate(np.flatnonzero(free)):
+            if j == 0:
+                out[:, :, k] = -(D * q)
+            elif j == 1:
+                out[:, :, k] = -(D * q) / z[:, None]
             else:
-                r, e, J_t, J_e = full
-                by_free[key] = (r, e, self._columns(J_t), None if J_e is None else self._columns(J_e))
-        return by_free[key]
+                out[:, :, k] = -(q * (1.0 + s + d / z)[:, None] * np.array([1.0, 1.0, 0.0]))
+        return out
 
     def _columns(self, J) -> np.ndarray:
         """The columns of this problem's parameters from a Jacobian with every camera parameter, contiguous
@@ -383,6 +408,7 @@ class Problem:
         return out
 
     def _raw(self, C, K, theta, free):
+        """`raw` for the camera parameters ``free``, and the points without camera error ``q`` (N, 3)."""
         R_C, t_C = C[:3, :3], C[:3, 3]
         n, n_pose = len(self._R_M), self.n_pose
         n_params = n_pose + int(free.sum())
@@ -402,7 +428,7 @@ class Problem:
         if not (theta is not None and (np.any(theta) or free.any())):
             r = self.p - q
             if not free.any():
-                return (r, None, Jp, None) if not self.rotations else (r, *self._rotation_part(C, K, Jp))
+                return ((r, None, Jp, None) if not self.rotations else (r, *self._rotation_part(C, K, Jp))), q
             J_t = np.zeros((n, 3, n_params))
             J_t[:, :, :n_pose] = Jp
         else:
@@ -419,14 +445,10 @@ class Problem:
             J_p[:, 2::3] += Dq * (-d / z**2)[:, None]
             J_t = np.empty((n, 3, n_params))
             np.matmul(J_p.reshape(n, 3, 3), Jp, out=J_t[:, :, :n_pose])
-            k = n_pose
-            for j in np.flatnonzero(free):
-                col = Dq if j == 0 else (Dq / z[:, None] if j == 1 else q * g[:, None] * np.array([1.0, 1.0, 0.0]))
-                J_t[:, :, k] = -col
-                k += 1
+            J_t[:, :, n_pose:] = self._camera_columns(q, theta, free)
         if not self.rotations:
-            return r, None, J_t, None
-        return (r, *self._rotation_part(C, K, J_t))
+            return (r, None, J_t, None), q
+        return (r, *self._rotation_part(C, K, J_t)), q
 
     def _rotation_part(self, C, K, J_t):
         """``e, J_t, J_e`` of `raw`: the orientation residuals and their Jacobian (`rotation_residuals`)."""
