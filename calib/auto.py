@@ -236,10 +236,8 @@ def _start(A, B, setup, use_rotation):
     return best, tried
 
 
-def _needs_robust(start: CalibrationResult, A, p, W_shape) -> bool:
-    """Whether the start's point residuals, whitened by ``W_shape``, show outliers at a robust (median) scale."""
-    C, K, M = model.split(start.X, start.Y, A, start.setup)
-    d2 = _whitened_squares(W_shape, p - model.predict_points(C, K[:3, 3], M))
+def _needs_robust(d2) -> bool:
+    """Whether the start's whitened squared point residuals ``d2`` (`_point_d2`) show outliers at a robust (median) scale."""
     scale = np.median(d2) / _CHI2_3_MEDIAN
     return bool(np.any(d2 > _CHI2_3_OUTLIER * scale * 4.0))
 
@@ -247,6 +245,11 @@ def _needs_robust(start: CalibrationResult, A, p, W_shape) -> bool:
 #: Quantiles of chi-square with 3 dof used by `_needs_robust` (scipy's ppf costs ~50 us a call).
 _CHI2_3_MEDIAN = float(chi2.ppf(0.5, 3))
 _CHI2_3_OUTLIER = float(chi2.ppf(0.9999, 3))
+
+
+def _point_d2(C, K, M, p, W_shape) -> np.ndarray:
+    """Squared point residuals (N,) at ``(C, K)`` (no camera error) whitened by the camera's shape ``W_shape``."""
+    return _whitened_squares(W_shape, p - model.predict_points(C, K[:3, 3], M))
 
 
 def _whitened_squares(W, r) -> np.ndarray:
@@ -324,7 +327,8 @@ def solve_auto(A, B, *, setup: str, point_cov=None, camera_correction: str = "au
     p = B if B.ndim == 2 else B[:, :3, 3]
     inliers = np.ones(n, dtype=bool)
     W_shape = model.whitener(shape)
-    if robust and n >= 8 and _needs_robust(start, A, p, W_shape):
+    d2 = _point_d2(*model.split(start.X, start.Y, A, setup), p, W_shape)   # also the initial noise level's
+    if robust and n >= 8 and _needs_robust(d2):
         from calib.api import closed_form
 
         name = start.method
@@ -337,7 +341,7 @@ def solve_auto(A, B, *, setup: str, point_cov=None, camera_correction: str = "au
             notes.append(f"outlier search failed ({e}); all samples used")
         else:
             inliers = hyp.inliers
-            start = hyp
+            start, d2 = hyp, None
     A_in, B_in, shape_in = A[inliers], B[inliers], shape[inliers]
     C0, K0, _ = model.split(start.X, start.Y, A_in, setup)
     theta = np.zeros(3)
@@ -348,7 +352,9 @@ def solve_auto(A, B, *, setup: str, point_cov=None, camera_correction: str = "au
         K = K0
         if rot and not start.marker_rotation_known:
             K = tf.make_transform(model.marker_rotation(C0, fit.M, B_in[:, :3, :3]), K0[:3, 3])
-        noise = _initial_noise(C0, K, fit.M, p[inliers], fit.shape_whitener, B_in[:, :3, :3] if rot else None)
+        if d2 is None:
+            d2 = _point_d2(C0, K0, fit.M, p[inliers], fit.shape_whitener)
+        noise = _initial_noise(d2, C0, K, fit.M, B_in[:, :3, :3] if rot else None)
         if not use_rotation:
             # Points only: nothing to compare before the camera parameters, which start from here (`_select_camera`).
             best = _Candidate(fit, C0, K, theta, noise, fit.problem(C0, K, noise, (False, False, False))[0], 0, False,
@@ -570,9 +576,8 @@ def _residuals(X, Y, A, B, setup, theta, use_rotation) -> Residuals:
     return Residuals(translation=np.linalg.norm(r, axis=1), rotation=rot)
 
 
-def _initial_noise(C, K, M, p, W_shape, R_B) -> model.NoiseLevels:
-    """Starting noise levels: the camera model (whitening ``W_shape``) at the scale of the residuals, a small robot error."""
-    d2 = _whitened_squares(W_shape, p - model.predict_points(C, K[:3, 3], M))
+def _initial_noise(d2, C, K, M, R_B) -> model.NoiseLevels:
+    """Starting noise levels: the camera model at the scale of the residuals (``d2``, `_point_d2`), a small robot error."""
     rot0 = None
     if R_B is not None:
         e0 = model.rotation_residuals(C, K, M, R_B)[0]
@@ -584,7 +589,8 @@ def _initial_noise(C, K, M, p, W_shape, R_B) -> model.NoiseLevels:
 def _noise_at(fit, C, K, theta, free) -> model.NoiseLevels:
     """Variance components at a fixed estimate (no refit)."""
     p = fit.B if fit.B.ndim == 2 else fit.B[:, :3, 3]
-    noise = _initial_noise(C, K, fit.M, p, fit.shape_whitener, fit.B[:, :3, :3] if fit.use_rotation else None)
+    noise = _initial_noise(_point_d2(C, K, fit.M, p, fit.shape_whitener), C, K, fit.M,
+                           fit.B[:, :3, :3] if fit.use_rotation else None)
     for _ in range(CHECK_ROUNDS):
         # Fixed estimate: the robot cofactor and the Jacobians are computed once (`_Fit.problem`).
         prob, cof = fit.problem(C, K, noise, free)
