@@ -400,7 +400,12 @@ def solve_auto(A, B, *, setup: str, point_cov=None, camera_correction: str = "au
     check = None if loo is None else _consistency(fit, prob, C, K, theta, *loo)
     if check is not None and check["warning"]:
         notes.append(check["warning"])
-    r_all = _residuals(X, Y, A, B, setup, theta, use_rotation)
+    if inliers.all():
+        # Every sample is in the fit: its residuals at the estimate are evaluated already.
+        r, e = prob.raw(C, K, theta)[:2]
+        r_all = Residuals(translation=np.linalg.norm(r, axis=1), rotation=None if e is None else np.linalg.norm(e, axis=1))
+    else:
+        r_all = _residuals(X, Y, A, B, setup, theta, use_rotation)
     return CalibrationResult(
         method="auto",
         setup=setup,
