@@ -760,6 +760,18 @@ def _hat_blocks(G, Ninv) -> np.ndarray:
     return out.reshape(n, k * k)
 
 
+def _hat_rows(G, Ninv):
+    """The entries ``00, 01, 02, 11, 12, 22`` (each (N,)) of the hat blocks `_hat_blocks` of point blocks G (N, 3, u)."""
+    try:
+        F = G.reshape(-1, G.shape[2]) @ np.linalg.cholesky(Ninv)
+    except np.linalg.LinAlgError:
+        h = _hat_blocks(G, Ninv)
+        return h[:, 0], h[:, 1], h[:, 2], h[:, 4], h[:, 5], h[:, 8]
+    F0, F1, F2 = np.swapaxes(F.reshape(len(G), 3, -1), 0, 1)
+    return (np.einsum("nu,nu->n", F0, F0), np.einsum("nu,nu->n", F0, F1), np.einsum("nu,nu->n", F0, F2),
+            np.einsum("nu,nu->n", F1, F1), np.einsum("nu,nu->n", F1, F2), np.einsum("nu,nu->n", F2, F2))
+
+
 def leave_one_out(problem: Problem, C, K, theta=None, point_cov=None) -> tuple[np.ndarray, np.ndarray]:
     """Linearised leave-one-out prediction errors of the marker points.
 
@@ -824,15 +836,23 @@ def _leave_one_out(problem, C, K, theta, point_cov, *, step):
     if step:
         delta = -Ninv @ (G_flat.T @ rw.reshape(-1))
         rw = rw + (G_flat @ delta).reshape(n, k)
-    S = -_hat_blocks(G, Ninv).reshape(n, k, k)
-    S.reshape(n, k * k)[:, ::k + 1] += 1.0
     # Leverage 1 (an eigenvalue of S at 0): without sample i the others do not determine the unknowns.
     # Only the point rows of S^-1 are needed: r_loo = S^-1 r and A = H + H S^-1 H = S^-1 - I (S + H = I),
-    # both from 3x3 closed forms (a batched LAPACK call costs ~1 us per sample).
+    # both from 3x3 closed forms (a batched LAPACK call costs ~1 us per sample), on entry rows (9, N).
     if k == 3:
-        singular = not _sym3_positive(S, LEVERAGE_MARGIN).all()
-        S_inv, rp = (None if singular else _inv3(S)), rw
+        h00, h01, h02, h11, h12, h22 = _hat_rows(G, Ninv)
+        s00, s11, s22 = 1.0 - h00, 1.0 - h11, 1.0 - h22
+        singular = not _sym3_positive_rows(s00, -h01, -h02, s11, -h12, s22, LEVERAGE_MARGIN).all()
+        if not singular:
+            # Adjugate of the symmetric S (off-diagonal entries -h).
+            c00, c11, c22 = s11 * s22 - h12 * h12, s00 * s22 - h02 * h02, s00 * s11 - h01 * h01
+            c01, c02, c12 = h02 * h12 + h01 * s22, h01 * h12 + h02 * s11, h01 * h02 + s00 * h12
+            det = s00 * c00 - h01 * c01 - h02 * c02
+            S_inv = np.stack([c00, c01, c02, c01, c11, c12, c02, c12, c22]) / det
+            rp = rw.T
     else:
+        S = -_hat_blocks(G, Ninv).reshape(n, k, k)
+        S.reshape(n, k * k)[:, ::k + 1] += 1.0
         # Points and orientations: the point rows of S^-1 = [T^-1, -T^-1 X] with X = S12 S22^-1 and the
         # Schur complement T = S11 - X S21; S - margin I is positive definite iff its orientation block
         # and that block's Schur complement are.
@@ -843,19 +863,29 @@ def _leave_one_out(problem, C, K, theta, point_cov, *, step):
                         and _sym3_positive(S11 - X_m @ S21, LEVERAGE_MARGIN).all())
         if not singular:
             X = S12 @ _inv3(S22)
-            S_inv = _inv3(S11 - X @ S21)
-            rp = rw[:, :3] - (X @ rw[:, 3:, None])[:, :, 0]
+            S_inv = _rows(_inv3(S11 - X @ S21))
+            rp = (rw[:, :3] - (X @ rw[:, 3:, None])[:, :, 0]).T
     if singular:
         raise InsufficientDataError(f"leave-one-out needs more than {n} samples: without one of them the "
                                     "others do not determine every unknown")
-    r_loo = np.einsum("nij,nj->ni", S_inv, rp)          # point rows of S^-1 r
-    A = S_inv - np.eye(3)
-    Winv = _inv_lower3(W)
-    errors = np.linalg.norm(np.einsum("nij,nj->ni", Winv, r_loo), axis=1)
-    # trace(Sigma + Winv A Winv^T), the second term as sum((Winv A) * Winv).
-    tr_sigma = (np.sum((Winv * Winv).reshape(n, 9), axis=1) if point_cov is None
-                else np.reshape(point_cov, (n, 9))[:, ::4].sum(axis=1))
-    tr_fit = np.sum((Winv @ A * Winv).reshape(n, 9), axis=1)
+    # Point rows of S^-1 r, back in unwhitened units through L = W^-1 (lower triangular).
+    a00, a01, a02, a10, a11, a12, a20, a21, a22 = S_inv
+    r0 = a00 * rp[0] + a01 * rp[1] + a02 * rp[2]
+    r1 = a10 * rp[0] + a11 * rp[1] + a12 * rp[2]
+    r2 = a20 * rp[0] + a21 * rp[1] + a22 * rp[2]
+    w00, _, _, w10, w11, _, w20, w21, w22 = _rows(W)
+    l00, l11, l22 = 1.0 / w00, 1.0 / w11, 1.0 / w22
+    l10 = -w10 * l00 * l11
+    l21 = -w21 * l11 * l22
+    l20 = -(w20 * l00 + w21 * l10) * l22
+    e1, e2 = l10 * r0 + l11 * r1, l20 * r0 + l21 * r1 + l22 * r2
+    errors = np.sqrt((l00 * r0) ** 2 + e1 * e1 + e2 * e2)
+    # trace(Sigma + L A L^T) with A = S^-1 - I, the second term as sum(A * L^T L).
+    m00, m11, m22 = l00**2 + l10**2 + l20**2, l11**2 + l21**2, l22**2
+    m01, m02, m12 = l10 * l11 + l20 * l21, l20 * l22, l21 * l22
+    tr_fit = ((a00 - 1.0) * m00 + (a11 - 1.0) * m11 + (a22 - 1.0) * m22
+              + (a01 + a10) * m01 + (a02 + a20) * m02 + (a12 + a21) * m12)
+    tr_sigma = m00 + m11 + m22 if point_cov is None else np.reshape(point_cov, (n, 9))[:, ::4].sum(axis=1)
     return errors, np.sqrt(tr_sigma + tr_fit), delta
 
 
@@ -881,21 +911,15 @@ def _inv3(a) -> np.ndarray:
     return np.ascontiguousarray(c.T).reshape(-1, 3, 3)
 
 
-def _inv_lower3(a) -> np.ndarray:
-    """Inverses (N, 3, 3) of lower-triangular 3x3 matrices (the whiteners), by forward substitution."""
-    a00, _, _, a10, a11, _, a20, a21, a22 = _rows(a)
-    c = np.zeros((9, len(a00)))
-    c[0], c[4], c[8] = 1.0 / a00, 1.0 / a11, 1.0 / a22
-    c[3] = -a10 * c[0] * c[4]
-    c[7] = -a21 * c[4] * c[8]
-    c[6] = -(a20 * c[0] + a21 * c[3]) * c[8]
-    return np.ascontiguousarray(c.T).reshape(-1, 3, 3)
-
-
 def _sym3_positive(a, margin: float) -> np.ndarray:
     """Whether each symmetric 3x3 matrix (N, 3, 3) minus ``margin I`` is positive definite (N,), i.e. its smallest
     eigenvalue exceeds ``margin`` (Sylvester's criterion: the leading minors; the upper triangle is read)."""
     a00, a01, a02, _, a11, a12, _, _, a22 = _rows(a)
+    return _sym3_positive_rows(a00, a01, a02, a11, a12, a22, margin)
+
+
+def _sym3_positive_rows(a00, a01, a02, a11, a12, a22, margin: float) -> np.ndarray:
+    """`_sym3_positive` of the upper-triangle entries, each (N,)."""
     b00, b11, b22 = a00 - margin, a11 - margin, a22 - margin
     m2 = b00 * b11 - a01 * a01
     det = b00 * (b11 * b22 - a12 * a12) - a01 * (a01 * b22 - a12 * a02) + a02 * (a01 * a12 - b11 * a02)
