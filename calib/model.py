@@ -345,6 +345,7 @@ class Problem:
         self.W_t = W_t
         self.sigma_rot = sigma_rot
         self.free = np.asarray(free, dtype=bool)
+        self._key = tuple(bool(f) for f in self.free)      # memo key of this free set
         self.n_pose = 12 if self.rotations else 9
         self.n_params = self.n_pose + int(self.free.sum())
 
@@ -365,7 +366,7 @@ class Problem:
             last = ((C, K, theta), {}, q)
             self._memo["raw"] = last
         else:
-            out = last[1].get(tuple(bool(f) for f in self.free))
+            out = last[1].get(self._key)
             if out is None:
                 r, e, J_t, J_e = next(iter(last[1].values()))
                 n, n_pose = len(r), self.n_pose
@@ -377,7 +378,7 @@ class Problem:
                     J_e2 = np.zeros((n, 3, self.n_params))
                     J_e2[:, :, :n_pose] = J_e[:, :, :n_pose]
                 out = (r, e, J_t2, J_e2)
-        last[1][tuple(bool(f) for f in self.free)] = out
+        last[1][self._key] = out
         return out
 
     @staticmethod
@@ -465,7 +466,7 @@ class Problem:
         and the information at one estimate with one whitening share it.
         """
         raw = self.raw(C, K, theta)
-        key = tuple(bool(f) for f in self.free)
+        key = self._key
         last = self._store.get("system")
         if last is None or not (last[0] is self.W_t and _same_point(last[1], (C, K, theta))
                                 and last[2] == self.sigma_rot):
@@ -584,7 +585,9 @@ def minimize(problem: Problem, C, K, theta=None, *, max_iterations: int = 50, to
                 # raising the damping until it does cost up to 16 more evaluations.
                 return C, K, theta, cost, it, True
             C2, K2, theta2 = problem.retract(C, K, theta, delta)
-            cost2 = problem.cost(C2, K2, theta2)
+            # The whole system at the trial estimate: a step is usually taken, and the next iteration (or the
+            # variance components after it, `calib.auto`) needs it there; a rejected one costs the Jacobian.
+            cost2 = problem._normal(C2, K2, theta2)[2]
             if cost2 <= cost:
                 break
             lam *= 10.0
