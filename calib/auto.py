@@ -111,7 +111,8 @@ class _Fit:
 
     def cofactor(self, C, K):
         """`calib.model.robot_cofactor` at ``(C, K)``; the last one is kept (rounds re-weight at a fixed estimate)."""
-        if self._cof_at is None or not (np.array_equal(self._cof_at[0], C) and np.array_equal(self._cof_at[1], K)):
+        if self._cof_at is None or not ((self._cof_at[0] is C or np.array_equal(self._cof_at[0], C))
+                                        and (self._cof_at[1] is K or np.array_equal(self._cof_at[1], K))):
             self._cof_at = (C, K, model.robot_cofactor(C, K, self.M, self.setup))
         return self._cof_at[2]
 
@@ -207,8 +208,8 @@ class _Candidate:
             prob, _ = self.fit.problem(self.C, self.K, self.noise, (True, True, True))
             self._info_all = (model.information(prob, self.C, self.K, self.theta), prob.n_pose)
         info, n_pose = self._info_all
-        idx = np.r_[np.arange(n_pose), n_pose + np.flatnonzero(free)]
-        return info[np.ix_(idx, idx)], n_pose
+        idx = np.concatenate([np.arange(n_pose), n_pose + np.flatnonzero(free)])
+        return info[idx][:, idx], n_pose
 
 
 def _better(cand: _Candidate, best: _Candidate) -> bool:

@@ -478,9 +478,8 @@ class Problem:
         full = systems.get((True, True, True))
         if full is not None:
             # Fewer camera parameters free at the same estimate and whitening: their rows and columns.
-            cols = np.r_[np.arange(self.n_pose), self.n_pose + np.flatnonzero(self.free)]
-            sub = np.ix_(cols, cols)
-            out = (raw, full[1], self._columns(full[2]), full[3][sub], full[4][sub])
+            cols = np.concatenate([np.arange(self.n_pose), self.n_pose + np.flatnonzero(self.free)])
+            out = (raw, full[1], self._columns(full[2]), full[3][cols][:, cols], full[4][cols][:, cols])
         else:
             r, e, J_t, J_e = raw
             v = np.einsum("nij,nj->ni", self.W_t, r)
