@@ -145,12 +145,12 @@ class CalibrateConfig(Params):
     consecutive frames without a marker measurement, saying what the camera saw.
     """
 
-    samples: Annotated[Int, Field(ge=3)] = 20
+    samples: Annotated[Int, Field(ge=3)] = 30
     min_samples: Annotated[Int, Field(ge=3)] = 8
     target_sigma_mm: NonNegativeFloat = 1.0
     target_sigma_deg: NonNegativeFloat = 0.1
     poses: NonEmptyStr = "optimal"
-    translation_range_m: Annotated[PositiveFloat, Field(le=1.0)] = 0.15
+    translation_range_m: Annotated[PositiveFloat, Field(le=1.0)] = 0.25
     tilt_deg: Annotated[PositiveFloat, Field(le=90.0)] = 40.0
     settle_s: NonNegativeFloat = 0.1
     max_attempts: PositiveInt = 200

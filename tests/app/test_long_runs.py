@@ -37,7 +37,8 @@ def test_calibrate_gives_up_when_the_marker_is_never_seen(tmp_path, capsys, loop
     assert "stopped by: no_marker" in out and "gave up" in out, captured.err
     assert "4x marker 7 of DICT_4X4_50 not found" in out  # what the camera saw
     session = read_session(next(tmp_path.glob("*_eye_to_hand")))
-    assert len(session.skipped) == 4 and not session.observations  # 4 motions, not max_attempts = 200
+    missed = [s for s in session.skipped if s["reason"].startswith("marker 7")]
+    assert len(missed) == 4 and not session.observations  # 4 frames, not max_attempts = 200
     gave_up = [e for e in session.events if e["event"] == "gave_up"]
     assert gave_up and gave_up[0]["missed_frames"] == 4 and "marker 7" in gave_up[0]["camera_saw"]
 

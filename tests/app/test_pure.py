@@ -76,7 +76,7 @@ def test_sigma_worst_axis():
     ({"marker": {"marker_size": 0}}, "marker.marker_size"),
     ({"monitor": {"online": {"forgetting": 2}}}, "monitor.online.forgetting"),
     ({"calibrate": {"samples": 2}}, "calibrate.samples"),
-    ({"calibrate": {"min_samples": 30}}, "calibrate: min_samples"),
+    ({"calibrate": {"min_samples": 40}}, "calibrate: min_samples"),
     ({"calibrate": {"refine": "yes"}}, "calibrate.refine"),
     ({"monitor": {"poll_s": 0}}, "monitor.poll_s"),
     ({"viz": {"enabled": 1}}, "viz.enabled"),
