@@ -76,6 +76,7 @@ _I3 = np.eye(3)
 _GENERATORS = tf.skew(np.eye(3))
 #: Row and column of each entry of a 3x3 matrix in row-major order: ``(a b^T).flat == a[_ROW] * b[_COL]``.
 _ROW, _COL = np.divmod(np.arange(9), 3)
+_EYE_ROW = np.eye(3).reshape(9)
 
 
 # --------------------------------------------------------------------------- frames
@@ -687,20 +688,20 @@ def variance_components(problem: Problem, C, K, theta, shape, robot_cof, noise: 
     np.multiply(Q[1], -s_r / s_p, out=Q[0])
     Q[0, :, ::4] += 1.0 / s_p
     Q_flat = Q.reshape(2, -1)
-    H = Q_flat @ Q_flat.T                                   # tr(Q~_k Q~_l) summed (Q~ symmetric)
-    # v~^T Q~ v~ = sum of Q~ * (v~ v~^T) entry by entry.
-    q = Q_flat @ (v[:, _ROW] * v[:, _COL]).reshape(-1)
-    tr1 = Q[:, :, ::4].sum(axis=(1, 2))
+    # tr(Q~_k Q~_l) summed (Q~ symmetric), v~^T Q~ v~ (the sum of Q~ * v~ v~^T) and tr(Q~), in one product.
+    V = np.empty((4, 9 * n))
+    V[:2] = Q_flat
+    V[2] = (v[:, _ROW] * v[:, _COL]).reshape(-1)
+    V[3] = np.tile(_EYE_ROW, n)
+    (h00, h01, q0, t0), (h10, h11, q1, t1) = (Q_flat @ V.T).tolist()
     # tr(Q~ G N^-1 G^T) = tr(N^-1 G^T Q~ G), for the robot share; the camera's follows from
     # s_p tr(Q~_0 .) + sigma_R^2 tr(Q~_1 .) = tr(.) (no cancellation when it is the larger share).
     tr_rob = float(np.sum(Ninv * (G_flat.T @ (Q[1].reshape(n, 3, 3) @ G).reshape(-1, u))))
     tr_all = float(np.sum(Ninv * NG))
-    tr2 = np.array([(tr_all - s_r * tr_rob) / s_p, tr_rob])
-    red = tr1 - tr2
-    H *= (red / np.maximum(tr1, 1e-300))[:, None]
-    current = np.array([noise.point_scale, noise.robot**2])
-    value = _solve_components(H.tolist(), q.tolist(), current.tolist(), list(estimate[:2]))
-    shares = list(current * red)
+    red = [t0 - (tr_all - s_r * tr_rob) / s_p, t1 - tr_rob]
+    c0, c1 = red[0] / max(t0, 1e-300), red[1] / max(t1, 1e-300)
+    value = _solve_components([[h00 * c0, h01 * c0], [h10 * c1, h11 * c1]], [q0, q1], [s_p, s_r], list(estimate[:2]))
+    shares = [s_p * red[0], s_r * red[1]]
     rot = noise.rotation
     if e is not None:
         tr_rot = 3.0 * len(e) - float(np.sum(Ninv * (Je_flat.T @ Je_flat))) / s2
