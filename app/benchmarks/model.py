@@ -380,6 +380,8 @@ def section_speed(rng, repeats: int, n: int = 1000) -> str:
         ("YKronT' closed form (calib.solvers.y_kron_t_prime)", lambda: solvers.y_kron_t_prime(d.A, p)),
         ("solve(\"YKronT'\") with covariance and self-check", lambda: solve("YKronT'", d.A, p)),
         ("solve(\"auto\") points, with covariance and self-check", lambda: solve("auto", d.A, p)),
+        ("solve(\"auto\") points and their covariances (as the app passes them)",
+         lambda: solve("auto", d.A, p, point_cov=d.point_cov)),
         ("solve(\"auto\") poses, with covariance and self-check", lambda: solve("auto", d.A, d.B)),
     ]
     rows = [[name] + [f"{v:.2f}" for v in _times_ms(fn, repeats)] for name, fn in cases]
