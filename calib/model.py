@@ -520,7 +520,7 @@ class Problem:
     def cost(self, C, K, theta=None) -> float:
         """Whitened residual square sum (chi-square statistic)."""
         last = self._store.get("system")
-        if (last is not None and last[0] is self.W_t and last[2] == self.sigma_rot
+        if (last is not None and self._key in last[3] and last[0] is self.W_t and last[2] == self.sigma_rot
                 and _same_point(last[1], (C, K, theta))):
             return self._normal(C, K, theta)[2]      # evaluated at this estimate already
         q = ((self._R_M.reshape(-1, 3) @ K[:3, 3]).reshape(-1, 3) + (self._t_M - C[:3, 3])) @ C[:3, :3]
@@ -657,7 +657,9 @@ def variance_components(problem: Problem, C, K, theta, shape, robot_cof, noise: 
     The orientation noise (own block) is ``sum e^2 / r_rot``.
 
     ``problem.W_t`` and ``problem.sigma_rot`` must hold the whitening of
-    ``noise``. ``estimate`` says which of (point, robot, rotation) to update;
+    ``noise``: ``W_t`` that of ``noise.point_cov(shape, robot_cof)`` (the
+    camera share ``S`` enters through it, `whitener`; only the robot's is
+    multiplied out). ``estimate`` says which of (point, robot, rotation) to update;
     a component whose solution is negative (not supported by the data) is
     set to its floor and the other re-solved alone.
 
