@@ -263,7 +263,7 @@ def whitener(cov) -> np.ndarray:
         l11 = np.sqrt(a11 - l10**2)
         l21 = (a21 - l20 * l10) / l11
         l22 = np.sqrt(a22 - l20**2 - l21**2)
-        ok = np.isfinite(l22).all() and (l00 > 0).all() and (l11 > 0).all() and (l22 > 0).all()
+        ok = bool(np.all((l00 > 0) & (l11 > 0) & (l22 > 0) & (l22 < np.inf)))     # NaN fails every comparison
     if not ok:
         raise CalibrationError("point_cov is not positive definite")
     W = np.zeros((9, n))
@@ -296,7 +296,10 @@ def _same_point(a, b) -> bool:
     """Whether two ``(C, K, theta)`` are the same estimate (theta None and zeros differ: different Jacobians)."""
     if (a[2] is None) != (b[2] is None):
         return False
-    return all(x is y or np.array_equal(x, y) for x, y in zip(a, b) if x is not None or y is not None)
+    for x, y in zip(a, b):
+        if x is not y and not np.array_equal(x, y):
+            return False
+    return True
 
 
 class Problem:
