@@ -301,9 +301,10 @@ def format_report(runs: list[dict], val: dict, elapsed: float) -> str:
             per_seed = ", ".join(str(r["motions"]) + ("" if r["reached"] else "*") for r in rs)
             med = _median([r["motions"] for r in reached]) if len(reached) == len(rs) else math.nan
             med_txt = f"{med:.0f}" if not math.isnan(med) else f"> {max(r['motions'] for r in rs)} (not all reached)"
+            robot_txt = f"{_median([r['robot_s'] for r in reached]):.1f}" if reached else "-"
             lines.append(
                 f"| {setup} | {strategy} | {len(rs)} | {len(reached)} | {med_txt} | {per_seed} | "
-                f"{_median([r['robot_s'] for r in reached]) if reached else math.nan:.1f} | "
+                f"{robot_txt} | "
                 f"{_median([r['sigma_mm'] for r in rs]):.2f} / {_median([r['sigma_deg'] for r in rs]):.3f} | "
                 f"{_median([r['err_mm'] for r in rs]):.2f} / {_median([r['err_deg'] for r in rs]):.3f} | "
                 f"{sum(r['lost_marker'] for r in rs)} |")
