@@ -198,6 +198,7 @@ def solve(
     point_cov=None,
     rng: np.random.Generator | None = None,
     camera_correction: str | None = None,
+    robot_shared_error=None,
 ) -> CalibrationResult:
     """Hand-eye calibration ``A_i X = Y B_i`` (paper eq. 1) with a method of Table I, or ``"auto"``.
 
@@ -235,6 +236,10 @@ def solve(
     camera_correction : {"auto", "none", "depth", "depth+focal"}, optional
         Method ``"auto"`` only (default "auto"): which camera parameters to
         estimate (`calib.auto.solve_auto`).
+    robot_shared_error : array_like, shape (N, 6, P), optional
+        Method ``"auto"`` only: the robot error all samples share (e.g. its
+        kinematic error), as a factor of the flange-pose error; it joins the
+        covariance (`calib.auto.solve_auto`).
 
     Returns
     -------
@@ -265,9 +270,12 @@ def solve(
         if len(A) < AUTO_MIN_SAMPLES:
             raise InsufficientDataError(f"auto needs at least {AUTO_MIN_SAMPLES} samples, got {len(A)}")
         return solve_auto(A, B, setup=setup, point_cov=point_cov, rng=rng,
-                          camera_correction="auto" if camera_correction is None else camera_correction)
+                          camera_correction="auto" if camera_correction is None else camera_correction,
+                          robot_shared_error=robot_shared_error)
     if camera_correction is not None:
         raise CalibrationError(f"camera_correction applies to method 'auto' only, not {method!r}")
+    if robot_shared_error is not None:
+        raise CalibrationError(f"robot_shared_error applies to method 'auto' only, not {method!r}")
     info = resolve_method(method)
     setup = check_setup(setup)
     A, B = _check_inputs(info, A, B)

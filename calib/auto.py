@@ -277,7 +277,7 @@ def identifiability(info: np.ndarray, free, n_pose: int) -> dict[str, float]:
 
 
 def solve_auto(A, B, *, setup: str, point_cov=None, camera_correction: str = "auto", robust: bool = True,
-               rng: np.random.Generator | None = None) -> CalibrationResult:
+               rng: np.random.Generator | None = None, robot_shared_error=None) -> CalibrationResult:
     """Calibrate with every measurement and the extended model (module docstring).
 
     Parameters
@@ -293,6 +293,14 @@ def solve_auto(A, B, *, setup: str, point_cov=None, camera_correction: str = "au
         Which camera parameters to estimate: "depth" = depth scale and
         offset, "depth+focal" adds the focal scale, "auto" = all three that
         the motions determine.
+    robot_shared_error : array_like, shape (N, 6, P), optional
+        The robot's error that all samples share (e.g. its kinematic
+        error): sample ``i``'s true flange pose is ``A_i Exp(F_i z)`` with
+        ``F_i`` this (6, P) factor (flange-frame twist: rotation rad, then
+        translation m) and ``z ~ N(0, I_P)`` the same for every sample
+        (`calib.robot_error.ur_dh_error_factor` for a UR's DH parameters). It
+        joins the covariance as a "consider" term (`_shared_robot_consider`);
+        the white robot error stays a variance component.
     robust : bool
         Reject gross outliers (LMedS) when the start shows any.
     rng : numpy.random.Generator, optional
@@ -316,6 +324,10 @@ def solve_auto(A, B, *, setup: str, point_cov=None, camera_correction: str = "au
     if camera_correction not in CAMERA_CORRECTIONS:
         raise CalibrationError(f"camera_correction must be one of {', '.join(CAMERA_CORRECTIONS)}, got {camera_correction!r}")
     n = len(A)
+    if robot_shared_error is not None:
+        robot_shared_error = tf.as_real_array(robot_shared_error, "robot_shared_error")
+        if robot_shared_error.ndim != 3 or robot_shared_error.shape[:2] != (n, 6) or robot_shared_error.shape[2] < 1:
+            raise CalibrationError(f"robot_shared_error must have shape ({n}, 6, P), got {robot_shared_error.shape}")
     use_rotation = B.ndim == 3
     notes = []
     flips = None
@@ -390,6 +402,11 @@ def solve_auto(A, B, *, setup: str, point_cov=None, camera_correction: str = "au
     cov = model.camera_block(info_mat)
     if camera_correction != "none" and not free.all():
         cov = cov + _consider(best, free, data_sigma)
+    shared_mm = None
+    if robot_shared_error is not None:
+        shared = _shared_robot_consider(best, info_mat, robot_shared_error[inliers])
+        cov = cov + shared
+        shared_mm = float(np.sqrt(np.trace(shared[3:6, 3:6])) * 1e3)
     sig_theta = np.zeros(3)
     sig_theta[free] = np.sqrt(np.diag(full_cov)[prob.n_pose:])
     correction = {
@@ -426,6 +443,7 @@ def solve_auto(A, B, *, setup: str, point_cov=None, camera_correction: str = "au
             "measurements": ["points", "orientations"] if use_rotation else ["points"],
             "camera_correction": correction,
             "noise": {"point_scale": noise.point_scale, "robot_m": noise.robot, "rotation_rad": noise.rotation},
+            "robot_shared_error_mm": shared_mm,
             "self_check": check,
             "notes": notes,
             "flips": flips,
@@ -564,6 +582,43 @@ def _consider(best: _Candidate, free, data_sigma) -> np.ndarray:
     names = [model.CAMERA_PARAMS[i - n_pose] for i in c]
     sig = np.array([min(CONSIDER_SIGMA[m], data_sigma.get(m, np.inf)) for m in names])
     out = (S * sig**2) @ S.T
+    return 0.5 * (out + out.T)
+
+
+def _shared_robot_consider(best: _Candidate, info, F) -> np.ndarray:
+    """Camera covariance (6, 6) added by a robot error that all samples share (``F``: (N, 6, P), `solve_auto`).
+
+    The estimate responds linearly to a change ``dv`` of the whitened
+    residuals: ``dx = N^-1 G^T dv`` (``N`` the information, ``G`` the
+    whitened Jacobian). Column ``k`` of ``F`` moves every flange pose by
+    ``Exp(F_i[:, k])``, the residuals by ``dv_k`` (central differences), so
+    ``S S^T`` with ``S = N^-1 G^T [dv_1 .. dv_P]`` joins the covariance: the
+    error does not average out over the samples as white noise would.
+    """
+    fit, prob, C, K, theta = best.fit, best.prob, best.C, best.K, best.theta
+    X, Y = model.join(C, K, fit.setup)
+    _, G = prob.whitened(C, K, theta)
+    h = 1e-3                      # of each 1-sigma column: the response is linear at this scale
+    dv = np.empty((G.shape[0], F.shape[2]))
+    steps = np.zeros((2,) + F.shape[:1] + (F.shape[2], 4, 4))        # (side, sample, column, 4, 4)
+    for side, sign in enumerate((1.0, -1.0)):
+        twist = sign * h * np.swapaxes(F, 1, 2)                       # (N, P, 6)
+        steps[side, :, :, :3, :3] = tf.so3_exp(twist[..., :3])
+        steps[side, :, :, :3, 3] = twist[..., 3:]
+        steps[side, :, :, 3, 3] = 1.0
+    moved = fit.A[None, :, None] @ steps                             # (2, N, P, 4, 4)
+    for k in range(F.shape[2]):
+        sides = []
+        for side in range(2):
+            M_k = model.split(X, Y, moved[side, :, k], fit.setup)[2]
+            p = model.predict_points(C, K[:3, 3], M_k, theta)
+            v = -np.einsum("nij,nj->ni", prob.W_t, p).reshape(-1)      # the whitened residual, less W p_measured
+            if prob.rotations:
+                v = np.concatenate([v, (model.rotation_residuals(C, K, M_k, prob.R_B)[0] / prob.sigma_rot).reshape(-1)])
+            sides.append(v)
+        dv[:, k] = (sides[0] - sides[1]) / (2 * h)
+    S = np.linalg.solve(info, G.T @ dv)[:6]
+    out = S @ S.T
     return 0.5 * (out + out.T)
 
 

@@ -25,6 +25,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from calib import transforms as tf
+from calib.robot_error import UR10_DH, ur_dh_error_factor, ur_forward
 from calib.setup import Setup, check_setup
 
 
@@ -241,15 +242,6 @@ def moved_camera_points(data: SimulatedData, n_before: int, bump: np.ndarray) ->
 
 # --------------------------------------------------------------------------- realistic profile
 
-#: UR10 nominal standard-DH parameters (Universal Robots' published values): d, a (m), alpha (rad).
-#: A copy of `drivers.robot.ur_kinematics`'s table: calib does not import drivers.
-UR10_DH = {
-    "d": np.array([0.1273, 0.0, 0.0, 0.163941, 0.1157, 0.0922]),
-    "a": np.array([0.0, -0.612, -0.5723, 0.0, 0.0, 0.0]),
-    "alpha": np.array([np.pi / 2, 0.0, 0.0, np.pi / 2, -np.pi / 2, 0.0]),
-}
-
-
 @dataclass(frozen=True)
 class RealisticProfile:
     """Error magnitudes of the ``realistic`` profile (`realistic_profile`); 1-sigma unless said.
@@ -279,6 +271,10 @@ class RealisticProfile:
     flip_fraction: float = 0.0
     board_center: tuple = (0.09, 0.06, 0.0)
 
+    def dh_error_factor(self, q: np.ndarray) -> np.ndarray:
+        """`calib.robot_error.ur_dh_error_factor` of joints ``q`` (N, 6) at this profile's DH magnitudes."""
+        return ur_dh_error_factor(q, np.deg2rad(self.joint_offset_deg), self.link_length_m, np.deg2rad(self.twist_deg))
+
     def bias_free(self) -> "RealisticProfile":
         """The same cell without systematic errors: exact kinematics and an ideal camera (random noise kept)."""
         return dataclasses.replace(self, joint_offset_deg=0.0, link_length_m=0.0, twist_deg=0.0, depth_scale=0.0,
@@ -306,21 +302,6 @@ class RealisticData:
     robot_rms_m: float
     q: np.ndarray
     kinematics: dict
-
-
-def ur_forward(q: np.ndarray, d: np.ndarray, a: np.ndarray, alpha: np.ndarray, offsets: np.ndarray) -> np.ndarray:
-    """Standard-DH forward kinematics ``T_base_flange`` (N, 4, 4) of joints ``q`` (N, 6) with zero offsets (6,)."""
-    T = np.broadcast_to(np.eye(4), (len(q), 4, 4)).copy()
-    for i in range(6):
-        th = q[:, i] + offsets[i]
-        ct, st, ca, sa = np.cos(th), np.sin(th), np.cos(alpha[i]), np.sin(alpha[i])
-        L = np.zeros((len(q), 4, 4))
-        L[:, 0, 0], L[:, 0, 1], L[:, 0, 2], L[:, 0, 3] = ct, -st * ca, st * sa, a[i] * ct
-        L[:, 1, 0], L[:, 1, 1], L[:, 1, 2], L[:, 1, 3] = st, ct * ca, -ct * sa, a[i] * st
-        L[:, 2, 1], L[:, 2, 2], L[:, 2, 3] = sa, ca, d[i]
-        L[:, 3, 3] = 1.0
-        T = T @ L
-    return T
 
 
 def realistic_profile(n: int, rng: np.random.Generator, profile: RealisticProfile | None = None, *,

@@ -8,6 +8,8 @@ from calib.auto import self_check
 from calib import transforms as tf
 from calib.errors import CalibrationError
 from calib.refine import error_vector
+from calib import robot_error, simulate
+from calib.refine import nees
 from calib.simulate import realistic_cell, with_gross_outliers
 
 
@@ -68,6 +70,58 @@ def test_camera_correction_argument_is_checked():
         solve("YKronT'", d.A, d.points, camera_correction="depth")
 
 
+@pytest.mark.parametrize("setup", ["eye_to_hand", "eye_in_hand"])
+@pytest.mark.parametrize("poses", [False, True])
+def test_shared_robot_error_adds_the_estimates_linear_response(setup, poses):
+    """The consider term of a shared robot error equals the spread of re-solves with the flange poses moved by it."""
+    rng = np.random.default_rng(11)
+    d = realistic_cell(20, rng, setup=setup)
+    B = d.B if poses else d.points
+    F = rng.normal(size=(20, 6, 4)) * np.r_[np.full(3, 2e-4), np.full(3, 5e-4)][None, :, None]
+    base = solve("auto", d.A, B, setup=setup)
+    res = solve("auto", d.A, B, setup=setup, robot_shared_error=F)
+    assert np.allclose(res.camera_transform, base.camera_transform)
+    assert res.info["camera_correction"] == base.info["camera_correction"]
+    added = res.cov - base.cov
+    # Re-solves with every flange pose moved by +-0.3 of each column: the estimate's response. They also
+    # re-estimate the noise levels (here the robot's by up to 4x), which the linear term holds fixed: 20 %.
+    step = 0.3
+    S = []
+    for k in range(F.shape[2]):
+        Y = [solve("auto", d.A @ np.stack([tf.make_transform(tf.so3_exp(s * f[:3]), s * f[3:]) for f in step * F[:, :, k]]),
+                   B, setup=setup).camera_transform for s in (1.0, -1.0)]
+        S.append(error_vector(Y[0], Y[1]) / (2 * step))
+    S = np.array(S).T
+    expected = S @ S.T
+    assert np.linalg.norm(added - expected) < 0.2 * np.linalg.norm(expected)
+    assert res.info["robot_shared_error_mm"] == pytest.approx(np.sqrt(np.trace(added[3:, 3:])) * 1e3)
+
+
+def test_shared_robot_error_makes_the_realistic_covariance_honest():
+    """UR10 DH error as white noise leaves NEES near 7 (6 if honest); shared by the samples it comes back to 6."""
+    prof = simulate.RealisticProfile()
+    white, shared = [], []
+    for seed in range(20):
+        real = simulate.realistic_profile(30, np.random.default_rng(300 + seed), prof)
+        d = real.data
+        plain = solve("auto", d.A, d.points)
+        white.append(nees(plain.Y, d.Y, plain.cov))
+        res = solve("auto", d.A, d.points, robot_shared_error=prof.dh_error_factor(real.q))
+        shared.append(nees(res.Y, d.Y, res.cov))
+    assert np.mean(shared) < np.mean(white)
+    assert 4.5 < np.mean(shared) < 7.5
+
+
+def test_shared_robot_error_is_checked():
+    d = realistic_cell(10, np.random.default_rng(1))
+    with pytest.raises(CalibrationError, match=r"robot_shared_error must have shape \(10, 6, P\)"):
+        solve("auto", d.A, d.points, robot_shared_error=np.zeros((10, 3, 2)))
+    with pytest.raises(CalibrationError, match="robot_shared_error"):
+        solve("auto", d.A, d.points, robot_shared_error=np.full((10, 6, 2), np.nan))
+    with pytest.raises(CalibrationError, match="auto"):
+        solve("YKronT'", d.A, d.points, robot_shared_error=np.zeros((10, 6, 2)))
+
+
 def test_gross_outliers_are_rejected():
     rng = np.random.default_rng(12)
     d = realistic_cell(40, rng)
@@ -118,3 +172,19 @@ def test_few_samples_solve_with_a_self_check(n):
     for B in (d.points, d.B):
         res = solve("auto", d.A, B)
         assert res.residuals.rms_translation < 0.01 and res.info["self_check"] is not None
+
+
+
+
+def test_ur_dh_error_factor_is_the_flange_motion_of_each_dh_parameter():
+    rng = np.random.default_rng(5)
+    q = rng.uniform(-np.pi, np.pi, size=(7, 6))
+    F = robot_error.ur_dh_error_factor(q, 1e-3, 2e-3, 3e-3)
+    dh = robot_error.UR10_DH
+    A = robot_error.ur_forward(q, dh["d"], dh["a"], dh["alpha"], np.zeros(6))
+    # Link length d of joint 2 off by its 1-sigma (2 mm): the flange moves by F's column 7, to first order.
+    moved = robot_error.ur_forward(q, dh["d"] + 2e-3 * np.eye(6)[1], dh["a"], dh["alpha"], np.zeros(6))
+    D = tf.invert(A) @ moved
+    assert np.allclose(D[:, :3, 3], F[:, 3:, 7], atol=1e-8) and np.allclose(tf.so3_log(D[:, :3, :3]), F[:, :3, 7], atol=1e-8)
+    with pytest.raises(CalibrationError, match=r"q must have shape \(N, 6\)"):
+        robot_error.ur_dh_error_factor(q[:, :5], 1e-3, 2e-3, 3e-3)
