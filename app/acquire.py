@@ -98,7 +98,10 @@ def take_sample(
         return None
     viz.frame(frame.t, frame.color, frame.depth, frame.intrinsics,
               marker_px=(float(m.center_px[0]), float(m.center_px[1])))
-    obs = Observation.from_measurement(writer.next_index, frame.t, T_base_flange, m, {"frame_index": frame.index})
+    # The joints with the sample (the robot holds still for one): what a model of its kinematic error needs.
+    q = robot.read().q
+    obs = Observation.from_measurement(writer.next_index, frame.t, T_base_flange, m,
+                                       {"frame_index": frame.index, "q": np.asarray(q, dtype=float).tolist()})
     if frame.truth:
         obs.meta["truth"] = {k: np.asarray(v).tolist() for k, v in frame.truth.items()}
     if pose_kind is not None:

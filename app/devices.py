@@ -83,16 +83,23 @@ def make_measure(cfg: Config):
     return measure
 
 
-def make_solve(cal: CalibrateConfig, setup: Setup, rng: np.random.Generator):
+def make_solve(cal: CalibrateConfig, setup: Setup, rng: np.random.Generator, shared_error=None):
     """``solve(observations, *, final)``: the configured solver, refined while running too if configured, so
     that the stop on the predicted 1-sigma and the pose planner see the covariance of the result that will
     be reported (with "auto": the camera-correction uncertainty too, until the samples determine it);
-    outlier rejection only at the end."""
-    from calib.api import solve_observations
+    outlier rejection only at the end.
+
+    ``shared_error``: the robot's `Robot.shared_error_factor`; with ``auto`` and the joints of every sample
+    (``meta["q"]``), the error it models joins the covariance as shared by all samples."""
+    from calib.api import AUTO, solve_observations
 
     def solve(observations, *, final: bool):
-        return solve_observations(cal.method, observations, setup,
-                                  refine=cal.refine, robust=cal.robust and final, rng=rng)
+        factor = None
+        joints = [o.meta.get("q") for o in observations]
+        if shared_error is not None and cal.method.strip().lower() == AUTO and all(q is not None for q in joints):
+            factor = shared_error(np.array(joints, dtype=float))
+        return solve_observations(cal.method, observations, setup, refine=cal.refine,
+                                  robust=cal.robust and final, rng=rng, robot_shared_error=factor)
 
     return solve
 

@@ -383,7 +383,8 @@ def observations_to_arrays(
 
 
 def solve_observations(method: str, observations: Sequence[Observation], setup: Setup, *, refine: bool = False,
-                       robust: bool = False, rng: np.random.Generator | None = None) -> CalibrationResult:
+                       robust: bool = False, rng: np.random.Generator | None = None,
+                       robot_shared_error=None) -> CalibrationResult:
     """Solve ``A_i X = Y B_i`` (paper eq. 1) for a list of samples with a named solver.
 
     Point methods (YKronT') get the depth-lifted marker centers ``point_cam``
@@ -392,7 +393,8 @@ def solve_observations(method: str, observations: Sequence[Observation], setup: 
     ``"auto"`` gets the marker centers (``point_cam``, with ``point_cov``)
     and, when every sample has a pose, the poses' orientations (the center
     takes the place of the pose's origin); ``refine``/``robust`` do not apply,
-    it always does both.
+    it always does both. ``robot_shared_error`` (``"auto"`` only): (N, 6, P),
+    one row per observation (`solve`).
     """
     if isinstance(method, str) and method.strip().lower() == AUTO:
         # Every measurement the samples carry: the marker centers (depth-lifted when the extractor
@@ -400,12 +402,18 @@ def solve_observations(method: str, observations: Sequence[Observation], setup: 
         # origin: both are fixed on the marker, so the marker frame just moves to the center.
         has_pose = all(o.T_cam_marker is not None for o in observations)
         has_point = all(o.point_cam is not None for o in observations)
-        A, B, point_cov, _ = observations_to_arrays(observations, "poses" if has_pose else "points")
+        A, B, point_cov, kept = observations_to_arrays(observations, "poses" if has_pose else "points")
         if has_pose and has_point:
             _, centers, point_cov, _ = observations_to_arrays(observations, "points")
             B = B.copy()
             B[:, :3, 3] = centers
-        return solve(AUTO, A, B, setup=setup, point_cov=point_cov, rng=rng)
+        if robot_shared_error is not None:
+            factor = tf.as_real_array(robot_shared_error, "robot_shared_error")
+            if len(factor) != len(observations):
+                raise CalibrationError(f"robot_shared_error has {len(factor)} rows for {len(observations)} observations")
+            robot_shared_error = factor[kept]
+        return solve(AUTO, A, B, setup=setup, point_cov=point_cov, rng=rng, robot_shared_error=robot_shared_error)
     info = resolve_method(method)
     A, B, point_cov, _ = observations_to_arrays(observations, info.needs)
-    return solve(info.name, A, B, setup=setup, refine=refine, robust=robust, point_cov=point_cov, rng=rng)
+    return solve(info.name, A, B, setup=setup, refine=refine, robust=robust, point_cov=point_cov, rng=rng,
+                 robot_shared_error=robot_shared_error)

@@ -800,6 +800,9 @@ def report(result: CalibrationResult) -> dict | None:
         n = info["noise"]
         out["noise"] = {"camera_point_scale": n["point_scale"], "robot_mm": n["robot_m"] * 1e3,
                         "marker_rotation_deg": None if n["rotation_rad"] is None else float(np.rad2deg(n["rotation_rad"]))}
+    if info.get("robot_shared_error_mm") is not None:
+        # The 1-sigma of the camera translation that the robot's shared (kinematic) error adds.
+        out["robot_shared_error_mm"] = info["robot_shared_error_mm"]
     if check is not None:
         out["self_check"] = {
             "chi2": check["chi2"], "dof": check["dof"], "p_value": check["p_value"],

@@ -20,11 +20,13 @@ import numpy as np
 from calib import transforms as tf
 from calib.errors import CalibrationError
 
+#: Standard-DH twists of every UR model, rad.
+UR_ALPHA = np.array([np.pi / 2, 0.0, 0.0, np.pi / 2, -np.pi / 2, 0.0])
 #: UR10 nominal standard-DH parameters (Universal Robots' published values): d, a (m), alpha (rad).
 UR10_DH = {
     "d": np.array([0.1273, 0.0, 0.0, 0.163941, 0.1157, 0.0922]),
     "a": np.array([0.0, -0.612, -0.5723, 0.0, 0.0, 0.0]),
-    "alpha": np.array([np.pi / 2, 0.0, 0.0, np.pi / 2, -np.pi / 2, 0.0]),
+    "alpha": UR_ALPHA,
 }
 
 

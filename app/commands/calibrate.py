@@ -149,7 +149,8 @@ def calibrate(cfg: Config, *, resume: Path | None = None, progress: bool = True)
             poses = planning.make_pose_source(cfg, robot, camera.intrinsics, robot.read().T_base_flange, rng)
             with progress_bar(total=cfg.calibrate.samples, initial=len(initial), enabled=progress) as bar:
                 report = run_calibration(robot, camera, devices.make_measure(cfg),
-                                         devices.make_solve(cfg.calibrate, cfg.setup, rng), writer, cfg.calibrate,
+                                         devices.make_solve(cfg.calibrate, cfg.setup, rng, robot.shared_error_factor),
+                                         writer, cfg.calibrate,
                                          rng, viz, save_frames=cfg.session.save_frames, progress=bar,
                                          initial=initial, poses=poses)
     files = (devices.write_result(report.result, writer.path, cfg.session.exports, cfg.frames.model_dump())
@@ -393,6 +394,8 @@ def print_model_summary(res: CalibrationResult) -> None:
             rows.append((label, f"{c['value']:+.2f} ± {c['sigma']:.2f}"))
     if "noise" in rep:
         rows.append(("robot error [mm] (estimated)", f"{rep['noise']['robot_mm']:.2f}"))
+    if "robot_shared_error_mm" in rep:
+        rows.append(("robot kinematic error in the 1-sigma [mm]", f"{rep['robot_shared_error_mm']:.2f}"))
     check = rep.get("self_check")
     if check is not None:
         rows.append(("held-out error [mm] observed / predicted",

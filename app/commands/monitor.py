@@ -173,7 +173,8 @@ def monitor(cfg: Config, *, reference: Path | None = None, stop=None, progress: 
         writer = SessionWriter.create(cfg.session.root, cfg.setup, config=cfg.to_dict(),
                                       intrinsics=dataclasses.asdict(camera.intrinsics), truth=devices.truth(camera),
                                       source="handeye monitor", keep_frames=cfg.monitor.keep_frames)
-        solve = devices.make_solve(cfg.calibrate.model_copy(update={"method": cfg.monitor.method}), cfg.setup, rng)
+        solve = devices.make_solve(cfg.calibrate.model_copy(update={"method": cfg.monitor.method}), cfg.setup, rng,
+                                   robot.shared_error_factor)
         with writer, devices.make_viz(cfg, writer.path) as viz, progress_bar(enabled=progress) as bar:
             seen = []
 

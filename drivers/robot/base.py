@@ -48,6 +48,11 @@ class RobotState:
 class Robot(Device):
     """A robot arm. Use as a context manager: ``with ROBOTS.create(cfg) as robot: ...``."""
 
+    def shared_error_factor(self, q) -> np.ndarray | None:
+        """The flange-pose error all samples at joints ``q`` (N, 6) share (e.g. the kinematic model's), as
+        `calib.auto.solve_auto`'s ``robot_shared_error`` factor (N, 6, P); None: the backend models none."""
+        return None
+
     @abc.abstractmethod
     def read(self) -> RobotState:
         """Latest state; raises ConnectionLostError if the stream dropped or froze."""

@@ -36,6 +36,7 @@ from pydantic import Field, field_validator, model_validator
 from calib.errors import ParameterError
 from calib.params import Bool, Float, NonEmptyStr, Params, PositiveFloat, Str, Vector3, Vector6
 from drivers.errors import ConnectionLostError, DeviceError, LimitViolationError, RobotStoppedError
+from calib.robot_error import UR_ALPHA, ur_dh_error_factor
 from calib.transforms import from_ur_pose, invert, pose_error, to_ur_pose
 from drivers.robot import ur_kinematics as kin
 from drivers.robot.base import Robot, RobotState
@@ -69,6 +70,20 @@ MAX_PATH_DQ, MIN_PATH_STEP = 0.02, 1e-5
 # ur_rtde's own bounds for moveL / moveJ arguments.
 MAX_TOOL_SPEED, MAX_TOOL_ACC = 3.0, 150.0
 MAX_JOINT_SPEED, MAX_JOINT_ACC = 3.14, 40.0
+
+
+class URKinematicError(Params):
+    """1-sigma of a UR's DH parameters around the nominal ones the controller computes poses with.
+
+    Kinematic identification of UR arms without their factory calibration
+    reports joint zero offsets of a few hundredths of a degree and link
+    errors of tenths of a mm (1-3 mm at the flange); a factory-calibrated arm
+    is several times better.
+    """
+
+    joint_offset_deg: Annotated[Float, Field(ge=0, le=5)] = 0.03
+    link_length_m: Annotated[Float, Field(ge=0, le=0.01)] = 0.0003
+    twist_deg: Annotated[Float, Field(ge=0, le=5)] = 0.02
 
 
 class URRobotConfig(Params):
@@ -130,6 +145,11 @@ class URRobotConfig(Params):
     path_step : float
         Spacing (m of tool travel, or rad of the leading joint) of the
         samples at which a motion path is checked against the limits.
+    kinematic_error : URKinematicError or None
+        1-sigma of the arm's DH parameters around the nominal ones of
+        ``model``: the calibration then treats the flange-pose error they
+        cause as shared by all samples (`URRobot.shared_error_factor`).
+        None: the robot's error is taken as white (repeatability).
     """
 
     type: Literal["ur"] = "ur"
@@ -161,6 +181,7 @@ class URRobotConfig(Params):
     # Finer than 1 mm (1 mrad) only costs time (1e-7 made a target take 20 s); coarser
     # than 5 cm could step over a limit or a singular region between two checks.
     path_step: Annotated[Float, Field(ge=1e-3, le=0.05)] = 0.01
+    kinematic_error: URKinematicError | None = None
 
     @field_validator("model")
     @classmethod
@@ -425,6 +446,16 @@ class URRobot(Robot):
         return self._buffer.span()
 
     # ---------------------------------------------------------------- limits
+    def shared_error_factor(self, q) -> np.ndarray | None:
+        """The flange-pose error of joints ``q`` (N, 6) that the configured ``kinematic_error`` causes: the
+        factor (N, 6, 24) of `calib.auto.solve_auto`'s ``robot_shared_error``; None when not configured."""
+        err = self.config.kinematic_error
+        if err is None:
+            return None
+        g = kin.geometry(self.config.model)
+        return ur_dh_error_factor(kin.check_q(q), math.radians(err.joint_offset_deg), err.link_length_m,
+                                  math.radians(err.twist_deg), dh={"d": g.d, "a": g.a, "alpha": UR_ALPHA})
+
     def check_pose(self, T_base_flange: np.ndarray, what: str) -> None:
         """`LimitViolationError` (message starting with ``what``) if the flange or TCP leaves the box or the tilt cone."""
         cfg = self.config

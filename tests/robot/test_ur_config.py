@@ -66,3 +66,22 @@ def test_simulator_cli_rejects_bad_arguments(capsys, loopback):
     assert sim_main(["--host", loopback(98), "--model", "ur99"]) == 2
     assert sim_main(["--host", loopback(98), "--controller", "7.0"]) == 2
     assert "ur99" in capsys.readouterr().err
+
+
+def test_shared_error_factor_is_the_configured_dh_error_of_the_model():
+    import numpy as np
+
+    from calib.robot_error import ur_dh_error_factor
+
+    q = np.random.default_rng(2).uniform(-3, 3, size=(5, 6))
+    assert URRobot(URRobotConfig(host="10.0.0.2", **BOX)).shared_error_factor(q) is None
+    cfg = URRobotConfig(host="10.0.0.2", model="UR10", **BOX,
+                        kinematic_error={"joint_offset_deg": 0.05, "link_length_m": 0.001, "twist_deg": 0.0})
+    F = URRobot(cfg).shared_error_factor(q)
+    # The driver's UR10 geometry is the published table calib's simulator also uses.
+    np.testing.assert_allclose(F, ur_dh_error_factor(q, np.deg2rad(0.05), 0.001, 0.0), atol=1e-9)
+    assert F.shape == (5, 6, 24) and not F[:, :, 18:].any()      # twists known exactly
+    with pytest.raises(DeviceError, match="q"):
+        URRobot(cfg).shared_error_factor(q[:, :4])
+    with pytest.raises(ParameterError, match="link_length_m"):
+        URRobotConfig(host="10.0.0.2", **BOX, kinematic_error={"link_length_m": -1.0})
