@@ -409,8 +409,9 @@ def solve_observations(method: str, observations: Sequence[Observation], setup: 
             B[:, :3, 3] = centers
         if robot_shared_error is not None:
             factor = tf.as_real_array(robot_shared_error, "robot_shared_error")
-            if len(factor) != len(observations):
-                raise CalibrationError(f"robot_shared_error has {len(factor)} rows for {len(observations)} observations")
+            if factor.ndim == 0 or len(factor) != len(observations):
+                raise CalibrationError(f"robot_shared_error must have one row per observation ({len(observations)}), "
+                                       f"got shape {factor.shape}")
             robot_shared_error = factor[kept]
         return solve(AUTO, A, B, setup=setup, point_cov=point_cov, rng=rng, robot_shared_error=robot_shared_error)
     info = resolve_method(method)

@@ -316,7 +316,9 @@ def solve_auto(A, B, *, setup: str, point_cov=None, camera_correction: str = "au
         note), ``noise`` (point_scale, robot_m, rotation_rad),
         ``self_check`` (see `self_check`), ``cov_kind`` "fisher-extended"
         (plus the "consider" covariance of camera parameters left at nominal,
-        `CONSIDER_SIGMA`, unless ``camera_correction="none"``).
+        `CONSIDER_SIGMA`, unless ``camera_correction="none"``, and that of
+        ``robot_shared_error``, whose share of the camera translation's
+        1-sigma is ``robot_shared_error_mm``, None without it).
     """
     from calib.robust import robust_solve
     from calib.symmetry import resolve_flips

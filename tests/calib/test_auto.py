@@ -188,3 +188,26 @@ def test_ur_dh_error_factor_is_the_flange_motion_of_each_dh_parameter():
     assert np.allclose(D[:, :3, 3], F[:, 3:, 7], atol=1e-8) and np.allclose(tf.so3_log(D[:, :3, :3]), F[:, :3, 7], atol=1e-8)
     with pytest.raises(CalibrationError, match=r"q must have shape \(N, 6\)"):
         robot_error.ur_dh_error_factor(q[:, :5], 1e-3, 2e-3, 3e-3)
+
+
+def test_solve_observations_passes_the_shared_robot_error_of_the_samples_it_uses():
+    from calib.api import solve_observations
+    from calib.observation import Observation
+
+    real = simulate.realistic_profile(20, np.random.default_rng(8))
+    d = real.data
+    obs = [Observation(i, 0.0, d.A[i], d.points[i], d.point_cov[i], None, None) for i in range(20)]
+    F = simulate.RealisticProfile().dh_error_factor(real.q)
+    res = solve_observations("auto", obs, "eye_to_hand", robot_shared_error=F)
+    assert res.info["robot_shared_error_mm"] == solve("auto", d.A, d.points, point_cov=d.point_cov,
+                                                      robot_shared_error=F).info["robot_shared_error_mm"]
+    # A sample without a marker point is left out, its row of F with it.
+    obs[3] = Observation(3, 0.0, d.A[3], None, None, None, None)
+    keep = np.r_[0:3, 4:20]
+    res = solve_observations("auto", obs, "eye_to_hand", robot_shared_error=F)
+    assert res.info["robot_shared_error_mm"] == pytest.approx(
+        solve("auto", d.A[keep], d.points[keep], point_cov=d.point_cov[keep], robot_shared_error=F[keep]).info[
+            "robot_shared_error_mm"])
+    for bad in (F[:5], 1.0):
+        with pytest.raises(CalibrationError, match="one row per observation"):
+            solve_observations("auto", obs, "eye_to_hand", robot_shared_error=bad)
