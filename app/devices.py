@@ -91,17 +91,25 @@ def make_solve(cal: CalibrateConfig, setup: Setup, rng: np.random.Generator, sha
 
     ``shared_error``: the robot's `Robot.shared_error_factor`; with ``auto`` and the joints of every sample
     (``meta["q"]``), the error it models joins the covariance as shared by all samples."""
-    from calib.api import AUTO, solve_observations
+    from calib.api import solve_observations
 
     def solve(observations, *, final: bool):
-        factor = None
-        joints = [o.meta.get("q") for o in observations]
-        if shared_error is not None and cal.method.strip().lower() == AUTO and all(q is not None for q in joints):
-            factor = shared_error(np.array(joints, dtype=float))
-        return solve_observations(cal.method, observations, setup, refine=cal.refine,
-                                  robust=cal.robust and final, rng=rng, robot_shared_error=factor)
+        return solve_observations(cal.method, observations, setup, refine=cal.refine, robust=cal.robust and final,
+                                  rng=rng, robot_shared_error=robot_shared_error(cal.method, observations, shared_error))
 
     return solve
+
+
+def robot_shared_error(method: str, observations, shared_error) -> np.ndarray | None:
+    """``solve``'s ``robot_shared_error`` for ``observations``: ``shared_error`` (a robot's
+    `Robot.shared_error_factor`) of their joints (``meta["q"]``) for ``auto``; None for another method,
+    without it, or when a sample lacks its joints (sessions before 2026-12-01, imported files)."""
+    from calib.api import AUTO
+
+    joints = [o.meta.get("q") for o in observations]
+    if shared_error is None or method.strip().lower() != AUTO or any(q is None for q in joints):
+        return None
+    return shared_error(np.array(joints, dtype=float))
 
 
 def make_viz(cfg: Config, session: Path) -> Viz:

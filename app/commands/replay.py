@@ -49,28 +49,31 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--setup", choices=[s.value for s in Setup], help="setup of an imported file")
     p.add_argument("--seed", type=int, default=0, help="seed for randomised (robust) solvers and the folds")
     p.add_argument("-c", "--config", type=Path, help="config whose calibrate.target_sigma_mm/_deg the 1-sigma "
-                   "warnings use (default targets: 3 mm, 0.2 deg)")
+                   "warnings use (default targets: 3 mm, 0.2 deg), and whose robot's kinematic_error auto adds "
+                   "as shared by the samples (sessions with joints)")
 
 
 def run(args) -> int:
     methods = args.methods or ["YKronT'", "YQuatT'"]
-    target = (0.0, 0.0)
+    target, shared_error = (0.0, 0.0), None
     if args.config is not None:
         from app.config import load_config
 
-        cal = load_config(args.config).calibrate
-        target = (cal.target_sigma_mm, cal.target_sigma_deg)
+        cfg = load_config(args.config)
+        target = (cfg.calibrate.target_sigma_mm, cfg.calibrate.target_sigma_deg)
+        shared_error = devices.open_robot(cfg, read_only=True).shared_error_factor   # a model only: never connected
     print(replay_source(args.source, methods, refine=args.refine, robust=args.robust, setup=args.setup,
-                        rng=np.random.default_rng(args.seed), target_mm=target[0], target_deg=target[1]))
+                        rng=np.random.default_rng(args.seed), target_mm=target[0], target_deg=target[1],
+                        shared_error=shared_error))
     return 0
 
 
 def replay_source(source: Path, methods: list[str], *, refine: bool = False, robust: bool = False,
                   setup: Setup | None = None, rng: np.random.Generator | None = None,
-                  target_mm: float = 0.0, target_deg: float = 0.0) -> str:
+                  target_mm: float = 0.0, target_deg: float = 0.0, shared_error=None) -> str:
     """Re-solve a session directory or an imported file with each method; returns the report: the
     tables grouped by what the solvers use and sorted by held-out error, then the advice
-    (`advice`; ``target_mm``/``target_deg`` are the config's 1-sigma targets)."""
+    (`advice`; ``target_mm``/``target_deg`` are the config's 1-sigma targets; ``shared_error``: `replay`)."""
     if not Path(source).exists():
         raise SessionError(f"{source}: no such file or directory")
     if (Path(source) / "session.json").exists():
@@ -88,7 +91,7 @@ def replay_source(source: Path, methods: list[str], *, refine: bool = False, rob
     if methods == ["all"]:
         methods = list(METHODS)
     rows = replay(observations, setup, methods, refine=refine, robust=robust,
-                  truth=devices.camera_truth(setup, truth), rng=rng)
+                  truth=devices.camera_truth(setup, truth), rng=rng, shared_error=shared_error)
     if all(r.result is None for r in rows):
         raise HandeyeError(f"no solver succeeded on {source}: " + "; ".join(f"{r.method}: {r.error}" for r in rows))
     lines = advice(rows, observations, refine=refine, target_mm=target_mm, target_deg=target_deg)
@@ -189,6 +192,7 @@ def replay(
     truth: np.ndarray | None = None,
     rng: np.random.Generator | None = None,
     crossval: bool = True,
+    shared_error=None,
 ) -> list[ReplayRow]:
     """Solve the same samples with each method, time it, and cross-validate it.
 
@@ -203,6 +207,10 @@ def replay(
         eye-in-hand) to report errors against.
     crossval : bool
         Also measure each method's held-out prediction error (`heldout_error`).
+    shared_error : callable, optional
+        A robot's `Robot.shared_error_factor`: ``auto`` adds the error it
+        models as shared by the samples, when they carry their joints
+        (`app.devices.robot_shared_error`).
 
     Returns
     -------
@@ -214,7 +222,8 @@ def replay(
     for method in methods:
         t0 = time.perf_counter()
         try:
-            res = solve_observations(method, observations, setup, refine=refine, robust=robust, rng=rng)
+            res = solve_observations(method, observations, setup, refine=refine, robust=robust, rng=rng,
+                                     robot_shared_error=devices.robot_shared_error(method, observations, shared_error))
         except HandeyeError as e:
             rows.append(ReplayRow(method, None, time.perf_counter() - t0, error=str(e), uses=_uses(method)))
             continue

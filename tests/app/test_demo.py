@@ -8,6 +8,7 @@ import pytest
 from app.config import Config, load_config
 from app.commands.calibrate import calibrate
 from app.commands.demo import demo
+from app.commands.replay import replay
 from app import devices
 from app.session import read_session
 from drivers.robot import ur_kinematics as kin
@@ -49,6 +50,9 @@ def test_demo_recovers_true_camera_pose(sim_config, loopback):
         session.observations, final=True)
     assert shared.info["robot_shared_error_mm"] > 0.1 and np.allclose(shared.T_base_cam, res.T_base_cam, atol=1e-9)
     assert np.all(np.linalg.eigvalsh(shared.cov - res.cov) > -1e-12)
+    # replay, given the robot model, does the same with the recorded session
+    row = replay(session.observations, cfg.setup, ["auto"], crossval=False, shared_error=robot.shared_error_factor)[0]
+    assert row.result.info["robot_shared_error_mm"] == pytest.approx(shared.info["robot_shared_error_mm"])
     run = json.loads((out.report.session / "result.json").read_text())["run"]
     assert run["stopped_by"] == out.report.stopped_by and run["n_samples"] == out.report.n_samples
     assert run["poses"] == "optimal"
