@@ -109,6 +109,14 @@ def robot_shared_error(method: str, observations, shared_error) -> np.ndarray | 
     joints = [o.meta.get("q") for o in observations]
     if shared_error is None or method.strip().lower() != AUTO or any(q is None for q in joints):
         return None
+    for o, q in zip(observations, joints):
+        # A session file is input: its joints are checked like any other field.
+        try:
+            v = np.asarray(q, dtype=float)
+        except (TypeError, ValueError):
+            v = np.empty(0)
+        if v.shape != (6,) or not np.isfinite(v).all():
+            raise SessionError(f"sample {o.index}: meta q must be 6 finite joint angles (rad), got {q!r}")
     return shared_error(np.array(joints, dtype=float))
 
 

@@ -118,3 +118,22 @@ def test_realistic_demo_config_has_the_camera_depth_error():
     cfg = load_config("config/sim_realistic.toml")
     assert cfg.camera.noise.depth_scale == 0.015 and cfg.camera.noise.depth_offset_m == 0.003
     assert cfg.calibrate.method == "auto"
+
+
+@pytest.mark.parametrize("bad", ["abc", [1, 2], [0, 0, 0, 0, 0, float("nan")], [[1] * 6], {"a": 1}])
+def test_recorded_joints_are_checked_before_the_robot_model_uses_them(bad):
+    from app import devices
+    from app.errors import SessionError
+    from calib.observation import Observation
+    from calib.simulate import realistic_profile
+
+    real = realistic_profile(12, np.random.default_rng(0))
+    d = real.data
+    obs = [Observation(i, 0.0, d.A[i], d.points[i], d.point_cov[i], None, None, {"q": list(real.q[i])})
+           for i in range(12)]
+    factor = devices.robot_shared_error("auto", obs, lambda q: np.zeros((len(q), 6, 1)))
+    assert factor.shape == (12, 6, 1)
+    assert devices.robot_shared_error("YKronT'", obs, lambda q: np.zeros((len(q), 6, 1))) is None
+    obs[4].meta["q"] = bad
+    with pytest.raises(SessionError, match="sample 4: meta q must be 6 finite joint angles"):
+        devices.robot_shared_error("auto", obs, lambda q: np.zeros((len(q), 6, 1)))
