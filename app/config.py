@@ -24,7 +24,7 @@ import tomllib
 from pathlib import Path
 from typing import Annotated, Any, Literal, Union
 
-from pydantic import AfterValidator, Discriminator, Field, Tag, ValidationError, field_validator, model_validator
+from pydantic import AfterValidator, Discriminator, Field, Tag, ValidationError, model_validator
 
 from app import backends  # noqa: F401  every backend registers itself before the unions are built
 from app.errors import ConfigError
@@ -33,7 +33,6 @@ from app.files import read_text_file
 from calib.online import OnlineConfig
 from calib.params import (
     Bool,
-    Float,
     Int,
     NonEmptyStr,
     NonNegativeFloat,

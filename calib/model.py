@@ -114,11 +114,6 @@ class CameraCorrection:
     def as_array(self) -> np.ndarray:
         return np.array([self.depth_scale, self.depth_offset, self.focal_scale])
 
-    @classmethod
-    def from_array(cls, theta) -> "CameraCorrection":
-        s, d, f = (float(v) for v in theta)
-        return cls(s, d, f)
-
     def measure(self, points) -> np.ndarray:
         """What the camera reports (N, 3) for true camera-frame points (N, 3), m."""
         return measure(points, self.as_array())[0]
