@@ -602,13 +602,8 @@ def _shared_robot_consider(best: _Candidate, info, F) -> np.ndarray:
     _, G = prob.whitened(C, K, theta)
     h = 1e-3                      # of each 1-sigma column: the response is linear at this scale
     dv = np.empty((G.shape[0], F.shape[2]))
-    steps = np.zeros((2,) + F.shape[:1] + (F.shape[2], 4, 4))        # (side, sample, column, 4, 4)
-    for side, sign in enumerate((1.0, -1.0)):
-        twist = sign * h * np.swapaxes(F, 1, 2)                       # (N, P, 6)
-        steps[side, :, :, :3, :3] = tf.so3_exp(twist[..., :3])
-        steps[side, :, :, :3, 3] = twist[..., 3:]
-        steps[side, :, :, 3, 3] = 1.0
-    moved = fit.A[None, :, None] @ steps                             # (2, N, P, 4, 4)
+    twist = np.array([h, -h])[:, None, None, None] * np.swapaxes(F, 1, 2)[None]     # (side, N, P, 6)
+    moved = fit.A[None, :, None] @ tf.make_transform(tf.so3_exp(twist[..., :3]), twist[..., 3:])  # (2, N, P, 4, 4)
     for k in range(F.shape[2]):
         sides = []
         for side in range(2):
