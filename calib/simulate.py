@@ -281,6 +281,24 @@ class RealisticProfile:
                                    depth_offset=0.0, focal_scale=0.0, misregistration_px=0.0, flip_fraction=0.0)
 
 
+#: Working pose of the realistic cell's UR10 (rad) and the span drawn around it: +-8 deg on the
+#: shoulder/elbow joints, +-25 deg on the wrist.
+_WORKING_JOINTS = np.deg2rad([10.0, -110.0, 100.0, -80.0, -90.0, 0.0])
+_JOINT_SPAN = np.deg2rad([8.0, 8.0, 8.0, 25.0, 25.0, 25.0])
+
+
+def _visible_joints(n: int, rng: np.random.Generator, X, Y) -> np.ndarray:
+    """``n`` joint configurations (n, 6) of the realistic cell's span that show the marker to the camera."""
+    dh = UR10_DH
+    q = np.empty((0, 6))
+    while len(q) < n:
+        cand = _WORKING_JOINTS + rng.uniform(-_JOINT_SPAN, _JOINT_SPAN, size=(4 * n, 6))
+        Bc = tf.invert(Y) @ ur_forward(cand, dh["d"], dh["a"], dh["alpha"], np.zeros(6)) @ X
+        facing = -Bc[:, 2, 2] > np.cos(np.deg2rad(60.0))          # marker normal towards the camera
+        q = np.vstack([q, cand[facing & (Bc[:, 2, 3] > 0.3)]])
+    return q[:n]
+
+
 @dataclass(frozen=True)
 class RealisticData:
     """`realistic_profile` output: the measurements, the truth, and the systematic errors applied.
@@ -325,25 +343,17 @@ def realistic_profile(n: int, rng: np.random.Generator, profile: RealisticProfil
 
     prof = profile if profile is not None else RealisticProfile()
     dh = UR10_DH
-    q0 = np.deg2rad([10.0, -110.0, 100.0, -80.0, -90.0, 0.0])
     off_true = rng.normal(scale=np.deg2rad(prof.joint_offset_deg), size=6)
     d_true = dh["d"] + rng.normal(scale=prof.link_length_m, size=6)
     a_true = dh["a"] + rng.normal(scale=prof.link_length_m, size=6)
     al_true = dh["alpha"] + rng.normal(scale=np.deg2rad(prof.twist_deg), size=6)
     X = tf.make_transform(Rotation.from_euler("xyz", rng.uniform(-0.3, 0.3, size=3)).as_matrix(),
                           rng.uniform(-0.05, 0.05, size=3) + [0.0, 0.0, 0.03])
-    A0 = ur_forward(q0[None], dh["d"], dh["a"], dh["alpha"], np.zeros(6))[0] @ X
+    A0 = ur_forward(_WORKING_JOINTS[None], dh["d"], dh["a"], dh["alpha"], np.zeros(6))[0] @ X
     normal = A0[:3, 2]
     eye = A0[:3, 3] + distance * normal
     Y = _look_at(eye, A0[:3, 3])
-    span = np.deg2rad([8.0, 8.0, 8.0, 25.0, 25.0, 25.0])
-    q = np.empty((0, 6))
-    while len(q) < n:
-        cand = q0 + rng.uniform(-span, span, size=(4 * n, 6))
-        Bc = tf.invert(Y) @ ur_forward(cand, dh["d"], dh["a"], dh["alpha"], np.zeros(6)) @ X
-        facing = -Bc[:, 2, 2] > np.cos(np.deg2rad(60.0))          # marker normal towards the camera
-        q = np.vstack([q, cand[facing & (Bc[:, 2, 3] > 0.3)]])
-    q = q[:n]
+    q = _visible_joints(n, rng, X, Y)
     A = ur_forward(q, dh["d"], dh["a"], dh["alpha"], np.zeros(6))
     A_true = ur_forward(q, d_true, a_true, al_true, off_true)
     A_true = A_true @ tf.from_rotvec_translation(rng.normal(scale=prof.repeatability_rad, size=(n, 3)),
@@ -370,3 +380,15 @@ def realistic_profile(n: int, rng: np.random.Generator, profile: RealisticProfil
     data = SimulatedData(A, B, points, cov, X, Y, A_true, B_true)
     kinematics = {"d": d_true, "a": a_true, "alpha": al_true, "offsets": off_true}
     return RealisticData(data, camera, flipped, robot_rms, q, kinematics)
+
+
+def workspace_points(real: RealisticData, m: int, rng: np.random.Generator) -> np.ndarray:
+    """True marker centres (m, 3) in the base frame at ``m`` fresh visible poses of ``real``'s cell, m.
+
+    Drawn like the calibration samples (same joint span, marker in view), with
+    the cell's actual kinematics: the points a camera calibrated on that cell
+    is then used on (held out from the calibration).
+    """
+    d, kin = real.data, real.kinematics
+    q = _visible_joints(m, rng, d.X, d.Y)
+    return (ur_forward(q, kin["d"], kin["a"], kin["alpha"], kin["offsets"]) @ d.X)[:, :3, 3]

@@ -60,13 +60,15 @@ def _rms(v) -> float:
     return float(np.sqrt(np.mean(np.square(v))))
 
 
-def extended_crlb(d: simulate.SimulatedData, robot_rms: float, orientation_sigma: float | None = None,
-                  free=(True, True, True)) -> float:
-    """RMS translation bound (m) of the camera under the extended model, at the truth.
+def extended_cov(d: simulate.SimulatedData, robot_rms: float, orientation_sigma: float | None = None,
+                 free=(True, True, True)) -> np.ndarray:
+    """Cramér-Rao bound (9, 9) of the camera and its correction under the extended model, at the truth.
 
-    Unknowns: camera (6), marker translation (3) (+ rotation with
-    ``orientation_sigma``), and the camera parameters in ``free`` (depth
-    scale, depth offset, focal scale). Noise: the
+    Order: camera rotation (left rotation vector, rad), camera translation
+    (m), depth scale, depth offset (m), focal scale; rows and columns of a
+    camera parameter not in ``free`` are zero (known). Unknowns: camera (6),
+    marker translation (3) (+ rotation with ``orientation_sigma``), and the
+    camera parameters in ``free``. Noise: the
     true point covariance plus the robot error propagated through the lever
     arm (`calib.model.robot_cofactor`) at ``robot_rms`` per axis, treated as
     white (the simulated kinematic error is systematic, so this is the bound
@@ -78,14 +80,69 @@ def extended_crlb(d: simulate.SimulatedData, robot_rms: float, orientation_sigma
     B = p_true if orientation_sigma is None else np.concatenate(
         [np.concatenate([d.B_true[:, :3, :3], p_true[:, :, None]], axis=2), d.B_true[:, 3:]], axis=1)
     prob = model.Problem(M, B, model.whitener(cov), sigma_rot=orientation_sigma, free=free)
-    block = model.camera_block(model.information(prob, C, K, np.zeros(3)))
-    return float(np.sqrt(np.trace(block[3:, 3:])))
+    info = model.information(prob, C, K, np.zeros(3))
+    model.camera_block(info)          # the degeneracy check
+    rows = list(range(6)) + list(range(prob.n_pose, prob.n_pose + int(np.sum(free))))
+    return _camera_and_correction(np.linalg.inv(info)[np.ix_(rows, rows)], free)
 
 
-def generating_bound(real: simulate.RealisticData, prof: simulate.RealisticProfile) -> float:
-    """RMS translation bound (m) of the camera under the model that generated ``real`` (Bayesian CRLB).
+def _camera_and_correction(cov, free) -> np.ndarray:
+    """(9, 9) from the covariance of the camera (6) and the free camera parameters, zeros for the known ones."""
+    keep = list(range(6)) + [6 + i for i in range(3) if free[i]]
+    out = np.zeros((9, 9))
+    out[np.ix_(keep, keep)] = cov
+    return out
 
-    Unknowns: camera (6), marker translation (3), depth scale and offset
+
+def translation_rms(cov) -> float:
+    """RMS (m) of the camera translation error of a (9, 9) `extended_cov`: ``sqrt(trace)`` of its block."""
+    return float(np.sqrt(np.trace(cov[3:6, 3:6])))
+
+
+def workspace_jacobian(Y, points_cam) -> np.ndarray:
+    """Jacobian (m, 3, 9) of the base-frame point the calibrated camera reports, at an exact calibration.
+
+    A camera point ``c`` is reported in the base frame as ``Y correct(h(c))``
+    (`calib.model.CameraCorrection`); its derivative w.r.t. the parameters of
+    `extended_cov` (camera rotation and translation, depth scale, offset,
+    focal scale) at the truth, for true camera-frame points ``points_cam`` (m, 3).
+    """
+    R = Y[:3, :3]
+    J = np.zeros((len(points_cam), 3, 9))
+    J[:, :, 0:3] = -tf.skew(points_cam @ R.T)        # left rotation perturbation, Exp(d) R
+    J[:, :, 3:6] = np.eye(3)
+    J[:, :, 6:9] = -R @ model.measure(points_cam, np.zeros(3))[2]   # correcting undoes the measured change
+    return J
+
+
+def workspace_rms(cov, Y, points_cam) -> float:
+    """RMS (m) over ``points_cam`` of the base-frame point error that a (9, 9) covariance ``cov`` gives."""
+    J = workspace_jacobian(Y, points_cam)
+    return float(np.sqrt(np.mean(np.einsum("mij,jk,mik->m", J, cov, J))))
+
+
+def workspace_error(Y_est, correction: model.CameraCorrection, real: simulate.RealisticData, P) -> float:
+    """RMS (m) over base-frame points ``P`` (m, 3) of where a calibration puts what the camera sees.
+
+    Each point is measured by ``real``'s camera without noise (its systematic
+    error applied), corrected with ``correction`` and mapped to the base frame
+    by ``Y_est``: the error a user of the calibration gets on that workspace.
+    """
+    d = real.data
+    seen = real.camera.measure(tf.transform_points(tf.invert(d.Y), P))
+    return _rms(np.linalg.norm(tf.transform_points(Y_est, correction.correct(seen)) - P, axis=1))
+
+
+def estimated_correction(result) -> model.CameraCorrection:
+    """The camera correction ``result`` estimated (`solve("auto")`), none for the paper's methods."""
+    cc = result.info.get("camera_correction", {})
+    return model.CameraCorrection(**{k: c["value"] for k, c in cc.items() if c["estimated"]})
+
+
+def generating_cov(real: simulate.RealisticData, prof: simulate.RealisticProfile) -> np.ndarray:
+    """Bound (9, 9) of the camera and its correction under the model that generated ``real`` (Bayesian CRLB).
+
+    Same order as `extended_cov`. Unknowns: camera (6), marker translation (3), depth scale and offset
     (flat prior: estimated from the data, as `auto` does), and with priors of
     the profile's magnitudes (1-sigma): the focal scale, the 24 DH parameters
     of the robot (joint offsets, link lengths d and a, twists) and the
@@ -133,35 +190,63 @@ def generating_bound(real: simulate.RealisticData, prof: simulate.RealisticProfi
     with np.errstate(divide="ignore"):
         prior = np.where(np.isinf(sigma), 0.0, 1.0 / sigma**2)[keep]
     cov_est = np.linalg.inv(G[:, keep].T @ G[:, keep] + np.diag(prior))
-    return float(np.sqrt(np.trace(cov_est[3:6, 3:6])))
+    wanted = [j for j in (*range(6), 9, 10, 11) if keep[j]]
+    at = np.cumsum(keep) - 1              # row of each kept unknown in cov_est
+    return _camera_and_correction(cov_est[np.ix_(at[wanted], at[wanted])], keep[9:12])
+
+
+#: Held-out points per cell on which the workspace error is measured (`simulate.workspace_points`).
+WORKSPACE_POINTS = 200
+
+#: Estimators of `section_realistic`: name -> solve of (A, points, poses).
+REALISTIC_ESTIMATORS = {
+    "auto (points)": lambda A, p, B: solve("auto", A, p),
+    "auto (points + orientations)": lambda A, p, B: solve("auto", A, B),
+    "YKronT'+ML (paper model)": lambda A, p, B: solve("YKronT'", A, p, refine=True),
+    "YKronT' (closed form)": lambda A, p, B: closed_form("YKronT'", A, p),
+    "YQuatT' (closed form)": lambda A, p, B: closed_form("YQuatT'", A, B),
+}
 
 
 def section_realistic(rng, trials: int, n: int = 30) -> str:
+    """Realistic profile: error of each estimator against the bounds and the bias-free cell, in two measures.
+
+    The camera translation (``T_base_cam``), and the workspace error: where
+    the calibrated camera (``T_base_cam`` with the camera correction it
+    estimated) puts held-out marker points of the same workspace.
+    """
     prof = simulate.RealisticProfile()
-    rows, errs = [], {}
-    crlb, crlb_rot, crlb_depth, crlb_gen, nees_auto, est = [], [], [], [], [], {}
+    errs = {}
+    bound = {key: [] for key in ("ext", "ext_rot", "ext_depth", "gen")}
+    nees_auto, est = [], {}
     nees_shared = {"points": [], "points + orientations": []}
     for t in range(trials):
         seed = int(rng.integers(1 << 31))
-        real = simulate.realistic_profile(n, np.random.default_rng(seed), prof)
-        free = simulate.realistic_profile(n, np.random.default_rng(seed), prof.bias_free())
-        d, d0 = real.data, free.data
-        crlb.append(extended_crlb(d, real.robot_rms_m))
-        crlb_rot.append(extended_crlb(d, real.robot_rms_m, prof.orientation_noise_rad))
-        crlb_depth.append(extended_crlb(d, real.robot_rms_m, free=(True, True, False)))
-        crlb_gen.append(generating_bound(real, prof))
-        for name, fn in [
-            ("auto (points)", lambda dd: solve("auto", dd.A, dd.points)),
-            ("auto (points + orientations)", lambda dd: solve("auto", dd.A, dd.B)),
-            ("YKronT'+ML (paper model)", lambda dd: solve("YKronT'", dd.A, dd.points, refine=True)),
-            ("YKronT' (closed form)", lambda dd: closed_form("YKronT'", dd.A, dd.points)),
-            ("YQuatT' (closed form)", lambda dd: closed_form("YQuatT'", dd.A, dd.B)),
-        ]:
-            for label, data in (("real", d), ("bias-free", d0)):
-                res = fn(data)
-                errs.setdefault((name, label), []).append(np.linalg.norm(error_vector(res.Y, data.Y)[3:]))
+        cells = {"real": simulate.realistic_profile(n, np.random.default_rng(seed), prof),
+                 "bias-free": simulate.realistic_profile(n, np.random.default_rng(seed), prof.bias_free())}
+        real = cells["real"]
+        d = real.data
+        P = {k: simulate.workspace_points(c, WORKSPACE_POINTS, np.random.default_rng([seed, 1]))
+             for k, c in cells.items()}
+        seen = tf.transform_points(tf.invert(d.Y), P["real"])
+        covs = {"ext": extended_cov(d, real.robot_rms_m),
+                "ext_rot": extended_cov(d, real.robot_rms_m, prof.orientation_noise_rad),
+                "ext_depth": extended_cov(d, real.robot_rms_m, free=(True, True, False)),
+                "gen": generating_cov(real, prof)}
+        for key, cov in covs.items():
+            bound[key].append((translation_rms(cov), workspace_rms(cov, d.Y, seen)))
+        for name, fn in REALISTIC_ESTIMATORS.items():
+            for label, cell in cells.items():
+                dd = cell.data
+                res = fn(dd.A, dd.points, dd.B)
+                errs.setdefault((name, label), []).append(
+                    (np.linalg.norm(error_vector(res.Y, dd.Y)[3:]),
+                     workspace_error(res.Y, estimated_correction(res), cell, P[label])))
                 if name == "auto (points)" and label == "real":
-                    nees_auto.append(nees(res.Y, data.Y, res.cov))
+                    nees_auto.append(nees(res.Y, d.Y, res.cov))
+                    # Its T_base_cam used on the camera's points without the correction it comes with.
+                    errs.setdefault(("auto (points): T_base_cam on uncorrected points", label), []).append(
+                        (np.nan, workspace_error(res.Y, model.CameraCorrection(), cell, P[label])))
                     # With the robot's kinematic error as what it is: shared by all samples (joints known).
                     F = prof.dh_error_factor(real.q)
                     for kind, B in (("points", d.points), ("points + orientations", d.B)):
@@ -169,15 +254,26 @@ def section_realistic(rng, trials: int, n: int = 30) -> str:
                         nees_shared[kind].append(nees(shared.Y, d.Y, shared.cov))
                     for k, v in res.info["camera_correction"].items():
                         est.setdefault(k, []).append(v["value"] if v["estimated"] else np.nan)
-    c, c_rot, c_depth, c_gen = _rms(crlb), _rms(crlb_rot), _rms(crlb_depth), _rms(crlb_gen)
+    b = {key: np.sqrt(np.mean(np.square(v), axis=0)) for key, v in bound.items()}     # (translation, workspace)
+    tables = {0: [], 1: []}
     for name in dict.fromkeys(k[0] for k in errs):
-        e, e0 = _rms(errs[(name, "real")]), _rms(errs[(name, "bias-free")])
-        bound = c_rot if "orientations" in name or "YQuat" in name else c
-        rows.append([name, f"{e * 1e3:.2f}", f"{e0 * 1e3:.2f}", f"{e / e0:.2f}", f"{e / bound:.2f}",
-                     f"{e / c_depth:.2f}", f"{e / c_gen:.2f}"])
+        e = np.sqrt(np.mean(np.square(errs[(name, "real")]), axis=0))
+        e0 = np.sqrt(np.mean(np.square(errs[(name, "bias-free")]), axis=0)) if (name, "bias-free") in errs else None
+        ext = b["ext_rot"] if "orientations" in name or "YQuat" in name else b["ext"]
+        for m in (0, 1):
+            if np.isnan(e[m]):
+                continue
+            free_cols = [f"{e0[m] * 1e3:.2f}", f"{e[m] / e0[m]:.2f}"] if e0 is not None else ["-", "-"]
+            tables[m].append([name, f"{e[m] * 1e3:.2f}", *free_cols, f"{e[m] / ext[m]:.2f}",
+                              f"{e[m] / b['ext_depth'][m]:.2f}", f"{e[m] / b['gen'][m]:.2f}"])
     truth = {"depth_scale": prof.depth_scale, "depth_offset": prof.depth_offset, "focal_scale": prof.focal_scale}
     chosen = ", ".join(f"{k} in {np.mean(np.isfinite(v)) * 100:.0f}% (mean {np.nanmean(v) if np.isfinite(v).any() else 0:+.4f},"
                        f" true {truth[k]:+.4f})" for k, v in est.items())
+    ratios = ["ratio to bias-free", "ratio to extended CRLB (depth + focal)", "ratio to CRLB (depth only)",
+              "ratio to bound of the generating model"]
+    bounds_line = (lambda m: f"extended model {b['ext'][m] * 1e3:.2f} mm from points, {b['ext_rot'][m] * 1e3:.2f} mm "
+                   f"with orientations, {b['ext_depth'][m] * 1e3:.2f} mm with the focal length known; generating "
+                   f"model {b['gen'][m] * 1e3:.2f} mm")
     return "\n".join([
         f"### Realistic profile (N = {n}, {trials} cells; UR10 DH error: joint zero offsets {prof.joint_offset_deg}°, "
         f"links {prof.link_length_m * 1e3:.1f} mm, twists {prof.twist_deg}° (1σ); repeatability "
@@ -185,15 +281,19 @@ def section_realistic(rng, trials: int, n: int = 30) -> str:
         f"{prof.depth_offset * 1e3:.0f} mm, focal {prof.focal_scale * 100:.0f}%, misregistration "
         f"{prof.misregistration_px:.0f} px; camera 0.8 m away)",
         "",
-        _md(["estimator", "RMS error T_base_cam [mm]", "same, bias-free cell [mm]", "ratio to bias-free",
-             "ratio to extended CRLB (depth + focal)", "ratio to CRLB (depth only)",
-             "ratio to bound of the generating model"], rows),
+        "#### The camera's position: error of T_base_cam's translation",
         "",
-        f"Extended-model CRLB (camera translation, RMS over cells): {c * 1e3:.2f} mm from points, "
-        f"{c_rot * 1e3:.2f} mm with orientations, {c_depth * 1e3:.2f} mm from points with depth scale and offset "
-        "only (focal known); robot error taken as white at its simulated RMS. "
-        f"Bound of the generating model (`generating_bound`: DH error, focal scale and misregistration as "
-        f"unknowns with the profile's magnitudes as prior 1-sigma, depth scale and offset free): {c_gen * 1e3:.2f} mm. "
+        _md(["estimator", "RMS error [mm]", "same, bias-free cell [mm]", *ratios], tables[0]),
+        "",
+        f"#### The workspace: where the calibrated camera puts a marker point ({WORKSPACE_POINTS} held-out poses of "
+        "the same joint span per cell, seen without noise, T_base_cam with the camera correction it estimated)",
+        "",
+        _md(["estimator", "RMS error [mm]", "same, bias-free cell [mm]", *ratios], tables[1]),
+        "",
+        f"Bounds (RMS over cells), camera translation: {bounds_line(0)}; workspace: {bounds_line(1)}. Extended "
+        "model: the robot error taken as white at its simulated RMS. Generating model (`generating_cov`): DH error, "
+        "focal scale and misregistration as unknowns with the profile's magnitudes as prior 1-sigma, depth scale "
+        "and offset free. "
         f"NEES of `auto (points)`: mean {np.mean(nees_auto):.2f} ± {np.std(nees_auto) / np.sqrt(len(nees_auto)):.2f} "
         f"(standard error; 6 if honest), median {np.median(nees_auto):.2f}. With the joint angles, the DH error "
         "given to `auto` as an error shared by all samples (`robot_shared_error=calib.robot_error.ur_dh_error_factor(q, ...)`, "
@@ -410,7 +510,8 @@ def main(argv=None) -> int:
     t0 = time.perf_counter()
     parts = [
         "## Measurement model and solve(\"auto\") (`handeye bench --model`)",
-        section_realistic(rng, 40 // t // (2 if args.quick else 1)),
+        # 200 cells: the bias-free ratio is a ratio of two noisy RMS values (+-3% at 200, +-8% at 40).
+        section_realistic(rng, 200 // t // (2 if args.quick else 1)),
         # Its own stream, so the cells of the sections after it are those of runs without it.
         section_effects(np.random.default_rng([args.seed, 1]), 40 // t // (2 if args.quick else 1)),
         section_board(rng, 60 // t),
