@@ -53,6 +53,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+from scipy.spatial.transform import Rotation
 
 from calib import transforms as tf
 from calib.errors import CalibrationError, DegenerateMotionError, InsufficientDataError
@@ -126,6 +127,28 @@ class CameraCorrection:
         out = m * (z / m[:, 2])[:, None]
         out[:, :2] /= 1.0 + f
         return out
+
+    def rigid_stand_in(self, measured) -> tuple[np.ndarray, float]:
+        """Rigid transform ``G`` (4, 4) of the camera frame closest to `correct` on ``measured`` (N, 3), and its misfit.
+
+        ``G p ~ correct(p)`` in least squares over the points (Kabsch, via
+        scipy's ``Rotation.align_vectors``). A camera transform ``T`` that
+        pairs with this correction becomes ``T @ G`` for consumers that take
+        the camera's points uncorrected and only a rigid transform (a URDF, a
+        tf): exact where the correction is rigid, and over the points'
+        region otherwise. Returns ``G`` and the RMS misfit (m) of
+        ``G p - correct(p)`` over the points.
+        """
+        m = tf.check_points(measured, "measured")
+        target = self.correct(m)
+        mc, tc = m.mean(axis=0), target.mean(axis=0)
+        if len(m) < 3:
+            R = np.eye(3)
+        else:
+            R = Rotation.align_vectors(target - tc, m - mc)[0].as_matrix()
+        G = tf.make_transform(R, tc - R @ mc)
+        misfit = float(np.sqrt(np.mean(np.sum((tf.transform_points(G, m) - target) ** 2, axis=1))))
+        return G, misfit
 
 
 def measure(p, theta):

@@ -116,6 +116,21 @@ class CalibrationResult:
         return self.Y if self.setup == Setup.EYE_TO_HAND else self.X
 
     @property
+    def camera_transform_raw_points(self) -> np.ndarray:
+        """The camera transform for the camera's uncorrected points: what a URDF or a tf should carry.
+
+        ``camera_transform`` pairs with the camera correction ``auto``
+        estimated (``info["camera_correction"]``: depth scale and offset, focal
+        scale), applied to the points first. Where the points reach the
+        consumer uncorrected, ``camera_transform @ G`` with ``G`` the rigid
+        stand-in for that correction over the calibration samples
+        (``info["raw_points"]``, `calib.model.CameraCorrection.rigid_stand_in`)
+        is the closer one. Without an estimated correction: ``camera_transform``.
+        """
+        raw = self.info.get("raw_points")
+        return self.camera_transform if raw is None else self.camera_transform @ raw["transform"]
+
+    @property
     def sigma(self) -> tuple[float, float] | None:
         """Worst-axis 1-sigma of the camera transform from ``cov``: ``(rotation rad, translation m)``, or None.
 

@@ -392,6 +392,10 @@ def print_model_summary(res: CalibrationResult) -> None:
         if c["estimated"]:
             label = name.replace("_percent", " [%]").replace("_mm", " [mm]").replace("_", " ")
             rows.append((label, f"{c['value']:+.2f} ± {c['sigma']:.2f}"))
+    if "raw_points_misfit_mm" in rep:
+        cam = Setup(res.setup).camera_name
+        rows.append((f"ROS/URDF exports: {cam} for uncorrected points, misfit [mm]",
+                     f"{rep['raw_points_misfit_mm']:.2f} (result.yaml: camera_transform_raw_points)"))
     if "noise" in rep:
         rows.append(("robot error [mm] (estimated)", f"{rep['noise']['robot_mm']:.2f}"))
     if "robot_shared_error_mm" in rep:

@@ -117,19 +117,23 @@ def _transform_dict(T, name: str, parent: str, child: str, cov=None) -> dict:
 
 
 def ros2_command(result: CalibrationResult, frames: dict | None = None) -> str:
-    """``ros2 run tf2_ros static_transform_publisher ...`` for the camera transform (ROS 2 Humble+ flags)."""
+    """``ros2 run tf2_ros static_transform_publisher ...`` for the camera transform (ROS 2 Humble+ flags).
+
+    Like every rigid-only export, it carries the transform for the camera's
+    uncorrected points (`CalibrationResult.camera_transform_raw_points`).
+    """
     check_result(result)
     frames = check_frames(frames)
     parent, child = _parent_child(result.setup, frames)
-    t, q = tf.to_xyz_quat(result.camera_transform)
+    t, q = tf.to_xyz_quat(result.camera_transform_raw_points)
     args = " ".join(f"--{k} {_fmt(v)}" for k, v in zip(("x", "y", "z", "qx", "qy", "qz", "qw"), [*t, *q]))
     return f"ros2 run tf2_ros static_transform_publisher {args} --frame-id {parent} --child-frame-id {child}"
 
 
 def urdf_origin(result: CalibrationResult) -> str:
-    """``<origin xyz=".." rpy=".."/>`` of the camera transform (rpy in rad, as URDF wants)."""
+    """``<origin xyz=".." rpy=".."/>`` of the camera transform for uncorrected points (rpy in rad, as URDF wants)."""
     check_result(result)
-    T = result.camera_transform
+    T = result.camera_transform_raw_points
     rpy = np.deg2rad(rpy_deg(T))
     return (f'<origin xyz="{" ".join(_fmt(v) for v in T[:3, 3])}" '
             f'rpy="{" ".join(_fmt(v) for v in rpy)}"/>')
@@ -149,7 +153,9 @@ def result_to_dict(result: CalibrationResult, frames: dict | None = None) -> dic
     dict
         JSON-serialisable; ``camera_transform`` is ``T_base_cam``
         (eye-to-hand) or ``T_flange_cam`` (eye-in-hand), with ``sigma_1``
-        (deg, mm) when the result has a covariance.
+        (deg, mm) when the result has a covariance; with an estimated camera
+        correction also ``camera_transform_raw_points`` (`raw_points_dict`),
+        which the ros2/urdf lines carry.
     """
     check_result(result)
     frames = check_frames(frames)
@@ -166,7 +172,7 @@ def result_to_dict(result: CalibrationResult, frames: dict | None = None) -> dic
     }
     marker = _transform_dict(marker_T, setup.marker_name, *_marker_parent_child(setup, frames))
     marker["rotation_known"] = bool(result.marker_rotation_known)
-    return {
+    doc = {
         "format": RESULT_FORMAT,
         "version": RESULT_VERSION,
         "setup": setup.value,
@@ -175,6 +181,10 @@ def result_to_dict(result: CalibrationResult, frames: dict | None = None) -> dic
         "frames": frames,
         "camera_transform": _transform_dict(result.camera_transform, setup.camera_name, *_parent_child(setup, frames),
                                             cov=result.cov),
+    }
+    if result.info.get("raw_points") is not None:
+        doc["camera_transform_raw_points"] = raw_points_dict(result, frames)
+    doc.update({
         "marker_transform": marker,
         "camera_frame": camera_frame_note(result, frames),
         "residuals": resid,
@@ -185,7 +195,21 @@ def result_to_dict(result: CalibrationResult, frames: dict | None = None) -> dic
         "ros2_static_transform_publisher": ros2_command(result, frames),
         "urdf_origin": urdf_origin(result),
         "model": report(result),
-    }
+    })
+    return doc
+
+
+def raw_points_dict(result: CalibrationResult, frames: dict | None = None) -> dict:
+    """The camera transform for uncorrected points (`CalibrationResult.camera_transform_raw_points`), with its misfit."""
+    setup = Setup(result.setup)
+    d = _transform_dict(result.camera_transform_raw_points, setup.camera_name + " for uncorrected points",
+                        *_parent_child(setup, check_frames(frames)))
+    d["misfit_mm"] = result.info["raw_points"]["misfit_m"] * 1e3
+    d["note"] = ("camera_transform holds for the camera's points corrected by model.camera_correction; for "
+                 "uncorrected points (ROS, URDF: what the ros2/urdf lines and the other exports carry) use this "
+                 "one, the correction folded in as a rigid transform (RMS misfit over the calibration samples: "
+                 "misfit_mm)")
+    return d
 
 
 #: Rotation from a ROS ``camera_link`` (x forward, y left, z up) to the camera's optical frame
@@ -197,7 +221,7 @@ def camera_frame_note(result: CalibrationResult, frames: dict | None = None) -> 
     """What the camera frame is (the optical frame) and the pose of a ROS ``camera_link`` at the same origin."""
     frames = check_frames(frames)
     parent, child = _parent_child(result.setup, frames)
-    link = result.camera_transform @ tf.invert(T_LINK_OPTICAL)
+    link = result.camera_transform_raw_points @ tf.invert(T_LINK_OPTICAL)
     t, q = tf.to_xyz_quat(link)
     return {
         "name": child,
@@ -207,7 +231,8 @@ def camera_frame_note(result: CalibrationResult, frames: dict | None = None) -> 
                                    "note": "T_camera_link_optical: camera_link (x forward, y left, z up) to the "
                                            "optical frame, same origin"},
         "camera_link_transform": {"parent_frame": parent, "translation_m": t.tolist(), "quaternion_xyzw": q.tolist(),
-                                  "note": f"T_{parent}_camera_link = camera_transform @ inv(T_camera_link_optical)"},
+                                  "note": f"T_{parent}_camera_link = camera_transform_raw_points @ "
+                                          "inv(T_camera_link_optical) (camera_transform without a camera correction)"},
     }
 
 
@@ -220,7 +245,7 @@ def easy_handeye_dict(result: CalibrationResult, frames: dict | None = None, *, 
     """
     check_result(result)
     frames = check_frames(frames)
-    t, q = tf.to_xyz_quat(result.camera_transform)
+    t, q = tf.to_xyz_quat(result.camera_transform_raw_points)
     return {
         "parameters": {
             "namespace": f"/{namespace}/", "move_group_namespace": "/", "move_group": "manipulator",
@@ -236,7 +261,7 @@ def easy_handeye2_dict(result: CalibrationResult, frames: dict | None = None, *,
     """easy_handeye2 ``.calib`` file: ``parameters`` + ``transform`` {translation, rotation}."""
     check_result(result)
     frames = check_frames(frames)
-    t, q = tf.to_xyz_quat(result.camera_transform)
+    t, q = tf.to_xyz_quat(result.camera_transform_raw_points)
     return {
         "parameters": {
             "name": name, "calibration_type": "eye_in_hand" if result.setup == Setup.EYE_IN_HAND else "eye_on_base",
@@ -247,6 +272,15 @@ def easy_handeye2_dict(result: CalibrationResult, frames: dict | None = None, *,
         "transform": {"translation": dict(zip("xyz", map(float, t))),
                       "rotation": dict(zip("xyzw", map(float, q)))},
     }
+
+
+def _raw_points_remark(result: CalibrationResult) -> str:
+    """What a rigid-only export holds when the result estimated a camera correction (else nothing)."""
+    raw = result.info.get("raw_points")
+    if raw is None:
+        return ""
+    return ("; for the camera's uncorrected points: the estimated camera correction folded in "
+            f"(misfit {raw['misfit_m'] * 1e3:.2f} mm RMS over the samples, see result.yaml)")
 
 
 def urdf_joint(result: CalibrationResult, frames: dict | None = None) -> str:
@@ -261,7 +295,7 @@ def urdf_joint(result: CalibrationResult, frames: dict | None = None) -> str:
     cam_name = Setup(result.setup).camera_name
     return (
         f"<!-- handeye {result.setup}: {cam_name} by {result.method}, {result.n_samples} samples, "
-        f"residual RMS {result.residuals.rms_translation * 1e3:.2f} mm -->\n"
+        f"residual RMS {result.residuals.rms_translation * 1e3:.2f} mm{_raw_points_remark(result)} -->\n"
         f'<robot xmlns:xacro="http://www.ros.org/wiki/xacro" name="handeye_calibration">\n'
         f'  <joint name="{parent}_to_{child}_handeye" type="fixed">\n'
         f'    <parent link="{parent}"/>\n'
@@ -277,7 +311,7 @@ def ros2_launch(result: CalibrationResult, frames: dict | None = None) -> str:
     check_result(result)
     frames = check_frames(frames)
     parent, child = _parent_child(result.setup, frames)
-    t, q = tf.to_xyz_quat(result.camera_transform)
+    t, q = tf.to_xyz_quat(result.camera_transform_raw_points)
     args = []
     for k, v in zip(("x", "y", "z", "qx", "qy", "qz", "qw"), [*t, *q]):
         args += [f"--{k}", _fmt(v)]
@@ -285,7 +319,7 @@ def ros2_launch(result: CalibrationResult, frames: dict | None = None) -> str:
     arg_lines = "".join(f"                {json.dumps(a)}, {json.dumps(b)},\n" for a, b in zip(args[::2], args[1::2]))
     return (
         f'"""Publish the hand-eye calibration ({result.setup}, {Setup(result.setup).camera_name}, '
-        f'solver {result.method}) as a static transform."""\n'
+        f'solver {result.method}) as a static transform{_raw_points_remark(result)}."""\n'
         "from launch import LaunchDescription\n"
         "from launch_ros.actions import Node\n\n\n"
         "def generate_launch_description():\n"

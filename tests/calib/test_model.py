@@ -123,3 +123,18 @@ def test_skew_and_so3_live_in_transforms():
     np.testing.assert_allclose(tf.skew(v) @ np.array([1.0, 2.0, 3.0]), np.cross(v, [1.0, 2.0, 3.0]), atol=1e-15)
     np.testing.assert_allclose(tf.so3_log(tf.so3_exp(v)), v)
     assert tf.so3_exp(np.zeros((4, 2, 3))).shape == (4, 2, 3, 3)
+
+
+def test_rigid_stand_in_of_a_camera_correction_is_its_least_squares_rigid_fit():
+    rng = np.random.default_rng(21)
+    points = np.c_[rng.uniform(-0.3, 0.3, (40, 2)), rng.uniform(0.6, 1.0, 40)]
+    G, misfit = model.CameraCorrection().rigid_stand_in(points)
+    assert np.allclose(G, np.eye(4)) and misfit < 1e-12
+    corr = model.CameraCorrection(depth_scale=0.015, depth_offset=0.003, focal_scale=-0.01)
+    G, misfit = corr.rigid_stand_in(points)
+    target = corr.correct(points)
+    assert misfit == pytest.approx(np.sqrt(np.mean(np.sum((tf.transform_points(G, points) - target) ** 2, axis=1))))
+    assert misfit < np.sqrt(np.mean(np.sum((points - target) ** 2, axis=1))) / 3
+    for _ in range(20):      # no rigid transform nearby fits better
+        moved = tf.from_rotvec_translation(rng.normal(scale=1e-4, size=3), rng.normal(scale=1e-4, size=3)) @ G
+        assert np.sqrt(np.mean(np.sum((tf.transform_points(moved, points) - target) ** 2, axis=1))) > misfit

@@ -21,8 +21,13 @@ from calib.errors import CalibrationError
 FRAMES = {"base": "base_link", "flange": "tool0", "camera": "cam_optical", "marker": "target"}
 
 
-@pytest.fixture(scope="module", params=["eye_to_hand", "eye_in_hand"])
+@pytest.fixture(scope="module", params=["eye_to_hand", "eye_in_hand", "auto with a camera correction"])
 def result(request):
+    if request.param.startswith("auto"):
+        data = simulate.realistic_profile(30, np.random.default_rng(0)).data
+        res = solve("auto", data.A, data.B)
+        assert res.info["raw_points"] is not None
+        return res
     data = simulate.realistic_cell(20, np.random.default_rng(11), setup=request.param)
     return solve("YKronRT", data.A, data.B, setup=request.param)
 
@@ -39,25 +44,33 @@ def _from_flags(args):
 
 
 def _close(T, result, atol=1e-7):
-    rot, trans = tf.pose_error(T, result.camera_transform)
+    """``T`` is the transform a rigid-only export carries: the one for the camera's uncorrected points."""
+    rot, trans = tf.pose_error(T, result.camera_transform_raw_points)
     assert rot < atol and trans < atol
 
 
 def test_main_yaml_round_trip(result, tmp_path):
     path = write_result(result, tmp_path / "result.yaml", frames=FRAMES)
     doc = yaml.safe_load(path.read_text())
-    assert doc["setup"] == result.setup and doc["solver"] == "YKronRT"
+    assert doc["setup"] == result.setup and doc["solver"] == result.method
     cam = doc["camera_transform"]
     assert cam["name"] == ("T_base_cam" if result.setup == "eye_to_hand" else "T_flange_cam")
     assert (cam["parent_frame"], cam["child_frame"]) == (_parent(result), "cam_optical")
     np.testing.assert_allclose(cam["matrix"], result.camera_transform, atol=1e-12)
-    _close(tf.from_xyz_quat(cam["translation_m"], cam["quaternion_xyzw"]), result)
-    R = Rotation.from_euler("xyz", cam["rpy_deg"], degrees=True).as_matrix()
-    _close(tf.make_transform(R, cam["translation_m"]), result)
+    for key, T in (("camera_transform", result.camera_transform),
+                   ("camera_transform_raw_points", result.camera_transform_raw_points)):
+        if key not in doc:
+            assert result.info.get("raw_points") is None
+            continue
+        R = Rotation.from_euler("xyz", doc[key]["rpy_deg"], degrees=True).as_matrix()
+        for pose in (tf.from_xyz_quat(doc[key]["translation_m"], doc[key]["quaternion_xyzw"]),
+                     tf.make_transform(R, doc[key]["translation_m"])):
+            rot, trans = tf.pose_error(pose, T)
+            assert rot < 1e-7 and trans < 1e-7
     sd = np.sqrt(np.diag(result.cov))
     np.testing.assert_allclose(cam["sigma_1"]["translation_mm"], sd[3:] * 1e3)
     np.testing.assert_allclose(cam["sigma_1"]["rotation_deg"], np.rad2deg(sd[:3]))
-    assert doc["residuals"]["n_samples"] == 20
+    assert doc["residuals"]["n_samples"] == result.n_samples
     assert doc["residuals"]["rms_translation_mm"] == pytest.approx(result.residuals.rms_translation * 1e3)
     assert doc["residuals"]["rms_rotation_deg"] == pytest.approx(np.rad2deg(result.residuals.rms_rotation))
     # The pasted command and URDF line carry the same transform.
@@ -141,3 +154,20 @@ def test_bad_export_arguments(result, tmp_path):
     with pytest.raises(CalibrationError, match="CalibrationResult"):
         write_result({"X": np.eye(4)}, tmp_path / "x.yaml")
     assert set(EXPORT_FORMATS) == {"yaml", "json", "easy_handeye", "easy_handeye2", "urdf", "ros2_launch"}
+
+
+def test_rigid_exports_carry_the_camera_correction_folded_in(result, tmp_path):
+    """A URDF or tf gets the camera's raw points: with an estimated camera correction, its transform is
+    camera_transform @ G (the correction's rigid stand-in), named so in result.yaml and the files."""
+    doc = result_to_dict(result, FRAMES)
+    urdf = write_result(result, tmp_path / "j.urdf.xacro", fmt="urdf", frames=FRAMES).read_text()
+    if result.info.get("raw_points") is None:
+        assert "camera_transform_raw_points" not in doc and "uncorrected" not in urdf
+        np.testing.assert_array_equal(result.camera_transform_raw_points, result.camera_transform)
+        return
+    raw = doc["camera_transform_raw_points"]
+    G = result.info["raw_points"]["transform"]
+    np.testing.assert_allclose(raw["matrix"], result.camera_transform @ G, atol=1e-12)
+    assert tf.pose_error(result.camera_transform_raw_points, result.camera_transform)[1] > 1e-3
+    assert raw["misfit_mm"] == pytest.approx(result.info["raw_points"]["misfit_m"] * 1e3)
+    assert "uncorrected points" in urdf and "uncorrected points" in raw["note"]
