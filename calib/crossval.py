@@ -61,7 +61,8 @@ class CrossValidation:
         return self.observed_rms / self.predicted_rms if self.predicted_rms > 0 else float("inf")
 
 
-def _folds(n: int, folds: int | None, rng: np.random.Generator | None) -> list[np.ndarray]:
+def fold_indices(n: int, folds: int | None, rng: np.random.Generator | None = None) -> list[np.ndarray]:
+    """Held-out index sets of `cross_validate`: one per sample (None), else ``folds`` random parts of ``n``."""
     if folds is None or folds >= n:
         return [np.array([i]) for i in range(n)]
     if not isinstance(folds, (int, np.integer)) or folds < 2:
@@ -151,7 +152,7 @@ def cross_validate(method: str, A, B, *, setup: str = Setup.EYE_TO_HAND, folds: 
     point_cov = model.check_point_cov(solve_kwargs.pop("point_cov", None), n)
     errors = np.full(n, np.nan)
     predicted = np.full(n, np.nan)
-    parts = _folds(n, folds, rng)
+    parts = fold_indices(n, folds, rng)
     failed = 0
     p_all = B if B.ndim == 2 else B[:, :3, 3]
     for test in parts:

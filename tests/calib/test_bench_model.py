@@ -94,3 +94,12 @@ def test_auto_puts_workspace_points_nearly_where_it_does_without_systematic_erro
              for name, e in (("auto", auto), ("paper", paper))}
     assert ratio["auto"] < 1.35
     assert ratio["paper"] > 2.0
+
+
+def test_uncorrected_points_are_predicted_better_by_the_exported_transform():
+    """A 2% depth scale and 8 mm offset: held out, the rigid-only export predicts the raw points far better
+    than the camera transform without its correction."""
+    d = simulate.realistic_cell(30, np.random.default_rng(9), translation_range=0.25)
+    raw = model.CameraCorrection(depth_scale=0.02, depth_offset=0.008).measure(d.points)
+    exported, bare = bench_model.uncorrected_heldout(d.A, raw, "eye_to_hand", 5)
+    assert exported < 0.6 * bare
