@@ -188,6 +188,7 @@ class RTDEClient:
         self.stderr_tail: collections.deque[str] = collections.deque(maxlen=20)
         self.proc: subprocess.Popen | None = None
         self._conn: Connection | None = None
+        self._reader: threading.Thread | None = None
 
     def start(self, timeout: float) -> None:
         """Start the process and wait until both interfaces are open; ClientDied with the reason otherwise."""
@@ -201,7 +202,8 @@ class RTDEClient:
             theirs.close()
         self._conn = Connection(ours.detach())
         threading.Thread(target=self._drain, daemon=True, name=f"ur-client-err-{self.host}").start()
-        threading.Thread(target=self._read, daemon=True, name=f"ur-client-{self.host}").start()
+        self._reader = threading.Thread(target=self._read, daemon=True, name=f"ur-client-{self.host}")
+        self._reader.start()
         deadline = time.monotonic() + timeout
         with self._cv:
             while not self._ready and self.error is None:
@@ -321,7 +323,12 @@ class RTDEClient:
             pass
         self.kill("closed")
         self.proc.wait()
-        self._conn.close()
+        # The reader sees the dead client's EOF and ends; closing the pipe under its recv() instead
+        # makes multiprocessing raise a TypeError in that thread.
+        if self._reader is not None:
+            self._reader.join(timeout)
+        if self._reader is None or not self._reader.is_alive():
+            self._conn.close()
 
 
 if __name__ == "__main__":
