@@ -73,10 +73,8 @@ def fold_indices(n: int, folds: int | None, rng: np.random.Generator | None = No
 
 def _prediction(result, A_train, B_train, A_test, setup, point_cov_train):
     """Predicted points of the held-out samples and their predicted RMS error."""
-    theta = np.zeros(3)
+    theta = result.camera_correction.as_array()
     corr = result.info.get("camera_correction")
-    if corr:
-        theta = np.array([corr[name]["value"] for name in model.CAMERA_PARAMS])
     C, K, M_test = model.split(result.X, result.Y, A_test, setup)
     pred = model.predict_points(C, K[:3, 3], M_test, theta)
     # Noise model at the training estimate: camera shape + robot error at the estimated levels.

@@ -13,6 +13,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from calib.errors import DegenerateMotionError
+from calib.model import CameraCorrection
 from calib.setup import Setup
 
 
@@ -114,6 +115,15 @@ class CalibrationResult:
     def camera_transform(self) -> np.ndarray:
         """``T_base_cam`` (eye-to-hand) or ``T_flange_cam`` (eye-in-hand)."""
         return self.Y if self.setup == Setup.EYE_TO_HAND else self.X
+
+    @property
+    def camera_correction(self) -> CameraCorrection:
+        """The camera's systematic error the solver estimated (`calib.model.CameraCorrection`; all zero if none).
+
+        ``auto`` estimates it (``info["camera_correction"]``); the paper's methods do not.
+        """
+        cc = self.info.get("camera_correction") or {}
+        return CameraCorrection(**{name: c["value"] for name, c in cc.items() if c["estimated"]})
 
     @property
     def camera_transform_raw_points(self) -> np.ndarray:

@@ -133,12 +133,6 @@ def workspace_error(Y_est, correction: model.CameraCorrection, real: simulate.Re
     return _rms(np.linalg.norm(tf.transform_points(Y_est, correction.correct(seen)) - P, axis=1))
 
 
-def estimated_correction(result) -> model.CameraCorrection:
-    """The camera correction ``result`` estimated (`solve("auto")`), none for the paper's methods."""
-    cc = result.info.get("camera_correction", {})
-    return model.CameraCorrection(**{k: c["value"] for k, c in cc.items() if c["estimated"]})
-
-
 def generating_cov(real: simulate.RealisticData, prof: simulate.RealisticProfile) -> np.ndarray:
     """Bound (9, 9) of the camera and its correction under the model that generated ``real`` (Bayesian CRLB).
 
@@ -241,7 +235,7 @@ def section_realistic(rng, trials: int, n: int = 30) -> str:
                 res = fn(dd.A, dd.points, dd.B)
                 errs.setdefault((name, label), []).append(
                     (np.linalg.norm(error_vector(res.Y, dd.Y)[3:]),
-                     workspace_error(res.Y, estimated_correction(res), cell, P[label])))
+                     workspace_error(res.Y, res.camera_correction, cell, P[label])))
                 if name == "auto (points)" and label == "real":
                     nees_auto.append(nees(res.Y, d.Y, res.cov))
                     # On the camera's uncorrected points (what a URDF or tf gets): T_base_cam alone, and the
@@ -336,7 +330,7 @@ def section_effects(rng, trials: int, n: int = 30) -> str:
             res = solve("auto", d.A, d.points)
             err.append(np.linalg.norm(error_vector(res.Y, d.Y)[3:]))
             P = simulate.workspace_points(cell, WORKSPACE_POINTS, np.random.default_rng([seed, 1]))
-            err_ws.append(workspace_error(res.Y, estimated_correction(res), cell, P))
+            err_ws.append(workspace_error(res.Y, res.camera_correction, cell, P))
             nees_v.append(nees(res.Y, d.Y, res.cov))
             err_depth.append(np.linalg.norm(error_vector(solve("auto", d.A, d.points, camera_correction="depth").Y,
                                                          d.Y)[3:]))
