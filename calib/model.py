@@ -142,13 +142,10 @@ class CameraCorrection:
         m = tf.check_points(measured, "measured")
         target = self.correct(m)
         mc, tc = m.mean(axis=0), target.mean(axis=0)
-        if len(m) < 3:
-            R = np.eye(3)
-        else:
-            R = Rotation.align_vectors(target - tc, m - mc)[0].as_matrix()
-        G = tf.make_transform(R, tc - R @ mc)
-        misfit = float(np.sqrt(np.mean(np.sum((tf.transform_points(G, m) - target) ** 2, axis=1))))
-        return G, misfit
+        m0, t0 = m - mc, target - tc
+        R = Rotation.align_vectors(t0, m0)[0].as_matrix() if len(m) >= 3 else np.eye(3)
+        misfit = float(np.sqrt(np.mean(np.square(m0 @ R.T - t0)) * 3))
+        return tf.make_transform(R, tc - R @ mc), misfit
 
 
 def measure(p, theta):
