@@ -240,7 +240,8 @@ def section_realistic(rng, trials: int, n: int = 30) -> str:
                     nees_auto.append(nees(res.Y, d.Y, res.cov))
                     # On the camera's uncorrected points (what a URDF or tf gets): T_base_cam alone, and the
                     # transform with the correction folded in that the exports carry.
-                    for what, T in (("T_base_cam", res.Y), ("camera_transform_raw_points", res.camera_transform_raw_points)):
+                    for what, T in (("T_base_cam", res.Y),
+                                    ("camera_transform_raw_points", res.camera_transform_raw_points)):
                         errs.setdefault((f"auto (points): {what} on uncorrected points", label), []).append(
                             (np.nan, workspace_error(T, model.CameraCorrection(), cell, P[label])))
                     # With the robot's kinematic error as what it is: shared by all samples (joints known).
@@ -282,7 +283,8 @@ def section_realistic(rng, trials: int, n: int = 30) -> str:
         _md(["estimator", "RMS error [mm]", "same, bias-free cell [mm]", *ratios], tables[0]),
         "",
         f"#### The workspace: where the calibrated camera puts a marker point ({WORKSPACE_POINTS} held-out poses of "
-        "the same joint span per cell, seen without noise, T_base_cam with the camera correction it estimated)",
+        "the same joint span per cell, seen with the camera's depth and focal error but no noise or "
+        "misregistration, T_base_cam with the camera correction it estimated)",
         "",
         _md(["estimator", "RMS error [mm]", "same, bias-free cell [mm]", *ratios], tables[1]),
         "",
