@@ -416,11 +416,6 @@ def solve_auto(A, B, *, setup: str, point_cov=None, camera_correction: str = "au
         for i, name in enumerate(model.CAMERA_PARAMS)
     }
     X, Y = model.join(C, K, setup)
-    # Consumers of a bare rigid transform (URDF, tf) feed it uncorrected points: the correction folded in.
-    raw = None
-    if np.any(theta):
-        G, misfit = model.CameraCorrection(*theta).rigid_stand_in(p[inliers])
-        raw = {"transform": G, "misfit_m": misfit}
     loo = best.loo_errors
     # Too few samples to hold one out: no self-check, the result stands.
     check = None if loo is None else _consistency(fit, prob, C, K, theta, *loo)
@@ -449,7 +444,8 @@ def solve_auto(A, B, *, setup: str, point_cov=None, camera_correction: str = "au
             "start_candidates": {name: med for name, med in tried},
             "measurements": ["points", "orientations"] if use_rotation else ["points"],
             "camera_correction": correction,
-            "raw_points": raw,
+            # Where the correction holds: its rigid stand-in for uncorrected points is fitted there, on demand.
+            "correction_points": p[inliers] if np.any(theta) else None,
             "noise": {"point_scale": noise.point_scale, "robot_m": noise.robot, "rotation_rad": noise.rotation},
             "robot_shared_error_mm": shared_mm,
             "self_check": check,
@@ -800,9 +796,9 @@ def report(result: CalibrationResult) -> dict | None:
                             "estimated": c["estimated"]}
             for name, c in info["camera_correction"].items()
         }
-    if info.get("raw_points") is not None:
+    if result.raw_points_fit is not None:
         # How far the rigid stand-in for the correction (what a URDF or tf carries) is from the correction itself.
-        out["raw_points_misfit_mm"] = info["raw_points"]["misfit_m"] * 1e3
+        out["raw_points_misfit_mm"] = result.raw_points_fit["misfit_m"] * 1e3
     if "noise" in info:
         n = info["noise"]
         out["noise"] = {"camera_point_scale": n["point_scale"], "robot_mm": n["robot_m"] * 1e3,

@@ -9,6 +9,7 @@ and ``t_true = t_est + delta_t``; ``cov`` is its 6x6 covariance for the
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from functools import cached_property
 
 import numpy as np
 
@@ -125,20 +126,34 @@ class CalibrationResult:
         cc = self.info.get("camera_correction") or {}
         return CameraCorrection(**{name: c["value"] for name, c in cc.items() if c["estimated"]})
 
+    @cached_property
+    def raw_points_fit(self) -> dict | None:
+        """The rigid stand-in for the estimated camera correction, or None without one.
+
+        ``{"transform": G, "misfit_m": rms}``: `calib.model.CameraCorrection.rigid_stand_in`
+        of `camera_correction` over the points it was estimated on
+        (``info["correction_points"]``, the raw points of the samples in the
+        fit). Computed when first asked (the exports ask), not by the solver.
+        """
+        points = self.info.get("correction_points")
+        if points is None:
+            return None
+        G, misfit = self.camera_correction.rigid_stand_in(points)
+        return {"transform": G, "misfit_m": misfit}
+
     @property
     def camera_transform_raw_points(self) -> np.ndarray:
         """The camera transform for the camera's uncorrected points: what a URDF or a tf should carry.
 
         ``camera_transform`` pairs with the camera correction ``auto``
-        estimated (``info["camera_correction"]``: depth scale and offset, focal
-        scale), applied to the points first. Where the points reach the
-        consumer uncorrected, ``camera_transform @ G`` with ``G`` the rigid
-        stand-in for that correction over the calibration samples
-        (``info["raw_points"]``, `calib.model.CameraCorrection.rigid_stand_in`)
-        is the closer one. Without an estimated correction: ``camera_transform``.
+        estimated (`camera_correction`: depth scale and offset, focal scale),
+        applied to the points first. Where the points reach the consumer
+        uncorrected, ``camera_transform @ G`` with ``G`` the rigid stand-in for
+        that correction over the calibration samples (`raw_points_fit`) is the
+        closer one. Without an estimated correction: ``camera_transform``.
         """
-        raw = self.info.get("raw_points")
-        return self.camera_transform if raw is None else self.camera_transform @ raw["transform"]
+        fit = self.raw_points_fit
+        return self.camera_transform if fit is None else self.camera_transform @ fit["transform"]
 
     @property
     def sigma(self) -> tuple[float, float] | None:

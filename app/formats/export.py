@@ -182,7 +182,7 @@ def result_to_dict(result: CalibrationResult, frames: dict | None = None) -> dic
         "camera_transform": _transform_dict(result.camera_transform, setup.camera_name, *_parent_child(setup, frames),
                                             cov=result.cov),
     }
-    if result.info.get("raw_points") is not None:
+    if result.raw_points_fit is not None:
         doc["camera_transform_raw_points"] = raw_points_dict(result, frames)
     doc.update({
         "marker_transform": marker,
@@ -204,7 +204,7 @@ def raw_points_dict(result: CalibrationResult, frames: dict | None = None) -> di
     setup = Setup(result.setup)
     d = _transform_dict(result.camera_transform_raw_points, setup.camera_name + " for uncorrected points",
                         *_parent_child(setup, check_frames(frames)))
-    d["misfit_mm"] = result.info["raw_points"]["misfit_m"] * 1e3
+    d["misfit_mm"] = result.raw_points_fit["misfit_m"] * 1e3
     d["note"] = ("camera_transform holds for the camera's points corrected by model.camera_correction; for "
                  "uncorrected points (ROS, URDF: what the ros2/urdf lines and the other exports carry) use this "
                  "one, the correction folded in as a rigid transform (RMS misfit over the calibration samples: "
@@ -276,7 +276,7 @@ def easy_handeye2_dict(result: CalibrationResult, frames: dict | None = None, *,
 
 def _raw_points_remark(result: CalibrationResult) -> str:
     """What a rigid-only export holds when the result estimated a camera correction (else nothing)."""
-    raw = result.info.get("raw_points")
+    raw = result.raw_points_fit
     if raw is None:
         return ""
     return ("; for the camera's uncorrected points: the estimated camera correction folded in "

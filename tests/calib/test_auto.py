@@ -227,9 +227,9 @@ def test_the_transform_for_uncorrected_points_serves_what_a_urdf_gets():
 
     assert workspace_error(res.camera_transform) > 0.015      # the 1.5% depth scale at 0.8 m, uncorrected
     assert workspace_error(res.camera_transform_raw_points) < 0.2 * workspace_error(res.camera_transform)
-    assert res.info["raw_points"]["misfit_m"] < 0.005
+    assert res.raw_points_fit["misfit_m"] < 0.005
     plain = solve("auto", d.A, d.points, camera_correction="none")
-    assert plain.info["raw_points"] is None
+    assert plain.raw_points_fit is None
     np.testing.assert_array_equal(plain.camera_transform_raw_points, plain.camera_transform)
 
 

@@ -26,7 +26,7 @@ def result(request):
     if request.param.startswith("auto"):
         data = simulate.realistic_profile(30, np.random.default_rng(0)).data
         res = solve("auto", data.A, data.B)
-        assert res.info["raw_points"] is not None
+        assert res.raw_points_fit is not None
         return res
     data = simulate.realistic_cell(20, np.random.default_rng(11), setup=request.param)
     return solve("YKronRT", data.A, data.B, setup=request.param)
@@ -60,7 +60,7 @@ def test_main_yaml_round_trip(result, tmp_path):
     for key, T in (("camera_transform", result.camera_transform),
                    ("camera_transform_raw_points", result.camera_transform_raw_points)):
         if key not in doc:
-            assert result.info.get("raw_points") is None
+            assert result.raw_points_fit is None
             continue
         R = Rotation.from_euler("xyz", doc[key]["rpy_deg"], degrees=True).as_matrix()
         for pose in (tf.from_xyz_quat(doc[key]["translation_m"], doc[key]["quaternion_xyzw"]),
@@ -161,13 +161,13 @@ def test_rigid_exports_carry_the_camera_correction_folded_in(result, tmp_path):
     camera_transform @ G (the correction's rigid stand-in), named so in result.yaml and the files."""
     doc = result_to_dict(result, FRAMES)
     urdf = write_result(result, tmp_path / "j.urdf.xacro", fmt="urdf", frames=FRAMES).read_text()
-    if result.info.get("raw_points") is None:
+    if result.raw_points_fit is None:
         assert "camera_transform_raw_points" not in doc and "uncorrected" not in urdf
         np.testing.assert_array_equal(result.camera_transform_raw_points, result.camera_transform)
         return
     raw = doc["camera_transform_raw_points"]
-    G = result.info["raw_points"]["transform"]
+    G = result.raw_points_fit["transform"]
     np.testing.assert_allclose(raw["matrix"], result.camera_transform @ G, atol=1e-12)
     assert tf.pose_error(result.camera_transform_raw_points, result.camera_transform)[1] > 1e-3
-    assert raw["misfit_mm"] == pytest.approx(result.info["raw_points"]["misfit_m"] * 1e3)
+    assert raw["misfit_mm"] == pytest.approx(result.raw_points_fit["misfit_m"] * 1e3)
     assert "uncorrected points" in urdf and "uncorrected points" in raw["note"]
