@@ -24,10 +24,10 @@ from dataclasses import dataclass
 import numpy as np
 
 from calib.errors import ParameterError
+from calib.robot_error import UR_ALPHA, ur_forward
 from drivers.errors import DeviceError
 
-_ALPHA = np.array([np.pi / 2, 0.0, 0.0, np.pi / 2, -np.pi / 2, 0.0])
-_ALPHA_T = tuple(_ALPHA.tolist())
+_ALPHA_T = tuple(UR_ALPHA.tolist())
 
 
 @dataclass(frozen=True)
@@ -83,26 +83,6 @@ def check_q(q, name: str = "q") -> np.ndarray:
     return q
 
 
-def _dh(theta: np.ndarray, d: float, a: float, alpha: float) -> np.ndarray:
-    """Stack of standard-DH link transforms for angles ``theta`` (N,) -> (N, 4, 4)."""
-    ct, st = np.cos(theta), np.sin(theta)
-    ca, sa = np.cos(alpha), np.sin(alpha)
-    T = np.zeros(theta.shape + (4, 4))
-    T[..., 0, 0] = ct
-    T[..., 0, 1] = -st * ca
-    T[..., 0, 2] = st * sa
-    T[..., 0, 3] = a * ct
-    T[..., 1, 0] = st
-    T[..., 1, 1] = ct * ca
-    T[..., 1, 2] = -ct * sa
-    T[..., 1, 3] = a * st
-    T[..., 2, 1] = sa
-    T[..., 2, 2] = ca
-    T[..., 2, 3] = d
-    T[..., 3, 3] = 1.0
-    return T
-
-
 def forward(q, model: str | URGeometry) -> np.ndarray:
     """Flange pose(s) ``T_base_flange`` of joint vector(s) ``q``.
 
@@ -119,10 +99,7 @@ def forward(q, model: str | URGeometry) -> np.ndarray:
     g = model if isinstance(model, URGeometry) else geometry(model)
     q = check_q(q)
     flat = q.reshape(-1, 6)
-    T = np.broadcast_to(np.eye(4), (len(flat), 4, 4)).copy()
-    for i in range(6):
-        T = T @ _dh(flat[:, i], g.d[i], g.a[i], _ALPHA[i])
-    return T.reshape(q.shape[:-1] + (4, 4))
+    return ur_forward(flat, g.d, g.a, UR_ALPHA, np.zeros(6)).reshape(q.shape[:-1] + (4, 4))
 
 
 def forward_one(q, model: str | URGeometry) -> np.ndarray:
