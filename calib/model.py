@@ -200,6 +200,39 @@ def predict_points(C, t_K, M, theta=None) -> np.ndarray:
     return _measured(p, np.asarray(theta, dtype=float))
 
 
+def point_jacobians(C, K, M, theta, setup: str):
+    """Predicted measured point and its Jacobians, per sample, for the recursive filter of `calib.monitor`.
+
+    Returns ``h (N, 3), H_C (N, 3, 6), H_tK (N, 3, 3), H_theta (N, 3, 3), H_xi (N, 3, 6)``:
+    the point the camera reports, ``h(R_C^T (R_Mi t_K + t_Mi - t_C); theta)``, and
+    its derivatives w.r.t. the camera transform (left perturbation ``[dC, tC]``),
+    the marker-side translation, the camera parameters (all of `CAMERA_PARAMS`)
+    and a flange-frame twist ``xi = [a, b]`` (rad, m) of the robot pose
+    (``A_i Exp(xi)``, as ``robot_shared_error`` of `calib.auto`). Eye-to-hand
+    the twist moves the marker by ``R_A (a x t_K + b)``; eye-in-hand it moves the
+    camera, so the base marker seen from the flange moves by ``-(a x y + b)``,
+    ``y`` its flange-frame position.
+    """
+    R_C, t_C = C[:3, :3], C[:3, 3]
+    R_M = M[:, :3, :3]
+    y = R_M @ K[:3, 3] + M[:, :3, 3]                   # marker center in C's parent frame
+    q = (y - t_C) @ R_C                                # == R_C^T (y - t_C): the point without camera error
+    h, J_p, J_theta = measure(q, np.zeros(3) if theta is None else np.asarray(theta, dtype=float))
+    Rt = R_C.T
+    dq = np.empty((len(q), 3, 6))
+    dq[:, :, :3] = Rt @ tf.skew(y - t_C)
+    dq[:, :, 3:] = -Rt
+    dq_tK = Rt @ R_M
+    dq_xi = np.empty((len(q), 3, 6))
+    if setup == Setup.EYE_TO_HAND:
+        dq_xi[:, :, :3] = -(dq_tK @ tf.skew(K[:3, 3]))
+        dq_xi[:, :, 3:] = dq_tK
+    else:
+        dq_xi[:, :, :3] = Rt @ tf.skew(y)
+        dq_xi[:, :, 3:] = -Rt
+    return h, J_p @ dq, J_p @ dq_tK, J_theta, J_p @ dq_xi
+
+
 def inv_right_jacobian(e):
     """Inverse right Jacobian of SO(3), ``Log(Exp(e) Exp(d)) = e + Jr^-1(e) d + O(d^2)``; e (N, 3)."""
     th = np.linalg.norm(e, axis=1)

@@ -322,6 +322,25 @@ class RealisticData:
     kinematics: dict
 
 
+def seen_points(B_true, prof: RealisticProfile, camera, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
+    """What the realistic camera reports (N, 3) for true marker poses ``B_true`` (N, 4, 4), and their covariance.
+
+    Point noise of `calib.noise` (the covariance returned, (N, 3, 3)), colour/depth
+    misregistration (the depth of the marker plane read ``misregistration_px``
+    off), then the camera's systematic error ``camera`` (`calib.model.CameraCorrection`).
+    """
+    from calib.noise import FOCAL_PX, default_point_cov
+
+    p_true = B_true[:, :3, 3]
+    cov = default_point_cov(p_true)
+    p = p_true + np.einsum("nij,nj->ni", np.linalg.cholesky(cov), rng.normal(size=(len(p_true), 3)))
+    shift = prof.misregistration_px / FOCAL_PX * p[:, 2:3] * np.array([1.0, 0.0])
+    nrm = B_true[:, :3, 2]
+    dz = -(nrm[:, :2] * shift).sum(axis=1) / nrm[:, 2]
+    p = p * ((p[:, 2] + dz) / p[:, 2])[:, None]
+    return camera.measure(p), cov
+
+
 def realistic_profile(n: int, rng: np.random.Generator, profile: RealisticProfile | None = None, *,
                       distance: float = 0.8) -> RealisticData:
     """An eye-to-hand UR10 cell with the systematic errors of a real one (`RealisticProfile`), and the truth.
@@ -339,7 +358,6 @@ def realistic_profile(n: int, rng: np.random.Generator, profile: RealisticProfil
     through ``board_center``.
     """
     from calib.model import CameraCorrection
-    from calib.noise import FOCAL_PX, default_point_cov
 
     prof = profile if profile is not None else RealisticProfile()
     dh = UR10_DH
@@ -359,16 +377,8 @@ def realistic_profile(n: int, rng: np.random.Generator, profile: RealisticProfil
     A_true = A_true @ tf.from_rotvec_translation(rng.normal(scale=prof.repeatability_rad, size=(n, 3)),
                                                  rng.normal(scale=prof.repeatability_m, size=(n, 3)))
     B_true = tf.invert(Y) @ A_true @ X
-    p_true = B_true[:, :3, 3]
-    cov = default_point_cov(p_true)
-    p = p_true + np.einsum("nij,nj->ni", np.linalg.cholesky(cov), rng.normal(size=(n, 3)))
-    # Misregistration: the depth is read `misregistration_px` off on the tilted marker plane.
-    shift = prof.misregistration_px / FOCAL_PX * p[:, 2:3] * np.array([1.0, 0.0])
-    nrm = B_true[:, :3, 2]
-    dz = -(nrm[:, :2] * shift).sum(axis=1) / nrm[:, 2]
-    p = p * ((p[:, 2] + dz) / p[:, 2])[:, None]
     camera = CameraCorrection(prof.depth_scale, prof.depth_offset, prof.focal_scale)
-    points = camera.measure(p)
+    points, cov = seen_points(B_true, prof, camera, rng)
     B = B_true @ tf.from_rotvec_translation(rng.normal(scale=prof.orientation_noise_rad, size=(n, 3)), np.zeros((n, 3)))
     B[:, :3, 3] = points
     n_flip = int(round(prof.flip_fraction * n))
@@ -392,3 +402,104 @@ def workspace_points(real: RealisticData, m: int, rng: np.random.Generator) -> n
     d, kin = real.data, real.kinematics
     q = _visible_joints(m, rng, d.X, d.Y)
     return (ur_forward(q, kin["d"], kin["a"], kin["alpha"], kin["offsets"]) @ d.X)[:, :3, 3]
+
+
+# --------------------------------------------------------------------------- production shift
+
+@dataclass(frozen=True)
+class Shift:
+    """A production shift of the realistic cell (`shift_stream`).
+
+    ``stops`` tool stops (tool tilt within ``max_tilt_deg`` of the working
+    pose) visited in turn, one sample every ``sample_s``; the camera mount
+    drifts ``drift_mm_h`` along a random direction, and is bumped at each
+    ``(hour, mm, deg)`` of ``bumps`` (its center shifted, the camera turned
+    about it, random directions).
+    """
+
+    hours: float = 8.0
+    sample_s: float = 30.0
+    stops: int = 4
+    max_tilt_deg: float = 10.0
+    drift_mm_h: float = 0.5
+    bumps: tuple = ((2.0, 5.0, 0.3), (4.5, 5.0, 0.3), (7.0, 5.0, 0.3))
+
+
+@dataclass(frozen=True)
+class ShiftData:
+    """`shift_stream` output: what the monitor gets, and the truth.
+
+    ``t`` (n,) s; ``A`` (n, 4, 4) reported flange poses (nominal kinematics);
+    ``points`` (n, 3) measured marker centers and ``point_cov`` (n, 3, 3);
+    ``q`` (n, 6) joints; ``stop`` (n,) the stop visited; ``Y`` (n, 4, 4) the
+    true ``T_base_cam`` at each sample; ``bumped`` the index of the first
+    sample after each bump.
+    """
+
+    t: np.ndarray
+    A: np.ndarray
+    points: np.ndarray
+    point_cov: np.ndarray
+    q: np.ndarray
+    stop: np.ndarray
+    Y: np.ndarray
+    bumped: np.ndarray
+
+
+def production_stops(real: RealisticData, n: int, max_tilt_deg: float, rng: np.random.Generator) -> np.ndarray:
+    """Joints (n, 6) of ``n`` tool stops of ``real``'s cell: marker in view, tool tilt within ``max_tilt_deg``.
+
+    The tilt is the angle between the tool axis and the working pose's; the
+    stops are spread out (each the farthest candidate from those chosen), so
+    that three of them are never on one line.
+    """
+    dh = UR10_DH
+    z0 = ur_forward(_WORKING_JOINTS[None], dh["d"], dh["a"], dh["alpha"], np.zeros(6))[0][:3, 2]
+    cand = np.empty((0, 6))
+    while len(cand) < 20 * n:
+        q = _visible_joints(200, rng, real.data.X, real.data.Y)
+        A = ur_forward(q, dh["d"], dh["a"], dh["alpha"], np.zeros(6))
+        tilt = np.rad2deg(np.arccos(np.clip(A[:, :3, 2] @ z0, -1.0, 1.0)))
+        cand = np.vstack([cand, q[tilt <= max_tilt_deg]])
+    pos = ur_forward(cand, dh["d"], dh["a"], dh["alpha"], np.zeros(6))[:, :3, 3]
+    chosen = [int(rng.integers(len(cand)))]
+    while len(chosen) < n:
+        d = np.min(np.linalg.norm(pos[:, None] - pos[chosen][None], axis=2), axis=1)
+        chosen.append(int(np.argmax(d)))
+    return cand[chosen]
+
+
+def shift_stream(real: RealisticData, shift: Shift, rng: np.random.Generator,
+                 profile: RealisticProfile | None = None) -> ShiftData:
+    """A shift of production samples on ``real``'s cell (its robot and camera errors), with drift and bumps.
+
+    Each stop's reported pose is the nominal kinematics of its joints; the
+    actual one follows the cell's DH parameters plus repeatability noise drawn
+    anew at every visit. The camera sees the marker as `realistic_profile`'s
+    does (`seen_points`).
+    """
+    prof = profile if profile is not None else RealisticProfile()
+    dh, kin, d = UR10_DH, real.kinematics, real.data
+    q_stops = production_stops(real, shift.stops, shift.max_tilt_deg, rng)
+    n = int(shift.hours * 3600.0 / shift.sample_s)
+    t = np.arange(n) * shift.sample_s
+    stop = np.arange(n) % shift.stops
+    q = q_stops[stop]
+    A = ur_forward(q_stops, dh["d"], dh["a"], dh["alpha"], np.zeros(6))[stop]
+    A_true = ur_forward(q_stops, kin["d"], kin["a"], kin["alpha"], kin["offsets"])[stop]
+    A_true = A_true @ tf.from_rotvec_translation(rng.normal(scale=prof.repeatability_rad, size=(n, 3)),
+                                                 rng.normal(scale=prof.repeatability_m, size=(n, 3)))
+    direction = _random_direction(1, rng)[0]
+    offset = np.outer(t / 3600.0 * shift.drift_mm_h * 1e-3, direction)
+    R = np.broadcast_to(d.Y[:3, :3], (n, 3, 3)).copy()
+    bumped = []
+    for hour, mm, deg in shift.bumps:
+        after = t >= hour * 3600.0
+        if not after.any():
+            continue
+        bumped.append(int(np.argmax(after)))
+        offset[after] += mm * 1e-3 * _random_direction(1, rng)[0]
+        R[after] = tf.so3_exp(np.deg2rad(deg) * _random_direction(1, rng)[0]) @ R[after]
+    Y = tf.make_transform(R, d.Y[:3, 3] + offset)
+    points, cov = seen_points(tf.invert(Y) @ A_true @ d.X, prof, real.camera, rng)
+    return ShiftData(t, A, points, cov, q, stop, Y, np.array(bumped, dtype=int))
