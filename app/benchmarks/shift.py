@@ -63,9 +63,10 @@ class SeedRun:
     update_us: float
 
 
-def _workspace_error(C, theta_correction, camera, Y_true, P) -> float:
+def workspace_error(C, correction, camera, Y_true, P) -> float:
+    """RMS (m) over true base points ``P`` (W, 3) of where ``C`` and ``correction`` put what ``camera`` sees from ``Y_true``."""
     seen = camera.measure(tf.transform_points(tf.invert(Y_true), P))
-    est = tf.transform_points(C, theta_correction.correct(seen))
+    est = tf.transform_points(C, correction.correct(seen))
     return float(np.sqrt(np.mean(np.sum((est - P) ** 2, axis=1))))
 
 
@@ -83,7 +84,7 @@ def run_seed(seed: int, shift: simulate.Shift, settings: MonitorSettings,
     stream = simulate.shift_stream(real, shift, np.random.default_rng([seed, 1]), prof)
     F_stream = prof.dh_error_factor(stream.q)
     P = simulate.workspace_points(real, WORKSPACE_POINTS, np.random.default_rng([seed, 2]))
-    arming = _workspace_error(res.Y, correction, real.camera, d.Y, P) * 1e3
+    arming = workspace_error(res.Y, correction, real.camera, d.Y, P) * 1e3
     n = len(stream.t)
     err, sig, nees = np.empty(n), np.empty(n), np.empty(n)
     alarms = []
@@ -96,7 +97,7 @@ def run_seed(seed: int, shift: simulate.Shift, settings: MonitorSettings,
             alarms.append((i, upd.alarm))
             if os.environ.get("SHIFT_DEBUG"):
                 print(seed, i, upd.alarm, f"{upd.statistic:.1f}", upd.message)
-        err[i] = _workspace_error(upd.camera_transform, engine.camera_correction, real.camera, stream.Y[i], P) * 1e3
+        err[i] = workspace_error(upd.camera_transform, engine.camera_correction, real.camera, stream.Y[i], P) * 1e3
         sig[i] = upd.sigma_mm
         e = np.r_[tf.so3_log(upd.camera_transform[:3, :3] @ stream.Y[i][:3, :3].T),
                   upd.camera_transform[:3, 3] - stream.Y[i][:3, 3]]

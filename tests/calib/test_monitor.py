@@ -1,0 +1,139 @@
+"""calib.monitor: the monitoring engine over simulated production shifts (calib.simulate.shift_stream)."""
+
+import dataclasses
+
+import numpy as np
+import pytest
+
+from app.benchmarks import shift as bench_shift
+from calib import model, simulate, solve
+from calib import transforms as tf
+from calib.errors import CalibrationError
+from calib.monitor import MonitorEngine, MonitorSettings
+from calib.setup import Setup
+
+PROFILE = simulate.RealisticProfile()
+
+
+def _armed(seed: int = 1, settings: MonitorSettings | None = None):
+    real = simulate.realistic_profile(30, np.random.default_rng([seed, 0]), PROFILE)
+    d = real.data
+    F = PROFILE.dh_error_factor(real.q)
+    res = solve("auto", d.A, d.points, point_cov=d.point_cov, robot_shared_error=F, rng=np.random.default_rng(seed))
+    engine = MonitorEngine(settings)
+    engine.arm(res, d.A, d.points, point_cov=d.point_cov, robot_factor=F)
+    return real, res, engine
+
+
+@pytest.mark.parametrize("setup", [Setup.EYE_TO_HAND, Setup.EYE_IN_HAND])
+def test_point_jacobians_match_finite_differences(setup):
+    rng = np.random.default_rng(0)
+    C = tf.from_rotvec_translation(rng.normal(size=3) * 0.3, [0.1, -0.2, 0.9])
+    K = tf.from_rotvec_translation(rng.normal(size=3) * 0.3, [0.02, 0.01, 0.05])
+    A = tf.from_rotvec_translation(rng.normal(size=3) * 0.3, [0.5, 0.1, 0.4])
+    theta = np.array([0.01, 0.003, -0.01])
+    M = (A if setup == Setup.EYE_TO_HAND else tf.invert(A))[None]
+    h, H_C, H_tK, H_th, H_xi = model.point_jacobians(C, K, M, theta, setup)
+    eps = 1e-7
+    for k in range(6):
+        d = np.zeros(6)
+        d[k] = eps
+        C2 = tf.make_transform(tf.so3_exp(d[:3]) @ C[:3, :3], C[:3, 3] + d[3:])
+        np.testing.assert_allclose((model.point_jacobians(C2, K, M, theta, setup)[0] - h)[0] / eps, H_C[0, :, k],
+                                   atol=1e-5)
+        A2 = A @ tf.from_rotvec_translation(d[:3], d[3:])
+        M2 = (A2 if setup == Setup.EYE_TO_HAND else tf.invert(A2))[None]
+        np.testing.assert_allclose((model.point_jacobians(C, K, M2, theta, setup)[0] - h)[0] / eps, H_xi[0, :, k],
+                                   atol=1e-5)
+    for k in range(3):
+        K2 = K.copy()
+        K2[k, 3] += eps
+        np.testing.assert_allclose((model.point_jacobians(C, K2, M, theta, setup)[0] - h)[0] / eps, H_tK[0, :, k],
+                                   atol=1e-5)
+        th2 = theta.copy()
+        th2[k] += eps
+        np.testing.assert_allclose((model.point_jacobians(C, K, M, th2, setup)[0] - h)[0] / eps, H_th[0, :, k],
+                                   atol=1e-5)
+
+
+def test_a_still_camera_raises_no_moved_alarm_and_stays_as_good_as_its_calibration():
+    shift = dataclasses.replace(simulate.Shift(), hours=3.0, bumps=())
+    run = bench_shift.run_seed(1, shift, MonitorSettings(), PROFILE)
+    assert not [i for i, kind in run.alarms if kind == "moved"]
+    assert np.percentile(run.error_mm, 95) <= run.bound_mm
+    # The stated covariance matches the error (NEES of 6 dof, loose: one seed, correlated samples).
+    assert 2.0 < np.mean(run.nees) < 12.0
+
+
+def test_a_bump_is_flagged_and_relearnt_from_the_production_stops_alone():
+    shift = dataclasses.replace(simulate.Shift(), hours=2.0, bumps=((1.0, 5.0, 0.3),))
+    run = bench_shift.run_seed(2, shift, MonitorSettings(), PROFILE)
+    s = bench_shift.summarize(run)
+    assert s["false"] == 0
+    assert s["delays"][0] is not None and s["delays"][0] <= bench_shift.DETECT_WITHIN
+    assert s["recovery"][0] is not None and s["recovery"][0] <= bench_shift.RECOVER_WITHIN
+    after = run.bumped[0] + bench_shift.RECOVER_WITHIN
+    assert np.percentile(run.error_mm[after:], 95) <= run.bound_mm
+
+
+def test_slow_drift_is_followed_and_its_rate_reported():
+    shift = dataclasses.replace(simulate.Shift(), hours=3.0, bumps=(), drift_mm_h=2.0)
+    real, res, engine = _armed(3, MonitorSettings(walk_mm_per_sqrt_h=2.0))
+    stream = simulate.shift_stream(real, shift, np.random.default_rng([3, 1]), PROFILE)
+    F = PROFILE.dh_error_factor(stream.q)
+    ups = [engine.update(stream.t[i], stream.A[i], stream.points[i], stream.point_cov[i], F[i])
+           for i in range(len(stream.t))]
+    assert not [u for u in ups if u.alarm == "moved"]
+    # 6 mm of drift by the end: the arming calibration is off by about that over the workspace, the live one is not.
+    P = simulate.workspace_points(real, 100, np.random.default_rng(0))
+    held = bench_shift.workspace_error(res.Y, res.camera_correction, real.camera, stream.Y[-1], P)
+    live = bench_shift.workspace_error(ups[-1].camera_transform, engine.camera_correction, real.camera,
+                                       stream.Y[-1], P)
+    assert held > 4e-3
+    assert live < 0.5 * held
+    assert 1.0 < ups[-1].drift_rate_mm_h < 3.5
+    # Heading for the 2 mm tolerance: a drifting alarm, with the time left.
+    drifting = [u for u in ups if u.alarm == "drifting"]
+    assert drifting and "tolerance" in drifting[0].message
+
+
+def test_two_stops_cannot_relearn_and_say_so():
+    real, res, engine = _armed(4)
+    shift = dataclasses.replace(simulate.Shift(), hours=1.0, stops=2, bumps=((0.5, 10.0, 0.5),))
+    stream = simulate.shift_stream(real, shift, np.random.default_rng([4, 1]), PROFILE)
+    F = PROFILE.dh_error_factor(stream.q)
+    ups = [engine.update(stream.t[i], stream.A[i], stream.points[i], stream.point_cov[i], F[i])
+           for i in range(len(stream.t))]
+    moved = [u for u in ups if u.alarm == "moved"]
+    assert len(moved) == 1
+    assert ups[-1].state == "relearning" and ups[-1].level == "moved"
+    assert "2 distinct stops" in ups[-1].message and "3 not on one line" in ups[-1].message
+
+
+def test_bad_samples_are_refused_without_changing_the_state():
+    real, res, engine = _armed(5)
+    d = real.data
+    before = engine.camera_transform, engine.cov
+    F = PROFILE.dh_error_factor(real.q[:1])[0]
+    with pytest.raises(CalibrationError, match="point_cam"):
+        engine.update(1.0, d.A[0], [np.nan, 0.0, 0.8], None, F)
+    with pytest.raises(CalibrationError, match="robot_factor"):
+        engine.update(1.0, d.A[0], d.points[0], None, None)
+    with pytest.raises(CalibrationError, match="T_base_flange"):
+        engine.update(1.0, np.eye(3), d.points[0], None, F)
+    np.testing.assert_array_equal(engine.camera_transform, before[0])
+    np.testing.assert_array_equal(engine.cov, before[1])
+    with pytest.raises(CalibrationError, match="not armed"):
+        MonitorEngine().update(0.0, d.A[0], d.points[0])
+
+
+def test_state_stays_bounded_over_a_shift():
+    real, res, engine = _armed(6)
+    stream = simulate.shift_stream(real, dataclasses.replace(simulate.Shift(), hours=2.0),
+                                   np.random.default_rng([6, 1]), PROFILE)
+    F = PROFILE.dh_error_factor(stream.q)
+    sizes = []
+    for i in range(len(stream.t)):
+        engine.update(stream.t[i], stream.A[i], stream.points[i], stream.point_cov[i], F[i])
+        sizes.append(engine.state_size)
+    assert max(sizes[60:]) <= 1.5 * sizes[60]
