@@ -30,6 +30,7 @@ from app import backends  # noqa: F401  every backend registers itself before th
 from app.errors import ConfigError
 from app.mqtt import MqttConfig
 from app.files import read_text_file
+from calib.monitor import MonitorSettings
 from calib.online import OnlineConfig
 from calib.params import (
     Bool,
@@ -184,7 +185,9 @@ class MonitorConfig(Params):
     least information goes, never one of the ``keep_recent`` newest
     (`calib.planner.least_informative`, docs/planning.md). ``alarm_hook`` is
     split like a shell line and must name a program on ``PATH``.
-    ``[monitor.online]`` configures the online estimator and change detector
+    ``[monitor.engine]`` configures the monitoring engine of ``replay --monitor``
+    (`calib.monitor.MonitorSettings`: random-walk rates, ``tolerance_mm``,
+    the drifting horizon, the detector). ``[monitor.online]`` configures the online estimator and change detector
     (its setup is the config's).
 
     Disk budget: frames (PNG) are kept only for samples the bounded set
@@ -209,6 +212,7 @@ class MonitorConfig(Params):
     online: OnlineConfig = Field(default_factory=OnlineConfig)
     keep_frames: NonNegativeInt = 100
     max_recording_mb: PositiveFloat = 200.0
+    engine: MonitorSettings = Field(default_factory=MonitorSettings)
 
     @model_validator(mode="after")
     def _keep(self):

@@ -51,17 +51,33 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("-c", "--config", type=Path, help="config whose calibrate.target_sigma_mm/_deg the 1-sigma "
                    "warnings use (default targets: 3 mm, 0.2 deg), and whose robot's kinematic_error auto adds "
                    "as shared by the samples (sessions with joints)")
+    p.add_argument("--monitor", action="store_true", help="stream the session through the monitoring engine "
+                   "(alarms, monitor_trace.csv and a plot in --trace-dir); needs --reference")
+    p.add_argument("--reference", type=Path, help="--monitor: calibration session (or its result.yaml) that arms "
+                   "the engine")
+    p.add_argument("--trace-dir", type=Path, help="--monitor: where the trace goes (default <session>/monitor_replay)")
 
 
 def run(args) -> int:
     methods = args.methods or ["YKronT'", "YQuatT'"]
-    target, shared_error = (0.0, 0.0), None
+    target, shared_error, settings = (0.0, 0.0), None, None
     if args.config is not None:
         from app.config import load_config
 
         cfg = load_config(args.config)
         target = (cfg.calibrate.target_sigma_mm, cfg.calibrate.target_sigma_deg)
         shared_error = devices.open_robot(cfg, read_only=True).shared_error_factor   # a model only: never connected
+        settings = cfg.monitor.engine
+    if args.monitor:
+        from app.monitor_replay import replay_monitor, summary
+
+        if args.reference is None:
+            raise SessionError("replay --monitor needs --reference: the calibration session (or its result.yaml) "
+                               "the production session is judged against")
+        rep = replay_monitor(args.source, args.reference, args.trace_dir or args.source / "monitor_replay",
+                             settings=settings, shared_error=shared_error, rng=np.random.default_rng(args.seed))
+        print(summary(rep))
+        return 3 if any(a["alarm"] == "moved" for a in rep.alarms) else 0
     print(replay_source(args.source, methods, refine=args.refine, robust=args.robust, setup=args.setup,
                         rng=np.random.default_rng(args.seed), target_mm=target[0], target_deg=target[1],
                         shared_error=shared_error))
