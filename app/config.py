@@ -2,7 +2,7 @@
 
 Every table is a pydantic model (`calib.params.Params`: unknown keys rejected,
 numbers finite and never booleans): ``[calibrate]``, ``[monitor]`` (with
-``[monitor.online]`` = `calib.online.OnlineConfig`), ``[session]``, ``[viz]``,
+``[monitor.engine]`` = `calib.monitor.MonitorSettings`), ``[session]``, ``[viz]``,
 ``[frames]``, ``[mqtt]`` (`app.mqtt.MqttConfig`),
 ``[marker]`` = `calib.vision.extract.TargetConfig`, and ``[robot]`` /
 ``[camera]``, a union over the registered backends selected by ``type`` /
@@ -31,7 +31,6 @@ from app.errors import ConfigError
 from app.mqtt import MqttConfig
 from app.files import read_text_file
 from calib.monitor import MonitorSettings
-from calib.online import OnlineConfig
 from calib.params import (
     Bool,
     Int,
@@ -55,8 +54,6 @@ from mocks.ur_sim.robot import URSimRobotConfig
 
 # Solver names as in the paper (or "auto", calib.auto), checked against calib.api at load.
 DEFAULT_METHOD = "auto"
-# The monitor re-estimates from a few samples after a move: the paper's point solver.
-MONITOR_METHOD = "YKronT'"
 # Result formats of app.formats.write_result (kept literal: config must load without the exporters).
 EXPORTS = ("yaml", "json", "easy_handeye", "easy_handeye2", "urdf", "ros2_launch")
 
@@ -177,18 +174,21 @@ class CalibrateConfig(Params):
 class MonitorConfig(Params):
     """``[monitor]``: passive sampling while something else moves the robot.
 
-    A sample is taken when the robot has been still for ``still_s`` and its
-    pose differs from each of the last ``diversity_window`` samples by at
-    least ``min_translation_m`` or ``min_rotation_deg``. The samples since the
-    start (or the last alarm) are held in a set of at most ``keep_samples``
-    (0 = unbounded): beyond it, the sample whose loss costs the estimate the
-    least information goes, never one of the ``keep_recent`` newest
-    (`calib.planner.least_informative`, docs/planning.md). ``alarm_hook`` is
-    split like a shell line and must name a program on ``PATH``.
-    ``[monitor.engine]`` configures the monitoring engine of ``replay --monitor``
-    (`calib.monitor.MonitorSettings`: random-walk rates, ``tolerance_mm``,
-    the drifting horizon, the detector). ``[monitor.online]`` configures the online estimator and change detector
-    (its setup is the config's).
+    A sample is taken at every standstill of ``still_s`` with the marker in
+    view (a stop the program returns to is tested again: the best test there
+    is of a moved camera). Only a sample whose pose differs from every one
+    held by at least ``min_translation_m`` or ``min_rotation_deg`` enters the
+    estimation set (since the start or the last move), which holds at most
+    ``keep_samples`` (0 = unbounded): beyond it, the sample whose loss costs
+    the estimate the least information goes, never one of the
+    ``keep_recent`` newest (`calib.planner.least_informative`,
+    docs/planning.md). Without ``--reference`` the monitoring engine is armed
+    from that set once it holds ``arm_samples`` and ``auto`` gives a 1-sigma
+    over the workspace within ``arm_sigma_mm`` (tried every
+    ``reestimate_samples`` new poses). ``alarm_hook`` is split like a shell
+    line and must name a program on ``PATH``. ``[monitor.engine]`` configures
+    the engine (`calib.monitor.MonitorSettings`: random-walk rates,
+    ``tolerance_mm``, the drifting horizon, the detector).
 
     Disk budget: frames (PNG) are kept only for samples the bounded set
     still holds, and for at most the last ``keep_frames`` samples and skips
@@ -201,15 +201,14 @@ class MonitorConfig(Params):
     poll_s: PositiveFloat = 0.05
     min_translation_m: NonNegativeFloat = 0.03
     min_rotation_deg: NonNegativeFloat = 5.0
-    diversity_window: NonNegativeInt = 10
     max_samples: NonNegativeInt = 0
     duration_s: NonNegativeFloat = 0.0
     alarm_hook: Annotated[Str, AfterValidator(_hook)] = ""
-    reestimate_samples: Annotated[Int, Field(ge=3)] = 8
+    reestimate_samples: Annotated[Int, Field(ge=1)] = 8
     keep_samples: NonNegativeInt = 300
     keep_recent: NonNegativeInt = 50
-    method: Method = MONITOR_METHOD
-    online: OnlineConfig = Field(default_factory=OnlineConfig)
+    arm_samples: Annotated[Int, Field(ge=6)] = 12
+    arm_sigma_mm: PositiveFloat = 3.0
     keep_frames: NonNegativeInt = 100
     max_recording_mb: PositiveFloat = 200.0
     engine: MonitorSettings = Field(default_factory=MonitorSettings)
@@ -218,6 +217,8 @@ class MonitorConfig(Params):
     def _keep(self):
         if self.keep_samples and self.keep_recent >= self.keep_samples:
             raise ValueError(f"keep_recent ({self.keep_recent}) must be below keep_samples ({self.keep_samples})")
+        if self.keep_samples and self.arm_samples > self.keep_samples:
+            raise ValueError(f"arm_samples ({self.arm_samples}) must not exceed keep_samples ({self.keep_samples})")
         return self
 
 
@@ -320,8 +321,8 @@ class Config(Params):
     ``setup`` is ``"eye_to_hand"`` (static camera, marker on the flange:
     ``X = T_flange_marker``, ``Y = T_base_cam``) or ``"eye_in_hand"`` (camera
     on the flange, static marker: ``X = T_flange_cam``, ``Y = T_base_marker``);
-    a camera backend or the online estimator that has a setup of its own takes
-    this one unless its table states the same.
+    a camera backend that has a setup of its own takes this one unless its
+    table states the same.
     """
 
     setup: Setup = Setup.EYE_TO_HAND
@@ -337,7 +338,7 @@ class Config(Params):
 
     @model_validator(mode="after")
     def _one_setup(self):
-        for name, part in (("camera", self.camera), ("monitor.online", self.monitor.online)):
+        for name, part in (("camera", self.camera),):
             if "setup" not in type(part).model_fields:
                 continue
             if "setup" in part.model_fields_set and part.setup != self.setup:

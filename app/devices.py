@@ -130,11 +130,11 @@ def make_viz(cfg: Config, session: Path) -> Viz:
                log_images=cfg.viz.log_images)
 
 
-def make_online(cfg: Config):
-    """A fresh `calib.online.OnlineCalibrator` for the monitor."""
-    from calib.online import OnlineCalibrator
+def make_engine(cfg: Config):
+    """A fresh, unarmed `calib.monitor.MonitorEngine` with the ``[monitor.engine]`` settings."""
+    from calib.monitor import MonitorEngine
 
-    return OnlineCalibrator(cfg.monitor.online)
+    return MonitorEngine(cfg.monitor.engine)
 
 
 def write_result(result, session: Path, formats, frames: dict | None = None) -> dict:

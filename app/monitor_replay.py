@@ -27,10 +27,9 @@ import numpy as np
 import yaml
 
 from app import devices
-from app.errors import SessionError
+from app.monitoring import arm_engine, reference_observations
 from app.session import read_session
 from calib import transforms as tf
-from calib.api import solve_observations
 from calib.errors import CalibrationError
 from calib.monitor import MonitorEngine, MonitorSettings, MonitorUpdate
 from calib.result import worst_axis_sigma
@@ -55,39 +54,6 @@ class MonitorReplay:
     last: MonitorUpdate | None = None
     verify_mm: list = field(default_factory=list)
     out: Path | None = None
-
-
-def reference_observations(path: Path, setup: Setup):
-    """The samples of a reference: a session directory, or the ``result.yaml`` inside one."""
-    path = Path(path)
-    session_dir = path.parent if path.is_file() else path
-    ref = read_session(session_dir)
-    if ref.setup != setup:
-        raise SessionError(f"reference {path} is {ref.setup}, the monitored session is {setup}")
-    usable = [o for o in ref.observations if o.point_cam is not None]
-    if not usable:
-        raise SessionError(f"reference {path}: no sample has a marker point")
-    return usable
-
-
-def arm_engine(engine: MonitorEngine, reference: list, setup: Setup, shared_error=None, *, rng=None,
-               t: float = 0.0) -> None:
-    """Solve the reference samples with ``auto`` and arm ``engine`` from the result and the samples.
-
-    Raises
-    ------
-    SessionError
-        The reference cannot be solved or does not determine the camera.
-    """
-    F = devices.robot_shared_error("auto", reference, shared_error)
-    try:
-        result = solve_observations("auto", reference, setup, rng=rng or np.random.default_rng(0),
-                                    robot_shared_error=F)
-        covs = None if any(o.point_cov is None for o in reference) else np.array([o.point_cov for o in reference])
-        engine.arm(result, np.array([o.T_base_flange for o in reference]), np.array([o.point_cam for o in reference]),
-                   point_cov=covs, robot_factor=F, t=t)
-    except CalibrationError as e:
-        raise SessionError(f"reference: cannot arm the monitoring engine: {e}") from None
 
 
 def trace_row(obs_index: int, upd: MonitorUpdate, correction) -> dict:

@@ -242,14 +242,21 @@ class MqttPublisher:
                 msg["sigma_mm"] = report.estimate_sigma[1] * 1e3
             self.publish("estimate", msg, retain=True)
         if report.drift is not None:
-            self.publish("drift", {**self._base("drift"), "sample": obs.index, "translation_mm": report.drift[0],
-                                   "rotation_deg": report.drift[1]})
-        if update.alarm:
+            msg = {**self._base("drift"), "sample": obs.index, "translation_mm": report.drift[0],
+                   "rotation_deg": report.drift[1]}
+            if update is not None:
+                msg.update(rate_mm_h=update.drift_rate_mm_h, rate_deg_h=update.drift_rate_deg_h,
+                           level=update.level, verify_mm=update.verify_mm, error_mm=update.error_mm,
+                           hours_to_tolerance=update.hours_to_tolerance)
+            self.publish("drift", msg)
+        if update is not None and update.alarm:
             a = report.alarms[-1]
-            self.publish("alarm", {**self._base("alarm"), "event": "camera_moved", "sample": a.sample_index,
+            self.publish("alarm", {**self._base("alarm"), "event": "camera_" + a.kind, "sample": a.sample_index,
                                    "statistic": a.info.get("statistic"), "alarm_count": len(report.alarms),
                                    "drift_mm": None if report.drift is None else report.drift[0],
-                                   "drift_deg": None if report.drift is None else report.drift[1]})
+                                   "drift_deg": None if report.drift is None else report.drift[1],
+                                   "drift_rate_mm_h": update.drift_rate_mm_h,
+                                   "hours_to_tolerance": update.hours_to_tolerance, "message": update.message})
 
 
 def make_publisher(mqtt: MqttConfig, setup: Setup, frames: dict) -> MqttPublisher | None:

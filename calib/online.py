@@ -175,6 +175,16 @@ class ChangeDetector:
         self._Hr = np.zeros((3, 10))
         self.reset()
 
+    @property
+    def count(self) -> int:
+        """Innovations since the last reset."""
+        return self._count
+
+    @property
+    def state_size(self) -> int:
+        """Floats held: the window's running sums."""
+        return self._cum.size
+
     def reset(self) -> None:
         """Forget all innovations."""
         self._cum[:] = 0.0

@@ -61,6 +61,7 @@ class SeedRun:
     arming_mm: float
     bound_mm: float
     update_us: float
+    statistic: np.ndarray         # the detector's GLR statistic per sample
 
 
 def workspace_error(C, correction, camera, Y_true, P) -> float:
@@ -89,10 +90,12 @@ def run_seed(seed: int, shift: simulate.Shift, settings: MonitorSettings,
     err, sig, nees = np.empty(n), np.empty(n), np.empty(n)
     alarms = []
     elapsed = 0.0
+    stats = np.empty(n)
     for i in range(n):
         t0 = time.perf_counter()
         upd = engine.update(stream.t[i], stream.A[i], stream.points[i], stream.point_cov[i], F_stream[i])
         elapsed += time.perf_counter() - t0
+        stats[i] = upd.statistic
         if upd.alarm:
             alarms.append((i, upd.alarm))
             if os.environ.get("SHIFT_DEBUG"):
@@ -103,7 +106,7 @@ def run_seed(seed: int, shift: simulate.Shift, settings: MonitorSettings,
                   upd.camera_transform[:3, 3] - stream.Y[i][:3, 3]]
         nees[i] = float(e @ np.linalg.solve(upd.cov, e))
     return SeedRun(stream.t / 3600.0, err, sig, nees, alarms, stream.bumped, arming, max(1.0, 1.5 * arming),
-                   elapsed / n * 1e6)
+                   elapsed / n * 1e6, stats)
 
 
 def summarize(run: SeedRun) -> dict:

@@ -16,10 +16,9 @@ from calib.errors import HandeyeError
 NAME = "demo"
 HELP = ("simulated UR10 + rendered camera: calibrate and compare to the truth "
         "(--monitor: watch a production program, bump the camera, alarm)")
-#: Monitor settings of ``handeye demo --monitor``: quick standstills and a small estimator bootstrap,
-#: so the whole story (arming, bump, alarm, re-estimate) fits in about half a minute.
-DEMO_MONITOR = {"still_s": 0.2, "poll_s": 0.02, "reestimate_samples": 6,
-                "online": {"bootstrap": 6, "warmup": 4, "detector": {"window": 6}}}
+#: Monitor settings of ``handeye demo --monitor``: quick standstills and a first calibration tried every
+#: 4 new poses, so the whole story (arming, bump, alarm, re-learn) fits in about a minute.
+DEMO_MONITOR = {"still_s": 0.2, "poll_s": 0.02, "reestimate_samples": 4}
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -90,18 +89,12 @@ def demo_monitor(cfg: Config, *, bump: Bump | None, reference: Path | None = Non
         raise ConfigError("demo --monitor runs only a simulated cell (a simulated robot.type and camera.backend); "
                           "use 'handeye monitor' for hardware")
     from app.config import config_from_dict
-    from calib.online import OnlineConfig
 
     data = cfg.model_dump()
     mon = data["monitor"]
-    mon.update({k: v for k, v in DEMO_MONITOR.items() if k != "online"})
-    # The config's own estimator settings win over the demo's small bootstrap.
-    if cfg.monitor.online == OnlineConfig(setup=cfg.setup):
-        online = DEMO_MONITOR["online"]
-        mon["online"].update({k: v for k, v in online.items() if k != "detector"})
-        mon["online"]["detector"] = {**(mon["online"].get("detector") or {}), **online["detector"]}
+    mon.update(DEMO_MONITOR)
     after = bump.after if bump is not None else 0
-    mon["max_samples"] = max_samples or (after + 4 + mon["reestimate_samples"] + 6 if bump else 30)
+    mon["max_samples"] = max_samples or (after + 20 if bump else 30)
     mon["duration_s"] = cfg.monitor.duration_s or 300.0
     cfg = config_from_dict(data, "demo --monitor")
     return monitor(cfg, reference=reference, progress=progress, bump=bump, publish=publish)

@@ -1,12 +1,14 @@
-"""``handeye monitor``: sample while something else moves the robot, watch for a moved camera.
+"""``handeye monitor``: sample while something else moves the robot, keep the camera calibrated.
 
 Read-only: this module never commands a motion. Eye-to-hand (static camera,
-``Y = T_base_cam``) it detects a bumped camera; eye-in-hand (``X =
-T_flange_cam``) a camera that slipped on the flange. Each accepted sample
-feeds the online estimator and change detector (``calib.online``); on an
-alarm the run logs it, records an event in the session, shows it in rerun,
-runs the optional hook command, and re-estimates from the samples taken after
-the move once there are enough.
+``Y = T_base_cam``) it follows and re-learns a drifting or bumped camera;
+eye-in-hand (``X = T_flange_cam``) a camera that slips on the flange. Every
+standstill with the marker in view is a sample for the monitoring engine
+(`calib.monitor`, armed from a reference calibration or, without one, from
+the first samples ``auto`` can solve); a *moved* or *drifting* alarm is
+logged, recorded in the session, shown in rerun, published (MQTT) and runs
+the optional hook command. Only samples of distinct poses enter the bounded
+estimation set the first calibration and the final result are solved from.
 """
 
 from __future__ import annotations
@@ -19,7 +21,6 @@ import os
 import subprocess
 import threading
 import time
-from collections import deque
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Callable
@@ -30,16 +31,18 @@ from app import devices
 from app.acquire import take_sample
 from app.commands.common import add_run_options, load_config_args, pose_line
 from app.config import Config, MonitorConfig, hook_argv
-from app.errors import ConfigError, SessionError
+from app.errors import ConfigError
+from app.monitoring import arm_engine, arm_from, reference_observations, sample_factor
 from app.production import Bump, start_production
 from app.progress import progress_bar, say, show_monitor
-from app.session import SessionWriter, read_session
+from app.session import SessionWriter
 from app.viz import Viz
 from calib import transforms as tf
-from calib.planner import least_informative
 from calib.errors import CalibrationError
+from calib.monitor import MonitorEngine, MonitorUpdate
 from calib.observation import Observation
-from calib.result import CalibrationResult
+from calib.planner import least_informative
+from calib.result import CalibrationResult, worst_axis_sigma
 from calib.setup import Setup
 from calib.vision.extract import MarkerMeasurement
 from drivers.camera.base import Camera, RGBDFrame
@@ -55,7 +58,8 @@ EXIT_ALARM = 3
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
     add_run_options(p)
-    p.add_argument("--reference", type=Path, help="session whose samples give the reference calibration")
+    p.add_argument("--reference", type=Path, help="calibration session (or its result.yaml) that arms the "
+                   "monitoring engine at once")
     p.add_argument("--duration", type=float, help="seconds to run (overrides monitor.duration_s)")
     p.add_argument("--max-samples", type=int, help="stop after this many samples")
     p.add_argument("--hook", help="command to run on an alarm (overrides monitor.alarm_hook)")
@@ -65,16 +69,20 @@ def run(args) -> int:
     cfg = load_config_args(args)
     report = monitor(cfg, reference=args.reference)
     print_monitor_summary(report, cfg.setup)
-    return EXIT_ALARM if report.alarms else 0
+    return EXIT_ALARM if report.moved_alarms else 0
 
 
 @dataclass
 class Alarm:
-    """A detected camera move: when, after which sample, and the detector's figures."""
+    """An alarm: when, at which sample, its kind (``"moved"`` or ``"drifting"``) and the engine's figures."""
 
     t: float
     sample_index: int
     info: dict
+
+    @property
+    def kind(self) -> str:
+        return self.info.get("alarm", "moved")
 
 
 @dataclass
@@ -87,24 +95,24 @@ class MonitorReport:
     n_samples, n_skipped : int
     alarms : list[Alarm]
     reestimate : CalibrationResult or None
-        Solved from the samples after the last alarm (None if too few).
+        The camera re-learnt after the last *moved* alarm (None if none yet).
     elapsed_s : float
     estimate : ndarray (4, 4) or None
-        The online estimator's latest camera transform (``T_base_cam``
-        eye-to-hand, ``T_flange_cam`` eye-in-hand).
+        The engine's live camera transform (``T_base_cam`` eye-to-hand,
+        ``T_flange_cam`` eye-in-hand); None before it is armed.
     estimate_cov : ndarray (6, 6) or None
         Its covariance (`calib.result` convention).
     estimate_sigma : (float, float) or None
-        Its worst-axis 1-sigma ``(rad, m)`` (`CalibrationResult.sigma`).
+        Its worst-axis 1-sigma ``(rad, m)`` (`calib.result.worst_axis_sigma`).
     drift : (float, float) or None
-        ``(mm, deg)`` of the latest estimate against the reference (the
-        reference session's estimate, else the first online estimate since
-        the start or the last alarm).
+        ``(mm, deg)`` of the live estimate against the calibration in use
+        (the reference, then each re-learnt one): mm over the workspace.
     samples_until_armed : int
-        Change detector state at the end (0: armed).
+        Samples before the *moved* test runs (0: armed).
     kept : list[int]
-        Indices of the samples held at the end (since the start or the last
-        alarm, bounded by ``keep_samples``, chosen by information).
+        Indices of the bounded estimation set at the end.
+    last : MonitorUpdate or None
+        The engine's latest figures (drift rate, running verification, level).
     """
 
     session: Path
@@ -119,14 +127,19 @@ class MonitorReport:
     drift: tuple[float, float] | None = None
     samples_until_armed: int = 0
     kept: list[int] = field(default_factory=list)
+    last: MonitorUpdate | None = None
 
     @property
     def last_alarm(self) -> Alarm | None:
         return self.alarms[-1] if self.alarms else None
 
+    @property
+    def moved_alarms(self) -> list[Alarm]:
+        return [a for a in self.alarms if a.kind == "moved"]
+
 
 def detector_state(n: int) -> str:
-    """``"armed"`` or ``"armed after N more samples"`` (from `OnlineCalibrator.samples_until_armed`)."""
+    """``"armed"`` or ``"armed after N more samples"``."""
     return "armed" if n == 0 else f"armed after {n} more sample{'s' if n != 1 else ''}"
 
 
@@ -134,10 +147,10 @@ def monitor(cfg: Config, *, reference: Path | None = None, stop=None, progress: 
             bump: Bump | None = None, production: bool = True, publish=None) -> MonitorReport:
     """Passive monitoring with a read-only robot connection (never moves the robot).
 
-    ``reference``: a previous session (same setup) whose samples are solved
-    in one batch to arm the change detector at once (estimate and
-    covariance, `calib.online.OnlineCalibrator.arm`), so detection starts with
-    the first new sample and the drift is measured against it.
+    ``reference``: a calibration session (or its ``result.yaml``), solved
+    with ``auto`` to arm the monitoring engine at once (`app.monitoring`);
+    without one the engine arms itself from the run's first samples that
+    ``auto`` can solve (`MonitorConfig.arm_samples`).
 
     On a simulated cell (the ``ur_sim`` robot) the simulated controller
     runs a looping production program (``production``, `app.production`) so
@@ -148,32 +161,23 @@ def monitor(cfg: Config, *, reference: Path | None = None, stop=None, progress: 
     from app.mqtt import make_publisher
 
     rng = np.random.default_rng(cfg.calibrate.seed)
-    online = devices.make_online(cfg)
-    T_reference = None
-    if reference is not None:
-        ref = read_session(reference)
-        if ref.setup != cfg.setup:
-            raise SessionError(f"reference session {reference} is {ref.setup}, the config is {cfg.setup}")
-        usable = [o for o in ref.observations if o.point_cam is not None]
-        covs = None if any(o.point_cov is None for o in usable) else np.array([o.point_cov for o in usable])
-        try:
-            online.arm(np.array([o.T_base_flange for o in usable]).reshape(-1, 4, 4),
-                       np.array([o.point_cam for o in usable]).reshape(-1, 3), covs)
-        except CalibrationError as e:
-            raise SessionError(f"reference session {reference}: cannot arm the change detector: {e}") from None
-        T_reference = online.camera_transform
-        say(f"reference {reference}: {len(usable)} samples, change detector armed from its estimate and covariance")
+    engine = devices.make_engine(cfg)
     devices.check_session_root(cfg)
     publisher = make_publisher(cfg.mqtt, cfg.setup, cfg.frames.model_dump()) if publish is None else None
     with devices.open_robot(cfg, read_only=True) as robot, devices.open_camera(cfg, robot) as camera, \
             (publisher or contextlib.nullcontext()):
         publish = publish or publisher
+        if reference is not None:
+            ref = reference_observations(reference, cfg.setup)
+            arm_engine(engine, ref, cfg.setup, robot.shared_error_factor, rng=rng, t=time.time())
+            say(f"reference {reference}: {len(ref)} samples solved with auto, monitoring engine armed from its "
+                "estimate, camera correction and covariance")
         if production:
             start_production(robot, cfg, rng, say=say)
         writer = SessionWriter.create(cfg.session.root, cfg.setup, config=cfg.to_dict(),
                                       intrinsics=dataclasses.asdict(camera.intrinsics), truth=devices.truth(camera),
                                       source="handeye monitor", keep_frames=cfg.monitor.keep_frames)
-        solve = devices.make_solve(cfg.calibrate.model_copy(update={"method": cfg.monitor.method}), cfg.setup, rng,
+        solve = devices.make_solve(cfg.calibrate.model_copy(update={"method": "auto"}), cfg.setup, rng,
                                    robot.shared_error_factor)
         with writer, devices.make_viz(cfg, writer.path) as viz, progress_bar(enabled=progress) as bar:
             seen = []
@@ -195,9 +199,9 @@ def monitor(cfg: Config, *, reference: Path | None = None, stop=None, progress: 
                 if publish is not None:
                     publish(obs, update, report)
 
-            return run_monitor(robot, camera, devices.make_measure(cfg), online, solve, writer, cfg.monitor,
-                               viz, stop=stop, save_frames=cfg.session.save_frames,
-                               on_sample=on_sample, on_update=on_update, reference=T_reference, say=say)
+            return run_monitor(robot, camera, devices.make_measure(cfg), engine, solve, writer, cfg.monitor,
+                               viz, stop=stop, save_frames=cfg.session.save_frames, on_sample=on_sample,
+                               on_update=on_update, say=say, shared_error=robot.shared_error_factor)
 
 
 def is_diverse(T: np.ndarray, recent, min_translation_m: float, min_rotation_deg: float) -> bool:
@@ -232,11 +236,31 @@ def run_hook(command: str, env: dict) -> None:
         log.error("alarm hook %r exited %d: %s", command, done.returncode, done.stderr.strip()[:200])
 
 
+@dataclass
+class _Standstill:
+    """Where the robot stands still, since when, and the pose already tried there."""
+
+    since: float | None = None
+    pose: np.ndarray | None = None
+    tried: np.ndarray | None = None
+
+    def ready(self, state, cfg: MonitorConfig) -> bool:
+        """True once per standstill of ``cfg.still_s`` (a new pose, even between two reads, starts a new one)."""
+        T = state.T_base_flange
+        if not state.is_still or self.pose is None or not _same_pose(T, self.pose):
+            self.since, self.pose = (state.t_host, T) if state.is_still else (None, None)
+            return False
+        if (self.tried is not None and _same_pose(T, self.tried)) or state.t_host - self.since < cfg.still_s:
+            return False
+        self.tried = T
+        return True
+
+
 def run_monitor(
     robot: Robot,
     camera: Camera,
     measure: Callable[[RGBDFrame], MarkerMeasurement],
-    online,
+    engine: MonitorEngine,
     solve: Callable[..., CalibrationResult],
     writer: SessionWriter,
     cfg: MonitorConfig,
@@ -246,8 +270,8 @@ def run_monitor(
     save_frames: bool = True,
     on_sample: Callable[[Observation], None] | None = None,
     on_update: Callable[[Observation, object, MonitorReport], None] | None = None,
-    reference: np.ndarray | None = None,
     say: Callable[[str], None] = log.info,
+    shared_error=None,
 ) -> MonitorReport:
     """Passive run until ``cfg.max_samples``, ``cfg.duration_s``, ``stop`` or Ctrl-C.
 
@@ -256,35 +280,29 @@ def run_monitor(
     robot : Robot connected read-only (this function only reads it).
     camera : Camera
     measure : callable(RGBDFrame) -> MarkerMeasurement (raises ExtractionError to skip).
-    online : calib.online.OnlineCalibrator
-        ``update(T_base_flange, point_cam, point_cov) -> OnlineUpdate`` (estimate, cov, alarm).
-    solve : callable(observations, *, final) -> CalibrationResult, for the re-estimate.
+    engine : calib.monitor.MonitorEngine
+        Armed (from a reference), or armed here from the first samples ``solve`` determines the camera from.
+    solve : callable(observations, *, final) -> CalibrationResult
+        ``auto`` (`app.devices.make_solve`), for arming without a reference.
     writer : SessionWriter
     cfg : MonitorConfig
     stop : threading.Event, optional
         Set from another thread to end the run.
     on_sample : callable, optional
         Called with each accepted sample (progress display).
-    on_update : callable(obs, OnlineUpdate, MonitorReport), optional
-        Called after each sample was fused (and an alarm handled): live
-        displays and publishers (MQTT) read the estimate, drift and alarms there.
-    reference : ndarray (4, 4), optional
-        Camera transform the drift is measured against (the reference
-        session's); default: the first online estimate.
+    on_update : callable(obs, MonitorUpdate or None, MonitorReport), optional
+        Called after each sample (live displays, the MQTT publisher).
     say : callable(str)
-        Where the change detector's state changes are told ("armed", "armed
-        after N more samples").
+        Where the engine's state changes are told.
+    shared_error : callable, optional
+        The robot's `Robot.shared_error_factor`, for samples with joints.
     """
     t0 = time.monotonic()
     report = MonitorReport(writer.path, 0, 0)
-    recent: deque = deque(maxlen=max(cfg.diversity_window, 1))
-    kept: list[Observation] = []  # since the start or the last alarm; bounded by information
-    n_after_alarm = 0
-    still_since: float | None = None
-    still_pose: np.ndarray | None = None
-    tried_pose: np.ndarray | None = None
-    report.samples_until_armed = online.samples_until_armed
-    say(f"change detector: {detector_state(report.samples_until_armed)}")
+    kept: list[Observation] = []        # the bounded estimation set: distinct poses since the start or the last move
+    still = _Standstill()
+    report.samples_until_armed = _until_armed(engine, kept, cfg)
+    say(f"monitoring engine: {_engine_state(engine, kept, cfg)}")
     try:
         while True:
             if stop is not None and stop.is_set():
@@ -294,68 +312,40 @@ def run_monitor(
             if cfg.max_samples and report.n_samples >= cfg.max_samples:
                 break
             state = robot.read()
+            if not still.ready(state, cfg):
+                time.sleep(cfg.poll_s)
+                continue
             T = state.T_base_flange
-            # A standstill is a pose held with zero joint speed; a new pose (even one reached
-            # between two reads) starts a new standstill.
-            if not state.is_still or still_pose is None or not _same_pose(T, still_pose):
-                still_since, still_pose = (state.t_host, T) if state.is_still else (None, None)
-                time.sleep(cfg.poll_s)
-                continue
-            # One attempt per standstill: the view cannot change until the robot moves.
-            if (tried_pose is not None and _same_pose(T, tried_pose)) or state.t_host - still_since < cfg.still_s:
-                time.sleep(cfg.poll_s)
-                continue
-            tried_pose = T
-            if cfg.diversity_window and not is_diverse(T, recent, cfg.min_translation_m, cfg.min_rotation_deg):
-                writer.add_skip(state.t_host, "near-duplicate of a recent pose", T_base_flange=T)
-                report.n_skipped += 1
-                continue
             # The robot may leave during the exposure: frame and interpolated pose could then disagree.
-            obs = take_sample(robot, camera, measure, writer, viz, not_before=still_since, save_frames=save_frames,
+            obs = take_sample(robot, camera, measure, writer, viz, not_before=still.since, save_frames=save_frames,
                               check=lambda T=T: None if _same_pose(robot.read().T_base_flange, T)
                               else "robot moved during the capture")
             if obs is None:
                 report.n_skipped += 1
                 continue
-            recent.append(obs.T_base_flange)
             report.n_samples += 1
             viz.rotate(cfg.max_recording_mb * 1e6)
             if on_sample is not None:
                 on_sample(obs)
-            update = online.update(obs.T_base_flange, obs.point_cam, obs.point_cov)
-            kept.append(obs)
-            dropped = _bound(kept, cfg, online)
-            if dropped is not None:
-                writer.drop_frames(dropped.index)  # disk budget: frames only for samples the estimate holds
-            viz.sample(obs, update.camera_transform)
-            if update.camera_transform is not None:
-                if reference is None:
-                    reference = update.camera_transform
-                rot, trans = tf.pose_error(update.camera_transform, reference)
-                report.estimate, report.estimate_cov = update.camera_transform, update.cov
-                current = online.result()  # None right after an alarm reset the estimator
-                if current is not None:
-                    report.estimate_sigma = current.sigma
-                report.drift = (float(trans) * 1e3, float(np.rad2deg(rot)))
-                viz.drift(obs.t, *report.drift)
-            armed_before, report.samples_until_armed = report.samples_until_armed, online.samples_until_armed
-            if update.alarm:
-                _raise_alarm(report, obs, update, writer, viz, cfg)
-                # The reference stays: the drift of the re-learnt camera against it is how far it moved.
-                kept, n_after_alarm = [], 0
-                say(f"change detector: re-{detector_state(report.samples_until_armed)} "
-                    "(learning the moved camera from new samples)")
-            elif armed_before and not report.samples_until_armed:
+            if is_diverse(obs.T_base_flange, [o.T_base_flange for o in kept], cfg.min_translation_m,
+                          cfg.min_rotation_deg):
+                kept.append(obs)
+                dropped = _bound(kept, cfg, engine)
+                if dropped is not None:
+                    writer.drop_frames(dropped.index)  # disk budget: frames only for samples the set holds
+            update = None
+            if engine.armed:
+                update = _update(engine, obs, shared_error, report, writer, viz, cfg, say)
+                if update.alarm == "moved":
+                    kept = [obs]      # the samples before it are of the old camera
+            elif _arm_from_samples(engine, kept, solve, obs, shared_error, cfg):
+                say(f"monitoring engine armed from {len(kept)} samples of distinct poses (auto)")
+                writer.add_event(obs.t, "armed", n_samples=len(kept), T_camera=engine.camera_transform.tolist())
+            before, report.samples_until_armed = report.samples_until_armed, _until_armed(engine, kept, cfg)
+            if before and not report.samples_until_armed:
                 say(f"change detector: armed (sample {obs.index})")
             if on_update is not None:
                 on_update(obs, update, report)
-            if update.alarm:
-                continue
-            if report.alarms:
-                n_after_alarm += 1
-                # Re-solve every reestimate_samples new samples: cheap, and improves as they accrue.
-                if n_after_alarm % cfg.reestimate_samples == 0:
-                    report.reestimate = _reestimate(kept, solve, writer, viz) or report.reestimate
     except DeviceError as e:
         # As calibrate does: leave the reason in the session next to the samples it kept, then report it.
         writer.add_event(time.time(), "device_error", error=str(e), n_samples=report.n_samples)
@@ -371,66 +361,129 @@ def run_monitor(
     return report
 
 
-def _bound(kept: list[Observation], cfg: MonitorConfig, online) -> Observation | None:
-    """Hold at most ``cfg.keep_samples``: drop the least informative at the online estimate
+def _update(engine: MonitorEngine, obs: Observation, shared_error, report: MonitorReport, writer: SessionWriter,
+            viz: Viz, cfg: MonitorConfig, say) -> MonitorUpdate | None:
+    """One sample through the engine; alarms and re-learns recorded. A malformed sample is a logged skip."""
+    try:
+        upd = engine.update(obs.t, obs.T_base_flange, obs.point_cam, obs.point_cov,
+                            sample_factor(engine, obs, shared_error))
+    except CalibrationError as e:
+        log.warning("sample %d not used by the monitoring engine: %s", obs.index, e)
+        writer.add_skip(obs.t, f"monitoring engine: {e}", T_base_flange=obs.T_base_flange)
+        return None
+    report.last = upd
+    report.estimate, report.estimate_cov = upd.camera_transform, upd.cov
+    report.estimate_sigma = worst_axis_sigma(upd.cov)
+    report.drift = (upd.drift_mm, upd.drift_deg)
+    viz.sample(obs, upd.camera_transform)
+    viz.drift(obs.t, upd.drift_mm, upd.drift_deg)
+    if upd.alarm:
+        _raise_alarm(report, obs, upd, writer, viz, cfg)
+    if upd.state == "relearning" and upd.message and not upd.alarm:
+        log.info("sample %d: %s", obs.index, upd.message)
+    if upd.message.startswith("re-learnt") or "; re-learnt" in upd.message:
+        report.reestimate = engine.result()
+        writer.add_event(obs.t, "relearnt", sample_index=obs.index, T_camera=upd.camera_transform.tolist(),
+                         message=upd.message)
+        viz.event(obs.t, upd.message, "WARN")
+        say(upd.message.split("; ")[-1])
+    return upd
+
+
+def _arm_from_samples(engine: MonitorEngine, kept, solve, obs, shared_error, cfg: MonitorConfig) -> bool:
+    """Without a reference: solve the estimation set with ``auto`` every ``reestimate_samples`` new distinct
+    poses from ``arm_samples`` on; arm once its 1-sigma over the workspace is within ``arm_sigma_mm``."""
+    n = len(kept)
+    if n < cfg.arm_samples or (n - cfg.arm_samples) % cfg.reestimate_samples or kept[-1] is not obs:
+        return False
+    try:
+        ref = arm_from(engine, solve(kept, final=True), kept, devices.robot_shared_error("auto", kept, shared_error),
+                       t=obs.t)
+    except CalibrationError as e:
+        log.info("not armed yet from %d samples: %s", n, e)
+        return False
+    if ref.sigma_mm > cfg.arm_sigma_mm:
+        engine.disarm()
+        log.info("not armed yet: %d samples give a 1-sigma of %.2f mm over the workspace", n, ref.sigma_mm)
+        return False
+    return True
+
+
+def _until_armed(engine: MonitorEngine, kept, cfg: MonitorConfig) -> int:
+    """Samples before the *moved* test runs: the detector's first three once armed; before, the distinct
+    poses still missing for the first calibration (at least one)."""
+    if engine.armed:
+        return max(3 - engine.detector.count, 0)
+    return max(cfg.arm_samples - len(kept), 1) + 3
+
+
+def _engine_state(engine: MonitorEngine, kept, cfg: MonitorConfig) -> str:
+    if engine.armed:
+        return "armed from the reference"
+    return (f"not armed: collecting samples of distinct poses for a first calibration (auto, from "
+            f"{cfg.arm_samples}; a production program of a few stops cannot give one: pass --reference); "
+            f"change detector: {detector_state(_until_armed(engine, kept, cfg))}")
+
+
+def _bound(kept: list[Observation], cfg: MonitorConfig, engine: MonitorEngine) -> Observation | None:
+    """Hold at most ``cfg.keep_samples``: drop the least informative at the live estimate
     (`calib.planner.least_informative`), the oldest while there is no estimate yet; returns the dropped one."""
     if not cfg.keep_samples or len(kept) <= cfg.keep_samples:
         return None
-    estimate = online.result()
-    if estimate is None:
+    if not engine.armed:
         return kept.pop(0)
+    estimate = engine.result()
     A = np.array([o.T_base_flange for o in kept])
     return kept.pop(least_informative(estimate.setup, estimate.X, estimate.Y, A, keep_recent=cfg.keep_recent))
 
 
-def _raise_alarm(report: MonitorReport, obs: Observation, update, writer: SessionWriter, viz: Viz,
+def _raise_alarm(report: MonitorReport, obs: Observation, upd: MonitorUpdate, writer: SessionWriter, viz: Viz,
                  cfg: MonitorConfig) -> None:
-    info = {"statistic": float(update.statistic), "n_samples": int(update.n_samples)}
-    alarm = Alarm(obs.t, obs.index, info)
-    report.alarms.append(alarm)
-    text = f"ALARM: camera moved (detected at sample {obs.index}, GLR statistic {update.statistic:.1f})"
+    info = {"alarm": upd.alarm, "statistic": float(upd.statistic), "n_samples": int(upd.index),
+            "drift_mm": upd.drift_mm, "drift_rate_mm_h": upd.drift_rate_mm_h,
+            "hours_to_tolerance": upd.hours_to_tolerance, "message": upd.message}
+    report.alarms.append(Alarm(obs.t, obs.index, info))
+    if upd.alarm == "moved":
+        text = f"ALARM: camera moved (detected at sample {obs.index}, GLR statistic {upd.statistic:.1f})"
+    else:
+        text = f"ALARM: {upd.message} (sample {obs.index})"
     log.warning(text)
     writer.add_event(obs.t, "alarm", sample_index=obs.index, **info)
-    viz.event(obs.t, text, "ERROR")
-    run_hook(cfg.alarm_hook, {"HANDEYE_EVENT": "camera_moved", "HANDEYE_SESSION": str(writer.path),
-                              "HANDEYE_SAMPLE": str(obs.index)})
-
-
-def _reestimate(samples: list[Observation], solve, writer: SessionWriter, viz: Viz) -> CalibrationResult | None:
-    try:
-        res = solve(samples, final=True)
-    except CalibrationError as e:
-        log.info("re-estimate after the move not possible yet: %s", e)
-        return None
-    writer.add_event(samples[-1].t, "reestimate", n_samples=len(samples),
-                     T_camera=res.camera_transform.tolist(), method=res.method)
-    viz.estimate(samples[-1].t, res, samples)
-    log.info("re-estimated the camera from %d samples after the move", len(samples))
-    return res
+    viz.event(obs.t, text, "ERROR" if upd.alarm == "moved" else "WARN")
+    run_hook(cfg.alarm_hook, {"HANDEYE_EVENT": "camera_moved" if upd.alarm == "moved" else "camera_drifting",
+                              "HANDEYE_SESSION": str(writer.path), "HANDEYE_SAMPLE": str(obs.index)})
 
 
 def print_monitor_summary(report: MonitorReport, setup: Setup = Setup.EYE_TO_HAND) -> None:
-    """Counts, detector state, latest estimate with 1-sigma, drift, every alarm, the re-estimate."""
+    """Counts, detector state, live estimate with 1-sigma, drift and its rate, every alarm, the re-learnt camera."""
     cam = Setup(setup).camera_name
     print(f"\nsession: {report.session}")
     print(f"samples: {report.n_samples}   skipped: {report.n_skipped}   alarms: {len(report.alarms)}   "
           f"time: {report.elapsed_s:.1f} s   change detector: {detector_state(report.samples_until_armed)}")
     if report.estimate is None:
-        print("  estimate: none yet (the online estimator is still collecting its first samples)")
+        print("  estimate: none yet (the monitoring engine is not armed: give --reference, or it arms itself "
+              "once auto determines the camera from the samples)")
     else:
         line = f"  estimate {cam}: {pose_line(report.estimate)}"
         if report.estimate_sigma is not None:
             line += f"  1-sigma {report.estimate_sigma[1] * 1e3:.2f} mm {np.rad2deg(report.estimate_sigma[0]):.3f} deg"
         print(line)
-    if report.drift is not None:
-        print(f"  drift vs. reference: {report.drift[0]:.2f} mm  {report.drift[1]:.3f} deg")
+    u = report.last
+    if report.drift is not None and u is not None:
+        rate = "" if u.drift_rate_mm_h is None else f"  rate {u.drift_rate_mm_h:.2f} mm/h {u.drift_rate_deg_h:.3f} deg/h"
+        print(f"  drift vs. reference: {report.drift[0]:.2f} mm  {report.drift[1]:.3f} deg{rate}   "
+              f"live 1-sigma over the workspace {u.sigma_mm:.2f} mm   last verification {u.verify_mm:.2f} mm")
     for a in report.alarms:
-        print(f"  ALARM camera moved at sample {a.sample_index} ({time.strftime('%H:%M:%S', time.localtime(a.t))}, "
-              f"GLR statistic {a.info.get('statistic', float('nan')):.1f})")
+        when = time.strftime('%H:%M:%S', time.localtime(a.t))
+        if a.kind == "moved":
+            print(f"  ALARM camera moved at sample {a.sample_index} ({when}, "
+                  f"GLR statistic {a.info.get('statistic', float('nan')):.1f})")
+        else:
+            print(f"  ALARM camera drifting at sample {a.sample_index} ({when}): {a.info.get('message', '')}")
     if report.last_alarm is None:
         print("  last alarm: none")
     if report.reestimate is not None:
-        print(f"  re-estimate after the move ({report.reestimate.n_samples} samples): "
+        print(f"  re-estimate after the move (re-learnt from the production stops): "
               f"{pose_line(report.reestimate.camera_transform)}")
     if report.session is not None and (report.session / "recording.rrd").exists():
         from app.viz import open_command

@@ -55,7 +55,7 @@ def test_monitor_records_device_error_on_a_dropped_controller(sim_config, tmp_pa
         writer = SessionWriter.create(cfg.session.root, cfg.setup)
         try:
             with writer, Viz(Setup.EYE_TO_HAND, enabled=False) as viz, pytest.raises(DeviceError):
-                run_monitor(robot, camera, devices.make_measure(cfg), devices.make_online(cfg),
+                run_monitor(robot, camera, devices.make_measure(cfg), devices.make_engine(cfg),
                             devices.make_solve(cfg.calibrate, cfg.setup, rng), writer, cfg.monitor, viz)
         finally:
             dropper.cancel()
@@ -86,21 +86,18 @@ def test_monitor_drops_the_frames_of_samples_its_bounded_set_drops(tmp_path):
     from app.commands import monitor as mon
     from app.config import MonitorConfig
 
-    d = simulate.realistic_cell(4, np.random.default_rng(3))
+    from calib.monitor import MonitorEngine
+
+    d = simulate.realistic_cell(7, np.random.default_rng(3))
     img = np.zeros((8, 8, 3), np.uint8)
-
-    class NoEstimate:  # before the online estimator has one, the oldest sample goes
-        def result(self):
-            return None
-
-    cfg = MonitorConfig(keep_samples=3, keep_recent=1)
+    cfg = MonitorConfig(keep_samples=6, keep_recent=1, arm_samples=6)
     with SessionWriter.create(tmp_path, "eye_to_hand", name="s") as w:
-        kept = [w.add_sample(Observation(i, float(i), d.A[i], d.points[i]), color=img) for i in range(4)]
-        dropped = mon._bound(kept, cfg, NoEstimate())
+        kept = [w.add_sample(Observation(i, float(i), d.A[i], d.points[i]), color=img) for i in range(7)]
+        dropped = mon._bound(kept, cfg, MonitorEngine())     # not armed: the oldest sample goes
         w.drop_frames(dropped.index)
-    assert dropped.index == 0 and [o.index for o in kept] == [1, 2, 3]
+    assert dropped.index == 0 and [o.index for o in kept] == [1, 2, 3, 4, 5, 6]
     assert sorted(p.name for p in (tmp_path / "s" / "frames").iterdir()) == [
-        "000001_color.png", "000002_color.png", "000003_color.png"]
+        f"00000{i}_color.png" for i in range(1, 7)]
 
 
 def test_recording_is_rotated(tmp_path):

@@ -31,9 +31,8 @@ def _mover(sim, start_T, start_q, cal_cfg, stop, rng):
 def test_monitor_flags_camera_bump(sim_config, tmp_path, loopback):
     cfg = sim_config(loopback(5))
     data = cfg.model_dump()
-    data["monitor"].update(still_s=0.05, poll_s=0.01, max_samples=BUMP_AT + 14, duration_s=90.0, reestimate_samples=8,
-                           keep_samples=10, keep_recent=4, alarm_hook=f"touch {tmp_path / 'hook-ran'}",
-                           online={"bootstrap": 6, "warmup": 4, "detector": {"window": 6}})
+    data["monitor"].update(still_s=0.05, poll_s=0.01, max_samples=BUMP_AT + 14, duration_s=90.0, reestimate_samples=2,
+                           arm_samples=8, keep_samples=10, keep_recent=4, alarm_hook=f"touch {tmp_path / 'hook-ran'}")
     cfg = Config.model_validate(data)
     rng = np.random.default_rng(5)
     stop = threading.Event()
@@ -56,7 +55,7 @@ def test_monitor_flags_camera_bump(sim_config, tmp_path, loopback):
         try:
             writer = SessionWriter.create(cfg.session.root, cfg.setup, truth=devices.truth(camera))
             with writer, devices.make_viz(cfg, writer.path) as viz:
-                report = run_monitor(robot, camera, devices.make_measure(cfg), devices.make_online(cfg),
+                report = run_monitor(robot, camera, devices.make_measure(cfg), devices.make_engine(cfg),
                                      devices.make_solve(cfg.calibrate, cfg.setup, rng), writer, cfg.monitor, viz,
                                      on_sample=on_sample)
         finally:
@@ -72,13 +71,15 @@ def test_monitor_flags_camera_bump(sim_config, tmp_path, loopback):
     assert report.reestimate is not None
     rot, trans = tf.pose_error(report.reestimate.T_base_cam, T_bumped)
     assert trans < 4e-3 and np.rad2deg(rot) < 0.4, (trans, np.rad2deg(rot))
-    # the bounded sample set: at most keep_samples, all taken after the move, the newest always among them
-    after = [i for i in n_seen if i > alarm.sample_index]
-    assert len(report.kept) == min(10, len(after)) and min(report.kept) > alarm.sample_index
+    # the bounded sample set: at most keep_samples, all taken after the move (the detecting one on), the newest
+    # always among them
+    after = [i for i in n_seen if i >= alarm.sample_index]
+    assert len(report.kept) == min(10, len(after)) and min(report.kept) >= alarm.sample_index
     assert report.kept[-4:] == sorted(report.kept)[-4:] and report.kept[-1] == n_seen[-1]
     session = read_session(report.session)
     assert session.events[-1]["event"] == "sample_set" and session.events[-1]["indices"] == report.kept
-    assert [e["event"] for e in session.events][:1] == ["alarm"]
-    assert any(e["event"] == "reestimate" for e in session.events)
+    events = [e["event"] for e in session.events]
+    assert events[:2] == ["armed", "alarm"]       # armed from its first samples, then the move
+    assert "relearnt" in events
     assert len(session.observations) == report.n_samples
     assert (report.session / "recording.rrd").exists()

@@ -12,7 +12,7 @@ from app.commands.monitor import Alarm, MonitorReport
 from app.mqtt import PASSWORD_ENV, USERNAME_ENV, MqttConfig, MqttPublisher
 from calib import transforms as tf
 from calib.observation import Observation
-from calib.online import OnlineUpdate
+from calib.monitor import MonitorUpdate
 
 FRAMES = {"base": "base_link", "flange": "tool0", "camera": "cam_optical", "marker": "marker"}
 
@@ -30,9 +30,11 @@ def _feed(pub, tmp_path, alarm: bool):
     report = MonitorReport(tmp_path, n_samples=7, n_skipped=0, estimate=T, estimate_cov=np.diag([1e-6] * 3 + [4e-6] * 3),
                            estimate_sigma=(1e-3, 2e-3), drift=(1.5, 0.1), samples_until_armed=0)
     if alarm:
-        report.alarms.append(Alarm(1.0, 7, {"statistic": 123.4}))
+        report.alarms.append(Alarm(1.0, 7, {"alarm": "moved", "statistic": 123.4}))
     obs = Observation(7, 1.0, np.eye(4), np.zeros(3))
-    pub(obs, OnlineUpdate(7, T, report.estimate_cov, None, None, 123.4 if alarm else 0.0, alarm), report)
+    update = MonitorUpdate(7, 1.0, "armed", "moved" if alarm else "", "moved" if alarm else "", T, report.estimate_cov,
+                           np.zeros(3), 1.0, 0.4, 123.4 if alarm else 0.0, 1.5, 0.1, 0.5, 0.01, 2.0, 3.0, 0.8, "")
+    pub(obs, update, report)
     return T
 
 
@@ -56,7 +58,8 @@ def test_estimate_drift_alarm_and_status_through_a_real_broker(mosquitto, mqtt_i
     np.testing.assert_allclose(est["translation_m"], xyz)
     np.testing.assert_allclose(est["quaternion_xyzw"], q)
     assert est["sigma_mm"] == pytest.approx(2.0) and est["sigma_deg"] == pytest.approx(np.rad2deg(1e-3))
-    assert by_topic["cell1/drift"][0]["translation_mm"] == 1.5
+    drift = by_topic["cell1/drift"][0]
+    assert drift["translation_mm"] == 1.5 and drift["rate_mm_h"] == 0.5 and drift["hours_to_tolerance"] == 3.0
     (alarm,) = by_topic["cell1/alarms/camera"]
     assert alarm["schema"] == "handeye/alarm/1" and alarm["event"] == "camera_moved"
     assert alarm["sample"] == 7 and alarm["statistic"] == 123.4 and alarm["session"] == str(tmp_path)

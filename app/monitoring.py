@@ -1,0 +1,80 @@
+"""Arming the monitoring engine (`calib.monitor.MonitorEngine`) from what the app has: shared by
+``handeye monitor``, ``demo --monitor`` and ``replay --monitor``.
+
+The engine is armed from a calibration and the samples it was solved from:
+a reference session (or the ``result.yaml`` inside one) solved with ``auto``
+as ``calibrate`` solves it, or, without a reference, the monitor's own first
+samples once ``auto`` determines the camera from them.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from app import devices
+from app.errors import SessionError
+from app.session import read_session
+from calib.api import solve_observations
+from calib.errors import CalibrationError
+from calib.monitor import MonitorEngine
+from calib.result import CalibrationResult
+from calib.setup import Setup
+
+
+def reference_observations(path: Path, setup: Setup) -> list:
+    """The samples with a marker point of a reference: a session directory, or the ``result.yaml`` inside one.
+
+    Raises
+    ------
+    SessionError
+        Not a session, another setup, or no sample with a marker point.
+    """
+    path = Path(path)
+    ref = read_session(path.parent if path.is_file() else path)
+    if ref.setup != setup:
+        raise SessionError(f"reference {path} is {ref.setup}, the config is {setup}")
+    usable = [o for o in ref.observations if o.point_cam is not None]
+    if not usable:
+        raise SessionError(f"reference {path}: no sample has a marker point")
+    return usable
+
+
+def arm_from(engine: MonitorEngine, result: CalibrationResult, observations: list, factor, *, t: float):
+    """Arm ``engine`` from ``result`` and the ``observations`` it was solved from (``factor``: their robot
+    kinematic-error factor (N, 6, P) or None); returns `calib.monitor.Reference`. Raises `CalibrationError`
+    as `MonitorEngine.arm`."""
+    covs = None if any(o.point_cov is None for o in observations) else np.array([o.point_cov for o in observations])
+    return engine.arm(result, np.array([o.T_base_flange for o in observations]),
+               np.array([o.point_cam for o in observations]), point_cov=covs, robot_factor=factor, t=t)
+
+
+def arm_engine(engine: MonitorEngine, reference: list, setup: Setup, shared_error=None, *, rng=None,
+               t: float = 0.0) -> CalibrationResult:
+    """Solve the reference samples with ``auto`` and arm ``engine`` from the result; returns the result.
+
+    ``shared_error``: the robot's `Robot.shared_error_factor` (the kinematic
+    error joins the engine's state when every sample has its joints).
+
+    Raises
+    ------
+    SessionError
+        The reference cannot be solved or does not determine the camera.
+    """
+    factor = devices.robot_shared_error("auto", reference, shared_error)
+    try:
+        result = solve_observations("auto", reference, setup, rng=rng or np.random.default_rng(0),
+                                    robot_shared_error=factor)
+        arm_from(engine, result, reference, factor, t=t)
+    except CalibrationError as e:
+        raise SessionError(f"reference: cannot arm the monitoring engine: {e}") from None
+    return result
+
+
+def sample_factor(engine: MonitorEngine, obs, shared_error):
+    """The robot kinematic-error factor (6, P) of one sample for an engine that carries it, else None."""
+    if not engine.n_factor:
+        return None
+    F = devices.robot_shared_error("auto", [obs], shared_error)
+    return None if F is None else F[0]
