@@ -155,7 +155,8 @@ class MonitorUpdate(NamedTuple):
     state : str
         ``"armed"``, ``"relearning"`` (after a move, until the stops determine
         the camera), ``"settling"`` (the detector's window after a re-learn:
-        the calibration in use follows the estimate as the stops refine it) or
+        the calibration in use follows the estimate as the stops refine it,
+        the *moved* test waits) or
         ``"warming"`` (the detector's first samples after arming).
     alarm : str
         ``""``, ``"drifting"`` or ``"moved"``: raised at this sample.
@@ -470,6 +471,12 @@ class MonitorEngine:
         return self.reference is not None
 
     @property
+    def samples_until_tested(self) -> int:
+        """Samples before the *moved* test runs again (0: it runs): the re-learn's settling, then the
+        detector's first three innovations (two points cannot separate a 6-dof move)."""
+        return self._settle + max(3 - self.detector.count, 0) if self.reference is not None else 0
+
+    @property
     def n_factor(self) -> int:
         """Robot kinematic-error parameters in the state (0: none)."""
         return len(self._u) - 6 if self.reference is not None else 0
@@ -585,7 +592,8 @@ class MonitorEngine:
                 r_test, S_test = r - base.mean, R * (1.0 + 1.0 / base.n) + Hc @ self._walk(self.settings.rate_window_h) @ Hc.T
             else:
                 r_test, S_test = r, S
-            fired = self.detector.update(r_test, np.linalg.inv(S_test), H[:, :6])
+            # While a re-learnt camera settles the stops still refine it: that is not a move.
+            fired = not self._settle and self.detector.update(r_test, np.linalg.inv(S_test), H[:, :6])
             statistic = self.detector.statistic
             if fired:
                 alarm = "moved"

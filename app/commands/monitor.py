@@ -413,7 +413,7 @@ def _until_armed(engine: MonitorEngine, kept, cfg: MonitorConfig) -> int:
     """Samples before the *moved* test runs: the detector's first three once armed; before, the distinct
     poses still missing for the first calibration (at least one)."""
     if engine.armed:
-        return max(3 - engine.detector.count, 0)
+        return engine.samples_until_tested
     return max(cfg.arm_samples - len(kept), 1) + 3
 
 

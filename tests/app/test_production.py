@@ -77,7 +77,7 @@ def test_demo_monitor_bump_alarms_and_exits_3(tmp_path, loopback, capsys, mosqui
                "--no-frames", "--no-viz", "--session-root", str(tmp_path / "s")])
     out, err = capsys.readouterr()
     assert rc == 3, out + err
-    assert "change detector armed from its estimate and covariance" in out
+    assert "monitoring engine armed from its estimate, camera correction and covariance" in out
     assert "running a looping production program" in out
     assert "simulated camera bumped by 10 mm" in out
     (session,) = (tmp_path / "s").iterdir()
@@ -101,5 +101,5 @@ def test_monitor_with_the_shipped_config_samples(tmp_path, loopback, capsys):
     out = capsys.readouterr().out
     assert rc == 0
     assert "running a looping production program" in out
-    assert "change detector: armed after 32 more samples" in out
+    assert "monitoring engine: not armed: collecting samples of distinct poses" in out
     assert "samples: 3 " in out and "estimate: none yet" in out
