@@ -3,7 +3,7 @@
 Every table is a pydantic model (`calib.params.Params`: unknown keys rejected,
 numbers finite and never booleans): ``[calibrate]``, ``[monitor]`` (with
 ``[monitor.online]`` = `calib.online.OnlineConfig`), ``[session]``, ``[viz]``,
-``[frames]``, ``[mqtt]`` (`app.mqtt.MqttConfig`), ``[production]`` (the simulated robot's program),
+``[frames]``, ``[mqtt]`` (`app.mqtt.MqttConfig`), ``[production]`` (the simulated robot's program), ``[console]``,
 ``[marker]`` = `calib.vision.extract.TargetConfig`, and ``[robot]`` /
 ``[camera]``, a union over the registered backends selected by ``type`` /
 ``backend`` (`drivers.robot.registry.ROBOTS`, `drivers.camera.registry.CAMERAS`;
@@ -277,6 +277,19 @@ class ProductionConfig(Params):
         return self
 
 
+class ConsoleConfig(Params):
+    """``[console]``: how a run shows its progress (`app.progress`).
+
+    ``progress``: ``"auto"`` draws a progress bar on a terminal and prints plain lines off one (a
+    service's journal, CI, a pipe); ``"bar"`` or ``"lines"`` force one. ``status_every``: in line mode, a
+    status line (count, detector state, 1-sigma, drift, alarms) every this many samples; every event
+    (an alarm, the detector armed, a reconnect) is a line of its own.
+    """
+
+    progress: Literal["auto", "bar", "lines"] = "auto"
+    status_every: PositiveInt = 20
+
+
 class SessionConfig(Params):
     """``[session]``: where sessions (samples, frames, result, .rrd) are written.
 
@@ -391,6 +404,7 @@ class Config(Params):
     frames: FramesConfig = Field(default_factory=FramesConfig)
     mqtt: MqttConfig = Field(default_factory=MqttConfig)
     production: ProductionConfig = Field(default_factory=ProductionConfig)
+    console: ConsoleConfig = Field(default_factory=ConsoleConfig)
 
     @model_validator(mode="after")
     def _one_setup(self):
