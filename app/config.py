@@ -4,6 +4,7 @@ Every table is a pydantic model (`calib.params.Params`: unknown keys rejected,
 numbers finite and never booleans): ``[calibrate]``, ``[monitor]`` (with
 ``[monitor.online]`` = `calib.online.OnlineConfig`), ``[session]``, ``[viz]``,
 ``[frames]``, ``[mqtt]`` (`app.mqtt.MqttConfig`), ``[production]`` (the simulated robot's program), ``[console]``,
+``[reconnect]`` (`app.outage.ReconnectConfig`),
 ``[marker]`` = `calib.vision.extract.TargetConfig`, and ``[robot]`` /
 ``[camera]``, a union over the registered backends selected by ``type`` /
 ``backend`` (`drivers.robot.registry.ROBOTS`, `drivers.camera.registry.CAMERAS`;
@@ -29,6 +30,7 @@ from pydantic import AfterValidator, Discriminator, Field, Tag, ValidationError,
 from app import backends  # noqa: F401  every backend registers itself before the unions are built
 from app.errors import ConfigError
 from app.mqtt import MqttConfig
+from app.outage import ReconnectConfig
 from app.files import read_text_file
 from calib.online import OnlineConfig
 from calib.params import (
@@ -405,6 +407,7 @@ class Config(Params):
     mqtt: MqttConfig = Field(default_factory=MqttConfig)
     production: ProductionConfig = Field(default_factory=ProductionConfig)
     console: ConsoleConfig = Field(default_factory=ConsoleConfig)
+    reconnect: ReconnectConfig = Field(default_factory=ReconnectConfig)
 
     @model_validator(mode="after")
     def _one_setup(self):

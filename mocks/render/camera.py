@@ -306,9 +306,9 @@ class RenderedCamera(Camera):
         c = self.config
         self._renderer = MarkerSceneRenderer(c.intrinsics, c.dictionary, c.marker_id, c.marker_size, c.plate_size,
                                              c.noise)
-        self._rng = np.random.default_rng(c.seed)
-        self._index = 0
-        if self._t0 is None:  # a reconnect (unplugged camera) keeps the mount's clock
+        if self._t0 is None:  # a reconnect (an unplugged camera) keeps the mount's clock, noise and frame count
+            self._rng = np.random.default_rng(c.seed)
+            self._index = 0
             self._t0 = self.clock()
 
     def disconnect(self) -> None:
