@@ -14,14 +14,15 @@ working. Each outage start, failed attempt and end goes to ``on_event`` (an
 ends the wait at once (`OutageError`), as does an outage longer than
 ``max_outage_s`` when that is set.
 
-Usage (the monitor loop)::
+The wrapper stands in for its device (its methods go through `Reconnecting.call`), so the monitor
+loop can hand it to code written for a device. Usage::
 
     with Reconnecting("robot", devices.open_robot(cfg, read_only=True), cfg.reconnect,
                       on_event=record, stop=stop) as robot, \\
-         Reconnecting("camera", devices.open_camera(cfg, robot.device), cfg.reconnect,
+         Reconnecting("camera", devices.open_camera(cfg, robot), cfg.reconnect,
                       on_event=record, stop=stop) as camera:
-        state = robot.call(lambda r: r.read())
-        frame = camera.call(lambda c: c.read())
+        state = robot.read()                    # rides out a dropped or frozen RTDE stream
+        obs = take_sample(robot, camera, ...)   # and an unplugged camera, and the robot behind it
 """
 
 from __future__ import annotations
@@ -128,6 +129,12 @@ def reopen(device) -> None:
 class Reconnecting(Generic[T]):
     """One device whose outages are ridden out (see the module docstring); a context manager.
 
+    It stands in for the device: a method called on it (``rc.read()``,
+    ``rc.pose_at(t)``, ``rc.true_flange_pose()``) runs through `call`, any other
+    attribute is the device's. So a camera can follow a robot wrapped in one
+    (its flange-pose source then rides out the robot's outages too), and code
+    written for a device takes the wrapper unchanged.
+
     Parameters
     ----------
     name : str
@@ -157,14 +164,22 @@ class Reconnecting(Generic[T]):
                  on_event: Callable[[OutageEvent], None] | None = None, stop: threading.Event | None = None,
                  clock: Callable[[], float] = time.monotonic, wait: Callable[[float], bool] | None = None,
                  retry_on: tuple[type[BaseException], ...] = (DeviceError,)):
-        self.name, self.device, self.config = name, device, config
+        # Names that devices use themselves (config, stop, clock ...) are spelled differently here, so
+        # that the device's attributes show through (`__getattr__`).
+        self.device_name, self.device, self.reconnect_config = name, device, config
         self.on_event = on_event or (lambda e: log.warning(e.message()))
-        self.stop = stop if stop is not None else threading.Event()
-        self.clock = clock
-        self.wait = wait or self.stop.wait
+        self.stop_event = stop if stop is not None else threading.Event()
+        self.monotonic = clock
+        self.wait_stop = wait or self.stop_event.wait
         self.retry_on = retry_on
         self.outages = 0
         self.in_outage = False
+
+    def __getattr__(self, attr: str):
+        value = getattr(self.device, attr)
+        if not callable(value) or attr in ("connect", "disconnect", "reconnect"):
+            return value
+        return lambda *args, **kwargs: self.call(lambda d: getattr(d, attr)(*args, **kwargs))
 
     def __enter__(self) -> "Reconnecting[T]":
         self.device.connect()
@@ -175,43 +190,57 @@ class Reconnecting(Generic[T]):
         return False
 
     def call(self, fn: Callable[[T], R]) -> R:
-        """``fn(device)``; on an outage, reconnect (`recover`) and call again until it returns.
+        """``fn(device)``; on an outage, reopen the device with backoff and call again until it returns.
+
+        The outage ends when ``fn`` succeeds again, not when the device reopens: a
+        camera that opens but yields no frame (or whose flange-pose source is the
+        dropped robot) stays in the outage, and the waits keep growing.
 
         Raises
         ------
         OutageError
             ``stop`` was set, or the outage outlasted ``max_outage_s``.
         """
+        cfg = self.reconnect_config
+        t0 = attempt = 0
+        delays = None
         while True:
             try:
-                return fn(self.device)
+                result = fn(self.device)
             except self.retry_on as e:
-                self.recover(e)
+                if delays is None:
+                    t0, delays, self.in_outage = self.monotonic(), cfg.delays(), True
+                    self._emit("outage_start", str(e), 0, t0)
+                else:
+                    self._emit("reconnect_failed", str(e), attempt, t0)
+                attempt = self._reopen(e, delays, attempt, t0)
+                continue
+            if delays is not None:
+                self.in_outage = False
+                self.outages += 1
+                self._emit("outage_end", "", attempt, t0)
+            return result
 
-    def recover(self, error: BaseException) -> None:
-        """Ride out an outage that ``error`` began: reopen the device with backoff until it is back."""
-        t0 = self.clock()
-        self.in_outage = True
-        self._emit("outage_start", str(error), 0, t0)
-        cfg = self.config
-        for attempt, delay in enumerate(cfg.delays(), start=1):
-            if cfg.max_outage_s and self.clock() - t0 + delay > cfg.max_outage_s:
+    def _reopen(self, error: BaseException, delays, attempt: int, t0: float) -> int:
+        """Wait the next backoff step and reopen the device until that works; returns the attempt count."""
+        cfg = self.reconnect_config
+        for delay in delays:
+            attempt += 1
+            if cfg.max_outage_s and self.monotonic() - t0 + delay > cfg.max_outage_s:
                 self.in_outage = False
-                raise OutageError(f"{self.name}: away for more than reconnect.max_outage_s = {cfg.max_outage_s:g} s "
-                                  f"(last error: {error})")
-            if self.stop.is_set() or (delay > 0 and self.wait(delay)):
+                raise OutageError(f"{self.device_name}: away for more than reconnect.max_outage_s = "
+                                  f"{cfg.max_outage_s:g} s (last error: {error})")
+            if self.stop_event.is_set() or (delay > 0 and self.wait_stop(delay)):
                 self.in_outage = False
-                raise OutageError(f"{self.name}: stopped during an outage (last error: {error})")
+                raise OutageError(f"{self.device_name}: stopped during an outage (last error: {error})")
             try:
                 reopen(self.device)
             except self.retry_on as e:
                 error = e
                 self._emit("reconnect_failed", str(e), attempt, t0)
                 continue
-            self.in_outage = False
-            self.outages += 1
-            self._emit("outage_end", "", attempt, t0)
-            return
+            return attempt
+        raise AssertionError("ReconnectConfig.delays never ends")
 
     def _emit(self, event: str, error: str, attempt: int, t0: float) -> None:
-        self.on_event(OutageEvent(self.name, event, time.time(), error, attempt, self.clock() - t0))
+        self.on_event(OutageEvent(self.device_name, event, time.time(), error, attempt, self.monotonic() - t0))

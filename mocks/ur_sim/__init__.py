@@ -31,6 +31,8 @@ import sys
 import threading
 import time
 
+import numpy as np
+
 from drivers.errors import DeviceError
 
 __all__ = ["main", "launch", "SimProcess"]
@@ -49,7 +51,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--tcp-offset", type=float, nargs=6, metavar="P", default=[0.0, 0.0, 0.1, 0.0, 0.0, 0.0],
                     help="active TCP in the flange frame: x y z (m) rx ry rz (rad)")
     ap.add_argument("--robot-error", metavar="JSON",
-                    help="the arm's true kinematics differ from the nominal ones: JSON of mocks.ur_sim.truth.SimRobotError")
+                    help="the arm's true kinematics differ from the nominal ones "
+                    "(JSON of mocks.ur_sim.truth.SimRobotError)")
     ap.add_argument("--program", help="JSON file: a looping production program to run (mocks.ur_sim.program)")
     ap.add_argument("--parent-pid", type=int, metavar="PID",
                     help="stop as soon as this process is no longer our parent (it died)")
@@ -136,8 +139,6 @@ class SimProcess:
     def true_flange_pose(self):
         """Where the flange really is, ``T_base_flange`` (4, 4) ndarray: the reported pose unless the
         simulator was given a robot error (``robot_error`` of `launch`)."""
-        import numpy as np
-
         try:
             return np.array(json.loads(self.command("sim truth")), dtype=float)
         except (OSError, ValueError) as exc:

@@ -10,7 +10,8 @@ from app.errors import OutageError
 from app.outage import ReconnectConfig, Reconnecting
 from calib import transforms as tf
 from drivers.camera.registry import CAMERAS
-from drivers.errors import ConnectionLostError, DeviceError
+from drivers.errors import ConnectionLostError
+from drivers.robot import ur_kinematics as kin
 from drivers.robot.ur import URRobot, URRobotConfig
 from mocks.ur_sim import launch
 
@@ -76,6 +77,25 @@ def test_an_unplugged_camera_is_an_outage_and_the_next_frame_comes_after_it_is_b
     assert "back after" in events[-1].message()
 
 
+def test_a_device_that_reopens_but_still_fails_keeps_backing_off():
+    """Reopening works, reading does not (a camera whose flange-pose source is a dropped robot): no busy loop."""
+    cam = _rendered_camera()
+    broken = {"until": time.monotonic() + 1.0}
+
+    def read(c):
+        if time.monotonic() < broken["until"]:
+            raise ConnectionLostError("no flange pose")
+        return c.read()
+
+    events = []
+    with Reconnecting("camera", cam, FAST, on_event=events.append) as rc:
+        rc.call(read)
+    failed = [e for e in events if e.event == "reconnect_failed"]
+    # waits 0, 0.1, 0.2, 0.4, 0.4 ... over 1 s: about five attempts, not thousands
+    assert 3 <= len(failed) <= 7, len(failed)
+    assert events[-1].event == "outage_end" and events[-1].outage_s >= 1.0
+
+
 def test_a_stop_ends_an_outage_wait_at_once_and_max_outage_bounds_it():
     cam = _rendered_camera()
     stop = threading.Event()
@@ -123,4 +143,24 @@ def test_a_dropped_and_a_frozen_robot_stream_reconnect_to_the_simulated_controll
     # The immediate first attempt met a controller that refused connections; the frozen one may come back
     # during the first attempt's wait for data (connect_timeout).
     assert ends[0].attempt >= 2, ends[0]
-    print("outages:", [(e.event, e.attempt, round(e.outage_s, 2)) for e in events])
+
+
+def test_a_camera_following_a_wrapped_robot_rides_out_the_robots_outage(loopback):
+    events = []
+    with launch(loopback(47), "ur10", "5.11", initial_q=START_Q) as sim:
+        cfg = URRobotConfig(host=sim.host, read_only=True, tcp_offset=(0, 0, 0.1, 0, 0, 0), connect_timeout=1.0,
+                            frozen_timeout=0.3)
+        with Reconnecting("robot", URRobot(cfg), FAST, on_event=events.append) as robot:
+            cam = CAMERAS.create({"backend": "rendered"})
+            cam.follow(lambda: robot.read().T_base_flange)    # as app.devices.open_camera(cfg, robot) does
+            with Reconnecting("camera", cam, FAST, on_event=events.append) as camera:
+                assert robot.config.host == sim.host           # the device's attributes show through
+                camera.read()
+                sim.drop(refuse_s=1.0)
+                time.sleep(0.2)
+                frame = camera.read()
+    assert frame.index == 1
+    np.testing.assert_allclose(frame.truth["T_base_flange"], kin.forward(START_Q, "ur10"), atol=1e-9)
+    # The robot's outage was ridden out inside the camera's read; the camera itself never went away.
+    assert [(e.device, e.event) for e in events if e.event != "reconnect_failed"] == [
+        ("robot", "outage_start"), ("robot", "outage_end")]
