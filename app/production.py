@@ -14,7 +14,7 @@ T_flange_cam @ bump``, the camera slips on its mount). Either way the camera
 moves by exactly the bump's mm and deg.
 
 This module knows the simulator only through the robot's ``sim`` handle
-(`mocks.ur_sim.SimProcess`) and the rendered camera's config; a real robot
+(`mocks.ur_sim.SimProcess`) and the rendered camera's ``add_bump``; a real robot
 has neither, and `start_production` then does nothing.
 """
 
@@ -145,6 +145,11 @@ class Bump:
 
     def apply(self, camera, setup: Setup) -> np.ndarray:
         """Knock the rendered camera's mount now (`mocks.render.camera.RenderedCamera.add_bump`: base x / base y
-        eye-to-hand, camera x / y eye-in-hand); returns its new true transform (``T_base_cam`` / ``T_flange_cam``)."""
+        eye-to-hand, camera x / y eye-in-hand); returns its new true transform (``T_base_cam`` / ``T_flange_cam``).
+
+        ``setup`` is the run's; a camera configured for the other one is a `ConfigError`.
+        """
+        if Setup(setup) != camera.config.setup:
+            raise ConfigError(f"setup is {Setup(setup).value} but the bumped camera is {camera.config.setup.value}")
         camera.add_bump(self.translation_mm, self.rotation_deg, direction=(1.0, 0.0, 0.0), axis=(0.0, 1.0, 0.0))
         return camera.camera_transform()

@@ -94,3 +94,21 @@ def test_a_three_stop_pick_and_place_loops_those_three_stops_on_the_simulated_co
     nearest = np.min(np.abs(held[:, None, :] - targets[None]).max(axis=2), axis=1)
     start = np.abs(held - Q0).max(axis=1) < 1e-9  # before the first motion
     assert np.all((nearest < 1e-6) | start)
+
+
+@pytest.mark.parametrize("setup", ["eye_to_hand", "eye_in_hand"])
+def test_the_demo_bump_moves_the_camera_by_exactly_its_mm_and_deg_through_the_mount_schedule(setup):
+    from app.production import Bump
+    from drivers.camera.registry import CAMERAS
+
+    cam = CAMERAS.create({"backend": "rendered", "setup": setup})
+    cam.follow(lambda: T0)
+    cam.connect()
+    before = cam.camera_transform()
+    after = Bump(3, 4.0, 0.25).apply(cam, setup)
+    rot, trans = tf.pose_error(after, before)
+    assert trans * 1e3 == pytest.approx(4.0, abs=1e-9) and np.rad2deg(rot) == pytest.approx(0.25, abs=1e-9)
+    np.testing.assert_allclose(cam.truth()[cam.config.setup.camera_name], after, atol=0)
+    assert len(cam.config.mount.bumps) == 1
+    with pytest.raises(ConfigError, match="setup"):
+        Bump(3).apply(cam, "eye_in_hand" if setup == "eye_to_hand" else "eye_to_hand")
