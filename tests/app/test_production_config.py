@@ -112,3 +112,24 @@ def test_the_demo_bump_moves_the_camera_by_exactly_its_mm_and_deg_through_the_mo
     assert len(cam.config.mount.bumps) == 1
     with pytest.raises(ConfigError, match="setup"):
         Bump(3).apply(cam, "eye_in_hand" if setup == "eye_to_hand" else "eye_to_hand")
+
+
+@pytest.mark.slow
+def test_the_shift_config_monitors_a_four_stop_pick_and_place(tmp_path, loopback, capsys):
+    from app.cli import main
+    from app.session import read_session
+
+    text = open("config/sim_shift.toml").read().replace('host = "127.0.0.2"', f'host = "{loopback(48)}"')
+    config = tmp_path / "shift.toml"
+    config.write_text(text)
+    rc = main(["monitor", "-c", str(config), "--max-samples", "4", "--duration", "120", "--no-frames", "--no-viz",
+               "--session-root", str(tmp_path / "s")])
+    out = capsys.readouterr().out
+    assert rc in (0, 3), out
+    assert "(4 waypoints, pick-and-place, 1.0 s tool stops)" in out
+    (session,) = (tmp_path / "s").iterdir()
+    s = read_session(session)
+    assert len(s.observations) == 4
+    # Four distinct stops on a 0.15 m circle around the start pose.
+    p = np.array([o.T_base_flange[:3, 3] for o in s.observations])
+    np.testing.assert_allclose(np.linalg.norm(p[:, :2] - T0[:2, 3], axis=1), 0.15, atol=1e-3)
