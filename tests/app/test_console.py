@@ -43,8 +43,9 @@ def test_progress_bar_off_a_terminal_is_line_mode_and_carries_the_monitor_state(
 @pytest.mark.slow
 def test_monitor_to_a_pipe_writes_lines_of_bounded_size(tmp_path, loopback):
     text = open("config/sim.toml").read().replace('host = "127.0.0.2"', f'host = "{loopback(45)}"')
+    assert "\nstatus_every = 20 " in text
     config = tmp_path / "cell.toml"
-    config.write_text(text + "\n[console]\nstatus_every = 5\n")
+    config.write_text(text.replace("\nstatus_every = 20 ", "\nstatus_every = 5 "))
     env = {**os.environ, "PYTHONPATH": os.getcwd()}
     done = subprocess.run([sys.executable, "-m", "app.cli", "monitor", "-c", str(config), "--max-samples", "12",
                            "--no-frames", "--no-viz", "--session-root", str(tmp_path / "s")],
