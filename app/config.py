@@ -3,7 +3,8 @@
 Every table is a pydantic model (`calib.params.Params`: unknown keys rejected,
 numbers finite and never booleans): ``[calibrate]``, ``[monitor]`` (with
 ``[monitor.engine]`` = `calib.monitor.MonitorSettings`), ``[session]``, ``[viz]``,
-``[frames]``, ``[mqtt]`` (`app.mqtt.MqttConfig`),
+``[frames]``, ``[mqtt]`` (`app.mqtt.MqttConfig`), ``[production]`` (the simulated robot's program), ``[console]``,
+``[reconnect]`` (`app.outage.ReconnectConfig`),
 ``[marker]`` = `calib.vision.extract.TargetConfig`, and ``[robot]`` /
 ``[camera]``, a union over the registered backends selected by ``type`` /
 ``backend`` (`drivers.robot.registry.ROBOTS`, `drivers.camera.registry.CAMERAS`;
@@ -29,6 +30,7 @@ from pydantic import AfterValidator, Discriminator, Field, Tag, ValidationError,
 from app import backends  # noqa: F401  every backend registers itself before the unions are built
 from app.errors import ConfigError
 from app.mqtt import MqttConfig
+from app.outage import ReconnectConfig
 from app.files import read_text_file
 from calib.monitor import MonitorSettings
 from calib.params import (
@@ -42,6 +44,7 @@ from calib.params import (
     PositiveInt,
     Str,
     Vector3,
+    Vector6,
     describe,
 )
 from calib.setup import Setup
@@ -222,6 +225,78 @@ class MonitorConfig(Params):
         return self
 
 
+class ProductionWaypoint(Params):
+    """One stop of an explicit ``[production]`` program: joints ``q`` (rad) or a flange ``pose``, not both.
+
+    ``pose`` is ``T_base_flange`` as a UR pose ``[x, y, z, rx, ry, rz]`` (m, rad; the flange, not the TCP),
+    reached by the inverse kinematics nearest to the previous stop. ``pause_s``: how long the tool works
+    there (None: the table's ``pause_s``); ``tool``: the job's name, logged by the simulator.
+    """
+
+    q: Vector6 | None = None
+    pose: Vector6 | None = None
+    pause_s: NonNegativeFloat | None = None
+    tool: Str = ""
+
+    @model_validator(mode="after")
+    def _one_target(self):
+        if (self.q is None) == (self.pose is None):
+            raise ValueError("give the stop's joints q (rad) or its flange pose (UR pose, m / rad), exactly one")
+        return self
+
+
+class ProductionConfig(Params):
+    """``[production]``: the looping program a *simulated* robot runs while ``monitor`` watches (a real
+    robot runs its own; `app.production.start_production` then does nothing).
+
+    Either explicit ``waypoints`` (2 or more), or a ``preset``:
+
+    - ``"random"`` (the default, also when the table is absent): ``stops`` (14) random poses around the
+      start pose, drawn like the active calibration's (``[calibrate] translation_range_m``, tilt up to
+      ``max_tilt_deg``, default ``min(calibrate.tilt_deg, 30)``);
+    - ``"pick_and_place"``: ``stops`` (4) tool stops evenly spaced on a horizontal circle of
+      ``radius_m`` (default ``min(0.15, calibrate.translation_range_m)``) around the start flange
+      position, each tilted by at most ``max_tilt_deg`` (default 10) from the start orientation. The
+      program returns to the same few stops forever, as a real cell's does.
+
+    ``pause_s`` is the tool stop at each waypoint (s); ``speed`` (rad/s) and ``acceleration`` (rad/s^2)
+    those of the leading joint; ``seed`` the seed of the preset's poses (None: the run's generator).
+    """
+
+    preset: Literal["random", "pick_and_place"] = "random"
+    waypoints: list[ProductionWaypoint] = Field(default_factory=list)
+    stops: Annotated[Int, Field(ge=2)] | None = None
+    max_tilt_deg: Annotated[PositiveFloat, Field(le=90.0)] | None = None
+    radius_m: Annotated[PositiveFloat, Field(le=1.0)] | None = None
+    pause_s: NonNegativeFloat = 0.6
+    speed: PositiveFloat = 2.0
+    acceleration: PositiveFloat = 8.0
+    seed: NonNegativeInt | None = None
+
+    @model_validator(mode="after")
+    def _waypoints_or_preset(self):
+        if self.waypoints:
+            given = sorted({"preset", "stops", "max_tilt_deg", "radius_m"} & self.model_fields_set)
+            if given:
+                raise ValueError(f"waypoints and {', '.join(given)} exclude each other: give waypoints or a preset")
+            if len(self.waypoints) < 2:
+                raise ValueError("waypoints: a program needs at least 2 stops to move between")
+        return self
+
+
+class ConsoleConfig(Params):
+    """``[console]``: how a run shows its progress (`app.progress`).
+
+    ``progress``: ``"auto"`` draws a progress bar on a terminal and prints plain lines off one (a
+    service's journal, CI, a pipe); ``"bar"`` or ``"lines"`` force one. ``status_every``: in line mode, a
+    status line (count, detector state, 1-sigma, drift, alarms) every this many samples; every event
+    (an alarm, the detector armed, a reconnect) is a line of its own.
+    """
+
+    progress: Literal["auto", "bar", "lines"] = "auto"
+    status_every: PositiveInt = 20
+
+
 class SessionConfig(Params):
     """``[session]``: where sessions (samples, frames, result, .rrd) are written.
 
@@ -335,6 +410,9 @@ class Config(Params):
     viz: VizConfig = Field(default_factory=VizConfig)
     frames: FramesConfig = Field(default_factory=FramesConfig)
     mqtt: MqttConfig = Field(default_factory=MqttConfig)
+    production: ProductionConfig = Field(default_factory=ProductionConfig)
+    console: ConsoleConfig = Field(default_factory=ConsoleConfig)
+    reconnect: ReconnectConfig = Field(default_factory=ReconnectConfig)
 
     @model_validator(mode="after")
     def _one_setup(self):

@@ -47,9 +47,14 @@ def open_robot(cfg: Config, *, read_only: bool):
 
 
 def open_camera(cfg: Config, robot):
-    """The configured camera, following the robot's flange pose (which a simulated camera renders at)."""
+    """The configured camera, following the robot's flange pose (which a simulated camera renders at).
+
+    A simulated robot's true flange pose (``true_flange_pose``: with a kinematic error it is not the reported
+    one) is what a rendered camera sees; any other robot's reported pose is the best there is.
+    """
     camera = CAMERAS.create(cfg.camera)
-    camera.follow(lambda: robot.read().T_base_flange)
+    true_pose = getattr(robot, "true_flange_pose", None)
+    camera.follow(true_pose if callable(true_pose) else lambda: robot.read().T_base_flange)
     return camera
 
 

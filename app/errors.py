@@ -9,3 +9,7 @@ class ConfigError(ParameterError):
 
 class SessionError(HandeyeError):
     """A recorded session or an imported file is missing, unreadable, or of an unknown version."""
+
+
+class OutageError(HandeyeError):
+    """A device stayed away longer than ``reconnect.max_outage_s``, or the run was stopped during its outage."""

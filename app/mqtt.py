@@ -18,12 +18,19 @@ The estimate is ``T_base_cam`` (eye-to-hand) or ``T_flange_cam``
 named by ``parent_frame`` / ``child_frame`` from ``[frames]``.
 
 A broker that cannot be reached costs a warning, not the monitoring run:
-paho keeps reconnecting in its network thread and queues what is published
-meanwhile.
+paho keeps reconnecting in its network thread (backoff from
+``reconnect_min_s`` to ``reconnect_max_s``). While it is away nothing is handed
+to paho; `MqttPublisher` holds the messages itself, bounded: every alarm, in
+order (alarms are never dropped, and go with QoS >= 1 so paho re-sends one the
+broker did not acknowledge), and only the newest message of each other topic
+(status, estimate and drift are coalesced). On reconnect the alarms go first,
+then the newest retained status and estimate (a restarted broker without
+persistence has lost them), then the newest drift.
 """
 
 from __future__ import annotations
 
+import collections
 import json
 import logging
 import os
@@ -78,7 +85,10 @@ class MqttConfig(Params):
         0, 1 or 2, for every message.
     keepalive_s : int
     connect_timeout_s : float
-        How long the start waits for the broker before going on without it.
+        How long the start waits for the broker before going on without it
+        (and the end, for held alarms, before giving up on them).
+    reconnect_min_s, reconnect_max_s : int
+        paho's reconnect backoff after the broker went away, s.
     tls : bool
         TLS with the system's CAs, or ``ca_file``.
     ca_file, certfile, keyfile : str
@@ -94,6 +104,8 @@ class MqttConfig(Params):
     qos: Literal[0, 1, 2] = 1
     keepalive_s: Annotated[Int, Field(ge=5)] = 30
     connect_timeout_s: Annotated[Float, Field(ge=0, le=60)] = 5.0
+    reconnect_min_s: Annotated[Int, Field(ge=1, le=3600)] = 1
+    reconnect_max_s: Annotated[Int, Field(ge=1, le=3600)] = 30
     tls: Bool = False
     ca_file: Str = ""
     certfile: Str = ""
@@ -113,6 +125,9 @@ class MqttConfig(Params):
     def _client_cert_needs_tls(self):
         if (self.certfile or self.keyfile) and not self.tls:
             raise ValueError("certfile/keyfile need tls = true")
+        if self.reconnect_min_s > self.reconnect_max_s:
+            raise ValueError(f"reconnect_min_s ({self.reconnect_min_s}) must be <= reconnect_max_s "
+                             f"({self.reconnect_max_s})")
         return self
 
     @classmethod
@@ -147,6 +162,13 @@ class MqttPublisher:
         self.client = None
         self.session: str | None = None
         self._last_error = ""
+        # Held while the broker is away (see the module docstring): all alarms, the newest of the rest.
+        self._lock = threading.Lock()
+        self._held_alarms: collections.deque = collections.deque()
+        self._held: dict[str, tuple[dict, bool]] = {}
+        self._retained: dict[str, dict] = {}
+        #: Alarms held for an absent broker and published once it was back.
+        self.alarms_delivered_late = 0
 
     # ------------------------------------------------------------ connection
     def connect(self) -> "MqttPublisher":
@@ -168,6 +190,7 @@ class MqttPublisher:
         client.on_connect = self._on_connect
         client.on_disconnect = self._on_disconnect
         client.max_queued_messages_set(10000)
+        client.reconnect_delay_set(c.reconnect_min_s, c.reconnect_max_s)
         self.client = client
         try:
             client.connect_async(c.host, c.port, keepalive=c.keepalive_s)
@@ -184,7 +207,21 @@ class MqttPublisher:
         if reason_code.is_failure:
             self._last_error = str(reason_code)
             return
-        self.connected.set()
+        with self._lock:
+            self.connected.set()
+            alarms, held = list(self._held_alarms), dict(self._held)
+            self._held_alarms.clear()
+            self._held.clear()
+            for payload in alarms:
+                self._send("alarm", payload, False)
+            self.alarms_delivered_late += len(alarms)
+            for kind, payload in self._retained.items():
+                self._send(kind, payload, True)
+            for kind, (payload, retain) in held.items():
+                if not retain:
+                    self._send(kind, payload, False)
+        if alarms:
+            log.info("MQTT broker back: published %d alarm(s) held while it was away", len(alarms))
 
     def _on_disconnect(self, client, userdata, flags, reason_code, properties):
         self.connected.clear()
@@ -192,9 +229,15 @@ class MqttPublisher:
             self._last_error = str(reason_code)
 
     def close(self) -> None:
-        """Publish ``offline`` (retained), wait briefly for the queue to drain, disconnect."""
+        """Publish ``offline`` (retained), wait briefly for the queue to drain, disconnect.
+
+        Alarms still held for an absent broker get ``connect_timeout_s`` for it to come back; any left
+        then are logged as undelivered (the session's events still hold them)."""
         if self.client is None:
             return
+        if self._held_alarms and not self.connected.wait(self.config.connect_timeout_s):
+            log.error("MQTT broker %s:%d away at the end: %d alarm(s) not delivered (they are in the session)",
+                      self.config.host, self.config.port, len(self._held_alarms))
         info = self.publish("status", self._status("offline"), retain=True)
         if self.connected.is_set() and info is not None:
             try:
@@ -214,10 +257,31 @@ class MqttPublisher:
 
     # -------------------------------------------------------------- messages
     def publish(self, kind: str, payload: dict, *, retain: bool = False):
-        """Publish one JSON message on the topic of ``kind``; returns paho's MQTTMessageInfo."""
+        """Publish one JSON message on the topic of ``kind``; returns paho's MQTTMessageInfo, or None when the
+        message is held for an absent broker (published on reconnect: alarms all, the rest coalesced)."""
         if self.client is None:
             return None
-        return self.client.publish(self.config.topic(kind), json.dumps(payload), qos=self.config.qos, retain=retain)
+        with self._lock:
+            if retain:
+                self._retained[kind] = payload
+            if not self.connected.is_set():
+                if kind == "alarm":
+                    self._held_alarms.append(payload)
+                else:
+                    self._held[kind] = (payload, retain)
+                return None
+            return self._send(kind, payload, retain)
+
+    @property
+    def held(self) -> int:
+        """Messages held for an absent broker (alarms + one per other topic)."""
+        return len(self._held_alarms) + len(self._held)
+
+    def _send(self, kind: str, payload: dict, retain: bool):
+        # An alarm goes at least once: with QoS 1 paho keeps it until the broker acknowledges it and sends it
+        # again after a reconnect.
+        qos = max(self.config.qos, 1) if kind == "alarm" else self.config.qos
+        return self.client.publish(self.config.topic(kind), json.dumps(payload), qos=qos, retain=retain)
 
     def _base(self, schema: str) -> dict:
         return {"schema": f"handeye/{schema}/{SCHEMA_VERSION}", "t": time.time(), "setup": str(self.setup),

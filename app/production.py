@@ -3,15 +3,18 @@
 On a real cell the robot runs its own program while ``handeye monitor``
 watches. On a simulated cell (the ``ur_sim`` robot) nothing would move
 the robot, so `start_production` gives its simulated controller a looping
-program (`mocks.ur_sim.program`): waypoints around the start pose, a tool stop
-at each. `Bump` knocks the rendered camera partway through a run, as a
-forklift would: eye-to-hand the camera center shifts along base x and the
-camera turns about base y about its own center; eye-in-hand the same in the
-camera frame (``T_flange_cam <- T_flange_cam @ bump``, the camera slips on
-its mount). Either way the camera moves by exactly the bump's mm and deg.
+program (`mocks.ur_sim.program`) built from ``[production]``
+(`app.config.ProductionConfig`: explicit waypoints, or random poses around the
+start pose, or a pick-and-place of a few stops), a tool stop at each. `Bump`
+knocks the rendered camera partway through a run, as a forklift would, through
+the camera's scheduled mount bumps (``[camera.mount]``): eye-to-hand the camera
+center shifts along base x and the camera turns about base y about its own
+center; eye-in-hand the same in the camera frame (``T_flange_cam <-
+T_flange_cam @ bump``, the camera slips on its mount). Either way the camera
+moves by exactly the bump's mm and deg.
 
 This module knows the simulator only through the robot's ``sim`` handle
-(`mocks.ur_sim.SimProcess`) and the rendered camera's config; a real robot
+(`mocks.ur_sim.SimProcess`) and the rendered camera's ``add_bump``; a real robot
 has neither, and `start_production` then does nothing.
 """
 
@@ -22,8 +25,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from app.config import CalibrateConfig, ProductionConfig
+from app.errors import ConfigError
 from app.planning import random_pose
-from app.config import CalibrateConfig
 from calib import transforms as tf
 from calib.setup import Setup
 
@@ -57,16 +61,76 @@ def production_program(T_start: np.ndarray, q_start, model: str, cal: CalibrateC
     return {"waypoints": waypoints, "speed": speed, "acceleration": acceleration}
 
 
+def pick_and_place_poses(T_start: np.ndarray, stops: int, radius_m: float, max_tilt_deg: float,
+                         rng: np.random.Generator) -> np.ndarray:
+    """``stops`` flange poses (stops, 4, 4) evenly spaced on a horizontal circle of ``radius_m`` around
+    ``T_start``'s position (random phase), each turned by at most ``max_tilt_deg`` about its own origin."""
+    phase = rng.uniform(0.0, 2 * np.pi)
+    angles = phase + 2 * np.pi * np.arange(stops) / stops
+    R = tf.random_rotations(stops, np.deg2rad(max_tilt_deg), rng)
+    p = T_start[:3, 3] + radius_m * np.stack([np.cos(angles), np.sin(angles), np.zeros(stops)], axis=1)
+    return tf.make_transform(R @ T_start[:3, :3], p)
+
+
+def program_from_config(prod: ProductionConfig, T_start: np.ndarray, q_start, model: str, cal: CalibrateConfig,
+                        rng: np.random.Generator) -> dict:
+    """The simulator's program (JSON form of `mocks.ur_sim.program`) that ``[production]`` describes.
+
+    Raises
+    ------
+    ConfigError
+        Naming ``production.waypoints[i]`` or the preset when a stop has no inverse kinematics solution.
+    """
+    from drivers.robot import ur_kinematics as kin
+
+    rng = rng if prod.seed is None else np.random.default_rng(prod.seed)
+    common = {"speed": prod.speed, "acceleration": prod.acceleration}
+    if prod.waypoints:
+        waypoints, q = [], np.asarray(q_start, dtype=float)
+        for i, w in enumerate(prod.waypoints):
+            if w.q is not None:
+                q = np.asarray(w.q, dtype=float)
+            else:
+                q_next = kin.inverse_nearest(tf.from_ur_pose(w.pose), q, model)
+                if q_next is None:
+                    raise ConfigError(f"production.waypoints[{i}].pose: no inverse kinematics solution for {model}")
+                q = q_next
+            waypoints.append({"q": q.tolist(), "pause_s": prod.pause_s if w.pause_s is None else w.pause_s,
+                              "tool": w.tool})
+        return {"waypoints": waypoints, **common}
+    if prod.preset == "random":
+        tilt = min(cal.tilt_deg, 30.0) if prod.max_tilt_deg is None else prod.max_tilt_deg
+        return production_program(T_start, q_start, model, cal.model_copy(update={"tilt_deg": tilt}), rng,
+                                  n_waypoints=14 if prod.stops is None else prod.stops, pause_s=prod.pause_s,
+                                  **common)
+    stops = 4 if prod.stops is None else prod.stops
+    radius = min(0.15, cal.translation_range_m) if prod.radius_m is None else prod.radius_m
+    tilt = 10.0 if prod.max_tilt_deg is None else prod.max_tilt_deg
+    for _ in range(50):  # another phase and tilts when a stop is out of reach
+        waypoints, q = [], np.asarray(q_start, dtype=float)
+        for k, T in enumerate(pick_and_place_poses(T_start, stops, radius, tilt, rng)):
+            q = kin.inverse_nearest(T, q, model)
+            if q is None:
+                break
+            waypoints.append({"q": q.tolist(), "pause_s": prod.pause_s, "tool": ("pick", "place")[k % 2]})
+        if len(waypoints) == stops:
+            return {"waypoints": waypoints, **common}
+    raise ConfigError(f"production.preset: no reachable pick_and_place program of {stops} stops within "
+                      f"{radius} m of the start pose for {model}; lower production.radius_m")
+
+
 def start_production(robot, cfg, rng: np.random.Generator, *, say=log.info) -> bool:
-    """Start a looping production program on a simulated robot; False (nothing done) on a real one."""
+    """Start the looping production program of ``cfg.production`` on a simulated robot; False (nothing
+    done) on a real one."""
     sim = getattr(robot, "sim", None)
     if sim is None:
         return False
     state = robot.read()
-    cal = cfg.calibrate.model_copy(update={"tilt_deg": min(cfg.calibrate.tilt_deg, 30.0)})
-    program = production_program(state.T_base_flange, state.q, getattr(cfg.robot, "model", "ur10"), cal, rng)
+    program = program_from_config(cfg.production, state.T_base_flange, state.q, getattr(cfg.robot, "model", "ur10"),
+                                  cfg.calibrate, rng)
     sim.start_program(program)
-    say(f"simulated robot: running a looping production program ({len(program['waypoints'])} waypoints, "
+    kind = "explicit" if cfg.production.waypoints else cfg.production.preset.replace("_", "-")
+    say(f"simulated robot: running a looping production program ({len(program['waypoints'])} waypoints, {kind}, "
         f"{program['waypoints'][0]['pause_s']} s tool stops) so that there is something to monitor")
     return True
 
@@ -79,17 +143,13 @@ class Bump:
     translation_mm: float = 10.0
     rotation_deg: float = 0.5
 
-    @property
-    def transform(self) -> np.ndarray:
-        return tf.from_rotvec_translation([0.0, np.deg2rad(self.rotation_deg), 0.0],
-                                          [self.translation_mm * 1e-3, 0.0, 0.0])
-
     def apply(self, camera, setup: Setup) -> np.ndarray:
-        """Move the rendered camera; returns its new true transform (``T_base_cam`` / ``T_flange_cam``)."""
-        c = camera.config
-        if Setup(setup) == Setup.EYE_TO_HAND:
-            T, B = np.asarray(c.T_base_cam, dtype=float), self.transform
-            c.T_base_cam = tf.make_transform(B[:3, :3] @ T[:3, :3], T[:3, 3] + B[:3, 3]).tolist()
-            return np.asarray(c.T_base_cam)
-        c.T_flange_cam = (np.asarray(c.T_flange_cam, dtype=float) @ self.transform).tolist()
-        return np.asarray(c.T_flange_cam)
+        """Knock the rendered camera's mount now (`mocks.render.camera.RenderedCamera.add_bump`: base x / base y
+        eye-to-hand, camera x / y eye-in-hand); returns its new true transform (``T_base_cam`` / ``T_flange_cam``).
+
+        ``setup`` is the run's; a camera configured for the other one is a `ConfigError`.
+        """
+        if Setup(setup) != camera.config.setup:
+            raise ConfigError(f"setup is {Setup(setup).value} but the bumped camera is {camera.config.setup.value}")
+        camera.add_bump(self.translation_mm, self.rotation_deg, direction=(1.0, 0.0, 0.0), axis=(0.0, 1.0, 0.0))
+        return camera.camera_transform()

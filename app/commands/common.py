@@ -9,6 +9,7 @@ from pathlib import Path
 import numpy as np
 
 from calib import transforms as tf
+from app import progress
 from app.errors import ConfigError
 from calib.errors import HandeyeError
 
@@ -100,6 +101,7 @@ def load_config_args(args):
             raise
         raise ConfigError(f"{args.config}: {e}") from None
     check_poses_option(cfg.calibrate.poses)
+    progress.configure(cfg.console)
     return cfg
 
 

@@ -13,6 +13,11 @@ Every ``read()`` asks ``flange_pose_source()`` for the current
 `mocks.render.scene.MarkerSceneRenderer`, and puts the truth
 (``T_cam_marker``, ``point_cam``, ``T_base_flange``, ``X``, ``Y``, ``setup``)
 in ``RGBDFrame.truth``.
+
+``[camera.mount]`` (`CameraMount`, off by default) moves the true camera over
+the run: a drift at mm/h and deg/h and knocks at given times, on a mount
+clock that starts at `RenderedCamera.connect` (``time_scale`` speeds it up).
+`RenderedCamera.truth` and each frame's truth are the camera of that moment.
 """
 
 from __future__ import annotations
@@ -28,7 +33,8 @@ from scipy.spatial.transform import Rotation
 from calib import transforms as tf
 from calib.errors import CalibrationError, ParameterError
 from drivers.errors import DeviceError
-from calib.params import Bool, Float, Int, NonNegativeInt, Params, PositiveFloat, PositiveInt, Str, Transform
+from calib.params import (Bool, Float, Int, NonNegativeFloat, NonNegativeInt, Params, PositiveFloat, PositiveInt, Str,
+                          Transform, Vector3)
 from calib.setup import Setup
 from calib.vision.markers import get_dictionary
 from drivers.camera.registry import CAMERAS
@@ -59,6 +65,101 @@ _DEFAULT_T_FLANGE_CAM = tf.make_transform(np.eye(3), [0.0, 0.05, 0.02])
 _DEFAULT_T_BASE_MARKER = tf.make_transform(np.eye(3), [0.9, 0.1, 0.004])
 
 
+def _unit(v, name: str):
+    if v is not None and not np.linalg.norm(v) > 0:
+        raise ValueError(f"{name} must be a non-zero vector, got {list(v)}")
+    return v
+
+
+class MountBump(Params):
+    """A knock of the camera mount at ``at_s`` (mount time, s): ``translation_mm`` along ``direction``, then
+    ``rotation_deg`` about ``axis`` through the camera's centre (base frame eye-to-hand, camera frame eye-in-hand)."""
+
+    at_s: NonNegativeFloat
+    translation_mm: Float = 5.0
+    rotation_deg: Float = 0.3
+    direction: Vector3 = (1.0, 0.0, 0.0)
+    axis: Vector3 = (0.0, 1.0, 0.0)
+
+    @model_validator(mode="after")
+    def _nonzero(self):
+        _unit(self.direction, "direction")
+        _unit(self.axis, "axis")
+        return self
+
+    def transform(self) -> tuple[np.ndarray, np.ndarray]:
+        """(rotation (3, 3), translation (3,) m) of the knock."""
+        axis, direction = np.asarray(self.axis, float), np.asarray(self.direction, float)
+        return (tf.so3_exp(np.deg2rad(self.rotation_deg) * axis / np.linalg.norm(axis)),
+                self.translation_mm * 1e-3 * direction / np.linalg.norm(direction))
+
+
+class CameraMount(Params):
+    """``[camera.mount]``: how the true camera moves over a run (a thermally drifting mount, knocks).
+
+    Off by default (no drift, no bumps). Eye-to-hand the camera centre moves in
+    the base frame and turns about a base-frame axis through itself; eye-in-hand
+    the same in the camera frame (``T_flange_cam @ motion``: the camera slips on
+    its mount). Either way it moves by exactly the configured mm and deg.
+
+    Attributes
+    ----------
+    drift_mm_per_h, drift_deg_per_h : float
+        Constant drift rates of the mount (mm/h along ``drift_direction``,
+        deg/h about ``drift_axis``).
+    drift_direction, drift_axis : 3 floats or None
+        Directions of the drift (normalised); None: a random unit vector drawn from ``seed``.
+    bumps : list of MountBump
+        Knocks at given mount times; each stays (the mount does not spring back).
+    time_scale : float
+        Mount seconds per wall-clock second since `RenderedCamera.connect`
+        (e.g. 60: an hour of drift and the bump schedule pass in a minute).
+    seed : int
+        Seed of the random drift directions.
+    """
+
+    drift_mm_per_h: NonNegativeFloat = 0.0
+    drift_deg_per_h: NonNegativeFloat = 0.0
+    drift_direction: Vector3 | None = None
+    drift_axis: Vector3 | None = None
+    bumps: list[MountBump] = Field(default_factory=list)
+    time_scale: PositiveFloat = 1.0
+    seed: Int = 0
+
+    @model_validator(mode="after")
+    def _nonzero(self):
+        _unit(self.drift_direction, "drift_direction")
+        _unit(self.drift_axis, "drift_axis")
+        return self
+
+    @property
+    def moves(self) -> bool:
+        return bool(self.drift_mm_per_h or self.drift_deg_per_h or self.bumps)
+
+    def directions(self) -> tuple[np.ndarray, np.ndarray]:
+        """Unit drift direction and drift axis (3,) each: the configured ones or drawn from ``seed``."""
+        rng = np.random.default_rng(self.seed)
+        drawn = rng.normal(size=(2, 3))
+        out = []
+        for given, v in zip((self.drift_direction, self.drift_axis), drawn):
+            v = np.asarray(given if given is not None else v, float)
+            out.append(v / np.linalg.norm(v))
+        return out[0], out[1]
+
+    def motion(self, t: float) -> tuple[np.ndarray, np.ndarray]:
+        """(rotation (3, 3), translation (3,) m) of the mount ``t`` mount seconds after the start:
+        the drift so far, then every bump due by then, in time order."""
+        direction, axis = self.directions()
+        R = tf.so3_exp(np.deg2rad(self.drift_deg_per_h) * t / 3600.0 * axis)
+        p = self.drift_mm_per_h * 1e-3 * t / 3600.0 * direction
+        for bump in sorted(self.bumps, key=lambda b: b.at_s):
+            if bump.at_s > t:
+                break
+            Rb, pb = bump.transform()
+            R, p = Rb @ R, p + pb
+        return R, p
+
+
 class RenderedCameraConfig(Params):
     """``[camera]`` table for ``backend = "rendered"``.
 
@@ -80,6 +181,9 @@ class RenderedCameraConfig(Params):
         Seed of the per-frame noise.
     draw_flange, draw_floor : bool
         Add the flange cylinder (eye-to-hand) / a floor plane at base z = 0.
+    mount : CameraMount
+        Drift and knocks of the camera mount over the run (none by default);
+        the transforms above are the camera at the start.
     """
 
     backend: Literal["rendered"] = "rendered"
@@ -102,6 +206,7 @@ class RenderedCameraConfig(Params):
     seed: Int = 0
     draw_flange: Bool = True
     draw_floor: Bool = True
+    mount: CameraMount = Field(default_factory=CameraMount)
 
     @field_validator("dictionary")
     @classmethod
@@ -149,6 +254,41 @@ class RenderedCamera(Camera):
         self._renderer: MarkerSceneRenderer | None = None
         self._rng: np.random.Generator | None = None
         self._index = 0
+        #: Wall clock of the mount's time (s); tests replace it to jump through a shift.
+        self.clock: Callable[[], float] = time.monotonic
+        self._t0: float | None = None
+
+    def mount_time(self) -> float:
+        """Mount seconds since `connect` (``mount.time_scale`` x wall seconds; 0 before connecting)."""
+        if self._t0 is None:
+            return 0.0
+        return (self.clock() - self._t0) * self.config.mount.time_scale
+
+    def camera_transform(self, t: float | None = None) -> np.ndarray:
+        """The true camera transform (``T_base_cam`` eye-to-hand, ``T_flange_cam`` eye-in-hand) at mount
+        time ``t`` (default: now): the configured one moved by `CameraMount.motion`."""
+        c = self.config
+        T = np.array(getattr(c, c.setup.camera_name), dtype=float)
+        if not c.mount.moves:
+            return T
+        R, p = c.mount.motion(self.mount_time() if t is None else t)
+        if c.setup == Setup.EYE_TO_HAND:
+            return tf.make_transform(R @ T[:3, :3], T[:3, 3] + p)
+        return T @ tf.make_transform(R, p)
+
+    def add_bump(self, translation_mm: float, rotation_deg: float, direction=(1.0, 0.0, 0.0),
+                 axis=(0.0, 1.0, 0.0)) -> MountBump:
+        """Knock the mount now (a `MountBump` at the current mount time); returns it."""
+        bump = MountBump(at_s=self.mount_time(), translation_mm=translation_mm, rotation_deg=rotation_deg,
+                         direction=tuple(direction), axis=tuple(axis))
+        self.config.mount.bumps.append(bump)
+        return bump
+
+    def _XY(self) -> tuple[np.ndarray, np.ndarray]:
+        c = self.config
+        if c.setup == Setup.EYE_TO_HAND:
+            return c.X, self.camera_transform()
+        return self.camera_transform(), c.Y
 
     def follow(self, flange_pose_source: Callable[[], np.ndarray]) -> None:
         self._source = flange_pose_source
@@ -157,7 +297,8 @@ class RenderedCamera(Camera):
         """The configured true camera and marker transforms (``T_base_cam``/``T_flange_marker``
         eye-to-hand, ``T_flange_cam``/``T_base_marker`` eye-in-hand)."""
         s = self.config.setup
-        return {n: np.asarray(getattr(self.config, n), dtype=float) for n in (s.camera_name, s.marker_name)}
+        return {s.camera_name: self.camera_transform(), s.marker_name: np.asarray(getattr(self.config, s.marker_name),
+                                                                                   dtype=float)}
 
     def connect(self) -> None:
         if not callable(self._source):
@@ -165,8 +306,10 @@ class RenderedCamera(Camera):
         c = self.config
         self._renderer = MarkerSceneRenderer(c.intrinsics, c.dictionary, c.marker_id, c.marker_size, c.plate_size,
                                              c.noise)
-        self._rng = np.random.default_rng(c.seed)
-        self._index = 0
+        if self._t0 is None:  # a reconnect (an unplugged camera) keeps the mount's clock, noise and frame count
+            self._rng = np.random.default_rng(c.seed)
+            self._index = 0
+            self._t0 = self.clock()
 
     def disconnect(self) -> None:
         self._renderer = None
@@ -189,7 +332,7 @@ class RenderedCamera(Camera):
         except CalibrationError as e:
             raise DeviceError(f"rendered camera got a bad flange pose: {e}") from None
         c = self.config
-        X, Y = c.X, c.Y
+        X, Y = self._XY()
         if c.setup == Setup.EYE_TO_HAND:
             T_cam_base = tf.invert(Y)
             T_cam_flange = T_cam_base @ T_base_flange

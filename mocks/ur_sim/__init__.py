@@ -31,6 +31,8 @@ import sys
 import threading
 import time
 
+import numpy as np
+
 from drivers.errors import DeviceError
 
 __all__ = ["main", "launch", "SimProcess"]
@@ -48,6 +50,9 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--initial-q", type=float, nargs=6, metavar="Q", help="start joint positions, rad")
     ap.add_argument("--tcp-offset", type=float, nargs=6, metavar="P", default=[0.0, 0.0, 0.1, 0.0, 0.0, 0.0],
                     help="active TCP in the flange frame: x y z (m) rx ry rz (rad)")
+    ap.add_argument("--robot-error", metavar="JSON",
+                    help="the arm's true kinematics differ from the nominal ones "
+                    "(JSON of mocks.ur_sim.truth.SimRobotError)")
     ap.add_argument("--program", help="JSON file: a looping production program to run (mocks.ur_sim.program)")
     ap.add_argument("--parent-pid", type=int, metavar="PID",
                     help="stop as soon as this process is no longer our parent (it died)")
@@ -55,7 +60,12 @@ def main(argv: list[str] | None = None) -> int:
     args = ap.parse_args(argv)
     logging.basicConfig(level=logging.INFO if args.verbose else logging.WARNING, format="ur_sim: %(message)s")
     try:
-        ctl = SimController(args.model, args.controller, args.initial_q, args.tcp_offset)
+        robot_error = None
+        if args.robot_error:
+            from mocks.ur_sim.truth import SimRobotError
+
+            robot_error = SimRobotError.model_validate(json.loads(args.robot_error))
+        ctl = SimController(args.model, args.controller, args.initial_q, args.tcp_offset, robot_error)
     except Exception as exc:  # bad model / version: one line, exit 2 like argparse
         print(f"ur_sim: {exc}", file=sys.stderr)
         return 2
@@ -126,6 +136,14 @@ class SimProcess:
         """Ground truth: q, T_base_flange, tcp_offset, command log, script uploads ..."""
         return json.loads(self.command("sim state"))
 
+    def true_flange_pose(self):
+        """Where the flange really is, ``T_base_flange`` (4, 4) ndarray: the reported pose unless the
+        simulator was given a robot error (``robot_error`` of `launch`)."""
+        try:
+            return np.array(json.loads(self.command("sim truth")), dtype=float)
+        except (OSError, ValueError) as exc:
+            raise DeviceError(f"simulated UR controller on {self.host}: no true flange pose: {exc}") from None
+
     def clear_log(self) -> None:
         self.command("sim clear_log")
 
@@ -175,8 +193,11 @@ class SimProcess:
 
 
 def launch(host: str = "127.0.0.1", model: str = "ur10", controller: str = "5.11", initial_q=None,
-           tcp_offset=None, timeout: float = 15.0) -> SimProcess:
+           tcp_offset=None, timeout: float = 15.0, robot_error: dict | None = None) -> SimProcess:
     """Start ``python -m mocks.ur_sim`` and wait until its ports accept connections.
+
+    ``robot_error``: fields of `mocks.ur_sim.truth.SimRobotError` (true DH parameters off the nominal ones,
+    repeatability); None: the arm is exactly its nominal model.
 
     Raises
     ------
@@ -193,6 +214,8 @@ def launch(host: str = "127.0.0.1", model: str = "ur10", controller: str = "5.11
         cmd += ["--initial-q", *[f"{x:.12g}" for x in initial_q]]
     if tcp_offset is not None:
         cmd += ["--tcp-offset", *[f"{x:.12g}" for x in tcp_offset]]
+    if robot_error is not None:
+        cmd += ["--robot-error", json.dumps(robot_error)]
     # A simulator whose parent was just killed needs a moment (<= 0.1 s to notice, then its exit)
     # to free the ports: an immediate `--resume` waits for it instead of failing.
     bind_deadline = time.monotonic() + min(timeout, 5.0)

@@ -29,6 +29,7 @@ from scipy.spatial.transform import Rotation
 from calib.transforms import from_ur_pose, invert, to_ur_pose
 from drivers.robot import ur_kinematics as kin
 from mocks.ur_sim.motion import BrakeMotion, JointMotion, LinearMotion
+from mocks.ur_sim.truth import SimRobotError, TrueArm
 
 # UR enumerations (RTDE guide).
 ROBOT_MODE_RUNNING = 7
@@ -108,9 +109,13 @@ class SimController:
         Start joint positions, rad.
     tcp_offset : array_like, shape (6,)
         Active TCP as a UR pose ``[x, y, z, rx, ry, rz]`` in the flange frame (m, rad).
+    robot_error : SimRobotError, optional
+        The arm's true kinematics differ from the nominal ones it reports
+        through (`mocks.ur_sim.truth`); None: the nominal model is exact.
     """
 
-    def __init__(self, model="ur10", controller="5.11", initial_q=None, tcp_offset=(0.0, 0.0, 0.1, 0.0, 0.0, 0.0)):
+    def __init__(self, model="ur10", controller="5.11", initial_q=None, tcp_offset=(0.0, 0.0, 0.1, 0.0, 0.0, 0.0),
+                 robot_error: SimRobotError | None = None):
         kin.geometry(model)  # validates the name
         self.model = str(model).lower().replace("-", "")
         self.version = parse_version(controller)
@@ -144,6 +149,7 @@ class SimController:
         self.async_count = 0
         self.async_op = 0
         self.geometry = kin.geometry(self.model)
+        self.true_arm = None if robot_error is None else TrueArm(self.model, robot_error)
         self._tcp_speed = np.zeros(6)
         self._refresh()
 
@@ -156,6 +162,12 @@ class SimController:
     @property
     def T_base_flange(self) -> np.ndarray:
         return self._T_flange.copy()
+
+    @property
+    def T_base_flange_true(self) -> np.ndarray:
+        """Where the flange really is (what a camera sees); `T_base_flange` is what the controller reports."""
+        with self.lock:
+            return self.T_base_flange if self.true_arm is None else self.true_arm.flange(self.q)
 
     @property
     def T_base_tcp(self) -> np.ndarray:
@@ -438,6 +450,8 @@ class SimController:
         if t >= self.motion.duration:
             finished = self.motion
             self.motion = None
+            if self.true_arm is not None:
+                self.true_arm.new_stop()
             if self.motion_async and finished.kind != "stop":
                 self._async_progress(False)
             if self.pending_done and self.script_running:
@@ -464,6 +478,8 @@ class SimController:
                 "q": self.q.tolist(),
                 "qd": self.qd.tolist(),
                 "T_base_flange": self.T_base_flange.tolist(),
+                "T_base_flange_true": self.T_base_flange_true.tolist(),
+                "kinematics": None if self.true_arm is None else self.true_arm.state(),
                 "T_base_tcp": self.T_base_tcp.tolist(),
                 "tcp_offset": self.tcp_offset.tolist(),
                 "moving": self.motion is not None,

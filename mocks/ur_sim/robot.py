@@ -10,6 +10,7 @@ from __future__ import annotations
 
 from typing import Literal
 
+import numpy as np
 from pydantic import field_validator
 
 from calib.params import Str, Vector6
@@ -17,6 +18,7 @@ from drivers.robot.registry import ROBOTS
 from drivers.robot.ur import URRobot, URRobotConfig
 from mocks.ur_sim import SimProcess, launch
 from mocks.ur_sim.controller import parse_version
+from mocks.ur_sim.truth import SimRobotError
 
 
 class URSimRobotConfig(URRobotConfig):
@@ -30,12 +32,18 @@ class URSimRobotConfig(URRobotConfig):
         Start joints of the simulated arm, rad (None: simulator default).
     sim_tcp_offset : 6 floats
         Active TCP configured on the simulated controller (UR pose, m / rad).
+    sim_robot_error : SimRobotError or None
+        The simulated arm's true DH parameters differ from the nominal ones it
+        reports through, and each stop has a repeatability error
+        (`mocks.ur_sim.truth`); the rendered camera sees the true flange.
+        None (default): the nominal model is exact.
     """
 
     type: Literal["ur_sim"] = "ur_sim"
     controller: Str = "5.11"
     initial_q: Vector6 | None = None
     sim_tcp_offset: Vector6 = (0.0, 0.0, 0.1, 0.0, 0.0, 0.0)
+    sim_robot_error: SimRobotError | None = None
 
     @field_validator("controller")
     @classmethod
@@ -57,8 +65,19 @@ class URSimRobot(URRobot):
     def connect(self) -> None:
         if self.sim is None:
             cfg = self.config
-            self.sim = launch(cfg.host, cfg.model, cfg.controller, cfg.initial_q, cfg.sim_tcp_offset)
+            self.sim = launch(cfg.host, cfg.model, cfg.controller, cfg.initial_q, cfg.sim_tcp_offset,
+                              robot_error=None if cfg.sim_robot_error is None else cfg.sim_robot_error.model_dump())
         super().connect()
+
+    def true_flange_pose(self) -> np.ndarray:
+        """Where the flange really is, ``T_base_flange`` (4, 4): what a rendered camera sees.
+
+        Without ``sim_robot_error`` that is the reported pose (`read`), with it
+        the simulator's truth (true DH parameters and the stop's error).
+        """
+        if self.config.sim_robot_error is None or self.sim is None:
+            return self.read().T_base_flange
+        return self.sim.true_flange_pose()
 
     def disconnect(self) -> None:
         super().disconnect()

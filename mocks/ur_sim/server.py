@@ -11,6 +11,7 @@ Simulator-only dashboard commands (fault injection and ground truth), one
 line each, answered with one line:
 
 ``sim state``                 JSON ground truth (q, T_base_flange, tcp_offset, command log ...)
+``sim truth``                 JSON true ``T_base_flange`` (4x4): differs from the reported one with a robot error
 ``sim clear_log``             empty the command log
 ``sim protective_stop``       enter a protective stop (undo: ``unlock protective stop``)
 ``sim emergency_stop``        enter a robot emergency stop (undo: ``sim release``)
@@ -436,6 +437,8 @@ class SimServer:
         try:
             if cmd == "state":
                 return json.dumps(ctl.state()), None
+            if cmd == "truth":
+                return json.dumps(ctl.T_base_flange_true.tolist()), None
             if cmd == "clear_log":
                 with ctl.lock:
                     ctl.log.clear()
