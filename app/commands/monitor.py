@@ -31,8 +31,9 @@ from app import devices
 from app.acquire import take_sample
 from app.commands.common import add_run_options, load_config_args, pose_line
 from app.config import Config, MonitorConfig, hook_argv
-from app.errors import ConfigError
+from app.errors import ConfigError, OutageError
 from app.monitoring import arm_engine, arm_from, reference_observations, sample_factor
+from app.outage import OutageEvent, Reconnecting
 from app.production import Bump, start_production
 from app.progress import progress_bar, say, show_monitor
 from app.session import SessionWriter
@@ -164,7 +165,13 @@ def monitor(cfg: Config, *, reference: Path | None = None, stop=None, progress: 
     engine = devices.make_engine(cfg)
     devices.check_session_root(cfg)
     publisher = make_publisher(cfg.mqtt, cfg.setup, cfg.frames.model_dump()) if publish is None else None
-    with devices.open_robot(cfg, read_only=True) as robot, devices.open_camera(cfg, robot) as camera, \
+    stop = stop or threading.Event()
+    outages = _OutageLog()
+    # A device that goes away mid-shift is an outage and a reconnect with backoff (`app.outage`), not an exit.
+    with Reconnecting("robot", devices.open_robot(cfg, read_only=True), cfg.reconnect, on_event=outages,
+                      stop=stop) as robot, \
+            Reconnecting("camera", devices.open_camera(cfg, robot), cfg.reconnect, on_event=outages,
+                         stop=stop) as camera, \
             (publisher or contextlib.nullcontext()):
         publish = publish or publisher
         if reference is not None:
@@ -180,6 +187,7 @@ def monitor(cfg: Config, *, reference: Path | None = None, stop=None, progress: 
         solve = devices.make_solve(cfg.calibrate.model_copy(update={"method": "auto"}), cfg.setup, rng,
                                    robot.shared_error_factor)
         with writer, devices.make_viz(cfg, writer.path) as viz, progress_bar(enabled=progress) as bar:
+            outages.writer, outages.viz = writer, viz
             seen = []
 
             def on_sample(obs):
@@ -202,6 +210,21 @@ def monitor(cfg: Config, *, reference: Path | None = None, stop=None, progress: 
             return run_monitor(robot, camera, devices.make_measure(cfg), engine, solve, writer, cfg.monitor,
                                viz, stop=stop, save_frames=cfg.session.save_frames, on_sample=on_sample,
                                on_update=on_update, say=say, shared_error=robot.shared_error_factor)
+
+
+class _OutageLog:
+    """`app.outage.OutageEvent` sink: one console line each, and the session's events once it exists."""
+
+    writer: SessionWriter | None = None
+    viz: Viz | None = None
+
+    def __call__(self, event: OutageEvent) -> None:
+        say(event.message())
+        if self.writer is not None:
+            self.writer.add_event(event.t, event.event, **{k: v for k, v in dataclasses.asdict(event).items()
+                                                           if k not in ("t", "event")})
+        if self.viz is not None:
+            self.viz.event(event.t, event.message(), "WARN" if event.event != "outage_end" else "INFO")
 
 
 def is_diverse(T: np.ndarray, recent, min_translation_m: float, min_rotation_deg: float) -> bool:
@@ -354,6 +377,11 @@ def run_monitor(
     except KeyboardInterrupt:
         log.warning("monitor interrupted; %d samples kept in %s", report.n_samples, writer.path)
         writer.add_event(time.time(), "interrupted", n_samples=report.n_samples)
+    except OutageError as e:
+        if stop is None or not stop.is_set():
+            writer.add_event(time.time(), "gave_up", error=str(e), n_samples=report.n_samples)
+            raise
+        # Stopped while waiting for a device: a normal end, every sample kept.
     report.elapsed_s = time.monotonic() - t0
     report.kept = [o.index for o in kept]
     writer.add_event(time.time(), "sample_set", indices=report.kept, keep_samples=cfg.keep_samples,

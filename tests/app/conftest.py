@@ -100,3 +100,18 @@ def mqtt_inbox():
     for c in clients:
         c.disconnect()
         c.loop_stop()
+
+
+@pytest.fixture
+def engine_update():
+    """A `calib.monitor.MonitorUpdate` as the engine hands it to the publisher: ``(index, T, cov, alarm)``."""
+    import numpy as np
+
+    from calib.monitor import MonitorUpdate
+
+    def make(index, T, cov, alarm: bool):
+        kind = "moved" if alarm else ""
+        return MonitorUpdate(index, float(index), "armed", kind, kind, T, cov, np.zeros(3), 1.0, 0.4,
+                             123.4 if alarm else 0.0, 1.5, 0.1, 0.5, 0.01, 2.0, 3.0, 0.8, "")
+
+    return make

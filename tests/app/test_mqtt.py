@@ -12,7 +12,6 @@ from app.commands.monitor import Alarm, MonitorReport
 from app.mqtt import PASSWORD_ENV, USERNAME_ENV, MqttConfig, MqttPublisher
 from calib import transforms as tf
 from calib.observation import Observation
-from calib.monitor import MonitorUpdate
 
 FRAMES = {"base": "base_link", "flange": "tool0", "camera": "cam_optical", "marker": "marker"}
 
@@ -24,7 +23,7 @@ def _wait_for(inbox, n, timeout=10.0):
     return inbox
 
 
-def _feed(pub, tmp_path, alarm: bool):
+def _feed(pub, tmp_path, alarm: bool, engine_update):
     """One sample through the publisher as run_monitor's on_update would hand it."""
     T = tf.from_rotvec_translation([0.1, -0.2, 0.3], [0.7, -0.6, 0.85])
     report = MonitorReport(tmp_path, n_samples=7, n_skipped=0, estimate=T, estimate_cov=np.diag([1e-6] * 3 + [4e-6] * 3),
@@ -32,20 +31,18 @@ def _feed(pub, tmp_path, alarm: bool):
     if alarm:
         report.alarms.append(Alarm(1.0, 7, {"alarm": "moved", "statistic": 123.4}))
     obs = Observation(7, 1.0, np.eye(4), np.zeros(3))
-    update = MonitorUpdate(7, 1.0, "armed", "moved" if alarm else "", "moved" if alarm else "", T, report.estimate_cov,
-                           np.zeros(3), 1.0, 0.4, 123.4 if alarm else 0.0, 1.5, 0.1, 0.5, 0.01, 2.0, 3.0, 0.8, "")
-    pub(obs, update, report)
+    pub(obs, engine_update(7, T, report.estimate_cov, alarm), report)
     return T
 
 
-def test_estimate_drift_alarm_and_status_through_a_real_broker(mosquitto, mqtt_inbox, tmp_path):
+def test_estimate_drift_alarm_and_status_through_a_real_broker(mosquitto, mqtt_inbox, tmp_path, engine_update):
     port = mosquitto()
     inbox = mqtt_inbox(port, "cell1/#")
     cfg = MqttConfig(enabled=True, port=port, topic_prefix="cell1", topics={"alarm": "cell1/alarms/camera"}, qos=1)
     with MqttPublisher(cfg, "eye_to_hand", FRAMES, environ={}) as pub:
         assert pub.connected.is_set()
-        T = _feed(pub, tmp_path, alarm=False)
-        _feed(pub, tmp_path, alarm=True)
+        T = _feed(pub, tmp_path, alarm=False, engine_update=engine_update)
+        _feed(pub, tmp_path, alarm=True, engine_update=engine_update)
     msgs = _wait_for(inbox, 7)
     by_topic = {}
     for topic, payload, _ in msgs:
@@ -68,7 +65,7 @@ def test_estimate_drift_alarm_and_status_through_a_real_broker(mosquitto, mqtt_i
     assert {t for t, _, retained in late if retained} == {"cell1/status", "cell1/estimate"}
 
 
-def test_credentials_come_from_the_environment_only(mosquitto, mqtt_inbox, tmp_path):
+def test_credentials_come_from_the_environment_only(mosquitto, mqtt_inbox, tmp_path, engine_update):
     pw = tmp_path / "passwd"
     subprocess.run(["mosquitto_passwd", "-b", "-c", str(pw), "plant", "s3cret"], check=True, capture_output=True)
     port = mosquitto(f"allow_anonymous false\npassword_file {pw}")
@@ -79,7 +76,7 @@ def test_credentials_come_from_the_environment_only(mosquitto, mqtt_inbox, tmp_p
     env = {USERNAME_ENV: "plant", PASSWORD_ENV: "s3cret"}
     with MqttPublisher(cfg, "eye_in_hand", FRAMES, environ=env) as pub:
         assert pub.connected.is_set()
-        _feed(pub, tmp_path, alarm=True)
+        _feed(pub, tmp_path, alarm=True, engine_update=engine_update)
     (msg,) = _wait_for(inbox, 1)
     assert msg[1]["setup"] == "eye_in_hand"
     with pytest.raises(ConfigError, match=USERNAME_ENV):
@@ -90,7 +87,7 @@ def test_credentials_come_from_the_environment_only(mosquitto, mqtt_inbox, tmp_p
         config_from_dict({"mqtt": {"enabled": True, "username": "plant"}})
 
 
-def test_tls(mosquitto, mqtt_inbox, tmp_path):
+def test_tls(mosquitto, mqtt_inbox, tmp_path, engine_update):
     def ssl(*args):
         subprocess.run(["openssl", *args], check=True, capture_output=True, cwd=tmp_path)
 
@@ -106,13 +103,13 @@ def test_tls(mosquitto, mqtt_inbox, tmp_path):
     cfg = MqttConfig(enabled=True, host="localhost", port=port, tls=True, ca_file=str(tmp_path / "ca.pem"))
     with MqttPublisher(cfg, "eye_to_hand", FRAMES, environ={}) as pub:
         assert pub.connected.is_set()
-        _feed(pub, tmp_path, alarm=False)
+        _feed(pub, tmp_path, alarm=False, engine_update=engine_update)
     (msg,) = _wait_for(inbox, 1)
     assert msg[1]["rotation_deg"] == 0.1
 
 
-def test_unreachable_broker_is_a_warning(caplog, tmp_path):
+def test_unreachable_broker_is_a_warning(caplog, tmp_path, engine_update):
     cfg = MqttConfig(enabled=True, port=1, connect_timeout_s=0.5)
     with MqttPublisher(cfg, "eye_to_hand", FRAMES, environ={}) as pub:
-        _feed(pub, tmp_path, alarm=True)
+        _feed(pub, tmp_path, alarm=True, engine_update=engine_update)
     assert any("not reachable" in r.getMessage() for r in caplog.records)

@@ -13,7 +13,6 @@ from app.commands.monitor import Alarm, MonitorReport
 from app.mqtt import MqttConfig, MqttPublisher
 from calib import transforms as tf
 from calib.observation import Observation
-from calib.online import OnlineUpdate
 
 from tests.app.conftest import MOSQUITTO
 
@@ -76,14 +75,14 @@ def _subscriber(port, inbox):
     return c
 
 
-def _sample(pub, tmp_path, index: int, alarm: bool):
+def _sample(pub, tmp_path, index: int, alarm: bool, engine_update):
     T = tf.from_rotvec_translation([0.1, -0.2, 0.3], [0.7, -0.6, 0.85 + index * 1e-4])
     report = MonitorReport(tmp_path, n_samples=index, n_skipped=0, estimate=T, estimate_cov=np.eye(6) * 1e-6,
                            estimate_sigma=(1e-3, 2e-3), drift=(0.01 * index, 0.001), samples_until_armed=0)
     if alarm:
-        report.alarms.append(Alarm(float(index), index, {"statistic": 100.0 + index}))
-    pub(Observation(index, float(index), np.eye(4), np.zeros(3)),
-        OnlineUpdate(index, T, report.estimate_cov, None, None, 0.0, alarm), report)
+        report.alarms.append(Alarm(float(index), index, {"alarm": "moved", "statistic": 100.0 + index}))
+    pub(Observation(index, float(index), np.eye(4), np.zeros(3)), engine_update(index, T, report.estimate_cov, alarm),
+        report)
 
 
 def _wait(cond, timeout=15.0):
@@ -93,20 +92,21 @@ def _wait(cond, timeout=15.0):
     return cond()
 
 
-def test_alarms_raised_while_the_broker_restarts_are_all_delivered_and_status_is_coalesced(broker, tmp_path):
+def test_alarms_raised_while_the_broker_restarts_are_all_delivered_and_status_is_coalesced(broker, tmp_path,
+                                                                                        engine_update):
     inbox = []
     sub = _subscriber(broker.port, inbox)
     cfg = MqttConfig(enabled=True, port=broker.port, topic_prefix="cell", qos=1, reconnect_min_s=1,
                      reconnect_max_s=1, connect_timeout_s=5.0)
     try:
         with MqttPublisher(cfg, "eye_to_hand", FRAMES, environ={}) as pub:
-            _sample(pub, tmp_path, 1, alarm=True)
+            _sample(pub, tmp_path, 1, alarm=True, engine_update=engine_update)
             assert _wait(lambda: any(t == "cell/alarm" for t, _, _ in inbox))
             broker.stop()
             assert _wait(lambda: not pub.connected.is_set(), 10)
             down = time.monotonic()
             for i in range(2, 32):  # 30 samples while the broker is away, three of them alarms
-                _sample(pub, tmp_path, i, alarm=i in (5, 17, 30))
+                _sample(pub, tmp_path, i, alarm=i in (5, 17, 30), engine_update=engine_update)
             # Bounded: the three alarms, and the newest estimate and drift.
             assert pub.held == 3 + 2
             broker.start()
@@ -114,7 +114,7 @@ def test_alarms_raised_while_the_broker_restarts_are_all_delivered_and_status_is
             assert _wait(lambda: sum(t == "cell/alarm" for t, _, _ in inbox) >= 4)
             assert _wait(lambda: any(t == "cell/drift" and m["sample"] == 31 for t, m, _ in inbox))
             assert pub.held == 0 and pub.alarms_delivered_late == 3
-            _sample(pub, tmp_path, 32, alarm=False)
+            _sample(pub, tmp_path, 32, alarm=False, engine_update=engine_update)
             assert _wait(lambda: any(t == "cell/estimate" and m["sample"] == 32 for t, m, _ in inbox))
     finally:
         sub.disconnect()
