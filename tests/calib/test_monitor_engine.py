@@ -137,3 +137,30 @@ def test_state_stays_bounded_over_a_shift():
         engine.update(stream.t[i], stream.A[i], stream.points[i], stream.point_cov[i], F[i])
         sizes.append(engine.state_size)
     assert max(sizes[60:]) <= 1.5 * sizes[60]
+
+
+def test_eye_in_hand_camera_slipping_on_the_flange_is_flagged_and_relearnt():
+    """Eye-in-hand: C = T_flange_cam is followed, the base-marker pose is held; the camera slips at sample 100."""
+    rng = np.random.default_rng(8)
+    d = simulate.realistic_cell(34, rng, setup=Setup.EYE_IN_HAND)
+    res = solve("auto", d.A[:30], d.points[:30], setup=Setup.EYE_IN_HAND, point_cov=d.point_cov[:30], rng=rng)
+    engine = MonitorEngine()
+    engine.arm(res, d.A[:30], d.points[:30], point_cov=d.point_cov[:30])
+    stops = d.A_true[30:34]
+    slip = tf.from_rotvec_translation([0.0, 0.0, np.deg2rad(0.5)], [0.006, -0.004, 0.0])
+    ups, truth = [], []
+    for i in range(200):
+        A = stops[i % 4]
+        X = d.X if i < 100 else d.X @ slip                     # T_flange_cam
+        p_true = tf.transform_points(tf.invert(A @ X) @ d.Y, np.zeros(3))
+        cov = simulate.point_covariance(p_true[None], 0.001, 0.003)[0]
+        p = p_true + np.linalg.cholesky(cov) @ rng.normal(size=3)
+        ups.append(engine.update(30.0 * i, A, p, cov))
+        truth.append(X)
+    moved = [i for i, u in enumerate(ups) if u.alarm == "moved"]
+    assert moved and 100 <= moved[0] <= 120 and all(i >= 100 for i in moved)
+    assert ups[0].camera_transform.shape == (4, 4) and engine.result().setup == Setup.EYE_IN_HAND
+    rot, trans = tf.pose_error(ups[-1].camera_transform, truth[-1])
+    assert trans < 3e-3 and np.rad2deg(rot) < 0.3, (trans, np.rad2deg(rot))
+    # The held base-marker pose is the arming one.
+    np.testing.assert_allclose(engine.result().Y[:3, :3], res.Y[:3, :3])
