@@ -1,4 +1,4 @@
-"""Solver benchmark: the paper's sec. V in simulation, next to OpenCV, plus refinement, robustness, online use.
+"""Solver benchmark: the paper's sec. V in simulation, next to OpenCV, plus refinement, robustness, timings.
 
 Run ``python -m bench.solvers [--quick | --tiny] [--out out/bench] [--seed S]``
 (also ``handeye bench``). Writes ``<out>/solvers.md`` and PNG plots, prints the
@@ -21,7 +21,8 @@ Experiments
 4. Efficiency and honesty of the refinement: RMS error / CRLB and NEES.
 4b. Honesty of ``cov`` per method of Table I, closed form and refined: NEES
    on the realistic cell (``info["cov_kind"]`` says how each was computed).
-5. Robustness to 0-30% gross outliers; 6. the online calibrator; 7. timings.
+5. Robustness to 0-30% gross outliers; 6. timings (with the monitoring engine's update; its shift
+benchmark is ``handeye bench --shift``).
 
 Errors are those of ``Y = T_base_cam``: rotation angle (deg) and translation
 (mm). The reprojection error follows the paper: the marker point (origin of
@@ -42,19 +43,19 @@ for _var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
     os.environ.setdefault(_var, "1")
 
 import argparse  # noqa: E402
+import dataclasses  # noqa: E402
 import sys  # noqa: E402
 import time  # noqa: E402
 from pathlib import Path  # noqa: E402
 
 import cv2  # noqa: E402
 import numpy as np  # noqa: E402
-from scipy.spatial.transform import Rotation  # noqa: E402
 
 from calib import simulate, solvers  # noqa: E402
 from calib import transforms as tf  # noqa: E402
 from calib.api import METHODS, closed_form, solve  # noqa: E402
 from calib.errors import CalibrationError  # noqa: E402
-from calib.online import OnlineCalibrator, OnlineConfig  # noqa: E402
+from calib.monitor import MonitorEngine  # noqa: E402
 from calib.setup import Setup  # noqa: E402
 from calib.refine import cramer_rao_bound, error_vector, kron_t_prime_covariance, nees, refine  # noqa: E402
 
@@ -263,56 +264,6 @@ def experiment_robust(rng, trials, n=60):
     return rows
 
 
-def _moved_stream(n_before, n_after, bump, rng):
-    d = simulate.realistic_cell(n_before + n_after, rng)
-    return d, simulate.moved_camera_points(d, n_before, bump)
-
-
-def experiment_online(rng, trials, n_quiet):
-    cal = OnlineCalibrator(OnlineConfig(forgetting=0.999))
-    d = simulate.realistic_cell(n_quiet, rng)
-    times, alarms, max_stat = [], 0, 0.0
-    for i in _steps(range(n_quiet), "unchanged cell"):
-        t0 = time.perf_counter()
-        u = cal.update(d.A[i], d.points[i], d.point_cov[i])
-        times.append(time.perf_counter() - t0)
-        alarms += u.alarm
-        max_stat = max(max_stat, u.statistic)
-    update_us = 1e6 * float(np.median(times[100:]))
-    update_us_1 = online_update_median_us(rng, 1.0)
-    err = tf.pose_error(cal.camera_transform, d.Y)
-    quiet = {"samples": n_quiet, "alarms": alarms, "max_stat": max_stat, "threshold": cal.detector.threshold,
-             "update_us": update_us, "update_us_1": update_us_1, "rot_deg": np.rad2deg(err[0]), "t_mm": 1e3 * err[1],
-             "nees": nees(cal.camera_transform, d.Y, cal.cov)}
-    delays, nees_before = {}, []
-    limit = 120
-    for kind in ("1 cm, random direction", "0.5 deg, random axis", "0.5 deg, about the optical axis"):
-        got = []
-        for _ in _steps(range(trials), kind):
-            axis = rng.normal(size=3)
-            axis /= np.linalg.norm(axis)
-            if kind.startswith("1 cm"):
-                bump = tf.make_transform(np.eye(3), 0.01 * axis)
-            else:
-                if "optical" in kind:
-                    axis = np.array([0.0, 0.0, 1.0])
-                bump = tf.make_transform(Rotation.from_rotvec(np.deg2rad(0.5) * axis).as_matrix(), np.zeros(3))
-            dd, pts = _moved_stream(200, limit, bump, rng)
-            c = OnlineCalibrator()
-            delay = np.inf
-            for i in range(200 + limit):
-                if i == 200:
-                    nees_before.append(nees(c.camera_transform, dd.Y, c.cov))
-                if c.update(dd.A[i], pts[i], dd.point_cov[i]).alarm:
-                    delay = i - 200 + 1 if i >= 200 else -1
-                    break
-            got.append(delay)
-        delays[kind] = np.array(got, dtype=float)
-    quiet["nees_mean"] = float(np.mean(nees_before))
-    quiet["nees_trials"] = len(nees_before)
-    return quiet, delays
-
-
 def _median_time(fn, repeats):
     times = []
     for _ in range(repeats):
@@ -330,7 +281,7 @@ def experiment_timing(rng, counts, repeats, skip_slow):
     """
     names = (SOLVERS[:len(METHODS)] + ["YKronT' (solver core, no input checks)"] + SOLVERS[len(METHODS):]
              + ["YKronT' closed-form covariance (analytic delta)", "YKronT'+ML (refine only)",
-                "YKronT' robust (LMedS)", "online update (per sample, median)"])
+                "YKronT' robust (LMedS)", "monitoring engine update (per sample, median)"])
     table = {s: [] for s in names}
     for n, rep in zip(counts, repeats):
         d = simulate.realistic_cell(n, rng)
@@ -350,22 +301,30 @@ def experiment_timing(rng, counts, repeats, skip_slow):
         table["YKronT' robust (LMedS)"].append(
             _median_time(lambda: solve("YKronT'", d.A, d.points, robust=True, point_cov=d.point_cov, rng=rng),
                          max(1, rep // 5)))
-    # The online update does not depend on N: one figure, measured on a stream.
-    table["online update (per sample, median)"] = [1e-3 * online_update_median_us(rng, 1.0)] * len(counts)
+    # The monitoring engine's update does not depend on N: one figure, measured on a stream.
+    table["monitoring engine update (per sample, median)"] = [1e-3 * monitor_update_median_us(rng)] * len(counts)
     return table
 
 
-def online_update_median_us(rng, forgetting, n=3000):
-    """Median wall time (µs) of one `OnlineCalibrator.update` on a realistic stream, detector running."""
-    cal = OnlineCalibrator(OnlineConfig(forgetting=forgetting))
-    d = simulate.realistic_cell(n, rng)
-    A, pts, covs = list(d.A), list(d.points), list(d.point_cov)
+def monitor_update_median_us(rng, n=480) -> float:
+    """Median wall time (µs) of one `calib.monitor.MonitorEngine.update` over a simulated shift (realistic
+    profile, armed from a 30-pose ``auto`` calibration with the robot's kinematic error, 4 stops)."""
+    prof = simulate.RealisticProfile()
+    real = simulate.realistic_profile(30, rng, prof)
+    d = real.data
+    F = prof.dh_error_factor(real.q)
+    engine = MonitorEngine()
+    engine.arm(solve("auto", d.A, d.points, point_cov=d.point_cov, robot_shared_error=F, rng=rng), d.A, d.points,
+               point_cov=d.point_cov, robot_factor=F)
+    shift = dataclasses.replace(simulate.Shift(), hours=n * simulate.Shift().sample_s / 3600.0)
+    s = simulate.shift_stream(real, shift, rng, prof)
+    F_s = prof.dh_error_factor(s.q)
     times = []
-    for i in range(n):
+    for i in range(len(s.t)):
         t0 = time.perf_counter()
-        cal.update(A[i], pts[i], covs[i])
+        engine.update(s.t[i], s.A[i], s.points[i], s.point_cov[i], F_s[i])
         times.append(time.perf_counter() - t0)
-    return 1e6 * float(np.median(times[100:]))
+    return 1e6 * float(np.median(times))
 
 
 # --------------------------------------------------------------------------- output
@@ -448,7 +407,7 @@ def _plot_realistic(path, errs, crlb):
     plt.close(fig)
 
 
-def _format_report(cfg, exp1=None, exp2=None, real=None, eff=None, nees_m=None, rob=None, onl=None, timing=None,
+def _format_report(cfg, exp1=None, exp2=None, real=None, eff=None, nees_m=None, rob=None, timing=None,
                    elapsed=None):
     """The markdown report of the experiments run so far (None = not run: its section is left out)."""
     counts, levels = cfg["counts"], cfg["levels"]
@@ -526,26 +485,6 @@ def _format_report(cfg, exp1=None, exp2=None, real=None, eff=None, nees_m=None, 
         out += [_md_table(["outliers", "rot ratio", "trans ratio", "rot RMS (deg)", "outliers found",
                            "inliers rejected", "time (ms)"], rows), ""]
 
-    if onl is not None:
-        quiet, delays = onl
-        out += ["## Online calibrator and change detector", "",
-                f"Unchanged cell, {quiet['samples']} samples, forgetting 0.999: **{quiet['alarms']} false alarms** "
-                f"(max GLR statistic {quiet['max_stat']:.1f}, threshold {quiet['threshold']:.1f}); final error "
-                f"{quiet['rot_deg']:.4f} deg / {quiet['t_mm']:.3f} mm, NEES {quiet['nees']:.2f}; "
-                f"update {quiet['update_us']:.0f} µs (median, one thread; {quiet['update_us_1']:.0f} µs with forgetting 1, "
-                "the default). "
-                f"Mean NEES after 200 samples (forgetting 1) over the {quiet['nees_trials']} streams below: "
-                f"{quiet['nees_mean']:.2f}.", "",
-                f"Detection delay after the camera moves (samples; {cfg['trials_onl']} trials, "
-                "GLR windows 20 and 100, false-alarm rate 1e-7 per sample, inf = not within 120):", ""]
-        rows = []
-        for kind, v in delays.items():
-            fin = v[np.isfinite(v)]
-            rows.append([kind, f"{np.median(v):.0f}", f"{np.max(v):.0f}", f"{100 * np.mean(v <= 20):.0f}%",
-                         f"{np.mean(fin):.1f}" if len(fin) else "—"])
-        out += [_md_table(["move", "median delay", "max delay", "detected within 20", "mean delay (detected)"],
-                          rows), ""]
-
     if timing is not None:
         out += ["## Timing (median ms, realistic-cell data, one thread; — = skipped in --quick)", ""]
         rows = [[s] + [f"{v:.3g}" if np.isfinite(v) else "—" for v in vals] for s, vals in timing.items()]
@@ -559,17 +498,16 @@ def _config(quick: bool, tiny: bool, seed: int) -> dict:
     if quick:
         cfg = dict(counts=[5, 10, 30, 70], rounds1=5, levels=list(np.linspace(0, 1, 4)), rounds2=5, n_noise=30,
                    n_real=80, rounds_real=5, trials_eff=30, eff_counts=(30,), trials_nees=5, n_nees=30,
-                   trials_rob=3, trials_onl=3,
-                   n_quiet=2000, time_counts=(10, 100, 1000), time_repeats=(5, 3, 2))
+                   trials_rob=3, time_counts=(10, 100, 1000), time_repeats=(5, 3, 2))
     else:
         cfg = dict(counts=list(range(5, 71, 5)), rounds1=30, levels=list(np.linspace(0, 1, 11)), rounds2=40,
                    n_noise=30, n_real=80, rounds_real=30, trials_eff=300, eff_counts=(30, 80), trials_nees=150,
                    n_nees=30, trials_rob=20,
-                   trials_onl=20, n_quiet=10000, time_counts=(10, 100, 1000), time_repeats=(30, 10, 5))
+                   time_counts=(10, 100, 1000), time_repeats=(30, 10, 5))
     if tiny:
-        for k in ("rounds1", "rounds2", "rounds_real", "trials_eff", "trials_nees", "trials_rob", "trials_onl"):
+        for k in ("rounds1", "rounds2", "rounds_real", "trials_eff", "trials_nees", "trials_rob"):
             cfg[k] = 1
-        cfg.update(counts=[5, 10], levels=[0.0, 0.5, 1.0], n_real=30, n_nees=10, n_quiet=300, time_counts=(10, 50),
+        cfg.update(counts=[5, 10], levels=[0.0, 0.5, 1.0], n_real=30, n_nees=10, time_counts=(10, 50),
                    time_repeats=(1, 1))
     n_lev = len(cfg["levels"])
     cfg.update(quick=quick, seed=seed, show_counts=(10, 30, 70),
@@ -601,8 +539,6 @@ def main(argv=None) -> int:
         ("nees_m", "covariance honesty per method", lambda: experiment_nees_methods(rng, cfg["trials_nees"],
                                                                                    cfg["n_nees"])),
         ("rob", "robustness to gross outliers", lambda: experiment_robust(rng, cfg["trials_rob"])),
-        ("onl", "online calibrator and change detector", lambda: experiment_online(rng, cfg["trials_onl"],
-                                                                                   cfg["n_quiet"])),
         ("timing", "timing", lambda: experiment_timing(rng, cfg["time_counts"], cfg["time_repeats"],
                                                        skip_slow=cfg["quick"])),
     ]

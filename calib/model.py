@@ -1,7 +1,7 @@
 """The measurement model of a hand-eye sample: residual, Jacobian, whitening, information.
 
 One model shared by `calib.refine` (ML refinement), `calib.robust` (inlier
-test), `calib.online` (recursive filter), `calib.auto` (``solve("auto")``)
+test), `calib.monitor` (the monitoring engine), `calib.auto` (``solve("auto")``)
 and the pose planner (information matrix).
 
 Unknowns

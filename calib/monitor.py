@@ -20,7 +20,7 @@ Per sample (fixed work and memory, independent of the shift's length):
 2. **Verify.** The marker point is predicted before it is fused; the error of
    that prediction in C's parent frame is the running verification (``verify_mm``).
 3. **Detect.** A windowed GLR test of "the camera jumped by some 6-dof delta"
-   on the innovations (`calib.online.ChangeDetector`) raises the *moved* alarm.
+   on the innovations (`calib.change.ChangeDetector`) raises the *moved* alarm.
 4. **Update.** A Schmidt ("consider") Kalman update of the camera transform:
    the marker-side translation, the camera parameters and, when samples
    carry it, the robot's kinematic error are not re-estimated, but their
@@ -58,7 +58,7 @@ from calib import model
 from calib import transforms as tf
 from calib.errors import CalibrationError
 from calib.noise import default_point_cov
-from calib.online import ChangeDetector, DetectorConfig
+from calib.change import ChangeDetector, DetectorConfig
 from calib.params import Float, NonNegativeFloat, NonNegativeInt, Params, PositiveFloat
 from calib.result import CalibrationResult, Residuals
 from calib.setup import Setup

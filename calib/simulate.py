@@ -229,17 +229,6 @@ def with_gross_outliers(points: np.ndarray, fraction: float, rng: np.random.Gene
     return out, np.sort(bad)
 
 
-def moved_camera_points(data: SimulatedData, n_before: int, bump: np.ndarray) -> np.ndarray:
-    """Points of an eye-to-hand ``data`` whose camera moves by ``bump`` (T_camold_camnew) after ``n_before`` samples.
-
-    Each sample keeps its own measurement noise, so only the move differs.
-    """
-    noise = data.points - data.B_true[:, :3, 3]
-    points = data.points.copy()
-    points[n_before:] = tf.transform_points(tf.invert(bump), data.B_true[n_before:, :3, 3]) + noise[n_before:]
-    return points
-
-
 # --------------------------------------------------------------------------- realistic profile
 
 @dataclass(frozen=True)

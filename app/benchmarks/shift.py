@@ -198,21 +198,42 @@ def plot(runs: list[SeedRun], path: Path) -> None:
     plt.close(fig)
 
 
+def section_sizes(seeds: list[int], shift: simulate.Shift, settings: MonitorSettings,
+                  sizes_mm=(1.0, 2.0, 3.0, 4.0, 5.0), deg_per_mm: float = 0.06) -> str:
+    """The smallest bump flagged: share of bumps (3 per shift, random directions) flagged within
+    `DETECT_WITHIN` samples, and false moved alarms, per bump size (rotation ``deg_per_mm`` per mm)."""
+    rows = []
+    for mm in sizes_mm:
+        bumps = tuple((h, mm, mm * deg_per_mm) for h, _, _ in shift.bumps)
+        s = [summarize(run_seed(seed, dataclasses.replace(shift, bumps=bumps), settings)) for seed in seeds]
+        delays = [d for x in s for d in x["delays"]]
+        flagged = [d for d in delays if d is not None]
+        rows.append([f"{mm:g} mm / {mm * deg_per_mm:.2f} deg", f"{len(flagged)}/{len(delays)}",
+                     "-" if not flagged else f"{np.median(flagged):.0f}", sum(x["false"] for x in s)])
+    return _md(["bump", f"flagged within {DETECT_WITHIN} samples", "median samples to the alarm",
+                "false moved alarms"], rows)
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(prog="handeye bench --shift", description=__doc__.split("\n")[0])
     ap.add_argument("--seeds", type=int, default=10)
     ap.add_argument("--hours", type=float, default=8.0)
     ap.add_argument("--stops", type=int, default=4)
+    ap.add_argument("--tilt", type=float, default=10.0, help="largest tool tilt of the stops, deg")
+    ap.add_argument("--sizes", action="store_true", help="also the smallest-bump table (5 sizes x the seeds)")
     ap.add_argument("--out", type=Path, default=Path("out/bench"))
     args = ap.parse_args(argv)
-    shift = dataclasses.replace(simulate.Shift(), hours=args.hours, stops=args.stops)
+    shift = dataclasses.replace(simulate.Shift(), hours=args.hours, stops=args.stops, max_tilt_deg=args.tilt)
     settings = MonitorSettings()
     seeds = list(range(args.seeds))
     t0 = time.monotonic()
     runs = [run_seed(s, shift, settings) for s in seeds]
-    text = (f"### Production shift: {args.hours:g} h, {args.stops} stops, sample every {shift.sample_s:g} s, "
-            f"drift {shift.drift_mm_h:g} mm/h, bumps {shift.bumps}\n\n" + table([summarize(r) for r in runs], seeds)
-            + f"\n\n({time.monotonic() - t0:.0f} s for {len(seeds)} seeds)")
+    text = (f"### Production shift: {args.hours:g} h, {args.stops} stops (tilt <= {args.tilt:g} deg), sample every "
+            f"{shift.sample_s:g} s, drift {shift.drift_mm_h:g} mm/h, bumps (h, mm, deg) {shift.bumps}\n\n"
+            + table([summarize(r) for r in runs], seeds))
+    if args.sizes:
+        text += "\n\n#### Smallest bump flagged\n\n" + section_sizes(seeds, shift, settings)
+    text += f"\n\n({time.monotonic() - t0:.0f} s)"
     print(text)
     args.out.mkdir(parents=True, exist_ok=True)
     (args.out / "shift.md").write_text(text + "\n")

@@ -74,7 +74,7 @@ def test_sigma_worst_axis():
     ({"setup": "eye_in_hand", "camera": {"backend": "rendered", "setup": "eye_to_hand"}}, "camera.setup"),
     ({"robot": {"type": "ur_sim", "host": "h", "speed": True}}, "robot.speed"),
     ({"marker": {"marker_size": 0}}, "marker.marker_size"),
-    ({"monitor": {"online": {"forgetting": 2}}}, "monitor.online.forgetting"),
+    ({"monitor": {"engine": {"tolerance_mm": -2}}}, "monitor.engine.tolerance_mm"),
     ({"calibrate": {"samples": 2}}, "calibrate.samples"),
     ({"calibrate": {"min_samples": 40}}, "calibrate: min_samples"),
     ({"calibrate": {"refine": "yes"}}, "calibrate.refine"),
@@ -94,10 +94,10 @@ def test_config_sections_roundtrip():
                             "calibrate": {"samples": 5, "min_samples": 4}})
     assert cfg.setup == "eye_in_hand" and cfg.calibrate.samples == 5
     assert config_from_dict(cfg.to_dict()) == cfg
-    # one setup: the rendered camera and the online estimator take the config's
-    assert cfg.camera.setup == "eye_in_hand" and cfg.monitor.online.setup == "eye_in_hand"
+    # one setup: the rendered camera takes the config's
+    assert cfg.camera.setup == "eye_in_hand"
     assert config_from_dict({"setup": "eye_in_hand"}).camera.setup == "eye_in_hand"
-    assert Config().calibrate.method == "auto" and Config().monitor.method == "YKronT'"
+    assert Config().calibrate.method == "auto" and Config().monitor.engine.tolerance_mm == 2.0
 
 
 def test_stop_on_predicted_uncertainty():

@@ -25,7 +25,7 @@ def test_bench_prints_progressively_and_keeps_partial_results_on_ctrl_c(tmp_path
     proc.send_signal(signal.SIGINT)
     rest, err = proc.communicate(timeout=120)
     assert proc.returncode == 130, err
-    assert "bench.solvers [1/8] experiment 1" in err and "interrupted; partial results in" in err
+    assert "bench.solvers [1/7] experiment 1" in err and "interrupted; partial results in" in err
     report = (out / "solvers.md").read_text()
     assert "## Experiment 1" in report and "**Interrupted** during" in report
     assert "## Timing" not in report

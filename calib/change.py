@@ -1,0 +1,135 @@
+"""The *moved* test of the monitoring engine: a windowed GLR test for a 6-dof jump of the camera transform.
+
+`ChangeDetector` tests, over sliding windows of the last ``window`` (20) and
+``long_window`` (100) innovations (predicted before each sample is fused, so
+they are white with known covariance when nothing changed), the generalised
+likelihood ratio of "the camera moved by some 6-dof delta":
+``g^T F^-1 g`` with ``F = sum H^T S^-1 H``, ``g = sum H^T S^-1 r``, which is
+chi-square with 6 dof before a change. It alarms above the
+``1 - false_alarm_rate / 2`` quantile. The short window flags clear moves
+within a few samples; the long one catches moves the points barely show,
+such as a small rotation about the optical axis. `calib.monitor.MonitorEngine`
+feeds it (eye-to-hand the camera transform is ``Y = T_base_cam``, eye-in-hand
+``X = T_flange_cam``; perturbations as in `calib.result`).
+"""
+
+from __future__ import annotations
+
+from typing import Annotated
+
+import numpy as np
+from pydantic import Field, model_validator
+from scipy.linalg.lapack import dposv
+from scipy.stats import chi2
+
+from calib.params import Float, Int, Params
+
+_I6 = np.eye(6)
+#: The detector's long window is tested every this many samples.
+LONG_STRIDE = 4
+
+
+class DetectorConfig(Params):
+    """Settings of `ChangeDetector`.
+
+    Attributes
+    ----------
+    window : int
+        Innovations in the short sliding GLR window (>= 3): reacts within a
+        few samples to a clear move.
+    long_window : int or None
+        A second, longer window (> ``window``) for small moves the short one
+        cannot resolve (e.g. a rotation about the optical axis); None disables it.
+    false_alarm_rate : float
+        Per-sample probability of a false alarm on an unchanged cell, in
+        (0, 0.1), split evenly between the two windows.
+    """
+
+    window: Annotated[Int, Field(ge=3)] = 20
+    long_window: Int | None = 100
+    false_alarm_rate: Annotated[Float, Field(gt=0, lt=0.1)] = 1e-7
+
+    @model_validator(mode="after")
+    def _windows(self):
+        if self.long_window is not None and self.long_window <= self.window:
+            raise ValueError(f"long_window must be None or an int > window ({self.window}), got {self.long_window!r}")
+        return self
+
+
+class ChangeDetector:
+    """Windowed GLR test for a 6-dof jump of the camera transform.
+
+    Feed it the innovation ``r`` (3,) of each new point predicted from the
+    current estimate, its inverse covariance ``S^-1`` (3, 3) and the Jacobian ``H`` (3, 6)
+    of the predicted point w.r.t. the camera transform perturbation
+    (`calib.result` convention). Over each window the statistic
+    ``g^T F^-1 g`` is chi-square(6) while the camera stays put; a moved camera
+    makes the innovations line up with ``H``. ``statistics`` holds the
+    (short, long) window values, ``statistic`` the larger; both share one threshold.
+    """
+
+    def __init__(self, config: DetectorConfig | None = None):
+        self.config = config or DetectorConfig()
+        windows = 1 if self.config.long_window is None else 2
+        self.threshold = float(chi2.ppf(1.0 - self.config.false_alarm_rate / windows, 6))
+        # Running sums of the per-sample H^T S^-1 [H | r] (F = [:, :6], g = [:, 6]) over the last
+        # size samples: a window sum is one difference, not an add and a subtract per window.
+        # Unwritten slots are zero, i.e. the sum before the first sample.
+        self._size = (self.config.long_window or self.config.window) + 1
+        self._cum = np.zeros((self._size, 6, 7))
+        self._Hr = np.zeros((3, 7))
+        self.reset()
+
+    @property
+    def count(self) -> int:
+        """Innovations since the last reset."""
+        return self._count
+
+    @property
+    def state_size(self) -> int:
+        """Floats held: the window's running sums."""
+        return self._cum.size
+
+    def reset(self) -> None:
+        """Forget all innovations."""
+        self._cum[:] = 0.0
+        self._count = 0
+        self.statistic = 0.0
+        self.statistics = (0.0, 0.0)
+
+    def update(self, r: np.ndarray, S_inv: np.ndarray, H: np.ndarray) -> bool:
+        """Add one innovation ``r`` (3,) with inverse covariance ``S_inv`` (3, 3) and Jacobian ``H`` (3, 6).
+
+        Returns True if a window's GLR statistic exceeds the threshold.
+        """
+        # [H^T S^-1 H | H^T S^-1 r] in one product.
+        Hr = self._Hr
+        Hr[:, :6] = H
+        Hr[:, 6] = r
+        Fg = H.T @ S_inv @ Hr
+        cfg, n, size, cum = self.config, self._count, self._size, self._cum
+        slot = n % size
+        now = np.add(cum[slot - 1], Fg, out=cum[slot])        # slot - 1 = -1 wraps to the last slot
+        self._count = n + 1
+        if self._count < 3:
+            # Two points cannot yet separate six pose parameters.
+            return False
+        short = _glr(now - cum[(n - cfg.window) % size])
+        long = self.statistics[1]
+        # The long window is for slow, small moves: testing it every LONG_STRIDE samples
+        # delays those alarms a little and saves a 6x6 solve per sample.
+        if cfg.long_window is not None and self._count > cfg.window and self._count % LONG_STRIDE == 0:
+            long = _glr(now - cum[(n - cfg.long_window) % size])
+        self.statistics = (short, long)
+        self.statistic = max(short, long)
+        return self.statistic > self.threshold
+
+
+def _glr(Fg):
+    """``g^T F^-1 g`` of a window sum ``[F | g]`` (6, 7)."""
+    F = Fg[:, :6]
+    g = Fg[:, 6]
+    # A tiny ridge keeps a rank-deficient window (robot standing still) solvable;
+    # g lies in the range of F then, so the statistic is unaffected.
+    _, x, info = dposv(F + (1e-9 * (Fg.item(0, 0) + Fg.item(3, 3))) * _I6, g)
+    return float(g.dot(x)) if info == 0 else 0.0

@@ -1,0 +1,52 @@
+"""The moved test of the monitoring engine: the windowed GLR change detector (calib.change)."""
+
+import numpy as np
+import pytest
+
+from calib.change import ChangeDetector, DetectorConfig
+from calib.errors import ParameterError
+
+
+def test_config_validation_names_the_field():
+    with pytest.raises(ParameterError, match="window"):
+        DetectorConfig(window=1)
+    with pytest.raises(ParameterError, match="long_window"):
+        DetectorConfig(window=20, long_window=10)
+    with pytest.raises(ParameterError, match="false_alarm_rate"):
+        DetectorConfig(false_alarm_rate=0.5)
+
+
+def test_detector_alone_is_chi_square_under_no_change():
+    rng = np.random.default_rng(50)
+    det = ChangeDetector(DetectorConfig(window=10, long_window=50))
+    stats = []
+    for _ in range(2000):
+        H = rng.normal(size=(3, 6))
+        det.update(rng.normal(size=3), np.eye(3), H)
+        stats.append(det.statistics)
+    stats = np.array(stats[50:])
+    assert np.all((5.5 < stats.mean(axis=0)) & (stats.mean(axis=0) < 6.5))
+
+
+@pytest.mark.parametrize("long_window", [None, 30])
+def test_detector_window_sums_match_brute_force(long_window):
+    """The running-sum windows give exactly the GLR of the last `window` / `long_window` innovations."""
+    rng = np.random.default_rng(51)
+    cfg = DetectorConfig(window=8, long_window=long_window)
+    det = ChangeDetector(cfg)
+    Hs, rs, Ss = [], [], []
+
+    def brute(w):
+        F = sum(H.T @ S @ H for H, S in zip(Hs[-w:], Ss[-w:]))
+        g = sum(H.T @ S @ r for H, S, r in zip(Hs[-w:], Ss[-w:], rs[-w:]))
+        return g @ np.linalg.solve(F, g)
+
+    for k in range(120):
+        H, r = rng.normal(size=(3, 6)), rng.normal(size=3) + (0.5 if k > 60 else 0.0)
+        S_inv = np.linalg.inv(np.diag(rng.uniform(0.5, 2.0, size=3)))
+        Hs.append(H), rs.append(r), Ss.append(S_inv)
+        det.update(r, S_inv, H)
+        if k >= 2:
+            assert det.statistics[0] == pytest.approx(brute(cfg.window), rel=1e-6)
+        if long_window is not None and k + 1 > cfg.window and (k + 1) % 4 == 0:
+            assert det.statistics[1] == pytest.approx(brute(long_window), rel=1e-6)
