@@ -114,24 +114,19 @@ _DAMAGE = (sqlite3.Error, struct.error, ValueError, KeyError, IndexError, TypeEr
 
 
 def _rosbags_errors() -> tuple[type[BaseException], ...]:
+    import apsw  # rosbags' sqlite3 storage reads through it
+
     from rosbags.rosbag2 import ReaderError
     from rosbags.serde import SerdeError
     from rosbags.typesys import TypesysError
 
-    return (ReaderError, SerdeError, TypesysError, *_DAMAGE)
+    return (ReaderError, SerdeError, TypesysError, apsw.Error, *_DAMAGE)
 
 
 def is_ros2_bag(path: Path) -> bool:
-    """A rosbag2 directory: ``metadata.yaml`` with a ``rosbag2_bagfile_information`` block."""
-    meta = path / "metadata.yaml"
-    if not path.is_dir() or not meta.is_file():
-        return False
-    try:
-        with open(meta, "rb") as f:  # a regular file: is_file() followed the link and checked
-            head = f.read(4096)
-    except OSError:
-        return False
-    return b"rosbag2_bagfile_information" in head
+    """A directory with a ``metadata.yaml`` (tried after every other importer; `load_ros2_bag` checks it is
+    a rosbag2 one, and reads it only if it resolves inside the directory)."""
+    return path.is_dir() and os.path.lexists(path / "metadata.yaml")
 
 
 def parse_pairs(text: str | None, what: str, keys) -> dict[str, str]:
@@ -161,7 +156,7 @@ def _bag_files(folder: Path) -> list[Path]:
     doc = read_yaml(meta_path)
     info = doc.get("rosbag2_bagfile_information")
     if not isinstance(info, dict):
-        raise SessionError(f"{meta_path}: no rosbag2_bagfile_information mapping")
+        raise SessionError(f"{meta_path}: no rosbag2_bagfile_information mapping: not a ROS 2 bag")
     names = info.get("relative_file_paths")
     if not isinstance(names, list) or not names:
         raise SessionError(f"{meta_path}: relative_file_paths must list the bag's files, got {names!r:.80}")
@@ -420,6 +415,12 @@ def _depth(msg, where: str) -> np.ndarray:
     return np.where(np.isfinite(depth) & (depth > 0), depth, 0.0)
 
 
+def _why(e: BaseException) -> str:
+    if isinstance(e, MemoryError):  # rosbags allocates what a length field says before reading
+        return "a record length beyond memory: a damaged length field"
+    return f"{type(e).__name__}: {str(e)[:160]}"
+
+
 class _Bag:
     """The open bag: typestore and reader, with every rosbags failure turned into a `SessionError`."""
 
@@ -434,7 +435,7 @@ class _Bag:
             self.reader = Reader(folder)
             self.reader.open()
         except self.errors as e:
-            raise SessionError(f"{folder}: not a readable ROS 2 bag ({type(e).__name__}: {str(e)[:200]})") from None
+            raise SessionError(f"{folder}: not a readable ROS 2 bag ({_why(e)})") from None
 
     def close(self) -> None:
         try:
@@ -455,8 +456,7 @@ class _Bag:
             except self.errors as e:
                 where = "" if conn is None else f" on {conn.topic}"
                 raise SessionError(f"{self.folder}: cannot read the bag after "
-                                   f"{sum(counts.values())} messages{where} ({type(e).__name__}: "
-                                   f"{str(e)[:160]})") from None
+                                   f"{sum(counts.values())} messages{where} ({_why(e)})") from None
             k = counts[conn.id]
             counts[conn.id] += 1
             if len(raw) > MAX_MESSAGE_BYTES:
@@ -469,7 +469,7 @@ class _Bag:
             return self.typestore.deserialize_cdr(raw, conn.msgtype)
         except self.errors as e:
             raise SessionError(f"{self.folder}: {conn.topic} message {k} ({conn.msgtype}) cannot be "
-                               f"deserialized ({type(e).__name__}: {str(e)[:160]})") from None
+                               f"deserialized ({_why(e)})") from None
 
 
 @dataclass
@@ -608,7 +608,7 @@ def load_ros2_bag(path, setup: str | None = None, frames: dict | None = None, to
 
     folder = Path(path)
     if not is_ros2_bag(folder):
-        raise SessionError(f"{folder}: not a ROS 2 bag directory (metadata.yaml with rosbag2_bagfile_information)")
+        raise SessionError(f"{folder}: not a ROS 2 bag directory (no metadata.yaml)")
     setup = check_setup(setup or Setup.EYE_TO_HAND, error=SessionError)
     names = {**DEFAULT_FRAMES, **{k: v for k, v in (frames or {}).items() if v}}
     if not (isinstance(still_s, (int, float)) and 0 <= still_s < 60):
