@@ -9,10 +9,11 @@ on ``/tf``), the rendered RGB-D camera (`mocks.render.camera.RenderedCamera`,
 eye-to-hand) at ``fps`` (colour ``rgb8``, depth registered to it, its
 ``CameraInfo``), and optionally the marker pose a detector would publish.
 
-`write_demo_bag` also returns the equivalent session: for each stop, the
-frame a live run takes (the first one after the robot has been still for
-``sample_after_s``), the exact flange pose and the frame's pixels, for tests
-that compare an import of the bag with it.
+`write_demo_bag` also returns the equivalent session's candidates: for each
+stop, the first ``tries`` frames after the robot has been still for
+``sample_after_s``, with the exact flange pose and the frames' pixels; a live
+run takes the first of them in which the marker is found (`session_frames`).
+Tests compare an import of the bag with that session.
 """
 
 from __future__ import annotations
@@ -41,9 +42,10 @@ COLOR_FRAME = "camera_color_optical_frame"
 
 @dataclass
 class SessionFrame:
-    """The frame a live run takes at one stop: exact flange pose and the pixels."""
+    """A frame a live run may take at one stop (its ``attempt``-th still frame): exact flange pose and pixels."""
 
     stop: int
+    attempt: int
     message: int
     t: float
     T_base_flange: np.ndarray
@@ -56,22 +58,24 @@ class DemoBag:
     """What `write_demo_bag` wrote: the bag and the equivalent session."""
 
     path: Path
-    session: list[SessionFrame] = field(default_factory=list)
+    candidates: list[SessionFrame] = field(default_factory=list)
     n_images: int = 0
     duration_s: float = 0.0
     intrinsics: object = None
     truth: dict = field(default_factory=dict)
 
 
-def _trajectory(A: np.ndarray, stop_s: float, move_s: float):
-    """``pose(t)`` of a stop-and-go run through the poses ``A`` (N, 4, 4), its stops [(start, end)], duration."""
+def _trajectory(A: np.ndarray, stop_s: float, move_s: float, start: float):
+    """``pose(t)`` of a stop-and-go run through the poses ``A`` (N, 4, 4) whose first stop ends at
+    ``start + stop_s`` (the robot stands at ``A[0]`` from t = 0), its stops [(from, to)], duration."""
     v = 1.0 / (0.75 * move_s)  # a normalised trapezoid: a quarter of the move accelerates
     acc = v / (0.25 * move_s)
-    stops = [(i * (stop_s + move_s), i * (stop_s + move_s) + stop_s) for i in range(len(A))]
+    cycle = stop_s + move_s
+    stops = [(start + i * cycle if i else 0.0, start + i * cycle + stop_s) for i in range(len(A))]
     slerps = [Slerp([0.0, 1.0], Rotation.from_matrix(A[i:i + 2, :3, :3])) for i in range(len(A) - 1)]
 
     def pose(t: float) -> np.ndarray:
-        i = min(int(t // (stop_s + move_s)), len(A) - 1)
+        i = min(max(int((t - start) // cycle), 0), len(A) - 1)
         tau = t - stops[i][1]
         if tau <= 0 or i == len(A) - 1:
             return A[i]
@@ -84,7 +88,7 @@ def _trajectory(A: np.ndarray, stop_s: float, move_s: float):
 def write_demo_bag(path, *, storage: str = "mcap", n_poses: int = 12, seed: int = 0, fps: float = 30.0,
                    tf_hz: float = 125.0, stop_s: float = 0.8, move_s: float = 0.6, sample_after_s: float = 0.3,
                    depth_encoding: str = "16UC1", compressed: bool = False, marker_topic: bool = False,
-                   render_moving: bool = True, camera_clock_offset_s: float = 0.0,
+                   render_moving: bool = True, camera_clock_offset_s: float = 0.0, tries: int = 3,
                    camera: RenderedCameraConfig | None = None) -> DemoBag:
     """Write a bag of the demo cell at ``path`` (a new directory).
 
@@ -102,6 +106,8 @@ def write_demo_bag(path, *, storage: str = "mcap", n_poses: int = 12, seed: int 
         never measures those frames: for long benchmark bags).
     camera_clock_offset_s : float
         Image stamps lag the tf clock by this (``t_tf = t_image + offset``).
+    tries : int
+        Session candidates kept per stop.
     camera : RenderedCameraConfig, optional
         The rendered camera (default: the demo's, eye-to-hand).
 
@@ -117,7 +123,13 @@ def write_demo_bag(path, *, storage: str = "mcap", n_poses: int = 12, seed: int 
     path = Path(path)
     cfg = camera or RenderedCameraConfig()
     A = simulate.realistic_cell(n_poses, np.random.default_rng(seed)).A_true
-    pose, stops, duration = _trajectory(A, stop_s, move_s)
+    # Stops start a tenth of a frame period before a frame is sample_after_s into them (the cycle a whole
+    # number of frames): the live run's first frame is unambiguous, the one before sees the arrival.
+    cycle = round((stop_s + move_s) * fps) / fps
+    if cycle <= stop_s:
+        raise ValueError(f"stop_s + move_s must exceed stop_s by at least a frame period (1/{fps:g} s)")
+    first = np.ceil((sample_after_s + 0.1 / fps) * fps - 0.5) + 0.5
+    pose, stops, duration = _trajectory(A, stop_s, cycle - stop_s, first / fps - sample_after_s - 0.1 / fps)
     now = {"t": 0.0}
     cam = RenderedCamera(cfg, lambda: pose(now["t"]))
     cam.connect()
@@ -154,7 +166,7 @@ def write_demo_bag(path, *, storage: str = "mcap", n_poses: int = 12, seed: int 
     # Frames half a period off the stops and tf ticks: no frame sits exactly where a stop starts.
     events += [((k + 0.5) / fps, "cam") for k in range(int(duration * fps))]
     events.sort()
-    taken = set()
+    taken: dict[int, int] = {}
     last = None
     with Writer(path, version=9, storage_plugin=plugin) as w:
         c_tf = w.add_connection("/tf", "tf2_msgs/msg/TFMessage", typestore=ts)
@@ -210,12 +222,30 @@ def write_demo_bag(path, *, storage: str = "mcap", n_poses: int = 12, seed: int 
                         position=M["geometry_msgs/msg/Point"](*map(float, xyz)),
                         orientation=M["geometry_msgs/msg/Quaternion"](*map(float, q)))),
                     "geometry_msgs/msg/PoseStamped")
-            # The live run's sample: the first frame after sample_after_s of standstill.
-            if stop is not None and stop not in taken and t - sample_after_s > stops[stop][0]:
-                taken.add(stop)
-                out.session.append(SessionFrame(stop, k, t_img, A[stop], frame.color,
-                                                frame.depth.astype(float)))
+            # The live run's candidates: the first frames after sample_after_s of standstill.
+            if stop is not None and taken.get(stop, 0) < tries and t - sample_after_s > stops[stop][0]:
+                out.candidates.append(SessionFrame(stop, taken.get(stop, 0), k, t_img, A[stop], frame.color,
+                                                   frame.depth.astype(float)))
+                taken[stop] = taken.get(stop, 0) + 1
             out.n_images += 1
     cam.disconnect()
     out.duration_s = duration
+    return out
+
+
+def session_frames(bag: DemoBag, measure) -> list[tuple[SessionFrame, object]]:
+    """The live run's samples: at each stop, the first candidate ``measure(frame)`` measures
+    (``measure`` raises `calib.errors.ExtractionError` where the marker is not found)."""
+    from calib.errors import ExtractionError
+
+    out, done = [], set()
+    for c in bag.candidates:
+        if c.stop in done:
+            continue
+        try:
+            m = measure(c)
+        except ExtractionError:
+            continue
+        done.add(c.stop)
+        out.append((c, m))
     return out

@@ -20,19 +20,25 @@ from calib import transforms as tf  # noqa: E402
 from calib.api import solve_observations  # noqa: E402
 from calib.observation import Observation  # noqa: E402
 from calib.vision.extract import TargetConfig, extract  # noqa: E402
-from mocks.ros2_bag import T_BASE_LINK_BASE, T_WRIST3_FLANGE, write_demo_bag  # noqa: E402
+from mocks.ros2_bag import T_BASE_LINK_BASE, T_WRIST3_FLANGE, session_frames, write_demo_bag  # noqa: E402
 
 N_POSES = 12
 
 
-def _session_observations(bag) -> list[Observation]:
+def _session(bag):
     """What a live run measured at each stop: the app's extraction on the frame, the exact flange pose."""
     target = TargetConfig()
-    obs = []
-    for s in bag.session:
-        m = extract(s.color, s.depth, bag.intrinsics, target)
-        obs.append(Observation.from_measurement(len(obs), s.t, s.T_base_flange, m))
-    return obs
+    taken = session_frames(bag, lambda c: extract(c.color, c.depth, bag.intrinsics, target))
+    return [c for c, _ in taken], [Observation.from_measurement(i, c.t, c.T_base_flange, m)
+                                   for i, (c, m) in enumerate(taken)]
+
+
+def _session_observations(bag) -> list[Observation]:
+    return _session(bag)[1]
+
+
+def _messages(bag) -> list[int]:
+    return [c.message for c in _session(bag)[0]]
 
 
 def _agreement_mm(a, b, method):
@@ -53,8 +59,8 @@ def test_bag_replays_to_the_sessions_calibration(demo_bag):
     imported = load(demo_bag.path)
     assert imported.meta["storage"] == ("db3" if (demo_bag.path / "demo_bag.db3").exists() else "mcap")
     # One sample per stop, from the frame the live run took, at the flange pose of the stop.
-    assert [o.meta["message"] for o in imported.observations] == [s.message for s in demo_bag.session]
-    for o, s in zip(imported.observations, demo_bag.session):
+    assert [o.meta["message"] for o in imported.observations] == _messages(demo_bag)
+    for o, s in zip(imported.observations, _session(demo_bag)[0]):
         np.testing.assert_allclose(o.T_base_flange, s.T_base_flange, atol=1e-9)
     counts = imported.meta["frames_read"]
     assert counts["standstills"] == N_POSES and counts["moving_or_no_tf"] > 0
@@ -72,12 +78,12 @@ def test_float_depth_compressed_colour_and_a_given_clock_offset(tmp_path):
                          depth_encoding="32FC1", compressed=True, camera_clock_offset_s=0.2)
     imported = load(bag.path, clock_offset_s=0.2)
     assert imported.meta["clock_offset_s"] == 0.2 and imported.meta["clock_offset_from"] == "given"
-    assert [o.meta["message"] for o in imported.observations] == [s.message for s in bag.session]
+    assert [o.meta["message"] for o in imported.observations] == _messages(bag)
     mm, deg, _ = _agreement_mm(imported.observations, _session_observations(bag), "YKronT'")
     assert mm < 0.1, mm
     # Without the offset, the 0.2 s lag puts frames of the motion's start into the standstills.
     shifted = load(bag.path, clock_offset_s=0.0)
-    assert [o.meta["message"] for o in shifted.observations] != [s.message for s in bag.session]
+    assert [o.meta["message"] for o in shifted.observations] != _messages(bag)
 
 
 def test_clock_offset_estimated_from_the_marker_pose_topic(tmp_path):
@@ -86,7 +92,7 @@ def test_clock_offset_estimated_from_the_marker_pose_topic(tmp_path):
     imported = load(bag.path)
     assert imported.meta["clock_offset_from"] == "marker-pose speeds"
     assert abs(imported.meta["clock_offset_s"] - 0.05) < 0.005, imported.meta["clock_offset_s"]
-    assert [o.meta["message"] for o in imported.observations] == [s.message for s in bag.session]
+    assert [o.meta["message"] for o in imported.observations] == _messages(bag)
 
 
 def test_marker_poses_alone_are_the_measurements(tmp_path):
@@ -97,8 +103,9 @@ def test_marker_poses_alone_are_the_measurements(tmp_path):
                                                                                   "/marker_pose"))
     imported = load(only)
     assert imported.meta["topics"] == {"marker": "/marker_pose"}
-    assert len(imported.observations) == 6
-    for o, s in zip(imported.observations, bag.session):
+    first = [c for c in bag.candidates if c.attempt == 0]  # a pose per stop: nothing to retry
+    assert [o.meta["message"] for o in imported.observations] == [c.message for c in first]
+    for o, s in zip(imported.observations, first):
         np.testing.assert_allclose(o.T_base_flange, s.T_base_flange, atol=1e-9)
         B = tf.invert(bag.truth["T_base_cam"]) @ s.T_base_flange @ np.asarray(_marker_mount(), float)
         np.testing.assert_allclose(o.T_cam_marker, B, atol=1e-6)
@@ -125,7 +132,7 @@ def _marker_mount():
 
 def test_frames_are_chosen_along_the_tf_tree(demo_bag):
     imported = load(demo_bag.path, frames={"base": "base_link", "flange": "wrist_3_link"})
-    for o, s in zip(imported.observations, demo_bag.session):
+    for o, s in zip(imported.observations, _session(demo_bag)[0]):
         np.testing.assert_allclose(o.T_base_flange, T_BASE_LINK_BASE @ s.T_base_flange @ tf.invert(T_WRIST3_FLANGE),
                                    atol=1e-9)
     assert imported.meta["frames"]["camera"] == "camera_color_optical_frame"
