@@ -5,7 +5,8 @@ calibration run holds: the robot moving between flange poses of
 `calib.simulate.realistic_cell` and holding each for ``stop_s``, its tf at
 ``tf_hz`` (``robot_state_publisher`` style: ``base_link -> base`` and
 ``wrist_3_link -> flange`` on ``/tf_static``, ``base_link -> wrist_3_link``
-on ``/tf``), the rendered RGB-D camera (`mocks.render.camera.RenderedCamera`,
+on ``/tf``; the camera driver's ``camera_link -> camera_color_optical_frame``
+on ``/tf_static``, in a tree of its own until calibrated), the rendered RGB-D camera (`mocks.render.camera.RenderedCamera`,
 eye-to-hand) at ``fps`` (colour ``rgb8``, depth registered to it, its
 ``CameraInfo``), and optionally the marker pose a detector would publish.
 
@@ -35,6 +36,9 @@ T_BASE_LINK_BASE = tf.make_transform(Rotation.from_euler("z", np.pi).as_matrix()
 #: ``wrist_3_link -> flange`` of the UR description (x along the last joint axis).
 T_WRIST3_FLANGE = tf.make_transform(Rotation.from_euler("xyz", [0.0, -np.pi / 2, -np.pi / 2]).as_matrix(),
                                     [0.0, 0.0, 0.0])
+#: ``camera_link -> camera_color_optical_frame`` as realsense2_camera publishes it: the colour camera 15 mm
+#: beside the depth origin, turned from REP 103's x forward / z up to the optical z forward / y down.
+T_CAMERA_LINK_OPTICAL = tf.make_transform(Rotation.from_quat([-0.5, 0.5, -0.5, 0.5]).as_matrix(), [0.0, 0.015, 0.0])
 #: Start of the recording (s since the epoch): large stamps test the time arithmetic.
 T0 = 1_700_000_000.0
 COLOR_FRAME = "camera_color_optical_frame"
@@ -184,7 +188,8 @@ def write_demo_bag(path, *, storage: str = "mcap", n_poses: int = 12, seed: int 
 
         put(c_static, 0.0, M["tf2_msgs/msg/TFMessage"](transforms=[
             transform(0.0, "base_link", "base", T_BASE_LINK_BASE),
-            transform(0.0, "wrist_3_link", "flange", T_WRIST3_FLANGE)]), "tf2_msgs/msg/TFMessage")
+            transform(0.0, "wrist_3_link", "flange", T_WRIST3_FLANGE),
+            transform(0.0, "camera_link", COLOR_FRAME, T_CAMERA_LINK_OPTICAL)]), "tf2_msgs/msg/TFMessage")
         for t, kind in events:
             now["t"] = t
             if kind == "tf":

@@ -326,6 +326,20 @@ class _TfTree:
             T = T @ (E if forward else tf.invert(E))
         return T, valid
 
+    def static_root_pose(self, frame: str) -> tuple[str, np.ndarray] | None:
+        """``(root, T_root_frame)`` when every link from ``frame`` up to its tf root is static, else None."""
+        if frame not in self.parent:
+            return None
+        T, child = np.eye(4), frame
+        for _ in range(len(self.parent)):
+            parent = self.parent.get(child)
+            if parent is None:
+                return child, T
+            if (parent, child) not in self.static or self.samples.get((parent, child)):
+                return None
+            T, child = self.static[(parent, child)] @ T, parent
+        return None
+
     def robot_times(self, edges) -> np.ndarray:
         """The stamps of every moving link on the path (where the composed pose can change)."""
         ts = [self.stream((p, c))[0] for p, c, _ in edges if self.stream((p, c)) is not None]
@@ -602,7 +616,9 @@ def load_ros2_bag(path, setup: str | None = None, frames: dict | None = None, to
     -------
     ImportedSamples
         ``meta``: ``format``, ``source``, ``frames``, ``topics``, ``storage``, ``clock_offset_s``,
-        ``intrinsics``, ``frames_read`` (colour frames by fate), ``skipped`` (standstills without a marker).
+        ``intrinsics``, ``frames_read`` (colour frames by fate), ``skipped`` (standstills without a marker),
+        and ``camera_tf`` (``root``, ``frame``, ``T_root_camera`` (4, 4)) when the bag's /tf_static holds
+        the camera driver's links from a root (e.g. ``camera_link``) to the image's frame.
     """
     from calib.vision.extract import extract
 
@@ -742,4 +758,9 @@ def load_ros2_bag(path, setup: str | None = None, frames: dict | None = None, to
             "skipped": skipped}
     if intr is not None:
         meta["intrinsics"] = {"K": intr.K.tolist(), "dist": intr.dist.tolist()}
+    # The camera driver's own tf (camera_link -> ... -> optical frame): a static transform for the
+    # calibration must attach to its root, since a tf frame has one parent (docs/formats.md, "Use it in ROS 2").
+    camera_tf = tree.static_root_pose(cam_frame)
+    if camera_tf is not None:
+        meta["camera_tf"] = {"root": camera_tf[0], "frame": cam_frame, "T_root_camera": camera_tf[1].tolist()}
     return ImportedSamples(obs, setup, meta)

@@ -241,3 +241,30 @@ def test_data_outside_the_bag_is_not_opened(small_bag, tmp_path):
     root = os.path.realpath(small_bag)
     mine = [p for p in opened if p.startswith(os.path.realpath(tmp_path.parent))]
     assert mine and all(p.startswith(root + os.sep) for p in mine), mine
+
+
+def test_use_it_in_ros2_from_the_bag_to_a_launch_file(demo_bag, tmp_path):
+    """docs/formats.md "Use it in ROS 2": the frames of the bag, the driver's camera_link, one launch file."""
+    import ast
+
+    from app.formats import write_result
+    from mocks.ros2_bag import COLOR_FRAME, T_CAMERA_LINK_OPTICAL
+
+    imported = load(demo_bag.path, frames={"base": "base_link", "flange": "flange"})
+    assert imported.meta["frames"]["camera"] == COLOR_FRAME  # the image's optical frame
+    cam_tf = imported.meta["camera_tf"]
+    assert cam_tf["root"] == "camera_link" and cam_tf["frame"] == COLOR_FRAME
+    np.testing.assert_allclose(cam_tf["T_root_camera"], T_CAMERA_LINK_OPTICAL, atol=1e-9)
+    res = solve_observations("YKronT'", imported.observations, imported.setup)
+    launch = write_result(res, tmp_path / "handeye_tf.launch.py", fmt="ros2_launch", frames=imported.meta["frames"],
+                          camera_tf=cam_tf)
+    call = next(n for n in ast.walk(ast.parse(launch.read_text())) if isinstance(n, ast.keyword)
+                and n.arg == "arguments")
+    args = [ast.literal_eval(e) for e in call.value.elts]
+    kv = dict(zip(args[::2], args[1::2]))
+    assert kv["--frame-id"] == "base_link" and kv["--child-frame-id"] == "camera_link"
+    T_pub = tf.from_xyz_quat([float(kv[f"--{k}"]) for k in "xyz"], [float(kv[f"--q{k}"]) for k in "xyzw"])
+    # camera_link as published, then the driver's camera_link -> optical frame: the true camera in base_link.
+    truth = T_BASE_LINK_BASE @ demo_bag.truth["T_base_cam"]
+    rot, trans = tf.pose_error(T_pub @ T_CAMERA_LINK_OPTICAL, truth)
+    assert trans < 5e-3 and np.rad2deg(rot) < 0.5, (trans, np.rad2deg(rot))
