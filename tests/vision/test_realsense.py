@@ -117,13 +117,18 @@ def test_usb2_link_is_refused_and_named():
     cam.disconnect()
 
 
-def test_frame_timeout_is_an_outage():
+def test_frame_timeout_is_an_outage_and_the_camera_reconnects():
     sw = SoftwareRealSense(depth=REGISTERED)
-    with RealSenseCamera(RealSenseCameraConfig(timeout_s=0.3), device=sw.device) as cam:
+    cam = RealSenseCamera(RealSenseCameraConfig(timeout_s=0.3), device=sw.device)
+    with cam:
         t = time.monotonic()
         with pytest.raises(ConnectionLostError, match=r"no depth \+ colour frame within 0.3 s"):
             cam.read()
         assert time.monotonic() - t < 1.5
+    # After the outage: connect again, frames flow again.
+    with cam:
+        (f, ref), = _stream(sw, cam, _poses(1), time.time())
+        np.testing.assert_array_equal(f.color, ref.color)
 
 
 def test_missing_mode_lists_the_device_modes():
