@@ -6,9 +6,10 @@ calibration run holds: the robot moving between flange poses of
 ``tf_hz`` (``robot_state_publisher`` style: ``base_link -> base`` and
 ``wrist_3_link -> flange`` on ``/tf_static``, ``base_link -> wrist_3_link``
 on ``/tf``; the camera driver's ``camera_link -> camera_color_optical_frame``
-on ``/tf_static``, in a tree of its own until calibrated), the rendered RGB-D camera (`mocks.render.camera.RenderedCamera`,
-eye-to-hand) at ``fps`` (colour ``rgb8``, depth registered to it, its
-``CameraInfo``), and optionally the marker pose a detector would publish.
+on ``/tf_static``, in a tree of its own until calibrated), the rendered
+RGB-D camera (`mocks.render.camera.RenderedCamera`, eye-to-hand) at ``fps``
+(colour ``rgb8``, depth registered to it, its ``CameraInfo``), and
+optionally the marker pose a detector would publish.
 
 `write_demo_bag` also returns the equivalent session's candidates: for each
 stop, the first ``tries`` frames after the robot has been still for
