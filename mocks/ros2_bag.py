@@ -29,6 +29,7 @@ from scipy.spatial.transform import Rotation, Slerp
 
 from calib import simulate
 from calib import transforms as tf
+from calib.setup import Setup
 from mocks.render.camera import RenderedCamera, RenderedCameraConfig
 from mocks.ur_sim.motion import trapezoid_position
 
@@ -94,7 +95,7 @@ def write_demo_bag(path, *, storage: str = "mcap", n_poses: int = 12, seed: int 
                    tf_hz: float = 125.0, stop_s: float = 0.8, move_s: float = 0.6, sample_after_s: float = 0.3,
                    depth_encoding: str = "16UC1", compressed: bool = False, marker_topic: bool = False,
                    render_moving: bool = True, camera_clock_offset_s: float = 0.0, tries: int = 3,
-                   camera: RenderedCameraConfig | None = None) -> DemoBag:
+                   spread: tuple[float, float] = (0.15, 40.0), camera: RenderedCameraConfig | None = None) -> DemoBag:
     """Write a bag of the demo cell at ``path`` (a new directory).
 
     Parameters
@@ -113,6 +114,8 @@ def write_demo_bag(path, *, storage: str = "mcap", n_poses: int = 12, seed: int 
         Image stamps lag the tf clock by this (``t_tf = t_image + offset``).
     tries : int
         Session candidates kept per stop.
+    spread : (float, float)
+        The poses' translation (m per axis) and rotation (deg) range about the start pose.
     camera : RenderedCameraConfig, optional
         The rendered camera (default: the demo's, eye-to-hand).
 
@@ -127,7 +130,8 @@ def write_demo_bag(path, *, storage: str = "mcap", n_poses: int = 12, seed: int 
     M = ts.types
     path = Path(path)
     cfg = camera or RenderedCameraConfig()
-    A = simulate.realistic_cell(n_poses, np.random.default_rng(seed)).A_true
+    A = simulate.realistic_cell(n_poses, np.random.default_rng(seed), translation_range=spread[0],
+                                angle_range=np.deg2rad(spread[1])).A_true
     # Stops start a tenth of a frame period before a frame is sample_after_s into them (the cycle a whole
     # number of frames): the live run's first frame is unambiguous, the one before sees the arrival.
     cycle = round((stop_s + move_s) * fps) / fps
@@ -220,8 +224,9 @@ def write_demo_bag(path, *, storage: str = "mcap", n_poses: int = 12, seed: int 
             else:
                 depth_msg = image(t_img, frame.depth.astype(np.float32), "32FC1")
             put(c_depth, t, depth_msg, "sensor_msgs/msg/Image")
-            if c_marker is not None:
-                B = frame.truth["T_cam_marker"]
+            if c_marker is not None:  # the true marker pose at t, also while frames are not rendered
+                T = pose(t)
+                B = tf.invert(cfg.Y) @ T @ cfg.X if cfg.setup == Setup.EYE_TO_HAND else tf.invert(T @ cfg.X) @ cfg.Y
                 xyz, q = tf.to_xyz_quat(B)
                 put(c_marker, t, M["geometry_msgs/msg/PoseStamped"](
                     header=header(t_img, COLOR_FRAME), pose=M["geometry_msgs/msg/Pose"](

@@ -559,14 +559,15 @@ def _write_image_folder(folder: Path, d) -> None:
 
 
 def _write_bag(out: Path, storage: str, rng: np.random.Generator) -> None:
-    """Three stops of the rendered demo at 320x240 and 5 fps, moving frames not rendered (~0.2 s a case)."""
+    """Three stops of the rendered demo at 480x360 and 5 fps, near the start pose (every marker found),
+    moving frames not rendered (~0.1 s a case)."""
     from mocks.render.camera import RenderedCameraConfig
     from mocks.ros2_bag import write_demo_bag
 
     out.rmdir()  # rosbags creates the bag directory itself
-    small = RenderedCameraConfig(width=320, height=240, fx=285.0, fy=285.0, cx=159.5, cy=119.5)
+    small = RenderedCameraConfig(width=480, height=360, fx=427.5, fy=427.5, cx=239.5, cy=179.5)
     write_demo_bag(out, storage=storage, n_poses=3, seed=int(rng.integers(1 << 16)), fps=5.0, tf_hz=50.0,
-                   render_moving=False, marker_topic=True, camera=small)
+                   render_moving=False, marker_topic=True, spread=(0.1, 25.0), camera=small)
 
 
 def write_import_seed(kind: str, seeds: Path, rng: np.random.Generator) -> Path:
