@@ -246,6 +246,7 @@ class _TfTree:
         self.samples: dict[tuple[str, str], list[tuple[float, np.ndarray]]] = defaultdict(list)
         self.static: dict[tuple[str, str], np.ndarray] = {}
         self.parent: dict[str, str] = {}
+        self._streams: dict = {}  # sorted samples per moving edge, built once all messages are in
 
     def add(self, msg, static: bool, where: str) -> None:
         for k, ts in enumerate(msg.transforms):
@@ -299,10 +300,12 @@ class _TfTree:
         """A moving edge's samples sorted by time, duplicates dropped; None for a static edge."""
         if edge in self.static and edge not in self.samples:
             return None
-        s = sorted(self.samples[edge], key=lambda x: x[0])
-        t = np.array([x[0] for x in s])
-        keep = np.concatenate([[True], np.diff(t) > 0]) if len(t) else np.zeros(0, bool)
-        return t[keep], np.array([x[1] for x in s]).reshape(-1, 4, 4)[keep]
+        if edge not in self._streams:
+            s = sorted(self.samples[edge], key=lambda x: x[0])
+            t = np.array([x[0] for x in s])
+            keep = np.concatenate([[True], np.diff(t) > 0]) if len(t) else np.zeros(0, bool)
+            self._streams[edge] = (t[keep], np.array([x[1] for x in s]).reshape(-1, 4, 4)[keep])
+        return self._streams[edge]
 
     def compose(self, edges, t_query: np.ndarray, folder: Path) -> tuple[np.ndarray, np.ndarray]:
         """``T_base_flange`` at ``t_query`` (M,): (M, 4, 4) and validity (M,) (every moving link covered)."""
@@ -495,7 +498,7 @@ class _Stream:
 
 
 def _header_stamp(bag: _Bag, conn, k: int, raw) -> tuple[float, str, object]:
-    """Stamp and frame of any stamped message; the message too (for small ones)."""
+    """Stamp (s), ``frame_id`` and the deserialized message of a message with a ``header``."""
     msg = bag.decode(conn, k, raw)
     t = _stamp(msg.header)
     if not np.isfinite(t):
@@ -636,15 +639,11 @@ def load_ros2_bag(path, setup: str | None = None, frames: dict | None = None, to
         tree = _TfTree()
         streams = {role: _Stream() for role in ("color", "depth", "marker")}
         marker_T, infos = [], []
-        first = [roles.tf]
-        role_of = {}
-        for role in ("color", "depth", "info", "marker"):
-            c = getattr(roles, role)
-            if c is not None:
-                first.append([c])
-                role_of[c.id] = role
+        role_of = {c.id: role for role in ("color", "depth", "info", "marker")
+                   if (c := getattr(roles, role)) is not None}
+        first_pass = roles.tf + [c for c in bag.reader.connections if c.id in role_of]
         # Pass 1: tf, intrinsics, marker poses, and the stamps of the images (their pixels wait for pass 2).
-        for conn, k, raw in bag.messages([c for group in first for c in group]):
+        for conn, k, raw in bag.messages(first_pass):
             where = f"{folder}: {conn.topic} message {k}"
             if conn.msgtype == TF:
                 msg = bag.decode(conn, k, raw)
