@@ -188,6 +188,12 @@ class _Topics:
     names: dict = field(default_factory=dict)
 
 
+#: Where a bag has several topics of a role, the one whose name says so is taken (realsense2_camera
+#: records colour, infra and compressed images, raw and aligned depth): a filter per role, in order.
+PREFERRED = {"color": (lambda t: "color" in t or "rgb" in t, lambda t: not t.endswith("/compressed")),
+             "depth": (lambda t: "aligned_depth_to_color" in t,)}
+
+
 def _pick(conns, role: str, wanted: str | None, folder: Path):
     """The one connection of ``role`` among ``conns`` (or the one named ``wanted``)."""
     if wanted is not None:
@@ -196,6 +202,9 @@ def _pick(conns, role: str, wanted: str | None, folder: Path):
             raise SessionError(f"{folder}: topic {wanted!r} ({role}) is not in the bag with a fitting type "
                                f"(candidates: {sorted({c.topic for c in conns}) or 'none'})")
         return hits[0]
+    for prefer in PREFERRED.get(role, ()):
+        if len({c.topic for c in conns}) > 1 and any(prefer(c.topic.lower()) for c in conns):
+            conns = [c for c in conns if prefer(c.topic.lower())]
     topics = sorted({c.topic for c in conns})
     if len(topics) > 1:
         raise SessionError(f"{folder}: several {role} topics ({', '.join(topics)}): name one with "

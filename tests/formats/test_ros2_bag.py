@@ -268,3 +268,34 @@ def test_use_it_in_ros2_from_the_bag_to_a_launch_file(demo_bag, tmp_path):
     truth = T_BASE_LINK_BASE @ demo_bag.truth["T_base_cam"]
     rot, trans = tf.pose_error(T_pub @ T_CAMERA_LINK_OPTICAL, truth)
     assert trans < 5e-3 and np.rad2deg(rot) < 0.5, (trans, np.rad2deg(rot))
+
+
+def _with_copies(src, dst, extra):
+    """``src`` rewritten to ``dst`` with each topic's messages also on the topics ``extra[topic]`` lists."""
+    from rosbags.rosbag2 import Reader, StoragePlugin, Writer
+    from rosbags.typesys import Stores, get_typestore
+
+    ts = get_typestore(Stores.ROS2_HUMBLE)
+    with Reader(src) as r, Writer(dst, version=9, storage_plugin=StoragePlugin.MCAP) as w:
+        conns = {c.id: [w.add_connection(t, c.msgtype, typestore=ts) for t in [c.topic, *extra.get(c.topic, [])]]
+                 for c in r.connections}
+        for c, t, raw in r.messages():
+            for out in conns[c.id]:
+                w.write(out, t, raw)
+    return dst
+
+
+def test_a_realsense_drivers_topics_are_told_apart(small_bag, tmp_path):
+    """realsense2_camera records colour, infra, raw and aligned depth: the aligned depth and the colour
+    are taken; two topics of a kind that no name tells apart need --topics."""
+    dst = _with_copies(small_bag, tmp_path / "driver", {
+        "/camera/color/image_raw": ["/camera/infra1/image_rect_raw"],
+        "/camera/aligned_depth_to_color/image_raw": ["/camera/depth/image_rect_raw"]})
+    imported = load(dst)
+    assert imported.meta["topics"]["color"] == "/camera/color/image_raw"
+    assert imported.meta["topics"]["depth"] == "/camera/aligned_depth_to_color/image_raw"
+    two = _with_copies(small_bag, tmp_path / "two", {"/camera/color/image_raw": ["/left/color/image_raw"]})
+    with pytest.raises(SessionError, match=r"several color topics \(/camera/color/image_raw, /left/color/image_raw\)"
+                       r".*--topics color="):
+        load(two)
+    assert load(two, topics={"color": "/left/color/image_raw"}).meta["topics"]["color"] == "/left/color/image_raw"
