@@ -7,6 +7,7 @@ plus one line below (docs/architecture.md has a worked example).
 """
 
 from drivers.camera import openni2  # noqa: F401  camera "openni2"
+from drivers.camera import realsense  # noqa: F401  camera "realsense"
 from drivers.robot import ur  # noqa: F401  robot "ur"
 from mocks import recorded  # noqa: F401  camera "recorded"
 from mocks.render import camera  # noqa: F401  camera "rendered"

@@ -150,8 +150,24 @@ def write_result(result, session: Path, formats, frames: dict | None = None) -> 
     return {fmt: export(result, Path(session) / RESULT_FILES[fmt], fmt, frames) for fmt in formats}
 
 
-def import_observations(path: Path, setup: str | None):
-    """Samples from another tool's files (easy_handeye, industrial_calibration, pose-stream CSV).
+def import_options(cfg: Config | None, *, frames: str | None = None, topics: str | None = None) -> dict:
+    """Options for the importers that take them (`app.formats.registry.ImportFormat.options`): the
+    ``[frames]`` and ``[marker]`` of ``cfg``, overridden by the command line's ``frames``
+    (``base=NAME,flange=NAME``) and ``topics`` (``color=TOPIC,...``)."""
+    from app.formats.ros2_bag import parse_pairs
+
+    names = cfg.frames.model_dump(exclude_unset=True) if cfg is not None else {}  # the bag names the rest
+    names.update(parse_pairs(frames, "--frames", ("base", "flange", "camera", "marker")))
+    options = {"frames": names, "topics": parse_pairs(topics, "--topics", ("color", "depth", "info", "marker"))}
+    if cfg is not None:
+        options["target"] = cfg.marker
+    return options
+
+
+def import_observations(path: Path, setup: str | None, **options):
+    """Samples from another tool's files (easy_handeye, industrial_calibration, pose-stream CSV, ROS 2 bag).
+
+    ``options`` (`import_options`) go to the formats that take them.
 
     Returns
     -------
@@ -164,5 +180,8 @@ def import_observations(path: Path, setup: str | None):
 
     fmt = get_format(detect_format(path))
     # Only formats whose files may leave the setup open take it; the others state it.
-    imported = fmt.load(path, **({"setup": setup} if setup is not None and fmt.open_setup else {}))
+    kwargs = {k: v for k, v in options.items() if k in fmt.options}
+    if setup is not None and fmt.open_setup:
+        kwargs["setup"] = setup
+    imported = fmt.load(path, **kwargs)
     return imported.observations, imported.setup, imported.meta

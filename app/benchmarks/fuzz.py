@@ -1,6 +1,7 @@
 """Input fuzzing: the solver API, the config loader, the session reader and the importers.
 
-Run ``python -m app.benchmarks.fuzz [--solver-cases N] [--file-cases N] [--seed S] [--out out/bench]``
+Run ``python -m app.benchmarks.fuzz [--solver-cases N] [--file-cases N] [--bag-cases N] [--only CAMPAIGN]
+[--seed S] [--out out/bench]``
 (also ``handeye bench --fuzz``). Prints a markdown table and writes
 ``<out>/fuzz.md``.
 
@@ -12,7 +13,8 @@ What counts as a failure:
   inputs silently cast), or a result carrying NaN/inf (X, Y, residuals, cov);
 - files (TOML configs, session directories, import files: easy_handeye,
   easy_handeye2, industrial_calibration, pose-stream CSV manifests, ViSP
-  pose files, an image folder, OpenCV FileStorage, MoveIt Calibration): an
+  pose files, an image folder, OpenCV FileStorage, MoveIt Calibration, ROS 2
+  bags; ``--bag-cases`` more bags, MCAP and sqlite3, damaged byte-wise too): an
   exception that is not a `HandeyeError` (a traceback), a read that does not
   return within ``HANG_S`` seconds, or a file opened outside the data
   directory (seen by an audit hook on ``open``).
@@ -475,6 +477,28 @@ _VALUE_RE = re.compile(rb'-?\d+(?:\.\d+)?(?:e-?\d+)?|"[^"\n]*"|\[[^\[\]\n]*\]|nu
 _NAME_RE = re.compile(rb'["\' ]?([\w./-]+\.(?:png|yaml|csv|gz|jsonl|txt))')
 
 
+def _mutate_binary(data: bytes, rng: np.random.Generator) -> tuple[str, bytes]:
+    """One damaged variant of a binary file: flipped bytes, a length-like field set huge, a zeroed or
+    repeated span, or a cut (record framing and length prefixes are what binary parsers trust)."""
+    kind = str(rng.choice(["flip", "huge_field", "zero_span", "repeat_span", "truncate"]))
+    buf = bytearray(data)
+    n = len(buf)
+    pos = int(rng.integers(0, max(n - 8, 1)))
+    if kind == "flip":
+        for i in rng.integers(0, n, size=int(rng.integers(1, 17))):
+            buf[int(i)] ^= int(rng.integers(1, 256))
+    elif kind == "huge_field":
+        buf[pos:pos + 8] = bytes([0xFF] * 4 + [0x7F] * 4) if rng.random() < 0.5 else b"\xff" * 8
+    elif kind == "zero_span":
+        buf[pos:pos + int(rng.integers(1, 4096))] = b"\0" * len(buf[pos:pos + 4096])
+    elif kind == "repeat_span":
+        span = bytes(buf[pos:pos + int(rng.integers(1, 2048))])
+        buf[pos:pos] = span
+    else:
+        del buf[pos:]
+    return kind, bytes(buf)
+
+
 def _fs_mutation(path: Path, rng: np.random.Generator, canary: Path) -> str:
     """Replace ``path`` by a FIFO, a directory, a symlink outside, or remove it."""
     kind = str(rng.choice(["fifo", "dir", "symlink_out", "missing"]))
@@ -495,7 +519,9 @@ def _fs_mutation(path: Path, rng: np.random.Generator, canary: Path) -> str:
 
 #: Import formats of the "import" file campaign (`app.formats` names), in rotation order.
 IMPORT_KINDS = ("easy_handeye2", "easy_handeye", "industrial_calibration", "pose_csv", "visp", "image_folder",
-                "opencv_storage", "moveit_calibration")
+                "opencv_storage", "moveit_calibration", "ros2_bag")
+#: Seeds of the bag campaign (``--bag-cases``): the same recording in both rosbag2 storages.
+BAG_KINDS = ("ros2_bag", "ros2_bag_sqlite3")
 
 #: The file each import kind hands to `app.formats.load` (the others load their directory).
 IMPORT_MAIN = {"easy_handeye2": "cell.samples", "easy_handeye": "samples.yaml", "opencv_storage": "pairs.yaml",
@@ -530,6 +556,18 @@ def _write_image_folder(folder: Path, d) -> None:
     (folder / "poses.json").write_text(json.dumps({"setup": "eye_to_hand", "poses": rows}, indent=1))
     (folder / "intrinsics.yaml").write_text("fx: 200.0\nfy: 200.0\ncx: 48.0\ncy: 48.0\n"
                                             "dist: [0.0, 0.0, 0.0, 0.0, 0.0]\n")
+
+
+def _write_bag(out: Path, storage: str, rng: np.random.Generator) -> None:
+    """Three stops of the rendered demo at 480x360 and 5 fps, near the start pose (every marker found),
+    moving frames not rendered (~0.1 s a case)."""
+    from mocks.render.camera import RenderedCameraConfig
+    from mocks.ros2_bag import write_demo_bag
+
+    out.rmdir()  # rosbags creates the bag directory itself
+    small = RenderedCameraConfig(width=480, height=360, fx=427.5, fy=427.5, cx=239.5, cy=179.5)
+    write_demo_bag(out, storage=storage, n_poses=3, seed=int(rng.integers(1 << 16)), fps=5.0, tf_hz=50.0,
+                   render_moving=False, marker_topic=True, spread=(0.1, 25.0), camera=small)
 
 
 def write_import_seed(kind: str, seeds: Path, rng: np.random.Generator) -> Path:
@@ -592,6 +630,8 @@ def write_import_seed(kind: str, seeds: Path, rng: np.random.Generator) -> Path:
         write_opencv_storage(out / IMPORT_MAIN[kind], d.A, d.B, setup="eye_to_hand")
     elif kind == "moveit_calibration":
         write_moveit(out / IMPORT_MAIN[kind], d.A, d.B)
+    elif kind in BAG_KINDS:
+        _write_bag(out, "sqlite3" if kind.endswith("sqlite3") else "mcap", rng)
     else:
         raise ValueError(f"unknown import kind {kind!r} (one of {IMPORT_KINDS})")
     return out
@@ -609,8 +649,8 @@ def _seed_files(work: Path, kind: str, rng: np.random.Generator) -> dict[str, Pa
     if kind == "config":
         shutil.copy(Path(__file__).resolve().parents[2] / "config" / "sim.toml", seeds / "config.toml")
         return {"config": seeds / "config.toml"}
-    if kind == "import":
-        return {name: write_import_seed(name, seeds, rng) for name in IMPORT_KINDS}
+    if kind in ("import", "bags"):
+        return {name: write_import_seed(name, seeds, rng) for name in (IMPORT_KINDS if kind == "import" else BAG_KINDS)}
     d = simulate.realistic_cell(8, rng)
     with SessionWriter.create(seeds, "eye_to_hand", name="session", truth={"T_base_cam": d.Y}) as w:
         img = np.zeros((8, 8, 3), np.uint8)
@@ -625,7 +665,9 @@ def _seed_files(work: Path, kind: str, rng: np.random.Generator) -> dict[str, Pa
 
 #: The main file of each kind: damaged most of the time, so the damage reaches its parser.
 MAIN_FILES = ("samples.jsonl", "session.json", "cal_data.yaml", "streams.toml", "poses.json", "intrinsics.yaml",
-              "config.toml", *IMPORT_MAIN.values())
+              "config.toml", "ros2_bag.mcap", "ros2_bag_sqlite3.db3", *IMPORT_MAIN.values())
+#: Binary files: damaged byte-wise (`_mutate_binary`) as often as like text.
+BINARY_SUFFIXES = (".mcap", ".db3")
 
 
 def _pick_file(case_dir: Path, rng: np.random.Generator) -> Path:
@@ -637,9 +679,10 @@ def _pick_file(case_dir: Path, rng: np.random.Generator) -> Path:
 
 def run_file_campaign(kind: str, n_cases: int, rng: np.random.Generator, work: Path,
                       watch: _OpenWatch) -> dict[str, Tally]:
-    """``n_cases`` damaged files of ``kind`` ("config", "session", "import"): a tally per seed file set.
+    """``n_cases`` damaged files of ``kind`` ("config", "session", "import", "bags"): a tally per seed file set.
 
-    The import cases rotate over `IMPORT_KINDS`, so each importer gets ``n_cases / 8``.
+    The import cases rotate over `IMPORT_KINDS`, so each importer gets ``n_cases / 9``; the bag cases
+    over `BAG_KINDS` (MCAP and sqlite3).
     """
     import shutil
 
@@ -670,7 +713,9 @@ def run_file_campaign(kind: str, n_cases: int, rng: np.random.Generator, work: P
         if rng.random() < 0.12 and target.name not in ("config.toml", *IMPORT_MAIN.values()):
             mut = f"{target.name}:{_fs_mutation(target, rng, canary)}"
         else:
-            m, damaged = _mutate_bytes(target.read_bytes(), rng, canary)
+            binary = target.suffix in BINARY_SUFFIXES and rng.random() < 0.5
+            m, damaged = _mutate_binary(target.read_bytes(), rng) if binary \
+                else _mutate_bytes(target.read_bytes(), rng, canary)
             target.write_bytes(damaged)
             mut = f"{target.name}:{m}"
         desc = f"{name} #{i} {mut}"
@@ -719,6 +764,9 @@ def main(argv=None) -> int:
     ap = argparse.ArgumentParser(prog="python -m app.benchmarks.fuzz", description=__doc__.split("\n")[0])
     ap.add_argument("--solver-cases", type=int, default=10_000)
     ap.add_argument("--file-cases", type=int, default=500, help="cases for each of configs, sessions, imports")
+    ap.add_argument("--bag-cases", type=int, default=500, help="damaged ROS 2 bags (MCAP and sqlite3)")
+    ap.add_argument("--only", choices=["solver", "config", "session", "import", "bags"], action="append",
+                    help="run only these campaigns (repeatable; default all)")
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--out", default="out/bench")
     args = ap.parse_args(argv)
@@ -727,15 +775,19 @@ def main(argv=None) -> int:
     logging.disable(logging.WARNING)  # torn lines and skipped images are expected by the thousand
     rng = np.random.default_rng(args.seed)
     t0 = time.perf_counter()
-    rows = {"solver API": run_solver_campaign(args.solver_cases, rng)}
+    only = set(args.only or ["solver", "config", "session", "import", "bags"])
+    rows = {"solver API": run_solver_campaign(args.solver_cases, rng)} if "solver" in only else {}
     import tempfile
 
     with tempfile.TemporaryDirectory(prefix="handeye-fuzz-") as tmp:
         watch = _OpenWatch(Path(tmp))
         for kind, label in (("config", "config files"), ("session", "session directories"),
-                            ("import", "import files")):
-            by_seed = run_file_campaign(kind, args.file_cases, rng, Path(tmp), watch)
-            if kind == "import":  # the total, then one row per importer
+                            ("import", "import files"), ("bags", "ROS 2 bags")):
+            if kind not in only:
+                continue
+            by_seed = run_file_campaign(kind, args.bag_cases if kind == "bags" else args.file_cases, rng,
+                                        Path(tmp), watch)
+            if kind in ("import", "bags"):  # the total, then one row per importer
                 rows[label] = Tally.total(by_seed.values())
                 rows.update({f"- {name}": t for name, t in by_seed.items()})
             else:

@@ -22,6 +22,11 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="only the production-shift benchmark of the monitoring engine (app.benchmarks.shift; --seeds, --hours)")
     p.add_argument("--model", action="store_true",
                    help="only the measurement-model / solve('auto') benchmark (app.benchmarks.model; --quick passes through)")
+    p.add_argument("--bag", action="store_true",
+                   help="run only the ROS 2 bag import benchmark (app.benchmarks.ros2_bag: a 2-minute demo bag "
+                   "per storage, 5.5 GB each, written and removed; other arguments go to it)")
+    p.add_argument("--realsense", action="store_true",
+                   help="run only the RealSense path benchmark (bench.realsense: librealsense's software device)")
 
 
 def run(args) -> int:
@@ -45,6 +50,14 @@ def run(args) -> int:
         from app.benchmarks import model
 
         return int(model.main(args.extra) or 0)
+    if args.bag:
+        from app.benchmarks import ros2_bag
+
+        return int(ros2_bag.main(args.extra) or 0)
+    if args.realsense:
+        from bench import realsense
+
+        return int(realsense.main(args.extra) or 0)
     from bench import solvers
 
     rc = int(solvers.main(args.extra) or 0)

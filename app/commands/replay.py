@@ -41,13 +41,16 @@ HELP = "re-solve a recorded session or an imported file, compare solvers"
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("source", type=Path, help="session directory, or a file/dir to import (easy_handeye, "
                    "industrial_calibration, pose-stream CSV, ViSP, image folder, OpenCV FileStorage YAML, "
-                   "MoveIt Calibration samples)")
+                   "MoveIt Calibration samples, ROS 2 bag)")
     p.add_argument("-m", "--method", action="append", dest="methods",
                    help="solver (repeatable); default YKronT' and YQuatT'; 'all' for every solver")
     p.add_argument("--refine", action="store_true", help="refine each solution (nonlinear least squares)")
     p.add_argument("--robust", action="store_true", help="reject outliers")
     p.add_argument("--setup", choices=[s.value for s in Setup], help="setup of an imported file")
     p.add_argument("--seed", type=int, default=0, help="seed for randomised (robust) solvers and the folds")
+    p.add_argument("--frames", help="ROS 2 bag: tf frames as base=NAME,flange=NAME[,camera=NAME] "
+                   "(default: the config's [frames])")
+    p.add_argument("--topics", help="ROS 2 bag: color=TOPIC,depth=TOPIC,info=TOPIC,marker=TOPIC where it has several")
     p.add_argument("-c", "--config", type=Path, help="config whose calibrate.target_sigma_mm/_deg the 1-sigma "
                    "warnings use (default targets: 3 mm, 0.2 deg), and whose robot's kinematic_error auto adds "
                    "as shared by the samples (sessions with joints)")
@@ -60,14 +63,13 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 def run(args) -> int:
     methods = args.methods or ["YKronT'", "YQuatT'"]
-    target, shared_error, settings = (0.0, 0.0), None, None
+    target, shared_error, cfg = (0.0, 0.0), None, None
     if args.config is not None:
         from app.config import load_config
 
         cfg = load_config(args.config)
         target = (cfg.calibrate.target_sigma_mm, cfg.calibrate.target_sigma_deg)
         shared_error = devices.open_robot(cfg, read_only=True).shared_error_factor   # a model only: never connected
-        settings = cfg.monitor.engine
     if args.monitor:
         from app.monitor_replay import replay_monitor, summary
 
@@ -75,21 +77,24 @@ def run(args) -> int:
             raise SessionError("replay --monitor needs --reference: the calibration session (or its result.yaml) "
                                "the production session is judged against")
         rep = replay_monitor(args.source, args.reference, args.trace_dir or args.source / "monitor_replay",
-                             settings=settings, shared_error=shared_error, rng=np.random.default_rng(args.seed))
+                             settings=None if cfg is None else cfg.monitor.engine, shared_error=shared_error, rng=np.random.default_rng(args.seed))
         print(summary(rep))
         return 3 if any(a["alarm"] == "moved" for a in rep.alarms) else 0
     print(replay_source(args.source, methods, refine=args.refine, robust=args.robust, setup=args.setup,
                         rng=np.random.default_rng(args.seed), target_mm=target[0], target_deg=target[1],
-                        shared_error=shared_error))
+                        shared_error=shared_error,
+                        import_options=devices.import_options(cfg, frames=args.frames, topics=args.topics)))
     return 0
 
 
 def replay_source(source: Path, methods: list[str], *, refine: bool = False, robust: bool = False,
                   setup: Setup | None = None, rng: np.random.Generator | None = None,
-                  target_mm: float = 0.0, target_deg: float = 0.0, shared_error=None) -> str:
+                  target_mm: float = 0.0, target_deg: float = 0.0, shared_error=None,
+                  import_options: dict | None = None) -> str:
     """Re-solve a session directory or an imported file with each method; returns the report: the
     tables grouped by what the solvers use and sorted by held-out error, then the advice
-    (`advice`; ``target_mm``/``target_deg`` are the config's 1-sigma targets; ``shared_error``: `replay`)."""
+    (`advice`; ``target_mm``/``target_deg`` are the config's 1-sigma targets; ``shared_error``: `replay`;
+    ``import_options``: `app.devices.import_options`)."""
     if not Path(source).exists():
         raise SessionError(f"{source}: no such file or directory")
     if (Path(source) / "session.json").exists():
@@ -99,7 +104,7 @@ def replay_source(source: Path, methods: list[str], *, refine: bool = False, rob
         observations, file_setup, truth = session.observations, session.setup, session.truth
         header = ""
     else:
-        observations, file_setup, meta = devices.import_observations(Path(source), setup)
+        observations, file_setup, meta = devices.import_observations(Path(source), setup, **(import_options or {}))
         truth, header = {}, _import_summary(meta)
     setup = setup or file_setup
     if not observations:

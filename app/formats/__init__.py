@@ -20,6 +20,9 @@ format                     path
 ``opencv_storage``         OpenCV FileStorage YAML (``%YAML:1.0``) with ``R_/t_gripper2base``,
                            ``R_/t_target2cam`` sequences
 ``moveit_calibration``     MoveIt Calibration's JSON list of [effector_wrt_world, object_wrt_sensor]
+``ros2_bag``               rosbag2 directory (sqlite3 / MCAP): tf, colour + depth images and
+                           CameraInfo (or a marker detector's poses); one sample per standstill
+                           (options ``frames``, ``topics``, ``target``, ``clock_offset_s``)
 =========================  ===================================================
 
 ``format=None`` detects it from the file. Options: ``setup=`` for the formats

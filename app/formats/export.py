@@ -81,6 +81,27 @@ def _parent_child(setup: str, frames: dict) -> tuple[str, str]:
     return (frames["base"] if setup == Setup.EYE_TO_HAND else frames["flange"]), frames["camera"]
 
 
+def published_transform(result: CalibrationResult, frames: dict, camera_tf: dict | None = None
+                        ) -> tuple[str, str, np.ndarray]:
+    """(parent, child, T_parent_child) a static transform publisher sends for the camera.
+
+    Without ``camera_tf``: the camera transform for uncorrected points, parent -> the optical frame.
+    With ``camera_tf`` (``root``, ``T_root_camera`` (4, 4): the camera driver's own tf from its root,
+    e.g. ``camera_link``, to the optical frame; `app.formats.ros2_bag` reports it): parent -> root,
+    ``camera_transform_raw_points @ inv(T_root_camera)``, since a tf frame has one parent.
+    """
+    parent, child = _parent_child(result.setup, frames)
+    T = result.camera_transform_raw_points
+    if camera_tf is None:
+        return parent, child, T
+    try:
+        T_root_camera = tf.check_transform(np.asarray(camera_tf["T_root_camera"], dtype=float), "T_root_camera")
+        root = str(camera_tf["root"])
+    except (KeyError, TypeError, ValueError, CalibrationError) as e:
+        raise ConfigError(f"camera_tf needs root and a rigid 4x4 T_root_camera: {e}") from None
+    return parent, root, T @ tf.invert(T_root_camera)
+
+
 def _marker_parent_child(setup: str, frames: dict) -> tuple[str, str]:
     """(parent, child) frame names of the marker-side transform."""
     return (frames["flange"] if setup == Setup.EYE_TO_HAND else frames["base"]), frames["marker"]
@@ -116,16 +137,17 @@ def _transform_dict(T, name: str, parent: str, child: str, cov=None) -> dict:
     return d
 
 
-def ros2_command(result: CalibrationResult, frames: dict | None = None) -> str:
+def ros2_command(result: CalibrationResult, frames: dict | None = None, camera_tf: dict | None = None) -> str:
     """``ros2 run tf2_ros static_transform_publisher ...`` for the camera transform (ROS 2 Humble+ flags).
 
     Like every rigid-only export, it carries the transform for the camera's
-    uncorrected points (`CalibrationResult.camera_transform_raw_points`).
+    uncorrected points (`CalibrationResult.camera_transform_raw_points`);
+    ``camera_tf``: attach the camera driver's tf root instead (`published_transform`).
     """
     check_result(result)
     frames = check_frames(frames)
-    parent, child = _parent_child(result.setup, frames)
-    t, q = tf.to_xyz_quat(result.camera_transform_raw_points)
+    parent, child, T = published_transform(result, frames, camera_tf)
+    t, q = tf.to_xyz_quat(T)
     args = " ".join(f"--{k} {_fmt(v)}" for k, v in zip(("x", "y", "z", "qx", "qy", "qz", "qw"), [*t, *q]))
     return f"ros2 run tf2_ros static_transform_publisher {args} --frame-id {parent} --child-frame-id {child}"
 
@@ -306,12 +328,13 @@ def urdf_joint(result: CalibrationResult, frames: dict | None = None) -> str:
     )
 
 
-def ros2_launch(result: CalibrationResult, frames: dict | None = None) -> str:
-    """A ROS 2 Python launch file starting ``static_transform_publisher`` with the camera transform."""
+def ros2_launch(result: CalibrationResult, frames: dict | None = None, camera_tf: dict | None = None) -> str:
+    """A ROS 2 Python launch file starting ``static_transform_publisher`` with the camera transform
+    (``camera_tf``: to the camera driver's tf root, `published_transform`)."""
     check_result(result)
     frames = check_frames(frames)
-    parent, child = _parent_child(result.setup, frames)
-    t, q = tf.to_xyz_quat(result.camera_transform_raw_points)
+    parent, child, T = published_transform(result, frames, camera_tf)
+    t, q = tf.to_xyz_quat(T)
     args = []
     for k, v in zip(("x", "y", "z", "qx", "qy", "qz", "qw"), [*t, *q]):
         args += [f"--{k}", _fmt(v)]
@@ -336,7 +359,8 @@ def ros2_launch(result: CalibrationResult, frames: dict | None = None) -> str:
     )
 
 
-def write_result(result: CalibrationResult, path, fmt: str = "yaml", frames: dict | None = None) -> Path:
+def write_result(result: CalibrationResult, path, fmt: str = "yaml", frames: dict | None = None,
+                 camera_tf: dict | None = None) -> Path:
     """Write a calibration result in one of `EXPORT_FORMATS`.
 
     Parameters
@@ -351,6 +375,8 @@ def write_result(result: CalibrationResult, path, fmt: str = "yaml", frames: dic
         Python launch file.
     frames : dict, optional
         Frame names (``base``, ``flange``, ``camera``, ``marker``).
+    camera_tf : dict, optional
+        ``ros2_launch`` only: publish to the camera driver's tf root (`published_transform`).
 
     Returns
     -------
@@ -376,6 +402,6 @@ def write_result(result: CalibrationResult, path, fmt: str = "yaml", frames: dic
     elif fmt == "urdf":
         text = urdf_joint(result, frames)
     else:
-        text = ros2_launch(result, frames)
+        text = ros2_launch(result, frames, camera_tf)
     path.write_text(text)
     return path

@@ -24,7 +24,8 @@ from app.formats.common import ImportedSamples
 
 #: Importer modules of `app.formats`, in the order their formats are tried on a file.
 #: opencv_storage comes first: its ``%YAML:1.0`` header is not YAML the others' detectors could parse.
-IMPORTER_MODULES = ("opencv_storage", "pose_csv", "easy_handeye", "industrial", "visp", "image_folder", "moveit")
+IMPORTER_MODULES = ("opencv_storage", "pose_csv", "easy_handeye", "industrial", "visp", "image_folder", "moveit",
+                    "ros2_bag")
 
 
 @dataclass(frozen=True)
@@ -39,22 +40,27 @@ class ImportFormat:
         ``document()`` is the file's YAML (`SessionError` if unreadable).
     open_setup : bool
         The files may leave the setup open: ``load`` then takes ``setup=``.
+    options : tuple of str
+        Keyword options ``load`` takes from the caller's config and command line
+        (e.g. ``frames``, ``target``); `app.devices.import_observations` passes only these.
     """
 
     name: str
     load: Callable[..., ImportedSamples]
     detect: Callable[[Path, Callable[[], object]], bool]
     open_setup: bool = False
+    options: tuple[str, ...] = ()
 
 
 _FORMATS: dict[str, ImportFormat] = {}
 
 
-def register_import(name: str, detect: Callable[[Path, Callable[[], object]], bool], *, open_setup: bool = False):
+def register_import(name: str, detect: Callable[[Path, Callable[[], object]], bool], *, open_setup: bool = False,
+                    options: tuple[str, ...] = ()):
     """Decorator for an importer's ``load``: register it as import format ``name``."""
 
     def decorate(load):
-        _FORMATS[name] = ImportFormat(name, load, detect, open_setup)
+        _FORMATS[name] = ImportFormat(name, load, detect, open_setup, tuple(options))
         return load
 
     return decorate
