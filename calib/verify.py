@@ -383,11 +383,15 @@ def spread_poses(planner, T_start, k: int, rng: np.random.Generator, *, avoid=No
     return chosen
 
 
-def perturbed(T, rotation_deg: float, translation_mm: float, rng: np.random.Generator) -> np.ndarray:
+def perturbed(T, rotation_deg: float, translation_mm: float, rng: np.random.Generator, *, axis=None) -> np.ndarray:
     """``T`` moved by ``translation_mm`` and turned by ``rotation_deg`` about its origin, in random directions
-    (the `calib.result` convention: ``R' = Exp(d) R``, ``t' = t + dt``): a result known to be that far off."""
+    (the `calib.result` convention: ``R' = Exp(d) R``, ``t' = t + dt``): a result known to be that far off.
+
+    ``axis`` (3,), parent frame: the rotation axis instead of a random one (a turn about the camera's
+    viewing axis does not move the marker center it predicts; one across it does)."""
     T = tf.check_transform(T, "T")
-    axis, shift = rng.normal(size=3), rng.normal(size=3)
+    shift = rng.normal(size=3)
+    axis = rng.normal(size=3) if axis is None else np.asarray(axis, dtype=float)
     out = T.copy()
     out[:3, :3] = tf.so3_exp(axis / np.linalg.norm(axis) * np.deg2rad(rotation_deg)) @ T[:3, :3]
     out[:3, 3] = T[:3, 3] + shift / np.linalg.norm(shift) * translation_mm * 1e-3

@@ -157,8 +157,21 @@ def calibrate(cfg: Config, *, resume: Path | None = None, progress: bool = True)
              if report.result is not None else {})
     if "json" in files:
         _add_run_summary(files["json"], report, cfg.calibrate.poses)
+    if report.result is not None:
+        files["report"] = write_run_report(report.result, writer.path, read_session(writer.path).observations,
+                                           cfg.frames.model_dump())
     return CalibrationOutput(report, cfg.setup, cfg.calibrate.method, files, devices.camera_truth(cfg.setup, truth),
                              recording, cfg.frames.model_dump())
+
+
+def write_run_report(result: CalibrationResult, directory: Path, observations, frames: dict | None = None,
+                     warnings: list[str] | None = None) -> Path:
+    """``report.html`` of a calibration (`app.report`) beside its result files."""
+    from app.formats import result_to_dict
+    from app.report import write_report
+
+    return write_report(directory, result_doc=result_to_dict(result, frames), observations=observations,
+                        warnings=warnings)
 
 
 def _add_run_summary(path: Path, report: RunReport, poses: str) -> None:

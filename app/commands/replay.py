@@ -98,14 +98,18 @@ class ReplayOutcome:
 
 
 def write_outputs(outcome: "ReplayOutcome", out_dir: Path, exports, frames: dict | None = None) -> dict:
-    """Write ``outcome.best``'s result into ``out_dir`` in each export format (`app.devices.write_result`),
-    as calibrate writes its session's; returns ``{kind: path}``."""
+    """Write ``outcome.best``'s result into ``out_dir`` in each export format (`app.devices.write_result`)
+    and its ``report.html``, as calibrate writes its session's; returns ``{kind: path}``."""
     out_dir = Path(out_dir)
     try:
         out_dir.mkdir(parents=True, exist_ok=True)
     except OSError as e:
         raise SessionError(f"--out {out_dir}: cannot create ({e.strerror})") from None
-    return devices.write_result(outcome.best.result, out_dir, exports, frames)
+    from app.commands.calibrate import write_run_report
+
+    files = devices.write_result(outcome.best.result, out_dir, exports, frames)
+    files["report"] = write_run_report(outcome.best.result, out_dir, outcome.observations, frames, outcome.warnings)
+    return files
 
 
 def replay_source(source: Path, methods: list[str], *, refine: bool = False, robust: bool = False,

@@ -19,9 +19,10 @@ SEEDED = ["easy_handeye2", "easy_handeye", "visp", "opencv_storage", "moveit_cal
 
 
 def check_outputs(out: Path, capsys) -> dict:
-    """Every export of RESULT_FILES is in ``out``, the printed table names them; returns result.yaml."""
+    """Every export of RESULT_FILES and report.html are in ``out``, the printed table names them; returns
+    result.yaml."""
     printed = capsys.readouterr().out
-    for kind, name in RESULT_FILES.items():
+    for kind, name in {**RESULT_FILES, "report": "report.html"}.items():
         assert (out / name).is_file() and (out / name).stat().st_size > 0, kind
         assert f"| {kind} | {out / name} |" in printed
     doc = yaml.safe_load((out / "result.yaml").read_text())
