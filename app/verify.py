@@ -150,7 +150,8 @@ def models_of(doc: dict, path) -> tuple[cv.VerifiedModel, cv.VerifiedModel | Non
         setup, X, Y, CameraCorrection(**values),
         point_scale=_number(noise.get("camera_point_scale"), "model.noise.camera_point_scale", path, 1.0),
         robot_sigma_m=_number(noise.get("robot_mm"), "model.noise.robot_mm", path, 0.0) * 1e-3,
-        rotation_sigma_rad=None if rot is None else np.deg2rad(_number(rot, "model.noise.marker_rotation_deg", path, 0)),
+        rotation_sigma_rad=None if rot is None else
+        np.deg2rad(_number(rot, "model.noise.marker_rotation_deg", path, 0.0)),
         marker_rotation_known=bool((doc.get("marker_transform") or {}).get("rotation_known", True)),
         method=str(doc.get("solver", "")))
     rigid = None

@@ -322,8 +322,8 @@ def frame_safety(camera_transform, setup: str, expected_xyz, *, tolerance_m: flo
     warnings = []
     if d > tolerance_m and d_inv < d:
         warnings.append(f"the inverse of {name} fits the expected position better ({d_inv * 1e3:.0f} mm against "
-                        f"{d * 1e3:.0f} mm): the transform is probably inverted (a tool that wants the other direction, "
-                        f"e.g. T_cam_base instead of T_base_cam)")
+                        f"{d * 1e3:.0f} mm): the transform is probably inverted (a tool that wants the other "
+                        "direction, e.g. T_cam_base instead of T_base_cam)")
     elif d > tolerance_m:
         warnings.append(f"{name} is {d * 1e3:.0f} mm from the expected position (more than "
                         f"{tolerance_m * 1e3:.0f} mm): check the prior, the setup (eye_to_hand/eye_in_hand) and "

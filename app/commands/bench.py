@@ -18,6 +18,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="run only the input fuzz campaign (app.benchmarks.fuzz: solver API, configs, sessions, imports; minutes)")
     p.add_argument("--plan", action="store_true", help="run only the pose-planning benchmark (app.benchmarks.plan; "
                    "other arguments go to it)")
+    p.add_argument("--verify", action="store_true",
+                   help="only the handeye verify benchmark on the simulated cell (app.benchmarks.verify; about a minute)")
     p.add_argument("--model", action="store_true",
                    help="only the measurement-model / solve('auto') benchmark (app.benchmarks.model; --quick passes through)")
 
@@ -35,6 +37,10 @@ def run(args) -> int:
         from app.benchmarks import plan
 
         return int(plan.main(args.extra) or 0)
+    if args.verify:
+        from app.benchmarks import verify
+
+        return int(verify.main(args.extra) or 0)
     if args.model:
         from app.benchmarks import model
 

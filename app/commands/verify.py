@@ -60,8 +60,11 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--setup", choices=["eye_to_hand", "eye_in_hand"], help="--session: setup of an imported file")
     add_run_options(p)
     p.add_argument("--yes-move", action="store_true", help="allow robot motion without the confirmation prompt")
-    p.add_argument("--poses", type=int, help="active: number of verification poses (overrides verify.poses)")
-    p.add_argument("--seed", type=int, help="seed of the verification poses (overrides verify.seed)")
+    # (dest: calibrate's --poses names a pose source, which the shared config overrides read as args.poses)
+    p.add_argument("--poses", type=int, dest="verify_poses",
+                   help="active: number of verification poses (overrides verify.poses)")
+    p.add_argument("--seed", type=int, dest="verify_seed",
+                   help="seed of the verification poses (overrides verify.seed)")
     p.add_argument("--tolerance", type=tolerance, metavar="MM,DEG",
                    help="pass/fail tolerances (override verify.tolerance_mm/_deg)")
     p.add_argument("--expect-xyz", type=expect_xyz, metavar="X,Y,Z",
@@ -74,10 +77,10 @@ def _config(args):
 
     cfg = load_config_args(args)
     ver = {}
-    if args.poses is not None:
-        ver["poses"] = args.poses
-    if args.seed is not None:
-        ver["seed"] = args.seed
+    if args.verify_poses is not None:
+        ver["poses"] = args.verify_poses
+    if args.verify_seed is not None:
+        ver["seed"] = args.verify_seed
     if args.tolerance is not None:
         ver["tolerance_mm"], ver["tolerance_deg"] = args.tolerance
     data = cfg.model_dump()
@@ -177,7 +180,8 @@ def print_verify_summary(doc: dict, path: Path, report: Path) -> None:
         print(f"| ROS/URDF export (raw points): calibration error [mm] | {r['calibration_error_mm']:.2f} "
               f"({'pass' if r['passed'] else 'FAIL'}) |")
     if "truth" in doc:
-        print(f"| true calibration error over these poses [mm] (simulator) | {doc['truth']['calibration_error_mm']:.2f} |")
+        print("| true calibration error over these poses [mm] (simulator) | "
+              f"{doc['truth']['calibration_error_mm']:.2f} |")
     print(f"| verify.yaml | {path} |\n| report | {report} |")
     if not v["noise_removed"]:
         print("note: the samples carry no covariance: the calibration error is the observed RMS, noise included")
