@@ -3,11 +3,12 @@
 Eye-to-hand: ``X = T_flange_marker``, ``Y = T_base_cam``; eye-in-hand:
 ``X = T_flange_cam``, ``Y = T_base_marker`` (paper eq. 1). The judging is
 `calib.verify`'s; this module reads ``result.yaml`` (`load_result`), picks and
-visits the poses (`verify_active`), and writes ``verify.yaml`` (`write_verify`).
+visits the poses (`verify_active`) or samples read-only while production moves
+the robot (`verify_passive`), and writes ``verify.yaml`` (`write_verify`).
 
 ``verify.yaml``::
 
-    format: handeye-verify, version: 1, setup, equation, mode (active | offline),
+    format: handeye-verify, version: 1, setup, equation, mode (active | passive | offline),
     result: {path, solver, camera_transform (name), camera_transform_raw_points present}
     source: the session verified against (offline) or recorded (active)
     verification: calib.verify.Verification.to_dict() (mm, deg; passed)
@@ -230,7 +231,8 @@ def verify_poses(cfg: Config, model: cv.VerifiedModel, T_start: np.ndarray, q_st
 
 @dataclass
 class VerifyRun:
-    """What an active verification recorded: the session, the per-pose observations (frames averaged)."""
+    """What an active (or passive) verification recorded: the session, the per-pose observations (frames
+    averaged; passive: one frame each), the poses planned (passive: wanted)."""
 
     session: Path
     observations: list[Observation]
@@ -296,6 +298,27 @@ def verify_active(cfg: Config, loaded: LoadedResult, *, rng: np.random.Generator
         bias = CameraCorrection(depth_scale=noise.depth_scale, depth_offset=noise.depth_offset_m)
     return VerifyRun(writer.path, average_frames(observations, groups), len(poses), n_skipped, truth, bias,
                      interrupted)
+
+
+def verify_passive(cfg: Config, loaded: LoadedResult, *, progress: bool = False) -> VerifyRun:
+    """Sample read-only while something else moves the robot (`app.commands.monitor.monitor`: a still robot,
+    a pose unlike the recent ones), until ``[verify] poses`` samples or ``monitor.duration_s``; on the simulated
+    cell its controller runs the production program. The samples are recorded in a new session."""
+    from app.commands.monitor import monitor
+    from app.config import config_from_dict
+
+    if loaded.model.setup != cfg.setup:
+        raise SessionError(f"{loaded.path} is an {loaded.model.setup} result, the config is {cfg.setup}")
+    data = cfg.model_dump()
+    data["monitor"]["max_samples"] = cfg.verify.poses
+    cfg = config_from_dict(data, "verify --passive")
+    report = monitor(cfg, progress=progress, publish=lambda *_: None)
+    session = read_session(report.session)
+    bias = None
+    noise = getattr(cfg.camera, "noise", None)
+    if session.truth and noise is not None:
+        bias = CameraCorrection(depth_scale=noise.depth_scale, depth_offset=noise.depth_offset_m)
+    return VerifyRun(report.session, session.observations, cfg.verify.poses, report.n_skipped, session.truth, bias)
 
 
 def verify_document(loaded: LoadedResult, mode: str, source: Path, verification: cv.Verification,

@@ -3,7 +3,8 @@
 Active (default; ``-c cell.toml``, or the embedded simulated cell): move to
 ``[verify] poses`` fresh planned poses spread over the ``[calibrate]`` region,
 never the calibration's, measure the marker there and compare it with the one
-the result predicts. Offline (``--session S``): the same against another
+the result predicts. Passive (``--passive``): the same on samples taken
+read-only while production moves the robot (the monitor's sampling). Offline (``--session S``): the same against another
 recorded session or an imported file (the cross-session check). Either way:
 pass/fail against ``[verify] tolerance_mm / tolerance_deg`` (``--tolerance``),
 exit status 0 (pass) or 4 (fail), ``verify.yaml`` and ``report.html`` in the
@@ -58,6 +59,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--session", type=Path, help="offline: verify against this recorded session or imported file "
                    "instead of moving the robot")
     p.add_argument("--setup", choices=["eye_to_hand", "eye_in_hand"], help="--session: setup of an imported file")
+    p.add_argument("--passive", action="store_true", help="read-only: sample while production moves the robot "
+                   "(as monitor: still robot, a pose unlike the recent ones) until verify.poses samples or "
+                   "monitor.duration_s; never moves the robot")
     add_run_options(p)
     p.add_argument("--yes-move", action="store_true", help="allow robot motion without the confirmation prompt")
     # (dest: calibrate's --poses names a pose source, which the shared config overrides read as args.poses)
@@ -94,6 +98,8 @@ def run(args) -> int:
     from app.session import read_session
     from calib import verify as cv
 
+    if args.passive and args.session is not None:
+        raise HandeyeError("--passive samples the cell, --session verifies against a recording: give one of them")
     cfg = _config(args)
     loaded = av.load_result(args.result)
     rng = np.random.default_rng(cfg.verify.seed)
@@ -102,9 +108,12 @@ def run(args) -> int:
         observations, source, mode = _offline_samples(args.session, args.setup, loaded), args.session, "offline"
         out_dir = _new_dir(cfg.session.root, loaded.model.setup)
     else:
-        confirm_motion(args.yes_move)
-        run_ = av.verify_active(cfg, loaded, rng=rng)
-        observations, source, mode, out_dir = run_.observations, run_.session, "active", run_.session
+        if args.passive:
+            run_, mode = av.verify_passive(cfg, loaded), "passive"
+        else:
+            confirm_motion(args.yes_move)
+            run_, mode = av.verify_active(cfg, loaded, rng=rng), "active"
+        observations, source, out_dir = run_.observations, run_.session, run_.session
         if run_.truth:
             truth_mm = av.true_error_mm(loaded, observations, run_.truth, run_.camera_bias)
         if run_.interrupted:

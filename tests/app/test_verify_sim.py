@@ -64,3 +64,22 @@ def test_demo_result_verified_on_fresh_poses(sim_config, loopback, tmp_path, cap
                       rng=np.random.default_rng(0))
         truth = av.true_error_mm(shifted, ver.observations, ver.truth)
         assert not w.passed and w.calibration_mm == pytest.approx(truth, rel=0.2), (w.calibration_mm, truth)
+
+
+def test_passive_verification_samples_while_production_moves_the_robot(sim_config, loopback, tmp_path, capsys):
+    """--passive: a read-only connection (the driver refuses motion), samples while the simulated
+    controller runs its production program; no motion consent asked for."""
+    out = demo(sim_config(loopback(64), samples=12), progress=False)
+    toml = tmp_path / "cell.toml"
+    toml.write_text(Path("config/sim.toml").read_text().replace('host = "127.0.0.2"', f'host = "{loopback(65)}"'))
+    root = tmp_path / "verify"
+    rc = main(["verify", "-c", str(toml), "--result", str(out.report.session / "result.yaml"), "--passive",
+               "--no-viz", "--session-root", str(root), "--poses", "6"])
+    printed, err = capsys.readouterr()
+    assert rc == 0, printed + err
+    vdir = next(root.iterdir())
+    doc = yaml.safe_load((vdir / "verify.yaml").read_text())
+    assert doc["mode"] == "passive" and doc["verification"]["n_poses"] == 6 and doc["verification"]["passed"]
+    assert read_session(vdir).header["source"] == "handeye monitor"
+    assert doc["truth"]["calibration_error_mm"] < 1.0 and doc["verification"]["calibration_error_mm"] < 1.0
+    assert main(["verify", "--result", str(out.report.session), "--passive", "--session", str(vdir)]) == 1
