@@ -427,7 +427,7 @@ def print_model_summary(res: CalibrationResult) -> None:
 
 
 def print_next_steps(out: CalibrationOutput) -> None:
-    """How to look at the run (rerun) and use its result (ROS 2), as commands to paste."""
+    """How to look at the run (rerun), use its result (ROS 2) and verify it, as commands to paste."""
     from app.formats import ros2_command
     from app.viz import open_command
 
@@ -436,3 +436,6 @@ def print_next_steps(out: CalibrationOutput) -> None:
         print(f"open the recording:  {open_command(out.recording)}")
     if out.report.result is not None:
         print(f"publish in ROS 2:    {ros2_command(out.report.result, out.frames)}")
+    if "yaml" in out.files:
+        # The same -c as this run (the embedded simulated cell without one).
+        print(f"verify on fresh poses: handeye verify [-c <config>] --result {out.files['yaml']}")
