@@ -131,6 +131,8 @@ def models_of(doc: dict, path) -> tuple[cv.VerifiedModel, cv.VerifiedModel | Non
     if not isinstance(mdl, dict):
         raise SessionError(f"{path}: model must be a table")
     cc = mdl.get("camera_correction") or {}
+    if not isinstance(cc, dict):
+        raise SessionError(f"{path}: model.camera_correction must be a table")
     unit = {"depth_scale": ("depth_scale_percent", 1e-2), "depth_offset": ("depth_offset_mm", 1e-3),
             "focal_scale": ("focal_scale_percent", 1e-2)}
     values = {}
@@ -147,14 +149,17 @@ def models_of(doc: dict, path) -> tuple[cv.VerifiedModel, cv.VerifiedModel | Non
     if not isinstance(noise, dict):
         raise SessionError(f"{path}: model.noise must be a table")
     rot = noise.get("marker_rotation_deg")
-    model = cv.VerifiedModel(
-        setup, X, Y, CameraCorrection(**values),
-        point_scale=_number(noise.get("camera_point_scale"), "model.noise.camera_point_scale", path, 1.0),
-        robot_sigma_m=_number(noise.get("robot_mm"), "model.noise.robot_mm", path, 0.0) * 1e-3,
-        rotation_sigma_rad=None if rot is None else
-        np.deg2rad(_number(rot, "model.noise.marker_rotation_deg", path, 0.0)),
-        marker_rotation_known=bool((doc.get("marker_transform") or {}).get("rotation_known", True)),
-        method=str(doc.get("solver", "")))
+    try:
+        model = cv.VerifiedModel(
+            setup, X, Y, CameraCorrection(**values),
+            point_scale=_number(noise.get("camera_point_scale"), "model.noise.camera_point_scale", path, 1.0),
+            robot_sigma_m=_number(noise.get("robot_mm"), "model.noise.robot_mm", path, 0.0) * 1e-3,
+            rotation_sigma_rad=None if rot is None else
+            np.deg2rad(_number(rot, "model.noise.marker_rotation_deg", path, 0.0)),
+            marker_rotation_known=bool(doc["marker_transform"].get("rotation_known", True)),
+            method=str(doc.get("solver", "")))
+    except CalibrationError as e:
+        raise SessionError(f"{path}: model: {e}") from None
     rigid = None
     if "camera_transform_raw_points" in doc:
         rigid = model.rigid_export(_matrix(doc, "camera_transform_raw_points.matrix", path))

@@ -31,6 +31,8 @@ from calib.model import CameraCorrection
 from calib.result import CalibrationResult
 from calib.setup import Setup, check_setup
 
+#: Largest camera correction a model may carry (depth and focal scale as fractions, depth offset in m).
+MAX_CORRECTION = 0.5
 #: Fewest poses a verification judges (a p95 and an interval need a handful).
 MIN_POSES = 3
 #: Bootstrap resamples of the 95 % interval of the calibration error.
@@ -80,6 +82,11 @@ class VerifiedModel:
             v = getattr(self, name)
             if not (np.isfinite(v) and v >= 0):
                 raise CalibrationError(f"{name} must be a finite number >= 0, got {v!r}")
+        c = self.correction.as_array()
+        # A scale of -100 % would divide by zero; no camera is off by half its range.
+        if not (np.isfinite(c).all() and np.all(np.abs(c) < MAX_CORRECTION)):
+            raise CalibrationError(f"correction (depth scale, depth offset m, focal scale) must be finite and "
+                                   f"within +-{MAX_CORRECTION}, got {c.tolist()}")
 
     @property
     def camera_transform(self) -> np.ndarray:

@@ -6,7 +6,9 @@ import numpy as np
 import pytest
 import yaml
 
+from app import verify as av
 from app.cli import main
+from app.errors import SessionError
 from app.report import PLOT_CLASS
 from app.session import SessionWriter
 from calib import simulate
@@ -128,3 +130,64 @@ def test_the_browser_check_sees_console_errors_and_missing_plots(tmp_path, rende
     dom, console = render_page(page)
     assert len(console) == 2 and "nope is not defined" in console[1]
     assert not re.findall(rf'<div class="{PLOT_CLASS}" data-title="([^"]+)"><h3>[^<]*</h3><svg', dom)
+
+
+RESULT_PATHS = [("setup",), ("camera_transform",), ("camera_transform", "matrix"), ("camera_transform", "matrix", 0),
+                ("camera_transform", "matrix", 1, 3), ("marker_transform", "matrix", 2), ("marker_transform",),
+                ("marker_transform", "rotation_known"), ("camera_transform_raw_points", "matrix"), ("model",),
+                ("model", "noise"), ("model", "noise", "camera_point_scale"), ("model", "noise", "robot_mm"),
+                ("model", "noise", "marker_rotation_deg"), ("model", "camera_correction"),
+                ("model", "camera_correction", "depth_scale_percent"),
+                ("model", "camera_correction", "depth_offset_mm", "value"), ("format",)]
+
+
+@pytest.fixture(scope="module")
+def result_doc(tmp_path_factory):
+    """A result.yaml of auto with a camera correction and a noise model (every field load_result reads)."""
+    from app.formats import write_result
+    from calib import solve
+
+    d = simulate.realistic_cell(30, np.random.default_rng(5))
+    path = write_result(solve("auto", d.A, d.points * 1.02), tmp_path_factory.mktemp("res") / "result.yaml")
+    doc = yaml.safe_load(path.read_text())
+    assert doc["model"]["camera_correction"]["depth_scale_percent"]["estimated"]
+    return doc
+
+
+def test_every_result_field_damaged_is_a_session_error_or_loads(result_doc, tmp_path):
+    """Any value anywhere in result.yaml: a SessionError naming the file, or a model that judges finitely."""
+    from hypothesis import HealthCheck, given, settings
+    from hypothesis import strategies as st
+
+    values = st.recursive(st.none() | st.booleans() | st.integers(-2**70, 2**70) | st.floats() | st.text(max_size=5),
+                          lambda inner: st.lists(inner, max_size=4) | st.dictionaries(st.text(max_size=3), inner,
+                                                                                       max_size=3), max_leaves=12)
+
+    @settings(max_examples=60, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
+    @given(where=st.sampled_from(RESULT_PATHS), value=values)
+    def check(where, value):
+        import copy
+
+        doc = copy.deepcopy(result_doc)
+        node = doc
+        for k in where[:-1]:
+            node = node[k]
+        node[where[-1]] = value
+        path = tmp_path / "result.yaml"
+        path.write_text(yaml.safe_dump(doc))
+        try:
+            loaded = av.load_result(path)
+        except SessionError as e:
+            assert str(path) in str(e)
+            return
+        d = simulate.realistic_cell(5, np.random.default_rng(1))
+        e = cv.prediction_errors(loaded.model, d.A, d.points, d.point_cov)
+        assert np.isfinite(e.translation).all() and np.isfinite(e.noise_var).all()
+
+    check()
+    # A depth scale of -100 % (a division by zero for the correction) is refused by name.
+    doc = yaml.safe_load(yaml.safe_dump(result_doc))
+    doc["model"]["camera_correction"]["depth_scale_percent"]["value"] = -100.0
+    (tmp_path / "r.yaml").write_text(yaml.safe_dump(doc))
+    with pytest.raises(SessionError, match="correction"):
+        av.load_result(tmp_path / "r.yaml")
