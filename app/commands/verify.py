@@ -65,9 +65,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     add_run_options(p)
     p.add_argument("--yes-move", action="store_true", help="allow robot motion without the confirmation prompt")
     # (dest: calibrate's --poses names a pose source, which the shared config overrides read as args.poses)
-    p.add_argument("--poses", type=int, dest="verify_poses",
+    p.add_argument("--poses", type=int, dest="verify_poses", metavar="K",
                    help="active: number of verification poses (overrides verify.poses)")
-    p.add_argument("--seed", type=int, dest="verify_seed",
+    p.add_argument("--seed", type=int, dest="verify_seed", metavar="SEED",
                    help="seed of the verification poses (overrides verify.seed)")
     p.add_argument("--tolerance", type=tolerance, metavar="MM,DEG",
                    help="pass/fail tolerances (override verify.tolerance_mm/_deg)")
