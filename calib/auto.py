@@ -547,9 +547,11 @@ def _blocked_choice(best: _Candidate, free, A, B, shape, setup, has_rotation: bo
     taken. Last, the closed-form start, solved again without each stretch:
     if it predicts them better by `START_GAIN`, it is reported (its
     covariance that of the plain model at its estimate), so that ``auto``
-    does not carry worse to another session than where it started. Returns ``(best, free, note or None, report)``; ``report`` (for
-    ``info["blocked_folds"]``): the number of folds, each candidate's held-out
-    RMS (m), and what decided.
+    does not carry worse to another session than where it started.
+
+    Returns ``(best, free, note or None, report)``; ``report`` (for
+    ``info["blocked_folds"]``): the number of folds, each candidate's
+    held-out RMS (m), and what decided.
     """
     folds = blocked_folds(len(A))
     free = np.asarray(free, dtype=bool)
