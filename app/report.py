@@ -268,6 +268,12 @@ def write_report(directory: Path, *, result_doc: dict, observations: list[Observ
     if check:
         rows.append(["leave-one-out over the calibration samples (camera frame)",
                      f"{check['heldout_observed_mm']:.2f}", f"{check['heldout_predicted_mm']:.2f}"])
+    for c in (mdl.get("blocked_folds") or {}).get("candidates", []):
+        what = (f"closed form {c['closed_form']}" if "closed_form" in c else
+                ("points + orientations" if c["orientations"] else "points") + ", camera correction: "
+                + (", ".join(c["camera_correction"]) or "none"))
+        rows.append([f"contiguous stretches held out in turn ({mdl['blocked_folds']['folds']} folds): {what}",
+                     f"{c['heldout_mm']:.2f}", "-"])
     if verify_doc is not None:
         v = verify_doc["verification"]
         rows.append([f"verification poses ({verify_doc['mode']}, base frame, observed RMS)",

@@ -945,7 +945,9 @@ def report(result: CalibrationResult) -> dict | None:
     (`CalibrationResult.camera_transform_raw_points`); noise levels: camera point covariance scale,
     robot flange error (mm), marker orientation (deg); self-check: chi-square
     against the camera's a-priori model and the held-out (leave-one-out)
-    prediction error of the marker point, observed and predicted (mm).
+    prediction error of the marker point, observed and predicted (mm);
+    blocked folds (from `MIN_SAMPLES_BLOCKED` samples): each candidate
+    model's error on the contiguous stretches held out (mm) and what decided.
     """
     info = result.info
     check = info.get("self_check")
@@ -982,6 +984,12 @@ def report(result: CalibrationResult) -> dict | None:
             "consistent": check["consistent"],
             "warning": check["warning"],
         }
+    blocked = info.get("blocked_folds")
+    if blocked:
+        out["blocked_folds"] = {
+            "folds": blocked["folds"], "chosen_by": blocked["chosen_by"],
+            "candidates": [{**{k: v for k, v in c.items() if k != "heldout_m"}, "heldout_mm": c["heldout_m"] * 1e3}
+                           for c in blocked["candidates"]]}
     if info.get("notes"):
         out["notes"] = list(info["notes"])
     return out

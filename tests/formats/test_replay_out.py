@@ -46,6 +46,10 @@ def test_replay_out_on_the_real_recordings(source, setup, n, tmp_path, capsys):
     assert main(["replay", str(source), "--out", str(tmp_path / "out")]) == 0
     doc = check_outputs(tmp_path / "out", capsys)
     assert doc["setup"] == setup and (n is None or doc["n_samples"] == n)
+    if n is None:
+        # A long stream: auto's choices were checked on contiguous stretches, which result and report show.
+        assert doc["model"]["blocked_folds"]["folds"] == 5
+        assert "contiguous stretches held out in turn" in (tmp_path / "out" / "report.html").read_text()
 
 
 def test_replay_out_writes_the_recommended_of_several(tmp_path, capsys):
