@@ -22,7 +22,8 @@ venv: $(STAMP)
 # libusb-1.0-0: open3d. libopenni2-0: the OpenNI2 camera driver (its dummy device is tested).
 SYSLIBS := libusb-1.0.so.0:libusb-1.0-0 libOpenNI2.so.0:libopenni2-0
 # mosquitto: the MQTT broker the alarm tests publish through (real broker on loopback).
-SYSBINS := /usr/sbin/mosquitto:mosquitto
+# chromium: the headless browser the report tests render report.html in.
+SYSBINS := /usr/sbin/mosquitto:mosquitto /usr/bin/chromium:chromium
 
 sysdeps:
 	@missing=""; for pair in $(SYSLIBS); do \

@@ -295,6 +295,23 @@ class ConsoleConfig(Params):
 
     progress: Literal["auto", "bar", "lines"] = "auto"
     status_every: PositiveInt = 20
+class VerifyConfig(Params):
+    """``[verify]``: ``handeye verify`` (`app.verify`).
+
+    A result passes when its error in the base frame, the measurement noise
+    removed (`calib.verify`), is within ``tolerance_mm`` and, where the marker
+    orientation is measured, ``tolerance_deg``. The active mode moves to
+    ``poses`` fresh planned poses spread over the ``[calibrate]`` region, each at
+    least ``min_separation_m`` from every calibration pose, each measured as the
+    mean of ``frames_per_pose`` frames.
+    """
+
+    tolerance_mm: PositiveFloat = 2.0
+    tolerance_deg: PositiveFloat = 1.0
+    poses: Annotated[PositiveInt, Field(ge=3, le=200)] = 12
+    min_separation_m: NonNegativeFloat = 0.03
+    frames_per_pose: Annotated[PositiveInt, Field(le=20)] = 3
+    seed: NonNegativeInt = 1
 
 
 class SessionConfig(Params):
@@ -407,6 +424,7 @@ class Config(Params):
     calibrate: CalibrateConfig = Field(default_factory=CalibrateConfig)
     monitor: MonitorConfig = Field(default_factory=MonitorConfig)
     session: SessionConfig = Field(default_factory=SessionConfig)
+    verify: VerifyConfig = Field(default_factory=VerifyConfig)
     viz: VizConfig = Field(default_factory=VizConfig)
     frames: FramesConfig = Field(default_factory=FramesConfig)
     mqtt: MqttConfig = Field(default_factory=MqttConfig)

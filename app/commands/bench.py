@@ -20,6 +20,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    "other arguments go to it)")
     p.add_argument("--shift", action="store_true",
                    help="only the production-shift benchmark of the monitoring engine (app.benchmarks.shift; --seeds, --hours)")
+    p.add_argument("--verify", action="store_true",
+                   help="only the handeye verify benchmark on the simulated cell (app.benchmarks.verify; about a minute)")
+    p.add_argument("--cross-session", action="store_true",
+                   help="only the cross-session prediction on the real recordings (app.benchmarks.crosssession)")
     p.add_argument("--model", action="store_true",
                    help="only the measurement-model / solve('auto') benchmark (app.benchmarks.model; --quick passes through)")
     p.add_argument("--bag", action="store_true",
@@ -46,6 +50,14 @@ def run(args) -> int:
         from app.benchmarks import shift
 
         return int(shift.main(args.extra) or 0)
+    if args.cross_session:
+        from app.benchmarks import crosssession
+
+        return int(crosssession.main(args.extra) or 0)
+    if args.verify:
+        from app.benchmarks import verify
+
+        return int(verify.main(args.extra) or 0)
     if args.model:
         from app.benchmarks import model
 

@@ -157,8 +157,21 @@ def calibrate(cfg: Config, *, resume: Path | None = None, progress: bool = True)
              if report.result is not None else {})
     if "json" in files:
         _add_run_summary(files["json"], report, cfg.calibrate.poses)
+    if report.result is not None:
+        files["report"] = write_run_report(report.result, writer.path, read_session(writer.path).observations,
+                                           cfg.frames.model_dump())
     return CalibrationOutput(report, cfg.setup, cfg.calibrate.method, files, devices.camera_truth(cfg.setup, truth),
                              recording, cfg.frames.model_dump())
+
+
+def write_run_report(result: CalibrationResult, directory: Path, observations, frames: dict | None = None,
+                     warnings: list[str] | None = None) -> Path:
+    """``report.html`` of a calibration (`app.report`) beside its result files."""
+    from app.formats import result_to_dict
+    from app.report import write_report
+
+    return write_report(directory, result_doc=result_to_dict(result, frames), observations=observations,
+                        warnings=warnings)
 
 
 def _add_run_summary(path: Path, report: RunReport, poses: str) -> None:
@@ -414,7 +427,7 @@ def print_model_summary(res: CalibrationResult) -> None:
 
 
 def print_next_steps(out: CalibrationOutput) -> None:
-    """How to look at the run (rerun) and use its result (ROS 2), as commands to paste."""
+    """How to look at the run (rerun), use its result (ROS 2) and verify it, as commands to paste."""
     from app.formats import ros2_command
     from app.viz import open_command
 
@@ -423,3 +436,6 @@ def print_next_steps(out: CalibrationOutput) -> None:
         print(f"open the recording:  {open_command(out.recording)}")
     if out.report.result is not None:
         print(f"publish in ROS 2:    {ros2_command(out.report.result, out.frames)}")
+    if "yaml" in out.files:
+        # The same -c as this run (the embedded simulated cell without one).
+        print(f"verify on fresh poses: handeye verify [-c <config>] --result {out.files['yaml']}")

@@ -43,7 +43,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    "industrial_calibration, pose-stream CSV, ViSP, image folder, OpenCV FileStorage YAML, "
                    "MoveIt Calibration samples, ROS 2 bag)")
     p.add_argument("-m", "--method", action="append", dest="methods",
-                   help="solver (repeatable); default YKronT' and YQuatT'; 'all' for every solver")
+                   help="solver (repeatable); default 'auto', as calibrate; 'all' for every solver")
     p.add_argument("--refine", action="store_true", help="refine each solution (nonlinear least squares)")
     p.add_argument("--robust", action="store_true", help="reject outliers")
     p.add_argument("--setup", choices=[s.value for s in Setup], help="setup of an imported file")
@@ -53,7 +53,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--topics", help="ROS 2 bag: color=TOPIC,depth=TOPIC,info=TOPIC,marker=TOPIC where it has several")
     p.add_argument("-c", "--config", type=Path, help="config whose calibrate.target_sigma_mm/_deg the 1-sigma "
                    "warnings use (default targets: 3 mm, 0.2 deg), and whose robot's kinematic_error auto adds "
-                   "as shared by the samples (sessions with joints)")
+                   "as shared by the samples (sessions with joints), and whose session.exports and [frames] "
+                   "--out uses")
+    p.add_argument("--out", type=Path, metavar="DIR", help="write the result files, exports and report.html "
+                   "of the recommended solver into DIR, as calibrate writes them into its session")
     p.add_argument("--monitor", action="store_true", help="stream the session through the monitoring engine "
                    "(alarms, monitor_trace.csv and a plot in --trace-dir); needs --reference")
     p.add_argument("--reference", type=Path, help="--monitor: calibration session (or its result.yaml) that arms "
@@ -62,14 +65,16 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def run(args) -> int:
-    methods = args.methods or ["YKronT'", "YQuatT'"]
+    methods = args.methods or ["auto"]
     target, shared_error, cfg = (0.0, 0.0), None, None
+    exports, frames = list(devices.RESULT_FILES), None
     if args.config is not None:
         from app.config import load_config
 
         cfg = load_config(args.config)
         target = (cfg.calibrate.target_sigma_mm, cfg.calibrate.target_sigma_deg)
         shared_error = devices.open_robot(cfg, read_only=True).shared_error_factor   # a model only: never connected
+        exports, frames = cfg.session.exports, cfg.frames.model_dump()
     if args.monitor:
         from app.monitor_replay import replay_monitor, summary
 
@@ -77,24 +82,64 @@ def run(args) -> int:
             raise SessionError("replay --monitor needs --reference: the calibration session (or its result.yaml) "
                                "the production session is judged against")
         rep = replay_monitor(args.source, args.reference, args.trace_dir or args.source / "monitor_replay",
-                             settings=None if cfg is None else cfg.monitor.engine, shared_error=shared_error, rng=np.random.default_rng(args.seed))
+                             settings=None if cfg is None else cfg.monitor.engine, shared_error=shared_error,
+                             rng=np.random.default_rng(args.seed))
         print(summary(rep))
         return 3 if any(a["alarm"] == "moved" for a in rep.alarms) else 0
-    print(replay_source(args.source, methods, refine=args.refine, robust=args.robust, setup=args.setup,
-                        rng=np.random.default_rng(args.seed), target_mm=target[0], target_deg=target[1],
-                        shared_error=shared_error,
-                        import_options=devices.import_options(cfg, frames=args.frames, topics=args.topics)))
+    outcome = replay_source(args.source, methods, refine=args.refine, robust=args.robust, setup=args.setup,
+                            rng=np.random.default_rng(args.seed), target_mm=target[0], target_deg=target[1],
+                            shared_error=shared_error,
+                            import_options=devices.import_options(cfg, frames=args.frames, topics=args.topics))
+    print(outcome.text)
+    if args.out is not None:
+        files = write_outputs(outcome, args.out, exports, frames)
+        print("\n| output | file |\n|---|---|")
+        for kind, path in files.items():
+            print(f"| {kind} | {path} |")
     return 0
+
+
+@dataclass
+class ReplayOutcome:
+    """What `replay_source` found: the printed report, the rows, and what `write_outputs` needs.
+
+    ``text``: tables and advice; ``best``: the row whose result ``--out`` writes (the recommended one,
+    else the first that solved); ``truth``: the recorded camera truth (4, 4) or None.
+    """
+
+    text: str
+    rows: list
+    best: object
+    observations: list
+    setup: Setup
+    source: Path
+    warnings: list
+    truth: np.ndarray | None = None
+
+
+def write_outputs(outcome: "ReplayOutcome", out_dir: Path, exports, frames: dict | None = None) -> dict:
+    """Write ``outcome.best``'s result into ``out_dir`` in each export format (`app.devices.write_result`)
+    and its ``report.html``, as calibrate writes its session's; returns ``{kind: path}``."""
+    out_dir = Path(out_dir)
+    try:
+        out_dir.mkdir(parents=True, exist_ok=True)
+    except OSError as e:
+        raise SessionError(f"--out {out_dir}: cannot create ({e.strerror})") from None
+    from app.commands.calibrate import write_run_report
+
+    files = devices.write_result(outcome.best.result, out_dir, exports, frames)
+    files["report"] = write_run_report(outcome.best.result, out_dir, outcome.observations, frames, outcome.warnings)
+    return files
 
 
 def replay_source(source: Path, methods: list[str], *, refine: bool = False, robust: bool = False,
                   setup: Setup | None = None, rng: np.random.Generator | None = None,
                   target_mm: float = 0.0, target_deg: float = 0.0, shared_error=None,
-                  import_options: dict | None = None) -> str:
-    """Re-solve a session directory or an imported file with each method; returns the report: the
-    tables grouped by what the solvers use and sorted by held-out error, then the advice
-    (`advice`; ``target_mm``/``target_deg`` are the config's 1-sigma targets; ``shared_error``: `replay`;
-    ``import_options``: `app.devices.import_options`)."""
+                  import_options: dict | None = None) -> ReplayOutcome:
+    """Re-solve a session directory or an imported file with each method; returns the outcome whose
+    ``text`` is the report: the tables grouped by what the solvers use and sorted by held-out error, then
+    the advice (`advice`; ``target_mm``/``target_deg`` are the config's 1-sigma targets; ``shared_error``:
+    `replay`; ``import_options``: `app.devices.import_options`)."""
     if not Path(source).exists():
         raise SessionError(f"{source}: no such file or directory")
     if (Path(source) / "session.json").exists():
@@ -111,13 +156,17 @@ def replay_source(source: Path, methods: list[str], *, refine: bool = False, rob
         raise InsufficientDataError(f"{source}: no samples to replay")
     if methods == ["all"]:
         methods = list(METHODS)
+    T_true = devices.camera_truth(setup, truth)
     rows = replay(observations, setup, methods, refine=refine, robust=robust,
-                  truth=devices.camera_truth(setup, truth), rng=rng, shared_error=shared_error)
+                  truth=T_true, rng=rng, shared_error=shared_error)
     if all(r.result is None for r in rows):
         raise HandeyeError(f"no solver succeeded on {source}: " + "; ".join(f"{r.method}: {r.error}" for r in rows))
     lines = advice(rows, observations, refine=refine, target_mm=target_mm, target_deg=target_deg)
-    return (f"{source} ({setup}, {len(observations)} samples)\n{header}\n" + format_table(rows, setup)
+    text = (f"{source} ({setup}, {len(observations)} samples)\n{header}\n" + format_table(rows, setup)
             + ("\n\n" + "\n".join(lines) if lines else ""))
+    best = recommended(rows) or next(r for r in rows if r.result is not None)
+    return ReplayOutcome(text, rows, best, observations, Setup(setup), Path(source),
+                         [line.removeprefix("warning: ") for line in lines if line.startswith("warning:")], T_true)
 
 
 def _import_summary(meta: dict) -> str:

@@ -134,6 +134,9 @@ def _transform_dict(T, name: str, parent: str, child: str, cov=None) -> dict:
             "translation_mm": (sd[3:] * 1e3).tolist(),
             "note": "1-sigma per axis from result.cov (left rotation vector and translation, in the parent frame)",
         }
+        # The whole matrix too: the report draws the error ellipsoid from it, with the axes' correlations.
+        d["covariance"] = {"matrix": np.asarray(cov, dtype=float).tolist(),
+                           "units": "[rotvec rad (3), translation m (3)]: R_true = Exp(d) R, t_true = t + dt"}
     return d
 
 

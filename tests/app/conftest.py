@@ -4,6 +4,10 @@ Each test gets its own loopback address (the `loopback` fixture) for the UR simu
 tests never collide on the RTDE/dashboard ports.
 """
 
+import shutil
+import subprocess
+from pathlib import Path
+
 import pytest
 
 from app.config import Config, load_config
@@ -115,3 +119,24 @@ def engine_update():
                              123.4 if alarm else 0.0, 1.5, 0.1, 0.5, 0.01, 2.0, 3.0, 0.8, "")
 
     return make
+CHROMIUM = shutil.which("chromium") or "/usr/bin/chromium"
+
+
+@pytest.fixture
+def render_page(tmp_path):
+    """``render_page(html_path) -> (dom, console)``: the page as headless Chromium renders it (its DOM after
+    loading) and every console message it logged (errors, warnings, uncaught exceptions). Chromium comes from
+    the system packages (``make sysdeps``); without it the test fails, it does not skip."""
+    assert Path(CHROMIUM).exists(), "chromium is missing: run `make sysdeps` (Debian package chromium)"
+
+    def render(page: Path):
+        # No network for the page: any fetch it tried would fail and be logged on the console.
+        argv = [CHROMIUM, "--headless", "--no-sandbox", "--disable-gpu", "--enable-logging=stderr", "--v=0",
+                f"--user-data-dir={tmp_path / 'chromium-profile'}", "--proxy-server=127.0.0.1:9",
+                "--virtual-time-budget=3000", "--dump-dom", Path(page).resolve().as_uri()]
+        done = subprocess.run(argv, capture_output=True, text=True, timeout=120)
+        assert done.returncode == 0, done.stderr[-2000:]
+        console = [line for line in done.stderr.splitlines() if ":CONSOLE" in line]
+        return done.stdout, console
+
+    return render

@@ -146,3 +146,9 @@ def test_image_folder(tmp_path, capsys, poses_format):
             [rows[int(o.t)][k] for k in "xyz"], [rows[int(o.t)][k] for k in ("qx", "qy", "qz", "qw")]), atol=1e-9)
     # A 5 cm marker's PnP range is far noisier than depth: 10 views give about 1 cm without depth.
     assert _replay_error_mm(folder, "eye_to_hand", T_true, capsys) < (25.0 if poses_format == "yaml" else 5.0)
+    if poses_format == "csv":
+        # replay --out writes the image folder's result and every export, as calibrate does.
+        from tests.formats.test_replay_out import check_outputs
+
+        assert main(["replay", str(folder), "--out", str(tmp_path / "out")]) == 0
+        check_outputs(tmp_path / "out", capsys)

@@ -1,0 +1,202 @@
+"""``handeye verify``: judge a calibration result on samples it did not see, in the base frame, mm and deg.
+
+Active (default; ``-c cell.toml``, or the embedded simulated cell): move to
+``[verify] poses`` fresh planned poses spread over the ``[calibrate]`` region,
+never the calibration's, measure the marker there and compare it with the one
+the result predicts. Passive (``--passive``): the same on samples taken
+read-only while production moves the robot (the monitor's sampling). Offline (``--session S``): the same against another
+recorded session or an imported file (the cross-session check). Either way:
+pass/fail against ``[verify] tolerance_mm / tolerance_deg`` (``--tolerance``),
+exit status 0 (pass) or 4 (fail), ``verify.yaml`` and ``report.html`` in the
+verify session (offline: a new directory under ``session.root``).
+
+Eye-to-hand: ``X = T_flange_marker``, ``Y = T_base_cam``; eye-in-hand:
+``X = T_flange_cam``, ``Y = T_base_marker`` (paper eq. 1).
+"""
+
+from __future__ import annotations
+
+import argparse
+import datetime as _dt
+from pathlib import Path
+
+import numpy as np
+
+from app.commands.common import add_run_options, confirm_motion, load_config_args
+from app.errors import SessionError
+from calib.errors import HandeyeError
+
+NAME = "verify"
+HELP = "judge a result on fresh poses (or another session): error in mm/deg, pass/fail, verify.yaml + report"
+#: Exit status of a verification that fails its tolerance.
+EXIT_FAIL = 4
+
+
+def tolerance(text: str) -> tuple[float, float]:
+    """``--tolerance`` value: ``MM,DEG``, both positive."""
+    try:
+        mm, deg = (float(v) for v in text.split(","))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected MM,DEG (e.g. 2,0.5), got {text!r}") from None
+    if not (mm > 0 and deg > 0 and np.isfinite(mm) and np.isfinite(deg)):
+        raise argparse.ArgumentTypeError(f"both tolerances must be positive numbers, got {text!r}")
+    return mm, deg
+
+
+def expect_xyz(text: str) -> np.ndarray:
+    """``--expect-xyz`` value: ``X,Y,Z`` in mm (camera origin in the base frame, flange frame eye-in-hand)."""
+    try:
+        xyz = np.array([float(v) for v in text.split(",")])
+    except ValueError:
+        xyz = np.empty(0)
+    if xyz.shape != (3,) or not np.isfinite(xyz).all():
+        raise argparse.ArgumentTypeError(f"expected X,Y,Z in mm (e.g. 700,-600,850), got {text!r}")
+    return xyz * 1e-3
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--result", type=Path, required=True, help="result.yaml (or the session directory holding it)")
+    p.add_argument("--session", type=Path, help="offline: verify against this recorded session or imported file "
+                   "instead of moving the robot")
+    p.add_argument("--setup", choices=["eye_to_hand", "eye_in_hand"], help="--session: setup of an imported file")
+    p.add_argument("--passive", action="store_true", help="read-only: sample while production moves the robot "
+                   "(as monitor: still robot, a pose unlike the recent ones) until verify.poses samples or "
+                   "monitor.duration_s; never moves the robot")
+    add_run_options(p)
+    p.add_argument("--yes-move", action="store_true", help="allow robot motion without the confirmation prompt")
+    # (dest: calibrate's --poses names a pose source, which the shared config overrides read as args.poses)
+    p.add_argument("--poses", type=int, dest="verify_poses", metavar="K",
+                   help="active: number of verification poses (overrides verify.poses)")
+    p.add_argument("--seed", type=int, dest="verify_seed", metavar="SEED",
+                   help="seed of the verification poses (overrides verify.seed)")
+    p.add_argument("--tolerance", type=tolerance, metavar="MM,DEG",
+                   help="pass/fail tolerances (override verify.tolerance_mm/_deg)")
+    p.add_argument("--expect-xyz", type=expect_xyz, metavar="X,Y,Z",
+                   help="rough camera position in mm (tape measure, CAD: base frame eye-to-hand, flange frame "
+                   "eye-in-hand): warn if the result is far from it or its inverse fits it better")
+
+
+def _config(args):
+    from app.config import config_from_dict
+
+    cfg = load_config_args(args)
+    ver = {}
+    if args.verify_poses is not None:
+        ver["poses"] = args.verify_poses
+    if args.verify_seed is not None:
+        ver["seed"] = args.verify_seed
+    if args.tolerance is not None:
+        ver["tolerance_mm"], ver["tolerance_deg"] = args.tolerance
+    data = cfg.model_dump()
+    data["verify"].update(ver)
+    return config_from_dict(data, "command line")
+
+
+def run(args) -> int:
+    from app import verify as av
+    from app.report import write_report
+    from app.session import read_session
+    from calib import verify as cv
+
+    if args.passive and args.session is not None:
+        raise HandeyeError("--passive samples the cell, --session verifies against a recording: give one of them")
+    cfg = _config(args)
+    loaded = av.load_result(args.result)
+    rng = np.random.default_rng(cfg.verify.seed)
+    truth_mm = None
+    if args.session is not None:
+        observations, source, mode = _offline_samples(args.session, args.setup, loaded), args.session, "offline"
+        out_dir = _new_dir(cfg.session.root, loaded.model.setup)
+    else:
+        if args.passive:
+            run_, mode = av.verify_passive(cfg, loaded), "passive"
+        else:
+            confirm_motion(args.yes_move)
+            run_, mode = av.verify_active(cfg, loaded, rng=rng), "active"
+        observations, source, out_dir = run_.observations, run_.session, run_.session
+        if run_.truth:
+            truth_mm = av.true_error_mm(loaded, observations, run_.truth, run_.camera_bias)
+        if run_.interrupted:
+            print(f"interrupted: robot stopped; {len(observations)} poses measured (session {run_.session})")
+    tol = dict(tolerance_mm=cfg.verify.tolerance_mm, tolerance_deg=cfg.verify.tolerance_deg)
+    verification = cv.verify(av.pose_errors(loaded.model, observations), rng=rng, **tol)
+    rigid = None if loaded.rigid is None else cv.verify(av.pose_errors(loaded.rigid, observations), rng=rng, **tol)
+    safety = None if args.expect_xyz is None else cv.frame_safety(loaded.model.camera_transform, loaded.model.setup,
+                                                                  args.expect_xyz)
+    doc = av.verify_document(loaded, mode, source, verification, rigid, safety, truth_mm)
+    path = av.write_verify(doc, out_dir)
+    calibration = read_session(loaded.session).observations if loaded.session is not None else []
+    report = write_report(out_dir, result_doc=loaded.doc, observations=calibration, verify_doc=doc,
+                          verify_observations=observations, title="handeye verification report")
+    print_verify_summary(doc, path, report)
+    return 0 if verification.passed else EXIT_FAIL
+
+
+def _offline_samples(source: Path, setup, loaded):
+    from app import devices
+    from app.session import read_session
+
+    if not Path(source).exists():
+        raise SessionError(f"{source}: no such file or directory")
+    if (Path(source) / "session.json").exists():
+        session = read_session(source)
+        observations, file_setup = session.observations, session.setup
+    else:
+        observations, file_setup, _ = devices.import_observations(Path(source), setup or loaded.model.setup.value)
+    if file_setup != loaded.model.setup:
+        raise SessionError(f"{source} is an {file_setup} session, {loaded.path} an {loaded.model.setup} result")
+    if loaded.session is not None and Path(source).resolve() == loaded.session.resolve():
+        raise HandeyeError(f"{source} is the session {loaded.path} was calibrated on: verify it on samples it did "
+                           "not see (another session, or the active mode)")
+    return observations
+
+
+def _new_dir(root, setup) -> Path:
+    now = _dt.datetime.now(_dt.timezone.utc)
+    path = Path(root) / f"{now:%Y%m%d-%H%M%S-%f}_{setup}_verify"
+    try:
+        path.mkdir(parents=True)
+    except OSError as e:
+        raise SessionError(f"session.root: cannot create {path} ({e.strerror})") from None
+    return path
+
+
+def print_verify_summary(doc: dict, path: Path, report: Path) -> None:
+    v = doc["verification"]
+    obs = v["observed_mm"]
+    print(f"\nverify ({doc['mode']}): {doc['result']['path']} against {doc['source']} ({doc['setup']}, "
+          f"{v['n_poses']} poses)")
+    print("\n| pose | error [mm] | error [deg] |\n|---|---|---|")
+    per_deg = v["per_pose_deg"] or [None] * v["n_poses"]
+    for i, (mm, deg) in enumerate(zip(v["per_pose_mm"], per_deg)):
+        print(f"| {i} | {mm:.2f} | {'-' if deg is None else f'{deg:.3f}'} |")
+    print("\n| quantity | value |\n|---|---|")
+    print(f"| observed error [mm] mean / p95 / max | {obs['mean']:.2f} / {obs['p95']:.2f} / {obs['max']:.2f} |")
+    if v["observed_deg"] is not None:
+        od = v["observed_deg"]
+        print(f"| observed error [deg] mean / p95 / max | {od['mean']:.3f} / {od['p95']:.3f} / {od['max']:.3f} |")
+    if v["measurement_noise_rms_mm"] is not None:
+        print(f"| measurement noise (noise model) [mm] | {v['measurement_noise_rms_mm']:.2f} |")
+    lo, hi = v["calibration_error_ci95_mm"]
+    print(f"| calibration error [mm] (noise removed), 95 % interval | {v['calibration_error_mm']:.2f} "
+          f"[{lo:.2f}, {hi:.2f}] |")
+    if v["calibration_error_deg"] is not None:
+        lo, hi = v["calibration_error_ci95_deg"]
+        print(f"| calibration error [deg] (noise removed), 95 % interval | {v['calibration_error_deg']:.3f} "
+              f"[{lo:.3f}, {hi:.3f}] |")
+    if "rigid_export" in doc:
+        r = doc["rigid_export"]
+        print(f"| ROS/URDF export (raw points): calibration error [mm] | {r['calibration_error_mm']:.2f} "
+              f"({'pass' if r['passed'] else 'FAIL'}) |")
+    if "truth" in doc:
+        print("| true calibration error over these poses [mm] (simulator) | "
+              f"{doc['truth']['calibration_error_mm']:.2f} |")
+    print(f"| verify.yaml | {path} |\n| report | {report} |")
+    if not v["noise_removed"]:
+        print("note: the samples carry no covariance: the calibration error is the observed RMS, noise included")
+    for w in (doc.get("frame_safety") or {}).get("warnings", []):
+        print(f"warning: {w}")
+    verdict = "PASS" if v["passed"] else "FAIL"
+    print(f"\n{verdict}: calibration error {v['calibration_error_mm']:.2f} mm"
+          + (f" / {v['calibration_error_deg']:.3f} deg" if v["calibration_error_deg"] is not None else "")
+          + f" against the tolerance {v['tolerance_mm']:g} mm / {v['tolerance_deg']:g} deg")

@@ -1,0 +1,69 @@
+"""``handeye replay --out DIR`` writes what calibrate writes into its session, for every importer's data."""
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+import yaml
+
+from app.benchmarks.fuzz import IMPORT_MAIN, write_import_seed
+from app.cli import main
+from app.devices import RESULT_FILES
+from calib import transforms as tf
+
+DATA = Path(__file__).parents[1] / "data"
+
+#: Importers whose seed (app.benchmarks.fuzz) has enough samples to solve; industrial_calibration and
+#: pose_csv take the real recordings in tests/data, image_folder is rendered in test_formats_people_bring.
+SEEDED = ["easy_handeye2", "easy_handeye", "visp", "opencv_storage", "moveit_calibration"]
+
+
+def check_outputs(out: Path, capsys) -> dict:
+    """Every export of RESULT_FILES and report.html are in ``out``, the printed table names them; returns
+    result.yaml."""
+    printed = capsys.readouterr().out
+    for kind, name in {**RESULT_FILES, "report": "report.html"}.items():
+        assert (out / name).is_file() and (out / name).stat().st_size > 0, kind
+        assert f"| {kind} | {out / name} |" in printed
+    doc = yaml.safe_load((out / "result.yaml").read_text())
+    assert doc["format"] == "handeye-result" and doc["solver"] == "auto"
+    tf.check_transform(np.array(doc["camera_transform"]["matrix"]), "camera_transform")
+    return doc
+
+
+@pytest.mark.parametrize("kind", SEEDED)
+def test_replay_out_on_each_seeded_importer(kind, tmp_path, capsys):
+    folder = write_import_seed(kind, tmp_path / "seeds", np.random.default_rng(3))
+    source = folder / IMPORT_MAIN[kind] if kind in IMPORT_MAIN else folder
+    assert main(["replay", str(source), "--out", str(tmp_path / "out")]) == 0
+    doc = check_outputs(tmp_path / "out", capsys)
+    assert doc["n_samples"] == 8
+
+
+@pytest.mark.parametrize("source, setup, n", [(DATA / "circle_grid" / "cal_data.yaml", "eye_in_hand", 15),
+                                              (DATA / "ethz" / "robot_arm_sim", "eye_in_hand", None)])
+def test_replay_out_on_the_real_recordings(source, setup, n, tmp_path, capsys):
+    assert main(["replay", str(source), "--out", str(tmp_path / "out")]) == 0
+    doc = check_outputs(tmp_path / "out", capsys)
+    assert doc["setup"] == setup and (n is None or doc["n_samples"] == n)
+    if n is None:
+        # A long stream: auto's choices were checked on contiguous stretches, which result and report show.
+        assert doc["model"]["blocked_folds"]["folds"] == 5
+        assert "contiguous stretches held out in turn" in (tmp_path / "out" / "report.html").read_text()
+
+
+def test_replay_out_writes_the_recommended_of_several(tmp_path, capsys):
+    """With -m all the comparison stays and the recommended solver's result is the one written."""
+    source = DATA / "circle_grid" / "cal_data.yaml"
+    assert main(["replay", str(source), "-m", "YKronT'", "-m", "YQuatT'", "--out", str(tmp_path)]) == 0
+    printed = capsys.readouterr().out
+    best = next(line.split(":")[1].strip() for line in printed.splitlines() if line.startswith("recommended:"))
+    doc = yaml.safe_load((tmp_path / "result.yaml").read_text())
+    assert doc["solver"] == best and "| YKronT' |" in printed and "| YQuatT' |" in printed
+
+
+def test_replay_out_into_a_file_is_one_line_error(tmp_path, capsys):
+    (tmp_path / "file").write_text("x")
+    assert main(["replay", str(DATA / "circle_grid" / "cal_data.yaml"), "--out", str(tmp_path / "file")]) == 1
+    err = capsys.readouterr().err
+    assert "--out" in err and len(err.strip().splitlines()) == 1
