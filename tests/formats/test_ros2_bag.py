@@ -146,7 +146,7 @@ def test_replay_cli_takes_frames_and_the_configs_marker(demo_bag, tmp_path, caps
     rc = main(["replay", str(demo_bag.path), "-c", str(cfg), "--frames", "flange=wrist_3_link"])
     out, err = capsys.readouterr()
     assert rc == 0, err
-    assert f"{N_POSES} samples" in out and "YKronT'" in out
+    assert f"{N_POSES} samples" in out and "auto" in out          # replay solves with auto, as calibrate
     # A frame the bag does not have: one line naming it, exit 1.
     rc = main(["replay", str(demo_bag.path), "--frames", "flange=tool0"])
     out, err = capsys.readouterr()
