@@ -114,6 +114,8 @@ class MonitorReport:
         Indices of the bounded estimation set at the end.
     last : MonitorUpdate or None
         The engine's latest figures (drift rate, running verification, level).
+    truth : ndarray (4, 4) or None
+        A simulated camera's true camera transform at the end (None for a real one).
     """
 
     session: Path
@@ -129,6 +131,7 @@ class MonitorReport:
     samples_until_armed: int = 0
     kept: list[int] = field(default_factory=list)
     last: MonitorUpdate | None = None
+    truth: np.ndarray | None = None
 
     @property
     def last_alarm(self) -> Alarm | None:
@@ -207,9 +210,11 @@ def monitor(cfg: Config, *, reference: Path | None = None, stop=None, progress: 
                 if publish is not None:
                     publish(obs, update, report)
 
-            return run_monitor(robot, camera, devices.make_measure(cfg), engine, solve, writer, cfg.monitor,
-                               viz, stop=stop, save_frames=cfg.session.save_frames, on_sample=on_sample,
-                               on_update=on_update, say=say, shared_error=robot.shared_error_factor)
+            report = run_monitor(robot, camera, devices.make_measure(cfg), engine, solve, writer, cfg.monitor,
+                                 viz, stop=stop, save_frames=cfg.session.save_frames, on_sample=on_sample,
+                                 on_update=on_update, say=say, shared_error=robot.shared_error_factor)
+            report.truth = devices.camera_truth(cfg.setup, devices.truth(camera))
+            return report
 
 
 class _OutageLog:
@@ -513,6 +518,10 @@ def print_monitor_summary(report: MonitorReport, setup: Setup = Setup.EYE_TO_HAN
     if report.reestimate is not None:
         print(f"  re-estimate after the move (re-learnt from the production stops): "
               f"{pose_line(report.reestimate.camera_transform)}")
+    if report.truth is not None and report.estimate is not None:
+        rot, trans = tf.pose_error(report.estimate, report.truth)
+        print(f"  simulated camera now: {pose_line(report.truth)}  live estimate {trans * 1e3:.2f} mm / "
+              f"{np.rad2deg(rot):.3f} deg from it")
     if report.session is not None and (report.session / "recording.rrd").exists():
         from app.viz import open_command
 
