@@ -94,7 +94,7 @@ def demo_monitor(cfg: Config, *, bump: Bump | None, reference: Path | None = Non
     mon = data["monitor"]
     mon.update(DEMO_MONITOR)
     after = bump.after if bump is not None else 0
-    mon["max_samples"] = max_samples or (after + 20 if bump else 30)
+    mon["max_samples"] = max_samples or (after + 32 if bump else 30)
     mon["duration_s"] = cfg.monitor.duration_s or 300.0
     cfg = config_from_dict(data, "demo --monitor")
     return monitor(cfg, reference=reference, progress=progress, bump=bump, publish=publish)
