@@ -2,14 +2,14 @@
 
 The paper's promise is that a single marker point per robot stop keeps the
 calibration alive while the robot works. `MonitorEngine` does that with the
-measurement model of ``solve("auto")`` (`calib.model`): the camera
-correction, the marker mount, the noise levels and the robot's shared
-kinematic error of the result it is armed from are kept, and only the camera
-transform is followed.
+measurement model of ``solve("auto")`` (`calib.model`): it starts from the
+camera correction, the marker mount, the noise levels and the covariance of
+the result it is armed from (and the robot's kinematic error shared by all
+samples, when they carry its factor), and follows the camera transform.
 
 Setups (paper eq. 1, ``A_i X = Y B_i``): eye-to-hand the followed camera
-transform is ``Y = T_base_cam`` and the held marker mount ``X =
-T_flange_marker``; eye-in-hand it is ``X = T_flange_cam`` and the held
+transform is ``Y = T_base_cam`` and the marker mount ``X =
+T_flange_marker``; eye-in-hand it is ``X = T_flange_cam`` and the
 base-marker pose ``Y = T_base_marker``.
 
 Per sample (fixed work and memory, independent of the shift's length):
@@ -20,26 +20,30 @@ Per sample (fixed work and memory, independent of the shift's length):
 2. **Verify.** The marker point is predicted before it is fused; the error of
    that prediction in C's parent frame is the running verification (``verify_mm``).
 3. **Detect.** A windowed GLR test of "the camera jumped by some 6-dof delta"
-   on the innovations (`calib.change.ChangeDetector`) raises the *moved* alarm.
-4. **Update.** A Schmidt ("consider") Kalman update of the camera transform:
-   the marker-side translation, the camera parameters and, when samples
-   carry it, the robot's kinematic error are not re-estimated, but their
-   uncertainty and its correlation with the estimate (from the arming
-   calibration) enter every gain and the covariance. A program that returns
-   to the same few stops then cannot make the estimate over-confident: the
-   errors those stops share do not average out, and the filter knows it.
+   on the innovations (`calib.change.ChangeDetector`), each stop's typical
+   innovation removed once it has been visited `MIN_BASELINE` times, raises
+   the *moved* alarm.
+4. **Update.** A Kalman update of the state ``[camera transform, marker-side
+   translation, camera parameters, kinematic error]`` from the arming
+   calibration's joint covariance (`arm_reference`). What repeated stops
+   share (the robot's error at those poses, the camera model) is state, not
+   white noise, so a program that returns to the same few stops cannot make
+   the estimate over-confident. The noise levels' scale follows the
+   innovations.
 5. **Drift.** The live estimate's distance from the calibration in use
    (the arming one, or the last re-learnt one), over the workspace the
    arming samples covered, and its rate (exponentially weighted regression
-   over ``rate_window_h``). The *drifting* alarm fires when the predicted
-   error of the calibration in use reaches ``tolerance_mm`` or will within
-   ``horizon_h`` at the current rate.
+   over ``rate_window_h``). The *drifting* alarm fires when that distance
+   reaches ``tolerance_mm`` or will within ``horizon_h`` at the current rate.
 
-After a *moved* alarm the engine re-learns the camera transform alone from
-the stops that follow (a rigid registration of the marker points, which
-the held marker mount places in C's parent frame, to the corrected camera
-points: three stops not on one line determine it) and re-arms; it never asks
-for robot motion. Until the stops determine it, `MonitorUpdate.message`
+After a *moved* alarm the engine re-learns the camera transform from the
+stops that follow, and re-arms; it never asks for robot motion. At stops
+visited before the move, the change of their innovations measures the move
+itself, the rest of the state held; otherwise 6 or more samples are
+registered (the marker mount places the marker points in C's parent frame:
+three stops not on one line determine the camera) and the filter runs over
+them from there, the camera transform started afresh, the rest at its
+arming covariance. Until the stops determine it, `MonitorUpdate.message`
 says what is missing and which stop would fix it.
 """
 
@@ -59,7 +63,7 @@ from calib import transforms as tf
 from calib.errors import CalibrationError
 from calib.noise import default_point_cov
 from calib.change import ChangeDetector, DetectorConfig
-from calib.params import Float, NonNegativeFloat, NonNegativeInt, Params, PositiveFloat
+from calib.params import NonNegativeFloat, Params, PositiveFloat
 from calib.result import CalibrationResult, Residuals
 from calib.setup import Setup
 
@@ -518,17 +522,11 @@ class MonitorEngine:
             self._P[:6, :6] += self._walk((t - self._t) / HOUR_S)
         self._t = max(t, self._t)
 
-    def _fuse(self, r, H, R, *, hold=False) -> None:
-        """Kalman update; ``hold``: only the camera transform moves (the rest is "considered", Schmidt)."""
+    def _fuse(self, r, H, R) -> None:
+        """Kalman update of the whole state."""
         PHt = self._P @ H.T
-        S = H @ PHt + R
-        Kg = np.linalg.solve(S, PHt.T).T
-        if hold:
-            Kg[6:] = 0.0
-            KHP = Kg @ PHt.T
-            self._P = self._P - KHP - KHP.T + Kg @ S @ Kg.T
-        else:
-            self._P = self._P - Kg @ PHt.T
+        Kg = np.linalg.solve(H @ PHt + R, PHt.T).T
+        self._P = self._P - Kg @ PHt.T
         self._P = 0.5 * (self._P + self._P.T)
         d = Kg @ r
         self._C = tf.make_transform(tf.so3_exp(d[:3]) @ self._C[:3, :3], self._C[:3, 3] + d[3:6])
@@ -788,10 +786,11 @@ class MonitorEngine:
         return tf.make_transform(R, y.mean(axis=0) - R @ c.mean(axis=0))
 
     def _refit(self, C, samples):
-        """The camera transform alone over ``samples`` from a registration ``C``: ``(ok, C, P)``, ``ok`` as in `_jump`.
+        """The filter over ``samples`` from a registration ``C``: ``(ok, C, P)``, ``ok`` as in `_jump`.
 
-        The rest of the state is held ("considered"); the camera transform
-        starts independent of it, at `RELEARN_PRIOR`.
+        The camera transform starts at `RELEARN_PRIOR`, independent of the rest
+        of the state, which keeps its covariance and moves only as far as the
+        samples determine it.
         """
         st, sr = RELEARN_PRIOR
         saved = self._state()
@@ -802,7 +801,7 @@ class MonitorEngine:
             self._P[:, :6] = 0.0
             self._P[:6, :6] = np.diag([sr * sr] * 3 + [st * st] * 3)
             for s in samples:
-                self._fuse(*self._linearize(self._C, self._u, s), hold=False)
+                self._fuse(*self._linearize(self._C, self._u, s))
         chi = 0.0
         for s in samples:
             r, H, R = self._linearize(self._C, self._u, s)

@@ -71,9 +71,9 @@ def workspace_error(C, correction, camera, Y_true, P) -> float:
     return float(np.sqrt(np.mean(np.sum((est - P) ** 2, axis=1))))
 
 
-def run_seed(seed: int, shift: simulate.Shift, settings: MonitorSettings,
-             profile: simulate.RealisticProfile | None = None) -> SeedRun:
-    """Calibrate a realistic cell from 30 poses, arm the engine, run the shift (module docstring)."""
+def armed_cell(seed: int, settings: MonitorSettings | None = None, profile: simulate.RealisticProfile | None = None):
+    """A realistic cell calibrated by ``auto`` from 30 poses (the kinematic error in its covariance), and the
+    engine armed from it: ``(cell, result, engine)``."""
     prof = profile or simulate.RealisticProfile()
     real = simulate.realistic_profile(30, np.random.default_rng([seed, 0]), prof)
     d = real.data
@@ -81,6 +81,15 @@ def run_seed(seed: int, shift: simulate.Shift, settings: MonitorSettings,
     res = solve("auto", d.A, d.points, point_cov=d.point_cov, robot_shared_error=F, rng=np.random.default_rng(seed))
     engine = MonitorEngine(settings)
     engine.arm(res, d.A, d.points, point_cov=d.point_cov, robot_factor=F)
+    return real, res, engine
+
+
+def run_seed(seed: int, shift: simulate.Shift, settings: MonitorSettings,
+             profile: simulate.RealisticProfile | None = None) -> SeedRun:
+    """Calibrate a realistic cell from 30 poses, arm the engine, run the shift (module docstring)."""
+    prof = profile or simulate.RealisticProfile()
+    real, res, engine = armed_cell(seed, settings, prof)
+    d = real.data
     correction = res.camera_correction
     stream = simulate.shift_stream(real, shift, np.random.default_rng([seed, 1]), prof)
     F_stream = prof.dh_error_factor(stream.q)

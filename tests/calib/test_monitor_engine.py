@@ -16,13 +16,7 @@ PROFILE = simulate.RealisticProfile()
 
 
 def _armed(seed: int = 1, settings: MonitorSettings | None = None):
-    real = simulate.realistic_profile(30, np.random.default_rng([seed, 0]), PROFILE)
-    d = real.data
-    F = PROFILE.dh_error_factor(real.q)
-    res = solve("auto", d.A, d.points, point_cov=d.point_cov, robot_shared_error=F, rng=np.random.default_rng(seed))
-    engine = MonitorEngine(settings)
-    engine.arm(res, d.A, d.points, point_cov=d.point_cov, robot_factor=F)
-    return real, res, engine
+    return bench_shift.armed_cell(seed, settings, PROFILE)
 
 
 @pytest.mark.parametrize("setup", [Setup.EYE_TO_HAND, Setup.EYE_IN_HAND])
