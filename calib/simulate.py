@@ -421,8 +421,8 @@ class ShiftData:
     ``t`` (n,) s; ``A`` (n, 4, 4) reported flange poses (nominal kinematics);
     ``points`` (n, 3) measured marker centers and ``point_cov`` (n, 3, 3);
     ``q`` (n, 6) joints; ``stop`` (n,) the stop visited; ``Y`` (n, 4, 4) the
-    true ``T_base_cam`` at each sample; ``bumped`` the index of the first
-    sample after each bump.
+    true camera transform at each sample (``T_base_cam``; ``T_flange_cam`` from
+    `eye_in_hand_shift`); ``bumped`` the index of the first sample after each bump.
     """
 
     t: np.ndarray
@@ -492,3 +492,36 @@ def shift_stream(real: RealisticData, shift: Shift, rng: np.random.Generator,
     Y = tf.make_transform(R, d.Y[:3, 3] + offset)
     points, cov = seen_points(tf.invert(Y) @ A_true @ d.X, prof, real.camera, rng)
     return ShiftData(t, A, points, cov, q, stop, Y, np.array(bumped, dtype=int))
+
+
+def eye_in_hand_shift(cell: SimulatedData, stops: np.ndarray, shift: Shift, rng: np.random.Generator) -> ShiftData:
+    """A shift of an eye-in-hand ``cell`` (`realistic_cell`): the camera slips on the flange.
+
+    ``stops`` (S, 4, 4) are the program's flange poses, visited in turn every
+    ``shift.sample_s``; the true ``T_flange_cam`` drifts ``shift.drift_mm_h``
+    along a random direction of the camera frame and is bumped at each
+    ``(hour, mm, deg)`` (``T_flange_cam <- T_flange_cam @ bump``, random
+    directions). The camera sees the static marker with `realistic_cell`'s
+    point noise. ``ShiftData.Y`` holds the true ``T_flange_cam`` per sample.
+    """
+    n = int(shift.hours * 3600.0 / shift.sample_s)
+    t = np.arange(n) * shift.sample_s
+    stop = np.arange(n) % len(stops)
+    A = stops[stop]
+    direction = _random_direction(1, rng)[0]
+    slip = np.broadcast_to(np.eye(4), (n, 4, 4)).copy()
+    slip[:, :3, 3] = np.outer(t / 3600.0 * shift.drift_mm_h * 1e-3, direction)
+    bumped = []
+    for hour, mm, deg in shift.bumps:
+        after = t >= hour * 3600.0
+        if not after.any():
+            continue
+        bumped.append(int(np.argmax(after)))
+        bump = tf.from_rotvec_translation(np.deg2rad(deg) * _random_direction(1, rng)[0],
+                                          mm * 1e-3 * _random_direction(1, rng)[0])
+        slip[after] = slip[after] @ bump
+    X = cell.X @ slip
+    p_true = (tf.invert(A @ X) @ cell.Y)[:, :3, 3]
+    cov = point_covariance(p_true, 0.001, 0.003)
+    points = p_true + np.einsum("nij,nj->ni", np.linalg.cholesky(cov), rng.normal(size=(n, 3)))
+    return ShiftData(t, A, points, cov, np.zeros((n, 6)), stop, X, np.array(bumped, dtype=int))
