@@ -20,9 +20,9 @@ Per sample (fixed work and memory, independent of the shift's length):
 2. **Verify.** The marker point is predicted before it is fused; the error of
    that prediction in C's parent frame is the running verification (``verify_mm``).
 3. **Detect.** A windowed GLR test of "the camera jumped by some 6-dof delta"
-   on the innovations (`calib.change.ChangeDetector`), each stop's typical
-   innovation removed once it has been visited `MIN_BASELINE` times, raises
-   the *moved* alarm.
+   on the innovations (`calib.change.ChangeDetector`) raises the *moved*
+   alarm; at a stop visited `MIN_BASELINE` times before it tests the marker
+   point's change from the stop's earlier visits instead.
 4. **Update.** A Kalman update of the state ``[camera transform, marker-side
    translation, camera parameters, kinematic error]`` from the arming
    calibration's joint covariance (`arm_reference`). What repeated stops
@@ -38,7 +38,7 @@ Per sample (fixed work and memory, independent of the shift's length):
 
 After a *moved* alarm the engine re-learns the camera transform from the
 stops that follow, and re-arms; it never asks for robot motion. At stops
-visited before the move, the change of their innovations measures the move
+visited before the move, the change of their marker points measures the move
 itself, the rest of the state held; otherwise 6 or more samples are
 registered (the marker mount places the marker points in C's parent frame:
 three stops not on one line determine the camera) and the filter runs over
@@ -67,13 +67,13 @@ from calib.params import NonNegativeFloat, Params, PositiveFloat
 from calib.result import CalibrationResult, Residuals
 from calib.setup import Setup
 
-#: Visits of a stop before its typical innovation replaces the raw one in the detector.
+#: Visits of a stop before the detector compares its marker point with the stop's earlier ones.
 MIN_BASELINE = 3
-#: A stop's typical innovation is the running mean of at most this many of its last visits.
-BASELINE_VISITS = 20
-#: Stops whose typical innovation is kept (the most recently visited).
+#: A stop's typical marker point is the running mean of at most this many of its last visits.
+BASELINE_VISITS = 12
+#: Stops whose typical marker point is kept (the most recently visited).
 MAX_STOPS = 64
-#: Per-sample false-alarm rate of the *moved* test: each stop's typical innovation removed, the
+#: Per-sample false-alarm rate of the *moved* test: against each stop's earlier visits, the
 #: statistic of a still camera stays far below its threshold over whole shifts (bench --shift).
 DETECTOR_FALSE_ALARM_RATE = 1e-5
 #: Seconds per hour: rates are per hour at the edges, times are seconds inside.
@@ -91,6 +91,8 @@ NOISE_SCALE_SAMPLES = 200
 NOISE_SCALE_PRIOR = 10.0
 NOISE_SCALE_RANGE = (0.25, 16.0)
 NIS_GATE = float(chi2.ppf(1.0 - 1e-5, 3))
+#: Prior 1-sigma of a bump (translation m, rotation rad) in the estimate of the move from the stops.
+JUMP_PRIOR = (0.01, np.deg2rad(1.0))
 #: Fewest samples a re-learn registers the camera from (without stops visited before the move): three
 #: stops determine it, more average the point noise and let the consistency test find the move.
 REGISTRATION_SAMPLES = 6
@@ -261,16 +263,15 @@ class _Stop:
 
 @dataclass
 class _Visit:
-    """A sample in the detector's window, its innovation, and the filter state before it was fused."""
+    """A sample in the detector's window and the filter state before it was fused."""
 
     sample: _Stop
-    innovation: np.ndarray
     state: tuple
 
 
 @dataclass
 class _Baseline:
-    """A production stop's typical innovation (running mean over its last visits)."""
+    """A production stop's typical measured marker point (running mean over its last visits, camera frame)."""
 
     A: np.ndarray
     mean: np.ndarray
@@ -584,10 +585,11 @@ class MonitorEngine:
         else:
             base = self._baseline(s.A)
             if base is not None and base.n >= MIN_BASELINE:
-                # The stop's own typical innovation removed: what it shares with its earlier visits (unmodelled
-                # errors of the robot or the camera at that pose) is no change.
+                # Against the stop's own earlier visits: what they share (unmodelled errors of the robot or the
+                # camera at that pose, the estimate's own error) is no change; only the camera moving is.
                 Hc = H[:, :6]
-                r_test, S_test = r - base.mean, R * (1.0 + 1.0 / base.n) + Hc @ self._walk(self.settings.rate_window_h) @ Hc.T
+                r_test = s.p - base.mean
+                S_test = R * (1.0 + 1.0 / base.n) + Hc @ self._walk(self.settings.rate_window_h) @ Hc.T
             else:
                 r_test, S_test = r, S
             # While a re-learnt camera settles the stops still refine it: that is not a move.
@@ -606,11 +608,11 @@ class MonitorEngine:
                 self._drifting = False
                 message += "; " + self._relearn()
             else:
-                self._window.append(_Visit(s, r, (self._C, self._u, self._P)))
+                self._window.append(_Visit(s, (self._C, self._u, self._P)))
                 self._fuse(r, H, R)
                 if len(self._window) > self.settings.detector.window:
                     old = self._window.pop(0)
-                    self._add_baseline(old.sample.A, old.innovation)
+                    self._add_baseline(old.sample)
         if self._moved:
             state = "relearning"
         elif self._settle:
@@ -655,15 +657,15 @@ class MonitorEngine:
         i = self._stop_index(A)
         return None if i is None else self._baselines[i]
 
-    def _add_baseline(self, A, r) -> None:
-        """Fold an innovation into its stop's running mean (the most recent stops kept, `MAX_STOPS`)."""
-        i = self._stop_index(A)
+    def _add_baseline(self, s: _Stop) -> None:
+        """Fold a sample's marker point into its stop's running mean (the most recent stops kept, `MAX_STOPS`)."""
+        i = self._stop_index(s.A)
         if i is None:
-            b = _Baseline(A, np.zeros(3), 0.0)
+            b = _Baseline(s.A, np.zeros(3), 0.0)
         else:
             b = self._baselines.pop(i)
         b.n = min(b.n + 1.0, BASELINE_VISITS)
-        b.mean = b.mean + (r - b.mean) / b.n
+        b.mean = b.mean + (s.p - b.mean) / b.n
         self._baselines.append(b)
         del self._baselines[:-MAX_STOPS]
 
@@ -702,8 +704,7 @@ class MonitorEngine:
         ref = self.reference
         moved_mm = workspace_distance(C, self._C, ref.workspace) * 1e3
         moved_deg = float(np.rad2deg(tf.rotation_angle(C[:3, :3] @ self._C[:3, :3].T)))
-        if how == "registered":
-            self._baselines = []       # they were the old camera's
+        self._baselines = []       # the stops' marker points as the old camera saw them
         self._C, self._P = C, P
         ref.C, ref.theta = C.copy(), self._u[3:6].copy()
         ref.sigma_mm = workspace_sigma(C, ref.theta, ref.workspace, P) * 1e3
@@ -718,7 +719,7 @@ class MonitorEngine:
     def _jump(self, samples):
         """The move from the innovations' change at stops with a baseline: ``(ok, C, P)`` or None.
 
-        Weighted least squares of ``r_i - mean_stop = H_i delta`` at the
+        Weighted least squares of ``p_i - mean_stop = H_i delta`` (the marker point's change at its stop) at the
         estimate from before the move; ``ok`` when the fit's chi-square agrees
         with the noise (else the oldest sample is from before the move).
         """
@@ -727,19 +728,19 @@ class MonitorEngine:
             b = self._baseline(s.A)
             if b is None or b.n < MIN_BASELINE:
                 continue
-            r, H, R = self._linearize(self._C, self._u, s)
-            H = H[:, :6]
-            rows.append((r - b.mean, H, np.linalg.inv(R * (1.0 + 1.0 / b.n))))
+            _, H, R = self._linearize(self._C, self._u, s)
+            rows.append((s.p - b.mean, H[:, :6], np.linalg.inv(R * (1.0 + 1.0 / b.n))))
         if len(self._distinct([s for s in samples if self._baseline(s.A) is not None])) < 3:
             return None
-        N = sum(H.T @ W @ H for _, H, W in rows)
+        # A bump's prior (`JUMP_PRIOR`): where the stops cannot tell a turn of the camera from a shift (one marker
+        # seen from the front, eye-in-hand), the estimate stays small instead of trading the two without bound.
+        st, sr = JUMP_PRIOR
+        N = sum(H.T @ W @ H for _, H, W in rows) + np.diag([1.0 / sr**2] * 3 + [1.0 / st**2] * 3)
         g = sum(H.T @ W @ r for r, H, W in rows)
-        try:
-            cov = np.linalg.inv(N)
-        except np.linalg.LinAlgError:
-            return None
+        cov = np.linalg.inv(N)
         d = cov @ g
-        chi = sum(float((r - H @ d) @ W @ (r - H @ d)) for r, H, W in rows)
+        chi = sum(float((r - H @ d) @ W @ (r - H @ d)) for r, H, W in rows) + float(d @ (N - sum(
+            H.T @ W @ H for _, H, W in rows)) @ d)
         dof = 3 * len(rows) - 6
         ok = dof <= 0 or chi <= chi2.ppf(RELEARN_QUANTILE, dof)
         C = tf.make_transform(tf.so3_exp(d[:3]) @ self._C[:3, :3], self._C[:3, 3] + d[3:])
