@@ -263,16 +263,9 @@ class _TfTree:
             w = f"{where} transform {k} ({parent or '?'} -> {child or '?'})"
             if not parent or not child or parent == child:
                 raise SessionError(f"{w}: needs two different frame names")
-            tr, q = ts.transform.translation, ts.transform.rotation
-            v = np.array([tr.x, tr.y, tr.z, q.x, q.y, q.z, q.w], dtype=float)
-            if not np.isfinite(v).all() or np.abs(v).max() > tf.MAX_MAGNITUDE:
-                raise SessionError(f"{w}: NaN, inf or a huge value in {v.tolist()}")
-            n = np.linalg.norm(v[3:])
-            if abs(n - 1.0) > 1e-3:
-                raise SessionError(f"{w}: quaternion norm is {n:.6f}, not 1")
+            T = _checked_pose(ts.transform.translation, ts.transform.rotation, w, "")
             if self.parent.setdefault(child, parent) != parent:
                 raise SessionError(f"{w}: {child} already has parent {self.parent[child]} (tf is a tree)")
-            T = tf.from_xyz_quat(v[:3], v[3:] / n)
             if static:
                 self.static[(parent, child)] = T
             else:
@@ -577,15 +570,19 @@ def _offset(tree: _TfTree, edges, marker_t: np.ndarray, marker_T: np.ndarray, fo
     return est.offset if est.score >= MIN_OFFSET_SCORE else None
 
 
-def _marker_pose(msg, where: str) -> np.ndarray:
-    p, q = msg.pose.position, msg.pose.orientation
+def _checked_pose(p, q, where: str, what: str) -> np.ndarray:
+    """4x4 from a message's position / translation ``p`` and quaternion ``q``: finite, bounded, unit (1e-3)."""
     v = np.array([p.x, p.y, p.z, q.x, q.y, q.z, q.w], dtype=float)
     if not np.isfinite(v).all() or np.abs(v).max() > tf.MAX_MAGNITUDE:
-        raise SessionError(f"{where}: NaN, inf or a huge value in the pose {v.tolist()}")
+        raise SessionError(f"{where}: NaN, inf or a huge value in {what}{v.tolist()}")
     n = np.linalg.norm(v[3:])
     if abs(n - 1.0) > 1e-3:
         raise SessionError(f"{where}: quaternion norm is {n:.6f}, not 1")
     return tf.from_xyz_quat(v[:3], v[3:] / n)
+
+
+def _marker_pose(msg, where: str) -> np.ndarray:
+    return _checked_pose(msg.pose.position, msg.pose.orientation, where, "the pose ")
 
 
 def _target(target, use_depth: bool):
