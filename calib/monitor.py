@@ -645,11 +645,14 @@ class MonitorEngine:
 
     # ------------------------------------------------------------------ stops
 
+    def _same_stop(self, A1, A2) -> bool:
+        """Two flange poses closer than `MonitorSettings.stop_translation_m` and ``stop_rotation_deg``."""
+        rot, trans = tf.pose_error(A1, A2)
+        return bool(trans < self.settings.stop_translation_m and rot < np.deg2rad(self.settings.stop_rotation_deg))
+
     def _stop_index(self, A) -> int | None:
-        cfg = self.settings
         for i, b in enumerate(self._baselines):
-            rot, trans = tf.pose_error(b.A, A)
-            if trans < cfg.stop_translation_m and rot < np.deg2rad(cfg.stop_rotation_deg):
+            if self._same_stop(b.A, A):
                 return i
         return None
 
@@ -766,11 +769,9 @@ class MonitorEngine:
         return ""
 
     def _distinct(self, samples):
-        cfg = self.settings
         out = []
         for s in samples:
-            if not any(tf.pose_error(o.A, s.A)[1] < cfg.stop_translation_m
-                       and tf.pose_error(o.A, s.A)[0] < np.deg2rad(cfg.stop_rotation_deg) for o in out):
+            if not any(self._same_stop(o.A, s.A) for o in out):
                 out.append(s)
         return out
 
