@@ -706,10 +706,11 @@ def y_kron_t_prime(A: np.ndarray, p: np.ndarray, setup: Setup = Setup.EYE_TO_HAN
     """
     setup = check_setup(setup)
     A, p = check_point_pairs(A, p, 5)
-    return _y_kron_t_prime(A, p, setup)
+    return y_kron_t_prime_unchecked(A, p, setup)
 
 
-def _y_kron_t_prime(A: np.ndarray, p: np.ndarray, setup: str) -> tuple[np.ndarray, np.ndarray]:
+def y_kron_t_prime_unchecked(A: np.ndarray, p: np.ndarray, setup: str) -> tuple[np.ndarray, np.ndarray]:
+    """`y_kron_t_prime` for inputs validated already (a `calib.problem.CalibrationProblem`'s)."""
     n = len(A)
     R_A, t_A = A[:, :3, :3], A[:, :3, 3]
     M = np.empty((n, 3, 15))
@@ -773,11 +774,11 @@ def residuals(X, Y, A, B, setup: str, *, rotation: bool = True) -> tuple[np.ndar
     X = tf.check_transform(X, "X")
     Y = tf.check_transform(Y, "Y")
     A, B = check_measurements(A, B)
-    return _residuals(X, Y, A, B, setup, rotation)
+    return residuals_unchecked(X, Y, A, B, setup, rotation)
 
 
-def _residuals(X, Y, A, B, setup: str, rotation: bool) -> tuple[np.ndarray, np.ndarray | None]:
-    """`residuals` for validated inputs, vectorised without stacked 3x3 products (they dominate at large N)."""
+def residuals_unchecked(X, Y, A, B, setup: str, rotation: bool) -> tuple[np.ndarray, np.ndarray | None]:
+    """`residuals` for inputs validated already, vectorised without stacked 3x3 products (they dominate at large N)."""
     n = len(A)
     poses = B.ndim == 3
     p = B[:, :3, 3] if poses else B

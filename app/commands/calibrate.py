@@ -29,7 +29,7 @@ from app.progress import progress_bar, show_sigma
 from app.session import SessionWriter, read_session
 from app.viz import Viz
 from calib import transforms as tf
-from calib.auto import report
+from app.formats.export import model_report
 from calib.errors import CalibrationError
 from calib.observation import Observation
 from calib.result import CalibrationResult
@@ -396,8 +396,8 @@ def print_calibration_summary(out: CalibrationOutput) -> None:
 
 
 def print_model_summary(res: CalibrationResult) -> None:
-    """Camera correction, noise levels and the self-check of ``res`` (`calib.auto.report`), then any warning."""
-    rep = report(res)
+    """Camera correction, noise levels and the self-check of ``res`` (`app.formats.export.model_report`), then any warning."""
+    rep = model_report(res)
     if rep is None:
         return
     rows = []
