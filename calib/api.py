@@ -169,12 +169,12 @@ def closed_form(method: str, A, B, *, setup: Setup = Setup.EYE_TO_HAND, validate
 
 def _closed_form(info: MethodInfo, A: np.ndarray, B: np.ndarray, setup: str) -> CalibrationResult:
     if info.needs == "points":
-        X, Y = solvers._y_kron_t_prime(A, B[:, :3, 3] if B.ndim == 3 else B, setup)
+        X, Y = solvers.y_kron_t_prime_unchecked(A, B[:, :3, 3] if B.ndim == 3 else B, setup)
     else:
         # Eye-in-hand A X B = Y is eq. 1 with B inverted: A X = Y B^-1.
         X, Y = info.function(A, B if setup == Setup.EYE_TO_HAND else tf.invert(B))
     # A and B were validated by the caller; X and Y come from a solver.
-    trans, rot = solvers._residuals(X, Y, A, B, setup, info.marker_rotation_known)
+    trans, rot = solvers.residuals_unchecked(X, Y, A, B, setup, info.marker_rotation_known)
     return CalibrationResult(
         method=info.name,
         setup=setup,
