@@ -265,7 +265,8 @@ def experiment_robust(rng, trials, n=60):
     return rows
 
 
-def _median_time(fn, repeats):
+def median_time_ms(fn, repeats: int) -> float:
+    """Median wall time of ``fn()`` in ms over ``repeats`` calls."""
     times = []
     for _ in range(repeats):
         t0 = time.perf_counter()
@@ -288,20 +289,20 @@ def experiment_timing(rng, counts, repeats, skip_slow):
         d = simulate.realistic_cell(n, rng)
         for s in SOLVERS:
             if s in OPENCV_HAND_EYE and n >= 1000:
-                table[s].append(np.nan if skip_slow else _median_time(lambda: run_solver(s, d.A, d.B), 1))
+                table[s].append(np.nan if skip_slow else median_time_ms(lambda: run_solver(s, d.A, d.B), 1))
                 continue
-            table[s].append(_median_time(lambda: run_solver(s, d.A, d.B), rep))
+            table[s].append(median_time_ms(lambda: run_solver(s, d.A, d.B), rep))
         table["YKronT' (solver core, no input checks)"].append(
-            _median_time(lambda: solvers.y_kron_t_prime_unchecked(d.A, d.points, Setup.EYE_TO_HAND), rep))
+            median_time_ms(lambda: solvers.y_kron_t_prime_unchecked(d.A, d.points, Setup.EYE_TO_HAND), rep))
         start = closed_form("YKronT'", d.A, d.points)
-        table["YKronT' closed-form covariance (analytic delta)"].append(_median_time(
+        table["YKronT' closed-form covariance (analytic delta)"].append(median_time_ms(
             lambda: kron_t_prime_covariance(start.X, start.Y, CalibrationProblem.from_arrays(
                 d.A, d.points, point_cov=d.point_cov)), rep))
-        table["YKronT'+ML (refine only)"].append(_median_time(lambda: refine(start, CalibrationProblem.from_arrays(
+        table["YKronT'+ML (refine only)"].append(median_time_ms(lambda: refine(start, CalibrationProblem.from_arrays(
             d.A, d.points, point_cov=d.point_cov)), rep))
         table["YKronT' robust (LMedS)"].append(
-            _median_time(lambda: solve("YKronT'", d.A, d.points, robust=True, point_cov=d.point_cov, rng=rng),
-                         max(1, rep // 5)))
+            median_time_ms(lambda: solve("YKronT'", d.A, d.points, robust=True, point_cov=d.point_cov, rng=rng),
+                            max(1, rep // 5)))
     # The monitoring engine's update does not depend on N: one figure, measured on a stream.
     table["monitoring engine update (per sample, median)"] = [1e-3 * monitor_update_median_us(rng)] * len(counts)
     return table

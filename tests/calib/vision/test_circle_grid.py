@@ -9,7 +9,7 @@ import pytest
 from calib.errors import MarkerNotFoundError, ParameterError
 from calib.vision.circle_grid import CircleGridSpec, detect_circle_grid
 
-IMAGE = Path(__file__).parents[1] / "data" / "circle_grid" / "images" / "0.png"
+IMAGE = Path(__file__).parents[2] / "data" / "circle_grid" / "images" / "0.png"
 K = np.array([[550.0, 0, 320], [0, 550.0, 240], [0, 0, 1]])
 
 

@@ -194,7 +194,7 @@ os._exit(0)
 def test_openni2_dummy_device(tmp_path):
     # OpenNI2's built-in dummy device: 320x240 depth + RGB at 30 fps, no registration, no field of view.
     proc = subprocess.run([sys.executable, "-c", _DUMMY_SCRIPT, str(tmp_path / "i.yaml")], capture_output=True,
-                          text=True, timeout=60, cwd=Path(__file__).parents[2])
+                          text=True, timeout=60, cwd=Path(__file__).parents[3])
     assert proc.returncode == 0, proc.stderr[-2000:]
     out = json.loads(proc.stdout.strip().splitlines()[-1])
     assert "field of view" in out["fov"]

@@ -13,7 +13,7 @@ import yaml
 from app.formats import detect_format, load
 from app.errors import ConfigError, SessionError
 
-SRC = Path(__file__).parents[1] / "data" / "circle_grid"
+SRC = Path(__file__).parents[2] / "data" / "circle_grid"
 
 
 @pytest.fixture

@@ -10,7 +10,7 @@ import pytest
 from drivers.errors import DeviceError, LimitViolationError
 from calib.transforms import from_ur_pose, make_transform, pose_error
 from drivers.robot import ur_kinematics as kin
-from .conftest import SIM_TCP, controller_stamps, START_Q, connect_robot, robot_config, truth_flange
+from tests.simulated_ur import SIM_TCP, controller_stamps, START_Q, connect_robot, robot_config, truth_flange
 
 
 

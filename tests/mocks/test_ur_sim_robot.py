@@ -5,7 +5,7 @@ import numpy as np
 from drivers.robot import ur_kinematics as kin
 from drivers.robot.registry import ROBOTS
 
-from .conftest import START_Q, free_host
+from tests.simulated_ur import START_Q, free_host
 
 
 def test_ur_sim_robot_launches_moves_and_stops_its_simulator():

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from drivers.errors import DeviceError
-from .conftest import SIM_TCP, controller_stamps, connect_robot, robot_config, truth_flange
+from tests.simulated_ur import SIM_TCP, controller_stamps, connect_robot, robot_config, truth_flange
 
 
 

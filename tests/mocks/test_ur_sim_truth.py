@@ -12,7 +12,7 @@ from mocks.ur_sim.controller import SimController
 from mocks.ur_sim.program import Program
 from mocks.ur_sim.truth import SimRobotError, TrueArm
 
-from .conftest import START_Q, free_host
+from tests.simulated_ur import START_Q, free_host
 
 # Flange positions well in front of the base, the marker facing the default rendered camera.
 CELL_Q = (0.367792, -3.559685, 1.448735, -1.704477, -0.767569, 0.521542)

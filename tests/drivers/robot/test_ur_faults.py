@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from drivers.errors import ConnectionLostError, DeviceError, RobotStoppedError
-from .conftest import START_Q, connect_robot, robot_config
+from tests.simulated_ur import START_Q, connect_robot, robot_config
 
 
 

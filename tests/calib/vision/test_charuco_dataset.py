@@ -16,7 +16,7 @@ from calib import transforms as tf
 from calib.vision.extract import TargetConfig, extract
 from drivers.camera.base import CameraIntrinsics
 
-DATA = Path(__file__).parents[1] / "data" / "charuco"
+DATA = Path(__file__).parents[2] / "data" / "charuco"
 
 
 def _pose(d: dict) -> np.ndarray:

@@ -148,7 +148,7 @@ def test_image_folder(tmp_path, capsys, poses_format):
     assert _replay_error_mm(folder, "eye_to_hand", T_true, capsys) < (25.0 if poses_format == "yaml" else 5.0)
     if poses_format == "csv":
         # replay --out writes the image folder's result and every export, as calibrate does.
-        from tests.formats.test_replay_out import check_outputs
+        from tests.app.test_replay_out import check_outputs
 
         assert main(["replay", str(folder), "--out", str(tmp_path / "out")]) == 0
         check_outputs(tmp_path / "out", capsys)

@@ -8,7 +8,7 @@ from drivers.errors import LimitViolationError
 from drivers.robot import ur_kinematics as kin
 from drivers.robot.ur import URRobot
 from mocks.ur_sim.motion import LinearMotion
-from .conftest import START_Q, robot_config
+from tests.simulated_ur import START_Q, robot_config
 
 WIDE = dict(workspace_min=(-1.5, -1.5, -0.5), workspace_max=(1.5, 1.5, 1.5), max_tilt_deg=180.0)
 

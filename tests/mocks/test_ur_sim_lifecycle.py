@@ -11,7 +11,7 @@ import pytest
 
 from app.benchmarks.faults import PARENT, ports_free, process_alive
 from mocks.ur_sim import launch
-from .conftest import free_host
+from tests.simulated_ur import free_host
 
 
 def _wait_gone(pid: int, timeout: float) -> bool:

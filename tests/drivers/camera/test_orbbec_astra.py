@@ -44,7 +44,7 @@ def test_openni2_loads_from_an_orbbec_style_library_dir(tmp_path):
     (sdk / "OpenNI2").mkdir()
     (sdk / "OpenNI2" / "Drivers").symlink_to(SYSTEM / "OpenNI2" / "Drivers")
     proc = subprocess.run([sys.executable, "-c", _SCRIPT, str(sdk), str(tmp_path / "i.yaml")], capture_output=True,
-                          text=True, timeout=60, cwd=Path(__file__).parents[2])
+                          text=True, timeout=60, cwd=Path(__file__).parents[3])
     assert proc.returncode == 0, proc.stderr[-2000:]
     out = json.loads(proc.stdout.strip().splitlines()[-1])
     assert out["loaded_from"] == str(sdk)  # the library in library_dir, not the system's

@@ -8,7 +8,7 @@ from app.benchmarks.faults import format_row, random_valid_start, run_targets, s
 from drivers.robot import ur_kinematics as kin
 from drivers.robot.ur import URRobot
 from mocks.ur_sim.motion import JointMotion, LinearMotion
-from .conftest import START_Q, robot_config
+from tests.simulated_ur import START_Q, robot_config
 
 
 def test_oracle_flags_a_singular_movel_and_a_box_violation():

@@ -1,18 +1,16 @@
-"""Shared helpers for the UR driver tests: each test module launches its own
-simulated controller (module-scoped, because every ur_rtde disconnect sleeps
-0.5 s) on its own loopback address, derived from the process id so that
-concurrent runs of the suite do not collide."""
+"""Helpers for the tests that run the simulated UR controller (mocks.ur_sim) through the real driver.
 
+Each test module launches its own simulated controller (the ``sim_factory`` fixture of tests/conftest.py,
+module-scoped because every ur_rtde disconnect sleeps 0.5 s) on its own loopback address, derived from
+the process id so that concurrent runs of the suite do not collide.
+"""
+
+import os
 import time
 
 import numpy as np
-import pytest
-
-from drivers.errors import DeviceError
 
 from drivers.robot.ur import URRobot, URRobotConfig
-from mocks.ur_sim import launch
-from tests.conftest import process_net
 
 # An unusual TCP so that forgetting to remove it shows up in every pose check.
 SIM_TCP = (0.01, -0.02, 0.15, 0.1, -0.2, 0.3)
@@ -36,31 +34,16 @@ def robot_config(host: str, **kw) -> URRobotConfig:
     return URRobotConfig(**base)
 
 
+def process_net() -> str:
+    """A loopback /24 of this test process (``127.a.b``), derived from its pid, so that
+    concurrent runs of the suite (CI, several checkouts) never share simulator ports."""
+    pid = os.getpid()
+    return f"127.{(pid >> 8) % 250 + 1}.{pid % 256}"
+
+
 def free_host(slot: int) -> str:
     """A loopback address for this test process: concurrent runs of the suite must not share ports."""
     return f"{process_net()}.{slot}"
-
-
-@pytest.fixture(scope="module")
-def sim_factory():
-    """Launch simulators for this module (``make(slot, controller)``); stopped at module end."""
-    sims = []
-
-    def make(slot, controller="5.11"):
-        for attempt in range(5):
-            try:
-                sim = launch(free_host(slot + 10 * attempt), model="ur10", controller=controller,
-                             initial_q=START_Q, tcp_offset=SIM_TCP)
-                break
-            except DeviceError as exc:
-                if "in use" not in str(exc) or attempt == 4:
-                    raise
-        sims.append(sim)
-        return sim
-
-    yield make
-    for sim in sims:
-        sim.stop()
 
 
 def connect_robot(cfg) -> URRobot:
