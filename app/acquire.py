@@ -1,7 +1,7 @@
 """Taking one sample: a fresh frame, the robot pose at its exposure time, the marker measurement.
 
-Shared by the active run (`app.commands.calibrate`) and passive monitoring
-(`app.commands.monitor`). The measurement is the same in both setups: the
+Shared by the active run (`app.runs.calibrate`) and passive monitoring
+(`app.runs.monitor`). The measurement is the same in both setups: the
 marker seen from the camera, ``B_i = T_cam_marker`` (or its center) in the
 paper's ``A_i X = Y B_i`` with ``A_i = T_base_flange``.
 """

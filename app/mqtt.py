@@ -291,7 +291,7 @@ class MqttPublisher:
         return {**self._base("status"), "state": state}
 
     def __call__(self, obs, update, report) -> None:
-        """`app.commands.monitor.run_monitor`'s ``on_update``: estimate (retained), drift, and the alarm if one fired."""
+        """`app.runs.monitor.run_monitor`'s ``on_update``: estimate (retained), drift, and the alarm if one fired."""
         self.session = str(report.session)
         if report.estimate is not None:
             xyz, q = tf.to_xyz_quat(report.estimate)

@@ -128,7 +128,7 @@ def say(text: str) -> None:
 
 
 def show_monitor(bar, report) -> None:
-    """Change detector state, live 1-sigma and drift beside the monitor's bar (``MonitorReport`` of `app.commands.monitor`)."""
+    """Change detector state, live 1-sigma and drift beside the monitor's bar (``MonitorReport`` of `app.runs.monitor`)."""
     if bar is None or not hasattr(bar, "set_postfix_str"):
         return
     n = report.samples_until_armed

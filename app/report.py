@@ -193,26 +193,46 @@ def write_report(directory: Path, *, result_doc: dict, observations: list[Observ
     and the per-pose samples it judged; ``warnings``: sentences to show besides
     those the documents carry.
     """
-    from app.verify import models_of, pose_errors
+    from app.verify import models_of
 
     observations = list(observations or [])
     verify_observations = list(verify_observations or [])
     model, _ = models_of(result_doc, Path(directory) / "result")
-    setup = Setup(result_doc["setup"])
     mdl = result_doc.get("model") or {}
-    cam = result_doc["camera_transform"]
-    parts = [f"<h1>{html.escape(title)}</h1>"]
-    verdict = ""
+    parts = [f"<h1>{html.escape(title)}</h1>", _verdict(verify_doc)]
+    parts += _result_section(result_doc, len(observations))
+    parts += _warnings_section(warnings, mdl, verify_doc)
+    parts += _plots_section(model, result_doc["camera_transform"], observations, verify_observations)
+    parts += _heldout_section(mdl, verify_doc)
+    parts += _correction_section(mdl)
     if verify_doc is not None:
-        v = verify_doc["verification"]
-        verdict = (f'<p><span class="{"pass" if v["passed"] else "fail"}">{"PASS" if v["passed"] else "FAIL"}</span> '
-                   f'calibration error {v["calibration_error_mm"]:.2f} mm against the tolerance '
-                   f'{v["tolerance_mm"]:g} mm / {v["tolerance_deg"]:g} deg ({verify_doc["mode"]}, '
-                   f'{v["n_poses"]} poses)</p>')
-    parts.append(verdict)
+        parts.append("<h2>Verification</h2>" + _verification_table(verify_doc))
+    page = ("<!DOCTYPE html><html lang=\"en\"><head><meta charset=\"utf-8\">"
+            f"<title>{html.escape(title)}</title><style>{_STYLE}</style></head><body>"
+            + "".join(parts) + "</body></html>\n")
+    path = Path(directory) / REPORT_NAME
+    path.write_text(page, encoding="utf-8")
+    return path
+
+
+def _verdict(verify_doc: dict | None) -> str:
+    """The PASS/FAIL line of a verification ("" without one)."""
+    if verify_doc is None:
+        return ""
+    v = verify_doc["verification"]
+    return (f'<p><span class="{"pass" if v["passed"] else "fail"}">{"PASS" if v["passed"] else "FAIL"}</span> '
+            f'calibration error {v["calibration_error_mm"]:.2f} mm against the tolerance '
+            f'{v["tolerance_mm"]:g} mm / {v["tolerance_deg"]:g} deg ({verify_doc["mode"]}, '
+            f'{v["n_poses"]} poses)</p>')
+
+
+def _result_section(result_doc: dict, n_observations: int) -> list[str]:
+    """Setup, solver, samples, the camera transform with its 1-sigma, residual RMS."""
+    setup = Setup(result_doc["setup"])
+    cam = result_doc["camera_transform"]
     xyz = np.array(cam["translation_m"]) * 1e3
     summary = [["setup", f"{setup.value}: {setup.equation}"], ["solver", result_doc.get("solver", "")],
-               ["samples", result_doc.get("n_samples", len(observations))],
+               ["samples", result_doc.get("n_samples", n_observations)],
                [f"{cam['name']} xyz [mm]", " ".join(f"{x:.2f}" for x in xyz)],
                [f"{cam['name']} quaternion (x, y, z, w)", " ".join(f"{q:.5f}" for q in cam["quaternion_xyzw"])],
                ["residual RMS [mm] (camera frame)", f"{result_doc['residuals']['rms_translation_mm']:.2f}"]]
@@ -220,8 +240,11 @@ def write_report(directory: Path, *, result_doc: dict, observations: list[Observ
         summary.append(["1-sigma per axis [mm]", " ".join(f"{s:.2f}" for s in cam["sigma_1"]["translation_mm"])])
         summary.append(["1-sigma per axis [deg]", " ".join(f"{s:.3f}" for s in cam["sigma_1"]["rotation_deg"])])
     summary.append(["written", _dt.datetime.now(_dt.timezone.utc).strftime("%Y-%m-%d %H:%M UTC")])
-    parts += ["<h2>Result</h2>", _table(["quantity", "value"], summary)]
+    return ["<h2>Result</h2>", _table(["quantity", "value"], summary)]
 
+
+def _warnings_section(warnings: list[str] | None, mdl: dict, verify_doc: dict | None) -> list[str]:
+    """The caller's warnings, the model's self-check and notes, and what a failed verification means."""
     notes = list(warnings or [])
     check = mdl.get("self_check") or {}
     if check.get("warning"):
@@ -237,16 +260,22 @@ def write_report(directory: Path, *, result_doc: dict, observations: list[Observ
         if rig is not None and not rig["passed"]:
             notes.append("the ROS/URDF exports (a rigid transform for uncorrected points) fail the tolerance: a "
                          "consumer without the camera correction sees larger errors")
-    parts.append("<h2>Warnings</h2>")
-    parts.append("".join(f'<div class="warn">{html.escape(n)}</div>' for n in notes) or "<p>none</p>")
+    return ["<h2>Warnings</h2>",
+            "".join(f'<div class="warn">{html.escape(n)}</div>' for n in notes) or "<p>none</p>"]
 
-    parts.append("<h2>Setup and frames</h2>")
-    parts.append(_plot("setup and frames (base frame, m; axes x red, y green, z blue)",
-                       frames_plot(model, observations, verify_observations)))
-    parts.append("<h2>Pose coverage</h2>")
-    parts.append(_plot("flange positions in the base frame", coverage_plot(observations, verify_observations),
-                       "the spread of positions and orientations determines the camera transform; a verification "
-                       "inside the calibration's region judges interpolation, outside it extrapolation"))
+
+def _plots_section(model, cam: dict, observations: list[Observation],
+                   verify_observations: list[Observation]) -> list[str]:
+    """Frames, pose coverage, residuals per sample and the error ellipsoid of the camera transform."""
+    from app.verify import pose_errors
+
+    parts = ["<h2>Setup and frames</h2>",
+             _plot("setup and frames (base frame, m; axes x red, y green, z blue)",
+                   frames_plot(model, observations, verify_observations)),
+             "<h2>Pose coverage</h2>",
+             _plot("flange positions in the base frame", coverage_plot(observations, verify_observations),
+                   "the spread of positions and orientations determines the camera transform; a verification "
+                   "inside the calibration's region judges interpolation, outside it extrapolation")]
     if observations:
         e = np.linalg.norm(pose_errors(model, observations).translation, axis=1) * 1e3
         parts.append("<h2>Residuals per sample</h2>")
@@ -263,7 +292,13 @@ def write_report(directory: Path, *, result_doc: dict, observations: list[Observ
         parts.append("<h2>Error ellipsoid of the camera transform</h2>")
         parts.append(_plot(f"1-sigma error ellipse of the {cam['name']} translation [mm] (axes only)",
                            ellipsoid_plot(np.diag(s**2))))
-    parts.append("<h2>Held-out prediction</h2>")
+    return parts
+
+
+def _heldout_section(mdl: dict, verify_doc: dict | None) -> list[str]:
+    """Held-out prediction: leave-one-out, blocked folds, the verification poses (and their error plot)."""
+    check = mdl.get("self_check") or {}
+    parts = ["<h2>Held-out prediction</h2>"]
     rows = []
     if check:
         rows.append(["leave-one-out over the calibration samples (camera frame)",
@@ -285,8 +320,13 @@ def write_report(directory: Path, *, result_doc: dict, observations: list[Observ
         v = verify_doc["verification"]
         parts.append(_plot("error per verification pose [mm] (base frame, noise included)",
                            residual_plot(np.array(v["per_pose_mm"]), "error [mm]", v["tolerance_mm"])))
+    return parts
+
+
+def _correction_section(mdl: dict) -> list[str]:
+    """The camera correction's table and plot (or why there is none)."""
     cc = mdl.get("camera_correction")
-    parts.append("<h2>Camera correction</h2>")
+    parts = ["<h2>Camera correction</h2>"]
     if cc:
         parts.append(_table(["parameter", "value", "1-sigma", "estimated"],
                             [[k, f"{c['value']:+.3f}", f"{c['sigma']:.3f}", "yes" if c["estimated"] else "no"]
@@ -296,14 +336,7 @@ def write_report(directory: Path, *, result_doc: dict, observations: list[Observ
                            "the ROS/URDF exports carry camera_transform_raw_points, the correction folded in"))
     else:
         parts.append("<p>none: this solver estimates no camera correction</p>")
-    if verify_doc is not None:
-        parts.append("<h2>Verification</h2>" + _verification_table(verify_doc))
-    page = ("<!DOCTYPE html><html lang=\"en\"><head><meta charset=\"utf-8\">"
-            f"<title>{html.escape(title)}</title><style>{_STYLE}</style></head><body>"
-            + "".join(parts) + "</body></html>\n")
-    path = Path(directory) / REPORT_NAME
-    path.write_text(page, encoding="utf-8")
-    return path
+    return parts
 
 
 def _verification_table(doc: dict) -> str:

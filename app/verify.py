@@ -306,10 +306,10 @@ def verify_active(cfg: Config, loaded: LoadedResult, *, rng: np.random.Generator
 
 
 def verify_passive(cfg: Config, loaded: LoadedResult, *, progress: bool = False) -> VerifyRun:
-    """Sample read-only while something else moves the robot (`app.commands.monitor.monitor`: a still robot,
+    """Sample read-only while something else moves the robot (`app.runs.monitor.monitor`: a still robot,
     a pose unlike the recent ones), until ``[verify] poses`` samples or ``monitor.duration_s``; on the simulated
     cell its controller runs the production program. The samples are recorded in a new session."""
-    from app.commands.monitor import monitor
+    from app.runs.monitor import monitor
     from app.config import config_from_dict
 
     if loaded.model.setup != cfg.setup:

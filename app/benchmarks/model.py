@@ -202,6 +202,57 @@ REALISTIC_ESTIMATORS = {
 }
 
 
+@dataclasses.dataclass
+class _RealisticTally:
+    """What `section_realistic` collects over its cells."""
+
+    errs: dict = dataclasses.field(default_factory=dict)          # (estimator, cell) -> [(translation, workspace)]
+    bound: dict = dataclasses.field(default_factory=lambda: {key: [] for key in ("ext", "ext_rot", "ext_depth",
+                                                                                   "gen")})
+    nees_auto: list = dataclasses.field(default_factory=list)
+    nees_shared: dict = dataclasses.field(default_factory=lambda: {"points": [], "points + orientations": []})
+    est: dict = dataclasses.field(default_factory=dict)           # camera parameter -> estimated values
+
+
+def _realistic_cell(seed: int, prof, n: int, tally: _RealisticTally) -> None:
+    """One realistic cell and its bias-free twin: bounds and every estimator's errors into ``tally``."""
+    cells = {"real": simulate.realistic_profile(n, np.random.default_rng(seed), prof),
+             "bias-free": simulate.realistic_profile(n, np.random.default_rng(seed), prof.bias_free())}
+    real = cells["real"]
+    d = real.data
+    P = {k: simulate.workspace_points(c, WORKSPACE_POINTS, np.random.default_rng([seed, 1]))
+         for k, c in cells.items()}
+    seen = tf.transform_points(tf.invert(d.Y), P["real"])
+    covs = {"ext": extended_cov(d, real.robot_rms_m),
+            "ext_rot": extended_cov(d, real.robot_rms_m, prof.orientation_noise_rad),
+            "ext_depth": extended_cov(d, real.robot_rms_m, free=(True, True, False)),
+            "gen": generating_cov(real, prof)}
+    for key, cov in covs.items():
+        tally.bound[key].append((translation_rms(cov), workspace_rms(cov, d.Y, seen)))
+    for name, fn in REALISTIC_ESTIMATORS.items():
+        for label, cell in cells.items():
+            dd = cell.data
+            res = fn(dd.A, dd.points, dd.B)
+            tally.errs.setdefault((name, label), []).append(
+                (np.linalg.norm(error_vector(res.Y, dd.Y)[3:]),
+                 workspace_error(res.Y, res.camera_correction, cell, P[label])))
+            if name == "auto (points)" and label == "real":
+                tally.nees_auto.append(nees(res.Y, d.Y, res.cov))
+                # On the camera's uncorrected points (what a URDF or tf gets): T_base_cam alone, and the
+                # transform with the correction folded in that the exports carry.
+                for what, T in (("T_base_cam", res.Y),
+                                ("camera_transform_raw_points", res.camera_transform_raw_points)):
+                    tally.errs.setdefault((f"auto (points): {what} on uncorrected points", label), []).append(
+                        (np.nan, workspace_error(T, model.CameraCorrection(), cell, P[label])))
+                # With the robot's kinematic error as what it is: shared by all samples (joints known).
+                F = prof.dh_error_factor(real.q)
+                for kind, B in (("points", d.points), ("points + orientations", d.B)):
+                    shared = solve("auto", d.A, B, robot_shared_error=F)
+                    tally.nees_shared[kind].append(nees(shared.Y, d.Y, shared.cov))
+                for k, v in res.auto.camera_correction.items():
+                    tally.est.setdefault(k, []).append(v.value if v.estimated else np.nan)
+
+
 def section_realistic(rng, trials: int, n: int = 30) -> str:
     """Realistic profile: error of each estimator against the bounds and the bias-free cell, in two measures.
 
@@ -210,47 +261,10 @@ def section_realistic(rng, trials: int, n: int = 30) -> str:
     estimated) puts held-out marker points of the same workspace.
     """
     prof = simulate.RealisticProfile()
-    errs = {}
-    bound = {key: [] for key in ("ext", "ext_rot", "ext_depth", "gen")}
-    nees_auto, est = [], {}
-    nees_shared = {"points": [], "points + orientations": []}
-    for t in range(trials):
-        seed = int(rng.integers(1 << 31))
-        cells = {"real": simulate.realistic_profile(n, np.random.default_rng(seed), prof),
-                 "bias-free": simulate.realistic_profile(n, np.random.default_rng(seed), prof.bias_free())}
-        real = cells["real"]
-        d = real.data
-        P = {k: simulate.workspace_points(c, WORKSPACE_POINTS, np.random.default_rng([seed, 1]))
-             for k, c in cells.items()}
-        seen = tf.transform_points(tf.invert(d.Y), P["real"])
-        covs = {"ext": extended_cov(d, real.robot_rms_m),
-                "ext_rot": extended_cov(d, real.robot_rms_m, prof.orientation_noise_rad),
-                "ext_depth": extended_cov(d, real.robot_rms_m, free=(True, True, False)),
-                "gen": generating_cov(real, prof)}
-        for key, cov in covs.items():
-            bound[key].append((translation_rms(cov), workspace_rms(cov, d.Y, seen)))
-        for name, fn in REALISTIC_ESTIMATORS.items():
-            for label, cell in cells.items():
-                dd = cell.data
-                res = fn(dd.A, dd.points, dd.B)
-                errs.setdefault((name, label), []).append(
-                    (np.linalg.norm(error_vector(res.Y, dd.Y)[3:]),
-                     workspace_error(res.Y, res.camera_correction, cell, P[label])))
-                if name == "auto (points)" and label == "real":
-                    nees_auto.append(nees(res.Y, d.Y, res.cov))
-                    # On the camera's uncorrected points (what a URDF or tf gets): T_base_cam alone, and the
-                    # transform with the correction folded in that the exports carry.
-                    for what, T in (("T_base_cam", res.Y),
-                                    ("camera_transform_raw_points", res.camera_transform_raw_points)):
-                        errs.setdefault((f"auto (points): {what} on uncorrected points", label), []).append(
-                            (np.nan, workspace_error(T, model.CameraCorrection(), cell, P[label])))
-                    # With the robot's kinematic error as what it is: shared by all samples (joints known).
-                    F = prof.dh_error_factor(real.q)
-                    for kind, B in (("points", d.points), ("points + orientations", d.B)):
-                        shared = solve("auto", d.A, B, robot_shared_error=F)
-                        nees_shared[kind].append(nees(shared.Y, d.Y, shared.cov))
-                    for k, v in res.auto.camera_correction.items():
-                        est.setdefault(k, []).append(v.value if v.estimated else np.nan)
+    tally = _RealisticTally()
+    for _ in range(trials):
+        _realistic_cell(int(rng.integers(1 << 31)), prof, n, tally)
+    errs, bound, nees_auto, nees_shared, est = tally.errs, tally.bound, tally.nees_auto, tally.nees_shared, tally.est
     b = {key: np.sqrt(np.mean(np.square(v), axis=0)) for key, v in bound.items()}     # (translation, workspace)
     tables = {0: [], 1: []}
     for name in dict.fromkeys(k[0] for k in errs):

@@ -103,13 +103,13 @@ def _cell_config(setup: str, seed: int, host: str, root: Path, poses: str):
 
 def run_strategy(setup: str, strategy: str, seed: int, host: str, root: Path) -> dict:
     """One full calibrate run on the simulated cell; motions, robot time and the outcome."""
-    from app.commands.calibrate import calibrate
+    from app.runs.calibrate import calibrate
     from drivers.robot import ur_kinematics as kin
 
     poses = strategy
     planned = None
     if strategy == "plan":
-        from app.commands.plan import plan
+        from app.runs.plan import plan
 
         planned = plan(_cell_config(setup, seed, host, root, "optimal"), root / f"plan_{setup}_{seed}.json").document
         poses = str(root / f"plan_{setup}_{seed}.json")

@@ -22,7 +22,7 @@ from pathlib import Path
 import numpy as np
 
 from app import verify as av
-from app.commands.demo import demo
+from app.runs.demo import demo
 from app.config import load_config
 from calib import transforms as tf
 from calib import verify as cv

@@ -1,24 +1,20 @@
-"""``handeye demo``: calibrate the simulated cell and print the result beside the truth."""
+"""``handeye demo``: calibrate the simulated cell and print the result beside the truth (the run: `app.runs.demo`)."""
 
 from __future__ import annotations
 
 import argparse
 from pathlib import Path
 
-from app import devices
-from app.commands.calibrate import CalibrationOutput, calibrate, exit_code, print_calibration_summary
+from app.commands.calibrate import exit_code, print_calibration_summary
 from app.commands.common import add_motion_options, add_run_options, load_config_args
-from app.config import Config
-from app.errors import ConfigError
+from app.commands.monitor import EXIT_ALARM, print_monitor_summary
 from app.production import Bump
+from app.runs.demo import demo, demo_monitor
 from calib.errors import HandeyeError
 
 NAME = "demo"
 HELP = ("simulated UR10 + rendered camera: calibrate and compare to the truth "
         "(--monitor: watch a production program, bump the camera, alarm)")
-#: Monitor settings of ``handeye demo --monitor``: quick standstills and a first calibration tried every
-#: 4 new poses, so the whole story (arming, bump, alarm, re-learn) fits in about a minute.
-DEMO_MONITOR = {"still_s": 0.2, "poll_s": 0.02, "reestimate_samples": 4}
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -44,24 +40,7 @@ def run(args) -> int:
     return exit_code(out)
 
 
-def demo(cfg: Config, *, progress: bool = True) -> CalibrationOutput:
-    """Calibrate the simulated cell: the UR simulator (started by the robot driver, driven
-    through the real ur_rtde client) and the rendered camera, whose true pose is known.
-
-    Raises
-    ------
-    ConfigError
-        If the config names real hardware: the demo moves without asking.
-    """
-    if not devices.simulated(cfg):
-        raise ConfigError("demo runs only a simulated cell (a simulated robot.type and camera.backend); "
-                          "use 'handeye calibrate' for hardware")
-    return calibrate(cfg, progress=progress)
-
-
 def _run_monitor(args) -> int:
-    from app.commands.monitor import EXIT_ALARM, print_monitor_summary
-
     if args.bump_after < 1:
         raise HandeyeError(f"--bump-after must be >= 1, got {args.bump_after}")
     cfg = load_config_args(args)
@@ -69,32 +48,3 @@ def _run_monitor(args) -> int:
     report = demo_monitor(cfg, bump=bump, reference=args.reference, max_samples=args.max_samples)
     print_monitor_summary(report, cfg.setup)
     return EXIT_ALARM if report.alarms else 0
-
-
-def demo_monitor(cfg: Config, *, bump: Bump | None, reference: Path | None = None, max_samples: int | None = None,
-                 progress: bool = True, publish=None):
-    """Passive monitoring of the simulated cell: its controller runs a looping production program,
-    the rendered camera is bumped partway (``bump``), the monitor alarms and re-estimates.
-
-    Without ``max_samples`` the run ends a few samples after the re-estimate is due.
-
-    Raises
-    ------
-    ConfigError
-        If the config names real hardware.
-    """
-    from app.commands.monitor import monitor
-
-    if not devices.simulated(cfg):
-        raise ConfigError("demo --monitor runs only a simulated cell (a simulated robot.type and camera.backend); "
-                          "use 'handeye monitor' for hardware")
-    from app.config import config_from_dict
-
-    data = cfg.model_dump()
-    mon = data["monitor"]
-    mon.update(DEMO_MONITOR)
-    after = bump.after if bump is not None else 0
-    mon["max_samples"] = max_samples or (after + 32 if bump else 30)
-    mon["duration_s"] = cfg.monitor.duration_s or 300.0
-    cfg = config_from_dict(data, "demo --monitor")
-    return monitor(cfg, reference=reference, progress=progress, bump=bump, publish=publish)

@@ -1,36 +1,18 @@
 """``handeye replay``: re-solve a recorded session (or an imported file) with one, several or all solvers, and advise.
 
-Works for both setups; the session header says which (eye-to-hand:
-``X = T_flange_marker``, ``Y = T_base_cam``; eye-in-hand: ``X = T_flange_cam``,
-``Y = T_base_marker``).
-
-The report groups the solvers by what they use (marker points or marker
-poses), sorts each group by the held-out prediction error of the marker
-point (`calib.crossval.cross_validate`: each fold solved without its
-samples, their points predicted from the robot poses), marks the recommended
-result (the lowest held-out error), explains refined rows that agree
-(refinement takes every start to the same maximum-likelihood optimum), and
-warns about a 1-sigma above the target and about residuals the measurement
-noise does not explain (`advice`).
+The replay is `app.runs.replay` (``--monitor``: `app.monitor_replay`); this module parses and prints.
 """
 
 from __future__ import annotations
 
 import argparse
-import time
-from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
 from app import devices
 from app.errors import SessionError
-from app.session import read_session
-from calib import transforms as tf
-from calib.api import METHODS, solve_observations
-from calib.errors import HandeyeError, InsufficientDataError
-from calib.observation import Observation
-from calib.result import CalibrationResult
+from app.runs.replay import replay_settings, replay_source, write_outputs
 from calib.setup import Setup
 
 
@@ -66,15 +48,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 def run(args) -> int:
     methods = args.methods or ["auto"]
-    target, shared_error, cfg = (0.0, 0.0), None, None
-    exports, frames = list(devices.RESULT_FILES), None
-    if args.config is not None:
-        from app.config import load_config
-
-        cfg = load_config(args.config)
-        target = (cfg.calibrate.target_sigma_mm, cfg.calibrate.target_sigma_deg)
-        shared_error = devices.open_robot(cfg, read_only=True).shared_error_factor   # a model only: never connected
-        exports, frames = cfg.session.exports, cfg.frames.model_dump()
+    settings = replay_settings(args.config)
     if args.monitor:
         from app.monitor_replay import replay_monitor, summary
 
@@ -82,378 +56,19 @@ def run(args) -> int:
             raise SessionError("replay --monitor needs --reference: the calibration session (or its result.yaml) "
                                "the production session is judged against")
         rep = replay_monitor(args.source, args.reference, args.trace_dir or args.source / "monitor_replay",
-                             settings=None if cfg is None else cfg.monitor.engine, shared_error=shared_error,
-                             rng=np.random.default_rng(args.seed))
+                             settings=None if settings.config is None else settings.config.monitor.engine,
+                             shared_error=settings.shared_error, rng=np.random.default_rng(args.seed))
         print(summary(rep))
         return 3 if any(a["alarm"] == "moved" for a in rep.alarms) else 0
     outcome = replay_source(args.source, methods, refine=args.refine, robust=args.robust, setup=args.setup,
-                            rng=np.random.default_rng(args.seed), target_mm=target[0], target_deg=target[1],
-                            shared_error=shared_error,
-                            import_options=devices.import_options(cfg, frames=args.frames, topics=args.topics))
+                            rng=np.random.default_rng(args.seed), target_mm=settings.target_mm,
+                            target_deg=settings.target_deg, shared_error=settings.shared_error,
+                            import_options=devices.import_options(settings.config, frames=args.frames,
+                                                                  topics=args.topics))
     print(outcome.text)
     if args.out is not None:
-        files = write_outputs(outcome, args.out, exports, frames)
+        files = write_outputs(outcome, args.out, settings.exports, settings.frames)
         print("\n| output | file |\n|---|---|")
         for kind, path in files.items():
             print(f"| {kind} | {path} |")
     return 0
-
-
-@dataclass
-class ReplayOutcome:
-    """What `replay_source` found: the printed report, the rows, and what `write_outputs` needs.
-
-    ``text``: tables and advice; ``best``: the row whose result ``--out`` writes (the recommended one,
-    else the first that solved); ``truth``: the recorded camera truth (4, 4) or None.
-    """
-
-    text: str
-    rows: list
-    best: object
-    observations: list
-    setup: Setup
-    source: Path
-    warnings: list
-    truth: np.ndarray | None = None
-
-
-def write_outputs(outcome: "ReplayOutcome", out_dir: Path, exports, frames: dict | None = None) -> dict:
-    """Write ``outcome.best``'s result into ``out_dir`` in each export format (`app.devices.write_result`)
-    and its ``report.html``, as calibrate writes its session's; returns ``{kind: path}``."""
-    out_dir = Path(out_dir)
-    try:
-        out_dir.mkdir(parents=True, exist_ok=True)
-    except OSError as e:
-        raise SessionError(f"--out {out_dir}: cannot create ({e.strerror})") from None
-    from app.commands.calibrate import write_run_report
-
-    files = devices.write_result(outcome.best.result, out_dir, exports, frames)
-    files["report"] = write_run_report(outcome.best.result, out_dir, outcome.observations, frames, outcome.warnings)
-    return files
-
-
-def replay_source(source: Path, methods: list[str], *, refine: bool = False, robust: bool = False,
-                  setup: Setup | None = None, rng: np.random.Generator | None = None,
-                  target_mm: float = 0.0, target_deg: float = 0.0, shared_error=None,
-                  import_options: dict | None = None) -> ReplayOutcome:
-    """Re-solve a session directory or an imported file with each method; returns the outcome whose
-    ``text`` is the report: the tables grouped by what the solvers use and sorted by held-out error, then
-    the advice (`advice`; ``target_mm``/``target_deg`` are the config's 1-sigma targets; ``shared_error``:
-    `replay`; ``import_options``: `app.devices.import_options`)."""
-    if not Path(source).exists():
-        raise SessionError(f"{source}: no such file or directory")
-    if (Path(source) / "session.json").exists():
-        session = read_session(source)
-        if setup is not None and setup != session.setup:
-            raise SessionError(f"{source} is an {session.setup} session; --setup {setup} contradicts it")
-        observations, file_setup, truth = session.observations, session.setup, session.truth
-        header = ""
-    else:
-        observations, file_setup, meta = devices.import_observations(Path(source), setup, **(import_options or {}))
-        truth, header = {}, _import_summary(meta)
-    setup = setup or file_setup
-    if not observations:
-        raise InsufficientDataError(f"{source}: no samples to replay")
-    if methods == ["all"]:
-        methods = list(METHODS)
-    T_true = devices.camera_truth(setup, truth)
-    rows = replay(observations, setup, methods, refine=refine, robust=robust,
-                  truth=T_true, rng=rng, shared_error=shared_error)
-    if all(r.result is None for r in rows):
-        raise HandeyeError(f"no solver succeeded on {source}: " + "; ".join(f"{r.method}: {r.error}" for r in rows))
-    lines = advice(rows, observations, refine=refine, target_mm=target_mm, target_deg=target_deg)
-    text = (f"{source} ({setup}, {len(observations)} samples)\n{header}\n" + format_table(rows, setup)
-            + ("\n\n" + "\n".join(lines) if lines else ""))
-    best = recommended(rows) or next(r for r in rows if r.result is not None)
-    return ReplayOutcome(text, rows, best, observations, Setup(setup), Path(source),
-                         [line.removeprefix("warning: ") for line in lines if line.startswith("warning:")], T_true)
-
-
-def _import_summary(meta: dict) -> str:
-    """What an importer measured that the table does not show (the streams' clock offset)."""
-    if "clock_offset_s" not in meta:
-        return ""
-    line = f"clock offset (t_robot = t_camera + offset): {meta['clock_offset_s'] * 1e3:+.1f} ms"
-    if "xcorr_score" in meta:
-        line += f" (angular-speed correlation {meta['xcorr_score']:.2f}"
-        if "refine_rms_mm" in meta:
-            line += f", refined on the residual: RMS {meta['refine_rms_mm']:.2f} mm"
-        line += ")"
-    return line + "\n"
-
-
-#: 1-sigma targets when the config sets none (calibrate.target_sigma_mm/_deg = 0): the project's accuracy target.
-DEFAULT_TARGET_MM = 3.0
-DEFAULT_TARGET_DEG = 0.2
-#: Held-out (or in-sample) error this many times what the noise model predicts: the residuals are inconsistent.
-INCONSISTENT_RATIO = 2.0
-#: Refined results closer than this (mm, deg) count as the same optimum (well inside any 1-sigma we accept).
-SAME_MM, SAME_DEG = 0.5, 0.05
-
-
-@dataclass
-class ReplayRow:
-    """One solver's outcome on the replayed samples.
-
-    ``error`` holds the one-line reason when the solver refused the data (e.g.
-    a pose-based method on a point-only session); ``truth_error`` is
-    ``(deg, mm)`` of the camera transform against the recorded truth, if any;
-    ``uses`` is ``"points"`` or ``"poses"``; ``heldout`` the
-    `calib.crossval.CrossValidation` of the method on these samples (None if
-    cross-validation was off or failed, with ``heldout_error`` saying why).
-    """
-
-    method: str
-    result: CalibrationResult | None
-    seconds: float
-    error: str | None = None
-    truth_error: tuple[float, float] | None = None
-    uses: str = ""
-    heldout: object | None = None
-    heldout_error: str | None = None
-
-
-def _is_auto(method: str) -> bool:
-    from calib.api import AUTO
-
-    return isinstance(method, str) and method.strip().lower() == AUTO
-
-
-def _uses(method: str) -> str:
-    from calib.api import resolve_method
-
-    if _is_auto(method):
-        return "auto"
-    try:
-        return resolve_method(method).needs
-    except HandeyeError:
-        return "?"
-
-
-def heldout_error(method: str, observations, setup: Setup, *, refine: bool, robust: bool,
-                  rng: np.random.Generator | None):
-    """`calib.crossval.cross_validate` of ``method`` on the samples it uses (leave-one-out up to 10
-    samples, else 5 folds: a few solves per method); returns ``(CrossValidation or None, reason or None)``."""
-    from calib.api import observations_to_arrays, resolve_method
-    from calib.crossval import cross_validate
-
-    try:
-        if _is_auto(method):
-            # As calib.api.solve_observations: "auto" takes the poses when every sample has one.
-            name, kind = method, "poses" if all(o.T_cam_marker is not None for o in observations) else "points"
-        else:
-            info = resolve_method(method)
-            name, kind = info.name, info.needs
-        A, B, point_cov, _ = observations_to_arrays(observations, kind)
-        folds = None if len(A) <= 10 else 5
-        return cross_validate(name, A, B, setup=setup, folds=folds, rng=rng, refine=refine, robust=robust,
-                              point_cov=point_cov), None
-    except HandeyeError as e:
-        return None, str(e)
-
-
-def replay(
-    observations: list[Observation],
-    setup: Setup,
-    methods: list[str],
-    *,
-    refine: bool = False,
-    robust: bool = False,
-    truth: np.ndarray | None = None,
-    rng: np.random.Generator | None = None,
-    crossval: bool = True,
-    shared_error=None,
-) -> list[ReplayRow]:
-    """Solve the same samples with each method, time it, and cross-validate it.
-
-    Parameters
-    ----------
-    observations : list[Observation]
-    setup : {"eye_to_hand", "eye_in_hand"}
-    methods : list of str
-        Paper names (``"YKronT'"``, ``"YQuatT'"``, ``"XKronRT"``, ...).
-    truth : ndarray (4, 4), optional
-        True camera transform (``T_base_cam`` eye-to-hand, ``T_flange_cam``
-        eye-in-hand) to report errors against.
-    crossval : bool
-        Also measure each method's held-out prediction error (`heldout_error`).
-    shared_error : callable, optional
-        A robot's `Robot.shared_error_factor`: ``auto`` adds the error it
-        models as shared by the samples, when they carry their joints
-        (`app.devices.robot_shared_error`).
-
-    Returns
-    -------
-    list[ReplayRow]
-        One per method, in the given order; a method that raises a
-        ``HandeyeError`` gets a row with ``error`` set instead of stopping the rest.
-    """
-    rows = []
-    for method in methods:
-        t0 = time.perf_counter()
-        try:
-            res = solve_observations(method, observations, setup, refine=refine, robust=robust, rng=rng,
-                                     robot_shared_error=devices.robot_shared_error(method, observations, shared_error))
-        except HandeyeError as e:
-            rows.append(ReplayRow(method, None, time.perf_counter() - t0, error=str(e), uses=_uses(method)))
-            continue
-        dt = time.perf_counter() - t0
-        err = None
-        if truth is not None:
-            rot, trans = tf.pose_error(res.camera_transform, truth)
-            err = (float(np.rad2deg(rot)), float(trans * 1e3))
-        row = ReplayRow(method, res, dt, truth_error=err, uses=_uses(method))
-        if crossval:
-            row.heldout, row.heldout_error = heldout_error(method, observations, setup, refine=refine,
-                                                           robust=robust, rng=rng)
-        rows.append(row)
-    return rows
-
-
-def _rank_key(r: ReplayRow):
-    if r.result is None:
-        return (2, 0.0)
-    if r.heldout is None:
-        return (1, r.result.residuals.rms_translation)
-    return (0, r.heldout.observed_rms)
-
-
-def recommended(rows: list[ReplayRow]) -> ReplayRow | None:
-    """The row with the lowest held-out prediction error (None without cross-validation results)."""
-    ranked = [r for r in rows if r.result is not None and r.heldout is not None]
-    return min(ranked, key=_rank_key) if ranked else None
-
-
-def format_table(rows: list[ReplayRow], setup: Setup) -> str:
-    """Markdown tables, one per group (marker points / marker poses), each sorted by held-out error.
-
-    Columns: solver, samples, inliers, residual RMS (mm), camera xyz (mm),
-    1-sigma (mm, deg), held-out prediction error (mm) and what the model
-    predicts for it, time, error vs. truth, and the recommendation.
-    """
-    cam = Setup(setup).camera_name
-    has_truth = any(r.truth_error is not None for r in rows)
-    best = recommended(rows)
-    head = ["solver", "n", "inliers", "resid RMS [mm]", f"{cam} xyz [mm]", "1σ [mm]", "1σ [deg]",
-            "held-out [mm]", "predicted [mm]", "time [ms]"]
-    if has_truth:
-        head += ["err [mm]", "err [deg]"]
-    head.append("advice")
-    out = []
-    for uses, title in (("points", "solvers using marker points"), ("poses", "solvers using marker poses"),
-                        ("auto", "the solver 'auto' (calib.auto: camera and robot model)"),
-                        ("?", "unknown solvers")):
-        group = sorted((r for r in rows if r.uses == uses), key=_rank_key)
-        if not group:
-            continue
-        out += ["", f"{title}, by held-out prediction error:", "",
-                "| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
-        for r in group:
-            if r.result is None:
-                cells = [r.method, "-", "-", f"failed: {r.error}"] + [""] * (len(head) - 4)
-            else:
-                res = r.result
-                xyz = " ".join(f"{v:.1f}" for v in res.camera_transform[:3, 3] * 1e3)
-                s_deg, s_mm = _sigma_deg_mm(res)
-                n_in = res.n_samples if res.inliers is None else int(np.count_nonzero(res.inliers))
-                ho = ("-", "-") if r.heldout is None else (f"{r.heldout.observed_rms * 1e3:.2f}",
-                                                            f"{r.heldout.predicted_rms * 1e3:.2f}")
-                cells = [r.method, str(res.n_samples), str(n_in), f"{res.residuals.rms_translation * 1e3:.2f}",
-                         xyz, f"{s_mm:.2f}", f"{s_deg:.3f}", *ho, f"{r.seconds * 1e3:.1f}"]
-                if has_truth:
-                    cells += ["-", "-"] if r.truth_error is None else [f"{r.truth_error[1]:.2f}",
-                                                                      f"{r.truth_error[0]:.3f}"]
-                cells.append("**recommended**" if r is best else "")
-            out.append("| " + " | ".join(cells) + " |")
-    return "\n".join(out).lstrip("\n")
-
-
-def advice(rows: list[ReplayRow], observations, *, refine: bool, target_mm: float = 0.0,
-           target_deg: float = 0.0) -> list[str]:
-    """Lines under the tables: the recommendation, why refined rows agree, and warnings.
-
-    ``target_mm`` / ``target_deg``: the config's 1-sigma targets
-    (``calibrate.target_sigma_mm/_deg``); 0 falls back to `DEFAULT_TARGET_MM`
-    / `DEFAULT_TARGET_DEG`.
-    """
-    lines = []
-    ok = [r for r in rows if r.result is not None]
-    # Groups whose refined rows all reach the same optimum: one result, however many solvers.
-    agreeing = {}
-    if refine:
-        for uses in ("points", "poses"):
-            group = [r for r in ok if r.uses == uses]
-            if len(group) < 2:
-                continue
-            ref = group[0].result.camera_transform
-            errs = np.array([tf.pose_error(r.result.camera_transform, ref) for r in group])
-            spread_mm, spread_deg = float(errs[:, 1].max()) * 1e3, float(np.rad2deg(errs[:, 0].max()))
-            if spread_mm <= SAME_MM and spread_deg <= SAME_DEG:
-                agreeing[uses] = (group, spread_mm, spread_deg)
-    best = recommended(rows)
-    if best is not None:
-        what = f"{best.method}{' (refined)' if refine else ''}"
-        if best.uses in agreeing:
-            what = (f"the refined result from marker {best.uses} (all {len(agreeing[best.uses][0])} solvers of that "
-                    f"group reach it; {best.method} had the lowest held-out error)")
-        lines.append(f"recommended: {what}: held-out prediction error {best.heldout.observed_rms * 1e3:.2f} mm "
-                     f"(its model predicts {best.heldout.predicted_rms * 1e3:.2f} mm)")
-    elif ok:
-        why = next((r.heldout_error for r in ok if r.heldout_error), "cross-validation off")
-        lines.append(f"no recommendation: no held-out prediction error ({why}); rows sorted by residual RMS")
-    for uses, (group, spread_mm, spread_deg) in agreeing.items():
-        lines.append(f"note: the {len(group)} refined rows using marker {uses} agree within "
-                     f"{spread_mm:.3f} mm / {spread_deg:.4f} deg: maximum-likelihood refinement takes "
-                     "every solver's closed-form start to the same optimum, so they differ only in time "
-                     "(replay without --refine to compare the closed forms)")
-    t_mm = target_mm or DEFAULT_TARGET_MM
-    t_deg = target_deg or DEFAULT_TARGET_DEG
-    where = "the config's calibrate.target_sigma" if (target_mm or target_deg) else "the default target"
-    above, inconsistent = [], []
-    for r in ok:
-        if r.result.sigma is not None:
-            s_deg, s_mm = _sigma_deg_mm(r.result)
-            if s_mm > t_mm or s_deg > t_deg:
-                above.append((s_mm, s_deg, r.method))
-        ratio, basis = _consistency(r, observations)
-        if ratio is not None and ratio > INCONSISTENT_RATIO:
-            inconsistent.append((ratio, basis, r.method))
-    if above:
-        worst = max(above)
-        lines.append(f"warning: 1-sigma above {where} ({t_mm:g} mm / {t_deg:g} deg) for {_names(above, ok)} "
-                     f"(largest: {worst[2]}, {worst[0]:.2f} mm / {worst[1]:.3f} deg): take more samples, with more "
-                     "rotation between them")
-    if inconsistent:
-        worst = max(inconsistent)
-        lines.append(f"warning: inconsistent residuals for {_names(inconsistent, ok)}: {worst[1]} up to "
-                     f"{worst[0]:.1f}x what the measurement noise explains ({worst[2]}): outliers (try --robust), "
-                     "a wrong --setup, a clock offset between robot and camera, or a camera that moved during "
-                     "the recording")
-    return lines
-
-
-def _names(flagged: list, ok: list) -> str:
-    return f"all {len(ok)} solvers" if len(flagged) == len(ok) else ", ".join(f[2] for f in flagged)
-
-
-def _consistency(r: ReplayRow, observations) -> tuple[float | None, str]:
-    """The larger of two observed / expected ratios: the in-sample residual RMS against the noise the
-    samples' covariances claim, and the held-out error against what the fitted noise model predicts
-    (which adapts its noise levels to the data, so it misses a uniformly inflated noise)."""
-    ratios = []
-    if r.heldout is not None:
-        ratios.append((r.heldout.ratio, "held-out errors are"))
-    covs = [o.point_cov for o in observations if o.point_cov is not None]
-    if covs and len(covs) == len(observations):
-        expected = float(np.sqrt(np.mean([np.trace(c) for c in covs])))
-        if expected > 0:
-            ratios.append((r.result.residuals.rms_translation / expected, "residuals are"))
-    return max(ratios) if ratios else (None, "")
-
-
-def _sigma_deg_mm(res: CalibrationResult) -> tuple[float, float]:
-    """`CalibrationResult.sigma` in deg and mm (NaN without a covariance)."""
-    if res.sigma is None:
-        return float("nan"), float("nan")
-    s_rot, s_t = res.sigma
-    return float(np.rad2deg(s_rot)), s_t * 1e3

@@ -17,13 +17,12 @@ Eye-to-hand: ``X = T_flange_marker``, ``Y = T_base_cam``; eye-in-hand:
 from __future__ import annotations
 
 import argparse
-import datetime as _dt
 from pathlib import Path
 
 import numpy as np
 
 from app.commands.common import add_run_options, confirm_motion, load_config_args
-from app.errors import SessionError
+from app.runs.verify import verify
 from calib.errors import HandeyeError
 
 NAME = "verify"
@@ -93,72 +92,14 @@ def _config(args):
 
 
 def run(args) -> int:
-    from app import verify as av
-    from app.report import write_report
-    from app.session import read_session
-    from calib import verify as cv
-
     if args.passive and args.session is not None:
         raise HandeyeError("--passive samples the cell, --session verifies against a recording: give one of them")
-    cfg = _config(args)
-    loaded = av.load_result(args.result)
-    rng = np.random.default_rng(cfg.verify.seed)
-    truth_mm = None
-    if args.session is not None:
-        observations, source, mode = _offline_samples(args.session, args.setup, loaded), args.session, "offline"
-        out_dir = _new_dir(cfg.session.root, loaded.model.setup)
-    else:
-        if args.passive:
-            run_, mode = av.verify_passive(cfg, loaded), "passive"
-        else:
-            confirm_motion(args.yes_move)
-            run_, mode = av.verify_active(cfg, loaded, rng=rng), "active"
-        observations, source, out_dir = run_.observations, run_.session, run_.session
-        if run_.truth:
-            truth_mm = av.true_error_mm(loaded, observations, run_.truth, run_.camera_bias)
-        if run_.interrupted:
-            print(f"interrupted: robot stopped; {len(observations)} poses measured (session {run_.session})")
-    tol = dict(tolerance_mm=cfg.verify.tolerance_mm, tolerance_deg=cfg.verify.tolerance_deg)
-    verification = cv.verify(av.pose_errors(loaded.model, observations), rng=rng, **tol)
-    rigid = None if loaded.rigid is None else cv.verify(av.pose_errors(loaded.rigid, observations), rng=rng, **tol)
-    safety = None if args.expect_xyz is None else cv.frame_safety(loaded.model.camera_transform, loaded.model.setup,
-                                                                  args.expect_xyz)
-    doc = av.verify_document(loaded, mode, source, verification, rigid, safety, truth_mm)
-    path = av.write_verify(doc, out_dir)
-    calibration = read_session(loaded.session).observations if loaded.session is not None else []
-    report = write_report(out_dir, result_doc=loaded.doc, observations=calibration, verify_doc=doc,
-                          verify_observations=observations, title="handeye verification report")
-    print_verify_summary(doc, path, report)
-    return 0 if verification.passed else EXIT_FAIL
-
-
-def _offline_samples(source: Path, setup, loaded):
-    from app import devices
-    from app.session import read_session
-
-    if not Path(source).exists():
-        raise SessionError(f"{source}: no such file or directory")
-    if (Path(source) / "session.json").exists():
-        session = read_session(source)
-        observations, file_setup = session.observations, session.setup
-    else:
-        observations, file_setup, _ = devices.import_observations(Path(source), setup or loaded.model.setup.value)
-    if file_setup != loaded.model.setup:
-        raise SessionError(f"{source} is an {file_setup} session, {loaded.path} an {loaded.model.setup} result")
-    if loaded.session is not None and Path(source).resolve() == loaded.session.resolve():
-        raise HandeyeError(f"{source} is the session {loaded.path} was calibrated on: verify it on samples it did "
-                           "not see (another session, or the active mode)")
-    return observations
-
-
-def _new_dir(root, setup) -> Path:
-    now = _dt.datetime.now(_dt.timezone.utc)
-    path = Path(root) / f"{now:%Y%m%d-%H%M%S-%f}_{setup}_verify"
-    try:
-        path.mkdir(parents=True)
-    except OSError as e:
-        raise SessionError(f"session.root: cannot create {path} ({e.strerror})") from None
-    return path
+    out = verify(_config(args), args.result, session=args.session, setup=args.setup, passive=args.passive,
+                 expect_xyz=args.expect_xyz, confirm=lambda: confirm_motion(args.yes_move))
+    if out.interrupted:
+        print(f"interrupted: robot stopped; {out.n_poses} poses measured (session {out.session})")
+    print_verify_summary(out.doc, out.path, out.report)
+    return 0 if out.passed else EXIT_FAIL
 
 
 def print_verify_summary(doc: dict, path: Path, report: Path) -> None:

@@ -629,8 +629,6 @@ def load_ros2_bag(path, setup: str | None = None, frames: dict | None = None, to
         and ``camera_tf`` (``root``, ``frame``, ``T_root_camera`` (4, 4)) when the bag's /tf_static holds
         the camera driver's links from a root (e.g. ``camera_link``) to the image's frame.
     """
-    from calib.vision.extract import extract
-
     folder = Path(path)
     if not is_ros2_bag(folder):
         raise SessionError(f"{folder}: not a ROS 2 bag directory (no metadata.yaml)")
@@ -642,42 +640,10 @@ def load_ros2_bag(path, setup: str | None = None, frames: dict | None = None, to
     bag = _Bag(folder)
     try:
         roles = _topics(bag.reader, folder, {k: v for k, v in (topics or {}).items() if v})
-        tree = _TfTree()
-        streams = {role: _Stream() for role in ("color", "depth", "marker")}
-        marker_T, infos = [], []
-        role_of = {c.id: role for role in ("color", "depth", "info", "marker")
-                   if (c := getattr(roles, role)) is not None}
-        first_pass = roles.tf + [c for c in bag.reader.connections if c.id in role_of]
-        # Pass 1: tf, intrinsics, marker poses, and the stamps of the images (their pixels wait for pass 2).
-        for conn, k, raw in bag.messages(first_pass):
-            where = f"{folder}: {conn.topic} message {k}"
-            if conn.msgtype == TF:
-                msg = bag.decode(conn, k, raw)
-                tree.add(msg, conn.topic.rstrip("/").endswith("tf_static"), where)
-                continue
-            role = role_of[conn.id]
-            t, frame_id, msg = _header_stamp(bag, conn, k, raw)
-            if role == "info":
-                if not infos:
-                    infos.append((msg, where))
-                continue
-            s = streams[role]
-            if s.t and t <= s.t[-1]:
-                raise SessionError(f"{where}: stamp {t:.6f} s is not after the previous one ({s.t[-1]:.6f} s)")
-            s.t.append(t)
-            s.frame_id = s.frame_id or frame_id
-            if role == "marker":
-                marker_T.append(_marker_pose(msg, where))
+        tree, streams, marker_T, infos = _first_pass(bag, roles, folder)
         edges = tree.path(names["base"], names["flange"], folder)
         marker_t = np.array(streams["marker"].t)
-        marker_T = np.array(marker_T).reshape(-1, 4, 4)
-        if clock_offset_s is None:
-            est = _offset(tree, edges, marker_t, marker_T, folder) if roles.color is not None else None
-            offset, offset_how = (0.0, "none: one ROS clock") if est is None else (est, "marker-pose speeds")
-        else:
-            offset, offset_how = float(clock_offset_s), "given"
-        if not np.isfinite(offset) or abs(offset) > 60:
-            raise ConfigError(f"clock_offset_s must be finite and within 60 s, got {offset!r}")
+        offset, offset_how = _clock_offset(clock_offset_s, roles, tree, edges, marker_t, marker_T, folder)
         source = "color" if roles.color is not None else "marker"
         t_cam = np.array(streams[source].t)
         if not len(t_cam):
@@ -685,69 +651,12 @@ def load_ros2_bag(path, setup: str | None = None, frames: dict | None = None, to
         group, T_at = _standstills(t_cam + offset, tree, edges, folder, float(still_s))
         counts = {"read": int(len(t_cam)), "moving_or_no_tf": int(np.count_nonzero(group < 0)),
                   "standstills": int(group.max() + 1) if len(group) else 0}
-        # The frames to try: the first few of each standstill, in order.
-        tries: dict[int, list[int]] = defaultdict(list)
-        for i in np.flatnonzero(group >= 0):
-            if len(tries[group[i]]) < TRIES_PER_STANDSTILL:
-                tries[group[i]].append(int(i))
-        wanted = {i: g for g, idx in tries.items() for i in idx}
-        obs, skipped = [], []
-        intr = None
+        tries = _tries(group)
+        skipped, intr = [], None
         if source == "marker":
-            for g, idx in sorted(tries.items()):
-                i = idx[0]
-                B = marker_T[i]
-                obs.append(Observation(len(obs), float(t_cam[i]), T_at[i], B[:3, 3].copy(), None, B, None,
-                                       {"topic": roles.names["marker"], "message": i}))
+            obs = _marker_samples(tries, t_cam, T_at, marker_T, roles)
         else:
-            if not infos:
-                raise SessionError(f"{folder}: {roles.names['info']} holds no CameraInfo message")
-            depth_t = np.array(streams["depth"].t)
-            pair = {i: _nearest(depth_t, t_cam[i]) for i in wanted}
-            use_depth = roles.depth is not None
-            if use_depth and streams["depth"].frame_id and streams["color"].frame_id \
-                    and streams["depth"].frame_id != streams["color"].frame_id:
-                raise SessionError(f"{folder}: depth ({roles.names['depth']}) is in frame "
-                                   f"{streams['depth'].frame_id!r}, colour in {streams['color'].frame_id!r}: "
-                                   "record depth registered to colour (e.g. aligned_depth_to_color)")
-            tgt = _target(target, use_depth)
-            need_depth = {j: i for i, j in pair.items() if j is not None}
-            colors, depths = {}, {}
-            conns = [roles.color] + ([roles.depth] if use_depth else [])
-            # Pass 2: the pixels of the chosen frames only.
-            for conn, k, raw in bag.messages(conns):
-                if conn.id == roles.color.id and k in wanted:
-                    colors[k] = _color(bag.decode(conn, k, raw), f"{folder}: {conn.topic} message {k}")
-                elif use_depth and conn.id == roles.depth.id and k in need_depth:
-                    depths[k] = _depth(bag.decode(conn, k, raw), f"{folder}: {conn.topic} message {k}")
-            size = next(((c.shape[1], c.shape[0]) for c in colors.values()), None)
-            intr = _intrinsics(*infos[0], size)
-            done = set()
-            for i in sorted(wanted):
-                g = wanted[i]
-                if g in done:
-                    continue
-                where = f"{roles.names['color']} message {i}"
-                depth = None
-                if use_depth:
-                    if pair[i] is None:
-                        skipped.append({"message": i, "reason": f"no depth frame within {MAX_SKEW_S * 1e3:.0f} ms"})
-                        continue
-                    depth = depths[pair[i]]
-                    if depth.shape != colors[i].shape[:2]:
-                        raise SessionError(f"{folder}: {roles.names['depth']} message {pair[i]} is "
-                                           f"{depth.shape[1]}x{depth.shape[0]}, the colour image "
-                                           f"{colors[i].shape[1]}x{colors[i].shape[0]}: depth must be registered")
-                try:
-                    m = extract(colors[i], depth, intr, tgt)
-                except ExtractionError as e:
-                    log.info("%s: skipping %s: %s", folder, where, e)
-                    skipped.append({"message": i, "reason": str(e)})
-                    continue
-                done.add(g)
-                obs.append(Observation.from_measurement(
-                    len(obs), float(t_cam[i]), T_at[i], m,
-                    {"topic": roles.names["color"], "message": i, "depth": bool(use_depth)}))
+            obs, skipped, intr = _image_samples(bag, roles, streams, infos, tries, t_cam, T_at, target, folder)
     finally:
         bag.close()
     counts["samples"] = len(obs)
@@ -769,3 +678,136 @@ def load_ros2_bag(path, setup: str | None = None, frames: dict | None = None, to
     if camera_tf is not None:
         meta["camera_tf"] = {"root": camera_tf[0], "frame": cam_frame, "T_root_camera": camera_tf[1].tolist()}
     return ImportedSamples(obs, setup, meta)
+
+
+def _first_pass(bag: _Bag, roles: _Topics, folder: Path):
+    """Pass 1: tf, intrinsics, marker poses, and the stamps of the images (their pixels wait for pass 2).
+
+    Returns ``(tree, streams, marker_T (n, 4, 4), infos)``: ``streams`` the stamps per role
+    (``color``, ``depth``, ``marker``), ``infos`` the first CameraInfo with where it was read.
+    """
+    tree = _TfTree()
+    streams = {role: _Stream() for role in ("color", "depth", "marker")}
+    marker_T, infos = [], []
+    role_of = {c.id: role for role in ("color", "depth", "info", "marker")
+               if (c := getattr(roles, role)) is not None}
+    first_pass = roles.tf + [c for c in bag.reader.connections if c.id in role_of]
+    for conn, k, raw in bag.messages(first_pass):
+        where = f"{folder}: {conn.topic} message {k}"
+        if conn.msgtype == TF:
+            msg = bag.decode(conn, k, raw)
+            tree.add(msg, conn.topic.rstrip("/").endswith("tf_static"), where)
+            continue
+        role = role_of[conn.id]
+        t, frame_id, msg = _header_stamp(bag, conn, k, raw)
+        if role == "info":
+            if not infos:
+                infos.append((msg, where))
+            continue
+        s = streams[role]
+        if s.t and t <= s.t[-1]:
+            raise SessionError(f"{where}: stamp {t:.6f} s is not after the previous one ({s.t[-1]:.6f} s)")
+        s.t.append(t)
+        s.frame_id = s.frame_id or frame_id
+        if role == "marker":
+            marker_T.append(_marker_pose(msg, where))
+    return tree, streams, np.array(marker_T).reshape(-1, 4, 4), infos
+
+
+def _clock_offset(clock_offset_s, roles: _Topics, tree: _TfTree, edges, marker_t: np.ndarray,
+                  marker_T: np.ndarray, folder: Path) -> tuple[float, str]:
+    """``(t_tf - t_camera, how it was found)``: given, from the marker poses' speeds, or 0 (one ROS clock)."""
+    if clock_offset_s is None:
+        est = _offset(tree, edges, marker_t, marker_T, folder) if roles.color is not None else None
+        offset, offset_how = (0.0, "none: one ROS clock") if est is None else (est, "marker-pose speeds")
+    else:
+        offset, offset_how = float(clock_offset_s), "given"
+    if not np.isfinite(offset) or abs(offset) > 60:
+        raise ConfigError(f"clock_offset_s must be finite and within 60 s, got {offset!r}")
+    return offset, offset_how
+
+
+def _tries(group: np.ndarray) -> dict[int, list[int]]:
+    """The frames to try: the first few of each standstill, in order (``{standstill: [frame, ...]}``)."""
+    tries: dict[int, list[int]] = defaultdict(list)
+    for i in np.flatnonzero(group >= 0):
+        if len(tries[group[i]]) < TRIES_PER_STANDSTILL:
+            tries[group[i]].append(int(i))
+    return tries
+
+
+def _marker_samples(tries: dict, t_cam: np.ndarray, T_at: np.ndarray, marker_T: np.ndarray,
+                    roles: _Topics) -> list[Observation]:
+    """One sample per standstill from a marker pose topic: its first pose there."""
+    obs = []
+    for g, idx in sorted(tries.items()):
+        i = idx[0]
+        B = marker_T[i]
+        obs.append(Observation(len(obs), float(t_cam[i]), T_at[i], B[:3, 3].copy(), None, B, None,
+                               {"topic": roles.names["marker"], "message": i}))
+    return obs
+
+
+def _image_samples(bag: _Bag, roles: _Topics, streams: dict, infos: list, tries: dict, t_cam: np.ndarray,
+                   T_at: np.ndarray, target, folder: Path):
+    """One sample per standstill from the images: the first of its frames the marker is measured in.
+
+    Returns ``(observations, skipped, intrinsics)``.
+    """
+    from calib.vision.extract import extract
+
+    if not infos:
+        raise SessionError(f"{folder}: {roles.names['info']} holds no CameraInfo message")
+    wanted = {i: g for g, idx in tries.items() for i in idx}
+    depth_t = np.array(streams["depth"].t)
+    pair = {i: _nearest(depth_t, t_cam[i]) for i in wanted}
+    use_depth = roles.depth is not None
+    if use_depth and streams["depth"].frame_id and streams["color"].frame_id \
+            and streams["depth"].frame_id != streams["color"].frame_id:
+        raise SessionError(f"{folder}: depth ({roles.names['depth']}) is in frame "
+                           f"{streams['depth'].frame_id!r}, colour in {streams['color'].frame_id!r}: "
+                           "record depth registered to colour (e.g. aligned_depth_to_color)")
+    tgt = _target(target, use_depth)
+    colors, depths = _second_pass(bag, roles, wanted, {j: i for i, j in pair.items() if j is not None}, folder)
+    size = next(((c.shape[1], c.shape[0]) for c in colors.values()), None)
+    intr = _intrinsics(*infos[0], size)
+    obs, skipped, done = [], [], set()
+    for i in sorted(wanted):
+        g = wanted[i]
+        if g in done:
+            continue
+        where = f"{roles.names['color']} message {i}"
+        depth = None
+        if use_depth:
+            if pair[i] is None:
+                skipped.append({"message": i, "reason": f"no depth frame within {MAX_SKEW_S * 1e3:.0f} ms"})
+                continue
+            depth = depths[pair[i]]
+            if depth.shape != colors[i].shape[:2]:
+                raise SessionError(f"{folder}: {roles.names['depth']} message {pair[i]} is "
+                                   f"{depth.shape[1]}x{depth.shape[0]}, the colour image "
+                                   f"{colors[i].shape[1]}x{colors[i].shape[0]}: depth must be registered")
+        try:
+            m = extract(colors[i], depth, intr, tgt)
+        except ExtractionError as e:
+            log.info("%s: skipping %s: %s", folder, where, e)
+            skipped.append({"message": i, "reason": str(e)})
+            continue
+        done.add(g)
+        obs.append(Observation.from_measurement(
+            len(obs), float(t_cam[i]), T_at[i], m,
+            {"topic": roles.names["color"], "message": i, "depth": bool(use_depth)}))
+    return obs, skipped, intr
+
+
+def _second_pass(bag: _Bag, roles: _Topics, wanted: dict, need_depth: dict, folder: Path):
+    """Pass 2: the pixels of the chosen frames only; ``({colour message: image}, {depth message: image})``."""
+    use_depth = roles.depth is not None
+    colors, depths = {}, {}
+    conns = [roles.color] + ([roles.depth] if use_depth else [])
+    for conn, k, raw in bag.messages(conns):
+        if conn.id == roles.color.id and k in wanted:
+            colors[k] = _color(bag.decode(conn, k, raw), f"{folder}: {conn.topic} message {k}")
+        elif use_depth and conn.id == roles.depth.id and k in need_depth:
+            depths[k] = _depth(bag.decode(conn, k, raw), f"{folder}: {conn.topic} message {k}")
+    return colors, depths

@@ -6,9 +6,9 @@ import numpy as np
 import pytest
 
 from app.config import Config, load_config
-from app.commands.calibrate import calibrate
-from app.commands.demo import demo
-from app.commands.replay import replay
+from app.runs.calibrate import calibrate
+from app.runs.demo import demo
+from app.runs.replay import replay
 from app import devices
 from app.session import read_session
 from drivers.robot import ur_kinematics as kin

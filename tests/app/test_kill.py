@@ -10,7 +10,7 @@ from pathlib import Path
 import pytest
 
 from app.cli import main
-from app.commands.calibrate import calibrate
+from app.runs.calibrate import calibrate
 from app.session import read_session
 
 pytestmark = pytest.mark.slow

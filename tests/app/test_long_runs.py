@@ -14,7 +14,7 @@ import pytest
 
 from app import devices
 from app.cli import main
-from app.commands.monitor import run_monitor
+from app.runs.monitor import run_monitor
 from app.session import SessionWriter, read_session
 from app.viz import Viz
 from calib import simulate
@@ -83,7 +83,7 @@ def test_frames_kept_only_for_the_last_samples(tmp_path):
 
 
 def test_monitor_drops_the_frames_of_samples_its_bounded_set_drops(tmp_path):
-    from app.commands import monitor as mon
+    from app.runs import monitor as mon
     from app.config import MonitorConfig
 
     from calib.monitor import MonitorEngine

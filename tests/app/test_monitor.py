@@ -7,7 +7,7 @@ import pytest
 
 from app import devices
 from app.planning import random_pose
-from app.commands.monitor import run_monitor
+from app.runs.monitor import run_monitor
 from app.config import Config
 from app.session import SessionWriter, read_session
 from calib import transforms as tf

@@ -8,7 +8,7 @@ import pytest
 
 from app.config import config_from_dict
 from app.errors import ConfigError
-from app.commands.monitor import Alarm, MonitorReport
+from app.runs.monitor import Alarm, MonitorReport
 from app.mqtt import PASSWORD_ENV, USERNAME_ENV, MqttConfig, MqttPublisher
 from calib import transforms as tf
 from calib.observation import Observation

@@ -9,7 +9,7 @@ import time
 import numpy as np
 import pytest
 
-from app.commands.monitor import Alarm, MonitorReport
+from app.runs.monitor import Alarm, MonitorReport
 from app.mqtt import MqttConfig, MqttPublisher
 from calib import transforms as tf
 from calib.observation import Observation

@@ -9,7 +9,7 @@ import pytest
 from app import devices, planning
 from app.cli import main
 from app.config import load_config
-from app.commands.calibrate import calibrate
+from app.runs.calibrate import calibrate
 from app.session import read_session
 from calib import planner as pl
 from calib import transforms as tf

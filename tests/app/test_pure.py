@@ -7,7 +7,7 @@ import pytest
 
 from app.planning import random_pose
 from app.config import CalibrateConfig, Config, config_from_dict
-from app.commands.monitor import is_diverse
+from app.runs.monitor import is_diverse
 from calib import transforms as tf
 from app.errors import ConfigError
 from calib.predict import predicted_pixel, predicted_point
@@ -101,14 +101,14 @@ def test_config_sections_roundtrip():
 
 
 def test_stop_on_predicted_uncertainty():
-    from app.commands.calibrate import _precise_enough
+    from app.runs.calibrate import precise_enough
 
     cov = np.diag([np.deg2rad(0.03) ** 2] * 3 + [(0.4e-3) ** 2] * 3)
     res = CalibrationResult("YKronT'", "eye_to_hand", np.eye(4), np.eye(4), 10, Residuals(np.zeros(10)), cov=cov)
-    assert _precise_enough(res, CalibrateConfig(target_sigma_mm=0.5, target_sigma_deg=0.05))
-    assert not _precise_enough(res, CalibrateConfig(target_sigma_mm=0.3, target_sigma_deg=0.05))
-    assert not _precise_enough(res, CalibrateConfig(target_sigma_mm=0.5, target_sigma_deg=0.02))
-    assert not _precise_enough(res, CalibrateConfig(target_sigma_mm=0.0, target_sigma_deg=0.0))  # 0 = off
+    assert precise_enough(res, CalibrateConfig(target_sigma_mm=0.5, target_sigma_deg=0.05))
+    assert not precise_enough(res, CalibrateConfig(target_sigma_mm=0.3, target_sigma_deg=0.05))
+    assert not precise_enough(res, CalibrateConfig(target_sigma_mm=0.5, target_sigma_deg=0.02))
+    assert not precise_enough(res, CalibrateConfig(target_sigma_mm=0.0, target_sigma_deg=0.0))  # 0 = off
 
 
 def test_realistic_demo_config_has_the_camera_depth_error():

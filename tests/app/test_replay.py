@@ -3,7 +3,7 @@
 import numpy as np
 
 from app.cli import main
-from app.commands.replay import format_table, replay
+from app.runs.replay import format_table, replay
 from app.session import SessionWriter, read_session
 from calib.observation import Observation
 from calib.simulate import realistic_cell

@@ -4,7 +4,7 @@ refined rows, warnings for a large 1-sigma and for inconsistent residuals."""
 import numpy as np
 import pytest
 
-from app.commands.replay import advice, format_table, recommended, replay
+from app.runs.replay import advice, format_table, recommended, replay
 from calib import simulate
 from calib.observation import Observation
 

@@ -1,4 +1,4 @@
-"""``handeye replay`` accepts every import format (app.cli -> app.commands.replay -> app.formats.load)."""
+"""``handeye replay`` accepts every import format (app.cli -> app.commands.replay -> app.runs.replay -> app.formats.load)."""
 
 from pathlib import Path
 

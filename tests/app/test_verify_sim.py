@@ -9,7 +9,7 @@ import yaml
 
 from app import verify as av
 from app.cli import main
-from app.commands.demo import demo
+from app.runs.demo import demo
 from app.report import PLOT_CLASS
 from app.session import read_session
 from calib import verify as cv

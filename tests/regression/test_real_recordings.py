@@ -14,7 +14,7 @@ import pytest
 
 from app.formats import load
 from calib.api import solve_observations
-from app.commands.replay import format_table, replay
+from app.runs.replay import format_table, replay
 from calib import transforms as tf
 
 DATA = Path(__file__).parents[1] / "data"

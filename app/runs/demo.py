@@ -1,0 +1,58 @@
+"""The demo runs: calibrate, or monitor, the simulated cell (UR simulator and rendered camera, truth known)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from app import devices
+from app.config import Config
+from app.errors import ConfigError
+from app.production import Bump
+from app.runs.calibrate import CalibrationOutput, calibrate
+from app.runs.monitor import MonitorReport, monitor
+
+#: Monitor settings of ``handeye demo --monitor``: quick standstills and a first calibration tried every
+#: 4 new poses, so the whole story (arming, bump, alarm, re-learn) fits in about a minute.
+DEMO_MONITOR = {"still_s": 0.2, "poll_s": 0.02, "reestimate_samples": 4}
+
+
+def demo(cfg: Config, *, progress: bool = True) -> CalibrationOutput:
+    """Calibrate the simulated cell: the UR simulator (started by the robot driver, driven
+    through the real ur_rtde client) and the rendered camera, whose true pose is known.
+
+    Raises
+    ------
+    ConfigError
+        If the config names real hardware: the demo moves without asking.
+    """
+    if not devices.simulated(cfg):
+        raise ConfigError("demo runs only a simulated cell (a simulated robot.type and camera.backend); "
+                          "use 'handeye calibrate' for hardware")
+    return calibrate(cfg, progress=progress)
+
+
+def demo_monitor(cfg: Config, *, bump: Bump | None, reference: Path | None = None, max_samples: int | None = None,
+                 progress: bool = True, publish=None) -> MonitorReport:
+    """Passive monitoring of the simulated cell: its controller runs a looping production program,
+    the rendered camera is bumped partway (``bump``), the monitor alarms and re-estimates.
+
+    Without ``max_samples`` the run ends a few samples after the re-estimate is due.
+
+    Raises
+    ------
+    ConfigError
+        If the config names real hardware.
+    """
+    if not devices.simulated(cfg):
+        raise ConfigError("demo --monitor runs only a simulated cell (a simulated robot.type and camera.backend); "
+                          "use 'handeye monitor' for hardware")
+    from app.config import config_from_dict
+
+    data = cfg.model_dump()
+    mon = data["monitor"]
+    mon.update(DEMO_MONITOR)
+    after = bump.after if bump is not None else 0
+    mon["max_samples"] = max_samples or (after + 32 if bump else 30)
+    mon["duration_s"] = cfg.monitor.duration_s or 300.0
+    cfg = config_from_dict(data, "demo --monitor")
+    return monitor(cfg, reference=reference, progress=progress, bump=bump, publish=publish)

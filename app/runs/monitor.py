@@ -1,0 +1,508 @@
+"""Passive monitoring: sample while something else moves the robot, keep the camera calibrated.
+
+Read-only: this module never commands a motion. Eye-to-hand (static camera,
+``Y = T_base_cam``) it follows and re-learns a drifting or bumped camera;
+eye-in-hand (``X = T_flange_cam``) a camera that slips on the flange. Every
+standstill with the marker in view is a sample for the monitoring engine
+(`calib.monitor`, armed from a reference calibration or, without one, from
+the first samples ``auto`` can solve); a *moved* or *drifting* alarm is
+logged, recorded in the session, shown in rerun, published (MQTT) and runs
+the optional hook command. Only samples of distinct poses enter the bounded
+estimation set the first calibration and the final result are solved from.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import dataclasses
+import logging
+import os
+import subprocess
+import threading
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Callable
+
+import numpy as np
+
+from app import devices
+from app.acquire import take_sample
+from app.config import Config, MonitorConfig, hook_argv
+from app.errors import ConfigError, OutageError
+from app.monitoring import arm_engine, arm_from, reference_observations, sample_factor
+from app.outage import OutageEvent, Reconnecting
+from app.production import Bump, start_production
+from app.progress import progress_bar, say, show_monitor
+from app.session import SessionWriter
+from app.viz import Viz
+from calib import transforms as tf
+from calib.errors import CalibrationError
+from calib.monitor import MonitorEngine, MonitorUpdate
+from calib.observation import Observation
+from calib.planner import least_informative
+from calib.result import CalibrationResult, worst_axis_sigma
+from calib.vision.extract import MarkerMeasurement
+from drivers.camera.base import Camera, RGBDFrame
+from drivers.errors import DeviceError
+from drivers.robot.base import Robot
+
+log = logging.getLogger(__name__)
+
+
+@dataclass
+class Alarm:
+    """An alarm: when, at which sample, its kind (``"moved"`` or ``"drifting"``) and the engine's figures."""
+
+    t: float
+    sample_index: int
+    info: dict
+
+    @property
+    def kind(self) -> str:
+        return self.info.get("alarm", "moved")
+
+
+@dataclass
+class MonitorReport:
+    """What a monitoring run saw.
+
+    Attributes
+    ----------
+    session : Path
+    n_samples, n_skipped : int
+    alarms : list[Alarm]
+    reestimate : CalibrationResult or None
+        The camera re-learnt after the last *moved* alarm (None if none yet).
+    elapsed_s : float
+    estimate : ndarray (4, 4) or None
+        The engine's live camera transform (``T_base_cam`` eye-to-hand,
+        ``T_flange_cam`` eye-in-hand); None before it is armed.
+    estimate_cov : ndarray (6, 6) or None
+        Its covariance (`calib.result` convention).
+    estimate_sigma : (float, float) or None
+        Its worst-axis 1-sigma ``(rad, m)`` (`calib.result.worst_axis_sigma`).
+    drift : (float, float) or None
+        ``(mm, deg)`` of the live estimate against the calibration in use
+        (the reference, then each re-learnt one): mm over the workspace.
+    samples_until_armed : int
+        Samples before the *moved* test runs (0: armed).
+    kept : list[int]
+        Indices of the bounded estimation set at the end.
+    last : MonitorUpdate or None
+        The engine's latest figures (drift rate, running verification, level).
+    truth : ndarray (4, 4) or None
+        A simulated camera's true camera transform at the end (None for a real one).
+    """
+
+    session: Path
+    n_samples: int
+    n_skipped: int
+    alarms: list[Alarm] = field(default_factory=list)
+    reestimate: CalibrationResult | None = None
+    elapsed_s: float = 0.0
+    estimate: np.ndarray | None = None
+    estimate_cov: np.ndarray | None = None
+    estimate_sigma: tuple[float, float] | None = None
+    drift: tuple[float, float] | None = None
+    samples_until_armed: int = 0
+    kept: list[int] = field(default_factory=list)
+    last: MonitorUpdate | None = None
+    truth: np.ndarray | None = None
+
+    @property
+    def last_alarm(self) -> Alarm | None:
+        return self.alarms[-1] if self.alarms else None
+
+    @property
+    def moved_alarms(self) -> list[Alarm]:
+        return [a for a in self.alarms if a.kind == "moved"]
+
+
+def detector_state(n: int) -> str:
+    """``"armed"`` or ``"armed after N more samples"``."""
+    return "armed" if n == 0 else f"armed after {n} more sample{'s' if n != 1 else ''}"
+
+
+def monitor(cfg: Config, *, reference: Path | None = None, stop=None, progress: bool = True,
+            bump: Bump | None = None, production: bool = True, publish=None) -> MonitorReport:
+    """Passive monitoring with a read-only robot connection (never moves the robot).
+
+    ``reference``: a calibration session (or its ``result.yaml``), solved
+    with ``auto`` to arm the monitoring engine at once (`app.monitoring`);
+    without one the engine arms itself from the run's first samples that
+    ``auto`` can solve (`MonitorConfig.arm_samples`).
+
+    On a simulated cell (the ``ur_sim`` robot) the simulated controller
+    runs a looping production program (``production``, `app.production`) so
+    that the robot moves, and ``bump`` knocks the rendered camera partway.
+    ``publish``: optional ``(obs, update, report)`` callback; by default the
+    ``[mqtt]`` publisher when enabled (`app.mqtt`).
+    """
+    from app.mqtt import make_publisher
+
+    rng = np.random.default_rng(cfg.calibrate.seed)
+    engine = devices.make_engine(cfg)
+    devices.check_session_root(cfg)
+    publisher = make_publisher(cfg.mqtt, cfg.setup, cfg.frames.model_dump()) if publish is None else None
+    stop = stop or threading.Event()
+    outages = _OutageLog()
+    # A device that goes away mid-shift is an outage and a reconnect with backoff (`app.outage`), not an exit.
+    with Reconnecting("robot", devices.open_robot(cfg, read_only=True), cfg.reconnect, on_event=outages,
+                      stop=stop) as robot, \
+            Reconnecting("camera", devices.open_camera(cfg, robot), cfg.reconnect, on_event=outages,
+                         stop=stop) as camera, \
+            (publisher or contextlib.nullcontext()):
+        publish = publish or publisher
+        if reference is not None:
+            ref = reference_observations(reference, cfg.setup)
+            arm_engine(engine, ref, cfg.setup, robot.shared_error_factor, rng=rng, t=time.time())
+            say(f"reference {reference}: {len(ref)} samples solved with auto, monitoring engine armed from its "
+                "estimate, camera correction and covariance")
+        if production:
+            start_production(robot, cfg, rng, say=say)
+        writer = SessionWriter.create(cfg.session.root, cfg.setup, config=cfg.to_dict(),
+                                      intrinsics=dataclasses.asdict(camera.intrinsics), truth=devices.truth(camera),
+                                      source="handeye monitor", keep_frames=cfg.monitor.keep_frames)
+        solve = devices.make_solve(cfg.calibrate.model_copy(update={"method": "auto"}), cfg.setup, rng,
+                                   robot.shared_error_factor)
+        with writer, devices.make_viz(cfg, writer.path) as viz, progress_bar(enabled=progress) as bar:
+            outages.writer, outages.viz = writer, viz
+            seen = []
+
+            def on_sample(obs):
+                bar.update(1)
+                seen.append(obs.index)
+                if bump is not None and len(seen) == bump.after:
+                    bump.apply(camera, cfg.setup)
+                    text = (f"simulated camera bumped by {bump.translation_mm:g} mm and {bump.rotation_deg:g} deg "
+                            f"after sample {obs.index}")
+                    say(text)
+                    writer.add_event(obs.t, "simulated_bump", sample_index=obs.index,
+                                     translation_mm=bump.translation_mm, rotation_deg=bump.rotation_deg)
+                    viz.event(obs.t, text, "WARN")
+
+            def on_update(obs, update, report):
+                show_monitor(bar, report)
+                if publish is not None:
+                    publish(obs, update, report)
+
+            report = run_monitor(robot, camera, devices.make_measure(cfg), engine, solve, writer, cfg.monitor,
+                                 viz, stop=stop, save_frames=cfg.session.save_frames, on_sample=on_sample,
+                                 on_update=on_update, say=say, shared_error=robot.shared_error_factor)
+            report.truth = devices.camera_truth(cfg.setup, devices.truth(camera))
+            return report
+
+
+class _OutageLog:
+    """`app.outage.OutageEvent` sink: one console line each, and the session's events once it exists."""
+
+    writer: SessionWriter | None = None
+    viz: Viz | None = None
+
+    def __call__(self, event: OutageEvent) -> None:
+        say(event.message())
+        if self.writer is not None:
+            self.writer.add_event(event.t, event.event, **{k: v for k, v in dataclasses.asdict(event).items()
+                                                           if k not in ("t", "event")})
+        if self.viz is not None:
+            self.viz.event(event.t, event.message(), "WARN" if event.event != "outage_end" else "INFO")
+
+
+def is_diverse(T: np.ndarray, recent, min_translation_m: float, min_rotation_deg: float) -> bool:
+    """True if ``T`` differs from every recent pose by >= the translation OR the rotation threshold."""
+    if len(recent) == 0:
+        return True
+    rot, trans = tf.pose_error(np.array(recent), np.broadcast_to(T, (len(recent), 4, 4)))
+    close = (trans < min_translation_m) & (np.rad2deg(rot) < min_rotation_deg)
+    return not bool(close.any())
+
+
+def _same_pose(T1: np.ndarray, T2: np.ndarray, *, mm: float = 1.0, deg: float = 0.2) -> bool:
+    rot, trans = tf.pose_error(T1, T2)
+    return bool(trans < mm * 1e-3 and rot < np.deg2rad(deg))
+
+
+def run_hook(command: str, env: dict) -> None:
+    """Run the alarm hook (no shell; arguments split like a shell would). Failures are logged, not raised.
+
+    The command was checked at config load (`app.config.hook_argv`); a failure
+    here (the program removed since) is logged so the alarm itself still counts.
+    """
+    try:
+        argv = hook_argv(command)
+        if not argv:
+            return
+        done = subprocess.run(argv, env={**os.environ, **env}, timeout=30, capture_output=True, text=True)
+    except (OSError, subprocess.TimeoutExpired, ConfigError) as e:
+        log.error("alarm hook %r failed: %s", command, e)
+        return
+    if done.returncode != 0:
+        log.error("alarm hook %r exited %d: %s", command, done.returncode, done.stderr.strip()[:200])
+
+
+@dataclass
+class _Standstill:
+    """Where the robot stands still, since when, and the pose already tried there."""
+
+    since: float | None = None
+    pose: np.ndarray | None = None
+    tried: np.ndarray | None = None
+
+    def ready(self, state, cfg: MonitorConfig) -> bool:
+        """True once per standstill of ``cfg.still_s`` (a new pose, even between two reads, starts a new one)."""
+        T = state.T_base_flange
+        if not state.is_still or self.pose is None or not _same_pose(T, self.pose):
+            self.since, self.pose = (state.t_host, T) if state.is_still else (None, None)
+            return False
+        if (self.tried is not None and _same_pose(T, self.tried)) or state.t_host - self.since < cfg.still_s:
+            return False
+        self.tried = T
+        return True
+
+
+def run_monitor(
+    robot: Robot,
+    camera: Camera,
+    measure: Callable[[RGBDFrame], MarkerMeasurement],
+    engine: MonitorEngine,
+    solve: Callable[..., CalibrationResult],
+    writer: SessionWriter,
+    cfg: MonitorConfig,
+    viz: Viz,
+    *,
+    stop: threading.Event | None = None,
+    save_frames: bool = True,
+    on_sample: Callable[[Observation], None] | None = None,
+    on_update: Callable[[Observation, object, MonitorReport], None] | None = None,
+    say: Callable[[str], None] = log.info,
+    shared_error=None,
+) -> MonitorReport:
+    """Passive run until ``cfg.max_samples``, ``cfg.duration_s``, ``stop`` or Ctrl-C.
+
+    Parameters
+    ----------
+    robot : Robot connected read-only (this function only reads it).
+    camera : Camera
+    measure : callable(RGBDFrame) -> MarkerMeasurement (raises ExtractionError to skip).
+    engine : calib.monitor.MonitorEngine
+        Armed (from a reference), or armed here from the first samples ``solve`` determines the camera from.
+    solve : callable(observations, *, final) -> CalibrationResult
+        ``auto`` (`app.devices.make_solve`), for arming without a reference.
+    writer : SessionWriter
+    cfg : MonitorConfig
+    stop : threading.Event, optional
+        Set from another thread to end the run.
+    on_sample : callable, optional
+        Called with each accepted sample (progress display).
+    on_update : callable(obs, MonitorUpdate or None, MonitorReport), optional
+        Called after each sample (live displays, the MQTT publisher).
+    say : callable(str)
+        Where the engine's state changes are told.
+    shared_error : callable, optional
+        The robot's `Robot.shared_error_factor`, for samples with joints.
+    """
+    t0 = time.monotonic()
+    run = _PassiveRun(robot, camera, measure, engine, solve, writer, cfg, viz, save_frames, on_sample, on_update,
+                      say, shared_error, MonitorReport(writer.path, 0, 0))
+    report = run.report
+    report.samples_until_armed = _until_armed(engine, run.kept, cfg)
+    say(f"monitoring engine: {_engine_state(engine, run.kept, cfg)}")
+    try:
+        while not _should_stop(report, cfg, stop, t0):
+            run.step()
+    except DeviceError as e:
+        # As calibrate does: leave the reason in the session next to the samples it kept, then report it.
+        writer.add_event(time.time(), "device_error", error=str(e), n_samples=report.n_samples)
+        viz.event(time.time(), f"device error: {e}", "ERROR")
+        raise
+    except KeyboardInterrupt:
+        log.warning("monitor interrupted; %d samples kept in %s", report.n_samples, writer.path)
+        writer.add_event(time.time(), "interrupted", n_samples=report.n_samples)
+    except OutageError as e:
+        if stop is None or not stop.is_set():
+            writer.add_event(time.time(), "gave_up", error=str(e), n_samples=report.n_samples)
+            raise
+        # Stopped while waiting for a device: a normal end, every sample kept.
+    report.elapsed_s = time.monotonic() - t0
+    report.kept = [o.index for o in run.kept]
+    writer.add_event(time.time(), "sample_set", indices=report.kept, keep_samples=cfg.keep_samples,
+                     frames_pruned=writer.frames_pruned)
+    return report
+
+
+def _should_stop(report: MonitorReport, cfg: MonitorConfig, stop: threading.Event | None, t0: float) -> bool:
+    """``stop`` set, ``cfg.duration_s`` over or ``cfg.max_samples`` taken."""
+    if stop is not None and stop.is_set():
+        return True
+    if cfg.duration_s and time.monotonic() - t0 >= cfg.duration_s:
+        return True
+    return bool(cfg.max_samples and report.n_samples >= cfg.max_samples)
+
+
+@dataclass
+class _PassiveRun:
+    """The devices and running state of `run_monitor`; `step` is one poll of the robot."""
+
+    robot: Robot
+    camera: Camera
+    measure: Callable[[RGBDFrame], MarkerMeasurement]
+    engine: MonitorEngine
+    solve: Callable[..., CalibrationResult]
+    writer: SessionWriter
+    cfg: MonitorConfig
+    viz: Viz
+    save_frames: bool
+    on_sample: Callable[[Observation], None] | None
+    on_update: Callable[[Observation, object, MonitorReport], None] | None
+    say: Callable[[str], None]
+    shared_error: object
+    report: MonitorReport
+    #: The bounded estimation set: distinct poses since the start or the last move.
+    kept: list[Observation] = field(default_factory=list)
+    still: _Standstill = field(default_factory=_Standstill)
+
+    def step(self) -> None:
+        """Sample once the robot stands still at a new pose, then feed the engine (or arm it)."""
+        state = self.robot.read()
+        if not self.still.ready(state, self.cfg):
+            time.sleep(self.cfg.poll_s)
+            return
+        T = state.T_base_flange
+        robot = self.robot
+        # The robot may leave during the exposure: frame and interpolated pose could then disagree.
+        obs = take_sample(robot, self.camera, self.measure, self.writer, self.viz, not_before=self.still.since,
+                          save_frames=self.save_frames,
+                          check=lambda T=T: None if _same_pose(robot.read().T_base_flange, T)
+                          else "robot moved during the capture")
+        if obs is None:
+            self.report.n_skipped += 1
+            return
+        self.report.n_samples += 1
+        self.viz.rotate(self.cfg.max_recording_mb * 1e6)
+        if self.on_sample is not None:
+            self.on_sample(obs)
+        self.keep(obs)
+        update = self.estimate(obs)
+        if self.on_update is not None:
+            self.on_update(obs, update, self.report)
+
+    def keep(self, obs: Observation) -> None:
+        """Add a sample of a distinct pose to the bounded estimation set (its frames go with a dropped one)."""
+        if is_diverse(obs.T_base_flange, [o.T_base_flange for o in self.kept], self.cfg.min_translation_m,
+                      self.cfg.min_rotation_deg):
+            self.kept.append(obs)
+            dropped = _bound(self.kept, self.cfg, self.engine)
+            if dropped is not None:
+                self.writer.drop_frames(dropped.index)  # disk budget: frames only for samples the set holds
+
+    def estimate(self, obs: Observation) -> MonitorUpdate | None:
+        """The engine's update from ``obs`` once armed; before, an attempt to arm it. Tells the detector's arming."""
+        update = None
+        if self.engine.armed:
+            update = _update(self.engine, obs, self.shared_error, self.report, self.writer, self.viz, self.cfg,
+                             self.say)
+            if update is not None and update.alarm == "moved":
+                self.kept = [obs]      # the samples before it are of the old camera
+        elif _arm_from_samples(self.engine, self.kept, self.solve, obs, self.shared_error, self.cfg):
+            self.say(f"monitoring engine armed from {len(self.kept)} samples of distinct poses (auto)")
+            self.writer.add_event(obs.t, "armed", n_samples=len(self.kept),
+                                  T_camera=self.engine.camera_transform.tolist())
+        before = self.report.samples_until_armed
+        self.report.samples_until_armed = _until_armed(self.engine, self.kept, self.cfg)
+        if before and not self.report.samples_until_armed:
+            self.say(f"change detector: armed (sample {obs.index})")
+        return update
+
+
+def _update(engine: MonitorEngine, obs: Observation, shared_error, report: MonitorReport, writer: SessionWriter,
+            viz: Viz, cfg: MonitorConfig, say) -> MonitorUpdate | None:
+    """One sample through the engine; alarms and re-learns recorded. A malformed sample is a logged skip."""
+    try:
+        upd = engine.update(obs.t, obs.T_base_flange, obs.point_cam, obs.point_cov,
+                            sample_factor(engine, obs, shared_error))
+    except CalibrationError as e:
+        log.warning("sample %d not used by the monitoring engine: %s", obs.index, e)
+        writer.add_skip(obs.t, f"monitoring engine: {e}", T_base_flange=obs.T_base_flange)
+        return None
+    report.last = upd
+    report.estimate, report.estimate_cov = upd.camera_transform, upd.cov
+    report.estimate_sigma = worst_axis_sigma(upd.cov)
+    report.drift = (upd.drift_mm, upd.drift_deg)
+    viz.sample(obs, upd.camera_transform)
+    viz.drift(obs.t, upd.drift_mm, upd.drift_deg)
+    if upd.alarm:
+        _raise_alarm(report, obs, upd, writer, viz, cfg)
+    if upd.state == "relearning" and upd.message and not upd.alarm:
+        log.info("sample %d: %s", obs.index, upd.message)
+    if upd.message.startswith("re-learnt") or "; re-learnt" in upd.message:
+        report.reestimate = engine.result()
+        writer.add_event(obs.t, "relearnt", sample_index=obs.index, T_camera=upd.camera_transform.tolist(),
+                         message=upd.message)
+        viz.event(obs.t, upd.message, "WARN")
+        say(upd.message.split("; ")[-1])
+    return upd
+
+
+def _arm_from_samples(engine: MonitorEngine, kept, solve, obs, shared_error, cfg: MonitorConfig) -> bool:
+    """Without a reference: solve the estimation set with ``auto`` every ``reestimate_samples`` new distinct
+    poses from ``arm_samples`` on; arm once its 1-sigma over the workspace is within ``arm_sigma_mm``."""
+    n = len(kept)
+    if n < cfg.arm_samples or (n - cfg.arm_samples) % cfg.reestimate_samples or kept[-1] is not obs:
+        return False
+    try:
+        ref = arm_from(engine, solve(kept, final=True), kept, devices.robot_shared_error("auto", kept, shared_error),
+                       t=obs.t)
+    except CalibrationError as e:
+        log.info("not armed yet from %d samples: %s", n, e)
+        return False
+    if ref.sigma_mm > cfg.arm_sigma_mm:
+        engine.disarm()
+        log.info("not armed yet: %d samples give a 1-sigma of %.2f mm over the workspace", n, ref.sigma_mm)
+        return False
+    return True
+
+
+def _until_armed(engine: MonitorEngine, kept, cfg: MonitorConfig) -> int:
+    """Samples before the *moved* test runs: the detector's first three once armed; before, the distinct
+    poses still missing for the first calibration (at least one)."""
+    if engine.armed:
+        return engine.samples_until_tested
+    return max(cfg.arm_samples - len(kept), 1) + 3
+
+
+def _engine_state(engine: MonitorEngine, kept, cfg: MonitorConfig) -> str:
+    if engine.armed:
+        return "armed from the reference"
+    return (f"not armed: collecting samples of distinct poses for a first calibration (auto, from "
+            f"{cfg.arm_samples}; a production program of a few stops cannot give one: pass --reference); "
+            f"change detector: {detector_state(_until_armed(engine, kept, cfg))}")
+
+
+def _bound(kept: list[Observation], cfg: MonitorConfig, engine: MonitorEngine) -> Observation | None:
+    """Hold at most ``cfg.keep_samples``: drop the least informative at the live estimate
+    (`calib.planner.least_informative`), the oldest while there is no estimate yet; returns the dropped one."""
+    if not cfg.keep_samples or len(kept) <= cfg.keep_samples:
+        return None
+    if not engine.armed:
+        return kept.pop(0)
+    estimate = engine.result()
+    A = np.array([o.T_base_flange for o in kept])
+    return kept.pop(least_informative(estimate.setup, estimate.X, estimate.Y, A, keep_recent=cfg.keep_recent))
+
+
+def _raise_alarm(report: MonitorReport, obs: Observation, upd: MonitorUpdate, writer: SessionWriter, viz: Viz,
+                 cfg: MonitorConfig) -> None:
+    info = {"alarm": upd.alarm, "statistic": float(upd.statistic), "n_samples": int(upd.index),
+            "drift_mm": upd.drift_mm, "drift_rate_mm_h": upd.drift_rate_mm_h,
+            "hours_to_tolerance": upd.hours_to_tolerance, "message": upd.message}
+    report.alarms.append(Alarm(obs.t, obs.index, info))
+    if upd.alarm == "moved":
+        text = f"ALARM: camera moved (detected at sample {obs.index}, GLR statistic {upd.statistic:.1f})"
+    else:
+        text = f"ALARM: {upd.message} (sample {obs.index})"
+    log.warning(text)
+    writer.add_event(obs.t, "alarm", sample_index=obs.index, **info)
+    viz.event(obs.t, text, "ERROR" if upd.alarm == "moved" else "WARN")
+    run_hook(cfg.alarm_hook, {"HANDEYE_EVENT": "camera_moved" if upd.alarm == "moved" else "camera_drifting",
+                              "HANDEYE_SESSION": str(writer.path), "HANDEYE_SAMPLE": str(obs.index)})

@@ -1,0 +1,115 @@
+"""Verification: judge a calibration result on samples it did not see, in the base frame, mm and deg.
+
+Active: move to ``[verify] poses`` fresh planned poses spread over the
+``[calibrate]`` region, never the calibration's, measure the marker there and
+compare it with the one the result predicts. Passive: the same on samples
+taken read-only while production moves the robot (the monitor's sampling).
+Offline: the same against another recorded session or an imported file (the
+cross-session check). Either way: pass/fail against ``[verify] tolerance_mm /
+tolerance_deg``, ``verify.yaml`` and ``report.html`` in the verify session
+(offline: a new directory under ``session.root``).
+
+Eye-to-hand: ``X = T_flange_marker``, ``Y = T_base_cam``; eye-in-hand:
+``X = T_flange_cam``, ``Y = T_base_marker`` (paper eq. 1).
+"""
+
+from __future__ import annotations
+
+import datetime as _dt
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Callable
+
+import numpy as np
+
+from app import devices
+from app import verify as av
+from app.config import Config
+from app.errors import SessionError
+from app.report import write_report
+from app.session import read_session
+from calib import verify as cv
+from calib.errors import HandeyeError
+
+
+@dataclass
+class VerifyOutput:
+    """A verification and where it went.
+
+    ``doc``: the verify.yaml document (`app.verify.verify_document`); ``path``: verify.yaml;
+    ``report``: report.html; ``passed``: within the tolerance; ``interrupted``: Ctrl-C stopped the
+    robot after ``n_poses`` poses (``session`` holds them).
+    """
+
+    doc: dict
+    path: Path
+    report: Path
+    passed: bool
+    n_poses: int
+    session: Path
+    interrupted: bool = False
+
+
+def verify(cfg: Config, result: Path, *, session: Path | None = None, setup: str | None = None,
+           passive: bool = False, expect_xyz: np.ndarray | None = None,
+           confirm: Callable[[], None] = lambda: None) -> VerifyOutput:
+    """Verify ``result`` (result.yaml or its session) offline against ``session``, else on the cell.
+
+    ``setup``: of an imported ``session`` file; ``passive``: sample read-only while production moves
+    the robot; ``expect_xyz``: rough camera position (m) for the frame-safety check; ``confirm``: called
+    before an active run moves the robot (raises to refuse).
+    """
+    loaded = av.load_result(result)
+    rng = np.random.default_rng(cfg.verify.seed)
+    truth_mm = None
+    interrupted = False
+    if session is not None:
+        observations, source, mode = _offline_samples(session, setup, loaded), session, "offline"
+        out_dir = _new_dir(cfg.session.root, loaded.model.setup)
+    else:
+        if passive:
+            run_, mode = av.verify_passive(cfg, loaded), "passive"
+        else:
+            confirm()
+            run_, mode = av.verify_active(cfg, loaded, rng=rng), "active"
+        observations, source, out_dir = run_.observations, run_.session, run_.session
+        if run_.truth:
+            truth_mm = av.true_error_mm(loaded, observations, run_.truth, run_.camera_bias)
+        interrupted = run_.interrupted
+    tol = dict(tolerance_mm=cfg.verify.tolerance_mm, tolerance_deg=cfg.verify.tolerance_deg)
+    verification = cv.verify(av.pose_errors(loaded.model, observations), rng=rng, **tol)
+    rigid = None if loaded.rigid is None else cv.verify(av.pose_errors(loaded.rigid, observations), rng=rng, **tol)
+    safety = None if expect_xyz is None else cv.frame_safety(loaded.model.camera_transform, loaded.model.setup,
+                                                             expect_xyz)
+    doc = av.verify_document(loaded, mode, source, verification, rigid, safety, truth_mm)
+    path = av.write_verify(doc, out_dir)
+    calibration = read_session(loaded.session).observations if loaded.session is not None else []
+    report = write_report(out_dir, result_doc=loaded.doc, observations=calibration, verify_doc=doc,
+                          verify_observations=observations, title="handeye verification report")
+    return VerifyOutput(doc, path, report, verification.passed, len(observations), out_dir, interrupted)
+
+
+def _offline_samples(source: Path, setup, loaded):
+    if not Path(source).exists():
+        raise SessionError(f"{source}: no such file or directory")
+    if (Path(source) / "session.json").exists():
+        session = read_session(source)
+        observations, file_setup = session.observations, session.setup
+    else:
+        observations, file_setup, _ = devices.import_observations(Path(source), setup or loaded.model.setup.value)
+    if file_setup != loaded.model.setup:
+        raise SessionError(f"{source} is an {file_setup} session, {loaded.path} an {loaded.model.setup} result")
+    if loaded.session is not None and Path(source).resolve() == loaded.session.resolve():
+        raise HandeyeError(f"{source} is the session {loaded.path} was calibrated on: verify it on samples it did "
+                           "not see (another session, or the active mode)")
+    return observations
+
+
+def _new_dir(root, setup) -> Path:
+    now = _dt.datetime.now(_dt.timezone.utc)
+    path = Path(root) / f"{now:%Y%m%d-%H%M%S-%f}_{setup}_verify"
+    try:
+        path.mkdir(parents=True)
+    except OSError as e:
+        raise SessionError(f"session.root: cannot create {path} ({e.strerror})") from None
+    return path
