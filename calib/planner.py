@@ -350,7 +350,7 @@ class PosePlanner:
         w.r.t. the unknowns ``[dC, tC, tK, free corrections]`` (`calib.model`)."""
         C, K, M = model.split(self.X, self.Y, tf.check_transforms(A, "A"), self.setup)
         p = model.predict_points(C, K[:3, 3], M, self.theta)
-        problem = model.Problem(M, p, np.broadcast_to(np.eye(3), (len(p), 3, 3)), free=self.free)
+        problem = model.Linearization(M, p, np.broadcast_to(np.eye(3), (len(p), 3, 3)), free=self.free)
         J = problem.raw(C, K, self.theta)[2]
         return p, -J  # the residual is measured minus predicted
 

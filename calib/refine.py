@@ -73,7 +73,7 @@ def _prepare(X, Y, problem: CalibrationProblem, B=None):
         raise InsufficientDataError(f"need at least {_min_samples(points)} samples, got {problem.n}")
     C, K, M = model.split(X, Y, problem.A, problem.setup)
     W_t, given = model.point_weights(B, problem.point_cov)
-    lin = model.Problem(M, B, W_t)
+    lin = model.Linearization(M, B, W_t)
     if not points:
         K = tf.make_transform(model.marker_rotation(C, M, B[:, :3, :3]), K[:3, 3])
     return lin, C, K, given
@@ -357,7 +357,7 @@ def cramer_rao_bound(X, Y, A, point_cov, *, setup: str) -> tuple[float, float, n
     cov_p = check_point_cov(point_cov, len(A))
     if cov_p is None:
         raise CalibrationError("point_cov is required for the Cramér-Rao bound")
-    problem = model.Problem(M, p_true, model.whitener(cov_p))
+    problem = model.Linearization(M, p_true, model.whitener(cov_p))
     cov = model.camera_block(model.information(problem, C, K))
     return float(np.sqrt(np.trace(cov[:3, :3]))), float(np.sqrt(np.trace(cov[3:, 3:]))), cov
 

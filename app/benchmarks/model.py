@@ -79,7 +79,7 @@ def extended_cov(d: simulate.SimulatedData, robot_rms: float, orientation_sigma:
     cov = d.point_cov + robot_rms**2 * model.robot_cofactor(C, K, M, Setup.EYE_TO_HAND)
     B = p_true if orientation_sigma is None else np.concatenate(
         [np.concatenate([d.B_true[:, :3, :3], p_true[:, :, None]], axis=2), d.B_true[:, 3:]], axis=1)
-    prob = model.Problem(M, B, model.whitener(cov), sigma_rot=orientation_sigma, free=free)
+    prob = model.Linearization(M, B, model.whitener(cov), sigma_rot=orientation_sigma, free=free)
     info = model.information(prob, C, K, np.zeros(3))
     model.camera_block(info)          # the degeneracy check
     rows = list(range(6)) + list(range(prob.n_pose, prob.n_pose + int(np.sum(free))))

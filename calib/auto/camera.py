@@ -156,7 +156,7 @@ def step_helps(best: Candidate, trial, fit: model.WeightedData | None = None) ->
     marker orientations when they are good.
     """
     fit = best.fit if fit is None else fit
-    prob, _ = fit.problem(best.C, best.K, best.noise, tuple(bool(f) for f in trial))
+    prob, _ = fit.linearize(best.C, best.K, best.noise, tuple(bool(f) for f in trial))
     try:
         errors, _, delta = model.leave_one_out_after_step(prob, best.C, best.K, best.theta,
                                                           best.noise.point_cov(fit.shape, fit.cofactor(best.C, best.K)))

@@ -164,7 +164,7 @@ def _choose_measurements(problem: CalibrationProblem, start: _Start, notes: list
         noise = initial_noise(d2, C0, K, fit.M, B[:, :3, :3] if rot else None)
         if not problem.has_poses:
             # Points only: nothing to compare before the camera parameters, which start from here (`select_camera`).
-            return Candidate(fit, C0, K, theta, noise, fit.problem(C0, K, noise, (False, False, False))[0], 0, False,
+            return Candidate(fit, C0, K, theta, noise, fit.linearize(C0, K, noise, (False, False, False))[0], 0, False,
                              fitted=False)
         if best is not None and not step_helps(best, (False, False, False), fit):
             continue      # without orientations not even a step predicts held-out points better
