@@ -191,6 +191,17 @@ def kron_t_prime_covariance(X, Y, problem: CalibrationProblem) -> np.ndarray:
         cov_p = default_point_cov(p)
     factor = _variance_factor(lin.cost(C, K), 3 * n - 9, given)
 
+    J = _kron_t_prime_jacobian(A, p, setup)
+    # sum_i J_i Sigma_i J_i^T as one (6 x 3N) (3N x 6) product.
+    JS = np.swapaxes(J @ cov_p, 0, 1).reshape(6, 3 * n)
+    cov = factor * (JS @ np.swapaxes(J, 0, 1).reshape(6, 3 * n).T)
+    return 0.5 * (cov + cov.T)
+
+
+def _kron_t_prime_jacobian(A, p, setup) -> np.ndarray:
+    """Derivatives (N, 6, 3) of the YKronT' camera transform ``[delta, t]`` w.r.t. each marker point, through
+    the three steps of `kron_t_prime_covariance`'s docstring."""
+    n = len(A)
     R_A, t_A = A[:, :3, :3], A[:, :3, 3]
     # Step 1: the system of eq. 20 exactly as `calib.solvers.y_kron_t_prime_unchecked` builds it.
     M = np.empty((n, 3, 15))
@@ -245,10 +256,7 @@ def kron_t_prime_covariance(X, Y, problem: CalibrationProblem) -> np.ndarray:
     S = T2f.T @ G.reshape(3 * n, 3)                                   # sum_i T2_i^T G_i, (6, 3)
     J_t = H2_inv @ (T2t @ F + S @ J_rot)                              # (N, 3, 3)
     J = np.concatenate([J_rot, J_t], axis=1)                          # (N, 6, 3)
-    # sum_i J_i Sigma_i J_i^T as one (6 x 3N) (3N x 6) product.
-    JS = np.swapaxes(J @ cov_p, 0, 1).reshape(6, 3 * n)
-    cov = factor * (JS @ np.swapaxes(J, 0, 1).reshape(6, 3 * n).T)
-    return 0.5 * (cov + cov.T)
+    return J
 
 
 def delta_method_covariance(estimator, X, Y, problem: CalibrationProblem, *, step: float = 1e-3) -> np.ndarray:

@@ -249,16 +249,7 @@ def estimate_clock_offset(
     grid_a = np.clip(grid_a, t_a[0], t_a[-1])
     sa_all = angular_speed(t_a, T_a, grid_a, baseline=baseline, max_gap=max_gap)
     lags = np.arange(-n_lag, n_lag + 1)
-    scores = np.full(len(lags), -1.0)
-    for i, lag in enumerate(lags):
-        sa = sa_all[lag + n_lag : lag + n_lag + len(sb)]
-        v = vb & np.isfinite(sa)
-        if v.sum() < 10:
-            continue
-        x, y = sa[v] - sa[v].mean(), sb[v] - sb[v].mean()
-        denom = np.linalg.norm(x) * np.linalg.norm(y)
-        if denom > 1e-12:
-            scores[i] = float(x @ y / denom)
+    scores = _lag_correlations(sa_all, sb, vb, lags)
     i = int(np.argmax(scores))
     if i in (0, len(lags) - 1):
         raise CalibrationError(
@@ -273,6 +264,23 @@ def estimate_clock_offset(
         offset += 0.5 * resolution * (y0 - y2) / curv
     return ClockOffset(float(offset), float(scores[i]), "angular-speed-xcorr")
 
+
+
+def _lag_correlations(sa_all, sb, vb, lags) -> np.ndarray:
+    """Normalised cross-correlation (len(lags),) of stream b's speeds ``sb`` (valid where ``vb``) with the
+    slice of stream a's ``sa_all`` at each lag; -1 where fewer than 10 samples overlap."""
+    n_lag = (len(lags) - 1) // 2
+    scores = np.full(len(lags), -1.0)
+    for i, lag in enumerate(lags):
+        sa = sa_all[lag + n_lag : lag + n_lag + len(sb)]
+        v = vb & np.isfinite(sa)
+        if v.sum() < 10:
+            continue
+        x, y = sa[v] - sa[v].mean(), sb[v] - sb[v].mean()
+        denom = np.linalg.norm(x) * np.linalg.norm(y)
+        if denom > 1e-12:
+            scores[i] = float(x @ y / denom)
+    return scores
 
 def refine_clock_offset(
     cost: Callable[[float], float], offset0: float, *, half_width: float = 0.1, xatol: float = 1e-4

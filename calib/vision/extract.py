@@ -262,22 +262,7 @@ def extract(color, depth, intrinsics, target: TargetConfig) -> MarkerMeasurement
             point, J @ cov_pnp @ J.T, T_pnp, cov_pnp, T_pnp, cov_pnp, det.kind, det.ids, pts, center_px, info
         )
 
-    if depth is None or np.asarray(depth).size == 0:
-        raise DepthError("no depth image")
-    depth = np.asarray(depth)
-    if not np.issubdtype(depth.dtype, np.floating):
-        raise DepthError(f"depth must be float metres, got dtype {depth.dtype}")
-    if depth.shape != (h, w):
-        raise DepthError(f"depth image shape {depth.shape} does not match color {(h, w)}")
-    hull = cv2.convexHull(pts.astype(np.float32)).reshape(-1, 2)
-    rows, cols = polygon_pixels(hull, (h, w), target.depth_roi_scale)
-    plane = fit_plane(
-        depth, rows, cols, K, dist, target.depth_noise,
-        min_pixels=target.min_depth_pixels,
-        min_valid_fraction=target.min_valid_fraction,
-        max_chi2_ratio=target.max_chi2_ratio,
-        min_inlier_fraction=target.min_inlier_fraction,
-    )
+    plane = _target_plane(depth, pts, K, dist, target, (h, w))
     point, point_cov = intersect_ray(plane, xy_c, cov_xy, target.depth_noise)
     # Planar ambiguity: keep the PnP solution whose plane agrees with the depth plane.
     T_pnp = max(cands, key=lambda cand: abs(cand[0][:3, 2] @ plane.normal))[0]
@@ -292,6 +277,26 @@ def extract(color, depth, intrinsics, target: TargetConfig) -> MarkerMeasurement
     )
     return MarkerMeasurement(point, point_cov, T, cov, T_pnp, cov_pnp, det.kind, det.ids, pts, center_px, info)
 
+
+
+def _target_plane(depth, pts, K, dist, target: TargetConfig, shape):
+    """The depth plane fitted inside the target's corners ``pts`` (`fit_plane`), after checking the depth image."""
+    if depth is None or np.asarray(depth).size == 0:
+        raise DepthError("no depth image")
+    depth = np.asarray(depth)
+    if not np.issubdtype(depth.dtype, np.floating):
+        raise DepthError(f"depth must be float metres, got dtype {depth.dtype}")
+    if depth.shape != shape:
+        raise DepthError(f"depth image shape {depth.shape} does not match color {shape}")
+    hull = cv2.convexHull(pts.astype(np.float32)).reshape(-1, 2)
+    rows, cols = polygon_pixels(hull, shape, target.depth_roi_scale)
+    return fit_plane(
+        depth, rows, cols, K, dist, target.depth_noise,
+        min_pixels=target.min_depth_pixels,
+        min_valid_fraction=target.min_valid_fraction,
+        max_chi2_ratio=target.max_chi2_ratio,
+        min_inlier_fraction=target.min_inlier_fraction,
+    )
 
 def try_extract(color, depth, intrinsics, target: TargetConfig) -> tuple[MarkerMeasurement | None, str]:
     """`extract`, but a bad frame gives ``(None, reason)`` instead of raising.
