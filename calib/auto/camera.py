@@ -76,7 +76,7 @@ def select_camera(best: Candidate, wanted, *, defer: bool):
     held-out prediction error of the points. With ``defer``, well-determined
     parameters are fitted together, in one run of variance components and fit
     when a comparison needs it or at the end, instead of one run each (the
-    same fixed point; at N = 1000 it halves the time of ``solve("auto")``);
+    same fixed point, at a fraction of the cost);
     their 1-sigma where they are found decides (``best``, or an unfitted start
     for points: the thresholds are an order of magnitude apart, either is close).
 

@@ -24,7 +24,7 @@ MAX_ROUNDS = 12
 
 
 #: LM step (rad, m) below which the fit counts as converged: 10 nm, ~1e-4 of any 1-sigma here (the
-#: default 1e-10 of `calib.model.minimize` often costs one more iteration, ~1 ms at N = 1000).
+#: default 1e-10 of `calib.model.minimize` often costs one more iteration for nothing).
 FIT_TOL = 1e-8
 
 

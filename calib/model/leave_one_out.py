@@ -106,7 +106,7 @@ def _leave_one_out(problem, C, K, theta, point_cov, *, step):
         rw = rw + (G_flat @ delta).reshape(n, k)
     # Leverage 1 (an eigenvalue of S at 0): without sample i the others do not determine the unknowns.
     # Only the point rows of S^-1 are needed: r_loo = S^-1 r and A = H + H S^-1 H = S^-1 - I (S + H = I),
-    # both from 3x3 closed forms (a batched LAPACK call costs ~1 us per sample), on entry rows (9, N).
+    # both from 3x3 closed forms (cheaper than a batched LAPACK call per sample), on entry rows (9, N).
     if k == 3:
         h00, h01, h02, h11, h12, h22 = _hat_rows(G, Ninv)
         s00, s11, s22 = 1.0 - h00, 1.0 - h11, 1.0 - h22

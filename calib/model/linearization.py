@@ -134,7 +134,7 @@ class Linearization:
 
     def _columns(self, J) -> np.ndarray:
         """The columns of this problem's parameters from a Jacobian with every camera parameter, contiguous
-        (an index array on the last axis leaves it outermost in memory: products with it are 2x slower)."""
+        (an index array on the last axis leaves it outermost in memory, which slows the products with it)."""
         out = np.empty(J.shape[:2] + (self.n_params,))
         out[:, :, :self.n_pose] = J[:, :, :self.n_pose]
         out[:, :, self.n_pose:] = J[:, :, self.n_pose + np.flatnonzero(self.free)]
@@ -172,7 +172,7 @@ class Linearization:
             Dq = D * q
             r = self.p - Dq * g[:, None]
             # J_p = g diag(D) + c e_z^T with c = -(D q) d / z^2 (`measure`), built as rows (N, 9); one batched
-            # product into place (broadcasting over the 3-long axis costs 3x more).
+            # product into place (cheaper than broadcasting over the 3-long axis).
             J_p = np.zeros((n, 9))
             J_p[:, ::4] = g[:, None] * D
             J_p[:, 2::3] += Dq * (-d / z**2)[:, None]

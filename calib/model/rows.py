@@ -14,12 +14,12 @@ EYE_ROW = np.eye(3).reshape(9)
 
 
 def rows(a) -> np.ndarray:
-    """Entries of 3x3 matrices (N, 3, 3) as contiguous rows (9, N), row-major order (strided columns cost 2-3x)."""
+    """Entries of 3x3 matrices (N, 3, 3) as contiguous rows (9, N), row-major order (strided columns are slower)."""
     return np.ascontiguousarray(np.reshape(a, (-1, 9)).T)
 
 
 def inv3(a) -> np.ndarray:
-    """Inverses (N, 3, 3) of 3x3 matrices by the adjugate (a batched LAPACK call costs ~100x more per matrix)."""
+    """Inverses (N, 3, 3) of 3x3 matrices by the adjugate (cheaper than a batched LAPACK call per matrix)."""
     a00, a01, a02, a10, a11, a12, a20, a21, a22 = rows(a)
     c = np.empty((9, len(a00)))
     c[0] = a11 * a22 - a12 * a21

@@ -93,7 +93,7 @@ def _solve_components(H, q, value, active) -> list:
 
     A component whose solution is negative (not supported by the data) is held at its floor and the other
     re-solved alone; a singular system leaves the values as they are. Scalar arithmetic (Cramer's rule):
-    numpy's solve and index bookkeeping cost ~50 us here, 4-5 times per fit.
+    numpy's solve and index bookkeeping would cost more than the arithmetic here.
     """
     value, active = list(value), list(active)
     while any(active):

@@ -33,8 +33,8 @@ def check_point_cov(point_cov, n: int) -> np.ndarray | None:
 def whitener(cov) -> np.ndarray:
     """Inverse Cholesky factors ``W`` (N, 3, 3) so that ``W r`` has unit covariance (``W^T W = cov^-1``).
 
-    Written out for 3x3 (a batched LAPACK call costs ~100x more per sample), on
-    the entries as contiguous rows (9, N): strided columns of (N, 3, 3) cost 2-3x.
+    Written out for 3x3 (cheaper than a batched LAPACK call per sample), on
+    the entries as contiguous rows (9, N) (strided columns of (N, 3, 3) are slower).
     """
     a = np.asarray(cov, dtype=float)
     n = len(a)
