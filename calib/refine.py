@@ -401,13 +401,7 @@ def residuals(X, Y, problem: CalibrationProblem) -> Residuals:
 
 def _residuals(X, Y, A, B, setup) -> Residuals:
     C, K, M = model.split(X, Y, A, setup)
-    p = B if B.ndim == 2 else B[:, :3, 3]
-    r = model.point_residuals(C, K[:3, 3], M, p)[0]
-    rot = None
-    if B.ndim == 3:
-        E = np.swapaxes(B[:, :3, :3], 1, 2) @ C[:3, :3].T @ M[:, :3, :3] @ K[:3, :3]
-        rot = tf.rotation_angle(E)
-    return Residuals(translation=np.linalg.norm(r, axis=1), rotation=rot)
+    return Residuals(*model.residual_norms(C, K, M, B))
 
 
 def refine(initial: CalibrationResult, problem: CalibrationProblem, *, max_iterations: int = 50) -> CalibrationResult:

@@ -252,8 +252,4 @@ def _result(problem, start: _Start, best: Candidate, free, data_sigma, camera_co
 def _residuals(X, Y, problem: CalibrationProblem, theta, use_rotation) -> Residuals:
     """Residuals of every sample (outliers too) at ``(X, Y)`` with the camera correction ``theta``."""
     C, K, M = model.split(X, Y, problem.A, problem.setup)
-    r = problem.points - model.predict_points(C, K[:3, 3], M, theta)
-    rot = None
-    if use_rotation:
-        rot = np.linalg.norm(model.rotation_residuals(C, K, M, problem.marker_rotations)[0], axis=1)
-    return Residuals(translation=np.linalg.norm(r, axis=1), rotation=rot)
+    return Residuals(*model.residual_norms(C, K, M, problem.B, theta, rotation=use_rotation))

@@ -60,6 +60,7 @@ from calib.model.residuals import (
     point_jacobians,
     point_residuals,
     predict_points,
+    residual_norms,
     robot_cofactor,
     rotation_residuals,
 )
@@ -115,6 +116,7 @@ __all__ = [
     "point_shape",
     "point_weights",
     "predict_points",
+    "residual_norms",
     "robot_cofactor",
     "rotation_residuals",
     "split",

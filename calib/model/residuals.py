@@ -41,6 +41,18 @@ def predict_points(C, t_K, M, theta=None) -> np.ndarray:
     return measured_points(p, np.asarray(theta, dtype=float))
 
 
+def residual_norms(C, K, M, B, theta=None, *, rotation: bool = True):
+    """Per-sample residual sizes at ``(C, K, theta)``: translation (N,), m, the distance between the measured
+    and the predicted marker point (camera error ``theta`` applied); rotation (N,), rad, the angle of
+    ``R_B^T R_C^T R_M R_K`` (paper eq. 4), None for point data ``B`` (N, 3) or without ``rotation``."""
+    p = B if B.ndim == 2 else B[:, :3, 3]
+    trans = np.linalg.norm(p - predict_points(C, K[:3, 3], M, theta), axis=1)
+    if B.ndim == 2 or not rotation:
+        return trans, None
+    E = np.swapaxes(B[:, :3, :3], 1, 2) @ C[:3, :3].T @ M[:, :3, :3] @ K[:3, :3]
+    return trans, np.linalg.norm(tf.so3_log(E), axis=1)
+
+
 def point_jacobians(C, K, M, theta, setup: str):
     """Predicted measured point and its Jacobians, per sample, for the recursive filter of `calib.monitor`.
 
