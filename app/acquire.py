@@ -100,8 +100,8 @@ def take_sample(
               marker_px=(float(m.center_px[0]), float(m.center_px[1])))
     # The joints with the sample (the robot holds still for one): what a model of its kinematic error needs.
     q = robot.read().q
-    obs = Observation.from_measurement(writer.next_index, frame.t, T_base_flange, m,
-                                       {"frame_index": frame.index, "q": np.asarray(q, dtype=float).tolist()})
+    obs = Observation.from_measurement(writer.next_index, frame.t, T_base_flange, m, {"frame_index": frame.index},
+                                       joints=q)
     if frame.truth:
         obs.meta["truth"] = {k: np.asarray(v).tolist() for k, v in frame.truth.items()}
     if pose_kind is not None:

@@ -94,7 +94,7 @@ def make_solve(cal: CalibrateConfig, setup: Setup, rng: np.random.Generator, sha
     outlier rejection only at the end.
 
     ``shared_error``: the robot's `Robot.shared_error_factor`; with ``auto`` and the joints of every sample
-    (``meta["q"]``), the error it models joins the covariance as shared by all samples."""
+    (``Observation.joints``), the error it models joins the covariance as shared by all samples."""
     from calib.api import solve_observations
 
     def solve(observations, *, final: bool):
@@ -106,22 +106,13 @@ def make_solve(cal: CalibrateConfig, setup: Setup, rng: np.random.Generator, sha
 
 def robot_shared_error(method: str, observations, shared_error) -> np.ndarray | None:
     """``solve``'s ``robot_shared_error`` for ``observations``: ``shared_error`` (a robot's
-    `Robot.shared_error_factor`) of their joints (``meta["q"]``) for ``auto``; None for another method,
-    without it, or when a sample lacks its joints (sessions before 2026-12-01, imported files)."""
-    from calib.api import AUTO
+    `Robot.shared_error_factor`) of their joints (``Observation.joints``, checked where they are read) for
+    ``auto``; None for another method, without it, or when a sample lacks its joints (imported files)."""
+    from calib.methods import is_auto
 
-    joints = [o.meta.get("q") for o in observations]
-    if shared_error is None or method.strip().lower() != AUTO or any(q is None for q in joints):
+    if shared_error is None or not is_auto(method) or any(o.joints is None for o in observations):
         return None
-    for o, q in zip(observations, joints):
-        # A session file is input: its joints are checked like any other field.
-        try:
-            v = np.asarray(q, dtype=float)
-        except (TypeError, ValueError):
-            v = np.empty(0)
-        if v.shape != (6,) or not np.isfinite(v).all():
-            raise SessionError(f"sample {o.index}: meta q must be 6 finite joint angles (rad), got {q!r}")
-    return shared_error(np.array(joints, dtype=float))
+    return shared_error(np.array([o.joints for o in observations], dtype=float))
 
 
 def make_viz(cfg: Config, session: Path) -> Viz:

@@ -154,10 +154,9 @@ def camera_correction(method: str, estimate) -> tuple | None:
     """
     if method != AUTO:
         return None
-    cc = estimate.info.get("camera_correction") if estimate is not None else None
-    cc = cc or {}
-    theta = np.array([cc[n]["value"] if n in cc else 0.0 for n in model.CAMERA_PARAMS])
-    sigma = np.array([pl.CORRECTION_PRIOR_SIGMA if cc.get(n, {}).get("estimated") else CONSIDER_SIGMA[n]
+    cc = estimate.auto.camera_correction if estimate is not None and estimate.auto is not None else {}
+    theta = np.array([cc[n].value if n in cc else 0.0 for n in model.CAMERA_PARAMS])
+    sigma = np.array([pl.CORRECTION_PRIOR_SIGMA if n in cc and cc[n].estimated else CONSIDER_SIGMA[n]
                       for n in model.CAMERA_PARAMS])
     return theta, (True, True, True), sigma
 
@@ -280,6 +279,7 @@ def _early_estimate(setup: str, observations):
     below `EARLY_MAX_SIGMA` (the bootstrap continues otherwise).
     """
     from calib.api import solve
+    from calib.problem import CalibrationProblem
     from calib.refine import refine
 
     if len(observations) < EARLY_SAMPLES or any(o.T_cam_marker is None or o.point_cov is None
@@ -288,8 +288,9 @@ def _early_estimate(setup: str, observations):
     A = np.array([o.T_base_flange for o in observations])
     try:
         start = solve("YQuatT'", A, np.array([o.T_cam_marker for o in observations]), setup=setup)
-        est = refine(start, A, np.array([o.point_cam for o in observations]),
-                     point_cov=np.array([o.point_cov for o in observations]))
+        est = refine(start, CalibrationProblem.from_arrays(A, np.array([o.point_cam for o in observations]),
+                                                           setup=setup,
+                                                           point_cov=np.array([o.point_cov for o in observations])))
     except CalibrationError as e:
         log.info("no early estimate from %d samples: %s", len(observations), e)
         return None

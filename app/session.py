@@ -268,12 +268,13 @@ class SessionWriter:
             "point_cov": obs.point_cov,
             "T_cam_marker": obs.T_cam_marker,
             "pose_cov": obs.pose_cov,
+            "joints": obs.joints,
             "meta": meta,
         })
         self.next_index += 1
         self.n_samples += 1
         return Observation(index, obs.t, obs.T_base_flange, obs.point_cam, obs.point_cov,
-                           obs.T_cam_marker, obs.pose_cov, meta)
+                           obs.T_cam_marker, obs.pose_cov, meta, obs.joints)
 
     def add_skip(self, t: float, reason: str, *, T_base_flange=None, color=None, depth=None, **extra) -> int:
         """Record a frame or pose that produced no sample, with the reason (never dropped silently)."""
@@ -472,6 +473,11 @@ def _observation(rec: dict, where: str) -> Observation:
     meta = rec.get("meta") or {}
     if not isinstance(meta, dict):
         raise SessionError(f"{where}: meta must be an object, got {type(meta).__name__}")
+    joints = rec.get("joints")
+    if joints is None and "q" in meta:
+        # Sessions before the joints had a field of their own kept them in meta.
+        meta = {k: v for k, v in meta.items() if k != "q"}
+        joints = rec["meta"]["q"]
     obs = Observation(
         index=_int(rec["index"], f"{where}: index"),
         t=_real(rec["t"], f"{where}: t"),
@@ -481,6 +487,7 @@ def _observation(rec: dict, where: str) -> Observation:
         T_cam_marker=_array(rec.get("T_cam_marker"), (4, 4), f"{where}: T_cam_marker"),
         pose_cov=_array(rec.get("pose_cov"), (6, 6), f"{where}: pose_cov"),
         meta=meta,
+        joints=_array(joints, (6,), f"{where}: joints (rad)"),
     )
     if obs.point_cam is None and obs.T_cam_marker is None:
         raise SessionError(f"{where}: a sample needs point_cam or T_cam_marker")

@@ -20,7 +20,7 @@ from pathlib import Path  # noqa: E402
 
 import numpy as np  # noqa: E402
 
-from bench.solvers import _median_time  # noqa: E402
+from bench.solvers import median_time_ms  # noqa: E402
 from calib import simulate, solvers  # noqa: E402
 from calib import transforms as tf  # noqa: E402
 from calib.api import METHODS, closed_form, solve  # noqa: E402
@@ -32,7 +32,7 @@ COUNTS = (10, 100, 1000)
 def median_ms(fn, repeats: int) -> float:
     """Median wall time of ``fn()`` in ms over ``repeats`` calls, after one warm-up call."""
     fn()
-    return _median_time(fn, repeats)
+    return median_time_ms(fn, repeats)
 
 
 def measure(repeats: int, rng: np.random.Generator) -> tuple[dict, dict]:
@@ -46,7 +46,7 @@ def measure(repeats: int, rng: np.random.Generator) -> tuple[dict, dict]:
         est = closed_form("YKronT'", d.A, d.points)
         rows = {
             "check_transforms(A)": lambda: tf.check_transforms(d.A, "A"),
-            "YKronT' solver core": lambda: solvers._y_kron_t_prime(d.A, d.points, Setup.EYE_TO_HAND),
+            "YKronT' solver core": lambda: solvers.y_kron_t_prime_unchecked(d.A, d.points, Setup.EYE_TO_HAND),
             "residuals (validated)": lambda: solvers.residuals(est.X, est.Y, d.A, d.points, Setup.EYE_TO_HAND),
             "closed_form(\"YKronT'\")": lambda: closed_form("YKronT'", d.A, d.points),
             "solve(\"YKronT'\") (with cov)": lambda: solve("YKronT'", d.A, d.points),

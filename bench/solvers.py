@@ -20,7 +20,7 @@ Experiments
    with YKronT' + ML refinement and the Cramér-Rao bound.
 4. Efficiency and honesty of the refinement: RMS error / CRLB and NEES.
 4b. Honesty of ``cov`` per method of Table I, closed form and refined: NEES
-   on the realistic cell (``info["cov_kind"]`` says how each was computed).
+   on the realistic cell (``cov_kind`` says how each was computed).
 5. Robustness to 0-30% gross outliers; 6. timings (with the monitoring engine's update; its shift
 benchmark is ``handeye bench --shift``).
 
@@ -55,6 +55,7 @@ from calib import simulate, solvers  # noqa: E402
 from calib import transforms as tf  # noqa: E402
 from calib.api import METHODS, closed_form, solve  # noqa: E402
 from calib.errors import CalibrationError  # noqa: E402
+from calib.problem import CalibrationProblem  # noqa: E402
 from calib.monitor import MonitorEngine  # noqa: E402
 from calib.setup import Setup  # noqa: E402
 from calib.refine import cramer_rao_bound, error_vector, kron_t_prime_covariance, nees, refine  # noqa: E402
@@ -230,7 +231,7 @@ def experiment_nees_methods(rng, trials, n):
                 t0 = time.perf_counter()
                 res = solve(m, d.A, B, point_cov=d.point_cov)
                 rows[m][3].append(1e3 * (time.perf_counter() - t0))
-                rows[m][0].append(res.info["cov_kind"])
+                rows[m][0].append(res.cov_kind)
                 rows[m][1].append(nees(res.Y, d.Y, res.cov))
                 ref = solve(m, d.A, B, refine=True, point_cov=d.point_cov)
                 rows[m][2].append(nees(ref.Y, d.Y, ref.cov))
@@ -264,7 +265,8 @@ def experiment_robust(rng, trials, n=60):
     return rows
 
 
-def _median_time(fn, repeats):
+def median_time_ms(fn, repeats: int) -> float:
+    """Median wall time of ``fn()`` in ms over ``repeats`` calls."""
     times = []
     for _ in range(repeats):
         t0 = time.perf_counter()
@@ -287,20 +289,20 @@ def experiment_timing(rng, counts, repeats, skip_slow):
         d = simulate.realistic_cell(n, rng)
         for s in SOLVERS:
             if s in OPENCV_HAND_EYE and n >= 1000:
-                table[s].append(np.nan if skip_slow else _median_time(lambda: run_solver(s, d.A, d.B), 1))
+                table[s].append(np.nan if skip_slow else median_time_ms(lambda: run_solver(s, d.A, d.B), 1))
                 continue
-            table[s].append(_median_time(lambda: run_solver(s, d.A, d.B), rep))
+            table[s].append(median_time_ms(lambda: run_solver(s, d.A, d.B), rep))
         table["YKronT' (solver core, no input checks)"].append(
-            _median_time(lambda: solvers._y_kron_t_prime(d.A, d.points, Setup.EYE_TO_HAND), rep))
+            median_time_ms(lambda: solvers.y_kron_t_prime_unchecked(d.A, d.points, Setup.EYE_TO_HAND), rep))
         start = closed_form("YKronT'", d.A, d.points)
-        table["YKronT' closed-form covariance (analytic delta)"].append(_median_time(
-            lambda: kron_t_prime_covariance(start.X, start.Y, d.A, d.points, setup=Setup.EYE_TO_HAND,
-                                            point_cov=d.point_cov), rep))
-        table["YKronT'+ML (refine only)"].append(
-            _median_time(lambda: refine(start, d.A, d.points, point_cov=d.point_cov), rep))
+        table["YKronT' closed-form covariance (analytic delta)"].append(median_time_ms(
+            lambda: kron_t_prime_covariance(start.X, start.Y, CalibrationProblem.from_arrays(
+                d.A, d.points, point_cov=d.point_cov)), rep))
+        table["YKronT'+ML (refine only)"].append(median_time_ms(lambda: refine(start, CalibrationProblem.from_arrays(
+            d.A, d.points, point_cov=d.point_cov)), rep))
         table["YKronT' robust (LMedS)"].append(
-            _median_time(lambda: solve("YKronT'", d.A, d.points, robust=True, point_cov=d.point_cov, rng=rng),
-                         max(1, rep // 5)))
+            median_time_ms(lambda: solve("YKronT'", d.A, d.points, robust=True, point_cov=d.point_cov, rng=rng),
+                            max(1, rep // 5)))
     # The monitoring engine's update does not depend on N: one figure, measured on a stream.
     table["monitoring engine update (per sample, median)"] = [1e-3 * monitor_update_median_us(rng)] * len(counts)
     return table

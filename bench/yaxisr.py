@@ -4,8 +4,8 @@ Run ``python -m bench.yaxisr [--rounds R] [--out out/bench]``. Prints markdown,
 writes ``<out>/yaxisr.md`` and ``<out>/yaxisr.png`` (rotation error of Y per
 round against ``|y_0|``, the scalar part of the true ``R_Y`` quaternion that
 Zhuang's reduction divides by). "unrotated" is Zhuang's reduction solved
-directly in the given frames (the previous YAxisR), built from the same
-helpers as `calib.solvers.y_axis_r` minus `_zhuang_frames`. Eye-to-hand
+directly in the given frames (the previous YAxisR):
+`calib.solvers.zhuang_rotations` with ``pre_rotate=False``. Eye-to-hand
 (``X = T_flange_marker``, ``Y = T_base_cam``) unless the column says
 eye-in-hand (``X = T_flange_cam``, ``Y = T_base_marker``).
 """
@@ -27,12 +27,7 @@ from calib.setup import Setup
 
 def unrotated_y_axis_r(A: np.ndarray, B: np.ndarray) -> np.ndarray:
     """``R_Y`` from Zhuang's reduced eq. 9 without pre-rotation (singular when ``y_0 = 0``)."""
-    qa, qb = solvers._align_signs(solvers._quat(A[:, :3, :3]), solvers._quat(B[:, :3, :3]), same_angle=False)
-    qx, qy = solvers._zhuang_solve(qa, qb, A)
-    qb, changed = solvers._resign(qa, qb, qx, qy)
-    if changed:
-        qx, qy = solvers._zhuang_solve(qa, qb, A)
-    return solvers._mat(qy)
+    return solvers.zhuang_rotations(A, B, pre_rotate=False)[1]
 
 
 def rotation_error_deg(R_est: np.ndarray, R_true: np.ndarray) -> float:

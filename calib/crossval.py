@@ -20,10 +20,11 @@ from dataclasses import dataclass
 import numpy as np
 
 from calib import model
-from calib.auto import estimate_noise
+from calib.api import solve
+from calib.diagnostics import estimate_noise
 from calib.errors import CalibrationError, InsufficientDataError
-from calib.setup import Setup, check_setup
-from calib.solvers import check_measurements
+from calib.methods import is_auto, resolve_method
+from calib.problem import CalibrationProblem, as_problem
 
 
 @dataclass(frozen=True)
@@ -71,27 +72,27 @@ def fold_indices(n: int, folds: int | None, rng: np.random.Generator | None = No
     return [np.sort(part) for part in np.array_split(order, folds)]
 
 
-def _prediction(result, A_train, B_train, A_test, setup, point_cov_train):
+def _prediction(result, train: CalibrationProblem, A_test):
     """Predicted points of the held-out samples and their predicted RMS error."""
+    setup, A_train, B_train = train.setup, train.A, train.B
     theta = result.camera_correction.as_array()
-    corr = result.info.get("camera_correction")
+    auto = result.auto
     C, K, M_test = model.split(result.X, result.Y, A_test, setup)
     pred = model.predict_points(C, K[:3, 3], M_test, theta)
     # Noise model at the training estimate: camera shape + robot error at the estimated levels.
-    shape_train, _ = model.point_shape(B_train, point_cov_train)
-    noise = result.info.get("noise")
+    shape_train, _ = model.point_shape(B_train, train.point_cov)
     M_train = model.split(result.X, result.Y, A_train, setup)[2]
     use_rot = (B_train.ndim == 3 and result.marker_rotation_known
-               and "orientations" in result.info.get("measurements", ["orientations"]))
-    if noise is None:
+               and (auto is None or "orientations" in auto.measurements))
+    if auto is None:
         # A paper method: the noise levels of the data at its estimate.
-        levels = estimate_noise(result.X, result.Y, A_train, B_train, setup=setup, point_cov=point_cov_train,
-                                marker_rotation_known=result.marker_rotation_known)
+        levels = estimate_noise(result.X, result.Y, train, marker_rotation_known=result.marker_rotation_known)
     else:
-        levels = model.NoiseLevels(noise["point_scale"], noise["robot_m"], noise["rotation_rad"])
+        levels = auto.noise
     if levels.rotation is None:
         use_rot = False
-    free = [bool(corr and corr[name]["estimated"]) for name in model.CAMERA_PARAMS] if corr else [False] * 3
+    free = ([auto.camera_correction[name].estimated for name in model.CAMERA_PARAMS] if auto is not None
+            else [False] * 3)
     cof_train = model.robot_cofactor(C, K, M_train, setup)
     Bp = B_train if use_rot else (B_train if B_train.ndim == 2 else B_train[:, :3, 3])
     prob = model.Problem(M_train, Bp, model.whitener(levels.point_cov(shape_train, cof_train)),
@@ -106,27 +107,24 @@ def _prediction(result, A_train, B_train, A_test, setup, point_cov_train):
     return pred, J, cov, levels
 
 
-def cross_validate(method: str, A, B, *, setup: str = Setup.EYE_TO_HAND, folds: int | None = None,
-                   rng: np.random.Generator | None = None, **solve_kwargs) -> CrossValidation:
+def cross_validate(method: str, problem, B=None, *, folds: int | None = None, rng: np.random.Generator | None = None,
+                   refine: bool = False, robust: bool = False, camera_correction: str | None = None,
+                   **arrays) -> CrossValidation:
     """Held-out prediction error of the marker point for ``calib.solve(method, ...)``.
 
     Parameters
     ----------
     method : str
         ``"auto"`` or a paper method name (`calib.api.METHODS`).
-    A : array_like, shape (N, 4, 4)
-        ``T_base_flange``.
-    B : array_like, shape (N, 3) or (N, 4, 4)
-        Marker center in the camera frame, or ``T_cam_marker`` (m).
-    setup : {"eye_to_hand", "eye_in_hand"}
+    problem : CalibrationProblem
+        The samples; or the array form of `calib.solve` (``A``, ``B`` and
+        ``setup``, ``point_cov``, ``robot_shared_error``).
     folds : int, optional
         Number of folds; None (default) = leave-one-out.
     rng : numpy.random.Generator, optional
         Assigns samples to folds (k-fold) and is passed to the solver.
-    **solve_kwargs
-        Passed to `calib.solve` (``refine``, ``robust``, ``point_cov``,
-        ``camera_correction``); a per-sample ``point_cov`` (N, 3, 3) is split
-        with the folds.
+    refine, robust, camera_correction
+        Passed to `calib.solve` for each fold.
 
     Returns
     -------
@@ -138,27 +136,23 @@ def cross_validate(method: str, A, B, *, setup: str = Setup.EYE_TO_HAND, folds: 
     CalibrationError, InsufficientDataError
         Bad input, or no fold could be solved.
     """
-    from calib.api import AUTO, resolve_method, solve
-
-    if not (isinstance(method, str) and method.strip().lower() == AUTO):
+    if not is_auto(method):
         resolve_method(method)
-    setup = check_setup(setup)
-    A, B = check_measurements(A, B)
-    n = len(A)
+    problem = as_problem(problem, B, **arrays)
+    setup, A, B, point_cov = problem.setup, problem.A, problem.B, problem.point_cov
+    n = problem.n
     if n < 3:
         raise InsufficientDataError(f"cross-validation needs at least 3 samples, got {n}")
-    point_cov = model.check_point_cov(solve_kwargs.pop("point_cov", None), n)
     errors = np.full(n, np.nan)
     predicted = np.full(n, np.nan)
     parts = fold_indices(n, folds, rng)
     failed = 0
     p_all = B if B.ndim == 2 else B[:, :3, 3]
     for test in parts:
-        train = np.setdiff1d(np.arange(n), test)
-        cov_train = None if point_cov is None else point_cov[train]
+        train = problem.subset(np.setdiff1d(np.arange(n), test))
         try:
-            res = solve(method, A[train], B[train], setup=setup, point_cov=cov_train, rng=rng, **solve_kwargs)
-            pred, J, cov, levels = _prediction(res, A[train], B[train], A[test], setup, cov_train)
+            res = solve(method, train, refine=refine, robust=robust, rng=rng, camera_correction=camera_correction)
+            pred, J, cov, levels = _prediction(res, train, A[test])
         except CalibrationError:
             failed += 1
             continue

@@ -596,6 +596,84 @@ class Problem:
         return C2, K2, theta
 
 
+class WeightedData:
+    """One data set under the extended model, with the weights of its current noise levels kept.
+
+    ``M`` (`split`), the camera's point covariance shape ``S_i``, whether
+    orientations are used, and caches: the robot cofactor at the last estimate
+    and the whitener of the last noise levels, so that re-weighting at a fixed
+    estimate (variance components, then the next fit) computes neither again.
+    Used by `calib.auto` and `calib.diagnostics`.
+
+    Parameters
+    ----------
+    A : ndarray, shape (N, 4, 4)
+        ``T_base_flange``.
+    B : ndarray, shape (N, 3) or (N, 4, 4)
+        Marker points or ``T_cam_marker``.
+    setup : {"eye_to_hand", "eye_in_hand"}
+    shape : ndarray, shape (N, 3, 3)
+        The camera's point covariance shape (`point_shape`).
+    use_rotation : bool
+        Whether orientation residuals are used (pose data).
+    shape_whitener : ndarray, shape (N, 3, 3), optional
+        `whitener` of ``shape`` when the caller has it.
+    """
+
+    def __init__(self, A, B, setup, shape, use_rotation, shape_whitener=None):
+        self.setup = setup
+        self.A, self.B = A, B
+        self.shape = shape
+        self.use_rotation = use_rotation
+        self.M = split(np.eye(4), np.eye(4), A, setup)[2]
+        self._cof_at = None
+        self._memo: dict = {}      # the last raw evaluation, shared by the problems of this data set (`Problem`)
+        self._whitener_at = None   # the last point whitener, with its noise levels and robot cofactor
+        self._shape_whitener = shape_whitener
+
+    @property
+    def points(self) -> np.ndarray:
+        """Marker points (N, 3), m."""
+        return self.B if self.B.ndim == 2 else self.B[:, :3, 3]
+
+    def cofactor(self, C, K):
+        """`robot_cofactor` at ``(C, K)``; the last one is kept (rounds re-weight at a fixed estimate)."""
+        if self._cof_at is None or not ((self._cof_at[0] is C or np.array_equal(self._cof_at[0], C))
+                                        and (self._cof_at[1] is K or np.array_equal(self._cof_at[1], K))):
+            self._cof_at = (C, K, robot_cofactor(C, K, self.M, self.setup))
+        return self._cof_at[2]
+
+    @property
+    def shape_whitener(self) -> np.ndarray:
+        """`whitener` of the camera's point covariance shape alone (no robot error)."""
+        if self._shape_whitener is None:
+            self._shape_whitener = whitener(self.shape)
+        return self._shape_whitener
+
+    def problem(self, C, K, noise: "NoiseLevels", free):
+        """The whitened `Problem` at ``(C, K)`` with the noise levels ``noise`` and the camera parameters
+        ``free``, and the robot cofactor used."""
+        cof = self.cofactor(C, K)
+        # The same levels at the same estimate (a fit's final problem, its information, its held-out step).
+        if self._whitener_at is None or self._whitener_at[0] != noise or self._whitener_at[1] is not cof:
+            self._whitener_at = (noise, cof, whitener(noise.point_cov(self.shape, cof)))
+        W = self._whitener_at[2]
+        return Problem(self.M, self.B, W, sigma_rot=noise.rotation, free=free, use_rotation=self.use_rotation,
+                       memo=self._memo), cof
+
+
+
+def point_d2(C, K, M, p, W_shape) -> np.ndarray:
+    """Squared point residuals (N,) at ``(C, K)`` (no camera error) whitened by the camera's shape ``W_shape``."""
+    return whitened_squares(W_shape, p - predict_points(C, K[:3, 3], M))
+
+
+def whitened_squares(W, r) -> np.ndarray:
+    """``|W_i r_i|^2`` (N,) for whitening matrices (N, 3, 3) and residuals (N, 3)."""
+    wr = np.einsum("nij,nj->ni", W, r)
+    return np.sum(wr * wr, axis=1)
+
+
 def information(problem: Problem, C, K, theta=None) -> np.ndarray:
     """Fisher information ``J^T W J`` (n_params, n_params) of ``problem`` at ``(C, K, theta)``."""
     return problem._system(C, K, theta)[4]

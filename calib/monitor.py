@@ -49,6 +49,7 @@ says what is missing and which stop would fix it.
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from dataclasses import dataclass, field
 from typing import Annotated, NamedTuple
@@ -64,7 +65,7 @@ from calib.errors import CalibrationError
 from calib.noise import default_point_cov
 from calib.change import ChangeDetector, DetectorConfig
 from calib.params import NonNegativeFloat, Params, PositiveFloat
-from calib.result import CalibrationResult, Residuals
+from calib.result import CalibrationResult, CameraParameter, Residuals
 from calib.setup import Setup
 
 #: Visits of a stop before the detector compares its marker point with the stop's earlier ones.
@@ -328,7 +329,7 @@ def arm_reference(result: CalibrationResult, A, points, *, point_cov=None, robot
     Parameters
     ----------
     result : CalibrationResult
-        Of either setup; its ``info`` camera correction and noise levels are
+        Of either setup; its camera correction and noise levels (``auto``) are
         used when present (``solve("auto")``), else none and unit scale; the
         levels are widened by the square of its self-check's held-out ratio
         (observed / predicted) when that exceeds 1.
@@ -360,22 +361,21 @@ def arm_reference(result: CalibrationResult, A, points, *, point_cov=None, robot
         raise CalibrationError(f"points must have one row per pose ({len(A)}), got {len(p)}")
     C, K, M = model.split(result.X, result.Y, A, setup)
     theta = result.camera_correction.as_array()
-    info = result.info or {}
-    levels = info.get("noise") or {}
+    levels = result.auto.noise if result.auto is not None else model.NoiseLevels()
     # Held-out samples predicted worse than the model expects (auto's self-check): the noise levels were
     # fitted too closely, so they are widened by that ratio (never narrowed).
-    check = info.get("self_check") or {}
-    widen = max(1.0, float(check.get("loo_ratio") or 1.0)) ** 2
-    noise = model.NoiseLevels(levels.get("point_scale", 1.0) * widen, levels.get("robot_m", 0.0) * math.sqrt(widen))
+    ratio = result.self_check.loo_ratio if result.self_check is not None else 1.0
+    widen = max(1.0, float(ratio or 1.0)) ** 2
+    noise = model.NoiseLevels(levels.point_scale * widen, levels.robot * math.sqrt(widen))
     shape, _ = model.point_shape(p, point_cov)
     _, H_C, H_tK, H_th, H_xi = model.point_jacobians(C, K, M, theta, setup)
     W = np.linalg.inv(noise.point_cov(shape, model.robot_cofactor(C, K, M, setup)))
     J = np.concatenate([H_C, H_tK, H_th], axis=2)                     # (N, 3, 12)
     N = np.einsum("nki,nkl,nlj->ij", J, W, J)
-    correction = info.get("camera_correction") or {}
+    correction = result.auto.camera_correction if result.auto is not None else {}
     consider = CONSIDER_SIGMA if consider_theta is None else consider_theta
     for i, name in enumerate(model.CAMERA_PARAMS):
-        if not correction.get(name, {}).get("estimated", False):
+        if not (name in correction and correction[name].estimated):
             N[9 + i, 9 + i] += 1.0 / consider[name] ** 2
     try:
         cov = np.linalg.inv(N)
@@ -884,13 +884,14 @@ class MonitorEngine:
         K = tf.make_transform(ref.K[:3, :3], self._u[:3])
         X, Y = model.join(self._C, K, ref.setup)
         sig = np.sqrt(np.diag(self._P)[9:12])
-        base = ref.result.info or {}
-        estimated = base.get("camera_correction") or {}
-        info = {k: base[k] for k in ("noise", "measurements", "correction_points") if k in base}
-        info["camera_correction"] = {
-            name: {"value": float(self._u[3 + i]), "sigma": float(sig[i]),
-                   "estimated": bool(estimated.get(name, {}).get("estimated", False))}
-            for i, name in enumerate(model.CAMERA_PARAMS)}
+        base = ref.result.auto
+        estimated = base.camera_correction if base is not None else {}
+        correction = {name: CameraParameter(value=float(self._u[3 + i]), sigma=float(sig[i]),
+                                            estimated=name in estimated and estimated[name].estimated)
+                      for i, name in enumerate(model.CAMERA_PARAMS)}
+        # The arming result's model, with the live camera correction; its notes were about the arming fit.
+        details = None if base is None else dataclasses.replace(base, camera_correction=correction, notes=(),
+                                                                blocked_folds=None)
         return CalibrationResult(method="auto+monitor", setup=ref.setup, X=X, Y=Y, n_samples=self._count,
                                  residuals=Residuals(translation=np.zeros(0)), cov=self.cov,
-                                 marker_rotation_known=ref.result.marker_rotation_known, info=info)
+                                 marker_rotation_known=ref.result.marker_rotation_known, auto=details)

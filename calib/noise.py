@@ -65,8 +65,8 @@ def _ray_covariance(p, sigma_lateral, sigma_depth) -> np.ndarray:
     if not (norm > 0).all():
         raise CalibrationError(f"points[{int(np.argmin(norm[:, 0]))}] is the camera origin: its viewing ray is undefined")
     r = p / norm
-    # Entries as rows (N, 9): broadcasting over (N, 3, 3) costs ~4x more at N = 1000 (every solve("auto")
-    # without point_cov comes here).
+    # Entries as rows (N, 9), cheaper than broadcasting over (N, 3, 3): every solve("auto") without
+    # point_cov comes here.
     outer = r[:, _ROW] * r[:, _COL]
     sl = np.broadcast_to(np.asarray(sigma_lateral, dtype=float), (len(p),))[:, None]
     sd = np.broadcast_to(np.asarray(sigma_depth, dtype=float), (len(p),))[:, None]

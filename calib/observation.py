@@ -40,6 +40,9 @@ class Observation:
     meta : dict
         Anything else worth keeping (controller time, frame file names,
         detector scores). JSON-serialisable values only.
+    joints : ndarray, shape (6,), or None
+        The robot's joint angles at the sample (rad), when it reports them:
+        what a model of its kinematic error needs (`calib.robot_error`).
     """
 
     index: int
@@ -50,15 +53,17 @@ class Observation:
     T_cam_marker: np.ndarray | None = None
     pose_cov: np.ndarray | None = None
     meta: dict = field(default_factory=dict)
+    joints: np.ndarray | None = None
 
     @classmethod
-    def from_measurement(cls, index: int, t: float, T_base_flange: np.ndarray, m, meta: dict | None = None
-                         ) -> "Observation":
+    def from_measurement(cls, index: int, t: float, T_base_flange: np.ndarray, m, meta: dict | None = None,
+                         joints=None) -> "Observation":
         """The sample of a flange pose and a marker measurement (`calib.vision.extract.MarkerMeasurement`).
 
         ``meta`` gets the marker kind and the extraction's numeric diagnostics
-        (``extract``) after the caller's own entries.
+        (``extract``) after the caller's own entries; ``joints`` (6,) rad when the robot reports them.
         """
         info = {k: float(v) for k, v in m.info.items() if isinstance(v, (int, float, np.floating, np.integer))}
         return cls(index, t, T_base_flange, m.point_cam, m.point_cov, m.T_cam_marker, m.pose_cov,
-                   {**(meta or {}), "marker_kind": m.kind, "extract": info})
+                   {**(meta or {}), "marker_kind": m.kind, "extract": info},
+                   None if joints is None else np.asarray(joints, dtype=float))

@@ -37,9 +37,9 @@ from calib import transforms as tf
 from calib.errors import CalibrationError, InsufficientDataError
 from calib.model import check_point_cov
 from calib.noise import default_point_cov
-from calib.result import CalibrationResult, Residuals
+from calib.problem import CalibrationProblem
+from calib.result import CalibrationResult, RefineDetails, Residuals
 from calib.setup import Setup, check_setup
-from calib.solvers import check_measurements
 
 #: A given ``point_cov`` is trusted unless the residuals reject it at this level;
 #: then the covariance is inflated by the a posteriori variance factor.
@@ -62,21 +62,21 @@ def _min_samples(points: bool) -> int:
     return 3 if points else 2
 
 
-def _prepare(X, Y, A, B, setup, point_cov):
-    """Validated problem at (X, Y): returns problem, C, K, whether the point covariance was given, A, B."""
-    setup = check_setup(setup)
-    A, B = check_measurements(A, B)
+def _prepare(X, Y, problem: CalibrationProblem, B=None):
+    """The model at (X, Y) of the problem's samples (or of their measurements ``B``): the linearisation,
+    C, K and whether the point covariance was given."""
     X = tf.check_transform(X, "X")
     Y = tf.check_transform(Y, "Y")
+    B = problem.B if B is None else B
     points = B.ndim == 2
-    if len(A) < _min_samples(points):
-        raise InsufficientDataError(f"need at least {_min_samples(points)} samples, got {len(A)}")
-    C, K, M = model.split(X, Y, A, setup)
-    W_t, given = model.point_weights(B, point_cov)
-    problem = model.Problem(M, B, W_t)
+    if problem.n < _min_samples(points):
+        raise InsufficientDataError(f"need at least {_min_samples(points)} samples, got {problem.n}")
+    C, K, M = model.split(X, Y, problem.A, problem.setup)
+    W_t, given = model.point_weights(B, problem.point_cov)
+    lin = model.Problem(M, B, W_t)
     if not points:
         K = tf.make_transform(model.marker_rotation(C, M, B[:, :3, :3]), K[:3, 3])
-    return problem, C, K, given, A, B
+    return lin, C, K, given
 
 
 def _variance_factor(cost: float, dof: int, given: bool) -> float:
@@ -92,7 +92,7 @@ def _variance_factor(cost: float, dof: int, given: bool) -> float:
 # --------------------------------------------------------------------------- public API
 
 
-def covariance(X, Y, A, B, *, setup: str, point_cov=None) -> np.ndarray:
+def covariance(X, Y, problem: CalibrationProblem) -> np.ndarray:
     """Covariance (6, 6) of the camera transform of a calibration.
 
     The camera transform is ``Y = T_base_cam`` (eye-to-hand) or
@@ -110,13 +110,8 @@ def covariance(X, Y, A, B, *, setup: str, point_cov=None) -> np.ndarray:
         The estimate (paper eq. 1). For pose data the rotation of the
         marker-side transform is a nuisance and is re-estimated from the data,
         so a point-only estimate (identity placeholder) is fine.
-    A : array_like, shape (N, 4, 4)
-        ``T_base_flange``.
-    B : array_like, shape (N, 3) or (N, 4, 4)
-        Marker center in the camera frame, or ``T_cam_marker``.
-    setup : {"eye_to_hand", "eye_in_hand"}
-    point_cov : array_like, shape (3, 3) or (N, 3, 3), optional
-        Covariance of the marker center, m^2. Trusted as given unless the
+    problem : CalibrationProblem
+        The samples. A point covariance is trusted as given unless the
         residuals reject it (chi-square test at `CHI2_REJECT`), in which case
         it is inflated by the a posteriori variance factor. Without it the
         depth model of `calib.noise` gives the shape and the residuals the
@@ -131,18 +126,18 @@ def covariance(X, Y, A, B, *, setup: str, point_cov=None) -> np.ndarray:
     ------
     CalibrationError, InsufficientDataError, DegenerateMotionError
     """
-    problem, C, K, given, _, _ = _prepare(X, Y, A, B, setup, point_cov)
-    if problem.points:
-        cost = problem.cost(C, K)
-        factor = _variance_factor(cost, 3 * len(problem.p) - 9, given)
-        return factor * model.camera_block(model.information(problem, C, K))
-    sigma_rot, scale_t = _pose_noise(problem, C, K, problem.W_t)
-    problem.sigma_rot = sigma_rot
-    problem.W_t = problem.W_t / np.sqrt(scale_t)
-    return model.camera_block(model.information(problem, C, K))
+    lin, C, K, given = _prepare(X, Y, problem)
+    if lin.points:
+        cost = lin.cost(C, K)
+        factor = _variance_factor(cost, 3 * len(lin.p) - 9, given)
+        return factor * model.camera_block(model.information(lin, C, K))
+    sigma_rot, scale_t = _pose_noise(lin, C, K, lin.W_t)
+    lin.sigma_rot = sigma_rot
+    lin.W_t = lin.W_t / np.sqrt(scale_t)
+    return model.camera_block(model.information(lin, C, K))
 
 
-def kron_t_prime_covariance(X, Y, A, B, *, setup: str, point_cov=None) -> np.ndarray:
+def kron_t_prime_covariance(X, Y, problem: CalibrationProblem) -> np.ndarray:
     """First-order covariance (6, 6) of the closed-form YKronT' estimate of the camera transform.
 
     The covariance of the estimator itself (delta method / sandwich), not of
@@ -176,13 +171,8 @@ def kron_t_prime_covariance(X, Y, A, B, *, setup: str, point_cov=None) -> np.nda
         The YKronT' estimate. Eye-to-hand: ``X = T_flange_marker``,
         ``Y = T_base_cam`` (camera); eye-in-hand: ``X = T_flange_cam``
         (camera), ``Y = T_base_marker``.
-    A : array_like, shape (N, 4, 4)
-        ``T_base_flange``.
-    B : array_like, shape (N, 3) or (N, 4, 4)
-        Marker center in the camera frame (m); of a pose only the translation is used.
-    setup : {"eye_to_hand", "eye_in_hand"}
-    point_cov : array_like, shape (3, 3) or (N, 3, 3), optional
-        Marker center covariance, m^2.
+    problem : CalibrationProblem
+        The samples; of a pose only the translation (the marker centre) is used.
 
     Returns
     -------
@@ -193,17 +183,16 @@ def kron_t_prime_covariance(X, Y, A, B, *, setup: str, point_cov=None) -> np.nda
     ------
     CalibrationError, InsufficientDataError, DegenerateMotionError
     """
-    p = np.asarray(B, dtype=float)
-    p = p[:, :3, 3] if p.ndim == 3 else p
-    problem, C, K, given, A, _ = _prepare(X, Y, A, p, setup, point_cov)
+    p, A, setup = problem.points, problem.A, problem.setup
+    lin, C, K, given = _prepare(X, Y, problem, p)
     n = len(A)
-    cov_p = check_point_cov(point_cov, n)
+    cov_p = problem.point_cov
     if cov_p is None:
         cov_p = default_point_cov(p)
-    factor = _variance_factor(problem.cost(C, K), 3 * n - 9, given)
+    factor = _variance_factor(lin.cost(C, K), 3 * n - 9, given)
 
     R_A, t_A = A[:, :3, :3], A[:, :3, 3]
-    # Step 1: the system of eq. 20 exactly as `calib.solvers._y_kron_t_prime` builds it.
+    # Step 1: the system of eq. 20 exactly as `calib.solvers.y_kron_t_prime_unchecked` builds it.
     M = np.empty((n, 3, 15))
     T2 = np.empty((n, 3, 6))
     if setup == Setup.EYE_TO_HAND:
@@ -262,7 +251,7 @@ def kron_t_prime_covariance(X, Y, A, B, *, setup: str, point_cov=None) -> np.nda
     return 0.5 * (cov + cov.T)
 
 
-def delta_method_covariance(estimator, X, Y, A, B, *, setup: str, point_cov=None, step: float = 1e-3) -> np.ndarray:
+def delta_method_covariance(estimator, X, Y, problem: CalibrationProblem, *, step: float = 1e-3) -> np.ndarray:
     """Numerical first-order covariance (6, 6) of any closed-form estimator from marker poses.
 
     The sandwich ``sum_i J_i Sigma_i J_i^T`` of the estimator ``(A, B) ->
@@ -286,13 +275,9 @@ def delta_method_covariance(estimator, X, Y, A, B, *, setup: str, point_cov=None
         ``estimator(A, B) -> (X, Y)``, the closed form (e.g. YQuatT', paper eq. 19).
     X, Y : array_like, shape (4, 4)
         Its estimate on the unperturbed data.
-    A : array_like, shape (N, 4, 4)
-        ``T_base_flange``.
-    B : array_like, shape (N, 4, 4)
-        ``T_cam_marker``.
-    setup : {"eye_to_hand", "eye_in_hand"}
-    point_cov : array_like, shape (3, 3) or (N, 3, 3), optional
-        Covariance of the marker translation, m^2 (its scale is re-estimated).
+    problem : CalibrationProblem
+        The samples, with marker poses ``T_cam_marker``; the scale of a point
+        covariance is re-estimated.
     step : float
         Finite-difference step in noise standard deviations.
 
@@ -305,16 +290,17 @@ def delta_method_covariance(estimator, X, Y, A, B, *, setup: str, point_cov=None
     ------
     CalibrationError, InsufficientDataError, DegenerateMotionError
     """
-    problem, C, K, _, A, B = _prepare(X, Y, A, B, setup, point_cov)
-    if problem.points:
+    A, B, setup = problem.A, problem.B, problem.setup
+    if not problem.has_poses:
         raise CalibrationError("delta_method_covariance needs marker poses B of shape (N, 4, 4)")
-    W0 = problem.W_t
+    lin, C, K, _ = _prepare(X, Y, problem)
+    W0 = lin.W_t
     for _ in range(2):
-        sigma_rot, scale_t = _pose_noise(problem, C, K, W0)
-        problem.sigma_rot, problem.W_t = sigma_rot, W0 / np.sqrt(scale_t)
-        C, K = model.minimize(problem, C, K, max_iterations=50)[:2]
-    sigma_rot, scale_t = _pose_noise(problem, C, K, W0)
-    cov_t = check_point_cov(point_cov, len(B))
+        sigma_rot, scale_t = _pose_noise(lin, C, K, W0)
+        lin.sigma_rot, lin.W_t = sigma_rot, W0 / np.sqrt(scale_t)
+        C, K = model.minimize(lin, C, K, max_iterations=50)[:2]
+    sigma_rot, scale_t = _pose_noise(lin, C, K, W0)
+    cov_t = problem.point_cov
     if cov_t is None:
         cov_t = default_point_cov(B[:, :3, 3])
     L_t = np.linalg.cholesky(scale_t * cov_t)                          # (N, 3, 3) noise directions
@@ -396,15 +382,13 @@ def nees(T_est, T_true, cov) -> float:
     return float(e @ np.linalg.solve(cov, e))
 
 
-def residuals(X, Y, A, B, *, setup: str) -> Residuals:
+def residuals(X, Y, problem: CalibrationProblem) -> Residuals:
     """Per-sample residuals of ``A_i X = Y B_i`` (paper eq. 1) in the camera frame.
 
     Translation: distance between the measured and the predicted marker center
     (m). Rotation (pose data only): angle of ``R_B^T R_C^T R_M R_K`` (rad).
     """
-    setup = check_setup(setup)
-    A, B = check_measurements(A, B)
-    return _residuals(tf.check_transform(X, "X"), tf.check_transform(Y, "Y"), A, B, setup)
+    return _residuals(tf.check_transform(X, "X"), tf.check_transform(Y, "Y"), problem.A, problem.B, problem.setup)
 
 
 def _residuals(X, Y, A, B, setup) -> Residuals:
@@ -418,7 +402,7 @@ def _residuals(X, Y, A, B, setup) -> Residuals:
     return Residuals(translation=np.linalg.norm(r, axis=1), rotation=rot)
 
 
-def refine(initial: CalibrationResult, A, B, *, point_cov=None, max_iterations: int = 50) -> CalibrationResult:
+def refine(initial: CalibrationResult, problem: CalibrationProblem, *, max_iterations: int = 50) -> CalibrationResult:
     """Maximum-likelihood refinement of a calibration from any closed-form start.
 
     Point data (``B`` (N, 3)): minimises ``sum_i r_i^T Sigma_i^-1 r_i`` with the
@@ -437,11 +421,8 @@ def refine(initial: CalibrationResult, A, B, *, point_cov=None, max_iterations: 
     ----------
     initial : CalibrationResult
         Start (e.g. YKronT'). Its method name is kept with ``"+ML"`` appended.
-    A : array_like, shape (N, 4, 4)
-        ``T_base_flange``.
-    B : array_like, shape (N, 3) or (N, 4, 4)
-    point_cov : array_like, shape (3, 3) or (N, 3, 3), optional
-        Marker center covariance, m^2.
+    problem : CalibrationProblem
+        The samples (its ``setup`` must be the start's).
     max_iterations : int
         Per LM pass.
 
@@ -449,8 +430,8 @@ def refine(initial: CalibrationResult, A, B, *, point_cov=None, max_iterations: 
     -------
     CalibrationResult
         With ``cov`` (see `covariance`), ``converged``, ``iterations`` and
-        ``info["cost"]`` (final chi-square), ``info["initial_cost"]``,
-        ``info["variance_factor"]`` (point data).
+        ``refinement`` (`calib.result.RefineDetails`: final and initial
+        chi-square, the variance factor for point data).
 
     Raises
     ------
@@ -459,29 +440,33 @@ def refine(initial: CalibrationResult, A, B, *, point_cov=None, max_iterations: 
     if not isinstance(initial, CalibrationResult):
         raise CalibrationError(f"initial must be a CalibrationResult, got {type(initial).__name__}")
     setup = initial.setup
-    problem, C, K, given, A, B = _prepare(initial.X, initial.Y, A, B, setup, point_cov)
-    if problem.points:
-        initial_cost = problem.cost(C, K)
-        C, K, _, cost, iters, converged = model.minimize(problem, C, K, max_iterations=max_iterations)
-        factor = _variance_factor(cost, 3 * len(problem.p) - 9, given)
-        cov = factor * model.camera_block(model.information(problem, C, K))
-        info = {"cost": cost, "initial_cost": initial_cost, "variance_factor": factor}
+    if problem.setup != setup:
+        raise CalibrationError(f"initial is a {setup} result, the problem is {problem.setup}")
+    A, B = problem.A, problem.B
+    lin, C, K, given = _prepare(initial.X, initial.Y, problem)
+    if lin.points:
+        initial_cost = lin.cost(C, K)
+        C, K, _, cost, iters, converged = model.minimize(lin, C, K, max_iterations=max_iterations)
+        factor = _variance_factor(cost, 3 * len(lin.p) - 9, given)
+        cov = factor * model.camera_block(model.information(lin, C, K))
+        details = RefineDetails(cost=cost, initial_cost=initial_cost, variance_factor=factor)
         rotation_known = initial.marker_rotation_known
     else:
-        W0 = problem.W_t
+        W0 = lin.W_t
         iters, initial_cost = 0, None
         # Pass 1 weights come from the start's residuals, pass 2 from pass 1's.
         for _ in range(2):
-            sigma_rot, scale_t = _pose_noise(problem, C, K, W0)
-            problem.sigma_rot, problem.W_t = sigma_rot, W0 / np.sqrt(scale_t)
+            sigma_rot, scale_t = _pose_noise(lin, C, K, W0)
+            lin.sigma_rot, lin.W_t = sigma_rot, W0 / np.sqrt(scale_t)
             if initial_cost is None:
-                initial_cost = problem.cost(C, K)
-            C, K, _, cost, it, converged = model.minimize(problem, C, K, max_iterations=max_iterations)
+                initial_cost = lin.cost(C, K)
+            C, K, _, cost, it, converged = model.minimize(lin, C, K, max_iterations=max_iterations)
             iters += it
-        sigma_rot, scale_t = _pose_noise(problem, C, K, W0)
-        problem.sigma_rot, problem.W_t = sigma_rot, W0 / np.sqrt(scale_t)
-        cov = model.camera_block(model.information(problem, C, K))
-        info = {"cost": cost, "initial_cost": initial_cost, "sigma_rotation": sigma_rot, "translation_scale": scale_t}
+        sigma_rot, scale_t = _pose_noise(lin, C, K, W0)
+        lin.sigma_rot, lin.W_t = sigma_rot, W0 / np.sqrt(scale_t)
+        cov = model.camera_block(model.information(lin, C, K))
+        details = RefineDetails(cost=cost, initial_cost=initial_cost, sigma_rotation=sigma_rot,
+                                translation_scale=scale_t)
         rotation_known = True
     X, Y = model.join(C, K, setup)
     return dataclasses.replace(
@@ -495,5 +480,5 @@ def refine(initial: CalibrationResult, A, B, *, point_cov=None, max_iterations: 
         marker_rotation_known=rotation_known,
         converged=converged,
         iterations=iters,
-        info={**initial.info, **info},
+        refinement=details,
     )

@@ -8,13 +8,13 @@ and ``t_true = t_est + delta_t``; ``cov`` is its 6x6 covariance for the
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from functools import cached_property
 
 import numpy as np
 
 from calib.errors import DegenerateMotionError
-from calib.model import CameraCorrection
+from calib.model import CameraCorrection, NoiseLevels
 from calib.setup import Setup
 
 
@@ -58,6 +58,141 @@ class Residuals:
 
 
 @dataclass(frozen=True)
+class SelfCheck:
+    """Consistency of a calibration with the measurement model (`calib.diagnostics.self_check`).
+
+    Attributes
+    ----------
+    chi2, dof, p_value : float, int, float
+        The point residuals whitened by the camera's a-priori covariance, no robot error.
+    prior_model_rejected : bool
+        ``p_value`` below `calib.diagnostics.CHI2_ALPHA`: the camera noise alone does not explain the residuals.
+    loo_observed_m, loo_predicted_m : float
+        RMS linearised leave-one-out prediction error of the marker point, observed and predicted by the model, m.
+    loo_ratio : float
+        Observed / predicted.
+    loo_errors_m : ndarray, shape (N,)
+        Held-out prediction error per sample, m.
+    warning : str or None
+        Plain words when the ratio is outside the tolerance.
+    """
+
+    chi2: float
+    dof: int
+    p_value: float
+    prior_model_rejected: bool
+    loo_observed_m: float
+    loo_predicted_m: float
+    loo_ratio: float
+    loo_errors_m: np.ndarray
+    warning: str | None
+
+    @property
+    def consistent(self) -> bool:
+        return self.warning is None
+
+
+@dataclass(frozen=True)
+class RobustDetails:
+    """What the LMedS search of `calib.robust.robust_solve` did: subsets tried, their size, the robust
+    scale of the squared Mahalanobis residuals and the inlier threshold on them."""
+
+    trials: int
+    subset: int
+    scale: float
+    threshold: float
+
+
+@dataclass(frozen=True)
+class RefineDetails:
+    """The maximum-likelihood refinement of `calib.refine.refine`: chi-square at the start and at the end;
+    for point data the a posteriori variance factor, for pose data the estimated rotation noise (rad) and
+    the scale of the translation covariance."""
+
+    cost: float
+    initial_cost: float
+    variance_factor: float | None = None
+    sigma_rotation: float | None = None
+    translation_scale: float | None = None
+
+
+@dataclass(frozen=True)
+class CameraParameter:
+    """One camera parameter of ``auto``'s correction (`calib.model.CAMERA_PARAMS`): value, 1-sigma
+    (0 when not estimated) and whether it was estimated (else it stays at nominal, 0). SI units
+    (scales as fractions, the depth offset in m)."""
+
+    value: float
+    sigma: float
+    estimated: bool
+
+
+@dataclass(frozen=True)
+class BlockedCandidate:
+    """One model judged on contiguous stretches of the recording held out in turn: the closed form
+    ``closed_form`` solved again, or a maximum-likelihood fit with or without the marker orientations and
+    with the camera parameters ``camera_correction``; ``heldout_m`` is its RMS point prediction error."""
+
+    heldout_m: float
+    closed_form: str | None = None
+    orientations: bool | None = None
+    camera_correction: tuple[str, ...] = ()
+
+
+@dataclass(frozen=True)
+class BlockedFolds:
+    """``auto``'s check of its model choice on blocked folds: the number of folds, every candidate, and
+    what decided (``chosen_by``)."""
+
+    folds: int
+    chosen_by: str
+    candidates: tuple[BlockedCandidate, ...]
+
+
+@dataclass(frozen=True)
+class AutoDetails:
+    """How ``solve("auto")`` reached its result.
+
+    Attributes
+    ----------
+    start : str
+        The closed form it started from (``"+LMedS"`` when the outlier search ran).
+    start_candidates : dict of str to float
+        Each closed form tried and its median point residual, m.
+    measurements : tuple of str
+        ``("points",)`` or ``("points", "orientations")``.
+    camera_correction : dict of str to CameraParameter
+        Per `calib.model.CAMERA_PARAMS`.
+    correction_points : ndarray, shape (M, 3), or None
+        The raw points the correction was estimated on (None without a correction).
+    noise : calib.model.NoiseLevels
+        Estimated noise levels.
+    robot_shared_error_m : float or None
+        The 1-sigma of the camera translation that the robot's shared error adds (m), None without it.
+    blocked_folds : BlockedFolds or None
+        The blocked-fold check (None when not run).
+    notes : tuple of str
+        Decisions and warnings, in plain words.
+    flips : dict or None
+        `calib.symmetry.resolve_flips`' report for pose data.
+    cost : float
+        Final whitened chi-square.
+    """
+
+    start: str
+    start_candidates: dict
+    measurements: tuple[str, ...]
+    camera_correction: dict
+    correction_points: np.ndarray | None
+    noise: NoiseLevels
+    robot_shared_error_m: float | None
+    blocked_folds: BlockedFolds | None
+    notes: tuple[str, ...]
+    flips: dict | None
+    cost: float
+
+
+@dataclass(frozen=True)
 class CalibrationResult:
     """Solution of ``A_i X = Y B_i`` (paper eq. 1) and how much to trust it.
 
@@ -79,7 +214,11 @@ class CalibrationResult:
     inliers: np.ndarray | None = None
     converged: bool = True
     iterations: int = 0
-    info: dict = field(default_factory=dict)
+    cov_kind: str | None = None
+    self_check: SelfCheck | None = None
+    robust: RobustDetails | None = None
+    refinement: RefineDetails | None = None
+    auto: AutoDetails | None = None
 
     def __post_init__(self):
         # A NaN/inf anywhere means the data did not determine the solution (e.g. a
@@ -121,10 +260,10 @@ class CalibrationResult:
     def camera_correction(self) -> CameraCorrection:
         """The camera's systematic error the solver estimated (`calib.model.CameraCorrection`; all zero if none).
 
-        ``auto`` estimates it (``info["camera_correction"]``); the paper's methods do not.
+        ``auto`` estimates it (``auto.camera_correction``); the paper's methods do not.
         """
-        cc = self.info.get("camera_correction") or {}
-        return CameraCorrection(**{name: c["value"] for name, c in cc.items() if c["estimated"]})
+        cc = {} if self.auto is None else self.auto.camera_correction
+        return CameraCorrection(**{name: c.value for name, c in cc.items() if c.estimated})
 
     @cached_property
     def raw_points_fit(self) -> dict | None:
@@ -132,10 +271,10 @@ class CalibrationResult:
 
         ``{"transform": G, "misfit_m": rms}``: `calib.model.CameraCorrection.rigid_stand_in`
         of `camera_correction` over the points it was estimated on
-        (``info["correction_points"]``, the raw points of the samples in the
+        (``auto.correction_points``, the raw points of the samples in the
         fit). Computed when first asked (the exports ask), not by the solver.
         """
-        points = self.info.get("correction_points")
+        points = None if self.auto is None else self.auto.correction_points
         if points is None:
             return None
         G, misfit = self.camera_correction.rigid_stand_in(points)

@@ -27,10 +27,9 @@ import numpy as np
 from scipy.stats import chi2
 
 from calib import model
-from calib.solvers import check_measurements
 from calib.errors import CalibrationError, InsufficientDataError
-from calib.result import CalibrationResult
-from calib.setup import check_setup
+from calib.problem import CalibrationProblem
+from calib.result import CalibrationResult, RobustDetails
 
 #: Chi-square quantile below which a sample counts as an inlier.
 INLIER_QUANTILE = 0.999
@@ -64,12 +63,9 @@ def _trials_needed(inlier_fraction: float, m: int, confidence: float) -> float:
 
 
 def robust_solve(
-    solve_fn: Callable[[np.ndarray, np.ndarray], CalibrationResult],
-    A,
-    B,
+    solve_fn: Callable[[CalibrationProblem], CalibrationResult],
+    problem: CalibrationProblem,
     *,
-    setup: str,
-    point_cov=None,
     rng: np.random.Generator,
     min_samples: int | None = None,
     max_outlier_fraction: float = 0.4,
@@ -80,20 +76,15 @@ def robust_solve(
 
     Parameters
     ----------
-    solve_fn : callable ``(A, B) -> CalibrationResult``
-        A closed-form method bound to ``setup``, e.g.
-        ``lambda A, B: solve("YKronT'", A, B, setup=setup)``. It may raise a
+    solve_fn : callable ``(CalibrationProblem) -> CalibrationResult``
+        A closed-form method, e.g. ``lambda sub: closed_form("YKronT'", sub)``,
+        applied to subsets of ``problem``. It may raise a
         `calib.errors.CalibrationError` on a degenerate subset (the subset is
         skipped).
-    A : array_like, shape (N, 4, 4)
-        ``T_base_flange``.
-    B : array_like, shape (N, 3) or (N, 4, 4)
-        Marker center in the camera frame, or ``T_cam_marker``.
-    setup : {"eye_to_hand", "eye_in_hand"}
-    point_cov : array_like, shape (3, 3) or (N, 3, 3), optional
-        Marker center covariance, m^2. Without it the depth model of
-        `calib.noise` gives the shape; the scale is always estimated robustly
-        (and never below the given covariance).
+    problem : CalibrationProblem
+        The samples. Without a point covariance the depth model of
+        `calib.noise` gives its shape; the scale is always estimated robustly
+        (and never below a given covariance).
     rng : numpy.random.Generator
         Draws the subsets; required so runs are reproducible.
     min_samples : int, optional
@@ -113,7 +104,7 @@ def robust_solve(
     CalibrationResult
         ``solve_fn``'s fit on the inliers, with ``method`` suffixed ``"+LMedS"``,
         ``inliers`` (bool (N,)) so that ``result.rejected`` lists the outliers,
-        ``n_samples = N``, and ``info["robust"]`` (trials, scale, threshold).
+        ``n_samples = N``, and ``robust`` (`calib.result.RobustDetails`).
         ``residuals`` and ``cov`` are those of the inlier fit.
 
     Raises
@@ -121,17 +112,16 @@ def robust_solve(
     InsufficientDataError
         Fewer than ``min_samples + 1`` samples, or no subset could be solved.
     CalibrationError
-        Bad shapes or values (see `calib.solvers.check_measurements`).
+        A bad ``rng`` or ``max_outlier_fraction``.
     """
-    setup = check_setup(setup)
-    A, B = check_measurements(A, B)
+    A, B, setup = problem.A, problem.B, problem.setup
     if not isinstance(rng, np.random.Generator):
         raise CalibrationError("rng must be a numpy.random.Generator")
     n = len(A)
     m = min_samples if min_samples is not None else default_subset(points=B.ndim == 2)
     if n < m + 1:
         raise InsufficientDataError(f"robust estimation needs at least {m + 1} samples, got {n}")
-    W_t, given = model.point_weights(B, point_cov)
+    W_t, given = model.point_weights(B, problem.point_cov)
 
     if not 0.0 <= max_outlier_fraction < 0.5:
         raise CalibrationError(f"max_outlier_fraction must be in [0, 0.5), got {max_outlier_fraction}")
@@ -141,7 +131,7 @@ def robust_solve(
         trials += 1
         idx = rng.choice(n, size=m, replace=False)
         try:
-            hyp = solve_fn(A[idx], B[idx])
+            hyp = solve_fn(problem.subset(idx))
             d2, dof = _squared_distances(hyp, A, B, W_t, setup)
         except CalibrationError:
             continue
@@ -159,7 +149,7 @@ def robust_solve(
         if inliers.sum() < m:
             raise InsufficientDataError(f"only {int(inliers.sum())} inliers left, need {m}")
         used = inliers
-        result = solve_fn(A[used], B[used])
+        result = solve_fn(problem.subset(used))
         d2, dof = _squared_distances(result, A, B, W_t, setup)
         # Inliers of a full fit give an unbiased scale: their mean d2 is dof * scale.
         scale = max(float(np.mean(d2[inliers])) / dof, 1.0) if given else float(np.mean(d2[inliers])) / dof
@@ -172,10 +162,7 @@ def robust_solve(
         method=f"{result.method}+LMedS",
         n_samples=n,
         inliers=used,
-        info={
-            **result.info,
-            "robust": {"trials": trials, "subset": m, "scale": scale, "threshold": float(threshold)},
-        },
+        robust=RobustDetails(trials=trials, subset=m, scale=scale, threshold=float(threshold)),
     )
 
 

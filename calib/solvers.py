@@ -547,17 +547,38 @@ def y_axis_r(A: np.ndarray, B: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """
     A, B = check_pose_pairs(A, B, 3)
     _check_robot_excitation(A)
+    R_X, R_Y = zhuang_rotations(A, B)
+    t_X, t_Y = _translation_xy(R_X, R_Y, A, B)
+    return tf.make_transform(R_X, t_X), tf.make_transform(R_Y, t_Y)
+
+
+def zhuang_rotations(A: np.ndarray, B: np.ndarray, *, pre_rotate: bool = True) -> tuple[np.ndarray, np.ndarray]:
+    """``R_X``, ``R_Y`` of YAxisR (see `y_axis_r`) for pose pairs `check_pose_pairs` has passed.
+
+    Parameters
+    ----------
+    A, B : ndarray, shape (N, 4, 4)
+        ``T_base_flange`` and ``T_cam_marker`` (eye-to-hand).
+    pre_rotate : bool
+        Solve in the best-conditioned rotated frames (`_zhuang_frames`), as `y_axis_r` does. False
+        solves Zhuang's reduction in the given frames, singular when ``y_0 = 0``: the variant that
+        `bench.yaxisr` compares against.
+
+    Returns
+    -------
+    R_X, R_Y : ndarray, shape (3, 3)
+    """
     qa, qb = _align_signs(_quat(A[:, :3, :3]), _quat(B[:, :3, :3]), same_angle=False)
-    # A fixed rotation is an isometry of R^4, so the sign alignment carries over.
-    d, c = _zhuang_frames(qa, qb)
-    qa, qb = qa @ quat_right(d).T, qb @ quat_left(c).T
+    d = c = _HALF_TURNS[0]
+    if pre_rotate:
+        # A fixed rotation is an isometry of R^4, so the sign alignment carries over.
+        d, c = _zhuang_frames(qa, qb)
+        qa, qb = qa @ quat_right(d).T, qb @ quat_left(c).T
     qx, qy = _zhuang_solve(qa, qb, A)
     qb, changed = _resign(qa, qb, qx, qy)
     if changed:
         qx, qy = _zhuang_solve(qa, qb, A)
-    R_X, R_Y = _mat(quat_left(d) @ qx), _mat(quat_right(c) @ qy)
-    t_X, t_Y = _translation_xy(R_X, R_Y, A, B)
-    return tf.make_transform(R_X, t_X), tf.make_transform(R_Y, t_Y)
+    return _mat(quat_left(d) @ qx), _mat(quat_right(c) @ qy)
 
 
 def y_quat_r_star(A: np.ndarray, B: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -706,10 +727,11 @@ def y_kron_t_prime(A: np.ndarray, p: np.ndarray, setup: Setup = Setup.EYE_TO_HAN
     """
     setup = check_setup(setup)
     A, p = check_point_pairs(A, p, 5)
-    return _y_kron_t_prime(A, p, setup)
+    return y_kron_t_prime_unchecked(A, p, setup)
 
 
-def _y_kron_t_prime(A: np.ndarray, p: np.ndarray, setup: str) -> tuple[np.ndarray, np.ndarray]:
+def y_kron_t_prime_unchecked(A: np.ndarray, p: np.ndarray, setup: str) -> tuple[np.ndarray, np.ndarray]:
+    """`y_kron_t_prime` for inputs validated already (a `calib.problem.CalibrationProblem`'s)."""
     n = len(A)
     R_A, t_A = A[:, :3, :3], A[:, :3, 3]
     M = np.empty((n, 3, 15))
@@ -773,11 +795,11 @@ def residuals(X, Y, A, B, setup: str, *, rotation: bool = True) -> tuple[np.ndar
     X = tf.check_transform(X, "X")
     Y = tf.check_transform(Y, "Y")
     A, B = check_measurements(A, B)
-    return _residuals(X, Y, A, B, setup, rotation)
+    return residuals_unchecked(X, Y, A, B, setup, rotation)
 
 
-def _residuals(X, Y, A, B, setup: str, rotation: bool) -> tuple[np.ndarray, np.ndarray | None]:
-    """`residuals` for validated inputs, vectorised without stacked 3x3 products (they dominate at large N)."""
+def residuals_unchecked(X, Y, A, B, setup: str, rotation: bool) -> tuple[np.ndarray, np.ndarray | None]:
+    """`residuals` for inputs validated already, vectorised without stacked 3x3 products (they dominate at large N)."""
     n = len(A)
     poses = B.ndim == 3
     p = B[:, :3, 3] if poses else B

@@ -202,9 +202,9 @@ def estimate_clock_offset(
     resolution : float
         Grid step (s).
     baseline : float
-        Span (s) of the finite difference giving the angular speed. On the
-        ETH robot_arm recording (30 Hz camera poses) 0.3 s lifts the peak
-        correlation from 0.1 (frame-to-frame) to 0.97.
+        Span (s) of the finite difference giving the angular speed: several
+        camera frames, so that pose noise does not swamp the rotation between
+        them.
     max_gap : float, optional
         Leave out of the correlation the baselines that touch a gap longer
         than this (s) in either stream (e.g. marker out of view).

@@ -176,8 +176,8 @@ def skew(v) -> np.ndarray:
 def so3_exp(v) -> np.ndarray:
     """Rotation matrices (..., 3, 3) of rotation vectors (..., 3), rad (SO(3) exponential map).
 
-    Rodrigues' formula, with the Taylor series of its coefficients below 1e-4 rad
-    (written out: scipy's Rotation costs ~10 us per call, the solvers' inner loops call it).
+    Rodrigues' formula, with the Taylor series of its coefficients below 1e-4 rad (written out
+    rather than through scipy's Rotation, whose per-call overhead would dominate the solvers' inner loops).
     """
     v = np.asarray(v, dtype=float)
     th2 = np.sum(v * v, axis=-1)
@@ -194,8 +194,8 @@ def so3_log(R) -> np.ndarray:
     """Rotation vectors (..., 3), rad, of rotation matrices (..., 3, 3) (SO(3) logarithm, angle in [0, pi]).
 
     Through the unit quaternion (Markley's choice of the largest of w, x, y, z
-    for precision at every angle, as scipy's Rotation.from_matrix, whose
-    per-call cost is ~100x this at N = 1000), then ``2 atan2(|v|, w) v / |v|``.
+    for precision at every angle, as scipy's Rotation.from_matrix, without its
+    per-call overhead), then ``2 atan2(|v|, w) v / |v|``.
     """
     R = np.asarray(R, dtype=float)
     r = R.reshape(-1, 3, 3)

@@ -27,7 +27,7 @@ import numpy as np
 
 from calib import transforms as tf
 from calib.errors import CalibrationError, InsufficientDataError
-from calib.model import CameraCorrection
+from calib.model import CameraCorrection, NoiseLevels
 from calib.result import CalibrationResult
 from calib.setup import Setup, check_setup
 
@@ -105,10 +105,10 @@ class VerifiedModel:
     @classmethod
     def from_result(cls, result: CalibrationResult) -> "VerifiedModel":
         """From a solver's result: its correction and, for ``auto``, its fitted noise levels."""
-        noise = result.info.get("noise") or {}
+        noise = result.auto.noise if result.auto is not None else NoiseLevels()
         return cls(result.setup, result.X, result.Y, result.camera_correction,
-                   point_scale=float(noise.get("point_scale", 1.0)), robot_sigma_m=float(noise.get("robot_m", 0.0)),
-                   rotation_sigma_rad=noise.get("rotation_rad"), marker_rotation_known=result.marker_rotation_known,
+                   point_scale=float(noise.point_scale), robot_sigma_m=float(noise.robot),
+                   rotation_sigma_rad=noise.rotation, marker_rotation_known=result.marker_rotation_known,
                    method=result.method)
 
 

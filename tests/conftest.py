@@ -20,13 +20,9 @@ if signal.getsignal(signal.SIGINT) is signal.SIG_IGN:
     signal.signal(signal.SIGINT, signal.default_int_handler)
 
 import app.backends  # noqa: F401  every robot and camera backend registered by name, as in the app
-
-
-def process_net() -> str:
-    """A loopback /24 of this test process (``127.a.b``), derived from its pid, so that
-    concurrent runs of the suite (CI, several checkouts) never share simulator ports."""
-    pid = os.getpid()
-    return f"127.{(pid >> 8) % 250 + 1}.{pid % 256}"
+from drivers.errors import DeviceError
+from mocks.ur_sim import launch
+from tests.simulated_ur import SIM_TCP, START_Q, free_host, process_net
 
 
 @pytest.fixture
@@ -34,6 +30,28 @@ def loopback():
     """``loopback(n)`` -> this process's address ``n`` for a simulated controller (n < 100;
     the robot tests' own simulators use the lower slots, so these start at .100)."""
     return lambda n: f"{process_net()}.{100 + n}"
+
+
+@pytest.fixture(scope="module")
+def sim_factory():
+    """Launch simulated UR10 controllers for this module (``make(slot, controller)``); stopped at module end."""
+    sims = []
+
+    def make(slot, controller="5.11"):
+        for attempt in range(5):
+            try:
+                sim = launch(free_host(slot + 10 * attempt), model="ur10", controller=controller,
+                             initial_q=START_Q, tcp_offset=SIM_TCP)
+                break
+            except DeviceError as exc:
+                if "in use" not in str(exc) or attempt == 4:
+                    raise
+        sims.append(sim)
+        return sim
+
+    yield make
+    for sim in sims:
+        sim.stop()
 
 
 class OutsideReads:

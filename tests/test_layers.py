@@ -4,7 +4,8 @@ calib < drivers < mocks < app; bench (library and device benchmarks) may import 
 mocks, the end-to-end benchmarks live in app/benchmarks;
 production code never imports tests nor reads its data. Every import
 statement counts, also the ones inside functions (a lazy import is still a
-dependency).
+dependency). Within the project, no two modules import each other, directly or
+round a longer cycle, and no module takes a private name (``_x``) from another.
 """
 
 import ast
@@ -78,3 +79,146 @@ def test_the_check_sees_a_path_into_tests(tmp_path):
     bad = tmp_path / "bad.py"
     bad.write_text('from pathlib import Path\nDATA = Path(__file__).parents[1] / "tests" / "data"\n')
     assert reads_tests(bad) == [2]
+
+
+def module_name(path: Path, root: Path) -> str:
+    """Dotted name of a project file (a package's ``__init__.py`` is the package)."""
+    parts = path.relative_to(root).with_suffix("").parts
+    return ".".join(parts[:-1] if parts[-1] == "__init__" else parts)
+
+
+def project_modules(root: Path, packages) -> dict[str, Path]:
+    """Every module of the given top-level packages under ``root``, by dotted name."""
+    return {module_name(p, root): p for pkg in packages for p in sorted((root / pkg).rglob("*.py"))}
+
+
+def import_targets(node: ast.Import | ast.ImportFrom, name: str, is_package: bool, known) -> list[tuple[str, str, str]]:
+    """``(bound name, module it names, module loaded)`` for each project module an import statement of
+    module ``name`` loads.
+
+    ``import p.q`` loads ``p.q`` and binds ``p`` (``import p.q as r`` binds ``r`` to ``p.q``);
+    ``from p import x`` loads the submodule ``p.x`` when there is one, else ``p`` itself (for a
+    package, its ``__init__``), and binds ``x``.
+    """
+    if isinstance(node, ast.Import):
+        return [(a.asname, a.name, a.name) if a.asname else (a.name.split(".")[0], a.name.split(".")[0], a.name)
+                for a in node.names if a.name in known]
+    base = node.module or ""
+    if node.level:
+        here = name.split(".") if is_package else name.split(".")[:-1]
+        base = ".".join(here[:len(here) - node.level + 1] + ([base] if base else []))
+    if base not in known:
+        return []
+    return [(a.asname or a.name, m, m) for a in node.names
+            for m in [f"{base}.{a.name}" if f"{base}.{a.name}" in known else base]]
+
+
+def module_imports(path: Path, name: str, known) -> list[tuple[ast.AST, str, str, str]]:
+    """``(import node, bound name, module it names, module loaded)`` for every project import in a
+    module, also inside functions."""
+    tree = ast.parse(path.read_text(encoding="utf-8"), str(path))
+    return [(node, *target) for node in ast.walk(tree) if isinstance(node, (ast.Import, ast.ImportFrom))
+            for target in import_targets(node, name, path.name == "__init__.py", known)]
+
+
+def import_cycles(root: Path, packages) -> list[list[str]]:
+    """Import cycles between the modules of ``packages``, each as the list of modules round it."""
+    mods = project_modules(root, packages)
+    graph = {m: sorted({t for *_, t in module_imports(p, m, mods) if t != m}) for m, p in mods.items()}
+    index, low, stack, on_stack, cycles = {}, {}, [], set(), []
+
+    def visit(m):
+        index[m] = low[m] = len(index)
+        stack.append(m)
+        on_stack.add(m)
+        for t in graph[m]:
+            if t not in index:
+                visit(t)
+                low[m] = min(low[m], low[t])
+            elif t in on_stack:
+                low[m] = min(low[m], index[t])
+        if low[m] == index[m]:
+            component = []
+            while not component or component[-1] != m:
+                component.append(stack.pop())
+                on_stack.discard(component[-1])
+            if len(component) > 1:
+                cycles.append(sorted(component))
+
+    for m in graph:
+        if m not in index:
+            visit(m)
+    return cycles
+
+
+def is_private(attr: str) -> bool:
+    return attr.startswith("_") and not (attr.startswith("__") and attr.endswith("__"))
+
+
+def private_uses(path: Path, name: str, known) -> list[str]:
+    """Private names a module takes from other project modules: ``from m import _x`` and ``m._x``."""
+    imports = module_imports(path, name, known)
+    bound = {b: m for _, b, m, _ in imports}
+    found = [f"{node.lineno}: from {'.' * node.level}{node.module or ''} import {alias.name}"
+             for node in {node for node, *_ in imports if isinstance(node, ast.ImportFrom)}
+             for alias in node.names if is_private(alias.name)]
+    for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"), str(path))):
+        if isinstance(node, ast.Attribute) and is_private(node.attr):
+            chain, base = [], node.value
+            while isinstance(base, ast.Attribute):
+                chain.append(base.attr)
+                base = base.value
+            if isinstance(base, ast.Name) and base.id in bound:
+                owner = ".".join([bound[base.id], *reversed(chain)])
+                if owner in known and owner != name:
+                    found.append(f"{node.lineno}: {owner}.{node.attr}")
+    return sorted(found, key=lambda f: (int(f.split(":")[0]), f))
+
+
+def test_no_import_cycle_between_project_modules():
+    cycles = import_cycles(ROOT, ALLOWED)
+    assert not cycles, "\n".join(" <-> ".join(c) for c in cycles)
+
+
+def test_the_check_sees_an_import_cycle(tmp_path):
+    (tmp_path / "pkg").mkdir()
+    (tmp_path / "pkg" / "__init__.py").write_text("from pkg.a import f\n")
+    (tmp_path / "pkg" / "a.py").write_text("def f():\n    from pkg import b\n    return b.g()\n")  # the submodule b
+    (tmp_path / "pkg" / "b.py").write_text("import pkg.c\n")
+    (tmp_path / "pkg" / "c.py").write_text("from pkg import f\n")   # not a module: the package's __init__
+    assert import_cycles(tmp_path, ["pkg"]) == [["pkg", "pkg.a", "pkg.b", "pkg.c"]]
+    (tmp_path / "pkg" / "c.py").write_text("from pkg.a import f\n")
+    assert import_cycles(tmp_path, ["pkg"]) == [["pkg.a", "pkg.b", "pkg.c"]]
+    (tmp_path / "pkg" / "a.py").write_text("def f():\n    return 1\n")
+    assert import_cycles(tmp_path, ["pkg"]) == []
+
+
+@pytest.mark.parametrize("layer", sorted(PROJECT))
+def test_no_private_name_taken_from_another_module(layer):
+    known = project_modules(ROOT, PROJECT)
+    wrong = [f"{p.relative_to(ROOT)}:{use}" for m, p in known.items() if m.split(".")[0] == layer
+             for use in private_uses(p, m, known)]
+    assert not wrong, "\n".join(wrong)
+
+
+def test_the_check_sees_a_private_name_taken(tmp_path):
+    (tmp_path / "pkg").mkdir()
+    (tmp_path / "pkg" / "__init__.py").write_text("")
+    (tmp_path / "pkg" / "sub").mkdir()
+    (tmp_path / "pkg" / "sub" / "__init__.py").write_text("")
+    for mod in ("a", "sub/b"):
+        (tmp_path / "pkg" / f"{mod}.py").write_text("def _f():\n    return 1\n\n\ndef g():\n    return _f()\n")
+    user = tmp_path / "pkg" / "user.py"
+    user.write_text("import pkg.a as s\n"
+                    "from pkg import a\n"
+                    "import pkg.sub.b\n"
+                    "from pkg.sub import b as bb\n"
+                    "from os import _exit\n"            # not a project module
+                    "\n"
+                    "\n"
+                    "def h(x):\n"
+                    "    from pkg.a import _f, g\n"
+                    "    return s._f() + a._f() + pkg.sub.b._f() + bb._f() + x._y + a.__name__ + g()\n")
+    known = project_modules(tmp_path, ["pkg"])
+    assert private_uses(user, "pkg.user", known) == [
+        "9: from pkg.a import _f", "10: pkg.a._f", "10: pkg.a._f", "10: pkg.sub.b._f", "10: pkg.sub.b._f"]

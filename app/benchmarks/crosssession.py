@@ -100,18 +100,18 @@ def cross_session_rows(sets) -> list[list]:
                 rows.append([name, label, f"{len(train)} / {len(test)}", f"failed: {e}"] + [""] * 7)
                 continue
             e_auto = prediction_rms(auto.X, auto.Y, auto.camera_correction.as_array(), A[test], B[test], setup)
-            start = auto.info["start"].split("+")[0]
+            start = auto.auto.start.split("+")[0]
             ours = min((m for m in errs if m in OURS), key=errs.get)
             cv_best = min((m for m in errs if m in OPENCV), key=errs.get)
             best = min(errs[ours], errs[cv_best])
-            corr = ", ".join(f"{k} {v['value'] * (1e3 if k == 'depth_offset' else 100):+.2f}"
-                             for k, v in auto.info["camera_correction"].items() if v["estimated"]) or "none"
+            corr = ", ".join(f"{k} {v.value * (1e3 if k == 'depth_offset' else 100):+.2f}"
+                             for k, v in auto.auto.camera_correction.items() if v.estimated) or "none"
             rows.append([name, label, f"{len(train)} / {len(test)}", f"{e_auto * 1e3:.2f}",
                          f"{start} {errs.get(start, float('nan')) * 1e3:.2f}", f"{ours} {errs[ours] * 1e3:.2f}",
                          f"{cv_best} {errs[cv_best] * 1e3:.2f}",
                          "yes" if start in errs and e_auto <= errs[start] * 1.0001 else "**no**",
                          f"{e_auto / best:.2f}" + ("" if e_auto <= 1.1 * best else " **>1.1**"),
-                         " + ".join(auto.info["measurements"]), corr])
+                         " + ".join(auto.auto.measurements), corr])
     return rows
 
 

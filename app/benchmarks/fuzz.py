@@ -47,6 +47,7 @@ from calib import simulate, solvers  # noqa: E402
 from calib import transforms as tf  # noqa: E402
 from calib.api import METHODS, closed_form, solve  # noqa: E402
 from calib.errors import HandeyeError  # noqa: E402
+from calib.problem import CalibrationProblem  # noqa: E402
 from calib.refine import refine  # noqa: E402
 from calib.robust import robust_solve  # noqa: E402
 from calib.setup import Setup  # noqa: E402
@@ -276,10 +277,10 @@ def solver_case(rng: np.random.Generator):
             # A valid starting point (the unmutated data) and the mutated data to refine on.
             init = closed_form(method, A0, p0 if uses_points else B0,
                                setup=setup if setup in ("eye_to_hand", "eye_in_hand") else "eye_to_hand")
-            return refine(init, A, Bm, point_cov=point_cov)
+            return refine(init, CalibrationProblem.from_arrays(A, Bm, setup=init.setup, point_cov=point_cov))
         return f"refine {desc}", run_refine
     return f"robust_solve {desc}", lambda: robust_solve(
-        lambda a, b: closed_form(method, a, b, setup=setup), A, Bm, setup=setup, point_cov=point_cov,
+        lambda sub: closed_form(method, sub), CalibrationProblem.from_arrays(A, Bm, setup=setup, point_cov=point_cov),
         rng=np.random.default_rng(0))
 
 

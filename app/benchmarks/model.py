@@ -249,8 +249,8 @@ def _realistic_cell(seed: int, prof, n: int, tally: _RealisticTally) -> None:
                 for kind, B in (("points", d.points), ("points + orientations", d.B)):
                     shared = solve("auto", d.A, B, robot_shared_error=F)
                     tally.nees_shared[kind].append(nees(shared.Y, d.Y, shared.cov))
-                for k, v in res.info["camera_correction"].items():
-                    tally.est.setdefault(k, []).append(v["value"] if v["estimated"] else np.nan)
+                for k, v in res.auto.camera_correction.items():
+                    tally.est.setdefault(k, []).append(v.value if v.estimated else np.nan)
 
 
 def section_realistic(rng, trials: int, n: int = 30) -> str:
@@ -400,7 +400,7 @@ def section_flips(rng, trials: int, n: int = 19) -> str:
         real = simulate.realistic_profile(n, rng, prof)
         d = real.data
         res = solve("auto", d.A, d.B)
-        flips = res.info["flips"] or {"flipped": []}
+        flips = res.auto.flips or {"flipped": []}
         found += len(set(flips["flipped"]) & set(real.flipped.tolist()))
         total += len(real.flipped)
         e_auto.append(np.linalg.norm(error_vector(res.Y, d.Y)[3:]))
@@ -465,7 +465,7 @@ def _real_rows(quick: bool, work: Path) -> str:
         auto_res = solve("auto", A, B, setup=setup)
         auto = cross_validate("auto", A, B, setup=setup, folds=folds)
         best = min(cvs, key=lambda k: cvs[k].observed_rms)
-        start = auto_res.info["start"].split("+")[0]
+        start = auto_res.auto.start.split("+")[0]
         start_cv = cvs.get(start)
         ok = "yes" if auto.observed_rms <= cvs[best].observed_rms else "**no**"
         within = "yes" if 1 / 1.5 <= auto.ratio <= 1.5 else "**no**"
@@ -477,10 +477,10 @@ def _real_rows(quick: bool, work: Path) -> str:
             f"{start} {start_cv.observed_rms * 1e3:.2f}" if start_cv else start,
             f"{ml.observed_rms * 1e3:.2f} / {ml.predicted_rms * 1e3:.2f}",
             " / ".join(f"{e * 1e3:.2f}" for e in uncorrected_heldout(A, B, setup, folds)),
-            ", ".join(f"{_SHORT[k]} {v['value'] * (1e3 if k == 'depth_offset' else 100):+.2f}"
+            ", ".join(f"{_SHORT[k]} {v.value * (1e3 if k == 'depth_offset' else 100):+.2f}"
                       f"{'mm' if k == 'depth_offset' else '%'}"
-                      for k, v in auto_res.info["camera_correction"].items() if v["estimated"]) or "none",
-            " + ".join(auto_res.info["measurements"]),
+                      for k, v in auto_res.auto.camera_correction.items() if v.estimated) or "none",
+            " + ".join(auto_res.auto.measurements),
         ])
     if not rows:
         return f"### Real recordings: none found under {datasets_dir()} (set HANDEYE_DATASETS)"

@@ -13,7 +13,7 @@ import numpy as np
 from app.commands.common import add_motion_options, add_run_options, confirm_motion, load_config_args, pose_line
 from app.runs.calibrate import CalibrationOutput, calibrate
 from calib import transforms as tf
-from calib.auto import report
+from app.formats.export import model_report
 from calib.result import CalibrationResult
 from calib.setup import Setup
 
@@ -86,8 +86,8 @@ def print_calibration_summary(out: CalibrationOutput) -> None:
 
 
 def print_model_summary(res: CalibrationResult) -> None:
-    """Camera correction, noise levels and the self-check of ``res`` (`calib.auto.report`), then any warning."""
-    rep = report(res)
+    """Camera correction, noise levels and the self-check of ``res`` (`app.formats.export.model_report`), then any warning."""
+    rep = model_report(res)
     if rep is None:
         return
     rows = []

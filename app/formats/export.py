@@ -20,7 +20,6 @@ from scipy.spatial.transform import Rotation
 
 from calib import transforms as tf
 from app.errors import ConfigError
-from calib.auto import report
 from calib.errors import CalibrationError
 from calib.result import CalibrationResult
 from calib.setup import Setup, check_setup
@@ -219,9 +218,73 @@ def result_to_dict(result: CalibrationResult, frames: dict | None = None) -> dic
         "iterations": int(result.iterations),
         "ros2_static_transform_publisher": ros2_command(result, frames),
         "urdf_origin": urdf_origin(result),
-        "model": report(result),
+        "model": model_report(result),
     })
     return doc
+
+
+def model_report(result: CalibrationResult) -> dict | None:
+    """The model and self-check part of a result, JSON-ready with units in the keys (for result.yaml, the CLI).
+
+    Returns None when the result carries neither. Camera correction: depth and
+    focal scale in %, depth offset in mm (value, 1-sigma, whether estimated)
+    and the misfit (mm) of its rigid stand-in
+    (`CalibrationResult.camera_transform_raw_points`); noise levels: camera
+    point covariance scale, robot flange error (mm), marker orientation (deg);
+    self-check: chi-square against the camera's a-priori model and the
+    held-out (leave-one-out) prediction error of the marker point, observed
+    and predicted (mm); blocked folds: each candidate model's error on the
+    contiguous stretches held out (mm) and what decided.
+    """
+    auto, check = result.auto, result.self_check
+    if check is None and auto is None:
+        return None
+    out: dict = {}
+    if auto is not None:
+        out.update(_auto_report(result))
+    if check is not None:
+        out["self_check"] = {
+            "chi2": check.chi2, "dof": check.dof, "p_value": check.p_value,
+            "camera_noise_model_rejected": check.prior_model_rejected,
+            "heldout_observed_mm": check.loo_observed_m * 1e3,
+            "heldout_predicted_mm": check.loo_predicted_m * 1e3,
+            "heldout_ratio": check.loo_ratio,
+            "consistent": check.consistent,
+            "warning": check.warning,
+        }
+    if auto is not None and auto.blocked_folds is not None:
+        b = auto.blocked_folds
+        out["blocked_folds"] = {"folds": b.folds, "chosen_by": b.chosen_by, "candidates": [
+            {**({"closed_form": c.closed_form} if c.closed_form is not None else
+                {"orientations": c.orientations, "camera_correction": list(c.camera_correction)}),
+             "heldout_mm": c.heldout_m * 1e3} for c in b.candidates]}
+    if auto is not None and auto.notes:
+        out["notes"] = list(auto.notes)
+    return out
+
+
+#: Unit of each camera parameter in the report: its key there and the factor from SI.
+_CAMERA_UNITS = {"depth_scale": ("depth_scale_percent", 100.0), "depth_offset": ("depth_offset_mm", 1e3),
+                 "focal_scale": ("focal_scale_percent", 100.0)}
+
+
+def _auto_report(result: CalibrationResult) -> dict:
+    """`model_report`'s part from ``auto``'s details: measurements, camera correction, noise, shared robot error."""
+    auto = result.auto
+    out: dict = {"measurements": list(auto.measurements), "camera_correction": {
+        _CAMERA_UNITS[name][0]: {"value": c.value * _CAMERA_UNITS[name][1], "sigma": c.sigma * _CAMERA_UNITS[name][1],
+                                 "estimated": c.estimated}
+        for name, c in auto.camera_correction.items()}}
+    if result.raw_points_fit is not None:
+        # How far the rigid stand-in for the correction (what a URDF or tf carries) is from the correction itself.
+        out["raw_points_misfit_mm"] = result.raw_points_fit["misfit_m"] * 1e3
+    n = auto.noise
+    out["noise"] = {"camera_point_scale": n.point_scale, "robot_mm": n.robot * 1e3,
+                    "marker_rotation_deg": None if n.rotation is None else float(np.rad2deg(n.rotation))}
+    if auto.robot_shared_error_m is not None:
+        # The 1-sigma of the camera translation that the robot's shared (kinematic) error adds.
+        out["robot_shared_error_mm"] = auto.robot_shared_error_m * 1e3
+    return out
 
 
 def raw_points_dict(result: CalibrationResult, frames: dict | None = None) -> dict:

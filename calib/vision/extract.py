@@ -80,8 +80,7 @@ class TargetConfig(Params):
     small_marker_px : float
         A marker whose side in the image is shorter than this (px) gets corner
         noise ``sigma_px * small_marker_px / side``: subpixel refinement degrades
-        once the marker's cells span only a few pixels (measured on rendered
-        frames: the center's error doubles from 40 to 25 px).
+        once the marker's cells span only a few pixels.
     border_margin_px : float
         A marker with a corner closer than this to the image border is rejected.
     depth_roi_scale : float

@@ -32,7 +32,7 @@ from calib.params import Float, NonNegativeFloat, Params
 
 
 def _rotvec_to_matrix(rv) -> np.ndarray:
-    # cv2.Rodrigues instead of scipy's Rotation: ~100x less call overhead, and this runs per frame.
+    # cv2.Rodrigues instead of scipy's Rotation: far less call overhead, and this runs per frame.
     return cv2.Rodrigues(np.asarray(rv, dtype=np.float64).reshape(3, 1))[0]
 
 

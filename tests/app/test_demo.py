@@ -41,18 +41,18 @@ def test_demo_recovers_true_camera_pose(sim_config, loopback):
     kinds = [o.meta["pose_kind"] for o in session.observations]
     assert kinds[0] == "start" and "bootstrap" in kinds and "optimal" in kinds
     # The joints come with every sample: the UR10's forward kinematics of them is the recorded flange pose.
-    q = np.array([o.meta["q"] for o in session.observations])
+    q = np.array([o.joints for o in session.observations])
     A = np.array([o.T_base_flange for o in session.observations])
     np.testing.assert_allclose(kin.forward(q, "ur10"), A, atol=1e-4)
     # ... so a configured kinematic error joins the covariance of auto (shared by all samples).
     robot = URRobot(cfg.robot.model_copy(update={"kinematic_error": URKinematicError()}))
     shared = devices.make_solve(cfg.calibrate, cfg.setup, np.random.default_rng(0), robot.shared_error_factor)(
         session.observations, final=True)
-    assert shared.info["robot_shared_error_mm"] > 0.1 and np.allclose(shared.T_base_cam, res.T_base_cam, atol=1e-9)
+    assert shared.auto.robot_shared_error_m > 0.1e-3 and np.allclose(shared.T_base_cam, res.T_base_cam, atol=1e-9)
     assert np.all(np.linalg.eigvalsh(shared.cov - res.cov) > -1e-12)
     # replay, given the robot model, does the same with the recorded session
     row = replay(session.observations, cfg.setup, ["auto"], crossval=False, shared_error=robot.shared_error_factor)[0]
-    assert row.result.info["robot_shared_error_mm"] == pytest.approx(shared.info["robot_shared_error_mm"])
+    assert row.result.auto.robot_shared_error_m == pytest.approx(shared.auto.robot_shared_error_m)
     run = json.loads((out.report.session / "result.json").read_text())["run"]
     assert run["stopped_by"] == out.report.stopped_by and run["n_samples"] == out.report.n_samples
     assert run["poses"] == "optimal"

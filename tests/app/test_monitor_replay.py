@@ -16,8 +16,8 @@ from calib.observation import Observation
 def _write(root, name, A, points, covs, t, q, extra_meta=None):
     with SessionWriter.create(root, "eye_to_hand", name=name, source="test") as w:
         for i in range(len(A)):
-            meta = {"q": q[i].tolist(), **(extra_meta or {})}
-            w.add_sample(Observation(i, float(t[i]), A[i], points[i], covs[i], meta=meta))
+            w.add_sample(Observation(i, float(t[i]), A[i], points[i], covs[i], meta=dict(extra_meta or {}),
+                                     joints=q[i]))
     return w.path
 
 

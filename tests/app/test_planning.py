@@ -91,14 +91,15 @@ def test_auto_runs_plan_for_the_camera_corrections_auto_estimates_or_considers()
     from types import SimpleNamespace
 
     from calib.auto import CONSIDER_SIGMA
+    from calib.result import CameraParameter
 
     assert planning.camera_correction("YKronT'", None) is None
     theta, free, sigma = planning.camera_correction("auto", None)
     assert free == (True, True, True) and np.all(theta == 0)
     assert list(sigma) == [CONSIDER_SIGMA[n] for n in ("depth_scale", "depth_offset", "focal_scale")]
-    est = SimpleNamespace(info={"camera_correction": {
-        "depth_scale": {"value": 0.01, "estimated": True}, "depth_offset": {"value": 0.0, "estimated": False},
-        "focal_scale": {"value": 0.0, "estimated": False}}})
+    est = SimpleNamespace(auto=SimpleNamespace(camera_correction={
+        "depth_scale": CameraParameter(0.01, 0.001, True), "depth_offset": CameraParameter(0.0, 0.0, False),
+        "focal_scale": CameraParameter(0.0, 0.0, False)}))
     theta, free, sigma = planning.camera_correction("auto", est)
     assert theta[0] == 0.01 and sigma[0] == 1.0 and sigma[1] == CONSIDER_SIGMA["depth_offset"]
 

@@ -121,19 +121,32 @@ def test_realistic_demo_config_has_the_camera_depth_error():
 
 
 @pytest.mark.parametrize("bad", ["abc", [1, 2], [0, 0, 0, 0, 0, float("nan")], [[1] * 6], {"a": 1}])
-def test_recorded_joints_are_checked_before_the_robot_model_uses_them(bad):
+def test_recorded_joints_are_checked_before_the_robot_model_uses_them(tmp_path, bad):
+    """The joints travel as `Observation.joints`; a session file's are checked where it is read, naming the
+    sample, and the robot model gets them for auto only, when every sample has them."""
+    import json
+
     from app import devices
     from app.errors import SessionError
+    from app.session import SessionWriter, read_session
     from calib.observation import Observation
     from calib.simulate import realistic_profile
 
     real = realistic_profile(12, np.random.default_rng(0))
     d = real.data
-    obs = [Observation(i, 0.0, d.A[i], d.points[i], d.point_cov[i], None, None, {"q": list(real.q[i])})
-           for i in range(12)]
+    obs = [Observation(i, 0.0, d.A[i], d.points[i], d.point_cov[i], joints=real.q[i]) for i in range(12)]
     factor = devices.robot_shared_error("auto", obs, lambda q: np.zeros((len(q), 6, 1)))
     assert factor.shape == (12, 6, 1)
     assert devices.robot_shared_error("YKronT'", obs, lambda q: np.zeros((len(q), 6, 1))) is None
-    obs[4].meta["q"] = bad
-    with pytest.raises(SessionError, match="sample 4: meta q must be 6 finite joint angles"):
-        devices.robot_shared_error("auto", obs, lambda q: np.zeros((len(q), 6, 1)))
+    obs[3].joints = None
+    assert devices.robot_shared_error("auto", obs, lambda q: np.zeros((len(q), 6, 1))) is None
+    with SessionWriter.create(tmp_path, "eye_to_hand", name="s", source="test") as w:
+        for o in obs[:5]:
+            w.add_sample(o)
+    lines = (w.path / "samples.jsonl").read_text().splitlines()
+    np.testing.assert_allclose(read_session(w.path).observations[4].joints, real.q[4])
+    rec = json.loads(lines[4])
+    rec["joints"] = bad
+    (w.path / "samples.jsonl").write_text("\n".join(lines[:4] + [json.dumps(rec)]) + "\n")
+    with pytest.raises(SessionError, match="joints"):
+        read_session(w.path)

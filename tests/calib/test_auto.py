@@ -4,7 +4,8 @@ import numpy as np
 import pytest
 
 from calib import model, solve
-from calib.auto import self_check
+from calib.diagnostics import self_check
+from calib.problem import CalibrationProblem
 from calib import transforms as tf
 from calib.errors import CalibrationError
 from calib.refine import error_vector
@@ -26,9 +27,9 @@ def test_exact_on_noise_free_data(setup, poses):
     cam_true = d.Y if setup == "eye_to_hand" else d.X
     rot, trans = tf.pose_error(res.camera_transform, cam_true)
     assert trans < 1e-7 and rot < 1e-8
-    assert res.info["measurements"] == (["points", "orientations"] if poses else ["points"])
-    for c in res.info["camera_correction"].values():
-        assert abs(c["value"]) < 1e-6
+    assert res.auto.measurements == (("points", "orientations") if poses else ("points",))
+    for c in res.auto.camera_correction.values():
+        assert abs(c.value) < 1e-6
 
 
 def test_depth_scale_is_estimated_and_removes_the_bias():
@@ -42,9 +43,9 @@ def test_depth_scale_is_estimated_and_removes_the_bias():
         auto = solve("auto", d.A, p)
         errs_plain.append(_trans_err(plain.Y, d.Y))
         errs_auto.append(_trans_err(auto.Y, d.Y))
-        c = auto.info["camera_correction"]["depth_scale"]
-        assert c["estimated"]
-        z.append((c["value"] - 0.02) / c["sigma"])
+        c = auto.auto.camera_correction["depth_scale"]
+        assert c.estimated
+        z.append((c.value - 0.02) / c.sigma)
     assert np.mean(errs_auto) < 0.5 * np.mean(errs_plain)
     assert np.sqrt(np.mean(np.square(z))) < 2.5          # the stated sigma is honest
 
@@ -54,11 +55,11 @@ def test_unidentifiable_camera_parameters_stay_nominal_with_a_message():
     rng = np.random.default_rng(6)
     d = realistic_cell(20, rng, translation_range=0.01)
     res = solve("auto", d.A, d.points)
-    corr = res.info["camera_correction"]
-    assert not corr["depth_offset"]["estimated"] and corr["depth_offset"]["value"] == 0.0
-    assert any("depth_offset" in n and "distance" in n for n in res.info["notes"]), res.info["notes"]
+    corr = res.auto.camera_correction
+    assert not corr["depth_offset"].estimated and corr["depth_offset"].value == 0.0
+    assert any("depth_offset" in n and "distance" in n for n in res.auto.notes), res.auto.notes
     none = solve("auto", d.A, d.points, camera_correction="none")
-    assert not any(c["estimated"] for c in none.info["camera_correction"].values())
+    assert not any(c.estimated for c in none.auto.camera_correction.values())
 
 
 def test_camera_correction_argument_is_checked():
@@ -81,7 +82,7 @@ def test_shared_robot_error_adds_the_estimates_linear_response(setup, poses):
     base = solve("auto", d.A, B, setup=setup)
     res = solve("auto", d.A, B, setup=setup, robot_shared_error=F)
     assert np.allclose(res.camera_transform, base.camera_transform)
-    assert res.info["camera_correction"] == base.info["camera_correction"]
+    assert res.auto.camera_correction == base.auto.camera_correction
     added = res.cov - base.cov
     # Re-solves with every flange pose moved by +-0.3 of each column: the estimate's response. They also
     # re-estimate the noise levels (here the robot's by up to 4x), which the linear term holds fixed: 20 %.
@@ -94,7 +95,7 @@ def test_shared_robot_error_adds_the_estimates_linear_response(setup, poses):
     S = np.array(S).T
     expected = S @ S.T
     assert np.linalg.norm(added - expected) < 0.2 * np.linalg.norm(expected)
-    assert res.info["robot_shared_error_mm"] == pytest.approx(np.sqrt(np.trace(added[3:, 3:])) * 1e3)
+    assert res.auto.robot_shared_error_m == pytest.approx(np.sqrt(np.trace(added[3:, 3:])))
 
 
 def test_shared_robot_error_makes_the_realistic_covariance_honest():
@@ -141,7 +142,7 @@ def test_half_turn_flips_of_a_symmetric_board_are_undone():
     flipped = rng.choice(19, size=6, replace=False)
     B[flipped] = B[flipped] @ F
     res = solve("auto", d.A, B)
-    assert sorted(res.info["flips"]["flipped"]) == sorted(flipped.tolist())
+    assert sorted(res.auto.flips["flipped"]) == sorted(flipped.tolist())
     assert res.residuals.max_translation < 0.02
     assert _trans_err(res.Y, d.Y) < 0.005
     # Without the fix every pose-based solver sees >100 mm residuals.
@@ -152,17 +153,17 @@ def test_self_check_is_in_every_auto_result_and_warns_when_the_model_is_wrong():
     rng = np.random.default_rng(13)
     d = realistic_cell(30, rng)
     good = solve("auto", d.A, d.points)
-    sc = good.info["self_check"]
-    assert sc["consistent"] and sc["warning"] is None and 1 / 1.5 < sc["loo_ratio"] < 1.5
-    n_camera = sum(c["estimated"] for c in good.info["camera_correction"].values())
-    assert sc["loo_errors_m"].shape == (30,) and sc["dof"] == 3 * 30 - 9 - n_camera
+    sc = good.self_check
+    assert sc.consistent and sc.warning is None and 1 / 1.5 < sc.loo_ratio < 1.5
+    n_camera = sum(c.estimated for c in good.auto.camera_correction.values())
+    assert sc.loo_errors_m.shape == (30,) and sc.dof == 3 * 30 - 9 - n_camera
     # Noise levels 3x too small for the data (an overconfident model): the held-out check says so.
-    noise = model.NoiseLevels(point_scale=good.info["noise"]["point_scale"] / 9, robot=1e-6)
-    bad = self_check(good.X, good.Y, d.A, d.points, setup="eye_to_hand", noise=noise)
-    assert not bad["consistent"] and bad["loo_ratio"] > 2 and "not trustworthy" in bad["warning"]
+    noise = model.NoiseLevels(point_scale=good.auto.noise.point_scale / 9, robot=1e-6)
+    bad = self_check(good.X, good.Y, CalibrationProblem.from_arrays(d.A, d.points), noise=noise)
+    assert not bad.consistent and bad.loo_ratio > 2 and "not trustworthy" in bad.warning
     # Any estimate can be checked, its noise levels estimated at the estimate.
     cf = solve("YKronT'", d.A, d.points)
-    assert 1 / 1.5 < self_check(cf.X, cf.Y, d.A, d.points, setup="eye_to_hand")["loo_ratio"] < 1.5
+    assert 1 / 1.5 < self_check(cf.X, cf.Y, CalibrationProblem.from_arrays(d.A, d.points)).loo_ratio < 1.5
 
 
 @pytest.mark.parametrize("n", [5, 6])
@@ -171,7 +172,7 @@ def test_few_samples_solve_with_a_self_check(n):
     d = realistic_cell(n, np.random.default_rng(n))
     for B in (d.points, d.B):
         res = solve("auto", d.A, B)
-        assert res.residuals.rms_translation < 0.01 and res.info["self_check"] is not None
+        assert res.residuals.rms_translation < 0.01 and res.self_check is not None
 
 
 
@@ -199,15 +200,14 @@ def test_solve_observations_passes_the_shared_robot_error_of_the_samples_it_uses
     obs = [Observation(i, 0.0, d.A[i], d.points[i], d.point_cov[i], None, None) for i in range(20)]
     F = simulate.RealisticProfile().dh_error_factor(real.q)
     res = solve_observations("auto", obs, "eye_to_hand", robot_shared_error=F)
-    assert res.info["robot_shared_error_mm"] == solve("auto", d.A, d.points, point_cov=d.point_cov,
-                                                      robot_shared_error=F).info["robot_shared_error_mm"]
+    assert res.auto.robot_shared_error_m == solve("auto", d.A, d.points, point_cov=d.point_cov,
+                                                      robot_shared_error=F).auto.robot_shared_error_m
     # A sample without a marker point is left out, its row of F with it.
     obs[3] = Observation(3, 0.0, d.A[3], None, None, None, None)
     keep = np.r_[0:3, 4:20]
     res = solve_observations("auto", obs, "eye_to_hand", robot_shared_error=F)
-    assert res.info["robot_shared_error_mm"] == pytest.approx(
-        solve("auto", d.A[keep], d.points[keep], point_cov=d.point_cov[keep], robot_shared_error=F[keep]).info[
-            "robot_shared_error_mm"])
+    assert res.auto.robot_shared_error_m == pytest.approx(
+        solve("auto", d.A[keep], d.points[keep], point_cov=d.point_cov[keep], robot_shared_error=F[keep]).auto.robot_shared_error_m)
     for bad in (F[:5], 1.0):
         with pytest.raises(CalibrationError, match="one row per observation"):
             solve_observations("auto", obs, "eye_to_hand", robot_shared_error=bad)
@@ -238,7 +238,7 @@ def test_the_transform_for_uncorrected_points_eye_in_hand():
     d = realistic_cell(40, np.random.default_rng(31), setup="eye_in_hand", translation_range=0.25)
     camera = model.CameraCorrection(depth_scale=0.015, depth_offset=0.003)
     res = solve("auto", d.A, camera.measure(d.points), setup="eye_in_hand")
-    assert res.info["camera_correction"]["depth_scale"]["estimated"]
+    assert res.auto.camera_correction["depth_scale"].estimated
     raw = camera.measure(d.B_true[:, :3, 3])
     truth = tf.transform_points(d.X, d.B_true[:, :3, 3])
 
@@ -272,9 +272,9 @@ def test_a_correction_that_does_not_carry_across_stretches_is_not_kept():
     A, B, n = imp.A, imp.B, len(imp.A)
     first, second = np.arange(n // 2), np.arange(n // 2, n)
     res = solve("auto", A[second], B[second], setup=imp.setup)
-    assert not any(c["estimated"] for c in res.info["camera_correction"].values())
-    assert any("contiguous stretches" in note for note in res.info["notes"]), res.info["notes"]
-    assert res.info["blocked_folds"]["chosen_by"] == "blocked folds"
+    assert not any(c.estimated for c in res.auto.camera_correction.values())
+    assert any("contiguous stretches" in note for note in res.auto.notes), res.auto.notes
+    assert res.auto.blocked_folds.chosen_by == "blocked folds"
     e_auto = prediction_rms(res.X, res.Y, res.camera_correction.as_array(), A[first], B[first], imp.setup)
     e_closed = min(prediction_rms(r.X, r.Y, None, A[first], B[first], imp.setup)
                    for r in (solve(m, A[second], B[second], setup=imp.setup) for m in ("YKronRT", "YQuatR*")))
@@ -285,13 +285,13 @@ def test_a_real_depth_error_survives_the_blocked_check():
     """A 2 % depth scale in every stretch (N = 120, so the check runs): the blocked folds confirm it."""
     d = realistic_cell(120, np.random.default_rng(101))
     res = solve("auto", d.A, d.points * 1.02)
-    blocked = res.info["blocked_folds"]
-    assert blocked["folds"] == 5 and blocked["chosen_by"] == "leave-one-out"
-    errors = {tuple(c["camera_correction"]): c["heldout_m"] for c in blocked["candidates"] if "closed_form" not in c}
+    blocked = res.auto.blocked_folds
+    assert blocked.folds == 5 and blocked.chosen_by == "leave-one-out"
+    errors = {c.camera_correction: c.heldout_m for c in blocked.candidates if c.closed_form is None}
     assert errors[()] > errors[("depth_scale", "depth_offset")]
-    assert res.info["camera_correction"]["depth_scale"]["value"] == pytest.approx(0.02, abs=0.005)
-    assert not any("contiguous stretches" in note for note in res.info["notes"])
-    assert solve("auto", d.A[:40], d.points[:40] * 1.02).info["blocked_folds"] is None   # too short to judge
+    assert res.auto.camera_correction["depth_scale"].value == pytest.approx(0.02, abs=0.005)
+    assert not any("contiguous stretches" in note for note in res.auto.notes)
+    assert solve("auto", d.A[:40], d.points[:40] * 1.02).auto.blocked_folds is None   # too short to judge
 
 
 def test_the_closed_form_start_is_reported_when_it_carries_better():
@@ -307,8 +307,8 @@ def test_the_closed_form_start_is_reported_when_it_carries_better():
     A, B, n = imp.A, imp.B, len(imp.A)
     first, second = np.arange(n // 2), np.arange(n // 2, n)
     res = solve("auto", A[first], B[first], setup=imp.setup)
-    assert res.info["blocked_folds"]["chosen_by"] == "blocked folds: closed form"
-    start = solve(res.info["start"], A[first], B[first], setup=imp.setup)
+    assert res.auto.blocked_folds.chosen_by == "blocked folds: closed form"
+    start = solve(res.auto.start, A[first], B[first], setup=imp.setup)
     e_auto = prediction_rms(res.X, res.Y, None, A[second], B[second], imp.setup)
     e_start = prediction_rms(start.X, start.Y, None, A[second], B[second], imp.setup)
-    assert e_auto <= e_start * 1.001 and res.cov is not None and res.info["self_check"] is not None
+    assert e_auto <= e_start * 1.001 and res.cov is not None and res.self_check is not None

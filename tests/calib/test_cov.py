@@ -6,6 +6,7 @@ import pytest
 from calib import api, simulate, solvers
 from calib.api import solve
 from calib.refine import covariance, error_vector, kron_t_prime_covariance, nees
+from calib.problem import CalibrationProblem
 
 
 @pytest.mark.parametrize("setup", ["eye_to_hand", "eye_in_hand"])
@@ -35,8 +36,8 @@ def test_nees_of_refined_poses():
 def test_covariance_shrinks_with_more_samples_and_is_symmetric():
     rng = np.random.default_rng(23)
     d = simulate.realistic_cell(200, rng)
-    small = covariance(d.X, d.Y, d.A[:20], d.points[:20], setup="eye_to_hand", point_cov=d.point_cov[:20])
-    large = covariance(d.X, d.Y, d.A, d.points, setup="eye_to_hand", point_cov=d.point_cov)
+    small = covariance(d.X, d.Y, CalibrationProblem.from_arrays(d.A[:20], d.points[:20], setup="eye_to_hand", point_cov=d.point_cov[:20]))
+    large = covariance(d.X, d.Y, CalibrationProblem.from_arrays(d.A, d.points, setup="eye_to_hand", point_cov=d.point_cov))
     np.testing.assert_allclose(large, large.T)
     assert np.trace(large) < np.trace(small) / 5
 
@@ -45,8 +46,8 @@ def test_inconsistent_point_cov_is_inflated():
     """A covariance ten times too small is rejected by the chi-square test and scaled up."""
     rng = np.random.default_rng(24)
     d = simulate.realistic_cell(60, rng)
-    honest = covariance(d.X, d.Y, d.A, d.points, setup="eye_to_hand", point_cov=d.point_cov)
-    tiny = covariance(d.X, d.Y, d.A, d.points, setup="eye_to_hand", point_cov=d.point_cov / 100)
+    honest = covariance(d.X, d.Y, CalibrationProblem.from_arrays(d.A, d.points, setup="eye_to_hand", point_cov=d.point_cov))
+    tiny = covariance(d.X, d.Y, CalibrationProblem.from_arrays(d.A, d.points, setup="eye_to_hand", point_cov=d.point_cov / 100))
     assert 0.3 < np.trace(tiny) / np.trace(honest) < 3
 
 
@@ -56,8 +57,8 @@ def test_pose_covariance_ignores_a_placeholder_marker_rotation():
     d = simulate.realistic_cell(60, rng)
     X_placeholder = d.X.copy()
     X_placeholder[:3, :3] = np.eye(3)
-    a = covariance(d.X, d.Y, d.A, d.B, setup="eye_to_hand")
-    b = covariance(X_placeholder, d.Y, d.A, d.B, setup="eye_to_hand")
+    a = covariance(d.X, d.Y, CalibrationProblem.from_arrays(d.A, d.B, setup="eye_to_hand"))
+    b = covariance(X_placeholder, d.Y, CalibrationProblem.from_arrays(d.A, d.B, setup="eye_to_hand"))
     np.testing.assert_allclose(b, a, rtol=0.05, atol=1e-12)
 
 
@@ -69,7 +70,7 @@ def test_nees_of_closed_form_ykront_averages_six(setup):
     for _ in range(150):
         d = simulate.realistic_cell(40, rng, setup=setup)
         res = solve("YKronT'", d.A, d.points, setup=setup, point_cov=d.point_cov)
-        assert res.info["cov_kind"] == "delta-analytic"
+        assert res.cov_kind == "delta-analytic"
         truth = d.Y if setup == "eye_to_hand" else d.X
         values.append(nees(res.camera_transform, truth, res.cov))
     # The ML covariance gave 10-14 here; the estimator's own covariance must give 6 +- 10%.
@@ -83,7 +84,7 @@ def test_analytic_ykront_covariance_matches_finite_differences(setup):
     d = simulate.realistic_cell(25, rng, setup=setup)
     X, Y = solvers.y_kron_t_prime(d.A, d.points, setup)
     cam = Y if setup == "eye_to_hand" else X
-    analytic = kron_t_prime_covariance(X, Y, d.A, d.points, setup=setup, point_cov=d.point_cov)
+    analytic = kron_t_prime_covariance(X, Y, CalibrationProblem.from_arrays(d.A, d.points, setup=setup, point_cov=d.point_cov))
     h = 1e-6
     L = np.linalg.cholesky(d.point_cov)
     numeric = np.zeros((6, 6))
@@ -105,7 +106,7 @@ def test_closed_form_pose_method_gets_numerical_delta_covariance():
     for _ in range(40):
         d = simulate.realistic_cell(15, rng)
         res = solve("YKronRT", d.A, d.B, point_cov=d.point_cov)
-        assert res.info["cov_kind"] == "delta-numerical"
+        assert res.cov_kind == "delta-numerical"
         values.append(nees(res.Y, d.Y, res.cov))
     # 40 draws: sd of the mean ~0.55 if chi-square(6); the ML covariance would be far off for YKronRT.
     assert 4.5 < np.mean(values) < 7.5
@@ -114,5 +115,5 @@ def test_closed_form_pose_method_gets_numerical_delta_covariance():
 def test_cov_kind_of_refined_and_large_closed_form_results():
     rng = np.random.default_rng(29)
     d = simulate.realistic_cell(api.DELTA_METHOD_MAX_SAMPLES + 1, rng)
-    assert solve("YKronT'", d.A, d.points, refine=True).info["cov_kind"] == "fisher"
-    assert solve("YKronRT", d.A, d.B).info["cov_kind"] == "fisher-optimistic"
+    assert solve("YKronT'", d.A, d.points, refine=True).cov_kind == "fisher"
+    assert solve("YKronRT", d.A, d.B).cov_kind == "fisher-optimistic"

@@ -8,6 +8,7 @@ from calib import transforms as tf
 from calib.api import closed_form
 from calib.refine import refine
 from calib.simulate import realistic_cell
+from calib.problem import CalibrationProblem
 
 
 def _numeric_jacobian(problem, C, K, theta, eps=1e-7):
@@ -54,12 +55,12 @@ def test_refine_unchanged_through_the_public_model():
     rng = np.random.default_rng(5)
     d = realistic_cell(25, rng)
     start = closed_form("YKronT'", d.A, d.points)
-    res = refine(start, d.A, d.points, point_cov=d.point_cov)
+    res = refine(start, CalibrationProblem.from_arrays(d.A, d.points, point_cov=d.point_cov))
     C, K, M = model.split(start.X, start.Y, d.A, "eye_to_hand")
     prob = model.Problem(M, d.points, model.whitener(d.point_cov))
     C2, K2, _, cost, _, _ = model.minimize(prob, C, K)
     np.testing.assert_allclose(C2, res.Y, atol=1e-9)
-    assert cost == pytest.approx(res.info["cost"])
+    assert cost == pytest.approx(res.refinement.cost)
 
 
 def test_variance_components_recover_point_and_robot_noise():

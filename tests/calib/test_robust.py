@@ -8,6 +8,7 @@ from calib import transforms as tf
 from calib.api import closed_form, solve
 from calib.errors import CalibrationError, InsufficientDataError
 from calib.robust import robust_solve
+from calib.problem import CalibrationProblem
 
 
 @pytest.mark.parametrize("setup,fraction", [("eye_to_hand", 0.3), ("eye_in_hand", 0.3), ("eye_to_hand", 0.1)])
@@ -67,10 +68,10 @@ def test_refine_on_inliers_composes():
 def test_bad_arguments():
     rng = np.random.default_rng(35)
     d = simulate.realistic_cell(8, rng)
-    fn = lambda A, B: closed_form("YKronT'", A, B)  # noqa: E731
+    fn = lambda sub: closed_form("YKronT'", sub)  # noqa: E731
     with pytest.raises(InsufficientDataError):
-        robust_solve(fn, d.A[:6], d.points[:6], setup="eye_to_hand", point_cov=None, rng=rng)
+        robust_solve(fn, CalibrationProblem.from_arrays(d.A[:6], d.points[:6]), rng=rng)
     with pytest.raises(CalibrationError, match="rng"):
-        robust_solve(fn, d.A, d.points, setup="eye_to_hand", point_cov=None, rng=0)
+        robust_solve(fn, CalibrationProblem.from_arrays(d.A, d.points), rng=0)
     with pytest.raises(CalibrationError, match="max_outlier_fraction"):
-        robust_solve(fn, d.A, d.points, setup="eye_to_hand", point_cov=None, rng=rng, max_outlier_fraction=0.6)
+        robust_solve(fn, CalibrationProblem.from_arrays(d.A, d.points), rng=rng, max_outlier_fraction=0.6)

@@ -18,6 +18,7 @@ from calib import transforms as tf
 from calib.api import closed_form
 from calib.refine import refine
 from calib.robust import robust_solve
+from calib.problem import CalibrationProblem
 
 FAST = settings(max_examples=40, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 
@@ -141,15 +142,15 @@ def test_public_solver_functions_validate(name):
         fn(DATA.A, [b.tolist() for b in DATA.B[:-1]] + [[1.0, 2.0]])
 
 
-def test_refine_and_robust_validate():
+def test_the_problem_refine_and_robust_take_is_validated():
     init = closed_form("YKronT'", DATA.A, DATA.points)
     with pytest.raises(CalibrationError, match="point_cov.*complex"):
-        refine(init, DATA.A, DATA.points, point_cov=np.eye(3) * (1e-6 + 0j))
+        refine(init, CalibrationProblem.from_arrays(DATA.A, DATA.points, point_cov=np.eye(3) * (1e-6 + 0j)))
     with pytest.raises(CalibrationError, match=r"point_cov\[0\].*NaN"):
-        refine(init, DATA.A, DATA.points, point_cov=np.full((8, 3, 3), np.nan))
+        refine(init, CalibrationProblem.from_arrays(DATA.A, DATA.points, point_cov=np.full((8, 3, 3), np.nan)))
     with pytest.raises(CalibrationError, match=r"B\[0\].*camera origin"):
-        robust_solve(lambda a, b: closed_form("YKronT'", a, b), DATA.A, np.zeros((8, 3)),
-                     setup="eye_to_hand", rng=np.random.default_rng(0))
+        robust_solve(lambda sub: closed_form("YKronT'", sub), CalibrationProblem.from_arrays(DATA.A, np.zeros((8, 3))),
+                     rng=np.random.default_rng(0))
 
 
 def test_x_kron_t_robust_uses_subsets_it_can_solve():
@@ -158,7 +159,7 @@ def test_x_kron_t_robust_uses_subsets_it_can_solve():
     B = d.B.copy()
     B[[2, 11], :3, 3] += 0.3  # two gross outliers
     res = solve("XKronT", d.A, B, robust=True)
-    assert res.info["robust"]["subset"] == 5
+    assert res.robust.subset == 5
     assert {2, 11} <= set(res.rejected.tolist()) and len(res.rejected) <= 3
     rot, trans = tf.pose_error(res.Y, d.Y)
     assert trans < 0.02 and np.rad2deg(rot) < 1.0

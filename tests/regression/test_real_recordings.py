@@ -142,6 +142,6 @@ def test_circle_grid_exports_carry_the_camera_correction(circle_grid):
 
     imp = circle_grid
     res = solve_observations("auto", imp.observations, imp.setup)
-    assert res.info["camera_correction"]["depth_scale"]["estimated"]
+    assert res.auto.camera_correction["depth_scale"].estimated
     exported, bare = uncorrected_heldout(imp.A, imp.B, imp.setup, None)
     assert exported < 0.014 and bare > 0.018
