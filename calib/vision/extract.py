@@ -225,14 +225,7 @@ def extract(color, depth, intrinsics, target: TargetConfig) -> MarkerMeasurement
     det, center_obj = _detect(gray, target)
     h, w = gray.shape
     pts = det.image_points
-    sigma_px = target.sigma_px
-    if target.kind == "aruco":
-        m = target.border_margin_px
-        if (pts.min(axis=0) < m).any() or (pts[:, 0] > w - 1 - m).any() or (pts[:, 1] > h - 1 - m).any():
-            raise MarkerNotFoundError(f"marker {target.marker_id} touches the image border")
-        d1, d2 = pts[2] - pts[0], pts[3] - pts[1]
-        side = np.sqrt(abs(d1[0] * d2[1] - d1[1] * d2[0]) / 2.0)  # sqrt of the quad's area
-        sigma_px *= max(1.0, target.small_marker_px / max(side, 1e-9))
+    sigma_px = _corner_sigma_px(pts, target, (h, w))
 
     cands = solve_pnp(pts, det.object_points, K, dist, square=target.kind == "aruco")
     # Center ray: the target-plane homography maps the center exactly even under
@@ -278,6 +271,21 @@ def extract(color, depth, intrinsics, target: TargetConfig) -> MarkerMeasurement
     return MarkerMeasurement(point, point_cov, T, cov, T_pnp, cov_pnp, det.kind, det.ids, pts, center_px, info)
 
 
+
+
+def _corner_sigma_px(pts, target: TargetConfig, shape) -> float:
+    """Corner noise (px) of the detection ``pts``: the configured one, grown for a small ArUco marker; a marker
+    touching the image border is refused."""
+    sigma_px = target.sigma_px
+    if target.kind == "aruco":
+        h, w = shape
+        m = target.border_margin_px
+        if (pts.min(axis=0) < m).any() or (pts[:, 0] > w - 1 - m).any() or (pts[:, 1] > h - 1 - m).any():
+            raise MarkerNotFoundError(f"marker {target.marker_id} touches the image border")
+        d1, d2 = pts[2] - pts[0], pts[3] - pts[1]
+        side = np.sqrt(abs(d1[0] * d2[1] - d1[1] * d2[0]) / 2.0)  # sqrt of the quad's area
+        sigma_px *= max(1.0, target.small_marker_px / max(side, 1e-9))
+    return sigma_px
 
 def _target_plane(depth, pts, K, dist, target: TargetConfig, shape):
     """The depth plane fitted inside the target's corners ``pts`` (`fit_plane`), after checking the depth image."""
