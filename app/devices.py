@@ -49,12 +49,11 @@ def open_robot(cfg: Config, *, read_only: bool):
 def open_camera(cfg: Config, robot):
     """The configured camera, following the robot's flange pose (which a simulated camera renders at).
 
-    A simulated robot's true flange pose (``true_flange_pose``: with a kinematic error it is not the reported
-    one) is what a rendered camera sees; any other robot's reported pose is the best there is.
+    The camera follows `Robot.true_flange_pose`: a simulated robot's truth (with a kinematic error it is not
+    the reported pose), which a rendered camera sees; a real robot's reported pose, the best there is.
     """
     camera = CAMERAS.create(cfg.camera)
-    true_pose = getattr(robot, "true_flange_pose", None)
-    camera.follow(true_pose if callable(true_pose) else lambda: robot.read().T_base_flange)
+    camera.follow(robot.true_flange_pose)
     return camera
 
 

@@ -113,19 +113,6 @@ class OutageEvent:
         return f"{self.device} back after {self.outage_s:.1f} s ({self.attempt} reconnect attempts)"
 
 
-def reopen(device) -> None:
-    """Reconnect ``device`` in place: its ``reconnect()`` if it has one (the UR driver keeps a simulated
-    controller running), else ``disconnect()`` (errors of a half-dead device ignored) and ``connect()``."""
-    if callable(getattr(device, "reconnect", None)):
-        device.reconnect()
-        return
-    try:
-        device.disconnect()
-    except DeviceError as e:
-        log.debug("disconnect during an outage: %s", e)
-    device.connect()
-
-
 class Reconnecting(Generic[T]):
     """One device whose outages are ridden out (see the module docstring); a context manager.
 
@@ -234,7 +221,7 @@ class Reconnecting(Generic[T]):
                 self.in_outage = False
                 raise OutageError(f"{self.device_name}: stopped during an outage (last error: {error})")
             try:
-                reopen(self.device)
+                self.device.reconnect()
             except self.retry_on as e:
                 error = e
                 self._emit("reconnect_failed", str(e), attempt, t0)

@@ -46,6 +46,7 @@ from calib.result import worst_axis_sigma
 from calib.setup import Setup
 from calib.vision.extract import TargetConfig
 from drivers.errors import LimitViolationError
+from drivers.robot.registry import robot_limits
 
 log = logging.getLogger(__name__)
 
@@ -89,30 +90,28 @@ def camera_view(cal: CalibrateConfig, intrinsics, marker: TargetConfig) -> pl.Ca
 
 def planner_config(cfg: Config, **overrides) -> pl.PlannerConfig:
     """`calib.planner.PlannerConfig` from ``[calibrate]`` and the robot's workspace box."""
-    cal, robot = cfg.calibrate, cfg.robot
-    # Robot backends without these fields get the planner's defaults.
+    cal, limits = cfg.calibrate, robot_limits(cfg.robot)
     kw = dict(translation_range_m=cal.translation_range_m, tilt_deg=cal.tilt_deg,
-              workspace_min=getattr(robot, "workspace_min", None), workspace_max=getattr(robot, "workspace_max", None),
+              workspace_min=limits.workspace_min, workspace_max=limits.workspace_max,
               keep_out=tuple(pl.KeepOut(min=b[0], max=b[1]) for b in cal.keep_out),
               clearance_m=cal.clearance_m, travel_weight=cal.travel_weight,
-              speed_m_s=float(getattr(robot, "speed", 0.25)), acceleration_m_s2=float(getattr(robot, "acceleration", 1.0)))
+              speed_m_s=limits.speed_m_s, acceleration_m_s2=limits.acceleration_m_s2)
     kw.update(overrides)
     return pl.PlannerConfig(**kw)
 
 
 def reachable(robot) -> pl.Reachable | None:
-    """The robot driver's own limit check as the planner's callback (None if the driver has none).
+    """The robot driver's own limit check (`Robot.check_target`) as the planner's callback (None without a robot).
 
-    ``check_target`` (IK nearest the previous joints within the joint limits,
+    ``check_target`` (the UR's: IK nearest the previous joints within the joint limits,
     workspace box and tilt cone along the path, no branch jump) sends nothing.
     """
-    check = getattr(robot, "check_target", None)
-    if check is None:
+    if robot is None:
         return None
 
     def ok(T_base_flange, q_from):
         try:
-            return check(T_base_flange, q_start=q_from)
+            return robot.check_target(T_base_flange, q_start=q_from)
         except LimitViolationError:
             return None
 

@@ -13,9 +13,10 @@ center; eye-in-hand the same in the camera frame (``T_flange_cam <-
 T_flange_cam @ bump``, the camera slips on its mount). Either way the camera
 moves by exactly the bump's mm and deg.
 
-This module knows the simulator only through the robot's ``sim`` handle
-(`mocks.ur_sim.SimProcess`) and the rendered camera's ``add_bump``; a real robot
-has neither, and `start_production` then does nothing.
+This module knows the simulator only through what a robot declares
+(`drivers.robot.base.Robot`: ``simulated``, ``kinematics``, ``start_program``)
+and the rendered camera's ``add_bump``; on a real robot `start_production`
+does nothing.
 """
 
 from __future__ import annotations
@@ -30,6 +31,7 @@ from app.errors import ConfigError
 from app.planning import random_pose
 from calib import transforms as tf
 from calib.setup import Setup
+from drivers.robot.base import KinematicModel
 
 log = logging.getLogger(__name__)
 
@@ -37,7 +39,8 @@ log = logging.getLogger(__name__)
 TOOL_JOBS = ("pick", "inspect", "glue", "place")
 
 
-def production_program(T_start: np.ndarray, q_start, model: str, cal: CalibrateConfig, rng: np.random.Generator,
+def production_program(T_start: np.ndarray, q_start, kinematics: KinematicModel, cal: CalibrateConfig,
+                       rng: np.random.Generator,
                        *, n_waypoints: int = 14, pause_s: float = 0.6, speed: float = 2.0,
                        acceleration: float = 8.0) -> dict:
     """A looping program (JSON form of `mocks.ur_sim.program`) through random poses around ``T_start``.
@@ -47,13 +50,11 @@ def production_program(T_start: np.ndarray, q_start, model: str, cal: CalibrateC
     view. More waypoints than the monitor's diversity window keeps each
     lap's poses worth sampling again.
     """
-    from drivers.robot import ur_kinematics as kin
-
     waypoints, q = [], np.asarray(q_start, dtype=float)
     for _ in range(50 * n_waypoints):
         if len(waypoints) == n_waypoints:
             break
-        q_next = kin.inverse_nearest(random_pose(T_start, cal, rng), q, model)
+        q_next = kinematics.inverse_nearest(random_pose(T_start, cal, rng), q)
         if q_next is None:
             continue
         waypoints.append({"q": q_next.tolist(), "pause_s": pause_s, "tool": TOOL_JOBS[len(waypoints) % len(TOOL_JOBS)]})
@@ -72,8 +73,8 @@ def pick_and_place_poses(T_start: np.ndarray, stops: int, radius_m: float, max_t
     return tf.make_transform(R @ T_start[:3, :3], p)
 
 
-def program_from_config(prod: ProductionConfig, T_start: np.ndarray, q_start, model: str, cal: CalibrateConfig,
-                        rng: np.random.Generator) -> dict:
+def program_from_config(prod: ProductionConfig, T_start: np.ndarray, q_start, kinematics: KinematicModel,
+                        cal: CalibrateConfig, rng: np.random.Generator) -> dict:
     """The simulator's program (JSON form of `mocks.ur_sim.program`) that ``[production]`` describes.
 
     Raises
@@ -81,8 +82,6 @@ def program_from_config(prod: ProductionConfig, T_start: np.ndarray, q_start, mo
     ConfigError
         Naming ``production.waypoints[i]`` or the preset when a stop has no inverse kinematics solution.
     """
-    from drivers.robot import ur_kinematics as kin
-
     rng = rng if prod.seed is None else np.random.default_rng(prod.seed)
     common = {"speed": prod.speed, "acceleration": prod.acceleration}
     if prod.waypoints:
@@ -91,16 +90,17 @@ def program_from_config(prod: ProductionConfig, T_start: np.ndarray, q_start, mo
             if w.q is not None:
                 q = np.asarray(w.q, dtype=float)
             else:
-                q_next = kin.inverse_nearest(tf.from_ur_pose(w.pose), q, model)
+                q_next = kinematics.inverse_nearest(tf.from_ur_pose(w.pose), q)
                 if q_next is None:
-                    raise ConfigError(f"production.waypoints[{i}].pose: no inverse kinematics solution for {model}")
+                    raise ConfigError(f"production.waypoints[{i}].pose: no inverse kinematics solution for "
+                                      f"{kinematics.name}")
                 q = q_next
             waypoints.append({"q": q.tolist(), "pause_s": prod.pause_s if w.pause_s is None else w.pause_s,
                               "tool": w.tool})
         return {"waypoints": waypoints, **common}
     if prod.preset == "random":
         tilt = min(cal.tilt_deg, 30.0) if prod.max_tilt_deg is None else prod.max_tilt_deg
-        return production_program(T_start, q_start, model, cal.model_copy(update={"tilt_deg": tilt}), rng,
+        return production_program(T_start, q_start, kinematics, cal.model_copy(update={"tilt_deg": tilt}), rng,
                                   n_waypoints=14 if prod.stops is None else prod.stops, pause_s=prod.pause_s,
                                   **common)
     stops = 4 if prod.stops is None else prod.stops
@@ -109,26 +109,25 @@ def program_from_config(prod: ProductionConfig, T_start: np.ndarray, q_start, mo
     for _ in range(50):  # another phase and tilts when a stop is out of reach
         waypoints, q = [], np.asarray(q_start, dtype=float)
         for k, T in enumerate(pick_and_place_poses(T_start, stops, radius, tilt, rng)):
-            q = kin.inverse_nearest(T, q, model)
+            q = kinematics.inverse_nearest(T, q)
             if q is None:
                 break
             waypoints.append({"q": q.tolist(), "pause_s": prod.pause_s, "tool": ("pick", "place")[k % 2]})
         if len(waypoints) == stops:
             return {"waypoints": waypoints, **common}
     raise ConfigError(f"production.preset: no reachable pick_and_place program of {stops} stops within "
-                      f"{radius} m of the start pose for {model}; lower production.radius_m")
+                      f"{radius} m of the start pose for {kinematics.name}; lower production.radius_m")
 
 
 def start_production(robot, cfg, rng: np.random.Generator, *, say=log.info) -> bool:
     """Start the looping production program of ``cfg.production`` on a simulated robot; False (nothing
     done) on a real one."""
-    sim = getattr(robot, "sim", None)
-    if sim is None:
+    if not robot.simulated:
         return False
     state = robot.read()
-    program = program_from_config(cfg.production, state.T_base_flange, state.q, getattr(cfg.robot, "model", "ur10"),
-                                  cfg.calibrate, rng)
-    sim.start_program(program)
+    program = program_from_config(cfg.production, state.T_base_flange, state.q, robot.kinematics, cfg.calibrate,
+                                  rng)
+    robot.start_program(program)
     kind = "explicit" if cfg.production.waypoints else cfg.production.preset.replace("_", "-")
     say(f"simulated robot: running a looping production program ({len(program['waypoints'])} waypoints, {kind}, "
         f"{program['waypoints'][0]['pause_s']} s tool stops) so that there is something to monitor")

@@ -116,8 +116,13 @@ def show_sigma(bar, result) -> None:
     """Put the estimate's 1-sigma (`CalibrationResult.sigma`, in mm and deg) beside the bar; no-op without one."""
     if bar is None or result.sigma is None or not hasattr(bar, "set_postfix_str"):
         return
-    s_rot, s_t = result.sigma
-    bar.set_postfix_str(f"1σ {s_t * 1e3:.2f} mm {np.rad2deg(s_rot):.3f}°")
+    bar.set_postfix_str(sigma_text(result.sigma))
+
+
+def sigma_text(sigma) -> str:
+    """A worst-axis 1-sigma ``(rotation rad, translation m)`` for the console, in mm and deg."""
+    s_rot, s_t = sigma
+    return f"1σ {s_t * 1e3:.2f} mm {np.rad2deg(s_rot):.3f}°"
 
 
 def say(text: str) -> None:
@@ -134,8 +139,7 @@ def show_monitor(bar, report) -> None:
     n = report.samples_until_armed
     parts = ["armed" if n == 0 else f"armed after {n}"]
     if report.estimate_sigma is not None:
-        s_rot, s_t = report.estimate_sigma
-        parts.append(f"1σ {s_t * 1e3:.2f} mm {np.rad2deg(s_rot):.3f}°")
+        parts.append(sigma_text(report.estimate_sigma))
     if report.drift is not None:
         parts.append(f"drift {report.drift[0]:.1f} mm {report.drift[1]:.2f}°")
     if report.alarms:

@@ -59,6 +59,7 @@ from calib.problem import CalibrationProblem  # noqa: E402
 from calib.monitor import MonitorEngine  # noqa: E402
 from calib.setup import Setup  # noqa: E402
 from calib.refine import cramer_rao_bound, error_vector, kron_t_prime_covariance, nees, refine  # noqa: E402
+from bench.tables import markdown_table  # noqa: E402
 
 cv2.setNumThreads(1)
 
@@ -332,12 +333,6 @@ def monitor_update_median_us(rng, n=480) -> float:
 # --------------------------------------------------------------------------- output
 
 
-def _md_table(headers, rows):
-    lines = ["| " + " | ".join(headers) + " |", "|" + "|".join("---" for _ in headers) + "|"]
-    lines += ["| " + " | ".join(str(c) for c in row) + " |" for row in rows]
-    return "\n".join(lines)
-
-
 def _ms(values):
     """'mean ± sd' of finite values, 3 significant digits."""
     v = values[np.isfinite(values)]
@@ -434,7 +429,7 @@ def _format_report(cfg, exp1=None, exp2=None, real=None, eff=None, nees_m=None, 
             for k in show:
                 row += [_ms(exp1[s][k, :, j]) for j in range(3)]
             rows.append(row)
-        out += [_md_table(headers, rows), ""]
+        out += [markdown_table(headers, rows), ""]
 
     if exp2 is not None:
         out += [f"## Experiment 2: error vs noise (N = {cfg['n_noise']}, {cfg['rounds2']} rounds; level 1 = "
@@ -442,7 +437,7 @@ def _format_report(cfg, exp1=None, exp2=None, real=None, eff=None, nees_m=None, 
         show = cfg["show_levels"]
         headers = ["method"] + [f"{h} @{levels[k]:.2f}" for k in show for h in ("rot", "trans")]
         rows = [[s] + [_ms(exp2[s][k, :, j]) for k in show for j in range(2)] for s in SOLVERS]
-        out += [_md_table(headers, rows), ""]
+        out += [markdown_table(headers, rows), ""]
 
     if real is not None:
         errs, crlb = real
@@ -451,7 +446,7 @@ def _format_report(cfg, exp1=None, exp2=None, real=None, eff=None, nees_m=None, 
         rows = [[s, _ms(errs[s][:, 0]), _ms(errs[s][:, 1]), _ms(errs[s][:, 2])] for s in errs]
         rows.append(["Cramér-Rao bound (RMS)", f"{np.sqrt(np.mean(crlb[:, 0] ** 2)):.3g}",
                      f"{np.sqrt(np.mean(crlb[:, 1] ** 2)):.3g}", "—"])
-        out += [_md_table(["method", "rot (deg)", "trans (mm)", "reproj (mm²)"], rows), ""]
+        out += [markdown_table(["method", "rot (deg)", "trans (mm)", "reproj (mm²)"], rows), ""]
 
     if eff is not None:
         out += [f"## ML refinement vs the Cramér-Rao bound, covariance honesty ({cfg['trials_eff']} trials each)", "",
@@ -463,7 +458,7 @@ def _format_report(cfg, exp1=None, exp2=None, real=None, eff=None, nees_m=None, 
             rows.append([setup, n, f"{np.rad2deg(rms[0]):.4f} / {np.rad2deg(bound[0]):.4f} = {rms[0] / bound[0]:.3f}",
                          f"{1e3 * rms[1]:.3f} / {1e3 * bound[1]:.3f} = {rms[1] / bound[1]:.3f}"]
                         + [f"{v:.2f}" for v in ne.values()])
-        out += [_md_table(["setup", "N", "rot RMS / CRLB (deg)", "trans RMS / CRLB (mm)"]
+        out += [markdown_table(["setup", "N", "rot RMS / CRLB (deg)", "trans RMS / CRLB (mm)"]
                           + [f"NEES {k}" for k in eff[0][4]], rows), ""]
 
     if nees_m is not None:
@@ -474,7 +469,7 @@ def _format_report(cfg, exp1=None, exp2=None, real=None, eff=None, nees_m=None, 
                 "delta-numerical for the pose methods up to 100 samples); refined: the inverse Fisher information "
                 "of the ML estimate (method+ML). Time: median ms of one closed-form `solve` including its covariance.", ""]
         rows = [[m, kind, f"{a:.2f}", f"{b:.2f}", f"{t:.3g}"] for m, (kind, a, b, t) in nees_m.items()]
-        out += [_md_table(["method", "cov_kind (closed form)", "NEES closed form", "NEES refined (+ML)",
+        out += [markdown_table(["method", "cov_kind (closed form)", "NEES closed form", "NEES refined (+ML)",
                            "closed form + cov (ms)"], rows), ""]
 
     if rob is not None:
@@ -484,13 +479,13 @@ def _format_report(cfg, exp1=None, exp2=None, real=None, eff=None, nees_m=None, 
         rows = [[f"{100 * f:.0f}%", f"{r[0]:.3f}", f"{r[1]:.3f}", f"{rr:.3f}", f"{100 * found:.1f}%",
                  f"{100 * fr:.2f}%", f"{t:.0f}"]
                 for f, r, found, fr, t, rr, rt in [(x[0], x[1], x[2], x[3], x[4], x[5], x[6]) for x in rob]]
-        out += [_md_table(["outliers", "rot ratio", "trans ratio", "rot RMS (deg)", "outliers found",
+        out += [markdown_table(["outliers", "rot ratio", "trans ratio", "rot RMS (deg)", "outliers found",
                            "inliers rejected", "time (ms)"], rows), ""]
 
     if timing is not None:
         out += ["## Timing (median ms, realistic-cell data, one thread; — = skipped in --quick)", ""]
         rows = [[s] + [f"{v:.3g}" if np.isfinite(v) else "—" for v in vals] for s, vals in timing.items()]
-        out += [_md_table(["solver"] + [f"N={n}" for n in cfg["time_counts"]], rows), ""]
+        out += [markdown_table(["solver"] + [f"N={n}" for n in cfg["time_counts"]], rows), ""]
     if elapsed is not None:
         out += [f"Run time: {elapsed:.0f} s on this machine."]
     return "\n".join(out)

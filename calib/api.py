@@ -108,7 +108,12 @@ def solve(method: str, problem, B=None, *, refine: bool = False, robust: bool = 
         raise CalibrationError(f"camera_correction applies to method 'auto' only, not {method!r}")
     if problem.robot_shared_error is not None:
         raise CalibrationError(f"robot_shared_error applies to method 'auto' only, not {method!r}")
-    info = resolve_method(method)
+    return _solve_paper_method(resolve_method(method), problem, refine=refine, robust=robust, rng=rng)
+
+
+def _solve_paper_method(info: MethodInfo, problem: CalibrationProblem, *, refine: bool, robust: bool,
+                        rng: np.random.Generator | None) -> CalibrationResult:
+    """`solve` with a method of Table I: closed form (robust around it if asked), refinement, covariance, self-check."""
     check_applicable(info, problem)
     if robust:
         # A subset must be solvable: XKronT needs 5 poses where the default subset has 4.

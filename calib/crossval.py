@@ -95,10 +95,10 @@ def _prediction(result, train: CalibrationProblem, A_test):
             else [False] * 3)
     cof_train = model.robot_cofactor(C, K, M_train, setup)
     Bp = B_train if use_rot else (B_train if B_train.ndim == 2 else B_train[:, :3, 3])
-    prob = model.Problem(M_train, Bp, model.whitener(levels.point_cov(shape_train, cof_train)),
+    prob = model.Linearization(M_train, Bp, model.whitener(levels.point_cov(shape_train, cof_train)),
                          sigma_rot=levels.rotation, free=free)
     cov = np.linalg.pinv(model.information(prob, C, K, theta))
-    test = model.Problem(M_test, np.zeros((len(A_test), 3)), np.broadcast_to(np.eye(3), (len(A_test), 3, 3)),
+    test = model.Linearization(M_test, np.zeros((len(A_test), 3)), np.broadcast_to(np.eye(3), (len(A_test), 3, 3)),
                          sigma_rot=levels.rotation, free=free)
     J = test.raw(C, K, theta)[2]
     if prob.rotations:

@@ -42,7 +42,7 @@ def noise_at(data: model.WeightedData, C, K, theta, free) -> model.NoiseLevels:
                           data.B[:, :3, :3] if data.use_rotation else None)
     for _ in range(CHECK_ROUNDS):
         # Fixed estimate: the robot cofactor and the Jacobians are computed once (`calib.model.WeightedData`).
-        prob, cof = data.problem(C, K, noise, free)
+        prob, cof = data.linearize(C, K, noise, free)
         new, _ = model.variance_components(prob, C, K, theta, data.shape, cof, noise)
         settled = abs(new.point_scale / noise.point_scale - 1) < 0.03 and abs(new.robot / noise.robot - 1) < 0.03
         noise = new
@@ -115,12 +115,12 @@ def self_check(X, Y, problem: CalibrationProblem, *, noise: model.NoiseLevels | 
     data, C, K = _weighted_at(X, Y, problem, use_rotation, marker_rotation_known)
     if noise is None:
         noise = noise_at(data, C, K, theta, free)
-    prob, _ = data.problem(C, K, noise, free)
+    prob, _ = data.linearize(C, K, noise, free)
     errors, predicted = model.leave_one_out(prob, C, K, theta, noise.point_cov(data.shape, data.cofactor(C, K)))
     return consistency(data, prob, C, K, theta, errors, predicted)
 
 
-def consistency(data: model.WeightedData, prob: model.Problem, C, K, theta, errors, predicted) -> SelfCheck:
+def consistency(data: model.WeightedData, prob: model.Linearization, C, K, theta, errors, predicted) -> SelfCheck:
     """`self_check`'s numbers from the fitted problem and its leave-one-out errors / predicted RMS (m)."""
     r = prob.raw(C, K, theta)[0]          # p minus the prediction (at the fit's estimate: evaluated already)
     d2 = float(np.sum(model.whitened_squares(data.shape_whitener, r)))

@@ -251,11 +251,8 @@ def marker_rotation(setup: str, X, Y, A, T_cam_marker) -> tuple[np.ndarray, np.n
     A, B = tf.check_transforms(A, "A"), tf.check_transforms(T_cam_marker, "T_cam_marker")
     if len(A) != len(B) or len(A) == 0:
         raise CalibrationError(f"A and T_cam_marker must be equally long and non-empty, got {len(A)}, {len(B)}")
-    if setup == Setup.EYE_TO_HAND:
-        R = tf.project_to_so3((np.swapaxes(A[:, :3, :3], 1, 2) @ Y[:3, :3] @ B[:, :3, :3]).sum(axis=0))
-        return tf.make_transform(R, X[:3, 3]), Y
-    R = tf.project_to_so3((A[:, :3, :3] @ X[:3, :3] @ B[:, :3, :3]).sum(axis=0))
-    return X, tf.make_transform(R, Y[:3, 3])
+    C, K, M = model.split(X, Y, A, setup)
+    return model.join(C, tf.make_transform(model.marker_rotation(C, M, B[:, :3, :3]), K[:3, 3]), setup)
 
 
 def candidate_poses(T_start, config: PlannerConfig, rng: np.random.Generator) -> np.ndarray:
@@ -350,7 +347,7 @@ class PosePlanner:
         w.r.t. the unknowns ``[dC, tC, tK, free corrections]`` (`calib.model`)."""
         C, K, M = model.split(self.X, self.Y, tf.check_transforms(A, "A"), self.setup)
         p = model.predict_points(C, K[:3, 3], M, self.theta)
-        problem = model.Problem(M, p, np.broadcast_to(np.eye(3), (len(p), 3, 3)), free=self.free)
+        problem = model.Linearization(M, p, np.broadcast_to(np.eye(3), (len(p), 3, 3)), free=self.free)
         J = problem.raw(C, K, self.theta)[2]
         return p, -J  # the residual is measured minus predicted
 
@@ -392,13 +389,13 @@ class PosePlanner:
         """Expected D-optimal gain (nats) of sampling at each flange pose of A (N, 4, 4)."""
         return self._gains(self.sample_information(A))
 
-    def _log_det(self, information) -> np.ndarray:
+    def log_det_covariance(self, information) -> np.ndarray:
         """log det of the covariance of the unknowns of interest (camera + free corrections)."""
         cov = np.linalg.inv(information)[..., self._interest[:, None], self._interest]
         return np.linalg.slogdet(cov)[1]
 
     def _gains(self, U: np.ndarray) -> np.ndarray:
-        return self._log_det(self.information) - self._log_det(self.information + U)
+        return self.log_det_covariance(self.information) - self.log_det_covariance(self.information + U)
 
     # --------------------------------------------------------------- validity
     def marker_in_camera(self, A) -> np.ndarray:
@@ -602,7 +599,7 @@ def least_informative(setup: str, X, Y, A, *, keep_recent: int = 0, correction=N
     U = planner.sample_information(A)
     info = planner.information + U.sum(axis=0)
     candidates = U[: len(A) - keep_recent]
-    loss = planner._log_det(info - candidates) - planner._log_det(info)
+    loss = planner.log_det_covariance(info - candidates) - planner.log_det_covariance(info)
     return int(np.argmin(loss))
 
 

@@ -73,7 +73,7 @@ def _prepare(X, Y, problem: CalibrationProblem, B=None):
         raise InsufficientDataError(f"need at least {_min_samples(points)} samples, got {problem.n}")
     C, K, M = model.split(X, Y, problem.A, problem.setup)
     W_t, given = model.point_weights(B, problem.point_cov)
-    lin = model.Problem(M, B, W_t)
+    lin = model.Linearization(M, B, W_t)
     if not points:
         K = tf.make_transform(model.marker_rotation(C, M, B[:, :3, :3]), K[:3, 3])
     return lin, C, K, given
@@ -191,6 +191,17 @@ def kron_t_prime_covariance(X, Y, problem: CalibrationProblem) -> np.ndarray:
         cov_p = default_point_cov(p)
     factor = _variance_factor(lin.cost(C, K), 3 * n - 9, given)
 
+    J = _kron_t_prime_jacobian(A, p, setup)
+    # sum_i J_i Sigma_i J_i^T as one (6 x 3N) (3N x 6) product.
+    JS = np.swapaxes(J @ cov_p, 0, 1).reshape(6, 3 * n)
+    cov = factor * (JS @ np.swapaxes(J, 0, 1).reshape(6, 3 * n).T)
+    return 0.5 * (cov + cov.T)
+
+
+def _kron_t_prime_jacobian(A, p, setup) -> np.ndarray:
+    """Derivatives (N, 6, 3) of the YKronT' camera transform ``[delta, t]`` w.r.t. each marker point, through
+    the three steps of `kron_t_prime_covariance`'s docstring."""
+    n = len(A)
     R_A, t_A = A[:, :3, :3], A[:, :3, 3]
     # Step 1: the system of eq. 20 exactly as `calib.solvers.y_kron_t_prime_unchecked` builds it.
     M = np.empty((n, 3, 15))
@@ -245,10 +256,7 @@ def kron_t_prime_covariance(X, Y, problem: CalibrationProblem) -> np.ndarray:
     S = T2f.T @ G.reshape(3 * n, 3)                                   # sum_i T2_i^T G_i, (6, 3)
     J_t = H2_inv @ (T2t @ F + S @ J_rot)                              # (N, 3, 3)
     J = np.concatenate([J_rot, J_t], axis=1)                          # (N, 6, 3)
-    # sum_i J_i Sigma_i J_i^T as one (6 x 3N) (3N x 6) product.
-    JS = np.swapaxes(J @ cov_p, 0, 1).reshape(6, 3 * n)
-    cov = factor * (JS @ np.swapaxes(J, 0, 1).reshape(6, 3 * n).T)
-    return 0.5 * (cov + cov.T)
+    return J
 
 
 def delta_method_covariance(estimator, X, Y, problem: CalibrationProblem, *, step: float = 1e-3) -> np.ndarray:
@@ -357,7 +365,7 @@ def cramer_rao_bound(X, Y, A, point_cov, *, setup: str) -> tuple[float, float, n
     cov_p = check_point_cov(point_cov, len(A))
     if cov_p is None:
         raise CalibrationError("point_cov is required for the Cramér-Rao bound")
-    problem = model.Problem(M, p_true, model.whitener(cov_p))
+    problem = model.Linearization(M, p_true, model.whitener(cov_p))
     cov = model.camera_block(model.information(problem, C, K))
     return float(np.sqrt(np.trace(cov[:3, :3]))), float(np.sqrt(np.trace(cov[3:, 3:]))), cov
 
@@ -393,13 +401,7 @@ def residuals(X, Y, problem: CalibrationProblem) -> Residuals:
 
 def _residuals(X, Y, A, B, setup) -> Residuals:
     C, K, M = model.split(X, Y, A, setup)
-    p = B if B.ndim == 2 else B[:, :3, 3]
-    r = model.point_residuals(C, K[:3, 3], M, p)[0]
-    rot = None
-    if B.ndim == 3:
-        E = np.swapaxes(B[:, :3, :3], 1, 2) @ C[:3, :3].T @ M[:, :3, :3] @ K[:3, :3]
-        rot = tf.rotation_angle(E)
-    return Residuals(translation=np.linalg.norm(r, axis=1), rotation=rot)
+    return Residuals(*model.residual_norms(C, K, M, B))
 
 
 def refine(initial: CalibrationResult, problem: CalibrationProblem, *, max_iterations: int = 50) -> CalibrationResult:

@@ -9,8 +9,8 @@ does not; as a factor ``F`` (N, 6, P) (sample ``i``'s true flange pose is
 calibration as what it is.
 
 UR arms: standard-DH forward kinematics (`ur_forward`) and the factor of
-their DH parameters (`ur_dh_error_factor`). calib does not import drivers, so
-the UR10 table is a copy of `drivers.robot.ur_kinematics`'s.
+their DH parameters (`ur_dh_error_factor`). The UR10 table lives here (calib
+does not import drivers); `drivers.robot.ur_kinematics` takes it from `UR10_DH`.
 """
 
 from __future__ import annotations

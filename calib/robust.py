@@ -126,37 +126,11 @@ def robust_solve(
     if not 0.0 <= max_outlier_fraction < 0.5:
         raise CalibrationError(f"max_outlier_fraction must be in [0, 0.5), got {max_outlier_fraction}")
     needed = int(np.ceil(_trials_needed(1.0 - max_outlier_fraction, m, CONFIDENCE)))
-    best, best_med, best_dof, trials = None, np.inf, 3, 0
-    while trials < min(needed, max_trials):
-        trials += 1
-        idx = rng.choice(n, size=m, replace=False)
-        try:
-            hyp = solve_fn(problem.subset(idx))
-            d2, dof = _squared_distances(hyp, A, B, W_t, setup)
-        except CalibrationError:
-            continue
-        med = float(np.median(d2))
-        if med < best_med:
-            best, best_med, best_dof = hyp, med, dof
-    if best is None:
-        raise InsufficientDataError(f"no subset of {m} samples could be solved in {trials} trials")
-
+    best, best_med, best_dof, trials = _least_median(solve_fn, problem, W_t, m, min(needed, max_trials), rng)
     scale = _scale(best_med, best_dof, n, m, given)
     threshold = chi2.ppf(INLIER_QUANTILE, best_dof) * scale
     d2, _ = _squared_distances(best, A, B, W_t, setup)
-    inliers = d2 <= threshold
-    for _ in range(max_refits):
-        if inliers.sum() < m:
-            raise InsufficientDataError(f"only {int(inliers.sum())} inliers left, need {m}")
-        used = inliers
-        result = solve_fn(problem.subset(used))
-        d2, dof = _squared_distances(result, A, B, W_t, setup)
-        # Inliers of a full fit give an unbiased scale: their mean d2 is dof * scale.
-        scale = max(float(np.mean(d2[inliers])) / dof, 1.0) if given else float(np.mean(d2[inliers])) / dof
-        threshold = chi2.ppf(INLIER_QUANTILE, dof) * scale
-        inliers = d2 <= threshold
-        if np.array_equal(inliers, used):
-            break
+    result, used, scale, threshold = _refit(solve_fn, problem, W_t, given, d2 <= threshold, m, max_refits)
     return dataclasses.replace(
         result,
         method=f"{result.method}+LMedS",
@@ -164,6 +138,44 @@ def robust_solve(
         inliers=used,
         robust=RobustDetails(trials=trials, subset=m, scale=scale, threshold=float(threshold)),
     )
+
+
+def _least_median(solve_fn, problem: CalibrationProblem, W_t, m: int, trials_max: int, rng):
+    """The LMedS search: the hypothesis of random ``m``-subsets with the smallest median squared Mahalanobis
+    residual, that median, its degrees of freedom and the number of subsets tried."""
+    best, best_med, best_dof, trials = None, np.inf, 3, 0
+    while trials < trials_max:
+        trials += 1
+        idx = rng.choice(problem.n, size=m, replace=False)
+        try:
+            hyp = solve_fn(problem.subset(idx))
+            d2, dof = _squared_distances(hyp, problem.A, problem.B, W_t, problem.setup)
+        except CalibrationError:
+            continue
+        med = float(np.median(d2))
+        if med < best_med:
+            best, best_med, best_dof = hyp, med, dof
+    if best is None:
+        raise InsufficientDataError(f"no subset of {m} samples could be solved in {trials} trials")
+    return best, best_med, best_dof, trials
+
+
+def _refit(solve_fn, problem: CalibrationProblem, W_t, given: bool, inliers, m: int, max_refits: int):
+    """Fit the inliers, re-classify every sample at that fit, until the inlier set is stable: the last fit,
+    its inliers, the robust scale and the threshold."""
+    for _ in range(max_refits):
+        if inliers.sum() < m:
+            raise InsufficientDataError(f"only {int(inliers.sum())} inliers left, need {m}")
+        used = inliers
+        result = solve_fn(problem.subset(used))
+        d2, dof = _squared_distances(result, problem.A, problem.B, W_t, problem.setup)
+        # Inliers of a full fit give an unbiased scale: their mean d2 is dof * scale.
+        scale = max(float(np.mean(d2[inliers])) / dof, 1.0) if given else float(np.mean(d2[inliers])) / dof
+        threshold = chi2.ppf(INLIER_QUANTILE, dof) * scale
+        inliers = d2 <= threshold
+        if np.array_equal(inliers, used):
+            break
+    return result, used, scale, threshold
 
 
 def default_subset(*, points: bool) -> int:

@@ -228,17 +228,7 @@ def estimate_clock_offset(
     t_b, T_b = check_stream(t_b, T_b, "stream b")
     if max_offset <= 0 or resolution <= 0 or baseline <= 0:
         raise CalibrationError("max_offset, resolution and baseline must be > 0")
-    # Stream b's grid must, shifted by any lag tried, stay inside stream a's span.
-    lo = max(t_b[0], t_a[0] + max_offset)
-    hi = min(t_b[-1], t_a[-1] - max_offset)
-    n_lag = int(np.floor(max_offset / resolution))
-    grid = np.arange(lo, hi, resolution)
-    m = max(1, int(round(baseline / resolution)))
-    if len(grid) < 2 * m + 10:
-        raise InsufficientDataError(
-            f"streams overlap for {max(hi - lo, 0.0):.3f} s after allowing +-{max_offset} s of offset; "
-            f"need more than {2 * baseline:.2f} s"
-        )
+    grid, n_lag = _lag_grid(t_a, t_b, max_offset, resolution, baseline)
     sb = angular_speed(t_b, T_b, grid, baseline=baseline, max_gap=max_gap)
     vb = np.isfinite(sb)
     if vb.sum() < 10 or np.nanstd(sb) < 1e-12:
@@ -249,16 +239,7 @@ def estimate_clock_offset(
     grid_a = np.clip(grid_a, t_a[0], t_a[-1])
     sa_all = angular_speed(t_a, T_a, grid_a, baseline=baseline, max_gap=max_gap)
     lags = np.arange(-n_lag, n_lag + 1)
-    scores = np.full(len(lags), -1.0)
-    for i, lag in enumerate(lags):
-        sa = sa_all[lag + n_lag : lag + n_lag + len(sb)]
-        v = vb & np.isfinite(sa)
-        if v.sum() < 10:
-            continue
-        x, y = sa[v] - sa[v].mean(), sb[v] - sb[v].mean()
-        denom = np.linalg.norm(x) * np.linalg.norm(y)
-        if denom > 1e-12:
-            scores[i] = float(x @ y / denom)
+    scores = _lag_correlations(sa_all, sb, vb, lags)
     i = int(np.argmax(scores))
     if i in (0, len(lags) - 1):
         raise CalibrationError(
@@ -273,6 +254,38 @@ def estimate_clock_offset(
         offset += 0.5 * resolution * (y0 - y2) / curv
     return ClockOffset(float(offset), float(scores[i]), "angular-speed-xcorr")
 
+
+
+
+def _lag_grid(t_a, t_b, max_offset: float, resolution: float, baseline: float):
+    """Stream b's time grid (its part that, shifted by any lag tried, stays inside stream a's span) and the
+    number of grid steps in ``max_offset``."""
+    lo = max(t_b[0], t_a[0] + max_offset)
+    hi = min(t_b[-1], t_a[-1] - max_offset)
+    grid = np.arange(lo, hi, resolution)
+    m = max(1, int(round(baseline / resolution)))
+    if len(grid) < 2 * m + 10:
+        raise InsufficientDataError(
+            f"streams overlap for {max(hi - lo, 0.0):.3f} s after allowing +-{max_offset} s of offset; "
+            f"need more than {2 * baseline:.2f} s"
+        )
+    return grid, int(np.floor(max_offset / resolution))
+
+def _lag_correlations(sa_all, sb, vb, lags) -> np.ndarray:
+    """Normalised cross-correlation (len(lags),) of stream b's speeds ``sb`` (valid where ``vb``) with the
+    slice of stream a's ``sa_all`` at each lag; -1 where fewer than 10 samples overlap."""
+    n_lag = (len(lags) - 1) // 2
+    scores = np.full(len(lags), -1.0)
+    for i, lag in enumerate(lags):
+        sa = sa_all[lag + n_lag : lag + n_lag + len(sb)]
+        v = vb & np.isfinite(sa)
+        if v.sum() < 10:
+            continue
+        x, y = sa[v] - sa[v].mean(), sb[v] - sb[v].mean()
+        denom = np.linalg.norm(x) * np.linalg.norm(y)
+        if denom > 1e-12:
+            scores[i] = float(x @ y / denom)
+    return scores
 
 def refine_clock_offset(
     cost: Callable[[float], float], offset0: float, *, half_width: float = 0.1, xatol: float = 1e-4

@@ -3,6 +3,11 @@
 from __future__ import annotations
 
 import abc
+import logging
+
+from drivers.errors import DeviceError
+
+log = logging.getLogger(__name__)
 
 
 class Device(abc.ABC):
@@ -23,6 +28,15 @@ class Device(abc.ABC):
     @property
     @abc.abstractmethod
     def is_connected(self) -> bool: ...
+
+    def reconnect(self) -> None:
+        """Connect again after the connection was lost: ``disconnect()`` (errors of a half-dead device
+        ignored), then ``connect()``. A backend with more state to keep overrides this."""
+        try:
+            self.disconnect()
+        except DeviceError as e:
+            log.debug("disconnect during an outage: %s", e)
+        self.connect()
 
     def __enter__(self):
         self.connect()

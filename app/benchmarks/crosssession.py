@@ -26,6 +26,7 @@ from calib import model, solve
 from calib import transforms as tf
 from calib.errors import CalibrationError
 from calib.setup import Setup
+from bench.tables import markdown_table
 
 OURS = ["YKronT'", "YQuatT'", "YKronRT", "YQuatR*", "YAxisR", "XKronRT"]
 OPENCV = {"cv2.TSAI": cv2.CALIB_HAND_EYE_TSAI, "cv2.PARK": cv2.CALIB_HAND_EYE_PARK,
@@ -33,11 +34,6 @@ OPENCV = {"cv2.TSAI": cv2.CALIB_HAND_EYE_TSAI, "cv2.PARK": cv2.CALIB_HAND_EYE_PA
           "cv2.DANIILIDIS": cv2.CALIB_HAND_EYE_DANIILIDIS}
 #: OpenCV pairs every two samples (O(N^2) motions): long streams are thinned to this many for it.
 OPENCV_MAX = 150
-
-
-def _md(headers, rows) -> str:
-    out = ["| " + " | ".join(headers) + " |", "|" + "---|" * len(headers)]
-    return "\n".join(out + ["| " + " | ".join(str(c) for c in r) + " |" for r in rows])
 
 
 def opencv_solve(name: str, A, B, setup: str):
@@ -123,7 +119,7 @@ def main(argv=None) -> int:
         print(f"no real recordings under {datasets_dir()} (set HANDEYE_DATASETS)")
         return 0
     print("### Cross-session prediction of the marker point on the real recordings [mm]\n")
-    print(_md(["set", "split", "N train / test", "auto", "auto's start", "our best closed form", "OpenCV's best",
+    print(markdown_table(["set", "split", "N train / test", "auto", "auto's start", "our best closed form", "OpenCV's best",
                "auto <= its start", "auto / best closed form", "auto used", "auto's camera correction"], rows))
     return 0
 

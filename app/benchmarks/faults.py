@@ -8,7 +8,7 @@ detection. Everything runs on this process's own loopback /24 (``127.a.b.x``).
 
 - **Frozen stream, short / long** (``--freeze`` runs each): the simulator stops sending RTDE data
   0.05-0.4 s into a 25 cm moveL, for 2 s (short) or 10 s (long: past ur_rtde's own 2.5 s read
-  deadline, the case that crashed the process before). Clean = `ConnectionLostError` naming
+  deadline). Clean = `ConnectionLostError` naming
   the frozen stream, raised during the move; then reconnect and move home.
 - **Drop, protective stop, e-stop** (``--faults`` runs each): same move, the fault instead.
   Clean = `ConnectionLostError` / `RobotStoppedError`; then recover (unlock, release) and move.
@@ -16,8 +16,7 @@ detection. Everything runs on this process's own loopback /24 (``127.a.b.x``).
   `mocks.ur_sim`. A worker killed by a signal counts a crash (the worker is restarted), a run
   with no answer within 60 s a hang.
 - **calibrate with a frozen stream** (``--app-freezes``): ``handeye calibrate`` on the simulated
-  cell, the stream frozen for 60 s after 1-4 samples (the run that died of SIGFPE/SIGABRT in 2 of
-  10 tries before). Clean = exit 1 with one line naming the frozen stream; the detection column
+  cell, the stream frozen for 60 s after 1-4 samples. Clean = exit 1 with one line naming the frozen stream; the detection column
   is the time until the process has exited; lost = samples recorded before the freeze that are
   not in the session afterwards.
 - **Parent death** (``--parent-deaths``): a 32-thread parent (the simulator launched from a

@@ -538,7 +538,7 @@ def _write_image_folder(folder: Path, d) -> None:
     """Three tiny (96 px) rendered views of a 5 cm DICT_4X4_50 marker, flat depth, plain intrinsics.
 
     The robot poses are the simulated cell's; the images are not consistent with
-    them (a fuzz seed only has to load, not to calibrate), which keeps a case ~0.1 s.
+    them (a fuzz seed only has to load, not to calibrate), which keeps a case fast.
     """
     import json
 
@@ -561,7 +561,7 @@ def _write_image_folder(folder: Path, d) -> None:
 
 def _write_bag(out: Path, storage: str, rng: np.random.Generator) -> None:
     """Three stops of the rendered demo at 480x360 and 5 fps, near the start pose (every marker found),
-    moving frames not rendered (~0.1 s a case)."""
+    moving frames not rendered (to keep a case fast)."""
     from mocks.render.camera import RenderedCameraConfig
     from mocks.ros2_bag import write_demo_bag
 

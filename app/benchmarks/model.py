@@ -46,14 +46,9 @@ from calib.crossval import cross_validate, fold_indices  # noqa: E402
 from calib.errors import CalibrationError  # noqa: E402
 from calib.refine import cramer_rao_bound, error_vector, nees  # noqa: E402
 from calib.setup import Setup  # noqa: E402
+from bench.tables import markdown_table  # noqa: E402
 
 POSE_METHODS = [m for m, i in METHODS.items() if i.needs == "poses"]
-
-
-def _md(headers, rows) -> str:
-    out = ["| " + " | ".join(headers) + " |", "|" + "---|" * len(headers)]
-    out += ["| " + " | ".join(str(c) for c in r) + " |" for r in rows]
-    return "\n".join(out)
 
 
 def _rms(v) -> float:
@@ -79,7 +74,7 @@ def extended_cov(d: simulate.SimulatedData, robot_rms: float, orientation_sigma:
     cov = d.point_cov + robot_rms**2 * model.robot_cofactor(C, K, M, Setup.EYE_TO_HAND)
     B = p_true if orientation_sigma is None else np.concatenate(
         [np.concatenate([d.B_true[:, :3, :3], p_true[:, :, None]], axis=2), d.B_true[:, 3:]], axis=1)
-    prob = model.Problem(M, B, model.whitener(cov), sigma_rot=orientation_sigma, free=free)
+    prob = model.Linearization(M, B, model.whitener(cov), sigma_rot=orientation_sigma, free=free)
     info = model.information(prob, C, K, np.zeros(3))
     model.camera_block(info)          # the degeneracy check
     rows = list(range(6)) + list(range(prob.n_pose, prob.n_pose + int(np.sum(free))))
@@ -294,13 +289,13 @@ def section_realistic(rng, trials: int, n: int = 30) -> str:
         "",
         "#### The camera's position: error of T_base_cam's translation",
         "",
-        _md(["estimator", "RMS error [mm]", "same, bias-free cell [mm]", *ratios], tables[0]),
+        markdown_table(["estimator", "RMS error [mm]", "same, bias-free cell [mm]", *ratios], tables[0]),
         "",
         f"#### The workspace: where the calibrated camera puts a marker point ({WORKSPACE_POINTS} held-out poses of "
         "the same joint span per cell, seen with the camera's depth and focal error but no noise or "
         "misregistration, T_base_cam with the camera correction it estimated)",
         "",
-        _md(["estimator", "RMS error [mm]", "same, bias-free cell [mm]", *ratios], tables[1]),
+        markdown_table(["estimator", "RMS error [mm]", "same, bias-free cell [mm]", *ratios], tables[1]),
         "",
         f"Bounds (RMS over cells), camera translation: {bounds_line(0)}; workspace: {bounds_line(1)}. Extended "
         "model: the robot error taken as white at its simulated RMS. Generating model (`generating_cov`): DH error, "
@@ -360,7 +355,7 @@ def section_effects(rng, trials: int, n: int = 30) -> str:
     return "\n".join([
         f"### Realistic profile, one effect at a time (N = {n}, the same {trials} cells in every row; marker points)",
         "",
-        _md(["systematic errors present", "auto: RMS error T_base_cam [mm]", "ratio to none",
+        markdown_table(["systematic errors present", "auto: RMS error T_base_cam [mm]", "ratio to none",
              "auto: workspace error [mm]", "ratio to none", "auto, camera_correction=\"depth\": T_base_cam [mm]",
              "NEES of auto (± s.e.)"], rows),
     ])
@@ -389,7 +384,7 @@ def section_board(rng, trials: int, n: int = 8) -> str:
         f"### Eight board poses with good orientations ({trials} cells; orientation noise 0.2°, "
         "point noise 0.5 mm lateral / 2 mm along the ray)",
         "",
-        _md(["solver", "RMS error T_base_cam [mm]", "median [mm]", "failures"], rows),
+        markdown_table(["solver", "RMS error T_base_cam [mm]", "median [mm]", "failures"], rows),
     ])
 
 
@@ -409,7 +404,7 @@ def section_flips(rng, trials: int, n: int = 19) -> str:
     return "\n".join([
         f"### Symmetric board: {prof.flip_fraction:.0%} of {n} marker poses half-turned ({trials} cells, realistic profile)",
         "",
-        _md(["", "value"], [
+        markdown_table(["", "value"], [
             ["flips found by auto", f"{found} / {total}"],
             ["auto: RMS error T_base_cam [mm]", f"{_rms(e_auto) * 1e3:.2f}"],
             ["auto: median max residual [mm]", f"{np.median(r_auto) * 1e3:.1f}"],
@@ -487,7 +482,7 @@ def _real_rows(quick: bool, work: Path) -> str:
     return "\n".join([
         "### Real recordings: held-out prediction error of the marker point [mm]",
         "",
-        _md(["set", "N", "folds", "auto observed / predicted (ratio, within 1.5x)", "best closed form",
+        markdown_table(["set", "N", "folds", "auto observed / predicted (ratio, within 1.5x)", "best closed form",
              "auto <= best", "auto's start", "YKronT'+ML observed / predicted",
              "uncorrected points: auto's export / its camera_transform", "camera correction", "used"], rows),
     ])
@@ -535,7 +530,7 @@ def section_speed(rng, repeats: int, n: int = 1000) -> str:
     rows = [[name] + [f"{v:.2f}" for v in _times_ms(fn, repeats)] for name, fn in cases]
     load = os.getloadavg()[0] if hasattr(os, "getloadavg") else float("nan")
     return "\n".join([f"### Speed at N = {n} (one thread, {repeats} repeats; load average {load:.1f} at the end)", "",
-                       _md(["what", "wall min [ms]", "wall median [ms]", "CPU min [ms]", "CPU median [ms]"], rows)])
+                       markdown_table(["what", "wall min [ms]", "wall median [ms]", "CPU min [ms]", "CPU median [ms]"], rows)])
 
 
 def main(argv=None) -> int:

@@ -27,11 +27,7 @@ from app.config import load_config
 from calib import transforms as tf
 from calib import verify as cv
 from app.session import read_session
-
-
-def _md(headers, rows) -> str:
-    out = ["| " + " | ".join(headers) + " |", "|" + "---|" * len(headers)]
-    return "\n".join(out + ["| " + " | ".join(str(c) for c in r) + " |" for r in rows])
+from bench.tables import markdown_table
 
 
 def main(argv=None) -> int:
@@ -83,15 +79,15 @@ def main(argv=None) -> int:
         summary.append([label, args.seeds, f"{min(ratios):.2f} .. {max(ratios):.2f}",
                         f"{max(abs(r - 1) for r in ratios) * 100:.0f} %", f"{fails}/{args.seeds}"])
     print("### Reported vs true error over the same fresh poses (tolerance 2 mm)\n")
-    print(_md(["result", "true [mm]", "reported, noise removed [mm]", "95 % interval", "observed mean / p95 / max",
+    print(markdown_table(["result", "true [mm]", "reported, noise removed [mm]", "95 % interval", "observed mean / p95 / max",
                "reported / true", "verdict"], rows))
     print("\n### Summary per offset\n")
-    print(_md(["offset", "results", "reported / true", "worst deviation", "failed at 2 mm"], summary))
+    print(markdown_table(["offset", "results", "reported / true", "worst deviation", "failed at 2 mm"], summary))
     prior = T[:3, 3] + np.array([0.03, -0.03, 0.025])
     fs = [["result", cv.frame_safety(T, cfg.setup, prior)], ["inverse of the result",
                                                            cv.frame_safety(tf.invert(T), cfg.setup, prior)]]
     print("\n### Frame safety (prior 5 cm from the true camera origin)\n")
-    print(_md(["transform", "distance [mm]", "inverse's distance [mm]", "warning"],
+    print(markdown_table(["transform", "distance [mm]", "inverse's distance [mm]", "warning"],
               [[n, f"{f.distance_m * 1e3:.0f}", f"{f.inverse_distance_m * 1e3:.0f}",
                 (f.warnings[0][:60] + "...") if f.warnings else "none"] for n, f in fs]))
     sizes = [["demo (calibrate)", f"{(out.report.session / 'report.html').stat().st_size / 1e3:.0f}"]]
@@ -105,7 +101,7 @@ def main(argv=None) -> int:
                         verify_observations=obs)
     sizes.append(["verify", f"{page.stat().st_size / 1e3:.0f}"])
     print("\n### report.html size\n")
-    print(_md(["report", "kB"], sizes))
+    print(markdown_table(["report", "kB"], sizes))
     return 0
 
 

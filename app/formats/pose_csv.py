@@ -57,11 +57,11 @@ log = logging.getLogger(__name__)
 # Commas (ETH), semicolons or whitespace (TUM trajectory files) between fields.
 _SEPARATORS = re.compile(r"\s*[,;]\s*|\s+")
 
-# Below this peak correlation the offset estimate is doubtful (the ETH sets reach 0.96-1.0).
+# Below this peak correlation the offset estimate is doubtful (docs/benchmarks.md, app.formats.pose_csv).
 LOW_CORRELATION = 0.5
 
 # Pairs used per residual evaluation while refining the offset: enough to
-# average the pose noise, few enough that ~25 solver calls take a second.
+# average the pose noise, few enough to keep the refinement's solver calls cheap.
 REFINE_PAIRS = 300
 
 

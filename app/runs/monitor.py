@@ -392,7 +392,7 @@ class _PassiveRun:
         if is_diverse(obs.T_base_flange, [o.T_base_flange for o in self.kept], self.cfg.min_translation_m,
                       self.cfg.min_rotation_deg):
             self.kept.append(obs)
-            dropped = _bound(self.kept, self.cfg, self.engine)
+            dropped = bound_estimation_set(self.kept, self.cfg, self.engine)
             if dropped is not None:
                 self.writer.drop_frames(dropped.index)  # disk budget: frames only for samples the set holds
 
@@ -479,7 +479,7 @@ def _engine_state(engine: MonitorEngine, kept, cfg: MonitorConfig) -> str:
             f"change detector: {detector_state(_until_armed(engine, kept, cfg))}")
 
 
-def _bound(kept: list[Observation], cfg: MonitorConfig, engine: MonitorEngine) -> Observation | None:
+def bound_estimation_set(kept: list[Observation], cfg: MonitorConfig, engine: MonitorEngine) -> Observation | None:
     """Hold at most ``cfg.keep_samples``: drop the least informative at the live estimate
     (`calib.planner.least_informative`), the oldest while there is no estimate yet; returns the dropped one."""
     if not cfg.keep_samples or len(kept) <= cfg.keep_samples:

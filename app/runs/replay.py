@@ -32,6 +32,7 @@ from calib.errors import HandeyeError, InsufficientDataError
 from calib.observation import Observation
 from calib.result import CalibrationResult
 from calib.setup import Setup
+from drivers.robot.registry import kinematic_model
 
 
 @dataclass
@@ -40,7 +41,7 @@ class ReplaySettings:
 
     ``target_mm``/``target_deg``: the 1-sigma targets of the warnings (0: `DEFAULT_TARGET_MM` /
     `DEFAULT_TARGET_DEG`); ``shared_error``: the robot's kinematic error model
-    (`Robot.shared_error_factor`) or None; ``exports``, ``frames``: what ``--out`` writes;
+    (`KinematicModel.shared_error_factor`) or None; ``exports``, ``frames``: what ``--out`` writes;
     ``config``: the config itself (None without one).
     """
 
@@ -59,7 +60,8 @@ def replay_settings(config: Path | None) -> ReplaySettings:
     from app.config import load_config
 
     cfg = load_config(config)
-    shared_error = devices.open_robot(cfg, read_only=True).shared_error_factor   # a model only: never connected
+    model = kinematic_model(cfg.robot)   # (from the config: no driver is built)
+    shared_error = None if model is None else model.shared_error_factor
     return ReplaySettings(cfg.calibrate.target_sigma_mm, cfg.calibrate.target_sigma_deg, shared_error,
                           cfg.session.exports, cfg.frames.model_dump(), cfg)
 

@@ -59,7 +59,7 @@ def _blocked_error(cand: Candidate, free, problem: CalibrationProblem, shape, fo
     for test in folds:
         train = np.setdiff1d(np.arange(len(A)), test)
         fit = model.WeightedData(A[train], B[train], setup, shape[train], cand.fit.use_rotation)
-        prob, _ = fit.problem(cand.C, cand.K, cand.noise, tuple(bool(f) for f in free))
+        prob, _ = fit.linearize(cand.C, cand.K, cand.noise, tuple(bool(f) for f in free))
         try:
             C, K, theta, *_ = model.minimize(prob, cand.C, cand.K, cand.theta, max_iterations=BLOCKED_ITERATIONS,
                                               tol=FIT_TOL)
@@ -179,7 +179,7 @@ def _closed_form_choice(plain: Candidate, best: Candidate, problem: CalibrationP
     C, K, _ = model.split(start.X, start.Y, problem.A, problem.setup)
     if plain.fit.use_rotation and not start.marker_rotation_known:
         K = tf.make_transform(model.marker_rotation(C, plain.fit.M, problem.marker_rotations), K[:3, 3])
-    prob, _ = plain.fit.problem(C, K, plain.noise, (False, False, False))
+    prob, _ = plain.fit.linearize(C, K, plain.noise, (False, False, False))
     cand = Candidate(plain.fit, C, K, np.zeros(3), plain.noise, prob, best.iterations, True)
     return cand, (
         f"the closed form {name} is reported: the maximum-likelihood fits predicted contiguous stretches of the "

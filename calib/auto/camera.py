@@ -76,7 +76,7 @@ def select_camera(best: Candidate, wanted, *, defer: bool):
     held-out prediction error of the points. With ``defer``, well-determined
     parameters are fitted together, in one run of variance components and fit
     when a comparison needs it or at the end, instead of one run each (the
-    same fixed point; at N = 1000 it halves the time of ``solve("auto")``);
+    same fixed point, at a fraction of the cost);
     their 1-sigma where they are found decides (``best``, or an unfitted start
     for points: the thresholds are an order of magnitude apart, either is close).
 
@@ -156,7 +156,7 @@ def step_helps(best: Candidate, trial, fit: model.WeightedData | None = None) ->
     marker orientations when they are good.
     """
     fit = best.fit if fit is None else fit
-    prob, _ = fit.problem(best.C, best.K, best.noise, tuple(bool(f) for f in trial))
+    prob, _ = fit.linearize(best.C, best.K, best.noise, tuple(bool(f) for f in trial))
     try:
         errors, _, delta = model.leave_one_out_after_step(prob, best.C, best.K, best.theta,
                                                           best.noise.point_cov(fit.shape, fit.cofactor(best.C, best.K)))

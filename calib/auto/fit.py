@@ -24,7 +24,7 @@ MAX_ROUNDS = 12
 
 
 #: LM step (rad, m) below which the fit counts as converged: 10 nm, ~1e-4 of any 1-sigma here (the
-#: default 1e-10 of `calib.model.minimize` often costs one more iteration, ~1 ms at N = 1000).
+#: default 1e-10 of `calib.model.minimize` often costs one more iteration for nothing).
 FIT_TOL = 1e-8
 
 
@@ -49,7 +49,7 @@ def fit_components(data: model.WeightedData, C, K, theta, noise, free, estimate=
     """
     iters, converged, polish = 0, False, False
     for _ in range(MAX_ROUNDS):
-        prob, cof = data.problem(C, K, noise, free)
+        prob, cof = data.linearize(C, K, noise, free)
         C, K, theta, _, it, converged = model.minimize(prob, C, K, theta, max_iterations=50 if polish else 1,
                                                        tol=FIT_TOL)
         iters += it
@@ -61,10 +61,10 @@ def fit_components(data: model.WeightedData, C, K, theta, noise, free, estimate=
             break
         polish = change < POLISH_CHANGE
     else:
-        prob, _ = data.problem(C, K, noise, free)
+        prob, _ = data.linearize(C, K, noise, free)
         C, K, theta, _, it, converged = model.minimize(prob, C, K, theta, max_iterations=50, tol=FIT_TOL)
         iters += it
-    prob, _ = data.problem(C, K, noise, free)
+    prob, _ = data.linearize(C, K, noise, free)
     return C, K, theta, noise, prob, iters, converged
 
 
@@ -104,7 +104,7 @@ class Candidate:
         (their Jacobian columns do not depend on which are free), computed once.
         """
         if self._info_all is None:
-            prob, _ = self.fit.problem(self.C, self.K, self.noise, (True, True, True))
+            prob, _ = self.fit.linearize(self.C, self.K, self.noise, (True, True, True))
             self._info_all = (model.information(prob, self.C, self.K, self.theta), prob.n_pose)
         info, n_pose = self._info_all
         idx = np.concatenate([np.arange(n_pose), n_pose + np.flatnonzero(free)])

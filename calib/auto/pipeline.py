@@ -164,7 +164,7 @@ def _choose_measurements(problem: CalibrationProblem, start: _Start, notes: list
         noise = initial_noise(d2, C0, K, fit.M, B[:, :3, :3] if rot else None)
         if not problem.has_poses:
             # Points only: nothing to compare before the camera parameters, which start from here (`select_camera`).
-            return Candidate(fit, C0, K, theta, noise, fit.problem(C0, K, noise, (False, False, False))[0], 0, False,
+            return Candidate(fit, C0, K, theta, noise, fit.linearize(C0, K, noise, (False, False, False))[0], 0, False,
                              fitted=False)
         if best is not None and not step_helps(best, (False, False, False), fit):
             continue      # without orientations not even a step predicts held-out points better
@@ -252,8 +252,4 @@ def _result(problem, start: _Start, best: Candidate, free, data_sigma, camera_co
 def _residuals(X, Y, problem: CalibrationProblem, theta, use_rotation) -> Residuals:
     """Residuals of every sample (outliers too) at ``(X, Y)`` with the camera correction ``theta``."""
     C, K, M = model.split(X, Y, problem.A, problem.setup)
-    r = problem.points - model.predict_points(C, K[:3, 3], M, theta)
-    rot = None
-    if use_rotation:
-        rot = np.linalg.norm(model.rotation_residuals(C, K, M, problem.marker_rotations)[0], axis=1)
-    return Residuals(translation=np.linalg.norm(r, axis=1), rotation=rot)
+    return Residuals(*model.residual_norms(C, K, M, problem.B, theta, rotation=use_rotation))

@@ -225,14 +225,7 @@ def extract(color, depth, intrinsics, target: TargetConfig) -> MarkerMeasurement
     det, center_obj = _detect(gray, target)
     h, w = gray.shape
     pts = det.image_points
-    sigma_px = target.sigma_px
-    if target.kind == "aruco":
-        m = target.border_margin_px
-        if (pts.min(axis=0) < m).any() or (pts[:, 0] > w - 1 - m).any() or (pts[:, 1] > h - 1 - m).any():
-            raise MarkerNotFoundError(f"marker {target.marker_id} touches the image border")
-        d1, d2 = pts[2] - pts[0], pts[3] - pts[1]
-        side = np.sqrt(abs(d1[0] * d2[1] - d1[1] * d2[0]) / 2.0)  # sqrt of the quad's area
-        sigma_px *= max(1.0, target.small_marker_px / max(side, 1e-9))
+    sigma_px = _corner_sigma_px(pts, target, (h, w))
 
     cands = solve_pnp(pts, det.object_points, K, dist, square=target.kind == "aruco")
     # Center ray: the target-plane homography maps the center exactly even under
@@ -262,22 +255,7 @@ def extract(color, depth, intrinsics, target: TargetConfig) -> MarkerMeasurement
             point, J @ cov_pnp @ J.T, T_pnp, cov_pnp, T_pnp, cov_pnp, det.kind, det.ids, pts, center_px, info
         )
 
-    if depth is None or np.asarray(depth).size == 0:
-        raise DepthError("no depth image")
-    depth = np.asarray(depth)
-    if not np.issubdtype(depth.dtype, np.floating):
-        raise DepthError(f"depth must be float metres, got dtype {depth.dtype}")
-    if depth.shape != (h, w):
-        raise DepthError(f"depth image shape {depth.shape} does not match color {(h, w)}")
-    hull = cv2.convexHull(pts.astype(np.float32)).reshape(-1, 2)
-    rows, cols = polygon_pixels(hull, (h, w), target.depth_roi_scale)
-    plane = fit_plane(
-        depth, rows, cols, K, dist, target.depth_noise,
-        min_pixels=target.min_depth_pixels,
-        min_valid_fraction=target.min_valid_fraction,
-        max_chi2_ratio=target.max_chi2_ratio,
-        min_inlier_fraction=target.min_inlier_fraction,
-    )
+    plane = _target_plane(depth, pts, K, dist, target, (h, w))
     point, point_cov = intersect_ray(plane, xy_c, cov_xy, target.depth_noise)
     # Planar ambiguity: keep the PnP solution whose plane agrees with the depth plane.
     T_pnp = max(cands, key=lambda cand: abs(cand[0][:3, 2] @ plane.normal))[0]
@@ -292,6 +270,41 @@ def extract(color, depth, intrinsics, target: TargetConfig) -> MarkerMeasurement
     )
     return MarkerMeasurement(point, point_cov, T, cov, T_pnp, cov_pnp, det.kind, det.ids, pts, center_px, info)
 
+
+
+
+def _corner_sigma_px(pts, target: TargetConfig, shape) -> float:
+    """Corner noise (px) of the detection ``pts``: the configured one, grown for a small ArUco marker; a marker
+    touching the image border is refused."""
+    sigma_px = target.sigma_px
+    if target.kind == "aruco":
+        h, w = shape
+        m = target.border_margin_px
+        if (pts.min(axis=0) < m).any() or (pts[:, 0] > w - 1 - m).any() or (pts[:, 1] > h - 1 - m).any():
+            raise MarkerNotFoundError(f"marker {target.marker_id} touches the image border")
+        d1, d2 = pts[2] - pts[0], pts[3] - pts[1]
+        side = np.sqrt(abs(d1[0] * d2[1] - d1[1] * d2[0]) / 2.0)  # sqrt of the quad's area
+        sigma_px *= max(1.0, target.small_marker_px / max(side, 1e-9))
+    return sigma_px
+
+def _target_plane(depth, pts, K, dist, target: TargetConfig, shape):
+    """The depth plane fitted inside the target's corners ``pts`` (`fit_plane`), after checking the depth image."""
+    if depth is None or np.asarray(depth).size == 0:
+        raise DepthError("no depth image")
+    depth = np.asarray(depth)
+    if not np.issubdtype(depth.dtype, np.floating):
+        raise DepthError(f"depth must be float metres, got dtype {depth.dtype}")
+    if depth.shape != shape:
+        raise DepthError(f"depth image shape {depth.shape} does not match color {shape}")
+    hull = cv2.convexHull(pts.astype(np.float32)).reshape(-1, 2)
+    rows, cols = polygon_pixels(hull, shape, target.depth_roi_scale)
+    return fit_plane(
+        depth, rows, cols, K, dist, target.depth_noise,
+        min_pixels=target.min_depth_pixels,
+        min_valid_fraction=target.min_valid_fraction,
+        max_chi2_ratio=target.max_chi2_ratio,
+        min_inlier_fraction=target.min_inlier_fraction,
+    )
 
 def try_extract(color, depth, intrinsics, target: TargetConfig) -> tuple[MarkerMeasurement | None, str]:
     """`extract`, but a bad frame gives ``(None, reason)`` instead of raising.

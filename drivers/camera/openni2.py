@@ -88,7 +88,9 @@ class OpenNI2CameraConfig(Params):
         return path
 
 
-def _library_dirs(config: OpenNI2CameraConfig) -> list[Path]:
+def library_dirs(config: OpenNI2CameraConfig) -> list[Path]:
+    """Where to look for the OpenNI2 library: ``library_dir``, else the OpenNI2 SDK's variables and the
+    system library directories."""
     if config.library_dir:
         return [Path(config.library_dir)]
     dirs = [Path(os.environ[k]) for k in ("OPENNI2_REDIST64", "OPENNI2_REDIST") if k in os.environ]
@@ -99,7 +101,7 @@ def _library_dirs(config: OpenNI2CameraConfig) -> list[Path]:
     return dirs
 
 
-def _loadable_dir(d: Path) -> str | None:
+def loadable_dir(d: Path) -> str | None:
     """A directory the bindings can load from: they want ``libOpenNI2.so`` next to ``OpenNI2/Drivers``.
 
     Debian's libopenni2-0 installs only ``libOpenNI2.so.0`` (the unversioned
@@ -135,7 +137,7 @@ class OpenNI2Camera(Camera):
             raise DeviceError(f"OpenNI2 camera: cannot import openni ({e}); {INSTALL_HINT}") from None
         c = self.config
         if not openni2.is_initialized():
-            dirs = [x for x in (_loadable_dir(d) for d in _library_dirs(c)) if x]
+            dirs = [x for x in (loadable_dir(d) for d in library_dirs(c)) if x]
             if not dirs:
                 raise DeviceError(f"OpenNI2 camera: {_LIB} not found (camera.library_dir); {INSTALL_HINT}")
             try:

@@ -28,6 +28,7 @@ import logging
 import math
 import threading
 import time
+from dataclasses import dataclass
 from typing import Annotated, Literal
 
 import numpy as np
@@ -39,7 +40,7 @@ from drivers.errors import ConnectionLostError, DeviceError, LimitViolationError
 from calib.robot_error import UR_ALPHA, ur_dh_error_factor
 from calib.transforms import from_ur_pose, invert, pose_error, to_ur_pose
 from drivers.robot import ur_kinematics as kin
-from drivers.robot.base import Robot, RobotState
+from drivers.robot.base import KinematicModel, Robot, RobotLimits, RobotState
 from drivers.robot.registry import ROBOTS
 from drivers.robot.buffer import ClockMapper, StateBuffer, pose_path
 from drivers.robot.ur_client import ClientDied, RTDEClient
@@ -178,7 +179,7 @@ class URRobotConfig(Params):
     connect_timeout: PositiveFloat = 5.0
     move_timeout: PositiveFloat = 60.0
     buffer_seconds: PositiveFloat = 5.0
-    # Finer than 1 mm (1 mrad) only costs time (1e-7 made a target take 20 s); coarser
+    # Finer than 1 mm (1 mrad) only costs time (docs/benchmarks.md, drivers.robot.ur); coarser
     # than 5 cm could step over a limit or a singular region between two checks.
     path_step: Annotated[Float, Field(ge=1e-3, le=0.05)] = 0.01
     kinematic_error: URKinematicError | None = None
@@ -231,6 +232,38 @@ class URRobotConfig(Params):
         return np.stack([self.joint_min, self.joint_max], axis=1)
 
 
+@dataclass(frozen=True)
+class URKinematics(KinematicModel):
+    """A UR model's nominal kinematics (`drivers.robot.ur_kinematics`) and the 1-sigma of its DH parameters.
+
+    Attributes
+    ----------
+    name : str
+        UR model (``ur10``, ``ur5e`` ...).
+    kinematic_error : URKinematicError or None
+        None: the nominal model is taken as exact (no shared error).
+    """
+
+    name: str
+    kinematic_error: URKinematicError | None = None
+
+    def forward(self, q) -> np.ndarray:
+        return kin.forward(q, self.name)
+
+    def inverse_nearest(self, T_base_flange: np.ndarray, q_near) -> np.ndarray | None:
+        return kin.inverse_nearest(T_base_flange, q_near, self.name)
+
+    def shared_error_factor(self, q) -> np.ndarray | None:
+        """The flange-pose error of joints ``q`` (N, 6) that ``kinematic_error`` causes: the factor
+        (N, 6, 24) of `calib.auto.solve_auto`'s ``robot_shared_error``; None when not configured."""
+        err = self.kinematic_error
+        if err is None:
+            return None
+        g = kin.geometry(self.name)
+        return ur_dh_error_factor(kin.check_q(q), math.radians(err.joint_offset_deg), err.link_length_m,
+                                  math.radians(err.twist_deg), dh={"d": g.d, "a": g.a, "alpha": UR_ALPHA})
+
+
 @ROBOTS.register("ur", URRobotConfig)
 class URRobot(Robot):
     """A UR arm over RTDE; see the module docstring. Eye-to-hand or eye-in-hand alike:
@@ -255,6 +288,17 @@ class URRobot(Robot):
         self._last_change = 0.0
         self._safety_bits = 0
         self._stop_requested = False
+
+    @classmethod
+    def limits_for(cls, config: URRobotConfig) -> RobotLimits:
+        """The workspace box and the moveL speed and acceleration of ``config``."""
+        return RobotLimits(config.workspace_min, config.workspace_max, float(config.speed),
+                           float(config.acceleration))
+
+    @classmethod
+    def kinematics_for(cls, config: URRobotConfig) -> URKinematics:
+        """The nominal model of ``config.model`` with the configured ``kinematic_error``."""
+        return URKinematics(config.model, config.kinematic_error)
 
     # ------------------------------------------------------------ connection
     @property
@@ -446,16 +490,6 @@ class URRobot(Robot):
         return self._buffer.span()
 
     # ---------------------------------------------------------------- limits
-    def shared_error_factor(self, q) -> np.ndarray | None:
-        """The flange-pose error of joints ``q`` (N, 6) that the configured ``kinematic_error`` causes: the
-        factor (N, 6, 24) of `calib.auto.solve_auto`'s ``robot_shared_error``; None when not configured."""
-        err = self.config.kinematic_error
-        if err is None:
-            return None
-        g = kin.geometry(self.config.model)
-        return ur_dh_error_factor(kin.check_q(q), math.radians(err.joint_offset_deg), err.link_length_m,
-                                  math.radians(err.twist_deg), dh={"d": g.d, "a": g.a, "alpha": UR_ALPHA})
-
     def check_pose(self, T_base_flange: np.ndarray, what: str) -> None:
         """`LimitViolationError` (message starting with ``what``) if the flange or TCP leaves the box or the tilt cone."""
         cfg = self.config

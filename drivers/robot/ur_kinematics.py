@@ -24,7 +24,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from calib.errors import ParameterError
-from calib.robot_error import UR_ALPHA, ur_forward
+from calib.robot_error import UR10_DH, UR_ALPHA, ur_forward
 from drivers.errors import DeviceError
 
 _ALPHA_T = tuple(UR_ALPHA.tolist())
@@ -49,12 +49,18 @@ class URGeometry:
     def a(self) -> np.ndarray:
         return np.array([0.0, self.a2, self.a3, 0.0, 0.0, 0.0])
 
+    @classmethod
+    def from_dh(cls, dh: dict) -> "URGeometry":
+        """The lengths of a standard-DH table (``d``, ``a`` (6,) each, as `calib.robot_error.UR10_DH`)."""
+        d, a = dh["d"], dh["a"]
+        return cls(float(d[0]), float(a[1]), float(a[2]), float(d[3]), float(d[4]), float(d[5]))
+
 
 # Universal Robots, "DH parameters for calculations of kinematics and dynamics".
 UR_MODELS: dict[str, URGeometry] = {
     "ur3": URGeometry(0.1519, -0.24365, -0.21325, 0.11235, 0.08535, 0.0819),
     "ur5": URGeometry(0.089159, -0.425, -0.39225, 0.10915, 0.09465, 0.0823),
-    "ur10": URGeometry(0.1273, -0.612, -0.5723, 0.163941, 0.1157, 0.0922),
+    "ur10": URGeometry.from_dh(UR10_DH),   # (calib keeps the UR10 table: its simulations use it)
     "ur3e": URGeometry(0.15185, -0.24355, -0.2132, 0.13105, 0.08535, 0.0921),
     "ur5e": URGeometry(0.1625, -0.425, -0.3922, 0.1333, 0.0997, 0.0996),
     "ur10e": URGeometry(0.1807, -0.6127, -0.57155, 0.17415, 0.11985, 0.11655),
@@ -109,8 +115,8 @@ def forward_one(q, model: str | URGeometry) -> np.ndarray:
 
 
 # Scalar affine algebra on row-major 3x4 tuples (the top rows of a 4x4 transform): the IK runs
-# at every control tick of the simulator and at every sample of a path check, and numpy's
-# per-call overhead on 4x4 arrays costs ten times the arithmetic.
+# at every control tick of the simulator and at every sample of a path check, where numpy's
+# per-call overhead on 4x4 arrays outweighs the arithmetic (docs/benchmarks.md, drivers.robot.ur_kinematics).
 def _dh1(theta: float, d: float, a: float, alpha: float) -> tuple:
     ct, st = math.cos(theta), math.sin(theta)
     ca, sa = math.cos(alpha), math.sin(alpha)

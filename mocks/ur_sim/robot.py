@@ -14,6 +14,7 @@ import numpy as np
 from pydantic import field_validator
 
 from calib.params import Str, Vector6
+from drivers.errors import DeviceError
 from drivers.robot.registry import ROBOTS
 from drivers.robot.ur import URRobot, URRobotConfig
 from mocks.ur_sim import SimProcess, launch
@@ -78,6 +79,12 @@ class URSimRobot(URRobot):
         if self.config.sim_robot_error is None or self.sim is None:
             return self.read().T_base_flange
         return self.sim.true_flange_pose()
+
+    def start_program(self, program: dict) -> None:
+        """Have the simulated controller loop ``program`` (JSON form of `mocks.ur_sim.program`)."""
+        if self.sim is None:
+            raise DeviceError("the simulated robot is not connected: no controller to run a program")
+        self.sim.start_program(program)
 
     def disconnect(self) -> None:
         super().disconnect()

@@ -93,7 +93,7 @@ def test_monitor_drops_the_frames_of_samples_its_bounded_set_drops(tmp_path):
     cfg = MonitorConfig(keep_samples=6, keep_recent=1, arm_samples=6)
     with SessionWriter.create(tmp_path, "eye_to_hand", name="s") as w:
         kept = [w.add_sample(Observation(i, float(i), d.A[i], d.points[i]), color=img) for i in range(7)]
-        dropped = mon._bound(kept, cfg, MonitorEngine())     # not armed: the oldest sample goes
+        dropped = mon.bound_estimation_set(kept, cfg, MonitorEngine())     # not armed: the oldest sample goes
         w.drop_frames(dropped.index)
     assert dropped.index == 0 and [o.index for o in kept] == [1, 2, 3, 4, 5, 6]
     assert sorted(p.name for p in (tmp_path / "s" / "frames").iterdir()) == [

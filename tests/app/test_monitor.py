@@ -83,3 +83,64 @@ def test_monitor_flags_camera_bump(sim_config, tmp_path, loopback):
     assert "relearnt" in events
     assert len(session.observations) == report.n_samples
     assert (report.session / "recording.rrd").exists()
+
+
+class _StillRobot:
+    """A read-only robot that stands still at each of ``poses`` for ``reads`` reads in turn."""
+
+    def __init__(self, poses, reads: int = 6):
+        self.poses, self.reads, self.n = poses, reads, 0
+
+    def pose(self):
+        return self.poses[(self.n // self.reads) % len(self.poses)]
+
+    def read(self):
+        import time
+
+        from drivers.robot.base import RobotState
+
+        T = self.pose()
+        self.n += 1
+        return RobotState(time.time(), 0.0, T, np.zeros(6), np.zeros(6), 7, 1)
+
+    def pose_at(self, t_host):
+        return self.pose()
+
+
+class _RefusingEngine:
+    """An armed monitoring engine that refuses every sample (as `MonitorEngine.update` does a malformed one)."""
+
+    armed = True
+    samples_until_tested = 0
+    n_factor = 0          # (no robot error factor per sample)
+
+    def update(self, *args):
+        from calib.errors import CalibrationError
+
+        raise CalibrationError("malformed sample")
+
+
+def test_a_sample_the_engine_refuses_is_a_recorded_skip_and_the_run_goes_on(tmp_path):
+    """`run_monitor` records the engine's refusal as a skip and keeps sampling (no alarm, no estimate)."""
+    from app.config import load_config
+    from app.viz import Viz
+    from drivers.camera.registry import CAMERAS
+
+    cfg = load_config(None)
+    c = cfg.camera
+    T_cam_marker = tf.make_transform(np.diag([1.0, -1.0, -1.0]), [0.0, 0.0, 0.6])
+    T0 = np.asarray(c.T_base_cam) @ T_cam_marker @ tf.invert(np.asarray(c.T_flange_marker))
+    poses = [tf.make_transform(np.eye(3), [0.03 * k, 0.0, 0.0]) @ T0 for k in range(3)]
+    robot = _StillRobot(poses)
+    mon = cfg.monitor.model_copy(update={"still_s": 0.0, "poll_s": 0.001, "max_samples": 3, "duration_s": 30.0,
+                                         "keep_samples": 0})
+    camera = CAMERAS.create(cfg.camera)
+    camera.follow(robot.pose)
+    updates = []
+    with camera, SessionWriter.create(tmp_path, cfg.setup, name="s") as writer, Viz(cfg.setup, None) as viz:
+        report = run_monitor(robot, camera, devices.make_measure(cfg), _RefusingEngine(), None, writer, mon, viz,
+                             on_update=lambda obs, update, rep: updates.append(update), say=lambda s: None)
+    assert report.n_samples == 3 and updates == [None, None, None]
+    assert report.alarms == [] and report.estimate is None
+    skips = [s for s in read_session(tmp_path / "s").skipped if s["reason"] == "monitoring engine: malformed sample"]
+    assert len(skips) == 3

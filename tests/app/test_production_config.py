@@ -10,6 +10,7 @@ from app.errors import ConfigError
 from app.production import program_from_config
 from calib import transforms as tf
 from drivers.robot import ur_kinematics as kin
+from drivers.robot.ur import URKinematics
 from mocks.ur_sim import launch
 
 # The shipped simulated cell's start joints (config/sim.toml).
@@ -18,7 +19,7 @@ T0 = kin.forward(Q0, "ur10")
 
 
 def _program(table: dict, seed: int = 0) -> dict:
-    return program_from_config(ProductionConfig.model_validate(table), T0, Q0, "ur10", CalibrateConfig(),
+    return program_from_config(ProductionConfig.model_validate(table), T0, Q0, URKinematics("ur10"), CalibrateConfig(),
                                np.random.default_rng(seed))
 
 

@@ -32,7 +32,7 @@ def test_jacobian_matches_finite_differences(setup, poses):
     C, K, M = model.split(d.X, d.Y, d.A, setup)
     B = d.B if poses else d.points
     theta = np.array([0.01, 0.004, -0.008])
-    prob = model.Problem(M, B, np.broadcast_to(np.eye(3), (12, 3, 3)), sigma_rot=1.0, free=(True, True, True))
+    prob = model.Linearization(M, B, np.broadcast_to(np.eye(3), (12, 3, 3)), sigma_rot=1.0, free=(True, True, True))
     r, e, J_t, J_e = prob.raw(C, K, theta)
     J = J_t.reshape(-1, prob.n_params) if e is None else np.vstack([J_t.reshape(-1, prob.n_params),
                                                                       J_e.reshape(-1, prob.n_params)])
@@ -57,7 +57,7 @@ def test_refine_unchanged_through_the_public_model():
     start = closed_form("YKronT'", d.A, d.points)
     res = refine(start, CalibrationProblem.from_arrays(d.A, d.points, point_cov=d.point_cov))
     C, K, M = model.split(start.X, start.Y, d.A, "eye_to_hand")
-    prob = model.Problem(M, d.points, model.whitener(d.point_cov))
+    prob = model.Linearization(M, d.points, model.whitener(d.point_cov))
     C2, K2, _, cost, _, _ = model.minimize(prob, C, K)
     np.testing.assert_allclose(C2, res.Y, atol=1e-9)
     assert cost == pytest.approx(res.refinement.cost)
@@ -71,7 +71,7 @@ def test_variance_components_recover_point_and_robot_noise():
     noise = model.NoiseLevels(point_scale=0.3, robot=1e-4)
     for _ in range(12):
         cof = model.robot_cofactor(C, K, M, "eye_to_hand")
-        prob = model.Problem(M, d.points, model.whitener(noise.point_cov(d.point_cov, cof)))
+        prob = model.Linearization(M, d.points, model.whitener(noise.point_cov(d.point_cov, cof)))
         C, K, _, _, _, _ = model.minimize(prob, C, K)
         noise, dof = model.variance_components(prob, C, K, None, d.point_cov, cof, noise)
     assert noise.point_scale == pytest.approx(1.0, rel=0.2)
@@ -83,13 +83,13 @@ def test_linearised_leave_one_out_matches_refits():
     rng = np.random.default_rng(2)
     d = realistic_cell(15, rng)
     C, K, M = model.split(d.X, d.Y, d.A, "eye_to_hand")
-    prob = model.Problem(M, d.points, model.whitener(d.point_cov))
+    prob = model.Linearization(M, d.points, model.whitener(d.point_cov))
     C, K, _, _, _, _ = model.minimize(prob, C, K)
     errors, predicted = model.leave_one_out(prob, C, K, point_cov=d.point_cov)
     exact = []
     for i in range(15):
         keep = np.arange(15) != i
-        sub = model.Problem(M[keep], d.points[keep], model.whitener(d.point_cov[keep]))
+        sub = model.Linearization(M[keep], d.points[keep], model.whitener(d.point_cov[keep]))
         Ci, Ki, _, _, _, _ = model.minimize(sub, C, K)
         exact.append(np.linalg.norm(d.points[i] - model.predict_points(Ci, Ki[:3, 3], M[i:i + 1])[0]))
     np.testing.assert_allclose(errors, exact, rtol=0.05, atol=5e-5)
@@ -105,8 +105,8 @@ def test_leave_one_out_after_step_matches_a_refit_with_the_parameter_freed():
     p = d.points * 1.02
     C, K, M = model.split(d.X, d.Y, d.A, "eye_to_hand")
     W = model.whitener(d.point_cov)
-    C0, K0, _, _, _, _ = model.minimize(model.Problem(M, p, W), C, K)
-    freed = model.Problem(M, p, W, free=(True, False, False))
+    C0, K0, _, _, _, _ = model.minimize(model.Linearization(M, p, W), C, K)
+    freed = model.Linearization(M, p, W, free=(True, False, False))
     theta0 = np.zeros(3)
     errors, predicted, delta = model.leave_one_out_after_step(freed, C0, K0, theta0, point_cov=d.point_cov)
     C1, K1, theta1, _, _, _ = model.minimize(freed, C0, K0, theta0)
@@ -115,7 +115,7 @@ def test_leave_one_out_after_step_matches_a_refit_with_the_parameter_freed():
     np.testing.assert_allclose(errors, exact, rtol=1e-3, atol=1e-6)
     np.testing.assert_allclose(predicted, exact_pred, rtol=1e-3)
     # Freeing the scale of a 2% depth error lowers the held-out error.
-    before, _ = model.leave_one_out(model.Problem(M, p, W), C0, K0, point_cov=d.point_cov)
+    before, _ = model.leave_one_out(model.Linearization(M, p, W), C0, K0, point_cov=d.point_cov)
     assert np.sqrt(np.mean(errors**2)) < 0.9 * np.sqrt(np.mean(before**2))
 
 

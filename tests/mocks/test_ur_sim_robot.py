@@ -1,9 +1,13 @@
 """`type = "ur_sim"` from a TOML table: the registered robot launches its own simulator."""
 
 import numpy as np
+import pytest
 
+from drivers.errors import DeviceError
 from drivers.robot import ur_kinematics as kin
 from drivers.robot.registry import ROBOTS
+from drivers.robot.ur import URKinematics
+from mocks.ur_sim.robot import URSimRobot, URSimRobotConfig
 
 from tests.simulated_ur import START_Q, free_host
 
@@ -24,3 +28,10 @@ def test_ur_sim_robot_launches_moves_and_stops_its_simulator():
         target[2, 3] += 0.05
         np.testing.assert_allclose(robot.move_to(target).T_base_flange, target, atol=1e-6)
     assert robot.sim is None and sim.proc.poll() is not None
+
+
+def test_the_simulator_declares_itself_and_needs_its_controller_for_a_program():
+    robot = URSimRobot(URSimRobotConfig(host="127.0.0.1", workspace_min=(-1, -1, 0), workspace_max=(1, 1, 1)))
+    assert robot.simulated and robot.kinematics == URKinematics("ur10")
+    with pytest.raises(DeviceError, match="not connected"):
+        robot.start_program({"waypoints": []})

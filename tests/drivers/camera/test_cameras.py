@@ -147,9 +147,9 @@ def _openni2_available() -> bool:
         import openni  # noqa: F401
     except ImportError:
         return False
-    from drivers.camera.openni2 import OpenNI2CameraConfig, _library_dirs, _loadable_dir
+    from drivers.camera.openni2 import OpenNI2CameraConfig, library_dirs, loadable_dir
 
-    return any(_loadable_dir(d) for d in _library_dirs(OpenNI2CameraConfig()))
+    return any(loadable_dir(d) for d in library_dirs(OpenNI2CameraConfig()))
 
 
 # Runs in a child process: OpenNI2's dummy driver corrupts the heap once its color
