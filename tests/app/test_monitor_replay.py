@@ -2,6 +2,7 @@
 
 import csv
 import dataclasses
+import json
 
 import numpy as np
 import yaml
@@ -19,22 +20,37 @@ ISSUE_COLUMNS = ("index", "t", "alarm", "x_mm", "y_mm", "z_mm", "qx", "qy", "qz"
                  "depth_offset_mm", "focal_scale", "sigma_mm", "sigma_deg", "drift_mm", "verify_mm")
 
 
-def _write(root, name, A, points, covs, t, q, extra_meta=None, joints=True):
+def _write(root, name, A, points, covs, t, q, extra_meta=None):
     with SessionWriter.create(root, "eye_to_hand", name=name, source="test") as w:
         for i in range(len(A)):
             w.add_sample(Observation(i, float(t[i]), A[i], points[i], covs[i], meta=dict(extra_meta or {}),
-                                     joints=q[i] if joints else None))
+                                     joints=q[i]))
     return w.path
 
 
-def _sessions(tmp_path, bumps, *, joints=True):
+def _write_by_hand(path, A, points, t):
+    """A session as another program writes it (docs/session-format.md): the minimal header with a key of its own,
+    samples of poses and points alone (no joints, no covariance) with meta keys handeye does not know."""
+    path.mkdir()
+    (path / "session.json").write_text(json.dumps({"format": "handeye-session", "version": 1,
+                                                   "setup": "eye_to_hand", "cell_logger": "plant 2.3"}))
+    with open(path / "samples.jsonl", "w") as fh:
+        for i in range(len(A)):
+            fh.write(json.dumps({"kind": "sample", "index": i, "t": float(t[i]), "T_base_flange": A[i].tolist(),
+                                 "point_cam": points[i].tolist(), "meta": {"cycle": "pick", "part": 1000 + i}}) + "\n")
+    return path
+
+
+def _sessions(tmp_path, bumps, *, by_hand=False):
     real = simulate.realistic_profile(30, np.random.default_rng([7, 0]))
     d = real.data
     cal = _write(tmp_path, "cal", d.A, d.points, d.point_cov, 1e9 + np.arange(30.0), real.q)
     shift = dataclasses.replace(simulate.Shift(), hours=2.0, bumps=bumps)
     s = simulate.shift_stream(real, shift, np.random.default_rng([7, 1]))
-    # Another program's session: a meta key handeye does not know is kept, not refused.
-    prod = _write(tmp_path, "prod", s.A, s.points, s.point_cov, 2e9 + s.t, s.q, {"cycle": "pick"}, joints=joints)
+    if by_hand:
+        return cal, _write_by_hand(tmp_path / "prod", s.A, s.points, 2e9 + s.t), s
+    # A meta key handeye does not know is kept, not refused.
+    prod = _write(tmp_path, "prod", s.A, s.points, s.point_cov, 2e9 + s.t, s.q, {"cycle": "pick"})
     return cal, prod, s
 
 
@@ -95,9 +111,9 @@ def test_replay_monitor_of_a_still_camera_has_no_moved_alarm_and_writes_into_the
 
 
 def test_replay_monitor_of_another_programs_session_without_joints(tmp_path, capsys):
-    """Samples without joints (another program's session) still monitor, without the robot kinematic-error block,
-    though the config models it and the reference has joints."""
-    cal, prod, s = _sessions(tmp_path, ((1.0, 5.0, 0.3),), joints=False)
+    """Another program's session (written by hand, no joints, no covariances, meta keys of its own) still monitors:
+    without the robot kinematic-error block, though the config models it and the reference has joints."""
+    cal, prod, s = _sessions(tmp_path, ((1.0, 5.0, 0.3),), by_hand=True)
     out = tmp_path / "trace"
     # (config/sim_shift.toml models the robot's kinematic error: [robot] kinematic_error)
     rc = main(["replay", str(prod), "--monitor", "--reference", str(cal), "--out", str(out), "-c",
@@ -110,7 +126,8 @@ def test_replay_monitor_of_another_programs_session_without_joints(tmp_path, cap
     moved = [int(r["sample"]) for r in rows if r["alarm"] == "moved"]
     assert len(moved) == 1 and bump <= moved[0] <= bump + 20
     session = read_session(prod)
-    assert all(o.joints is None for o in session.observations) and session.observations[0].meta["cycle"] == "pick"
+    assert all(o.joints is None and o.point_cov is None for o in session.observations)
+    assert session.observations[7].meta == {"cycle": "pick", "part": 1007}
 
 
 def test_replay_monitor_without_reference_or_with_an_unwritable_out_is_one_line(tmp_path, capsys):
