@@ -184,6 +184,9 @@ class MqttPublisher:
         self.outages_delivered_late = 0
         #: Outage messages dropped from the hold (more than `MAX_HELD_OUTAGES`).
         self.outages_dropped = 0
+        #: The broker's own outage steps (`app.outage.OutageEvent`, device ``mqtt``), appended from paho's network
+        #: thread for the caller to record in its own (`app.runs.monitor` drains it into the session).
+        self.broker_outages: collections.deque = collections.deque()
 
     # ------------------------------------------------------------ connection
     def connect(self) -> "MqttPublisher":
@@ -225,9 +228,8 @@ class MqttPublisher:
         lost, self._broker_lost = self._broker_lost, None
         if lost is not None:
             away = time.monotonic() - lost
-            self._hold_outage(self._outage_payload(OutageEvent("mqtt", "outage_end", time.time(), "", 0, away),
-                                                   f"MQTT broker back after {away:.1f} s"))
-            log.warning("MQTT broker %s:%d back after %.1f s", self.config.host, self.config.port, away)
+            self._broker_outage(OutageEvent("mqtt", "outage_end", time.time(), "", 0, away),
+                                f"MQTT broker back after {away:.1f} s")
         with self._lock:
             self.connected.set()
             kept, held = list(self._held_kept), dict(self._held)
@@ -255,11 +257,15 @@ class MqttPublisher:
             if was_connected and self._broker_lost is None:
                 # The broker went away (not our own disconnect at the end): an outage, published once it is back.
                 self._broker_lost = time.monotonic()
-                log.warning("MQTT broker %s:%d lost (%s); holding alarms until it is back", self.config.host,
-                            self.config.port, reason_code)
-                self._hold_outage(self._outage_payload(
-                    OutageEvent("mqtt", "outage_start", time.time(), str(reason_code), 0, 0.0),
-                    f"MQTT broker lost: {reason_code}"))
+                self._broker_outage(OutageEvent("mqtt", "outage_start", time.time(), str(reason_code), 0, 0.0),
+                                    f"MQTT broker lost: {reason_code}; holding alarms until it is back")
+
+    def _broker_outage(self, event: OutageEvent, message: str) -> None:
+        """The broker's own outage: logged, held for publishing once it is back, and kept for the caller."""
+        log.warning("%s (%s:%d)", message, self.config.host, self.config.port)
+        self.broker_outages.append(event)
+        with self._lock:
+            self._hold_kept("outage", self._outage_payload(event, message))
 
     def close(self) -> None:
         """Publish ``offline`` (retained), wait briefly for the queue to drain, disconnect.
@@ -322,10 +328,6 @@ class MqttPublisher:
             if self.outages_dropped == 1:
                 log.warning("MQTT broker away: more than %d outage messages held, dropping the oldest",
                             MAX_HELD_OUTAGES)
-
-    def _hold_outage(self, payload: dict) -> None:
-        with self._lock:
-            self._hold_kept("outage", payload)
 
     def _send(self, kind: str, payload: dict, retain: bool):
         # An alarm or an outage goes at least once: with QoS 1 paho keeps it until the broker acknowledges it and

@@ -188,10 +188,12 @@ def monitor(cfg: Config, *, reference: Path | None = None, stop=None, progress: 
                 show_monitor(bar, report)
                 if publish is not None:
                     publish(obs, update, report)
+                outages.record_broker(publisher)
 
             report = run_monitor(robot, camera, devices.make_measure(cfg), engine, solve, writer, cfg.monitor,
                                  viz, stop=stop, save_frames=cfg.session.save_frames, on_sample=on_sample,
                                  on_update=on_update, say=say, shared_error=robot.shared_error_factor)
+            outages.record_broker(publisher)
             report.truth = devices.camera_truth(cfg.setup, devices.truth(camera))
             return report
 
@@ -209,6 +211,16 @@ class _OutageLog:
         say(event.message())
         if self.publish is not None:
             self.publish(event)
+        self.record(event)
+
+    def record_broker(self, publisher) -> None:
+        """Record the MQTT broker's own outage steps (`app.mqtt.MqttPublisher.broker_outages`, appended from its
+        network thread, which has logged and published them) from this thread, which owns the session."""
+        while publisher is not None and publisher.broker_outages:
+            self.record(publisher.broker_outages.popleft())
+
+    def record(self, event: OutageEvent) -> None:
+        """Into the session's events and rerun, once they exist."""
         if self.writer is not None:
             self.writer.add_event(event.t, event.event, **{k: v for k, v in dataclasses.asdict(event).items()
                                                            if k not in ("t", "event")})

@@ -1,7 +1,8 @@
-"""monitor() rides out a dropped robot connection and an unplugged camera mid-run: the simulated UR controller
-(mocks.ur_sim through the real ur_rtde client) runs its production program, the rendered camera follows it, and
-the outages go to the session and to a real mosquitto broker. Eye-to-hand (``Y = T_base_cam``)."""
+"""monitor() rides out a dropped robot connection, an unplugged camera and a broker restart mid-run: the simulated
+UR controller (mocks.ur_sim through the real ur_rtde client) runs its production program, the rendered camera
+follows it, and the outages go to the session and to a real mosquitto broker. Eye-to-hand (``Y = T_base_cam``)."""
 
+import threading
 import time
 
 import pytest
@@ -13,10 +14,12 @@ from app.session import read_session
 
 from drivers.errors import ConnectionLostError
 
+from tests.app.test_mqtt_outage import Broker, subscriber
+
 pytestmark = pytest.mark.slow
 
 N_SAMPLES = 12
-ROBOT_DROP_AFTER, CAMERA_UNPLUG_AFTER = 3, 7    # samples before each outage
+ROBOT_DROP_AFTER, BROKER_STOP_AFTER, CAMERA_UNPLUG_AFTER = 2, 5, 8    # samples before each outage
 AWAY_S = 1.0
 
 
@@ -40,14 +43,18 @@ class UnplugAtNextCapture:
         camera.read, camera.connect = guarded(read, True), guarded(connect, False)
 
 
-def test_monitor_goes_on_through_a_robot_drop_and_a_camera_unplug(sim_config, loopback, mosquitto, mqtt_inbox,
-                                                                   monkeypatch):
-    port = mosquitto()
-    inbox = mqtt_inbox(port, "cell/#")
+def test_monitor_goes_on_through_a_robot_drop_a_broker_restart_and_a_camera_unplug(sim_config, loopback, tmp_path,
+                                                                                    monkeypatch):
+    broker = Broker(tmp_path)
+    broker.start()
+    port = broker.port
+    inbox = []
+    sub = subscriber(port, inbox)     # a plant's persistent-session subscriber: it misses nothing over the restart
     data = sim_config(loopback(23)).model_dump()
     data["monitor"].update(still_s=0.2, poll_s=0.02, max_samples=N_SAMPLES, duration_s=60.0)
     data["reconnect"].update(initial_s=0.1, factor=2.0, max_s=0.4)
-    data["mqtt"].update(enabled=True, port=port, topic_prefix="cell", connect_timeout_s=5.0)
+    data["mqtt"].update(enabled=True, port=port, topic_prefix="cell", connect_timeout_s=5.0, reconnect_min_s=1,
+                        reconnect_max_s=1)
     data["viz"]["enabled"] = False
     cfg = Config.model_validate(data)
 
@@ -64,12 +71,17 @@ def test_monitor_goes_on_through_a_robot_drop_and_a_camera_unplug(sim_config, lo
         return opened["camera"]
 
     pulled = {}
+    restart = threading.Timer(AWAY_S, broker.start)
 
     def after_sample(bar, report):
         """Called by monitor() after every sample (its console display): the outages start here."""
         if report.n_samples == ROBOT_DROP_AFTER:
             pulled["robot"] = report.n_samples, time.time()
             opened["robot"].sim.drop(refuse_s=AWAY_S)
+        elif report.n_samples == BROKER_STOP_AFTER:
+            pulled["mqtt"] = report.n_samples, time.time()
+            broker.stop()
+            restart.start()
         elif report.n_samples == CAMERA_UNPLUG_AFTER:
             pulled["camera"] = report.n_samples, time.time()
             UnplugAtNextCapture(opened["camera"], AWAY_S)
@@ -78,8 +90,19 @@ def test_monitor_goes_on_through_a_robot_drop_and_a_camera_unplug(sim_config, lo
     monkeypatch.setattr(mon.devices, "open_camera", open_camera)
     monkeypatch.setattr(mon, "show_monitor", after_sample)
     t0 = time.monotonic()
-    report = mon.monitor(cfg, progress=False)
-    elapsed = time.monotonic() - t0
+    try:
+        report = mon.monitor(cfg, progress=False)
+        elapsed = time.monotonic() - t0
+        deadline = time.monotonic() + 5.0
+        while time.monotonic() < deadline and not any(t == "cell/status" and m["state"] == "offline"
+                                                      for t, m, _ in inbox):
+            time.sleep(0.05)
+    finally:
+        if restart.is_alive():
+            restart.join()
+        sub.disconnect()
+        sub.loop_stop()
+        broker.stop()
 
     # The run went on and ended normally, with every sample it was asked for.
     assert report.n_samples == N_SAMPLES and report.elapsed_s < cfg.monitor.duration_s, report
@@ -112,17 +135,19 @@ def test_monitor_goes_on_through_a_robot_drop_and_a_camera_unplug(sim_config, lo
         assert all(s["t"] > events[0]["t"] for s in session.skipped if device == "camera")
     assert "lost" in next(e for e in session.events if e.get("device") == "robot")["error"]
     assert "camera unplugged" in next(e for e in session.events if e.get("device") == "camera")["error"]
+    # The broker's restart is an outage too (paho reconnects; the session has its start and end).
+    broker_events = [e for e in session.events if e.get("device") == "mqtt"]
+    assert [e["event"] for e in broker_events] == ["outage_start", "outage_end"], broker_events
+    assert broker_events[0]["t"] >= pulled["mqtt"][1] and AWAY_S < broker_events[1]["outage_s"] < AWAY_S + 3.0
 
-    # And over MQTT: each outage's start and end (its failed attempts only in the session), then offline.
-    deadline = time.monotonic() + 5.0
-    while time.monotonic() < deadline and not any(t == "cell/status" and m["state"] == "offline"
-                                                  for t, m, _ in inbox):
-        time.sleep(0.05)
-    published = [(m["device"], m["event"]) for t, m, _ in inbox if t == "cell/outage"]
-    assert published == [("robot", "outage_start"), ("robot", "outage_end"),
-                         ("camera", "outage_start"), ("camera", "outage_end")], published
+    # And over MQTT: each outage's start and end (the failed attempts only in the session), the broker's published
+    # once it was back, then offline.
+    published = list(dict.fromkeys((m["device"], m["event"]) for t, m, _ in inbox if t == "cell/outage"))
+    for device in ("robot", "mqtt", "camera"):
+        assert [e for d, e in published if d == device] == ["outage_start", "outage_end"], published
+    assert published.index(("robot", "outage_end")) < published.index(("camera", "outage_start"))
     ends = {m["device"]: m for t, m, _ in inbox if t == "cell/outage" and m["event"] == "outage_end"}
-    for device in ("robot", "camera"):
+    for device in ("robot", "camera", "mqtt"):
         recorded = [e for e in session.events if e.get("device") == device][-1]
         assert ends[device]["outage_s"] == pytest.approx(recorded["outage_s"])
         assert ends[device]["session"] == str(report.session)

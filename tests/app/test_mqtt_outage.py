@@ -59,7 +59,7 @@ def broker(tmp_path):
     b.stop()
 
 
-def _subscriber(port, inbox):
+def subscriber(port, inbox):
     """A persistent-session QoS 1 subscriber that reconnects every second."""
     import paho.mqtt.client as mqtt
 
@@ -96,7 +96,7 @@ def _wait(cond, timeout=15.0):
 def test_alarms_and_outages_raised_while_the_broker_restarts_are_all_delivered_and_status_is_coalesced(
         broker, tmp_path, engine_update):
     inbox = []
-    sub = _subscriber(broker.port, inbox)
+    sub = subscriber(broker.port, inbox)
     cfg = MqttConfig(enabled=True, port=broker.port, topic_prefix="cell", qos=1, reconnect_min_s=1,
                      reconnect_max_s=1, connect_timeout_s=5.0)
     try:
