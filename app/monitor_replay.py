@@ -5,7 +5,7 @@
 a reference calibration (``--reference``: a calibration session, solved with
 ``auto`` as ``calibrate`` solves it, or the ``result.yaml`` in one, whose
 session's samples give the engine its covariance). Written into the output
-directory:
+directory (``replay --out``):
 
 - ``monitor_trace.csv``: one row per sample (`TRACE_COLUMNS`; the camera
   transform is ``T_base_cam`` eye-to-hand, ``T_flange_cam`` eye-in-hand);
@@ -13,7 +13,10 @@ directory:
 - ``monitor_trace.png``: drift, running verification and 1-sigma against time, alarms marked.
 
 Samples without a marker point are skipped and counted; a malformed one is
-skipped with a log line naming it (`calib.errors.CalibrationError`).
+skipped with a log line naming it (`calib.errors.CalibrationError`). A
+session whose samples lack their joints (another program's) is monitored
+without the robot's kinematic error in the engine's state, even when the
+config models it and the reference has joints.
 """
 
 from __future__ import annotations
@@ -27,6 +30,7 @@ import numpy as np
 import yaml
 
 from app import devices
+from app.errors import SessionError
 from app.monitoring import arm_engine, reference_observations
 from app.session import read_session
 from calib import transforms as tf
@@ -54,6 +58,7 @@ class MonitorReplay:
     last: MonitorUpdate | None = None
     verify_mm: list = field(default_factory=list)
     out: Path | None = None
+    notes: list = field(default_factory=list)
 
 
 def trace_row(obs_index: int, upd: MonitorUpdate, correction) -> dict:
@@ -85,17 +90,25 @@ def replay_monitor(session: Path, reference: Path, out: Path, *, settings: Monit
     Raises
     ------
     SessionError
-        Unreadable session or reference, or a reference that cannot arm the engine.
+        Unreadable session or reference, a reference that cannot arm the engine, or an ``out`` that cannot be
+        created.
     """
     prod = read_session(session)
     engine = MonitorEngine(settings)
     samples = [o for o in prod.observations]
     first_t = min((o.t for o in samples), default=0.0)
-    arm_engine(engine, reference_observations(reference, prod.setup), prod.setup, shared_error, rng=rng, t=first_t)
-    out = Path(out)
-    out.mkdir(parents=True, exist_ok=True)
-    rep = MonitorReplay(prod.setup, out=out)
+    rep = MonitorReplay(prod.setup, out=Path(out))
     factors = _factors(samples, shared_error)
+    if shared_error is not None and all(F is None for F in factors):
+        # Without joints no sample can feed the kinematic-error block: the engine is armed without it.
+        shared_error = None
+        rep.notes.append("the samples have no joints: monitored without the robot's kinematic error")
+    arm_engine(engine, reference_observations(reference, prod.setup), prod.setup, shared_error, rng=rng, t=first_t)
+    out = rep.out
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+    except OSError as e:
+        raise SessionError(f"--out {out}: cannot create ({e.strerror})") from None
     times, rows = [], []
     with open(out / "monitor_trace.csv", "w", newline="") as fh:
         writer = csv.DictWriter(fh, fieldnames=TRACE_COLUMNS)
@@ -164,6 +177,7 @@ def summary(rep: MonitorReplay) -> str:
     """The printed summary: counts, the alarms, the live estimate and its figures."""
     cam = Setup(rep.setup).camera_name
     lines = [f"monitor replay: {rep.n_samples} samples, {rep.n_skipped} skipped, {len(rep.alarms)} alarms"]
+    lines += [f"  note: {n}" for n in rep.notes]
     for a in rep.alarms:
         lines.append(f"  {a['alarm'].upper()} at sample {a['sample']} (t = {a['t']:.1f} s): {a['message']}")
     if rep.last is not None:

@@ -12,6 +12,7 @@ schema is in docs/mqtt.md)::
     <prefix>/estimate  retained  {"schema": "handeye/estimate/1", "translation_m", "quaternion_xyzw", "sigma_mm", ...}
     <prefix>/drift               {"schema": "handeye/drift/1", "translation_mm", "rotation_deg", ...}
     <prefix>/alarm               {"schema": "handeye/alarm/1", "event": "camera_moved", "sample", "statistic", ...}
+    <prefix>/outage              {"schema": "handeye/outage/1", "device", "event": "outage_start" | "outage_end", ...}
 
 The estimate is ``T_base_cam`` (eye-to-hand) or ``T_flange_cam``
 (eye-in-hand) of the camera's optical frame (z forward, x right, y down),
@@ -20,17 +21,20 @@ named by ``parent_frame`` / ``child_frame`` from ``[frames]``.
 A broker that cannot be reached costs a warning, not the monitoring run:
 paho keeps reconnecting in its network thread (backoff from
 ``reconnect_min_s`` to ``reconnect_max_s``). While it is away nothing is handed
-to paho; `MqttPublisher` holds the messages itself, bounded: every alarm, in
-order (alarms are never dropped, and go with QoS >= 1 so paho re-sends one the
-broker did not acknowledge), and only the newest message of each other topic
-(status, estimate and drift are coalesced). On reconnect the alarms go first,
-then the newest retained status and estimate (a restarted broker without
-persistence has lost them), then the newest drift.
+to paho; `MqttPublisher` holds the messages itself, bounded: every alarm and
+the newest `MAX_HELD_OUTAGES` outage messages, in the order they happened
+(they go with QoS >= 1 so paho re-sends one the broker did not acknowledge),
+and only the newest message of each other topic (status, estimate and drift
+are coalesced). On reconnect the alarms and outages go first, then the newest
+retained status and estimate (a restarted broker without persistence has lost
+them), then the newest drift. The broker's own absence is an outage too
+(device ``mqtt``): its start and end are published once it is back.
 """
 
 from __future__ import annotations
 
 import collections
+import dataclasses
 import json
 import logging
 import os
@@ -43,6 +47,7 @@ import numpy as np
 from pydantic import AfterValidator, Field, ValidationError, model_validator
 
 from app.errors import ConfigError
+from app.outage import OutageEvent
 from calib.params import Bool, Float, Int, NonEmptyStr, Params, Str, describe
 from calib import transforms as tf
 from calib.setup import Setup
@@ -52,7 +57,11 @@ log = logging.getLogger(__name__)
 USERNAME_ENV = "HANDEYE_MQTT_USERNAME"
 PASSWORD_ENV = "HANDEYE_MQTT_PASSWORD"
 SCHEMA_VERSION = 1
-TOPICS = ("status", "estimate", "drift", "alarm")
+TOPICS = ("status", "estimate", "drift", "alarm", "outage")
+#: Topics whose every message is held for an absent broker (the others are coalesced to the newest).
+KEPT = ("alarm", "outage")
+#: Outage messages held for an absent broker at most (a device flapping for hours); the oldest go first.
+MAX_HELD_OUTAGES = 1000
 _SECRET_KEYS = ("username", "password", "user", "passwd", "token")
 
 
@@ -78,9 +87,9 @@ class MqttConfig(Params):
     client_id : str
         Empty: ``handeye-<hostname>-<pid>``.
     topic_prefix : str
-        Topics are ``<prefix>/status``, ``/estimate``, ``/drift``, ``/alarm``.
+        Topics are ``<prefix>/status``, ``/estimate``, ``/drift``, ``/alarm``, ``/outage``.
     topics : dict
-        Per-topic overrides, keys from ``status, estimate, drift, alarm``.
+        Per-topic overrides, keys from ``status, estimate, drift, alarm, outage``.
     qos : int
         0, 1 or 2, for every message.
     keepalive_s : int
@@ -162,13 +171,22 @@ class MqttPublisher:
         self.client = None
         self.session: str | None = None
         self._last_error = ""
-        # Held while the broker is away (see the module docstring): all alarms, the newest of the rest.
+        # Held while the broker is away (see the module docstring): (kind, payload) of every alarm and
+        # outage in order, the newest of the rest.
         self._lock = threading.Lock()
-        self._held_alarms: collections.deque = collections.deque()
+        self._held_kept: collections.deque = collections.deque()
         self._held: dict[str, tuple[dict, bool]] = {}
         self._retained: dict[str, dict] = {}
+        self._broker_lost: float | None = None   # monotonic time the broker went away
         #: Alarms held for an absent broker and published once it was back.
         self.alarms_delivered_late = 0
+        #: Outage messages held for an absent broker and published once it was back.
+        self.outages_delivered_late = 0
+        #: Outage messages dropped from the hold (more than `MAX_HELD_OUTAGES`).
+        self.outages_dropped = 0
+        #: The broker's own outage steps (`app.outage.OutageEvent`, device ``mqtt``), appended from paho's network
+        #: thread for the caller to record in its own (`app.runs.monitor` drains it into the session).
+        self.broker_outages: collections.deque = collections.deque()
 
     # ------------------------------------------------------------ connection
     def connect(self) -> "MqttPublisher":
@@ -207,26 +225,47 @@ class MqttPublisher:
         if reason_code.is_failure:
             self._last_error = str(reason_code)
             return
+        lost, self._broker_lost = self._broker_lost, None
+        if lost is not None:
+            away = time.monotonic() - lost
+            self._broker_outage(OutageEvent("mqtt", "outage_end", time.time(), "", 0, away),
+                                f"MQTT broker back after {away:.1f} s")
         with self._lock:
             self.connected.set()
-            alarms, held = list(self._held_alarms), dict(self._held)
-            self._held_alarms.clear()
+            kept, held = list(self._held_kept), dict(self._held)
+            self._held_kept.clear()
             self._held.clear()
-            for payload in alarms:
-                self._send("alarm", payload, False)
-            self.alarms_delivered_late += len(alarms)
+            for kind, payload in kept:
+                self._send(kind, payload, False)
+            n_alarms = sum(kind == "alarm" for kind, _ in kept)
+            self.alarms_delivered_late += n_alarms
+            self.outages_delivered_late += len(kept) - n_alarms
             for kind, payload in self._retained.items():
                 self._send(kind, payload, True)
             for kind, (payload, retain) in held.items():
                 if not retain:
                     self._send(kind, payload, False)
-        if alarms:
-            log.info("MQTT broker back: published %d alarm(s) held while it was away", len(alarms))
+        if kept:
+            log.info("MQTT broker back: published %d alarm(s) and %d outage message(s) held while it was away",
+                     n_alarms, len(kept) - n_alarms)
 
     def _on_disconnect(self, client, userdata, flags, reason_code, properties):
+        was_connected = self.connected.is_set()
         self.connected.clear()
         if reason_code.is_failure:
             self._last_error = str(reason_code)
+            if was_connected and self._broker_lost is None:
+                # The broker went away (not our own disconnect at the end): an outage, published once it is back.
+                self._broker_lost = time.monotonic()
+                self._broker_outage(OutageEvent("mqtt", "outage_start", time.time(), str(reason_code), 0, 0.0),
+                                    f"MQTT broker lost: {reason_code}; holding alarms until it is back")
+
+    def _broker_outage(self, event: OutageEvent, message: str) -> None:
+        """The broker's own outage: logged, held for publishing once it is back, and kept for the caller."""
+        log.warning("%s (%s:%d)", message, self.config.host, self.config.port)
+        self.broker_outages.append(event)
+        with self._lock:
+            self._hold_kept("outage", self._outage_payload(event, message))
 
     def close(self) -> None:
         """Publish ``offline`` (retained), wait briefly for the queue to drain, disconnect.
@@ -235,9 +274,9 @@ class MqttPublisher:
         then are logged as undelivered (the session's events still hold them)."""
         if self.client is None:
             return
-        if self._held_alarms and not self.connected.wait(self.config.connect_timeout_s):
-            log.error("MQTT broker %s:%d away at the end: %d alarm(s) not delivered (they are in the session)",
-                      self.config.host, self.config.port, len(self._held_alarms))
+        if self._held_kept and not self.connected.wait(self.config.connect_timeout_s):
+            log.error("MQTT broker %s:%d away at the end: %d alarm(s) and outage message(s) not delivered (they "
+                      "are in the session)", self.config.host, self.config.port, len(self._held_kept))
         info = self.publish("status", self._status("offline"), retain=True)
         if self.connected.is_set() and info is not None:
             try:
@@ -258,15 +297,16 @@ class MqttPublisher:
     # -------------------------------------------------------------- messages
     def publish(self, kind: str, payload: dict, *, retain: bool = False):
         """Publish one JSON message on the topic of ``kind``; returns paho's MQTTMessageInfo, or None when the
-        message is held for an absent broker (published on reconnect: alarms all, the rest coalesced)."""
+        message is held for an absent broker (published on reconnect: alarms and outages all, the rest
+        coalesced)."""
         if self.client is None:
             return None
         with self._lock:
             if retain:
                 self._retained[kind] = payload
             if not self.connected.is_set():
-                if kind == "alarm":
-                    self._held_alarms.append(payload)
+                if kind in KEPT:
+                    self._hold_kept(kind, payload)
                 else:
                     self._held[kind] = (payload, retain)
                 return None
@@ -274,13 +314,25 @@ class MqttPublisher:
 
     @property
     def held(self) -> int:
-        """Messages held for an absent broker (alarms + one per other topic)."""
-        return len(self._held_alarms) + len(self._held)
+        """Messages held for an absent broker (alarms and outages + one per other topic)."""
+        return len(self._held_kept) + len(self._held)
+
+    def _hold_kept(self, kind: str, payload: dict) -> None:
+        """Hold an alarm or outage message (under the lock); past `MAX_HELD_OUTAGES` outage messages the oldest
+        outage message goes (alarms are never dropped)."""
+        self._held_kept.append((kind, payload))
+        if kind == "outage" and sum(k == "outage" for k, _ in self._held_kept) > MAX_HELD_OUTAGES:
+            oldest = next(i for i, (k, _) in enumerate(self._held_kept) if k == "outage")
+            del self._held_kept[oldest]
+            self.outages_dropped += 1
+            if self.outages_dropped == 1:
+                log.warning("MQTT broker away: more than %d outage messages held, dropping the oldest",
+                            MAX_HELD_OUTAGES)
 
     def _send(self, kind: str, payload: dict, retain: bool):
-        # An alarm goes at least once: with QoS 1 paho keeps it until the broker acknowledges it and sends it
-        # again after a reconnect.
-        qos = max(self.config.qos, 1) if kind == "alarm" else self.config.qos
+        # An alarm or an outage goes at least once: with QoS 1 paho keeps it until the broker acknowledges it and
+        # sends it again after a reconnect.
+        qos = max(self.config.qos, 1) if kind in KEPT else self.config.qos
         return self.client.publish(self.config.topic(kind), json.dumps(payload), qos=qos, retain=retain)
 
     def _base(self, schema: str) -> dict:
@@ -289,6 +341,17 @@ class MqttPublisher:
 
     def _status(self, state: str) -> dict:
         return {**self._base("status"), "state": state}
+
+    def _outage_payload(self, event: OutageEvent, message: str) -> dict:
+        """An outage message: the event's fields, ``t`` the time it happened, ``since`` the outage's start."""
+        return {**self._base("outage"), **dataclasses.asdict(event), "since": event.t - event.outage_s,
+                "message": message}
+
+    def outage(self, event: OutageEvent) -> None:
+        """Publish the start or end of a device outage (its failed reconnect attempts are not published); held
+        for an absent broker like an alarm."""
+        if event.event in ("outage_start", "outage_end"):
+            self.publish("outage", self._outage_payload(event, event.message()))
 
     def __call__(self, obs, update, report) -> None:
         """`app.runs.monitor.run_monitor`'s ``on_update``: estimate (retained), drift, and the alarm if one fired."""

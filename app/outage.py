@@ -92,7 +92,7 @@ class OutageEvent:
     error : str
         The device error (empty on ``outage_end``).
     attempt : int
-        Reconnect attempts so far in this outage.
+        Reconnect attempts so far in this outage (0 where another library makes them: the MQTT client).
     outage_s : float
         Time since the outage started, s.
     """
@@ -110,7 +110,8 @@ class OutageEvent:
             return f"{self.device} outage: {self.error}; reconnecting"
         if self.event == "reconnect_failed":
             return f"{self.device} still away after {self.outage_s:.1f} s (attempt {self.attempt}): {self.error}"
-        return f"{self.device} back after {self.outage_s:.1f} s ({self.attempt} reconnect attempts)"
+        attempts = f" ({self.attempt} reconnect attempts)" if self.attempt else ""
+        return f"{self.device} back after {self.outage_s:.1f} s{attempts}"
 
 
 class Reconnecting(Generic[T]):

@@ -38,12 +38,12 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    "as shared by the samples (sessions with joints), and whose session.exports and [frames] "
                    "--out uses")
     p.add_argument("--out", type=Path, metavar="DIR", help="write the result files, exports and report.html "
-                   "of the recommended solver into DIR, as calibrate writes them into its session")
+                   "of the recommended solver into DIR, as calibrate writes them into its session; with --monitor: "
+                   "monitor_trace.csv, alarms.yaml and monitor_trace.png (default <session>/monitor_replay)")
     p.add_argument("--monitor", action="store_true", help="stream the session through the monitoring engine "
-                   "(alarms, monitor_trace.csv and a plot in --trace-dir); needs --reference")
+                   "(alarms, monitor_trace.csv and a plot into --out); needs --reference")
     p.add_argument("--reference", type=Path, help="--monitor: calibration session (or its result.yaml) that arms "
                    "the engine")
-    p.add_argument("--trace-dir", type=Path, help="--monitor: where the trace goes (default <session>/monitor_replay)")
 
 
 def run(args) -> int:
@@ -55,7 +55,7 @@ def run(args) -> int:
         if args.reference is None:
             raise SessionError("replay --monitor needs --reference: the calibration session (or its result.yaml) "
                                "the production session is judged against")
-        rep = replay_monitor(args.source, args.reference, args.trace_dir or args.source / "monitor_replay",
+        rep = replay_monitor(args.source, args.reference, args.out or args.source / "monitor_replay",
                              settings=None if settings.config is None else settings.config.monitor.engine,
                              shared_error=settings.shared_error, rng=np.random.default_rng(args.seed))
         print(summary(rep))

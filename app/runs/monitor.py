@@ -146,7 +146,7 @@ def monitor(cfg: Config, *, reference: Path | None = None, stop=None, progress: 
     devices.check_session_root(cfg)
     publisher = make_publisher(cfg.mqtt, cfg.setup, cfg.frames.model_dump()) if publish is None else None
     stop = stop or threading.Event()
-    outages = _OutageLog()
+    outages = _OutageLog(publish=None if publisher is None else publisher.outage)
     # A device that goes away mid-shift is an outage and a reconnect with backoff (`app.outage`), not an exit.
     with Reconnecting("robot", devices.open_robot(cfg, read_only=True), cfg.reconnect, on_event=outages,
                       stop=stop) as robot, \
@@ -166,6 +166,8 @@ def monitor(cfg: Config, *, reference: Path | None = None, stop=None, progress: 
                                       source="handeye monitor", keep_frames=cfg.monitor.keep_frames)
         solve = devices.make_solve(cfg.calibrate.model_copy(update={"method": "auto"}), cfg.setup, rng,
                                    robot.shared_error_factor)
+        if publisher is not None:
+            publisher.session = str(writer.path)
         with writer, devices.make_viz(cfg, writer.path) as viz, progress_bar(enabled=progress) as bar:
             outages.writer, outages.viz = writer, viz
             seen = []
@@ -186,22 +188,39 @@ def monitor(cfg: Config, *, reference: Path | None = None, stop=None, progress: 
                 show_monitor(bar, report)
                 if publish is not None:
                     publish(obs, update, report)
+                outages.record_broker(publisher)
 
             report = run_monitor(robot, camera, devices.make_measure(cfg), engine, solve, writer, cfg.monitor,
                                  viz, stop=stop, save_frames=cfg.session.save_frames, on_sample=on_sample,
                                  on_update=on_update, say=say, shared_error=robot.shared_error_factor)
+            outages.record_broker(publisher)
             report.truth = devices.camera_truth(cfg.setup, devices.truth(camera))
             return report
 
 
+@dataclass
 class _OutageLog:
-    """`app.outage.OutageEvent` sink: one console line each, and the session's events once it exists."""
+    """`app.outage.OutageEvent` sink: one console line each, the session's events and rerun once they exist,
+    and ``publish`` (the MQTT publisher's `app.mqtt.MqttPublisher.outage`) when there is one."""
 
+    publish: Callable[[OutageEvent], None] | None = None
     writer: SessionWriter | None = None
     viz: Viz | None = None
 
     def __call__(self, event: OutageEvent) -> None:
         say(event.message())
+        if self.publish is not None:
+            self.publish(event)
+        self.record(event)
+
+    def record_broker(self, publisher) -> None:
+        """Record the MQTT broker's own outage steps (`app.mqtt.MqttPublisher.broker_outages`, appended from its
+        network thread, which has logged and published them) from this thread, which owns the session."""
+        while publisher is not None and publisher.broker_outages:
+            self.record(publisher.broker_outages.popleft())
+
+    def record(self, event: OutageEvent) -> None:
+        """Into the session's events and rerun, once they exist."""
         if self.writer is not None:
             self.writer.add_event(event.t, event.event, **{k: v for k, v in dataclasses.asdict(event).items()
                                                            if k not in ("t", "event")})

@@ -2,15 +2,22 @@
 
 import csv
 import dataclasses
+import json
 
 import numpy as np
 import yaml
 
 from app.cli import main
 from app.monitor_replay import TRACE_COLUMNS
+from app.monitoring import reference_observations
 from app.session import SessionWriter, read_session
 from calib import simulate
+from calib.api import solve_observations
 from calib.observation import Observation
+
+#: The columns the issue asks of the trace (it has more).
+ISSUE_COLUMNS = ("index", "t", "alarm", "x_mm", "y_mm", "z_mm", "qx", "qy", "qz", "qw", "depth_scale",
+                 "depth_offset_mm", "focal_scale", "sigma_mm", "sigma_deg", "drift_mm", "verify_mm")
 
 
 def _write(root, name, A, points, covs, t, q, extra_meta=None):
@@ -21,28 +28,50 @@ def _write(root, name, A, points, covs, t, q, extra_meta=None):
     return w.path
 
 
-def _sessions(tmp_path, bumps):
+def _write_by_hand(path, A, points, t):
+    """A session as another program writes it (docs/session-format.md): the minimal header with a key of its own,
+    samples of poses and points alone (no joints, no covariance) with meta keys handeye does not know."""
+    path.mkdir()
+    (path / "session.json").write_text(json.dumps({"format": "handeye-session", "version": 1,
+                                                   "setup": "eye_to_hand", "cell_logger": "plant 2.3"}))
+    with open(path / "samples.jsonl", "w") as fh:
+        for i in range(len(A)):
+            fh.write(json.dumps({"kind": "sample", "index": i, "t": float(t[i]), "T_base_flange": A[i].tolist(),
+                                 "point_cam": points[i].tolist(), "meta": {"cycle": "pick", "part": 1000 + i}}) + "\n")
+    return path
+
+
+def _sessions(tmp_path, bumps, *, by_hand=False):
     real = simulate.realistic_profile(30, np.random.default_rng([7, 0]))
     d = real.data
     cal = _write(tmp_path, "cal", d.A, d.points, d.point_cov, 1e9 + np.arange(30.0), real.q)
     shift = dataclasses.replace(simulate.Shift(), hours=2.0, bumps=bumps)
     s = simulate.shift_stream(real, shift, np.random.default_rng([7, 1]))
-    # Another program's session: a meta key handeye does not know is kept, not refused.
+    if by_hand:
+        return cal, _write_by_hand(tmp_path / "prod", s.A, s.points, 2e9 + s.t), s
+    # A meta key handeye does not know is kept, not refused.
     prod = _write(tmp_path, "prod", s.A, s.points, s.point_cov, 2e9 + s.t, s.q, {"cycle": "pick"})
     return cal, prod, s
 
 
-def test_replay_monitor_finds_the_bump_and_writes_the_trace(tmp_path, capsys):
+def _trace(out):
+    with open(out / "monitor_trace.csv") as fh:
+        return list(csv.DictReader(fh))
+
+
+def test_replay_monitor_finds_the_bump_and_writes_the_trace_into_out(tmp_path, capsys):
     cal, prod, s = _sessions(tmp_path, ((1.0, 5.0, 0.3),))
     out = tmp_path / "trace"
-    rc = main(["replay", str(prod), "--monitor", "--reference", str(cal), "--trace-dir", str(out)])
+    rc = main(["replay", str(prod), "--monitor", "--reference", str(cal), "--out", str(out)])
     text = capsys.readouterr().out
     assert rc == 3
-    assert "MOVED at sample" in text and "re-learnt the camera" in text
-    with open(out / "monitor_trace.csv") as fh:
-        rows = list(csv.DictReader(fh))
-    assert tuple(rows[0].keys()) == TRACE_COLUMNS
+    assert "MOVED at sample" in text and "re-learnt the camera" in text and str(out / "monitor_trace.csv") in text
+    rows = _trace(out)
+    assert tuple(rows[0].keys()) == TRACE_COLUMNS and set(ISSUE_COLUMNS) <= set(TRACE_COLUMNS)
     assert len(rows) == len(s.t)
+    assert [int(r["index"]) for r in rows] == list(range(1, len(s.t) + 1))
+    np.testing.assert_allclose([float(r["t"]) for r in rows], 2e9 + s.t, atol=1e-3)
+    assert {r["alarm"] for r in rows} <= {"", "drifting", "moved"}
     moved = [int(r["sample"]) for r in rows if r["alarm"] == "moved"]
     bump = int(s.bumped[0])
     assert len(moved) == 1 and bump <= moved[0] <= bump + 20
@@ -50,22 +79,63 @@ def test_replay_monitor_finds_the_bump_and_writes_the_trace(tmp_path, capsys):
     assert alarms["camera_transform"] == "T_base_cam"
     assert [a["sample"] for a in alarms["alarms"] if a["alarm"] == "moved"] == moved
     assert (out / "monitor_trace.png").stat().st_size > 10_000
+    assert not (prod / "monitor_replay").exists()
     # The trace's camera transform before and after the bump differs by about the bump.
     xyz = np.array([[float(r[k]) for k in ("x_mm", "y_mm", "z_mm")] for r in rows])
     assert 2.0 < np.linalg.norm(xyz[-1] - xyz[bump - 1]) < 30.0
+    # In the units the header says: the camera in mm and a unit quaternion, the camera correction the engine
+    # applies near the cell's true one (a fraction, mm, a fraction), 1-sigma, drift and verification in mm.
+    last = rows[bump - 1]
+    q = np.array([float(last[k]) for k in ("qx", "qy", "qz", "qw")])
+    assert abs(np.linalg.norm(q) - 1.0) < 1e-5
+    assert np.linalg.norm(xyz[bump - 1] - s.Y[bump - 1][:3, 3] * 1e3) < 20.0
+    # (the correction starts at the reference's, solved with auto as replay solves it, and is refined from there)
+    ref = solve_observations("auto", reference_observations(cal, "eye_to_hand"), "eye_to_hand",
+                             rng=np.random.default_rng(0))
+    for row, tol in ((rows[0], (0.003, 1.0, 0.003)), (last, (0.01, 10.0, 0.01))):
+        for k, ref_value, t in zip(("depth_scale", "depth_offset_mm", "focal_scale"),
+                                   ref.camera_correction.as_array() * [1, 1e3, 1], tol):
+            assert abs(float(row[k]) - ref_value) < t, (k, row[k], ref_value)
+    figures = np.array([[float(r[k]) for k in ("sigma_mm", "sigma_deg", "drift_mm", "verify_mm")] for r in rows[:bump]])
+    assert (figures >= 0).all() and np.median(figures[:, 3]) < 5.0 and np.median(figures[:, 0]) < 3.0
     assert read_session(prod).observations[0].meta["cycle"] == "pick"
 
 
-def test_replay_monitor_of_a_still_camera_has_no_moved_alarm(tmp_path, capsys):
+def test_replay_monitor_of_a_still_camera_has_no_moved_alarm_and_writes_into_the_session_by_default(tmp_path,
+                                                                                                   capsys):
     cal, prod, s = _sessions(tmp_path, ())
-    rc = main(["replay", str(prod), "--monitor", "--reference", str(cal / "session.json").replace("session.json", ""),
-               "--trace-dir", str(tmp_path / "t")])
+    rc = main(["replay", str(prod), "--monitor", "--reference", str(cal)])
     assert rc == 0
     assert "0 skipped" in capsys.readouterr().out
+    assert len(_trace(prod / "monitor_replay")) == len(s.t)
 
 
-def test_replay_monitor_without_reference_is_one_line(tmp_path, capsys):
+def test_replay_monitor_of_another_programs_session_without_joints(tmp_path, capsys):
+    """Another program's session (written by hand, no joints, no covariances, meta keys of its own) still monitors:
+    without the robot kinematic-error block, though the config models it and the reference has joints."""
+    cal, prod, s = _sessions(tmp_path, ((1.0, 5.0, 0.3),), by_hand=True)
+    out = tmp_path / "trace"
+    # (config/sim_shift.toml models the robot's kinematic error: [robot] kinematic_error)
+    rc = main(["replay", str(prod), "--monitor", "--reference", str(cal), "--out", str(out), "-c",
+               "config/sim_shift.toml"])
+    text = capsys.readouterr().out
+    assert rc == 3 and "0 skipped" in text and "no joints" in text, text
+    rows = _trace(out)
+    assert len(rows) == len(s.t)
+    bump = int(s.bumped[0])
+    moved = [int(r["sample"]) for r in rows if r["alarm"] == "moved"]
+    assert len(moved) == 1 and bump <= moved[0] <= bump + 20
+    session = read_session(prod)
+    assert all(o.joints is None and o.point_cov is None for o in session.observations)
+    assert session.observations[7].meta == {"cycle": "pick", "part": 1007}
+
+
+def test_replay_monitor_without_reference_or_with_an_unwritable_out_is_one_line(tmp_path, capsys):
     cal, prod, s = _sessions(tmp_path, ())
     rc = main(["replay", str(prod), "--monitor"])
     err = capsys.readouterr().err
     assert rc == 1 and "--reference" in err and "Traceback" not in err
+    (tmp_path / "file").write_text("")
+    rc = main(["replay", str(prod), "--monitor", "--reference", str(cal), "--out", str(tmp_path / "file" / "t")])
+    err = capsys.readouterr().err
+    assert rc == 1 and "--out" in err and "cannot create" in err and "Traceback" not in err

@@ -1,4 +1,4 @@
-"""No alarm is lost while the broker is away: a real mosquitto restarted mid-run."""
+"""No alarm or outage message is lost while the broker is away: a real mosquitto restarted mid-run."""
 
 import json
 import socket
@@ -11,6 +11,7 @@ import pytest
 
 from app.runs.monitor import Alarm, MonitorReport
 from app.mqtt import MqttConfig, MqttPublisher
+from app.outage import OutageEvent
 from calib import transforms as tf
 from calib.observation import Observation
 
@@ -58,7 +59,7 @@ def broker(tmp_path):
     b.stop()
 
 
-def _subscriber(port, inbox):
+def subscriber(port, inbox):
     """A persistent-session QoS 1 subscriber that reconnects every second."""
     import paho.mqtt.client as mqtt
 
@@ -92,10 +93,10 @@ def _wait(cond, timeout=15.0):
     return cond()
 
 
-def test_alarms_raised_while_the_broker_restarts_are_all_delivered_and_status_is_coalesced(broker, tmp_path,
-                                                                                        engine_update):
+def test_alarms_and_outages_raised_while_the_broker_restarts_are_all_delivered_and_status_is_coalesced(
+        broker, tmp_path, engine_update):
     inbox = []
-    sub = _subscriber(broker.port, inbox)
+    sub = subscriber(broker.port, inbox)
     cfg = MqttConfig(enabled=True, port=broker.port, topic_prefix="cell", qos=1, reconnect_min_s=1,
                      reconnect_max_s=1, connect_timeout_s=5.0)
     try:
@@ -107,13 +108,22 @@ def test_alarms_raised_while_the_broker_restarts_are_all_delivered_and_status_is
             down = time.monotonic()
             for i in range(2, 32):  # 30 samples while the broker is away, three of them alarms
                 _sample(pub, tmp_path, i, alarm=i in (5, 17, 30), engine_update=engine_update)
-            # Bounded: the three alarms, and the newest estimate and drift.
-            assert pub.held == 3 + 2
+                if i == 10:   # and a robot outage, whose failed attempt is not published
+                    now = time.time()
+                    for event, attempt, away in (("outage_start", 0, 0.0), ("reconnect_failed", 1, 0.5),
+                                                 ("outage_end", 2, 1.25)):
+                        error = "" if event == "outage_end" else "connection lost"
+                        pub.outage(OutageEvent("robot", event, now + away, error, attempt, away))
+            # Bounded: the broker's outage start, the three alarms, the robot's outage start and end, and the newest
+            # estimate and drift.
+            assert pub.held == 1 + 3 + 2 + 2
             broker.start()
             assert _wait(lambda: pub.connected.is_set())
             assert _wait(lambda: sum(t == "cell/alarm" for t, _, _ in inbox) >= 4)
+            assert _wait(lambda: sum(t == "cell/outage" for t, _, _ in inbox) >= 4)
             assert _wait(lambda: any(t == "cell/drift" and m["sample"] == 31 for t, m, _ in inbox))
-            assert pub.held == 0 and pub.alarms_delivered_late == 3
+            assert pub.held == 0 and pub.alarms_delivered_late == 3 and pub.outages_delivered_late == 4
+            up = time.monotonic()
             _sample(pub, tmp_path, 32, alarm=False, engine_update=engine_update)
             assert _wait(lambda: any(t == "cell/estimate" and m["sample"] == 32 for t, m, _ in inbox))
     finally:
@@ -121,6 +131,20 @@ def test_alarms_raised_while_the_broker_restarts_are_all_delivered_and_status_is
         sub.loop_stop()
     alarms = [m["sample"] for t, m, _ in inbox if t == "cell/alarm"]
     assert list(dict.fromkeys(alarms)) == [1, 5, 17, 30]   # every alarm, in order (QoS 1: at least once)
+    # The outages in the order they happened, between the alarms of the samples around them, the broker's own
+    # around everything held.
+    held = [(m["device"], m["event"]) if t == "cell/outage" else m["sample"] for t, m, _ in inbox
+            if t in ("cell/alarm", "cell/outage")]
+    held = list(dict.fromkeys(held[held.index(("mqtt", "outage_start")):]))
+    assert held == [("mqtt", "outage_start"), 5, ("robot", "outage_start"), ("robot", "outage_end"), 17, 30,
+                    ("mqtt", "outage_end")], held
+    outages = {(m["device"], m["event"]): m for t, m, _ in inbox if t == "cell/outage"}
+    robot_end, broker_end = outages["robot", "outage_end"], outages["mqtt", "outage_end"]
+    assert robot_end["schema"] == "handeye/outage/1" and robot_end["outage_s"] == 1.25 and robot_end["attempt"] == 2
+    assert robot_end["since"] == pytest.approx(outages["robot", "outage_start"]["t"])
+    assert outages["robot", "outage_start"]["error"] == "connection lost" and "back after 1.2" in robot_end["message"]
+    # The broker was away from its stop until the publisher's reconnect (paho retries every second).
+    assert up - down - 2.0 < broker_end["outage_s"] < up - down + 1.0, (broker_end["outage_s"], up - down)
     after = [(t, m) for t, m, at in inbox if at > down]
     # The outage's drifts and estimates coalesced to the newest (a redelivered sample 1 is QoS 1's right).
     outage = set(range(2, 31))
