@@ -179,9 +179,13 @@ def _closed_form_choice(plain: Candidate, best: Candidate, problem: CalibrationP
     C, K, _ = model.split(start.X, start.Y, problem.A, problem.setup)
     if plain.fit.use_rotation and not start.marker_rotation_known:
         K = tf.make_transform(model.marker_rotation(C, plain.fit.M, problem.marker_rotations), K[:3, 3])
-    prob, _ = plain.fit.linearize(C, K, plain.noise, (False, False, False))
-    cand = Candidate(plain.fit, C, K, np.zeros(3), plain.noise, prob, best.iterations, True)
+    # The noise levels at the start's own residuals (one update, the estimate held), so that its covariance and
+    # self-check judge the start and not the fit it replaces.
+    prob, cof = plain.fit.linearize(C, K, plain.noise, (False, False, False))
+    noise, _ = model.variance_components(prob, C, K, np.zeros(3), plain.fit.shape, cof, plain.noise)
+    prob, _ = plain.fit.linearize(C, K, noise, (False, False, False))
+    cand = Candidate(plain.fit, C, K, np.zeros(3), noise, prob, best.iterations, True)
     return cand, (
         f"the closed form {name} is reported: the maximum-likelihood fits predicted contiguous stretches of the "
         f"recording held out in turn no better ({e_chosen * 1e3:.2f} mm, {e_start * 1e3:.2f} mm by {name}); "
-        "its covariance is that of the plain model at its estimate")
+        "its covariance is that of the plain model at its estimate, with the noise levels of its own residuals")
