@@ -24,7 +24,6 @@ from scipy.stats import chi2
 
 from calib.params import Float, Int, Params
 
-_I6 = np.eye(6)
 #: The detector's long window is tested every this many samples.
 LONG_STRIDE = 4
 
@@ -127,9 +126,11 @@ class ChangeDetector:
 
 def _glr(Fg):
     """``g^T F^-1 g`` of a window sum ``[F | g]`` (6, 7)."""
-    F = Fg[:, :6]
     g = Fg[:, 6]
     # A tiny ridge keeps a rank-deficient window (robot standing still) solvable;
-    # g lies in the range of F then, so the statistic is unaffected.
-    _, x, info = dposv(F + (1e-9 * (Fg.item(0, 0) + Fg.item(3, 3))) * _I6, g)
+    # g lies in the range of F then, so the statistic is unaffected. Fg is a contiguous
+    # temporary: F's diagonal is every 8th entry of its (6, 7) rows.
+    diagonal = Fg.reshape(-1)[0:42:8]
+    diagonal += 1e-9 * (Fg.item(0, 0) + Fg.item(3, 3))
+    _, x, info = dposv(Fg[:, :6], g)
     return float(g.dot(x)) if info == 0 else 0.0
