@@ -511,7 +511,9 @@ class WorkspaceMoments:
         G[:, 1, :2, 10] = -xy_z
         G[:, 2, :2, 11] = -xy                           # depth_scale
         G[:, 3, :2, 11] = -xy_z                         # depth_offset
-        self.terms = np.einsum("wmai,wnaj->mnji", G, G).reshape(16, 144) / n   # vec(Q_mn^T)
+        Q = np.einsum("wmai,wnaj->mnji", G, G) / n        # Q_mn^T = mean G_n^T G_m
+        m, k = np.triu_indices(4)
+        self.terms = (Q[m, k] + np.where((m < k)[:, None, None], Q[k, m], 0.0)).reshape(10, 144)
         self._B = np.eye(12)
 
     def displacement(self, dR, dt) -> tuple:
@@ -531,11 +533,11 @@ class WorkspaceMoments:
         """`workspace_sigma` of ``C``, ``theta`` (3,) and the state covariance ``cov`` over the points, m."""
         B = self._B
         B[:3, :3] = B[3:6, 3:6] = C[:3, :3]
-        # sum over m, n of c_m c_n <B^T cov B, Q_mn^T>, c = [1, f, s, d]
-        terms = (self.terms @ (B.T @ cov[:12, :12] @ B).ravel()).tolist()
+        # sum over m <= n of c_m c_n <B^T cov B, Q_mn^T + Q_nm^T (m < n)>, c = [1, f, s, d]
+        t00, t01, t02, t03, t11, t12, t13, t22, t23, t33 = (self.terms @ (B.T @ cov[:12, :12] @ B).ravel()).tolist()
         s, d, f = theta.tolist()
-        c = (1.0, f, s, d)
-        var = sum(a * b * q for (a, b), q in zip(((a, b) for a in c for b in c), terms))
+        var = (t00 + f * (t01 + f * t11) + s * (t02 + f * t12 + s * t22)
+               + d * (t03 + f * t13 + s * t23 + d * t33))
         return math.sqrt(max(var, 0.0))
 
 
