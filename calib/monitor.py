@@ -289,6 +289,7 @@ class _Stops:
         self.poses: list[list] = []                     # per stop: its first flange pose, A[:3] flat
         self.mean: list[np.ndarray] = []
         self.n: list[float] = []
+        self.t: list[float] = []                        # per stop: the mean time of the visits in its mean
         self.last: list[int] = []
         self.generation = 0                             # changes whenever a stop is added or dropped
         self._visits = 0
@@ -325,21 +326,23 @@ class _Stops:
         if i is None:
             if len(self.poses) == MAX_STOPS:
                 j = self.last.index(min(self.last))
-                for held in (self.poses, self.mean, self.n, self.last):
+                for held in (self.poses, self.mean, self.n, self.t, self.last):
                     del held[j]
             i = len(self.poses)
             self.poses.append(s.pose)
             self.mean.append(np.zeros(3))
             self.n.append(0.0)
+            self.t.append(0.0)
             self.last.append(0)
             self.generation += 1
         n = self.n[i] = min(self.n[i] + 1.0, BASELINE_VISITS)
         self.mean[i] = self.mean[i] + (s.p - self.mean[i]) / n
+        self.t[i] += (s.t - self.t[i]) / n
         self._visits += 1
         self.last[i] = self._visits
 
     def clear(self) -> None:
-        self.poses, self.mean, self.n, self.last = [], [], [], []
+        self.poses, self.mean, self.n, self.t, self.last = [], [], [], [], []
         self.generation += 1
 
 
@@ -891,15 +894,18 @@ class MonitorEngine:
         """The *moved* test of a sample: ``(alarm, statistic, message)``; fused if it passes, else the re-learn starts."""
         stops = self._stops
         i = stops.lookup(s)
-        r_test, S_test_inv = r, S_inv
+        r_test, S_test_inv, offset_var = r, S_inv, None
         if i is not None and stops.n[i] >= MIN_BASELINE:
             # Against the stop's own earlier visits: what they share (unmodelled errors of the robot or the
             # camera at that pose, the estimate's own error) is no change; only the camera moving is.
             Hc = H[:, :6]
             r_test = s.p - stops.mean[i]
-            S_test_inv = _inv_sym3(R * (1.0 + 1.0 / stops.n[i]) + (Hc * self._walk_window) @ Hc.T)
+            # A drifting camera has moved since those visits by the same for every stop: the long window's
+            # test is for a move beyond the random walk over that time.
+            offset_var = self._walk_per_h * ((s.t - stops.t[i]) / HOUR_S)
+            S_test_inv = _inv_sym3(R * (1.0 + 1.0 / stops.n[i]) + (Hc * offset_var) @ Hc.T)
         # While a re-learnt camera settles the stops still refine it: that is not a move.
-        fired = not self._settle and self.detector.update(r_test, S_test_inv, H[:, :6])
+        fired = not self._settle and self.detector.update(r_test, S_test_inv, H[:, :6], offset_var)
         statistic = self.detector.statistic
         if not fired:
             self._window.append(_Visit(s, (self._C, self._u, self._P)))
