@@ -131,6 +131,18 @@ class ChangeDetector:
         return self.statistic > self.threshold
 
 
+    def onset(self) -> int:
+        """Innovations since the most likely start of a change: the ``k`` (3 to ``window``, at most those
+        since the last reset) whose last-``k`` window has the largest statistic (the change point's maximum
+        likelihood estimate; 3 innovations are the fewest that separate six pose parameters)."""
+        n, size, cum = self._count - 1, self._size, self._cum
+        last = min(self._count, self.config.window)
+        if last < 3:
+            return last
+        stats = [_glr(cum[n % size] - cum[(n - k) % size]) for k in range(3, last + 1)]
+        return 3 + int(np.argmax(stats))
+
+
 def _glr(Fg, offset_var=None):
     """``g^T F^-1 g`` of a window sum ``[F | g]`` (6, 7); ``g^T (F + F Q F)^-1 g`` with ``Q = diag(offset_var)``."""
     g = Fg[:, 6]

@@ -915,10 +915,14 @@ class MonitorEngine:
             return "", statistic, ""
         message = (f"camera moved (GLR statistic {statistic:.1f} > {self.detector.threshold:.1f}); "
                    "re-learning it from the production stops")
-        # The move lies inside the window: go back to the state before it, re-learn from its samples.
-        if self._window:
-            self._restore(self._window[0].state)
-        self._relearn_set = [v.sample for v in self._window] + [s]
+        # The move lies inside the window, most likely `onset` samples ago: go back to the state before it and
+        # re-learn from the samples since; those before it join their stops.
+        before = max(len(self._window) + 1 - self.detector.onset(), 0)
+        if before < len(self._window):
+            self._restore(self._window[before].state)
+        for v in self._window[:before]:
+            stops.add(v.sample)
+        self._relearn_set = [v.sample for v in self._window[before:]] + [s]
         self._window = []
         self._moved = True
         self._drifting = False

@@ -71,3 +71,15 @@ def test_long_window_test_is_for_a_move_beyond_a_shared_offset():
         shared.append(b.statistics[1])
     assert np.mean(plain) > 20.0
     assert 5.3 < np.mean(shared) < 6.7
+
+
+def test_onset_is_the_change_point():
+    """After a jump, `onset` counts the innovations since it (the change point within the short window)."""
+    rng = np.random.default_rng(53)
+    for since in (3, 8, 15):
+        det = ChangeDetector(DetectorConfig(window=20, long_window=None))
+        for k in range(60):
+            H = rng.normal(size=(3, 6))
+            r = rng.normal(size=3) + (H @ [0.0, 0.0, 0.0, 2.0, -1.5, 1.0] if k >= 60 - since else 0.0)
+            det.update(r, np.eye(3), H)
+        assert abs(det.onset() - since) <= 1
