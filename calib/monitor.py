@@ -435,32 +435,40 @@ def arm_reference(result: CalibrationResult, A, points, *, point_cov=None, robot
     check = info.get("self_check") or {}
     widen = max(1.0, float(check.get("loo_ratio") or 1.0)) ** 2
     noise = model.NoiseLevels(levels.get("point_scale", 1.0) * widen, levels.get("robot_m", 0.0) * math.sqrt(widen))
+    correction = info.get("camera_correction") or {}
+    consider = CONSIDER_SIGMA if consider_theta is None else consider_theta
+    held = np.array([0.0 if correction.get(name, {}).get("estimated", False) else consider[name] ** -2
+                     for name in model.CAMERA_PARAMS])
     shape, _ = model.point_shape(p, point_cov)
+    cov = _state_covariance(C, K, M, theta, setup, noise, shape, held, robot_factor)
+    cov = 0.5 * (cov + cov.T)
+    q = model.CameraCorrection(*theta).correct(p)
+    ref = Reference(setup, C.copy(), K.copy(), theta, noise, q[::max(1, len(q) // WORKSPACE_POINTS)], 0.0, result)
+    ref.sigma_mm = workspace_sigma(C, theta, ref.workspace, cov) * 1e3
+    return ref, cov
+
+
+def _state_covariance(C, K, M, theta, setup, noise, shape, held, robot_factor) -> np.ndarray:
+    """`arm_reference`'s state covariance: the inverse information of the samples (``M`` (N, 4, 4), point
+    covariance shapes ``shape`` (N, 3, 3), ``noise``) about ``[dC, tC, t_K, theta]``, ``held`` (3,) added to
+    the camera parameters' information, then the kinematic error's block from ``robot_factor`` (N, 6, P)."""
     _, H_C, H_tK, H_th, H_xi = model.point_jacobians(C, K, M, theta, setup)
     W = np.linalg.inv(noise.point_cov(shape, model.robot_cofactor(C, K, M, setup)))
     J = np.concatenate([H_C, H_tK, H_th], axis=2)                     # (N, 3, 12)
     N = np.einsum("nki,nkl,nlj->ij", J, W, J)
-    correction = info.get("camera_correction") or {}
-    consider = CONSIDER_SIGMA if consider_theta is None else consider_theta
-    for i, name in enumerate(model.CAMERA_PARAMS):
-        if not correction.get(name, {}).get("estimated", False):
-            N[9 + i, 9 + i] += 1.0 / consider[name] ** 2
+    N[9:12, 9:12] += np.diag(held)
     try:
         cov = np.linalg.inv(N)
     except np.linalg.LinAlgError:
         raise CalibrationError("the reference samples do not determine the camera transform") from None
     if robot_factor is not None:
         F = tf.as_real_array(robot_factor, "robot_factor")
-        if F.ndim != 3 or F.shape[:2] != (len(A), 6):
-            raise CalibrationError(f"robot_factor must have shape ({len(A)}, 6, P), got {F.shape}")
+        if F.ndim != 3 or F.shape[:2] != (len(M), 6):
+            raise CalibrationError(f"robot_factor must have shape ({len(M)}, 6, P), got {F.shape}")
         # The estimate's error from a shared error z ~ N(0, I): -N^-1 J^T W H_z z.
         G = -cov @ np.einsum("nki,nkl,nlj->ij", J, W, H_xi @ F)
         cov = np.block([[cov + G @ G.T, G], [G.T, np.eye(F.shape[2])]])
-    cov = 0.5 * (cov + cov.T)
-    q = model.CameraCorrection(*theta).correct(p)
-    ref = Reference(setup, C.copy(), K.copy(), theta, noise, q[::max(1, len(q) // WORKSPACE_POINTS)], 0.0, result)
-    ref.sigma_mm = workspace_sigma(C, theta, ref.workspace, cov) * 1e3
-    return ref, cov
+    return cov
 
 
 def workspace_sigma(C, theta, points, cov) -> float:
