@@ -610,14 +610,18 @@ def sample_model(C, t_K, A, theta, setup: str, factor=None, z=None):
     H_tK = _mm(JR, R_M)
     J_theta = ((D * qx, D * qx / qz, qx * g), (D * qy, D * qy / qz, qy * g), (qz, 1.0, 0.0))
     # dq/d[dC, tC] = R_C^T [[v]x, -I]; a row r of J_p R_C^T times [v]x is r x v.
-    H = np.array([_cross(JR[i], v) + _scale(JR[i], -1.0) + H_tK[i] + J_theta[i] for i in range(3)])
-    if factor is not None:
+    rows = [_cross(JR[i], v) + _scale(JR[i], -1.0) + H_tK[i] + J_theta[i] for i in range(3)]
+    if factor is None:
+        H = np.array(rows)
+    else:
         # d/dxi: [-(H_tK [t_K]x), H_tK] eye-to-hand, [J_p R_C^T [y]x, -J_p R_C^T] eye-in-hand.
         if eye_to_hand:
             X = [_cross(t_K, H_tK[i]) + H_tK[i] for i in range(3)]
         else:
             X = [_cross(JR[i], y) + _scale(JR[i], -1.0) for i in range(3)]
-        H = np.concatenate((H, np.array(X) @ factor), axis=1)
+        H = np.empty((3, 12 + factor.shape[1]))
+        H[:, :12] = rows
+        H[:, 12:] = np.array(X) @ factor
     lx, ly, lz = _mv(Ct, lever if eye_to_hand else y)
     rho2 = model.ROBOT_ROTATION_PER_M ** 2
     a = 1.0 + rho2 * (lx * lx + ly * ly + lz * lz)
@@ -771,6 +775,7 @@ class MonitorEngine:
         self._relearn_set: list[_Stop] = []
         self._rate = _Rate(cfg.rate_window_h * HOUR_S)
         self._workspace = WorkspaceMoments(ref.workspace)
+        self._in_use = None, None
         # The random walk's variance per hour (diagonal of the camera transform's block), and over the
         # drift-rate window (what a stop's earlier visits may differ by without a move).
         sr, st = np.deg2rad(cfg.walk_deg_per_sqrt_h), cfg.walk_mm_per_sqrt_h * 1e-3
@@ -1131,7 +1136,9 @@ class MonitorEngine:
 
     def _figures(self, s: _Stop, state, alarm, message, r, nis, verify, statistic) -> MonitorUpdate:
         ref, cfg = self.reference, self.settings
-        (R, t), (R0, t0) = _parts(self._C), _parts(ref.C)
+        if ref.C is not self._in_use[0]:             # the calibration in use as floats, once per change
+            self._in_use = ref.C, _parts(ref.C)
+        (R, t), (R0, t0) = _parts(self._C), self._in_use[1]
         dR = (_add(R[0], R0[0], -1.0), _add(R[1], R0[1], -1.0), _add(R[2], R0[2], -1.0))
         dt = _add(t, t0, -1.0)
         moved = self._workspace.displacement(dR, dt)
@@ -1166,8 +1173,9 @@ class MonitorEngine:
         if alarm:
             self._alarms.append((self._count, s.t, alarm))
         level = "moved" if (alarm == "moved" or state == "relearning") else ("drifting" if drifting else "")
-        return MonitorUpdate(self._count, s.t, state, alarm, level, self._C.copy(), self.cov, r, nis, verify, statistic,
-                             drift_m * 1e3, drift_deg, rate_mm, rate_deg, error_mm, hours, sigma * 1e3, message)
+        return MonitorUpdate(self._count, s.t, state, alarm, level, self._C.copy(), self._P[:6, :6].copy(), r, nis,
+                             verify, statistic, drift_m * 1e3, drift_deg, rate_mm, rate_deg, error_mm, hours,
+                             sigma * 1e3, message)
 
     @property
     def camera_transform(self) -> np.ndarray:
