@@ -38,7 +38,8 @@ import numpy as np  # noqa: E402
 
 from calib import simulate, solve  # noqa: E402
 from calib import transforms as tf  # noqa: E402
-from calib.monitor import MonitorEngine, MonitorSettings, workspace_distance  # noqa: E402
+from calib.model import CameraCorrection  # noqa: E402
+from calib.monitor import MonitorEngine, MonitorSettings  # noqa: E402
 
 #: Held-out workspace poses per cell.
 WORKSPACE_POINTS = 200
@@ -153,7 +154,10 @@ def summarize(run: SeedRun) -> dict:
 def section_eye_in_hand(seeds: list[int], shift: simulate.Shift, settings: MonitorSettings) -> str:
     """Eye-in-hand: `calib.simulate.realistic_cell` (point noise, exact robot and camera), ``auto`` from 30
     poses, then `calib.simulate.eye_in_hand_shift` over 4 of the cell's other poses; the camera slips on the
-    flange. Error of the live ``T_flange_cam`` where the camera is used: RMS over the arming samples' points."""
+    flange. Error where the camera is used, as `workspace_error`: the arming samples' points, corrected with the
+    live camera correction and put in the flange frame by the live ``T_flange_cam``, against where the true
+    (ideal) camera puts them."""
+    ideal = CameraCorrection()
     rows = []
     for seed in seeds:
         rng = np.random.default_rng([seed, 3])
@@ -169,8 +173,9 @@ def section_eye_in_hand(seeds: list[int], shift: simulate.Shift, settings: Monit
             upd = engine.update(stream.t[i], stream.A[i], stream.points[i], stream.point_cov[i])
             if upd.alarm:
                 alarms.append((i, upd.alarm))
-            err[i] = workspace_distance(upd.camera_transform, stream.Y[i], seen) * 1e3
-        arming = workspace_distance(res.X, cell.X, seen) * 1e3
+            err[i] = workspace_error(upd.camera_transform, engine.camera_correction, ideal, stream.Y[i],
+                                     tf.transform_points(stream.Y[i], seen)) * 1e3
+        arming = workspace_error(res.X, res.camera_correction, ideal, cell.X, tf.transform_points(cell.X, seen)) * 1e3
         run = SeedRun(stream.t / 3600.0, err, err, err, alarms, stream.bumped, arming, max(1.0, 1.5 * arming), np.zeros(0),
                       err)
         s = summarize(run)
