@@ -22,7 +22,8 @@ Per sample (fixed work and memory, independent of the shift's length):
 3. **Detect.** A windowed GLR test of "the camera jumped by some 6-dof delta"
    on the innovations (`calib.change.ChangeDetector`) raises the *moved*
    alarm; at a stop visited `MIN_BASELINE` times before it tests the marker
-   point's change from the stop's earlier visits instead.
+   point's change from the stop's earlier visits instead, allowing for the
+   random walk since them.
 4. **Update.** A Kalman update of the state ``[camera transform, marker-side
    translation, camera parameters, kinematic error]`` from the arming
    calibration's joint covariance (`arm_reference`). What repeated stops
@@ -776,11 +777,9 @@ class MonitorEngine:
         self._rate = _Rate(cfg.rate_window_h * HOUR_S)
         self._workspace = WorkspaceMoments(ref.workspace)
         self._in_use = None, None
-        # The random walk's variance per hour (diagonal of the camera transform's block), and over the
-        # drift-rate window (what a stop's earlier visits may differ by without a move).
+        # The random walk's variance per hour (diagonal of the camera transform's block).
         sr, st = np.deg2rad(cfg.walk_deg_per_sqrt_h), cfg.walk_mm_per_sqrt_h * 1e-3
         self._walk_per_h = np.array([sr * sr] * 3 + [st * st] * 3)
-        self._walk_window = self._walk_per_h * cfg.rate_window_h
         self._moved = False
         self._settle = 0
         self._noise_scale, self._scale_sum, self._scale_n = 1.0, 0.0, 0.0
