@@ -24,7 +24,6 @@ from scipy.stats import chi2
 
 from calib.params import Float, Int, Params
 
-_I6 = np.eye(6)
 #: The detector's long window is tested every this many samples.
 LONG_STRIDE = 4
 
@@ -97,8 +96,15 @@ class ChangeDetector:
         self.statistic = 0.0
         self.statistics = (0.0, 0.0)
 
-    def update(self, r: np.ndarray, S_inv: np.ndarray, H: np.ndarray) -> bool:
+    def update(self, r: np.ndarray, S_inv: np.ndarray, H: np.ndarray, offset_var=None) -> bool:
         """Add one innovation ``r`` (3,) with inverse covariance ``S_inv`` (3, 3) and Jacobian ``H`` (3, 6).
+
+        ``offset_var`` (6,), optional: variances of a camera offset that the
+        long window's innovations share, whatever happens in it (e.g. how far
+        a drifting camera moved since the baselines they are measured
+        against). The long window's test is for a move beyond it: with that
+        offset marginalised, ``g^T (F + F Q F)^-1 g`` (Q its diagonal
+        covariance) is chi-square with 6 dof before a change.
 
         Returns True if a window's GLR statistic exceeds the threshold.
         """
@@ -119,17 +125,34 @@ class ChangeDetector:
         # The long window is for slow, small moves: testing it every LONG_STRIDE samples
         # delays those alarms a little and saves a 6x6 solve per sample.
         if cfg.long_window is not None and self._count > cfg.window and self._count % LONG_STRIDE == 0:
-            long = _glr(now - cum[(n - cfg.long_window) % size])
+            long = _glr(now - cum[(n - cfg.long_window) % size], offset_var)
         self.statistics = (short, long)
         self.statistic = max(short, long)
         return self.statistic > self.threshold
 
 
-def _glr(Fg):
-    """``g^T F^-1 g`` of a window sum ``[F | g]`` (6, 7)."""
-    F = Fg[:, :6]
+    def onset(self) -> int:
+        """Innovations since the most likely start of a change: the ``k`` (3 to ``window``, at most those
+        since the last reset) whose last-``k`` window has the largest statistic (the change point's maximum
+        likelihood estimate; 3 innovations are the fewest that separate six pose parameters)."""
+        n, size, cum = self._count - 1, self._size, self._cum
+        last = min(self._count, self.config.window)
+        if last < 3:
+            return last
+        stats = [_glr(cum[n % size] - cum[(n - k) % size]) for k in range(3, last + 1)]
+        return 3 + int(np.argmax(stats))
+
+
+def _glr(Fg, offset_var=None):
+    """``g^T F^-1 g`` of a window sum ``[F | g]`` (6, 7); ``g^T (F + F Q F)^-1 g`` with ``Q = diag(offset_var)``."""
     g = Fg[:, 6]
     # A tiny ridge keeps a rank-deficient window (robot standing still) solvable;
-    # g lies in the range of F then, so the statistic is unaffected.
-    _, x, info = dposv(F + (1e-9 * (Fg.item(0, 0) + Fg.item(3, 3))) * _I6, g)
+    # g lies in the range of F then, so the statistic is unaffected. Fg is a contiguous
+    # temporary: F's diagonal is every 8th entry of its (6, 7) rows.
+    diagonal = Fg.reshape(-1)[0:42:8]
+    diagonal += 1e-9 * (Fg.item(0, 0) + Fg.item(3, 3))
+    F = Fg[:, :6]
+    if offset_var is not None:
+        F = F + (F * offset_var) @ F
+    _, x, info = dposv(F, g)
     return float(g.dot(x)) if info == 0 else 0.0

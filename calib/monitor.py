@@ -22,7 +22,8 @@ Per sample (fixed work and memory, independent of the shift's length):
 3. **Detect.** A windowed GLR test of "the camera jumped by some 6-dof delta"
    on the innovations (`calib.change.ChangeDetector`) raises the *moved*
    alarm; at a stop visited `MIN_BASELINE` times before it tests the marker
-   point's change from the stop's earlier visits instead.
+   point's change from the stop's earlier visits instead, allowing for the
+   random walk since them.
 4. **Update.** A Kalman update of the state ``[camera transform, marker-side
    translation, camera parameters, kinematic error]`` from the arming
    calibration's joint covariance (`arm_reference`). What repeated stops
@@ -51,7 +52,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from typing import Annotated, NamedTuple
 
 import numpy as np
@@ -255,11 +256,16 @@ class Reference:
 
 @dataclass
 class _Stop:
+    """A sample: flange pose, measured point, its covariance shape, kinematic-error factor, time; ``pose`` is
+    ``A[:3]`` flat as floats (the stop lookup's key) and ``stop`` the lookup's memo (`_Stops.lookup`)."""
+
     A: np.ndarray
     p: np.ndarray
     shape: np.ndarray
     factor: np.ndarray | None
     t: float
+    pose: list
+    stop: tuple | None = None
 
 
 @dataclass
@@ -270,46 +276,109 @@ class _Visit:
     state: tuple
 
 
-@dataclass
-class _Baseline:
-    """A production stop's typical measured marker point (running mean over its last visits, camera frame)."""
+class _Stops:
+    """Production stops' typical measured marker points (camera frame): the running mean of each stop's last
+    `BASELINE_VISITS` visits, for the `MAX_STOPS` most recently visited stops.
 
-    A: np.ndarray
-    mean: np.ndarray
-    n: float
+    Two flange poses are the same stop when closer than ``translation_m`` and
+    ``rotation_rad``; a sample's stop is the least recently visited match.
+    A lookup is memoised on the sample while the set of stops is unchanged
+    and the match unique (a sample is looked up when tested, and again when
+    it leaves the detector's window and joins its stop).
+    """
+
+    def __init__(self, translation_m: float, rotation_rad: float):
+        self.poses: list[list] = []                     # per stop: its first flange pose, A[:3] flat
+        self.mean: list[np.ndarray] = []
+        self.n: list[float] = []
+        self.t: list[float] = []                        # per stop: the mean time of the visits in its mean
+        self.last: list[int] = []
+        self.generation = 0                             # changes whenever a stop is added or dropped
+        self._visits = 0
+        self._t2 = translation_m * translation_m
+        # trace(R1^T R2) = 1 + 2 cos(angle): under the angle <=> above this trace
+        self._trace = 1.0 + 2.0 * math.cos(rotation_rad)
+
+    @property
+    def count(self) -> int:
+        return len(self.poses)
+
+    def lookup(self, s: _Stop) -> int | None:
+        """The index of ``s``'s stop, or None."""
+        if s.stop is not None and s.stop[0] == self.generation:
+            return s.stop[1]
+        a0, a1, a2, x, a3, a4, a5, y, a6, a7, a8, z = s.pose
+        hits = []
+        for i, (b0, b1, b2, bx, b3, b4, b5, by, b6, b7, b8, bz) in enumerate(self.poses):
+            dx, dy, dz = bx - x, by - y, bz - z
+            if (dx * dx + dy * dy + dz * dz < self._t2
+                    and a0 * b0 + a1 * b1 + a2 * b2 + a3 * b3 + a4 * b4 + a5 * b5 + a6 * b6 + a7 * b7 + a8 * b8
+                    > self._trace):
+                hits.append(i)
+        if len(hits) > 1:
+            return min(hits, key=self.last.__getitem__)
+        i = hits[0] if hits else None
+        s.stop = (self.generation, i)
+        return i
+
+    def add(self, s: _Stop) -> None:
+        """Fold a visit's marker point into its stop's mean (a new stop replaces the least recently visited one
+        when `MAX_STOPS` are held)."""
+        i = self.lookup(s)
+        if i is None:
+            if len(self.poses) == MAX_STOPS:
+                j = self.last.index(min(self.last))
+                for held in (self.poses, self.mean, self.n, self.t, self.last):
+                    del held[j]
+            i = len(self.poses)
+            self.poses.append(s.pose)
+            self.mean.append(np.zeros(3))
+            self.n.append(0.0)
+            self.t.append(0.0)
+            self.last.append(0)
+            self.generation += 1
+        n = self.n[i] = min(self.n[i] + 1.0, BASELINE_VISITS)
+        self.mean[i] = self.mean[i] + (s.p - self.mean[i]) / n
+        self.t[i] += (s.t - self.t[i]) / n
+        self._visits += 1
+        self.last[i] = self._visits
+
+    def clear(self) -> None:
+        self.poses, self.mean, self.n, self.t, self.last = [], [], [], [], []
+        self.generation += 1
 
 
-@dataclass
 class _Rate:
-    """Exponentially weighted least-squares slope of a vector against time (running sums: O(1))."""
+    """Exponentially weighted least-squares slope of a vector (a sequence of floats) against time (running sums: O(1))."""
 
-    tau_s: float
-    t0: float | None = None
-    t_last: float = 0.0
-    sums: np.ndarray = field(default_factory=lambda: np.zeros(3))
-    ty: np.ndarray | None = None
+    def __init__(self, tau_s: float):
+        self.tau_s = tau_s
+        self.reset()
 
-    def add(self, t: float, y: np.ndarray) -> None:
+    def add(self, t: float, y) -> None:
         if self.t0 is None:
-            self.t0, self.ty = t, np.zeros((2, len(y)))
-        decay = math.exp(-(t - self.t_last) / self.tau_s) if self.sums[0] else 1.0
+            self.t0 = t
+            self.y0, self.y1 = [0.0] * len(y), [0.0] * len(y)
+        decay = math.exp(-(t - self.t_last) / self.tau_s) if self.s0 else 1.0
         x = (t - self.t0) / HOUR_S
-        self.sums = self.sums * decay + (1.0, x, x * x)
-        self.ty = self.ty * decay + (y, x * y)
+        self.s0, self.s1, self.s2 = self.s0 * decay + 1.0, self.s1 * decay + x, self.s2 * decay + x * x
+        self.y0 = [a * decay + b for a, b in zip(self.y0, y)]
+        self.y1 = [a * decay + x * b for a, b in zip(self.y1, y)]
         self.t_last = t
 
-    def slope(self) -> np.ndarray | None:
+    def slope(self) -> list | None:
         """Per hour, or None before the regression spans `RATE_MIN_SPAN` of its window."""
         if self.t0 is None or self.t_last - self.t0 < RATE_MIN_SPAN * self.tau_s:
             return None
-        s0, s1, s2 = self.sums
-        den = s0 * s2 - s1 * s1
+        s0, s1 = self.s0, self.s1
+        den = s0 * self.s2 - s1 * s1
         if den <= 0:
             return None
-        return (s0 * self.ty[1] - s1 * self.ty[0]) / den
+        return [(s0 * b - s1 * a) / den for a, b in zip(self.y0, self.y1)]
 
     def reset(self) -> None:
-        self.t0, self.sums, self.ty = None, np.zeros(3), None
+        self.t0, self.t_last = None, 0.0
+        self.s0 = self.s1 = self.s2 = 0.0
 
 
 def arm_reference(result: CalibrationResult, A, points, *, point_cov=None, robot_factor=None,
@@ -367,32 +436,40 @@ def arm_reference(result: CalibrationResult, A, points, *, point_cov=None, robot
     ratio = result.self_check.loo_ratio if result.self_check is not None else 1.0
     widen = max(1.0, float(ratio or 1.0)) ** 2
     noise = model.NoiseLevels(levels.point_scale * widen, levels.robot * math.sqrt(widen))
+    correction = result.auto.camera_correction if result.auto is not None else {}
+    consider = CONSIDER_SIGMA if consider_theta is None else consider_theta
+    held = np.array([0.0 if name in correction and correction[name].estimated else consider[name] ** -2
+                     for name in model.CAMERA_PARAMS])
     shape, _ = model.point_shape(p, point_cov)
+    cov = _state_covariance(C, K, M, theta, setup, noise, shape, held, robot_factor)
+    cov = 0.5 * (cov + cov.T)
+    q = model.CameraCorrection(*theta).correct(p)
+    ref = Reference(setup, C.copy(), K.copy(), theta, noise, q[::max(1, len(q) // WORKSPACE_POINTS)], 0.0, result)
+    ref.sigma_mm = workspace_sigma(C, theta, ref.workspace, cov) * 1e3
+    return ref, cov
+
+
+def _state_covariance(C, K, M, theta, setup, noise, shape, held, robot_factor) -> np.ndarray:
+    """`arm_reference`'s state covariance: the inverse information of the samples (``M`` (N, 4, 4), point
+    covariance shapes ``shape`` (N, 3, 3), ``noise``) about ``[dC, tC, t_K, theta]``, ``held`` (3,) added to
+    the camera parameters' information, then the kinematic error's block from ``robot_factor`` (N, 6, P)."""
     _, H_C, H_tK, H_th, H_xi = model.point_jacobians(C, K, M, theta, setup)
     W = np.linalg.inv(noise.point_cov(shape, model.robot_cofactor(C, K, M, setup)))
     J = np.concatenate([H_C, H_tK, H_th], axis=2)                     # (N, 3, 12)
     N = np.einsum("nki,nkl,nlj->ij", J, W, J)
-    correction = result.auto.camera_correction if result.auto is not None else {}
-    consider = CONSIDER_SIGMA if consider_theta is None else consider_theta
-    for i, name in enumerate(model.CAMERA_PARAMS):
-        if not (name in correction and correction[name].estimated):
-            N[9 + i, 9 + i] += 1.0 / consider[name] ** 2
+    N[9:12, 9:12] += np.diag(held)
     try:
         cov = np.linalg.inv(N)
     except np.linalg.LinAlgError:
         raise CalibrationError("the reference samples do not determine the camera transform") from None
     if robot_factor is not None:
         F = tf.as_real_array(robot_factor, "robot_factor")
-        if F.ndim != 3 or F.shape[:2] != (len(A), 6):
-            raise CalibrationError(f"robot_factor must have shape ({len(A)}, 6, P), got {F.shape}")
+        if F.ndim != 3 or F.shape[:2] != (len(M), 6):
+            raise CalibrationError(f"robot_factor must have shape ({len(M)}, 6, P), got {F.shape}")
         # The estimate's error from a shared error z ~ N(0, I): -N^-1 J^T W H_z z.
         G = -cov @ np.einsum("nki,nkl,nlj->ij", J, W, H_xi @ F)
         cov = np.block([[cov + G @ G.T, G], [G.T, np.eye(F.shape[2])]])
-    cov = 0.5 * (cov + cov.T)
-    q = model.CameraCorrection(*theta).correct(p)
-    ref = Reference(setup, C.copy(), K.copy(), theta, noise, q[::max(1, len(q) // WORKSPACE_POINTS)], 0.0, result)
-    ref.sigma_mm = workspace_sigma(C, theta, ref.workspace, cov) * 1e3
-    return ref, cov
+    return cov
 
 
 def workspace_sigma(C, theta, points, cov) -> float:
@@ -409,15 +486,253 @@ def workspace_sigma(C, theta, points, cov) -> float:
     return float(np.sqrt(max(np.mean(var), 0.0)))
 
 
-def workspace_displacement(C1, C2, points) -> np.ndarray:
-    """``C1 p - C2 p`` (W, 3), m, for camera-frame ``points`` (W, 3)."""
-    return points @ (C1[:3, :3] - C2[:3, :3]).T + (C1[:3, 3] - C2[:3, 3])
-
-
 def workspace_distance(C1, C2, points) -> float:
     """RMS distance (m) between where two camera transforms put camera-frame ``points`` (W, 3)."""
-    d = workspace_displacement(C1, C2, points)
+    d = points @ (C1[:3, :3] - C2[:3, :3]).T + (C1[:3, 3] - C2[:3, 3])
     return float(np.sqrt(np.mean(np.sum(d * d, axis=1))))
+
+
+class WorkspaceMoments:
+    """`workspace_distance` and `workspace_sigma` over fixed camera-frame points (W, 3), at a cost independent of W.
+
+    Both are RMS figures over the points of something the points enter
+    linearly: a point's displacement ``dR p + dt`` between two camera
+    transforms, and the Jacobian of where ``C`` and ``theta`` put it, which is
+    ``R_C G(p; theta) B`` with ``B = diag(R_C^T, R_C^T, I, I)`` and ``G``
+    linear in ``[1, focal_scale, depth_scale, depth_offset]`` with per-point
+    terms. So the mean and second moments of the points (and of those terms)
+    give them exactly, with a few small products per sample.
+    """
+
+    def __init__(self, points):
+        points = np.asarray(points, dtype=float)
+        n = len(points)
+        mean = points.mean(axis=0)
+        c = points - mean
+        w, V = np.linalg.eigh(c.T @ c / n)
+        # [L | mean] with L L^T the points' centred second moment: RMS |dR p + dt| = |[dR L | dR mean + dt]|.
+        self.lever = tuple(map(tuple, np.column_stack([V * np.sqrt(np.clip(w, 0.0, None)), mean]).tolist()))
+        xy, xy_z = points[:, :2], points[:, :2] / points[:, 2:]
+        G = np.zeros((n, 4, 3, 12))                     # per point, the terms of G for 1, f, s, d
+        G[:, 0, :, :3] = -tf.skew(points)
+        G[:, 0, :, 3:6] = _I3
+        G[:, 0, :, 9] = -points
+        G[:, 0, :, 10] = -points / points[:, 2:]
+        G[:, 0, :2, 11] = -xy
+        G[:, 1, :2, 9] = -xy                            # focal_scale
+        G[:, 1, :2, 10] = -xy_z
+        G[:, 2, :2, 11] = -xy                           # depth_scale
+        G[:, 3, :2, 11] = -xy_z                         # depth_offset
+        Q = np.einsum("wmai,wnaj->mnji", G, G) / n        # Q_mn^T = mean G_n^T G_m
+        m, k = np.triu_indices(4)
+        self.terms = (Q[m, k] + np.where((m < k)[:, None, None], Q[k, m], 0.0)).reshape(10, 144)
+        self._B = np.eye(12)
+
+    def displacement(self, dR, dt) -> tuple:
+        """The points' displacement ``dR p + dt`` (``dR = R_1 - R_2`` as rows of floats, ``dt = t_1 - t_2``) as 12
+        floats, linear in ``(dR, dt)``, whose norm is its RMS over the points (`workspace_distance`), m."""
+        (a0, a1, a2, a3), (b0, b1, b2, b3), (c0, c1, c2, c3) = self.lever
+        (r0, r1, r2), (r3, r4, r5), (r6, r7, r8) = dR
+        s0, s1, s2 = dt
+        return (r0 * a0 + r1 * b0 + r2 * c0, r0 * a1 + r1 * b1 + r2 * c1, r0 * a2 + r1 * b2 + r2 * c2,
+                r0 * a3 + r1 * b3 + r2 * c3 + s0,
+                r3 * a0 + r4 * b0 + r5 * c0, r3 * a1 + r4 * b1 + r5 * c1, r3 * a2 + r4 * b2 + r5 * c2,
+                r3 * a3 + r4 * b3 + r5 * c3 + s1,
+                r6 * a0 + r7 * b0 + r8 * c0, r6 * a1 + r7 * b1 + r8 * c1, r6 * a2 + r7 * b2 + r8 * c2,
+                r6 * a3 + r7 * b3 + r8 * c3 + s2)
+
+    def sigma(self, C, theta, cov) -> float:
+        """`workspace_sigma` of ``C``, ``theta`` (3,) and the state covariance ``cov`` over the points, m."""
+        B = self._B
+        B[:3, :3] = B[3:6, 3:6] = C[:3, :3]
+        # sum over m <= n of c_m c_n <B^T cov B, Q_mn^T + Q_nm^T (m < n)>, c = [1, f, s, d]
+        t00, t01, t02, t03, t11, t12, t13, t22, t23, t33 = (self.terms @ (B.T @ cov[:12, :12] @ B).ravel()).tolist()
+        s, d, f = theta.tolist()
+        var = (t00 + f * (t01 + f * t11) + s * (t02 + f * t12 + s * t22)
+               + d * (t03 + f * t13 + s * t23 + d * t33))
+        return math.sqrt(max(var, 0.0))
+
+
+def sample_model(C, t_K, A, theta, setup: str, factor=None, z=None):
+    """One sample's predicted measured marker point, its Jacobian w.r.t. the engine's state, and its robot cofactor.
+
+    The single-sample form of `calib.model.point_jacobians` and
+    `calib.model.robot_cofactor` (the same model, tested against them), at
+    the flange pose ``A Exp(factor z)`` when the state carries the robot's
+    kinematic error ``z``. Its 3-vectors and 3x3 blocks are Python floats:
+    numpy's per-call cost would be most of the engine's per-sample cost.
+
+    Parameters
+    ----------
+    C : ndarray (4, 4)
+        Camera transform.
+    t_K : ndarray (3,)
+        Marker-side translation.
+    A : ndarray (4, 4)
+        ``T_base_flange`` as the robot reports it.
+    theta : ndarray (3,)
+        Camera parameters (`calib.model.CAMERA_PARAMS`).
+    setup : Setup
+    factor, z : ndarray (6, P) and (P,), optional
+        The kinematic-error factor at the sample's joints and the error.
+
+    Returns
+    -------
+    h : ndarray (3,)
+    H : ndarray (3, 12 + P)
+        W.r.t. ``[dC, tC, t_K, theta, z]``.
+    cof : ndarray (3, 3)
+        `calib.model.robot_cofactor` of the sample.
+    """
+    R_C, t_C = _parts(C)
+    R_A, t_A = _parts(A)
+    if factor is not None:
+        w0, w1, w2, w3, w4, w5 = (factor @ z).tolist()
+        t_A = _add(t_A, _mv(R_A, (w3, w4, w5)))
+        R_A = _mm(R_A, _exp(w0, w1, w2))
+    eye_to_hand = setup == Setup.EYE_TO_HAND
+    if eye_to_hand:
+        R_M, t_M = R_A, t_A
+    else:
+        R_M = _tr(R_A)
+        t_M = _mv(R_M, t_A, -1.0)
+    t_K = tuple(t_K.tolist())
+    lever = _mv(R_M, t_K)
+    y = _add(lever, t_M)                                # marker center in C's parent frame
+    v = _add(y, t_C, -1.0)
+    Ct = _tr(R_C)
+    qx, qy, qz = _mv(Ct, v)                             # the point without camera error
+    s, d, f = theta.tolist()
+    g, D, dz = 1.0 + s + d / qz, 1.0 + f, d / (qz * qz)
+    # The camera's Jacobian J_p = [[gD, 0, jx], [0, gD, jy], [0, 0, jz]], and J_p R_C^T.
+    gD, jx, jy, jz = g * D, -D * qx * dz, -D * qy * dz, g - qz * dz
+    c0, c1, c2 = Ct
+    JR = (_add(_scale(c0, gD), c2, jx), _add(_scale(c1, gD), c2, jy), _scale(c2, jz))
+    H_tK = _mm(JR, R_M)
+    J_theta = ((D * qx, D * qx / qz, qx * g), (D * qy, D * qy / qz, qy * g), (qz, 1.0, 0.0))
+    # dq/d[dC, tC] = R_C^T [[v]x, -I]; a row r of J_p R_C^T times [v]x is r x v.
+    rows = [_cross(JR[i], v) + _scale(JR[i], -1.0) + H_tK[i] + J_theta[i] for i in range(3)]
+    if factor is None:
+        H = np.array(rows)
+    else:
+        # d/dxi: [-(H_tK [t_K]x), H_tK] eye-to-hand, [J_p R_C^T [y]x, -J_p R_C^T] eye-in-hand.
+        if eye_to_hand:
+            X = [_cross(t_K, H_tK[i]) + H_tK[i] for i in range(3)]
+        else:
+            X = [_cross(JR[i], y) + _scale(JR[i], -1.0) for i in range(3)]
+        H = np.empty((3, 12 + factor.shape[1]))
+        H[:, :12] = rows
+        H[:, 12:] = np.array(X) @ factor
+    lx, ly, lz = _mv(Ct, lever if eye_to_hand else y)
+    rho2 = model.ROBOT_ROTATION_PER_M ** 2
+    a = 1.0 + rho2 * (lx * lx + ly * ly + lz * lz)
+    cof = np.array([[a - rho2 * lx * lx, -rho2 * lx * ly, -rho2 * lx * lz],
+                    [-rho2 * lx * ly, a - rho2 * ly * ly, -rho2 * ly * lz],
+                    [-rho2 * lx * lz, -rho2 * ly * lz, a - rho2 * lz * lz]])
+    return np.array((qx * gD, qy * gD, qz * g)), H, cof
+
+
+# 3-vectors and 3x3 matrices (tuples of rows) on Python floats, for `sample_model` and the engine's figures.
+
+def _parts(T):
+    """Rotation rows and translation of a (4, 4) transform, as floats."""
+    (a, b, c, x), (d, e, f, y), (g, h, i, z), _ = T.tolist()
+    return ((a, b, c), (d, e, f), (g, h, i)), (x, y, z)
+
+
+def _tr(M):
+    (a, b, c), (d, e, f), (g, h, i) = M
+    return (a, d, g), (b, e, h), (c, f, i)
+
+
+def _mv(M, v, k: float = 1.0):
+    """``k M v``."""
+    (a, b, c), (d, e, f), (g, h, i) = M
+    x, y, z = v
+    return k * (a * x + b * y + c * z), k * (d * x + e * y + f * z), k * (g * x + h * y + i * z)
+
+
+def _mm(M, N):
+    (a, b, c), (d, e, f), (g, h, i) = M
+    (p, q, r), (s, t, u), (v, w, x) = N
+    return ((a * p + b * s + c * v, a * q + b * t + c * w, a * r + b * u + c * x),
+            (d * p + e * s + f * v, d * q + e * t + f * w, d * r + e * u + f * x),
+            (g * p + h * s + i * v, g * q + h * t + i * w, g * r + h * u + i * x))
+
+
+def _add(a, b, k: float = 1.0):
+    """``a + k b``."""
+    return a[0] + k * b[0], a[1] + k * b[1], a[2] + k * b[2]
+
+
+def _scale(a, k: float):
+    return k * a[0], k * a[1], k * a[2]
+
+
+def _cross(a, b):
+    return a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]
+
+
+def _exp(a0: float, a1: float, a2: float):
+    """`calib.transforms.so3_exp` of one rotation vector (rad), as rows of floats (same formula and series)."""
+    th2 = a0 * a0 + a1 * a1 + a2 * a2
+    if th2 < 1e-8:
+        a, b = 1.0 - th2 / 6.0 + th2 * th2 / 120.0, 0.5 - th2 / 24.0 + th2 * th2 / 720.0
+    else:
+        th = math.sqrt(th2)
+        a, b = math.sin(th) / th, (1.0 - math.cos(th)) / th2
+    # I + a [v]x + b [v]x^2, with [v]x^2 = v v^T - |v|^2 I
+    return ((1.0 + b * (a0 * a0 - th2), b * a0 * a1 - a * a2, b * a0 * a2 + a * a1),
+            (b * a0 * a1 + a * a2, 1.0 + b * (a1 * a1 - th2), b * a1 * a2 - a * a0),
+            (b * a0 * a2 - a * a1, b * a1 * a2 + a * a0, 1.0 + b * (a2 * a2 - th2)))
+
+
+def _angle(R1, R2) -> float:
+    """`calib.transforms.rotation_angle` of ``R1 R2^T`` (rotations as rows of floats), rad."""
+    (a, b, c), (d, e, f), (g, h, i) = _mm(R1, _tr(R2))
+    return math.atan2(math.sqrt((h - f) ** 2 + (c - g) ** 2 + (d - b) ** 2) / 2.0, (a + e + i - 1.0) / 2.0)
+
+
+def _inv_sym3(S) -> np.ndarray:
+    """Inverse of a symmetric positive definite (3, 3) matrix (cofactors, from its upper triangle)."""
+    (a, b, c), (_, d, e), (_, _, f) = S.tolist()
+    A, B, C = d * f - e * e, c * e - b * f, b * e - c * d
+    k = 1.0 / (a * A + b * B + c * C)
+    D, E, F = (a * f - c * c) * k, (b * c - a * e) * k, (a * d - b * b) * k
+    A, B, C = A * k, B * k, C * k
+    return np.array([[A, B, C], [B, D, E], [C, E, F]])
+
+
+def _plain(a, shape) -> bool:
+    """``a`` is a float64 array of ``shape``, finite and within `calib.transforms.MAX_MAGNITUDE`: the common case,
+    which the general validators would return unchanged (anything else goes to them for their checks and message)."""
+    # A sum of squares within the bound's square bounds every entry; NaN and inf fail the comparison.
+    return (type(a) is np.ndarray and a.dtype == np.float64 and a.shape == shape
+            and float(np.vdot(a, a)) <= tf.MAX_MAGNITUDE ** 2)
+
+
+def _plain_transform(T) -> bool:
+    """`_plain` and a rigid transform within `calib.transforms.check_transform`'s tolerances."""
+    if not _plain(T, (4, 4)):
+        return False
+    (a, b, c, _), (d, e, f, _), (g, h, i, _), (p, q, r, w) = T.tolist()
+    atol = tf.ROTATION_ATOL
+    tol = max(atol, 1e-9) * 10
+    det = a * (e * i - f * h) - b * (d * i - f * g) + c * (d * h - e * g)
+    return (abs(p) <= atol and abs(q) <= atol and abs(r) <= atol and abs(w - 1.0) <= atol
+            and abs(det - 1.0) <= atol * 10
+            and abs(a * a + b * b + c * c - 1.0) <= tol and abs(d * d + e * e + f * f - 1.0) <= tol
+            and abs(g * g + h * h + i * i - 1.0) <= tol and abs(a * d + b * e + c * f) <= tol
+            and abs(a * g + b * h + c * i) <= tol and abs(d * g + e * h + f * i) <= tol)
+
+
+def _plain_cov(S) -> bool:
+    """`_plain` and symmetric within `calib.model.check_point_cov`'s tolerance."""
+    if not _plain(S, (3, 3)):
+        return False
+    (a, b, c), (d, e, f), (g, h, i) = S.tolist()
+    tol = 1e-9 * max(abs(a), abs(b), abs(c), abs(d), abs(e), abs(f), abs(g), abs(h), abs(i), 1e-30)
+    return abs(b - d) <= tol and abs(c - g) <= tol and abs(f - h) <= tol
 
 
 class MonitorEngine:
@@ -456,9 +771,15 @@ class MonitorEngine:
         self._t = float(t)
         self._count = 0
         self._window: list[_Visit] = []
-        self._baselines: list[_Baseline] = []
+        cfg = self.settings
+        self._stops = _Stops(cfg.stop_translation_m, np.deg2rad(cfg.stop_rotation_deg))
         self._relearn_set: list[_Stop] = []
-        self._rate = _Rate(self.settings.rate_window_h * HOUR_S)
+        self._rate = _Rate(cfg.rate_window_h * HOUR_S)
+        self._workspace = WorkspaceMoments(ref.workspace)
+        self._in_use = None, None
+        # The random walk's variance per hour (diagonal of the camera transform's block).
+        sr, st = np.deg2rad(cfg.walk_deg_per_sqrt_h), cfg.walk_mm_per_sqrt_h * 1e-3
+        self._walk_per_h = np.array([sr * sr] * 3 + [st * st] * 3)
         self._moved = False
         self._settle = 0
         self._noise_scale, self._scale_sum, self._scale_n = 1.0, 0.0, 0.0
@@ -492,45 +813,37 @@ class MonitorEngine:
         per_sample = 16 + 3 + 9 + 6 * self.n_factor
         state = 16 + len(self._u) + self._P.size
         return (state + self.detector.state_size + per_sample * len(self._relearn_set)
-                + (per_sample + 3 + state) * len(self._window) + 19 * len(self._baselines))
+                + (per_sample + 3 + state) * len(self._window) + 19 * self._stops.count)
 
     # ------------------------------------------------------------------ the filter
 
     def _linearize(self, C, u, s: _Stop):
         """Innovation ``r`` (3,), Jacobian ``H`` (3, n) of the predicted point w.r.t. the state, noise ``R`` (3, 3)."""
         ref = self.reference
-        K = tf.make_transform(ref.K[:3, :3], u[:3])
-        A = s.A
-        if self.n_factor:
-            w = s.factor @ u[6:]
-            A = A @ tf.from_rotvec_translation(w[:3], w[3:])
-        M = A[None] if ref.setup == Setup.EYE_TO_HAND else tf.invert(A)[None]
-        h, H_C, H_tK, H_th, H_xi = model.point_jacobians(C, K, M, u[3:6], ref.setup)
-        H = [H_C[0], H_tK[0], H_th[0]]
-        if self.n_factor:
-            H.append(H_xi[0] @ s.factor)
-        R = self._noise_scale * ref.noise.point_cov(s.shape[None], model.robot_cofactor(C, K, M, ref.setup))[0]
-        return s.p - h[0], np.concatenate(H, axis=1), R
-
-    def _walk(self, hours: float) -> np.ndarray:
-        """Covariance (6, 6) the random walk adds to the camera transform in ``hours``."""
-        st = self.settings.walk_mm_per_sqrt_h * 1e-3
-        sr = np.deg2rad(self.settings.walk_deg_per_sqrt_h)
-        return np.diag([sr * sr] * 3 + [st * st] * 3) * hours
+        h, H, cof = sample_model(C, u[:3], s.A, u[3:6], ref.setup, s.factor, u[6:])
+        scale = self._noise_scale
+        return s.p - h, H, (scale * ref.noise.point_scale) * s.shape + (scale * ref.noise.robot ** 2) * cof
 
     def _predict(self, t: float) -> None:
+        """The random walk of the camera transform up to ``t``."""
         if t > self._t:
-            self._P[:6, :6] += self._walk((t - self._t) / HOUR_S)
+            diagonal = np.einsum("ii->i", self._P[:6, :6])    # a view: the variances in place
+            diagonal += self._walk_per_h * ((t - self._t) / HOUR_S)
         self._t = max(t, self._t)
 
-    def _fuse(self, r, H, R) -> None:
-        """Kalman update of the whole state."""
-        PHt = self._P @ H.T
-        Kg = np.linalg.solve(H @ PHt + R, PHt.T).T
-        self._P = self._P - Kg @ PHt.T
-        self._P = 0.5 * (self._P + self._P.T)
+    def _fuse(self, r, H, R, PHt=None, S_inv=None) -> None:
+        """Kalman update of the whole state (``PHt = P H^T`` and the innovation's inverse covariance when known)."""
+        if PHt is None:
+            PHt = self._P @ H.T
+            S_inv = _inv_sym3(H @ PHt + R)
+        Kg = PHt @ S_inv
+        P = self._P - Kg @ PHt.T
+        self._P = 0.5 * (P + P.T)
         d = Kg @ r
-        self._C = tf.make_transform(tf.so3_exp(d[:3]) @ self._C[:3, :3], self._C[:3, 3] + d[3:6])
+        d0, d1, d2, d3, d4, d5 = d[:6].tolist()
+        R, (x, y, z) = _parts(self._C)
+        r0, r1, r2 = _mm(_exp(d0, d1, d2), R)
+        self._C = np.array((r0 + (x + d3,), r1 + (y + d4,), r2 + (z + d5,), (0.0, 0.0, 0.0, 1.0)))
         self._u = self._u + d[6:]
 
     def _state(self):
@@ -566,82 +879,104 @@ class MonitorEngine:
         self._count += 1
         self._predict(s.t)
         r, H, R = self._linearize(self._C, self._u, s)
-        S = H @ self._P @ H.T + R
-        nis = float(r @ np.linalg.solve(S, r))
+        PHt = self._P @ H.T
+        S_inv = _inv_sym3(H @ PHt + R)
+        nis = float(r @ S_inv @ r)
         if not self._moved and nis < NIS_GATE:
-            # The arming noise levels come from a few dozen samples: their scale follows the innovations
-            # (a running mean of the NIS at unit scale, with the arming's level worth NOISE_SCALE_PRIOR samples).
-            keep = 1.0 - 1.0 / NOISE_SCALE_SAMPLES
-            self._scale_sum = keep * self._scale_sum + nis * self._noise_scale / 3.0
-            self._scale_n = keep * self._scale_n + 1.0
-            self._noise_scale = min(max((NOISE_SCALE_PRIOR + self._scale_sum) / (NOISE_SCALE_PRIOR + self._scale_n),
-                                        NOISE_SCALE_RANGE[0]), NOISE_SCALE_RANGE[1])
-        verify = float(np.linalg.norm(self._C[:3, :3] @ r)) * 1e3
-        alarm, message, statistic = "", "", 0.0
+            self._follow_noise(nis)
+        verify = math.sqrt(float(r @ r)) * 1e3          # |R_C r|: the prediction error in C's parent frame
         if self._moved:
             self._relearn_set.append(s)
             del self._relearn_set[:-self.settings.relearn_samples]
-            message = self._relearn()
+            alarm, statistic, message = "", 0.0, self._relearn()
         else:
-            base = self._baseline(s.A)
-            if base is not None and base.n >= MIN_BASELINE:
-                # Against the stop's own earlier visits: what they share (unmodelled errors of the robot or the
-                # camera at that pose, the estimate's own error) is no change; only the camera moving is.
-                Hc = H[:, :6]
-                r_test = s.p - base.mean
-                S_test = R * (1.0 + 1.0 / base.n) + Hc @ self._walk(self.settings.rate_window_h) @ Hc.T
-            else:
-                r_test, S_test = r, S
-            # While a re-learnt camera settles the stops still refine it: that is not a move.
-            fired = not self._settle and self.detector.update(r_test, np.linalg.inv(S_test), H[:, :6])
-            statistic = self.detector.statistic
-            if fired:
-                alarm = "moved"
-                message = (f"camera moved (GLR statistic {statistic:.1f} > {self.detector.threshold:.1f}); "
-                           "re-learning it from the production stops")
-                # The move lies inside the window: go back to the state before it, re-learn from its samples.
-                if self._window:
-                    self._restore(self._window[0].state)
-                self._relearn_set = [v.sample for v in self._window] + [s]
-                self._window = []
-                self._moved = True
-                self._drifting = False
-                message += "; " + self._relearn()
-            else:
-                self._window.append(_Visit(s, (self._C, self._u, self._P)))
-                self._fuse(r, H, R)
-                if len(self._window) > self.settings.detector.window:
-                    old = self._window.pop(0)
-                    self._add_baseline(old.sample)
+            alarm, statistic, message = self._test(s, r, H, R, PHt, S_inv)
+        return self._figures(s, self._next_state(), alarm, message, r, nis, verify, statistic)
+
+    def _follow_noise(self, nis: float) -> None:
+        """The arming noise levels come from a few dozen samples: their scale follows the innovations (a running
+        mean of the NIS at unit scale, with the arming's level worth `NOISE_SCALE_PRIOR` samples)."""
+        keep = 1.0 - 1.0 / NOISE_SCALE_SAMPLES
+        self._scale_sum = keep * self._scale_sum + nis * self._noise_scale / 3.0
+        self._scale_n = keep * self._scale_n + 1.0
+        self._noise_scale = min(max((NOISE_SCALE_PRIOR + self._scale_sum) / (NOISE_SCALE_PRIOR + self._scale_n),
+                                    NOISE_SCALE_RANGE[0]), NOISE_SCALE_RANGE[1])
+
+    def _test(self, s: _Stop, r, H, R, PHt, S_inv) -> tuple[str, float, str]:
+        """The *moved* test of a sample: ``(alarm, statistic, message)``; fused if it passes, else the re-learn starts."""
+        stops = self._stops
+        i = stops.lookup(s)
+        r_test, S_test_inv, offset_var = r, S_inv, None
+        if i is not None and stops.n[i] >= MIN_BASELINE:
+            # Against the stop's own earlier visits: what they share (unmodelled errors of the robot or the
+            # camera at that pose, the estimate's own error) is no change; only the camera moving is.
+            Hc = H[:, :6]
+            r_test = s.p - stops.mean[i]
+            # A drifting camera has moved since those visits by the same for every stop: the long window's
+            # test is for a move beyond the random walk over that time.
+            offset_var = self._walk_per_h * ((s.t - stops.t[i]) / HOUR_S)
+            S_test_inv = _inv_sym3(R * (1.0 + 1.0 / stops.n[i]) + (Hc * offset_var) @ Hc.T)
+        # While a re-learnt camera settles the stops still refine it: that is not a move.
+        fired = not self._settle and self.detector.update(r_test, S_test_inv, H[:, :6], offset_var)
+        statistic = self.detector.statistic
+        if not fired:
+            self._window.append(_Visit(s, (self._C, self._u, self._P)))
+            self._fuse(r, H, R, PHt, S_inv)
+            if len(self._window) > self.settings.detector.window:
+                stops.add(self._window.pop(0).sample)
+            return "", statistic, ""
+        message = (f"camera moved (GLR statistic {statistic:.1f} > {self.detector.threshold:.1f}); "
+                   "re-learning it from the production stops")
+        # The move lies inside the window, most likely `onset` samples ago: go back to the state before it and
+        # re-learn from the samples since; those before it join their stops.
+        before = max(len(self._window) + 1 - self.detector.onset(), 0)
+        if before < len(self._window):
+            self._restore(self._window[before].state)
+        for v in self._window[:before]:
+            stops.add(v.sample)
+        self._relearn_set = [v.sample for v in self._window[before:]] + [s]
+        self._window = []
+        self._moved = True
+        self._drifting = False
+        return "moved", statistic, message + "; " + self._relearn()
+
+    def _next_state(self) -> str:
+        """The engine's state after a sample (`MonitorUpdate.state`); counts the settling window down."""
         if self._moved:
-            state = "relearning"
-        elif self._settle:
+            return "relearning"
+        if self._settle:
             # Just re-learnt: what the next stops add refines that calibration, it is no drift.
             self._settle -= 1
-            self.reference.C, self.reference.theta = self._C.copy(), self._u[3:6].copy()
-            self.reference.sigma_mm = workspace_sigma(self._C, self._u[3:6], self.reference.workspace, self._P) * 1e3
-            state = "settling"
-        else:
-            state = "armed" if self.detector.count >= 3 else "warming"
-        return self._figures(s, state, alarm, message, r, nis, verify, statistic)
+            ref = self.reference
+            ref.C, ref.theta = self._C.copy(), self._u[3:6].copy()
+            ref.sigma_mm = self._workspace.sigma(self._C, ref.theta, self._P) * 1e3
+            return "settling"
+        return "armed" if self.detector.count >= 3 else "warming"
 
     def _sample(self, t, T_base_flange, point_cam, point_cov, robot_factor) -> _Stop:
         if self.reference is None:
             raise CalibrationError("the monitoring engine is not armed: give it a calibration result first")
-        A = tf.check_transform(T_base_flange, "T_base_flange")
-        p = tf.check_points(np.asarray(point_cam, dtype=float).reshape(1, -1), "point_cam")[0]
-        shape = default_point_cov(p[None])[0] if point_cov is None else model.check_point_cov(point_cov, 1)[0]
+        # Float arrays of the right shape are checked on the spot; anything else goes through the validators.
+        A = T_base_flange.copy() if _plain_transform(T_base_flange) else tf.check_transform(T_base_flange,
+                                                                                             "T_base_flange")
+        p = point_cam.copy() if _plain(point_cam, (3,)) else tf.check_points(
+            np.asarray(point_cam, dtype=float).reshape(1, -1), "point_cam")[0]
+        if point_cov is None:
+            shape = default_point_cov(p[None])[0]
+        else:
+            shape = point_cov.copy() if _plain_cov(point_cov) else model.check_point_cov(point_cov, 1)[0]
         factor = None
         if self.n_factor:
             if robot_factor is None:
                 raise CalibrationError("the engine was armed with the robot's kinematic error: every sample "
                                        "needs its robot_factor (6, P)")
-            factor = tf.as_real_array(robot_factor, "robot_factor")
+            factor = robot_factor.copy() if _plain(robot_factor, (6, self.n_factor)) else tf.as_real_array(
+                robot_factor, "robot_factor")
             if factor.shape != (6, self.n_factor):
                 raise CalibrationError(f"robot_factor must have shape (6, {self.n_factor}), got {factor.shape}")
         if not math.isfinite(t) or t < self._t - 1e-9:
             raise CalibrationError(f"t must be finite and not before the previous sample's ({self._t}), got {t}")
-        return _Stop(A, p, shape, factor, float(t))
+        return _Stop(A, p, shape, factor, float(t), A[:3].ravel().tolist())
 
     # ------------------------------------------------------------------ stops
 
@@ -649,28 +984,6 @@ class MonitorEngine:
         """Two flange poses closer than `MonitorSettings.stop_translation_m` and ``stop_rotation_deg``."""
         rot, trans = tf.pose_error(A1, A2)
         return bool(trans < self.settings.stop_translation_m and rot < np.deg2rad(self.settings.stop_rotation_deg))
-
-    def _stop_index(self, A) -> int | None:
-        for i, b in enumerate(self._baselines):
-            if self._same_stop(b.A, A):
-                return i
-        return None
-
-    def _baseline(self, A) -> _Baseline | None:
-        i = self._stop_index(A)
-        return None if i is None else self._baselines[i]
-
-    def _add_baseline(self, s: _Stop) -> None:
-        """Fold a sample's marker point into its stop's running mean (the most recent stops kept, `MAX_STOPS`)."""
-        i = self._stop_index(s.A)
-        if i is None:
-            b = _Baseline(s.A, np.zeros(3), 0.0)
-        else:
-            b = self._baselines.pop(i)
-        b.n = min(b.n + 1.0, BASELINE_VISITS)
-        b.mean = b.mean + (s.p - b.mean) / b.n
-        self._baselines.append(b)
-        del self._baselines[:-MAX_STOPS]
 
     # ------------------------------------------------------------------ re-learning
 
@@ -699,7 +1012,7 @@ class MonitorEngine:
             if ok:
                 break
             self._relearn_set = samples = samples[1:]         # the oldest is from before the move
-        sigma_mm = workspace_sigma(C, self._u[3:6], self.reference.workspace, P) * 1e3
+        sigma_mm = self._workspace.sigma(C, self._u[3:6], P) * 1e3
         if how == "registered" and sigma_mm > self.settings.tolerance_mm:
             return (f"re-learning: registered from {len(samples)} samples, but its 1-sigma over the workspace is "
                     f"{sigma_mm:.1f} mm (tolerance {self.settings.tolerance_mm:g} mm): waiting for more stops, "
@@ -707,10 +1020,10 @@ class MonitorEngine:
         ref = self.reference
         moved_mm = workspace_distance(C, self._C, ref.workspace) * 1e3
         moved_deg = float(np.rad2deg(tf.rotation_angle(C[:3, :3] @ self._C[:3, :3].T)))
-        self._baselines = []       # the stops' marker points as the old camera saw them
+        self._stops.clear()        # the stops' marker points as the old camera saw them
         self._C, self._P = C, P
         ref.C, ref.theta = C.copy(), self._u[3:6].copy()
-        ref.sigma_mm = workspace_sigma(C, ref.theta, ref.workspace, P) * 1e3
+        ref.sigma_mm = self._workspace.sigma(C, ref.theta, P) * 1e3
         self._rate.reset()
         self._settle = self.settings.detector.window
         self._moved = False
@@ -726,14 +1039,18 @@ class MonitorEngine:
         estimate from before the move; ``ok`` when the fit's chi-square agrees
         with the noise (else the oldest sample is from before the move).
         """
-        rows = []
+        rows, known = [], []
+        stops = self._stops
         for s in samples:
-            b = self._baseline(s.A)
-            if b is None or b.n < MIN_BASELINE:
+            i = stops.lookup(s)
+            if i is None:
+                continue
+            known.append(s)
+            if stops.n[i] < MIN_BASELINE:
                 continue
             _, H, R = self._linearize(self._C, self._u, s)
-            rows.append((s.p - b.mean, H[:, :6], np.linalg.inv(R * (1.0 + 1.0 / b.n))))
-        if len(self._distinct([s for s in samples if self._baseline(s.A) is not None])) < 3:
+            rows.append((s.p - stops.mean[i], H[:, :6], np.linalg.inv(R * (1.0 + 1.0 / stops.n[i]))))
+        if len(self._distinct(known)) < 3:
             return None
         # A bump's prior (`JUMP_PRIOR`): where the stops cannot tell a turn of the camera from a shift (one marker
         # seen from the front, eye-in-hand), the estimate stays small instead of trading the two without bound.
@@ -818,20 +1135,25 @@ class MonitorEngine:
 
     def _figures(self, s: _Stop, state, alarm, message, r, nis, verify, statistic) -> MonitorUpdate:
         ref, cfg = self.reference, self.settings
-        moved = workspace_displacement(self._C, ref.C, ref.workspace)
-        drift_m = float(np.sqrt(np.mean(np.sum(moved * moved, axis=1))))
-        drift_deg = float(np.rad2deg(tf.rotation_angle(self._C[:3, :3] @ ref.C[:3, :3].T)))
-        sigma = workspace_sigma(self._C, self._u[3:6], ref.workspace, self._P)
+        if ref.C is not self._in_use[0]:             # the calibration in use as floats, once per change
+            self._in_use = ref.C, _parts(ref.C)
+        (R, t), (R0, t0) = _parts(self._C), self._in_use[1]
+        dR = (_add(R[0], R0[0], -1.0), _add(R[1], R0[1], -1.0), _add(R[2], R0[2], -1.0))
+        dt = _add(t, t0, -1.0)
+        moved = self._workspace.displacement(dR, dt)
+        drift_m = math.hypot(*moved)
+        drift_deg = math.degrees(_angle(R, R0))
+        sigma = self._workspace.sigma(self._C, self._u[3:6], self._P)
         error_mm = math.hypot(drift_m * 1e3, ref.sigma_mm)
         rate_mm = rate_deg = hours = None
         if state == "armed":
-            # The displacement of every workspace point is linear in the drift: its slope is the drift rate.
-            self._rate.add(s.t, np.r_[moved.ravel(), drift_deg, drift_m])
+            # The workspace points' displacement is linear in the drift: its slope gives the drift rate.
+            self._rate.add(s.t, moved + (drift_deg, drift_m))
             slope = self._rate.slope()
             if slope is not None:
-                rate_mm = float(np.sqrt(np.mean(np.sum(slope[:-2].reshape(-1, 3) ** 2, axis=1)))) * 1e3
-                rate_deg = abs(float(slope[-2]))
-                growth = slope[-1] * 1e3
+                rate_mm = math.hypot(*slope[:12]) * 1e3
+                rate_deg = abs(slope[12])
+                growth = slope[13] * 1e3
                 if growth > 0 and drift_m * 1e3 < cfg.tolerance_mm:
                     hours = (cfg.tolerance_mm - drift_m * 1e3) / growth
         # Drifting: the camera has moved from the calibration in use by the tolerance, or will within the
@@ -850,8 +1172,9 @@ class MonitorEngine:
         if alarm:
             self._alarms.append((self._count, s.t, alarm))
         level = "moved" if (alarm == "moved" or state == "relearning") else ("drifting" if drifting else "")
-        return MonitorUpdate(self._count, s.t, state, alarm, level, self._C.copy(), self.cov, r, nis, verify, statistic,
-                             drift_m * 1e3, drift_deg, rate_mm, rate_deg, error_mm, hours, sigma * 1e3, message)
+        return MonitorUpdate(self._count, s.t, state, alarm, level, self._C.copy(), self._P[:6, :6].copy(), r, nis,
+                             verify, statistic, drift_m * 1e3, drift_deg, rate_mm, rate_deg, error_mm, hours,
+                             sigma * 1e3, message)
 
     @property
     def camera_transform(self) -> np.ndarray:

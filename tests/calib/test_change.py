@@ -50,3 +50,36 @@ def test_detector_window_sums_match_brute_force(long_window):
             assert det.statistics[0] == pytest.approx(brute(cfg.window), rel=1e-6)
         if long_window is not None and k + 1 > cfg.window and (k + 1) % 4 == 0:
             assert det.statistics[1] == pytest.approx(brute(long_window), rel=1e-6)
+
+
+def test_long_window_test_is_for_a_move_beyond_a_shared_offset():
+    """Innovations sharing one camera offset drawn from N(0, Q) (a drift since their baselines) inflate the
+    plain GLR; with ``offset_var`` Q the long window's statistic is chi-square with 6 dof again."""
+    rng = np.random.default_rng(52)
+    q = np.full(6, 0.05)
+    plain, shared = [], []
+    for _ in range(300):
+        a = ChangeDetector(DetectorConfig(window=5, long_window=40))
+        b = ChangeDetector(DetectorConfig(window=5, long_window=40))
+        offset = rng.normal(size=6) * np.sqrt(q)
+        for _ in range(40):
+            H = rng.normal(size=(3, 6))
+            r = H @ offset + rng.normal(size=3)
+            a.update(r, np.eye(3), H)
+            b.update(r, np.eye(3), H, q)
+        plain.append(a.statistics[1])
+        shared.append(b.statistics[1])
+    assert np.mean(plain) > 20.0
+    assert 5.3 < np.mean(shared) < 6.7
+
+
+def test_onset_is_the_change_point():
+    """After a jump, `onset` counts the innovations since it (the change point within the short window)."""
+    rng = np.random.default_rng(53)
+    for since in (3, 8, 15):
+        det = ChangeDetector(DetectorConfig(window=20, long_window=None))
+        for k in range(60):
+            H = rng.normal(size=(3, 6))
+            r = rng.normal(size=3) + (H @ [0.0, 0.0, 0.0, 2.0, -1.5, 1.0] if k >= 60 - since else 0.0)
+            det.update(r, np.eye(3), H)
+        assert abs(det.onset() - since) <= 1

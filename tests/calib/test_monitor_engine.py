@@ -9,7 +9,8 @@ from app.benchmarks import shift as bench_shift
 from calib import model, simulate, solve
 from calib import transforms as tf
 from calib.errors import CalibrationError
-from calib.monitor import MonitorEngine, MonitorSettings
+from calib.monitor import (MonitorEngine, MonitorSettings, WorkspaceMoments, sample_model, workspace_distance,
+                           workspace_sigma)
 from calib.setup import Setup
 
 PROFILE = simulate.RealisticProfile()
@@ -48,6 +49,81 @@ def test_point_jacobians_match_finite_differences(setup):
         th2[k] += eps
         np.testing.assert_allclose((model.point_jacobians(C, K, M, th2, setup)[0] - h)[0] / eps, H_th[0, :, k],
                                    atol=1e-5)
+
+
+@pytest.mark.parametrize("setup", [Setup.EYE_TO_HAND, Setup.EYE_IN_HAND])
+def test_sample_model_is_the_model_at_one_sample(setup):
+    """The engine's per-sample form of the measurement model equals `calib.model`'s, kinematic error included."""
+    rng = np.random.default_rng(1)
+    for _ in range(5):
+        C = tf.from_rotvec_translation(rng.normal(size=3), [0.1, -0.2, 0.9])
+        K = tf.from_rotvec_translation(rng.normal(size=3), rng.normal(size=3) * 0.05)
+        A = tf.from_rotvec_translation(rng.normal(size=3), [0.5, 0.1, 0.4])
+        theta = rng.normal(size=3) * [0.01, 0.003, 0.01]
+        F, z = rng.normal(size=(6, 24)) * 1e-3, rng.normal(size=24)
+        w = F @ z
+        A_err = A @ tf.from_rotvec_translation(w[:3], w[3:])
+        M = (A_err if setup == Setup.EYE_TO_HAND else tf.invert(A_err))[None]
+        h, H_C, H_tK, H_th, H_xi = model.point_jacobians(C, K, M, theta, setup)
+        cof = model.robot_cofactor(C, K, M, setup)[0]
+        H = np.concatenate([H_C[0], H_tK[0], H_th[0], H_xi[0] @ F], axis=1)
+        got = sample_model(C, K[:3, 3], A, theta, setup, F, z)
+        np.testing.assert_allclose(got[0], h[0], rtol=1e-12, atol=1e-15)
+        np.testing.assert_allclose(got[1], H, rtol=1e-12, atol=1e-12)
+        np.testing.assert_allclose(got[2], cof, rtol=1e-12, atol=1e-15)
+        # Without the kinematic error: the flange pose as given, the first 12 columns.
+        got = sample_model(C, K[:3, 3], A_err, theta, setup)
+        np.testing.assert_allclose(got[0], h[0], rtol=1e-12, atol=1e-15)
+        np.testing.assert_allclose(got[1], H[:, :12], rtol=1e-12, atol=1e-12)
+
+
+@pytest.mark.parametrize("n", [1, 3, 200])
+def test_workspace_moments_give_the_workspace_figures(n):
+    """RMS distance and 1-sigma over the points from their moments, for any number of points (one: a rank-0
+    spread, three: a plane)."""
+    rng = np.random.default_rng(2)
+    points = rng.normal(size=(n, 3)) * [0.2, 0.15, 0.1] + [0.0, 0.0, 0.9]
+    moments = WorkspaceMoments(points)
+    for _ in range(3):
+        C1 = tf.from_rotvec_translation(rng.normal(size=3), rng.normal(size=3))
+        C2 = tf.from_rotvec_translation(rng.normal(size=3) * 0.01, rng.normal(size=3) * 0.01) @ C1
+        theta = rng.normal(size=3) * [0.01, 0.003, 0.01]
+        L = rng.normal(size=(36, 36))
+        cov = L @ L.T * 1e-6
+        assert moments.sigma(C1, theta, cov) == pytest.approx(workspace_sigma(C1, theta, points, cov), rel=1e-10)
+        dR = [tuple(r) for r in (C2[:3, :3] - C1[:3, :3]).tolist()]
+        moved = moments.displacement(dR, tuple((C2[:3, 3] - C1[:3, 3]).tolist()))
+        assert np.linalg.norm(moved) == pytest.approx(workspace_distance(C2, C1, points), rel=1e-10)
+
+
+def test_samples_of_any_array_type_give_the_same_update():
+    """Lists, float32 and float64 arrays of the same sample are the same update; the quick checks of float64
+    arrays refuse what the general validators refuse."""
+    real, res, engine = _armed(5)
+    stream = simulate.shift_stream(real, dataclasses.replace(simulate.Shift(), hours=0.2),
+                                   np.random.default_rng([5, 1]), PROFILE)
+    F = PROFILE.dh_error_factor(stream.q)
+    twin = _armed(5)[2]
+    for i in range(len(stream.t)):
+        a = engine.update(stream.t[i], stream.A[i], stream.points[i], stream.point_cov[i], F[i])
+        b = twin.update(stream.t[i], stream.A[i].tolist(), stream.points[i].tolist(), stream.point_cov[i].tolist(),
+                        F[i].tolist())
+        np.testing.assert_array_equal(a.camera_transform, b.camera_transform)
+        assert a.nis == b.nis and a.statistic == b.statistic
+    A, p, S, f = stream.A[0].copy(), stream.points[0], stream.point_cov[0], F[0]
+    bent = A.copy()
+    bent[0, 0] += 1e-3
+    with pytest.raises(CalibrationError, match="T_base_flange.*proper rotation"):
+        engine.update(stream.t[-1], bent, p, S, f)
+    bad_cov = S.copy()
+    bad_cov[0, 1] += 1e-3
+    with pytest.raises(CalibrationError, match="point_cov is not symmetric"):
+        engine.update(stream.t[-1], A, p, bad_cov, f)
+    with pytest.raises(CalibrationError, match="robot_factor.*NaN or inf"):
+        engine.update(stream.t[-1], A, p, S, np.where(np.arange(f.size).reshape(f.shape) == 7, np.inf, f))
+    with pytest.raises(CalibrationError, match="point_cam.*beyond"):
+        engine.update(stream.t[-1], A, np.array([0.0, 0.0, 2e6]), S, f)
+    assert engine.update(stream.t[-1], A, p, S, f).index == len(stream.t) + 1
 
 
 def test_a_still_camera_raises_no_moved_alarm_and_stays_as_good_as_its_calibration():
