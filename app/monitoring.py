@@ -19,6 +19,7 @@ from app.session import read_session
 from calib.api import solve_observations
 from calib.errors import CalibrationError
 from calib.monitor import MonitorEngine
+from calib.problem import CalibrationProblem
 from calib.result import CalibrationResult
 from calib.setup import Setup
 
@@ -45,9 +46,9 @@ def arm_from(engine: MonitorEngine, result: CalibrationResult, observations: lis
     """Arm ``engine`` from ``result`` and the ``observations`` it was solved from (``factor``: their robot
     kinematic-error factor (N, 6, P) or None); returns `calib.monitor.Reference`. Raises `CalibrationError`
     as `MonitorEngine.arm`."""
-    covs = None if any(o.point_cov is None for o in observations) else np.array([o.point_cov for o in observations])
-    return engine.arm(result, np.array([o.T_base_flange for o in observations]),
-               np.array([o.point_cam for o in observations]), point_cov=covs, robot_factor=factor, t=t)
+    problem = CalibrationProblem.from_observations(observations, Setup(result.setup), measurements="points",
+                                                   robot_shared_error=factor)
+    return engine.arm(result, problem, t=t)
 
 
 def arm_engine(engine: MonitorEngine, reference: list, setup: Setup, shared_error=None, *, rng=None,

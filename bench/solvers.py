@@ -317,8 +317,8 @@ def monitor_update_median_us(rng, n=480) -> float:
     d = real.data
     F = prof.dh_error_factor(real.q)
     engine = MonitorEngine()
-    engine.arm(solve("auto", d.A, d.points, point_cov=d.point_cov, robot_shared_error=F, rng=rng), d.A, d.points,
-               point_cov=d.point_cov, robot_factor=F)
+    problem = CalibrationProblem.from_arrays(d.A, d.points, point_cov=d.point_cov, robot_shared_error=F)
+    engine.arm(solve("auto", problem, rng=rng), problem)
     shift = dataclasses.replace(simulate.Shift(), hours=n * simulate.Shift().sample_s / 3600.0)
     s = simulate.shift_stream(real, shift, rng, prof)
     F_s = prof.dh_error_factor(s.q)

@@ -62,10 +62,12 @@ from scipy.stats import chi2
 
 from calib import model
 from calib import transforms as tf
+from calib.auto import CONSIDER_SIGMA
 from calib.errors import CalibrationError
 from calib.noise import default_point_cov
 from calib.change import ChangeDetector, DetectorConfig
 from calib.params import NonNegativeFloat, Params, PositiveFloat
+from calib.problem import CalibrationProblem
 from calib.result import CalibrationResult, CameraParameter, Residuals
 from calib.setup import Setup
 
@@ -381,14 +383,14 @@ class _Rate:
         self.s0 = self.s1 = self.s2 = 0.0
 
 
-def arm_reference(result: CalibrationResult, A, points, *, point_cov=None, robot_factor=None,
+def arm_reference(result: CalibrationResult, problem: CalibrationProblem, *,
                   consider_theta=None) -> tuple[Reference, np.ndarray]:
     """The calibration in use and the covariance of the engine's state, from a result and its samples.
 
     The state is ``[dC, tC, t_K, theta, z]``: the camera transform (left
     perturbation, `calib.result`), the marker-side translation, the camera
-    parameters (`calib.model.CAMERA_PARAMS`) and, with ``robot_factor``, the P
-    kinematic-error parameters all samples share (unit variance). Its
+    parameters (`calib.model.CAMERA_PARAMS`) and, with the problem's
+    ``robot_shared_error``, the P kinematic-error parameters all samples share (unit variance). Its
     covariance is the inverse information of ``auto``'s extended model at the
     result (`calib.model.point_jacobians`, the result's noise levels), camera
     parameters that ``auto`` left at nominal held to their typical error
@@ -402,14 +404,11 @@ def arm_reference(result: CalibrationResult, A, points, *, point_cov=None, robot
         used when present (``solve("auto")``), else none and unit scale; the
         levels are widened by the square of its self-check's held-out ratio
         (observed / predicted) when that exceeds 1.
-    A : array_like, shape (N, 4, 4)
-        ``T_base_flange`` of the samples it was solved from.
-    points : array_like, shape (N, 3)
-        Their marker centers in the camera frame, m (as measured).
-    point_cov : array_like, shape (N, 3, 3), optional
-        Their covariance shapes, m^2 (default: `calib.noise`'s depth model).
-    robot_factor : array_like, shape (N, 6, P), optional
-        The kinematic-error factor at their joints (``robot_shared_error`` of `calib.auto`).
+    problem : CalibrationProblem
+        The samples it was solved from: flange poses, marker centres in the
+        camera frame as measured, their covariance shapes (default:
+        `calib.noise`'s depth model) and, when set, the kinematic-error factor
+        at their joints (``robot_shared_error``, (N, 6, P)).
 
     Returns
     -------
@@ -421,13 +420,10 @@ def arm_reference(result: CalibrationResult, A, points, *, point_cov=None, robot
     CalibrationError
         Malformed samples, or samples that do not determine the camera.
     """
-    from calib.auto import CONSIDER_SIGMA
-
     setup = Setup(result.setup)
-    A = tf.check_transforms(A, "A")
-    p = tf.check_points(points, "points")
-    if len(p) != len(A):
-        raise CalibrationError(f"points must have one row per pose ({len(A)}), got {len(p)}")
+    if problem.setup != setup:
+        raise CalibrationError(f"the result is {setup}, its samples {problem.setup}")
+    A, p, point_cov, robot_factor = problem.A, problem.points, problem.point_cov, problem.robot_shared_error
     C, K, M = model.split(result.X, result.Y, A, setup)
     theta = result.camera_correction.as_array()
     levels = result.auto.noise if result.auto is not None else model.NoiseLevels()
@@ -463,9 +459,7 @@ def _state_covariance(C, K, M, theta, setup, noise, shape, held, robot_factor) -
     except np.linalg.LinAlgError:
         raise CalibrationError("the reference samples do not determine the camera transform") from None
     if robot_factor is not None:
-        F = tf.as_real_array(robot_factor, "robot_factor")
-        if F.ndim != 3 or F.shape[:2] != (len(M), 6):
-            raise CalibrationError(f"robot_factor must have shape ({len(M)}, 6, P), got {F.shape}")
+        F = robot_factor                     # validated with the problem it came in
         # The estimate's error from a shared error z ~ N(0, I): -N^-1 J^T W H_z z.
         G = -cov @ np.einsum("nki,nkl,nlj->ij", J, W, H_xi @ F)
         cov = np.block([[cov + G @ G.T, G], [G.T, np.eye(F.shape[2])]])
@@ -751,9 +745,9 @@ class MonitorEngine:
 
     # ------------------------------------------------------------------ arming
 
-    def arm(self, result: CalibrationResult, A, points, *, point_cov=None, robot_factor=None,
-            t: float = 0.0) -> Reference:
-        """Arm from a calibration and its samples (`arm_reference`); the next sample is tested at once.
+    def arm(self, result: CalibrationResult, problem: CalibrationProblem, *, t: float = 0.0) -> Reference:
+        """Arm from a calibration and the samples it was solved from (`arm_reference`); the next sample is
+        tested at once.
 
         ``t`` is the time the calibration holds for (s, the samples' clock).
         Returns the calibration in use (its ``sigma_mm``: 1-sigma over the workspace).
@@ -763,7 +757,7 @@ class MonitorEngine:
         CalibrationError
             The samples are malformed or do not determine the camera.
         """
-        ref, cov = arm_reference(result, A, points, point_cov=point_cov, robot_factor=robot_factor)
+        ref, cov = arm_reference(result, problem)
         self.reference = ref
         self._C = ref.C.copy()
         self._u = np.r_[ref.K[:3, 3], ref.theta, np.zeros(len(cov) - 12)]

@@ -40,6 +40,7 @@ from calib import simulate, solve  # noqa: E402
 from calib import transforms as tf  # noqa: E402
 from calib.model import CameraCorrection  # noqa: E402
 from calib.monitor import MonitorEngine, MonitorSettings  # noqa: E402
+from calib.problem import CalibrationProblem  # noqa: E402
 
 #: Held-out workspace poses per cell.
 WORKSPACE_POINTS = 200
@@ -79,9 +80,10 @@ def armed_cell(seed: int, settings: MonitorSettings | None = None, profile: simu
     real = simulate.realistic_profile(30, np.random.default_rng([seed, 0]), prof)
     d = real.data
     F = prof.dh_error_factor(real.q)
-    res = solve("auto", d.A, d.points, point_cov=d.point_cov, robot_shared_error=F, rng=np.random.default_rng(seed))
+    problem = CalibrationProblem.from_arrays(d.A, d.points, point_cov=d.point_cov, robot_shared_error=F)
+    res = solve("auto", problem, rng=np.random.default_rng(seed))
     engine = MonitorEngine(settings)
-    engine.arm(res, d.A, d.points, point_cov=d.point_cov, robot_factor=F)
+    engine.arm(res, problem)
     return real, res, engine
 
 
@@ -162,10 +164,11 @@ def section_eye_in_hand(seeds: list[int], shift: simulate.Shift, settings: Monit
     for seed in seeds:
         rng = np.random.default_rng([seed, 3])
         cell = simulate.realistic_cell(34, rng, setup="eye_in_hand")
-        res = solve("auto", cell.A[:30], cell.points[:30], setup="eye_in_hand", point_cov=cell.point_cov[:30],
-                    rng=rng)
+        problem = CalibrationProblem.from_arrays(cell.A[:30], cell.points[:30], setup="eye_in_hand",
+                                                 point_cov=cell.point_cov[:30])
+        res = solve("auto", problem, rng=rng)
         engine = MonitorEngine(settings)
-        engine.arm(res, cell.A[:30], cell.points[:30], point_cov=cell.point_cov[:30])
+        engine.arm(res, problem)
         stream = simulate.eye_in_hand_shift(cell, cell.A_true[30:34], shift, rng)
         seen = cell.points[:30]
         err, alarms = np.empty(len(stream.t)), []

@@ -11,6 +11,7 @@ from calib import transforms as tf
 from calib.errors import CalibrationError
 from calib.monitor import (MonitorEngine, MonitorSettings, WorkspaceMoments, sample_model, workspace_distance,
                            workspace_sigma)
+from calib.problem import CalibrationProblem
 from calib.setup import Setup
 
 PROFILE = simulate.RealisticProfile()
@@ -213,9 +214,11 @@ def test_eye_in_hand_camera_slipping_on_the_flange_is_flagged_and_relearnt():
     """Eye-in-hand: C = T_flange_cam is followed, the base-marker pose is held; the camera slips at sample 100."""
     rng = np.random.default_rng(8)
     d = simulate.realistic_cell(34, rng, setup=Setup.EYE_IN_HAND)
-    res = solve("auto", d.A[:30], d.points[:30], setup=Setup.EYE_IN_HAND, point_cov=d.point_cov[:30], rng=rng)
+    problem = CalibrationProblem.from_arrays(d.A[:30], d.points[:30], setup=Setup.EYE_IN_HAND,
+                                             point_cov=d.point_cov[:30])
+    res = solve("auto", problem, rng=rng)
     engine = MonitorEngine()
-    engine.arm(res, d.A[:30], d.points[:30], point_cov=d.point_cov[:30])
+    engine.arm(res, problem)
     stops = d.A_true[30:34]
     slip = tf.from_rotvec_translation([0.0, 0.0, np.deg2rad(0.5)], [0.006, -0.004, 0.0])
     ups, truth = [], []
