@@ -1,0 +1,219 @@
+"""The calibration in use (`Reference`): what the engine is armed from, its state covariance, and the
+workspace figures (1-sigma, distance between two camera transforms) over its points."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from calib import model
+from calib import transforms as tf
+from calib.auto import CONSIDER_SIGMA
+from calib.errors import CalibrationError
+from calib.problem import CalibrationProblem
+from calib.result import CalibrationResult
+from calib.setup import Setup
+from calib.monitor.kernels import I3
+
+
+#: Workspace points kept from the arming samples (the drift and accuracy figures are RMS over them).
+WORKSPACE_POINTS = 200
+
+
+@dataclass
+class Reference:
+    """The calibration in use, as the engine holds it: the arming one, then each re-learnt one.
+
+    Attributes
+    ----------
+    setup : Setup
+    C : ndarray (4, 4)
+        Its camera transform (``T_base_cam`` / ``T_flange_cam``).
+    K : ndarray (4, 4)
+        Marker-side transform (``T_flange_marker`` / ``T_base_marker``) of the arming result.
+    theta : ndarray (3,)
+        Its camera correction (`calib.model.CAMERA_PARAMS`).
+    noise : NoiseLevels
+        Noise levels of the arming result.
+    workspace : ndarray (W, 3)
+        True camera-frame marker points of the arming samples: where the drift and accuracy are measured.
+    sigma_mm : float
+        Its own 1-sigma over the workspace, mm.
+    result : CalibrationResult
+        The arming result.
+    """
+
+    setup: Setup
+    C: np.ndarray
+    K: np.ndarray
+    theta: np.ndarray
+    noise: model.NoiseLevels
+    workspace: np.ndarray
+    sigma_mm: float
+    result: CalibrationResult
+
+
+def arm_reference(result: CalibrationResult, problem: CalibrationProblem, *,
+                  consider_theta=None) -> tuple[Reference, np.ndarray]:
+    """The calibration in use and the covariance of the engine's state, from a result and its samples.
+
+    The state is ``[dC, tC, t_K, theta, z]``: the camera transform (left
+    perturbation, `calib.result`), the marker-side translation, the camera
+    parameters (`calib.model.CAMERA_PARAMS`) and, with the problem's
+    ``robot_shared_error``, the P kinematic-error parameters all samples share (unit variance). Its
+    covariance is the inverse information of ``auto``'s extended model at the
+    result (`calib.model.point_jacobians`, the result's noise levels), camera
+    parameters that ``auto`` left at nominal held to their typical error
+    (``consider_theta``, default `calib.auto.CONSIDER_SIGMA`), and the
+    estimate's sensitivity to ``z`` as their cross covariance.
+
+    Parameters
+    ----------
+    result : CalibrationResult
+        Of either setup; its camera correction and noise levels (``auto``) are
+        used when present (``solve("auto")``), else none and unit scale; the
+        levels are widened by the square of its self-check's held-out ratio
+        (observed / predicted) when that exceeds 1.
+    problem : CalibrationProblem
+        The samples it was solved from: flange poses, marker centres in the
+        camera frame as measured, their covariance shapes (default:
+        `calib.noise`'s depth model) and, when set, the kinematic-error factor
+        at their joints (``robot_shared_error``, (N, 6, P)).
+
+    Returns
+    -------
+    reference : Reference
+    cov : ndarray (12 + P, 12 + P)
+
+    Raises
+    ------
+    CalibrationError
+        Malformed samples, or samples that do not determine the camera.
+    """
+    setup = Setup(result.setup)
+    if problem.setup != setup:
+        raise CalibrationError(f"the result is {setup}, its samples {problem.setup}")
+    A, p, point_cov, robot_factor = problem.A, problem.points, problem.point_cov, problem.robot_shared_error
+    C, K, M = model.split(result.X, result.Y, A, setup)
+    theta = result.camera_correction.as_array()
+    levels = result.auto.noise if result.auto is not None else model.NoiseLevels()
+    # Held-out samples predicted worse than the model expects (auto's self-check): the noise levels were
+    # fitted too closely, so they are widened by that ratio (never narrowed).
+    ratio = result.self_check.loo_ratio if result.self_check is not None else 1.0
+    widen = max(1.0, float(ratio or 1.0)) ** 2
+    noise = model.NoiseLevels(levels.point_scale * widen, levels.robot * math.sqrt(widen))
+    correction = result.auto.camera_correction if result.auto is not None else {}
+    consider = CONSIDER_SIGMA if consider_theta is None else consider_theta
+    held = np.array([0.0 if name in correction and correction[name].estimated else consider[name] ** -2
+                     for name in model.CAMERA_PARAMS])
+    shape, _ = model.point_shape(p, point_cov)
+    cov = state_covariance(C, K, M, theta, setup, noise, shape, held, robot_factor)
+    cov = 0.5 * (cov + cov.T)
+    q = model.CameraCorrection(*theta).correct(p)
+    ref = Reference(setup, C.copy(), K.copy(), theta, noise, q[::max(1, len(q) // WORKSPACE_POINTS)], 0.0, result)
+    ref.sigma_mm = workspace_sigma(C, theta, ref.workspace, cov) * 1e3
+    return ref, cov
+
+
+def state_covariance(C, K, M, theta, setup, noise, shape, held, robot_factor) -> np.ndarray:
+    """`arm_reference`'s state covariance: the inverse information of the samples (``M`` (N, 4, 4), point
+    covariance shapes ``shape`` (N, 3, 3), ``noise``) about ``[dC, tC, t_K, theta]``, ``held`` (3,) added to
+    the camera parameters' information, then the kinematic error's block from ``robot_factor`` (N, 6, P)."""
+    _, H_C, H_tK, H_th, H_xi = model.point_jacobians(C, K, M, theta, setup)
+    W = np.linalg.inv(noise.point_cov(shape, model.robot_cofactor(C, K, M, setup)))
+    J = np.concatenate([H_C, H_tK, H_th], axis=2)                     # (N, 3, 12)
+    N = np.einsum("nki,nkl,nlj->ij", J, W, J)
+    N[9:12, 9:12] += np.diag(held)
+    try:
+        cov = np.linalg.inv(N)
+    except np.linalg.LinAlgError:
+        raise CalibrationError("the reference samples do not determine the camera transform") from None
+    if robot_factor is not None:
+        F = robot_factor                     # validated with the problem it came in
+        # The estimate's error from a shared error z ~ N(0, I): -N^-1 J^T W H_z z.
+        G = -cov @ np.einsum("nki,nkl,nlj->ij", J, W, H_xi @ F)
+        cov = np.block([[cov + G @ G.T, G], [G.T, np.eye(F.shape[2])]])
+    return cov
+
+
+def workspace_sigma(C, theta, points, cov) -> float:
+    """RMS 1-sigma (m) over camera-frame ``points`` (W, 3) of where ``C`` and ``theta`` put them.
+
+    A measured point ``m`` goes to ``C correct_theta(m)``; ``cov`` is the
+    state covariance of `arm_reference` (its first 12 rows and columns are used).
+    """
+    J = np.zeros((len(points), 3, 12))
+    J[:, :, :3] = -tf.skew(points @ C[:3, :3].T)
+    J[:, :, 3:6] = I3
+    J[:, :, 9:12] = -C[:3, :3] @ model.measure(points, np.asarray(theta, dtype=float))[2]
+    var = np.einsum("wij,jk,wik->w", J, cov[:12, :12], J)
+    return float(np.sqrt(max(np.mean(var), 0.0)))
+
+
+def workspace_distance(C1, C2, points) -> float:
+    """RMS distance (m) between where two camera transforms put camera-frame ``points`` (W, 3)."""
+    d = points @ (C1[:3, :3] - C2[:3, :3]).T + (C1[:3, 3] - C2[:3, 3])
+    return float(np.sqrt(np.mean(np.sum(d * d, axis=1))))
+
+
+class WorkspaceMoments:
+    """`workspace_distance` and `workspace_sigma` over fixed camera-frame points (W, 3), at a cost independent of W.
+
+    Both are RMS figures over the points of something the points enter
+    linearly: a point's displacement ``dR p + dt`` between two camera
+    transforms, and the Jacobian of where ``C`` and ``theta`` put it, which is
+    ``R_C G(p; theta) B`` with ``B = diag(R_C^T, R_C^T, I, I)`` and ``G``
+    linear in ``[1, focal_scale, depth_scale, depth_offset]`` with per-point
+    terms. So the mean and second moments of the points (and of those terms)
+    give them exactly, with a few small products per sample.
+    """
+
+    def __init__(self, points):
+        points = np.asarray(points, dtype=float)
+        n = len(points)
+        mean = points.mean(axis=0)
+        c = points - mean
+        w, V = np.linalg.eigh(c.T @ c / n)
+        # [L | mean] with L L^T the points' centred second moment: RMS |dR p + dt| = |[dR L | dR mean + dt]|.
+        self.lever = tuple(map(tuple, np.column_stack([V * np.sqrt(np.clip(w, 0.0, None)), mean]).tolist()))
+        xy, xy_z = points[:, :2], points[:, :2] / points[:, 2:]
+        G = np.zeros((n, 4, 3, 12))                     # per point, the terms of G for 1, f, s, d
+        G[:, 0, :, :3] = -tf.skew(points)
+        G[:, 0, :, 3:6] = I3
+        G[:, 0, :, 9] = -points
+        G[:, 0, :, 10] = -points / points[:, 2:]
+        G[:, 0, :2, 11] = -xy
+        G[:, 1, :2, 9] = -xy                            # focal_scale
+        G[:, 1, :2, 10] = -xy_z
+        G[:, 2, :2, 11] = -xy                           # depth_scale
+        G[:, 3, :2, 11] = -xy_z                         # depth_offset
+        Q = np.einsum("wmai,wnaj->mnji", G, G) / n        # Q_mn^T = mean G_n^T G_m
+        m, k = np.triu_indices(4)
+        self.terms = (Q[m, k] + np.where((m < k)[:, None, None], Q[k, m], 0.0)).reshape(10, 144)
+        self._B = np.eye(12)
+
+    def displacement(self, dR, dt) -> tuple:
+        """The points' displacement ``dR p + dt`` (``dR = R_1 - R_2`` as rows of floats, ``dt = t_1 - t_2``) as 12
+        floats, linear in ``(dR, dt)``, whose norm is its RMS over the points (`workspace_distance`), m."""
+        (a0, a1, a2, a3), (b0, b1, b2, b3), (c0, c1, c2, c3) = self.lever
+        (r0, r1, r2), (r3, r4, r5), (r6, r7, r8) = dR
+        s0, s1, s2 = dt
+        return (r0 * a0 + r1 * b0 + r2 * c0, r0 * a1 + r1 * b1 + r2 * c1, r0 * a2 + r1 * b2 + r2 * c2,
+                r0 * a3 + r1 * b3 + r2 * c3 + s0,
+                r3 * a0 + r4 * b0 + r5 * c0, r3 * a1 + r4 * b1 + r5 * c1, r3 * a2 + r4 * b2 + r5 * c2,
+                r3 * a3 + r4 * b3 + r5 * c3 + s1,
+                r6 * a0 + r7 * b0 + r8 * c0, r6 * a1 + r7 * b1 + r8 * c1, r6 * a2 + r7 * b2 + r8 * c2,
+                r6 * a3 + r7 * b3 + r8 * c3 + s2)
+
+    def sigma(self, C, theta, cov) -> float:
+        """`workspace_sigma` of ``C``, ``theta`` (3,) and the state covariance ``cov`` over the points, m."""
+        B = self._B
+        B[:3, :3] = B[3:6, 3:6] = C[:3, :3]
+        # sum over m <= n of c_m c_n <B^T cov B, Q_mn^T + Q_nm^T (m < n)>, c = [1, f, s, d]
+        t00, t01, t02, t03, t11, t12, t13, t22, t23, t33 = (self.terms @ (B.T @ cov[:12, :12] @ B).ravel()).tolist()
+        s, d, f = theta.tolist()
+        var = (t00 + f * (t01 + f * t11) + s * (t02 + f * t12 + s * t22)
+               + d * (t03 + f * t13 + s * t23 + d * t33))
+        return math.sqrt(max(var, 0.0))

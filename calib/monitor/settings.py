@@ -1,0 +1,131 @@
+"""The monitoring engine's settings (`MonitorSettings`) and what each update reports (`MonitorUpdate`)."""
+
+from __future__ import annotations
+
+from typing import Annotated, NamedTuple
+
+import numpy as np
+from pydantic import Field
+
+from calib.change import DetectorConfig
+from calib.params import NonNegativeFloat, Params, PositiveFloat
+
+
+#: Per-sample false-alarm rate of the *moved* test: against each stop's earlier visits, the
+#: statistic of a still camera stays far below its threshold over whole shifts (bench --shift).
+DETECTOR_FALSE_ALARM_RATE = 1e-5
+
+
+class MonitorSettings(Params):
+    """Settings of `MonitorEngine` (``[monitor]`` of the app's config).
+
+    Attributes
+    ----------
+    walk_mm_per_sqrt_h, walk_deg_per_sqrt_h : float
+        Random walk of the camera transform: 1-sigma of its change after one
+        hour (it grows with the square root of time). Sized for a thermally
+        drifting mount: a few tenths of a mm per hour of steady drift is
+        followed within a few dozen samples.
+    tolerance_mm : float
+        How far the camera may move from the calibration in use, over the
+        workspace, mm, before a plant must act: reaching it is a *drifting*
+        alarm. The predicted error of that calibration (the drift with its own
+        1-sigma) is reported beside it.
+    horizon_h : float
+        A *drifting* alarm also fires when the current drift rate reaches the
+        tolerance within this many hours.
+    rate_window_h : float
+        Time constant of the drift-rate regression, h.
+    stop_translation_m, stop_rotation_deg : float
+        Two samples closer than both are the same stop: only distinct stops
+        widen the set a re-learn registers (repeated stops are fused, and
+        tested, like any other).
+    relearn_samples : int
+        Samples held for a re-learn (the newest).
+    min_spread_m : float
+        The stops' spread across their best-fit line below which a re-learn
+        counts them as collinear.
+    detector : DetectorConfig
+        The *moved* test (GLR windows, false-alarm rate per sample).
+    """
+
+    walk_mm_per_sqrt_h: NonNegativeFloat = 0.5
+    walk_deg_per_sqrt_h: NonNegativeFloat = 0.02
+    tolerance_mm: PositiveFloat = 2.0
+    horizon_h: NonNegativeFloat = 2.0
+    rate_window_h: PositiveFloat = 1.0
+    stop_translation_m: NonNegativeFloat = 0.03
+    stop_rotation_deg: NonNegativeFloat = 5.0
+    relearn_samples: Annotated[int, Field(strict=True, ge=3)] = 40
+    min_spread_m: PositiveFloat = 0.02
+    detector: DetectorConfig = Field(default_factory=lambda: DetectorConfig(false_alarm_rate=DETECTOR_FALSE_ALARM_RATE))
+
+
+class MonitorUpdate(NamedTuple):
+    """What one `MonitorEngine.update` saw and did (a NamedTuple: cheap at every sample).
+
+    Attributes
+    ----------
+    index : int
+        Samples given to the engine so far (this one included).
+    t : float
+        The sample's time, s.
+    state : str
+        ``"armed"``, ``"relearning"`` (after a move, until the stops determine
+        the camera), ``"settling"`` (the detector's window after a re-learn:
+        the calibration in use follows the estimate as the stops refine it,
+        the *moved* test waits) or
+        ``"warming"`` (the detector's first samples after arming).
+    alarm : str
+        ``""``, ``"drifting"`` or ``"moved"``: raised at this sample.
+    level : str
+        ``""``, ``"drifting"`` or ``"moved"``: the standing condition (moved
+        holds until the re-learn, drifting while it lasts).
+    camera_transform : ndarray (4, 4)
+        Live ``T_base_cam`` (eye-to-hand) or ``T_flange_cam`` (eye-in-hand).
+    cov : ndarray (6, 6)
+        Its covariance (`calib.result` convention), consider terms included.
+    innovation : ndarray (3,)
+        Measured minus predicted marker point in the camera frame, m, before fusing.
+    nis : float
+        Its normalised square (chi-square, 3 dof, when consistent).
+    verify_mm : float
+        The prediction error in C's parent frame, mm: a verification on a pose
+        the estimate had not seen.
+    statistic : float
+        The GLR statistic (0 while the detector does not run).
+    drift_mm, drift_deg : float
+        Live estimate against the calibration in use: RMS over the workspace, mm,
+        and rotation angle, deg.
+    drift_rate_mm_h, drift_rate_deg_h : float or None
+        Rates of that drift (None until the regression covers enough time).
+    error_mm : float
+        Predicted error of the calibration in use over the workspace, mm
+        (drift and its own 1-sigma).
+    hours_to_tolerance : float or None
+        At the current rate (None: not heading there).
+    sigma_mm : float
+        Live 1-sigma over the workspace, mm (camera correction included).
+    message : str
+        Plain words for an alarm, a re-learn, or why a re-learn is not possible yet.
+    """
+
+    index: int
+    t: float
+    state: str
+    alarm: str
+    level: str
+    camera_transform: np.ndarray
+    cov: np.ndarray
+    innovation: np.ndarray
+    nis: float
+    verify_mm: float
+    statistic: float
+    drift_mm: float
+    drift_deg: float
+    drift_rate_mm_h: float | None
+    drift_rate_deg_h: float | None
+    error_mm: float
+    hours_to_tolerance: float | None
+    sigma_mm: float
+    message: str

@@ -1,0 +1,148 @@
+"""The production program's stops as the engine sees them: one sample (`Stop`), a visit of the detector's
+window (`Visit`), the stops' typical marker points (`Stops`), and a rate by regression (`Rate`)."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+
+
+
+#: A stop's typical marker point is the running mean of at most this many of its last visits.
+BASELINE_VISITS = 12
+#: Stops whose typical marker point is kept (the most recently visited).
+MAX_STOPS = 64
+#: Seconds per hour: rates are per hour at the edges, times are seconds inside.
+HOUR_S = 3600.0
+#: A rate needs this much of its regression window covered before it is reported.
+RATE_MIN_SPAN = 0.25
+
+
+@dataclass
+class Stop:
+    """A sample: flange pose, measured point, its covariance shape, kinematic-error factor, time; ``pose`` is
+    ``A[:3]`` flat as floats (the stop lookup's key) and ``stop`` the lookup's memo (`Stops.lookup`)."""
+
+    A: np.ndarray
+    p: np.ndarray
+    shape: np.ndarray
+    factor: np.ndarray | None
+    t: float
+    pose: list
+    stop: tuple | None = None
+
+
+@dataclass
+class Visit:
+    """A sample in the detector's window and the filter state before it was fused."""
+
+    sample: Stop
+    state: tuple
+
+
+class Stops:
+    """Production stops' typical measured marker points (camera frame): the running mean of each stop's last
+    `BASELINE_VISITS` visits, for the `MAX_STOPS` most recently visited stops.
+
+    Two flange poses are the same stop when closer than ``translation_m`` and
+    ``rotation_rad``; a sample's stop is the least recently visited match.
+    A lookup is memoised on the sample while the set of stops is unchanged
+    and the match unique (a sample is looked up when tested, and again when
+    it leaves the detector's window and joins its stop).
+    """
+
+    def __init__(self, translation_m: float, rotation_rad: float):
+        self.poses: list[list] = []                     # per stop: its first flange pose, A[:3] flat
+        self.mean: list[np.ndarray] = []
+        self.n: list[float] = []
+        self.t: list[float] = []                        # per stop: the mean time of the visits in its mean
+        self.last: list[int] = []
+        self.generation = 0                             # changes whenever a stop is added or dropped
+        self._visits = 0
+        self._t2 = translation_m * translation_m
+        # trace(R1^T R2) = 1 + 2 cos(angle): under the angle <=> above this trace
+        self._trace = 1.0 + 2.0 * math.cos(rotation_rad)
+
+    @property
+    def count(self) -> int:
+        return len(self.poses)
+
+    def lookup(self, s: Stop) -> int | None:
+        """The index of ``s``'s stop, or None."""
+        if s.stop is not None and s.stop[0] == self.generation:
+            return s.stop[1]
+        a0, a1, a2, x, a3, a4, a5, y, a6, a7, a8, z = s.pose
+        hits = []
+        for i, (b0, b1, b2, bx, b3, b4, b5, by, b6, b7, b8, bz) in enumerate(self.poses):
+            dx, dy, dz = bx - x, by - y, bz - z
+            if (dx * dx + dy * dy + dz * dz < self._t2
+                    and a0 * b0 + a1 * b1 + a2 * b2 + a3 * b3 + a4 * b4 + a5 * b5 + a6 * b6 + a7 * b7 + a8 * b8
+                    > self._trace):
+                hits.append(i)
+        if len(hits) > 1:
+            return min(hits, key=self.last.__getitem__)
+        i = hits[0] if hits else None
+        s.stop = (self.generation, i)
+        return i
+
+    def add(self, s: Stop) -> None:
+        """Fold a visit's marker point into its stop's mean (a new stop replaces the least recently visited one
+        when `MAX_STOPS` are held)."""
+        i = self.lookup(s)
+        if i is None:
+            if len(self.poses) == MAX_STOPS:
+                j = self.last.index(min(self.last))
+                for held in (self.poses, self.mean, self.n, self.t, self.last):
+                    del held[j]
+            i = len(self.poses)
+            self.poses.append(s.pose)
+            self.mean.append(np.zeros(3))
+            self.n.append(0.0)
+            self.t.append(0.0)
+            self.last.append(0)
+            self.generation += 1
+        n = self.n[i] = min(self.n[i] + 1.0, BASELINE_VISITS)
+        self.mean[i] = self.mean[i] + (s.p - self.mean[i]) / n
+        self.t[i] += (s.t - self.t[i]) / n
+        self._visits += 1
+        self.last[i] = self._visits
+
+    def clear(self) -> None:
+        self.poses, self.mean, self.n, self.t, self.last = [], [], [], [], []
+        self.generation += 1
+
+
+class Rate:
+    """Exponentially weighted least-squares slope of a vector (a sequence of floats) against time (running sums: O(1))."""
+
+    def __init__(self, tau_s: float):
+        self.tau_s = tau_s
+        self.reset()
+
+    def add(self, t: float, y) -> None:
+        if self.t0 is None:
+            self.t0 = t
+            self.y0, self.y1 = [0.0] * len(y), [0.0] * len(y)
+        decay = math.exp(-(t - self.t_last) / self.tau_s) if self.s0 else 1.0
+        x = (t - self.t0) / HOUR_S
+        self.s0, self.s1, self.s2 = self.s0 * decay + 1.0, self.s1 * decay + x, self.s2 * decay + x * x
+        self.y0 = [a * decay + b for a, b in zip(self.y0, y)]
+        self.y1 = [a * decay + x * b for a, b in zip(self.y1, y)]
+        self.t_last = t
+
+    def slope(self) -> list | None:
+        """Per hour, or None before the regression spans `RATE_MIN_SPAN` of its window."""
+        if self.t0 is None or self.t_last - self.t0 < RATE_MIN_SPAN * self.tau_s:
+            return None
+        s0, s1 = self.s0, self.s1
+        den = s0 * self.s2 - s1 * s1
+        if den <= 0:
+            return None
+        return [(s0 * b - s1 * a) / den for a, b in zip(self.y0, self.y1)]
+
+    def reset(self) -> None:
+        self.t0, self.t_last = None, 0.0
+        self.s0 = self.s1 = self.s2 = 0.0
