@@ -13,12 +13,14 @@ from calib.errors import (
     MarkerNotFoundError,
 )
 from calib.observation import Observation
+from calib.problem import CalibrationProblem
 from calib.setup import Setup, check_setup
 from calib.result import CalibrationResult, Residuals
 from calib.api import METHODS, MethodInfo, observations_to_arrays, solve, solve_observations
 
 __all__ = [
     "CalibrationError",
+    "CalibrationProblem",
     "CalibrationResult",
     "DegenerateMotionError",
     "DepthError",
