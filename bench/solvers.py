@@ -465,7 +465,7 @@ def _format_report(cfg, exp1=None, exp2=None, real=None, eff=None, nees_m=None, 
         out += [f"## Covariance honesty per method ({cfg['trials_nees']} trials, realistic cell N = {cfg['n_nees']}, "
                 "eye-to-hand, true point covariance given)", "",
                 "Mean NEES of `solve(...).cov` for `Y = T_base_cam` (6 if honest). Closed form: the first-order "
-                "covariance of the closed-form estimator itself (`info[\"cov_kind\"]`: delta-analytic for YKronT', "
+                "covariance of the closed-form estimator itself (`cov_kind`: delta-analytic for YKronT', "
                 "delta-numerical for the pose methods up to 100 samples); refined: the inverse Fisher information "
                 "of the ML estimate (method+ML). Time: median ms of one closed-form `solve` including its covariance.", ""]
         rows = [[m, kind, f"{a:.2f}", f"{b:.2f}", f"{t:.3g}"] for m, (kind, a, b, t) in nees_m.items()]
