@@ -18,8 +18,8 @@ from calib.problem import CalibrationProblem
 from calib.result import CalibrationResult, CameraParameter, Residuals
 from calib.setup import Setup
 from calib.monitor.settings import MonitorSettings, MonitorUpdate
-from calib.monitor.kernels import (add3, inv_sym3, is_plain, is_plain_cov, is_plain_transform, matmul3, parts,
-    rotation_angle_scalar, sample_model, so3_exp_scalar)
+from calib.monitor.kernels import (add3, inv_sym3, inv_sym3_floats, is_plain, is_plain_cov, is_plain_transform,
+    matmul3, parts, rotation_angle_scalar, sample_floats, sample_model, so3_exp_scalar, sym3)
 from calib.monitor.reference import Reference, WorkspaceMoments, arm_reference, workspace_distance
 from calib.monitor.stops import HOUR_S, Rate, Stop, Stops, Visit
 
@@ -128,6 +128,15 @@ class MonitorEngine:
 
     # ------------------------------------------------------------------ the filter
 
+    @property
+    def _C(self) -> np.ndarray:
+        """The camera transform (4, 4); ``_camera_parts`` holds it as `parts` for the per-sample model."""
+        return self._camera
+
+    @_C.setter
+    def _C(self, C) -> None:
+        self._camera, self._camera_parts = C, parts(C)
+
     def _linearize(self, C, u, s: Stop):
         """Innovation ``r`` (3,), Jacobian ``H`` (3, n) of the predicted point w.r.t. the state, noise ``R`` (3, 3)."""
         ref = self.reference
@@ -142,19 +151,23 @@ class MonitorEngine:
             diagonal += self._walk_per_h * ((t - self._t) / HOUR_S)
         self._t = max(t, self._t)
 
-    def _fuse(self, r, H, R, PHt=None, S_inv=None) -> None:
-        """Kalman update of the whole state (``PHt = P H^T`` and the innovation's inverse covariance when known)."""
-        if PHt is None:
-            PHt = self._P @ H.T
-            S_inv = inv_sym3(H @ PHt + R)
+    def _fuse(self, r, H, R) -> None:
+        """Kalman update of the whole state with innovation ``r``, Jacobian ``H`` and noise ``R`` (arrays)."""
+        PHt = self._P @ H.T
+        self._gain(PHt, inv_sym3(H @ PHt + R), r)
+
+    def _gain(self, PHt, S_inv, r) -> None:
+        """Kalman update from ``PHt = P H^T``, the innovation's inverse covariance (3, 3) and the innovation."""
         Kg = PHt @ S_inv
         P = self._P - Kg @ PHt.T
         self._P = 0.5 * (P + P.T)
         d = Kg @ r
         d0, d1, d2, d3, d4, d5 = d[:6].tolist()
-        R, (x, y, z) = parts(self._C)
+        R, (x, y, z) = self._camera_parts
         r0, r1, r2 = matmul3(so3_exp_scalar(d0, d1, d2), R)
-        self._C = np.array((r0 + (x + d3,), r1 + (y + d4,), r2 + (z + d5,), (0.0, 0.0, 0.0, 1.0)))
+        t = (x + d3, y + d4, z + d5)
+        self._camera = np.array((r0 + t[:1], r1 + t[1:2], r2 + t[2:], (0.0, 0.0, 0.0, 1.0)))
+        self._camera_parts = (r0, r1, r2), t
         self._u = self._u + d[6:]
 
     def _state(self):
@@ -189,20 +202,36 @@ class MonitorEngine:
         s = self._sample(t, T_base_flange, point_cam, point_cov, robot_factor)
         self._count += 1
         self._predict(s.t)
-        r, H, R = self._linearize(self._C, self._u, s)
+        r, H, R = self._innovation(s)
         PHt = self._P @ H.T
-        S_inv = inv_sym3(H @ PHt + R)
-        nis = float(r @ S_inv @ r)
+        (a, b, c), (_, d, e), (_, _, f) = (H @ PHt).tolist()
+        S_inv = inv_sym3_floats(a + R[0], b + R[1], c + R[2], d + R[3], e + R[4], f + R[5])
+        r0, r1, r2 = r
+        i0, i1, i2, i3, i4, i5 = S_inv
+        nis = ((r0 * i0 + r1 * i1 + r2 * i2) * r0 + (r0 * i1 + r1 * i3 + r2 * i4) * r1
+               + (r0 * i2 + r1 * i4 + r2 * i5) * r2)
         if not self._moved and nis < NIS_GATE:
             self._follow_noise(nis)
-        verify = math.sqrt(float(r @ r)) * 1e3          # |R_C r|: the prediction error in C's parent frame
+        verify = math.sqrt(r0 * r0 + r1 * r1 + r2 * r2) * 1e3   # |R_C r|: the prediction error in C's parent frame
+        r = np.array(r)
         if self._moved:
             self._relearn_set.append(s)
             del self._relearn_set[:-self.settings.relearn_samples]
             alarm, statistic, message = "", 0.0, self._relearn()
         else:
-            alarm, statistic, message = self._test(s, r, H, R, PHt, S_inv)
+            alarm, statistic, message = self._test(s, r, H, R, PHt, sym3(S_inv))
         return self._figures(s, self._next_state(), alarm, message, r, nis, verify, statistic)
+
+    def _innovation(self, s: Stop):
+        """`_linearize` at the live state on floats: innovation ``r`` (3 floats), ``H`` (3, n), and the noise ``R``'s
+        upper triangle (6 floats)."""
+        ref, u = self.reference, self._u
+        h, H, cof = sample_floats(self._camera_parts, tuple(u[:3].tolist()), s.pose, u[3:6].tolist(),
+                                  ref.setup == Setup.EYE_TO_HAND, s.factor, u[6:])
+        scale = self._noise_scale
+        k, m = scale * ref.noise.point_scale, scale * ref.noise.robot ** 2
+        (p0, p1, p2), (h0, h1, h2) = s.point, h
+        return (p0 - h0, p1 - h1, p2 - h2), H, tuple(k * a + m * b for a, b in zip(s.shape_upper, cof))
 
     def _follow_noise(self, nis: float) -> None:
         """The arming noise levels come from a few dozen samples: their scale follows the innovations (a running
@@ -226,13 +255,16 @@ class MonitorEngine:
             # A drifting camera has moved since those visits by the same for every stop: the long window's
             # test is for a move beyond the random walk over that time.
             offset_var = self._walk_per_h * ((s.t - stops.t[i]) / HOUR_S)
-            S_test_inv = inv_sym3(R * (1.0 + 1.0 / stops.n[i]) + (Hc * offset_var) @ Hc.T)
+            k = 1.0 + 1.0 / stops.n[i]
+            (a, b, c), (_, d, e), (_, _, f) = ((Hc * offset_var) @ Hc.T).tolist()
+            S_test_inv = sym3(inv_sym3_floats(a + k * R[0], b + k * R[1], c + k * R[2], d + k * R[3], e + k * R[4],
+                                              f + k * R[5]))
         # While a re-learnt camera settles the stops still refine it: that is not a move.
         fired = not self._settle and self.detector.update(r_test, S_test_inv, H[:, :6], offset_var)
         statistic = self.detector.statistic
         if not fired:
             self._window.append(Visit(s, (self._C, self._u, self._P)))
-            self._fuse(r, H, R, PHt, S_inv)
+            self._gain(PHt, S_inv, r)
             if len(self._window) > self.settings.detector.window:
                 stops.add(self._window.pop(0).sample)
             return "", statistic, ""
@@ -287,7 +319,8 @@ class MonitorEngine:
                 raise CalibrationError(f"robot_factor must have shape (6, {self.n_factor}), got {factor.shape}")
         if not math.isfinite(t) or t < self._t - 1e-9:
             raise CalibrationError(f"t must be finite and not before the previous sample's ({self._t}), got {t}")
-        return Stop(A, p, shape, factor, float(t), A[:3].ravel().tolist())
+        (a, b, c), (_, d, e), (_, _, f) = shape.tolist()
+        return Stop(A, p, shape, factor, float(t), A[:3].ravel().tolist(), tuple(p.tolist()), (a, b, c, d, e, f))
 
     # ------------------------------------------------------------------ stops
 
@@ -448,7 +481,7 @@ class MonitorEngine:
         ref, cfg = self.reference, self.settings
         if ref.C is not self._in_use[0]:             # the calibration in use as floats, once per change
             self._in_use = ref.C, parts(ref.C)
-        (R, t), (R0, t0) = parts(self._C), self._in_use[1]
+        (R, t), (R0, t0) = self._camera_parts, self._in_use[1]
         dR = (add3(R[0], R0[0], -1.0), add3(R[1], R0[1], -1.0), add3(R[2], R0[2], -1.0))
         dt = add3(t, t0, -1.0)
         moved = self._workspace.displacement(dR, dt)

@@ -19,6 +19,8 @@ from calib.setup import Setup
 
 
 I3 = np.eye(3)
+#: `calib.model.ROBOT_ROTATION_PER_M` squared (the robot cofactor's lever weight).
+ROBOT_RHO2 = model.ROBOT_ROTATION_PER_M ** 2
 
 
 def parts(T):
@@ -83,11 +85,20 @@ def rotation_angle_scalar(R1, R2) -> float:
 def inv_sym3(S) -> np.ndarray:
     """Inverse of a symmetric positive definite (3, 3) matrix (cofactors, from its upper triangle)."""
     (a, b, c), (_, d, e), (_, _, f) = S.tolist()
+    return sym3(inv_sym3_floats(a, b, c, d, e, f))
+
+
+def inv_sym3_floats(a, b, c, d, e, f):
+    """`inv_sym3` on the upper triangle ``(xx, xy, xz, yy, yz, zz)`` as floats; the inverse's, likewise."""
     A, B, C = d * f - e * e, c * e - b * f, b * e - c * d
     k = 1.0 / (a * A + b * B + c * C)
-    D, E, F = (a * f - c * c) * k, (b * c - a * e) * k, (a * d - b * b) * k
-    A, B, C = A * k, B * k, C * k
-    return np.array([[A, B, C], [B, D, E], [C, E, F]])
+    return A * k, B * k, C * k, (a * f - c * c) * k, (b * c - a * e) * k, (a * d - b * b) * k
+
+
+def sym3(upper) -> np.ndarray:
+    """The symmetric (3, 3) array of an upper triangle ``(xx, xy, xz, yy, yz, zz)``."""
+    A, B, C, D, E, F = upper
+    return np.array(((A, B, C), (B, D, E), (C, E, F)))
 
 
 def is_plain(a, shape) -> bool:
@@ -128,8 +139,7 @@ def sample_model(C, t_K, A, theta, setup: str, factor=None, z=None):
     The single-sample form of `calib.model.point_jacobians` and
     `calib.model.robot_cofactor` (the same model, tested against them), at
     the flange pose ``A Exp(factor z)`` when the state carries the robot's
-    kinematic error ``z``. Its 3-vectors and 3x3 blocks are Python floats:
-    numpy's per-call cost would be most of the engine's per-sample cost.
+    kinematic error ``z``. The arithmetic is `sample_floats`'.
 
     Parameters
     ----------
@@ -153,25 +163,38 @@ def sample_model(C, t_K, A, theta, setup: str, factor=None, z=None):
     cof : ndarray (3, 3)
         `calib.model.robot_cofactor` of the sample.
     """
-    R_C, t_C = parts(C)
-    R_A, t_A = parts(A)
+    h, H, (xx, xy, xz, yy, yz, zz) = sample_floats(parts(C), tuple(t_K.tolist()), A[:3].ravel().tolist(),
+                                                   theta.tolist(), setup == Setup.EYE_TO_HAND, factor, z)
+    return np.array(h), H, np.array([[xx, xy, xz], [xy, yy, yz], [xz, yz, zz]])
+
+
+def sample_floats(C, t_K, pose, theta, eye_to_hand: bool, factor=None, z=None):
+    """`sample_model` on floats, for the engine's hot path: numpy's per-call cost would be most of its per-sample
+    cost on 3-vectors and 3x3 blocks.
+
+    ``C`` is the camera transform as `parts`, ``pose`` the flange pose's first
+    three rows flat (12 floats), ``t_K`` and ``theta`` 3 floats each. Returns
+    ``h`` (3 floats), ``H`` (ndarray (3, 12 + P)) and the cofactor's upper
+    triangle ``(xx, xy, xz, yy, yz, zz)``.
+    """
+    R_C, t_C = C
+    a0, a1, a2, x, a3, a4, a5, y, a6, a7, a8, z_ = pose
+    R_A, t_A = ((a0, a1, a2), (a3, a4, a5), (a6, a7, a8)), (x, y, z_)
     if factor is not None:
         w0, w1, w2, w3, w4, w5 = (factor @ z).tolist()
         t_A = add3(t_A, matvec3(R_A, (w3, w4, w5)))
         R_A = matmul3(R_A, so3_exp_scalar(w0, w1, w2))
-    eye_to_hand = setup == Setup.EYE_TO_HAND
     if eye_to_hand:
         R_M, t_M = R_A, t_A
     else:
         R_M = transpose3(R_A)
         t_M = matvec3(R_M, t_A, -1.0)
-    t_K = tuple(t_K.tolist())
     lever = matvec3(R_M, t_K)
     y = add3(lever, t_M)                                # marker center in C's parent frame
     v = add3(y, t_C, -1.0)
     Ct = transpose3(R_C)
     qx, qy, qz = matvec3(Ct, v)                             # the point without camera error
-    s, d, f = theta.tolist()
+    s, d, f = theta
     g, D, dz = 1.0 + s + d / qz, 1.0 + f, d / (qz * qz)
     # The camera's Jacobian J_p = [[gD, 0, jx], [0, gD, jy], [0, 0, jz]], and J_p R_C^T.
     gD, jx, jy, jz = g * D, -D * qx * dz, -D * qy * dz, g - qz * dz
@@ -193,9 +216,8 @@ def sample_model(C, t_K, A, theta, setup: str, factor=None, z=None):
         H[:, :12] = rows
         H[:, 12:] = np.array(X) @ factor
     lx, ly, lz = matvec3(Ct, lever if eye_to_hand else y)
-    rho2 = model.ROBOT_ROTATION_PER_M ** 2
+    rho2 = ROBOT_RHO2
     a = 1.0 + rho2 * (lx * lx + ly * ly + lz * lz)
-    cof = np.array([[a - rho2 * lx * lx, -rho2 * lx * ly, -rho2 * lx * lz],
-                    [-rho2 * lx * ly, a - rho2 * ly * ly, -rho2 * ly * lz],
-                    [-rho2 * lx * lz, -rho2 * ly * lz, a - rho2 * lz * lz]])
-    return np.array((qx * gD, qy * gD, qz * g)), H, cof
+    return ((qx * gD, qy * gD, qz * g), H,
+            (a - rho2 * lx * lx, -rho2 * lx * ly, -rho2 * lx * lz, a - rho2 * ly * ly, -rho2 * ly * lz,
+             a - rho2 * lz * lz))

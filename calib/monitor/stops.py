@@ -23,8 +23,10 @@ RATE_MIN_SPAN = 0.25
 
 @dataclass
 class Stop:
-    """A sample: flange pose, measured point, its covariance shape, kinematic-error factor, time; ``pose`` is
-    ``A[:3]`` flat as floats (the stop lookup's key) and ``stop`` the lookup's memo (`Stops.lookup`)."""
+    """A sample: flange pose, measured point, its covariance shape, kinematic-error factor, time; as floats for
+    the per-sample model, ``pose`` is ``A[:3]`` flat (also the stop lookup's key), ``point`` is ``p`` and
+    ``shape_upper`` the shape's upper triangle ``(xx, xy, xz, yy, yz, zz)``; ``stop`` is the lookup's memo
+    (`Stops.lookup`)."""
 
     A: np.ndarray
     p: np.ndarray
@@ -32,6 +34,8 @@ class Stop:
     factor: np.ndarray | None
     t: float
     pose: list
+    point: tuple
+    shape_upper: tuple
     stop: tuple | None = None
 
 
