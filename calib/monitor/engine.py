@@ -18,8 +18,8 @@ from calib.problem import CalibrationProblem
 from calib.result import CalibrationResult, CameraParameter, Residuals
 from calib.setup import Setup
 from calib.monitor.settings import MonitorSettings, MonitorUpdate
-from calib.monitor.kernels import (add3, inv_sym3, inv_sym3_floats, is_plain, is_plain_cov, is_plain_transform,
-    matmul3, parts, rotation_angle_scalar, sample_floats, sample_model, so3_exp_scalar, sym3)
+from calib.monitor.kernels import (add3, inv_sym3, inv_sym3_floats, is_plain, matmul3, parts, plain_cov, plain_point,
+    plain_transform, rotation_angle_scalar, sample_floats, sample_model, so3_exp_scalar, sym3)
 from calib.monitor.reference import Reference, WorkspaceMoments, arm_reference, workspace_distance
 from calib.monitor.stops import HOUR_S, Rate, Stop, Stops, Visit
 
@@ -76,6 +76,7 @@ class MonitorEngine:
         """
         ref, cov = arm_reference(result, problem)
         self.reference = ref
+        self._eye_to_hand = ref.setup == Setup.EYE_TO_HAND
         self._C = ref.C.copy()
         self._u = np.r_[ref.K[:3, 3], ref.theta, np.zeros(len(cov) - 12)]
         self._P = cov
@@ -226,8 +227,9 @@ class MonitorEngine:
         """`_linearize` at the live state on floats: innovation ``r`` (3 floats), ``H`` (3, n), and the noise ``R``'s
         upper triangle (6 floats)."""
         ref, u = self.reference, self._u
-        h, H, cof = sample_floats(self._camera_parts, tuple(u[:3].tolist()), s.pose, u[3:6].tolist(),
-                                  ref.setup == Setup.EYE_TO_HAND, s.factor, u[6:])
+        k0, k1, k2, s0, s1, s2 = u[:6].tolist()
+        h, H, cof = sample_floats(self._camera_parts, (k0, k1, k2), s.pose, (s0, s1, s2), self._eye_to_hand,
+                                  s.factor, u[6:])
         scale = self._noise_scale
         k, m = scale * ref.noise.point_scale, scale * ref.noise.robot ** 2
         (p0, p1, p2), (h0, h1, h2) = s.point, h
@@ -299,28 +301,40 @@ class MonitorEngine:
     def _sample(self, t, T_base_flange, point_cam, point_cov, robot_factor) -> Stop:
         if self.reference is None:
             raise CalibrationError("the monitoring engine is not armed: give it a calibration result first")
-        # Float arrays of the right shape are checked on the spot; anything else goes through the validators.
-        A = T_base_flange.copy() if is_plain_transform(T_base_flange) else tf.check_transform(T_base_flange,
-                                                                                             "T_base_flange")
-        p = point_cam.copy() if is_plain(point_cam, (3,)) else tf.check_points(
-            np.asarray(point_cam, dtype=float).reshape(1, -1), "point_cam")[0]
-        if point_cov is None:
-            shape = default_point_cov(p[None])[0]
+        # Float arrays of the right shape are checked on the spot, as floats; anything else goes through the
+        # validators (their checks and messages).
+        pose = plain_transform(T_base_flange)
+        if pose is None:
+            A = tf.check_transform(T_base_flange, "T_base_flange")
+            pose = A[:3].ravel().tolist()
         else:
-            shape = point_cov.copy() if is_plain_cov(point_cov) else model.check_point_cov(point_cov, 1)[0]
+            A = T_base_flange.copy()
+        point = plain_point(point_cam)
+        if point is None:
+            p = tf.check_points(np.asarray(point_cam, dtype=float).reshape(1, -1), "point_cam")[0]
+            point = tuple(p.tolist())
+        else:
+            p = point_cam.copy()
+        upper = None if point_cov is None else plain_cov(point_cov)
+        if upper is None:
+            shape = default_point_cov(p[None])[0] if point_cov is None else model.check_point_cov(point_cov, 1)[0]
+            (a, b, c), (_, d, e), (_, _, f) = shape.tolist()
+            upper = a, b, c, d, e, f
+        else:
+            shape = point_cov.copy()
         factor = None
-        if self.n_factor:
+        n_factor = len(self._u) - 6
+        if n_factor:
             if robot_factor is None:
                 raise CalibrationError("the engine was armed with the robot's kinematic error: every sample "
                                        "needs its robot_factor (6, P)")
-            factor = robot_factor.copy() if is_plain(robot_factor, (6, self.n_factor)) else tf.as_real_array(
+            factor = robot_factor.copy() if is_plain(robot_factor, (6, n_factor)) else tf.as_real_array(
                 robot_factor, "robot_factor")
-            if factor.shape != (6, self.n_factor):
-                raise CalibrationError(f"robot_factor must have shape (6, {self.n_factor}), got {factor.shape}")
+            if factor.shape != (6, n_factor):
+                raise CalibrationError(f"robot_factor must have shape (6, {n_factor}), got {factor.shape}")
         if not math.isfinite(t) or t < self._t - 1e-9:
             raise CalibrationError(f"t must be finite and not before the previous sample's ({self._t}), got {t}")
-        (a, b, c), (_, d, e), (_, _, f) = shape.tolist()
-        return Stop(A, p, shape, factor, float(t), A[:3].ravel().tolist(), tuple(p.tolist()), (a, b, c, d, e, f))
+        return Stop(A, p, shape, factor, float(t), pose, point, upper)
 
     # ------------------------------------------------------------------ stops
 

@@ -109,28 +109,52 @@ def is_plain(a, shape) -> bool:
             and float(np.vdot(a, a)) <= tf.MAX_MAGNITUDE ** 2)
 
 
-def is_plain_transform(T) -> bool:
-    """`is_plain` and a rigid transform within `calib.transforms.check_transform`'s tolerances."""
-    if not is_plain(T, (4, 4)):
-        return False
-    (a, b, c, _), (d, e, f, _), (g, h, i, _), (p, q, r, w) = T.tolist()
+def _is_float64(a, shape) -> bool:
+    return type(a) is np.ndarray and a.dtype == np.float64 and a.shape == shape
+
+
+def _within(sum_of_squares: float) -> bool:
+    """`is_plain`'s magnitude test on floats: the sum of squares within the bound's square (NaN and inf fail)."""
+    return sum_of_squares <= tf.MAX_MAGNITUDE ** 2
+
+
+def plain_point(p):
+    """``p`` as 3 floats when it `is_plain` of shape (3,), else None."""
+    if not _is_float64(p, (3,)):
+        return None
+    x, y, z = p.tolist()
+    return (x, y, z) if _within(x * x + y * y + z * z) else None
+
+
+def plain_transform(T):
+    """The first three rows of ``T`` flat (12 floats) when it `is_plain` and is a rigid transform within
+    `calib.transforms.check_transform`'s tolerances, else None."""
+    if not _is_float64(T, (4, 4)):
+        return None
+    (a, b, c, x), (d, e, f, y), (g, h, i, z), (p, q, r, w) = T.tolist()
     atol = tf.ROTATION_ATOL
     tol = max(atol, 1e-9) * 10
     det = a * (e * i - f * h) - b * (d * i - f * g) + c * (d * h - e * g)
-    return (abs(p) <= atol and abs(q) <= atol and abs(r) <= atol and abs(w - 1.0) <= atol
-            and abs(det - 1.0) <= atol * 10
-            and abs(a * a + b * b + c * c - 1.0) <= tol and abs(d * d + e * e + f * f - 1.0) <= tol
-            and abs(g * g + h * h + i * i - 1.0) <= tol and abs(a * d + b * e + c * f) <= tol
-            and abs(a * g + b * h + c * i) <= tol and abs(d * g + e * h + f * i) <= tol)
+    plain = (_within(a * a + b * b + c * c + d * d + e * e + f * f + g * g + h * h + i * i + x * x + y * y + z * z
+                     + p * p + q * q + r * r + w * w)
+             and abs(p) <= atol and abs(q) <= atol and abs(r) <= atol and abs(w - 1.0) <= atol
+             and abs(det - 1.0) <= atol * 10
+             and abs(a * a + b * b + c * c - 1.0) <= tol and abs(d * d + e * e + f * f - 1.0) <= tol
+             and abs(g * g + h * h + i * i - 1.0) <= tol and abs(a * d + b * e + c * f) <= tol
+             and abs(a * g + b * h + c * i) <= tol and abs(d * g + e * h + f * i) <= tol)
+    return [a, b, c, x, d, e, f, y, g, h, i, z] if plain else None
 
 
-def is_plain_cov(S) -> bool:
-    """`is_plain` and symmetric within `calib.model.check_point_cov`'s tolerance."""
-    if not is_plain(S, (3, 3)):
-        return False
+def plain_cov(S):
+    """The upper triangle ``(xx, xy, xz, yy, yz, zz)`` of ``S`` when it `is_plain` of shape (3, 3) and is
+    symmetric within `calib.model.check_point_cov`'s tolerance, else None."""
+    if not _is_float64(S, (3, 3)):
+        return None
     (a, b, c), (d, e, f), (g, h, i) = S.tolist()
     tol = 1e-9 * max(abs(a), abs(b), abs(c), abs(d), abs(e), abs(f), abs(g), abs(h), abs(i), 1e-30)
-    return abs(b - d) <= tol and abs(c - g) <= tol and abs(f - h) <= tol
+    plain = (_within(a * a + b * b + c * c + d * d + e * e + f * f + g * g + h * h + i * i) and abs(b - d) <= tol and abs(c - g) <= tol
+             and abs(f - h) <= tol)
+    return (a, b, c, e, f, i) if plain else None
 
 
 def sample_model(C, t_K, A, theta, setup: str, factor=None, z=None):
@@ -177,45 +201,51 @@ def sample_floats(C, t_K, pose, theta, eye_to_hand: bool, factor=None, z=None):
     ``h`` (3 floats), ``H`` (ndarray (3, 12 + P)) and the cofactor's upper
     triangle ``(xx, xy, xz, yy, yz, zz)``.
     """
-    R_C, t_C = C
+    # Written out on floats (no helper calls): the same products and sums as the 3x3 kernels above.
+    (c0, c1, c2), (c3, c4, c5), (c6, c7, c8) = C[0]
     a0, a1, a2, x, a3, a4, a5, y, a6, a7, a8, z_ = pose
-    R_A, t_A = ((a0, a1, a2), (a3, a4, a5), (a6, a7, a8)), (x, y, z_)
     if factor is not None:
         w0, w1, w2, w3, w4, w5 = (factor @ z).tolist()
-        t_A = add3(t_A, matvec3(R_A, (w3, w4, w5)))
-        R_A = matmul3(R_A, so3_exp_scalar(w0, w1, w2))
+        x, y, z_ = x + (a0 * w3 + a1 * w4 + a2 * w5), y + (a3 * w3 + a4 * w4 + a5 * w5), z_ + (a6 * w3 + a7 * w4
+                                                                                             + a8 * w5)
+        (a0, a1, a2), (a3, a4, a5), (a6, a7, a8) = matmul3(((a0, a1, a2), (a3, a4, a5), (a6, a7, a8)),
+                                                           so3_exp_scalar(w0, w1, w2))
     if eye_to_hand:
-        R_M, t_M = R_A, t_A
+        R_M, (mx, my, mz) = ((a0, a1, a2), (a3, a4, a5), (a6, a7, a8)), (x, y, z_)
     else:
-        R_M = transpose3(R_A)
-        t_M = matvec3(R_M, t_A, -1.0)
-    lever = matvec3(R_M, t_K)
-    y = add3(lever, t_M)                                # marker center in C's parent frame
-    v = add3(y, t_C, -1.0)
-    Ct = transpose3(R_C)
-    qx, qy, qz = matvec3(Ct, v)                             # the point without camera error
+        R_M = (a0, a3, a6), (a1, a4, a7), (a2, a5, a8)
+        mx, my, mz = -(a0 * x + a3 * y + a6 * z_), -(a1 * x + a4 * y + a7 * z_), -(a2 * x + a5 * y + a8 * z_)
+    (m0, m1, m2), (m3, m4, m5), (m6, m7, m8) = R_M
+    kx, ky, kz = t_K
+    lever = (m0 * kx + m1 * ky + m2 * kz, m3 * kx + m4 * ky + m5 * kz, m6 * kx + m7 * ky + m8 * kz)
+    y = (lever[0] + mx, lever[1] + my, lever[2] + mz)       # marker center in C's parent frame
+    tx, ty, tz = C[1]
+    v = vx, vy, vz = y[0] - tx, y[1] - ty, y[2] - tz
+    # The point without camera error: R_C^T v.
+    qx, qy, qz = c0 * vx + c3 * vy + c6 * vz, c1 * vx + c4 * vy + c7 * vz, c2 * vx + c5 * vy + c8 * vz
     s, d, f = theta
     g, D, dz = 1.0 + s + d / qz, 1.0 + f, d / (qz * qz)
     # The camera's Jacobian J_p = [[gD, 0, jx], [0, gD, jy], [0, 0, jz]], and J_p R_C^T.
     gD, jx, jy, jz = g * D, -D * qx * dz, -D * qy * dz, g - qz * dz
-    c0, c1, c2 = Ct
-    JR = (add3(scale3(c0, gD), c2, jx), add3(scale3(c1, gD), c2, jy), scale3(c2, jz))
+    JR = ((gD * c0 + jx * c2, gD * c3 + jx * c5, gD * c6 + jx * c8),
+          (gD * c1 + jy * c2, gD * c4 + jy * c5, gD * c7 + jy * c8), (jz * c2, jz * c5, jz * c8))
     H_tK = matmul3(JR, R_M)
     J_theta = ((D * qx, D * qx / qz, qx * g), (D * qy, D * qy / qz, qy * g), (qz, 1.0, 0.0))
     # dq/d[dC, tC] = R_C^T [[v]x, -I]; a row r of J_p R_C^T times [v]x is r x v.
-    rows = [cross3(JR[i], v) + scale3(JR[i], -1.0) + H_tK[i] + J_theta[i] for i in range(3)]
+    rows = [cross3(j, v) + (-j[0], -j[1], -j[2]) + k + J_theta[i] for i, (j, k) in enumerate(zip(JR, H_tK))]
     if factor is None:
         H = np.array(rows)
     else:
         # d/dxi: [-(H_tK [t_K]x), H_tK] eye-to-hand, [J_p R_C^T [y]x, -J_p R_C^T] eye-in-hand.
         if eye_to_hand:
-            X = [cross3(t_K, H_tK[i]) + H_tK[i] for i in range(3)]
+            X = [cross3(t_K, k) + k for k in H_tK]
         else:
-            X = [cross3(JR[i], y) + scale3(JR[i], -1.0) for i in range(3)]
+            X = [cross3(j, y) + (-j[0], -j[1], -j[2]) for j in JR]
         H = np.empty((3, 12 + factor.shape[1]))
         H[:, :12] = rows
         H[:, 12:] = np.array(X) @ factor
-    lx, ly, lz = matvec3(Ct, lever if eye_to_hand else y)
+    lx, ly, lz = lever if eye_to_hand else y
+    lx, ly, lz = c0 * lx + c3 * ly + c6 * lz, c1 * lx + c4 * ly + c7 * lz, c2 * lx + c5 * ly + c8 * lz
     rho2 = ROBOT_RHO2
     a = 1.0 + rho2 * (lx * lx + ly * ly + lz * lz)
     return ((qx * gD, qy * gD, qz * g), H,
