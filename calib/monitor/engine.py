@@ -18,7 +18,7 @@ from calib.problem import CalibrationProblem
 from calib.result import CalibrationResult, CameraParameter, Residuals
 from calib.setup import Setup
 from calib.monitor.settings import MonitorSettings, MonitorUpdate
-from calib.monitor.kernels import (add3, inv_sym3, inv_sym3_floats, is_plain, matmul3, parts, plain_cov, plain_point,
+from calib.monitor.kernels import (inv_sym3, inv_sym3_floats, is_plain, matmul3, parts, plain_cov, plain_point,
     plain_transform, rotation_angle_scalar, sample_floats, sample_model, so3_exp_scalar, sym3)
 from calib.monitor.reference import Reference, WorkspaceMoments, arm_reference, workspace_distance
 from calib.monitor.stops import HOUR_S, Rate, Stop, Stops, Visit
@@ -148,7 +148,9 @@ class MonitorEngine:
     def _predict(self, t: float) -> None:
         """The random walk of the camera transform up to ``t``."""
         if t > self._t:
-            diagonal = np.einsum("ii->i", self._P[:6, :6])    # a view: the variances in place
+            P, n = self._P, len(self._P)
+            # A view of the variances, to add in place (the flat stride of a contiguous P's diagonal).
+            diagonal = P.reshape(-1)[:6 * n:n + 1] if P.flags.c_contiguous else np.einsum("ii->i", P[:6, :6])
             diagonal += self._walk_per_h * ((t - self._t) / HOUR_S)
         self._t = max(t, self._t)
 
@@ -233,7 +235,9 @@ class MonitorEngine:
         scale = self._noise_scale
         k, m = scale * ref.noise.point_scale, scale * ref.noise.robot ** 2
         (p0, p1, p2), (h0, h1, h2) = s.point, h
-        return (p0 - h0, p1 - h1, p2 - h2), H, tuple(k * a + m * b for a, b in zip(s.shape_upper, cof))
+        (a0, a1, a2, a3, a4, a5), (b0, b1, b2, b3, b4, b5) = s.shape_upper, cof
+        return ((p0 - h0, p1 - h1, p2 - h2), H,
+                (k * a0 + m * b0, k * a1 + m * b1, k * a2 + m * b2, k * a3 + m * b3, k * a4 + m * b4, k * a5 + m * b5))
 
     def _follow_noise(self, nis: float) -> None:
         """The arming noise levels come from a few dozen samples: their scale follows the innovations (a running
@@ -253,7 +257,8 @@ class MonitorEngine:
             # Against the stop's own earlier visits: what they share (unmodelled errors of the robot or the
             # camera at that pose, the estimate's own error) is no change; only the camera moving is.
             Hc = H[:, :6]
-            r_test = s.p - stops.mean[i]
+            (p0, p1, p2), (m0, m1, m2) = s.point, stops.mean[i]
+            r_test = p0 - m0, p1 - m1, p2 - m2
             # A drifting camera has moved since those visits by the same for every stop: the long window's
             # test is for a move beyond the random walk over that time.
             offset_var = self._walk_per_h * ((s.t - stops.t[i]) / HOUR_S)
@@ -496,9 +501,10 @@ class MonitorEngine:
         if ref.C is not self._in_use[0]:             # the calibration in use as floats, once per change
             self._in_use = ref.C, parts(ref.C)
         (R, t), (R0, t0) = self._camera_parts, self._in_use[1]
-        dR = (add3(R[0], R0[0], -1.0), add3(R[1], R0[1], -1.0), add3(R[2], R0[2], -1.0))
-        dt = add3(t, t0, -1.0)
-        moved = self._workspace.displacement(dR, dt)
+        (a0, a1, a2), (a3, a4, a5), (a6, a7, a8) = R
+        (b0, b1, b2), (b3, b4, b5), (b6, b7, b8) = R0
+        dR = (a0 - b0, a1 - b1, a2 - b2), (a3 - b3, a4 - b4, a5 - b5), (a6 - b6, a7 - b7, a8 - b8)
+        moved = self._workspace.displacement(dR, (t[0] - t0[0], t[1] - t0[1], t[2] - t0[2]))
         drift_m = math.hypot(*moved)
         drift_deg = math.degrees(rotation_angle_scalar(R, R0))
         sigma = self._workspace.sigma(self._C, self._u[3:6], self._P)

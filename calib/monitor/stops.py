@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import NamedTuple
 
 import numpy as np
 
@@ -39,8 +40,7 @@ class Stop:
     stop: tuple | None = None
 
 
-@dataclass
-class Visit:
+class Visit(NamedTuple):
     """A sample in the detector's window and the filter state before it was fused."""
 
     sample: Stop
@@ -60,7 +60,7 @@ class Stops:
 
     def __init__(self, translation_m: float, rotation_rad: float):
         self.poses: list[list] = []                     # per stop: its first flange pose, A[:3] flat
-        self.mean: list[np.ndarray] = []
+        self.mean: list[tuple] = []                      # per stop: the mean marker point, 3 floats
         self.n: list[float] = []
         self.t: list[float] = []                        # per stop: the mean time of the visits in its mean
         self.last: list[int] = []
@@ -103,13 +103,14 @@ class Stops:
                     del held[j]
             i = len(self.poses)
             self.poses.append(s.pose)
-            self.mean.append(np.zeros(3))
+            self.mean.append((0.0, 0.0, 0.0))
             self.n.append(0.0)
             self.t.append(0.0)
             self.last.append(0)
             self.generation += 1
         n = self.n[i] = min(self.n[i] + 1.0, BASELINE_VISITS)
-        self.mean[i] = self.mean[i] + (s.p - self.mean[i]) / n
+        (m0, m1, m2), (p0, p1, p2) = self.mean[i], s.point
+        self.mean[i] = (m0 + (p0 - m0) / n, m1 + (p1 - m1) / n, m2 + (p2 - m2) / n)
         self.t[i] += (s.t - self.t[i]) / n
         self._visits += 1
         self.last[i] = self._visits
@@ -127,14 +128,15 @@ class Rate:
         self.reset()
 
     def add(self, t: float, y) -> None:
+        y = np.array(y, dtype=float)
         if self.t0 is None:
             self.t0 = t
-            self.y0, self.y1 = [0.0] * len(y), [0.0] * len(y)
+            self.y0, self.y1 = np.zeros(len(y)), np.zeros(len(y))
         decay = math.exp(-(t - self.t_last) / self.tau_s) if self.s0 else 1.0
         x = (t - self.t0) / HOUR_S
         self.s0, self.s1, self.s2 = self.s0 * decay + 1.0, self.s1 * decay + x, self.s2 * decay + x * x
-        self.y0 = [a * decay + b for a, b in zip(self.y0, y)]
-        self.y1 = [a * decay + x * b for a, b in zip(self.y1, y)]
+        self.y0 = self.y0 * decay + y
+        self.y1 = self.y1 * decay + x * y
         self.t_last = t
 
     def slope(self) -> list | None:
@@ -145,7 +147,7 @@ class Rate:
         den = s0 * self.s2 - s1 * s1
         if den <= 0:
             return None
-        return [(s0 * b - s1 * a) / den for a, b in zip(self.y0, self.y1)]
+        return ((s0 * self.y1 - s1 * self.y0) / den).tolist()
 
     def reset(self) -> None:
         self.t0, self.t_last = None, 0.0
