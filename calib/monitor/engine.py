@@ -162,14 +162,16 @@ class MonitorEngine:
     def _gain(self, PHt, S_inv, r) -> None:
         """Kalman update from ``PHt = P H^T``, the innovation's inverse covariance (3, 3) and the innovation."""
         Kg = PHt @ S_inv
-        P = self._P - Kg @ PHt.T
-        self._P = 0.5 * (P + P.T)
+        P = self._P - Kg @ PHt.T          # a new array: the window's states hold the old one
+        P += P.T
+        P *= 0.5
+        self._P = P
         d = Kg @ r
         d0, d1, d2, d3, d4, d5 = d[:6].tolist()
         R, (x, y, z) = self._camera_parts
         r0, r1, r2 = matmul3(so3_exp_scalar(d0, d1, d2), R)
         t = (x + d3, y + d4, z + d5)
-        self._camera = np.array((r0 + t[:1], r1 + t[1:2], r2 + t[2:], (0.0, 0.0, 0.0, 1.0)))
+        self._camera = np.array(r0 + t[:1] + r1 + t[1:2] + r2 + t[2:] + (0.0, 0.0, 0.0, 1.0)).reshape(4, 4)
         self._camera_parts = (r0, r1, r2), t
         self._u = self._u + d[6:]
 
@@ -253,10 +255,10 @@ class MonitorEngine:
         stops = self._stops
         i = stops.lookup(s)
         r_test, S_test_inv, offset_var = r, S_inv, None
+        Hc = H[:, :6]
         if i is not None and stops.n[i] >= MIN_BASELINE:
             # Against the stop's own earlier visits: what they share (unmodelled errors of the robot or the
             # camera at that pose, the estimate's own error) is no change; only the camera moving is.
-            Hc = H[:, :6]
             (p0, p1, p2), (m0, m1, m2) = s.point, stops.mean[i]
             r_test = p0 - m0, p1 - m1, p2 - m2
             # A drifting camera has moved since those visits by the same for every stop: the long window's
@@ -267,7 +269,7 @@ class MonitorEngine:
             S_test_inv = sym3(inv_sym3_floats(a + k * R[0], b + k * R[1], c + k * R[2], d + k * R[3], e + k * R[4],
                                               f + k * R[5]))
         # While a re-learnt camera settles the stops still refine it: that is not a move.
-        fired = not self._settle and self.detector.update(r_test, S_test_inv, H[:, :6], offset_var)
+        fired = not self._settle and self.detector.update(r_test, S_test_inv, Hc, offset_var)
         statistic = self.detector.statistic
         if not fired:
             self._window.append(Visit(s, (self._C, self._u, self._P)))

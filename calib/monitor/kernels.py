@@ -98,7 +98,7 @@ def inv_sym3_floats(a, b, c, d, e, f):
 def sym3(upper) -> np.ndarray:
     """The symmetric (3, 3) array of an upper triangle ``(xx, xy, xz, yy, yz, zz)``."""
     A, B, C, D, E, F = upper
-    return np.array(((A, B, C), (B, D, E), (C, E, F)))
+    return np.array((A, B, C, B, D, E, C, E, F)).reshape(3, 3)
 
 
 def is_plain(a, shape) -> bool:

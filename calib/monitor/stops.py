@@ -22,7 +22,7 @@ HOUR_S = 3600.0
 RATE_MIN_SPAN = 0.25
 
 
-@dataclass
+@dataclass(slots=True)
 class Stop:
     """A sample: flange pose, measured point, its covariance shape, kinematic-error factor, time; as floats for
     the per-sample model, ``pose`` is ``A[:3]`` flat (also the stop lookup's key), ``point`` is ``p`` and
@@ -128,15 +128,14 @@ class Rate:
         self.reset()
 
     def add(self, t: float, y) -> None:
-        y = np.array(y, dtype=float)
         if self.t0 is None:
             self.t0 = t
-            self.y0, self.y1 = np.zeros(len(y)), np.zeros(len(y))
+            self.y0, self.y1 = [0.0] * len(y), [0.0] * len(y)
         decay = math.exp(-(t - self.t_last) / self.tau_s) if self.s0 else 1.0
         x = (t - self.t0) / HOUR_S
         self.s0, self.s1, self.s2 = self.s0 * decay + 1.0, self.s1 * decay + x, self.s2 * decay + x * x
-        self.y0 = self.y0 * decay + y
-        self.y1 = self.y1 * decay + x * y
+        self.y0 = [a * decay + b for a, b in zip(self.y0, y)]
+        self.y1 = [a * decay + x * b for a, b in zip(self.y1, y)]
         self.t_last = t
 
     def slope(self) -> list | None:
@@ -147,7 +146,7 @@ class Rate:
         den = s0 * self.s2 - s1 * s1
         if den <= 0:
             return None
-        return ((s0 * self.y1 - s1 * self.y0) / den).tolist()
+        return [(s0 * b - s1 * a) / den for a, b in zip(self.y0, self.y1)]
 
     def reset(self) -> None:
         self.t0, self.t_last = None, 0.0
