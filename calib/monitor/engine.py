@@ -77,6 +77,7 @@ class MonitorEngine:
         ref, cov = arm_reference(result, problem)
         self.reference = ref
         self._eye_to_hand = ref.setup == Setup.EYE_TO_HAND
+        self._point_scale, self._robot_var = ref.noise.point_scale, ref.noise.robot ** 2     # the arming's levels
         self._C = ref.C.copy()
         self._u = np.r_[ref.K[:3, 3], ref.theta, np.zeros(len(cov) - 12)]
         self._P = cov
@@ -230,12 +231,12 @@ class MonitorEngine:
     def _innovation(self, s: Stop):
         """`_linearize` at the live state on floats: innovation ``r`` (3 floats), ``H`` (3, n), and the noise ``R``'s
         upper triangle (6 floats)."""
-        ref, u = self.reference, self._u
+        u = self._u
         k0, k1, k2, s0, s1, s2 = u[:6].tolist()
         h, H, cof = sample_floats(self._camera_parts, (k0, k1, k2), s.pose, (s0, s1, s2), self._eye_to_hand,
                                   s.factor, u[6:])
         scale = self._noise_scale
-        k, m = scale * ref.noise.point_scale, scale * ref.noise.robot ** 2
+        k, m = scale * self._point_scale, scale * self._robot_var
         (p0, p1, p2), (h0, h1, h2) = s.point, h
         (a0, a1, a2, a3, a4, a5), (b0, b1, b2, b3, b4, b5) = s.shape_upper, cof
         return ((p0 - h0, p1 - h1, p2 - h2), H,

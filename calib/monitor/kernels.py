@@ -78,7 +78,12 @@ def so3_exp_scalar(a0: float, a1: float, a2: float):
 
 def rotation_angle_scalar(R1, R2) -> float:
     """`calib.transforms.rotation_angle` of ``R1 R2^T`` (rotations as rows of floats), rad."""
-    (a, b, c), (d, e, f), (g, h, i) = matmul3(R1, transpose3(R2))
+    (a0, a1, a2), (a3, a4, a5), (a6, a7, a8) = R1
+    (b0, b1, b2), (b3, b4, b5), (b6, b7, b8) = R2
+    # The entries of R1 R2^T (row i of R1 dot row j of R2), written out.
+    a, b, c = a0 * b0 + a1 * b1 + a2 * b2, a0 * b3 + a1 * b4 + a2 * b5, a0 * b6 + a1 * b7 + a2 * b8
+    d, e, f = a3 * b0 + a4 * b1 + a5 * b2, a3 * b3 + a4 * b4 + a5 * b5, a3 * b6 + a4 * b7 + a5 * b8
+    g, h, i = a6 * b0 + a7 * b1 + a8 * b2, a6 * b3 + a7 * b4 + a8 * b5, a6 * b6 + a7 * b7 + a8 * b8
     return math.atan2(math.sqrt((h - f) ** 2 + (c - g) ** 2 + (d - b) ** 2) / 2.0, (a + e + i - 1.0) / 2.0)
 
 
