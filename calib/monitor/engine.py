@@ -157,17 +157,18 @@ class MonitorEngine:
 
     def _fuse(self, r, H, R) -> None:
         """Kalman update of the whole state with innovation ``r``, Jacobian ``H`` and noise ``R`` (arrays)."""
-        PHt = self._P @ H.T
-        self._gain(PHt, inv_sym3(H @ PHt + R), r)
+        PHt = self._P.dot(H.T)
+        self._gain(PHt, inv_sym3(H.dot(PHt) + R), r)
 
     def _gain(self, PHt, S_inv, r) -> None:
         """Kalman update from ``PHt = P H^T``, the innovation's inverse covariance (3, 3) and the innovation."""
-        Kg = PHt @ S_inv
-        P = self._P - Kg @ PHt.T          # a new array: the window's states hold the old one
+        # ndarray.dot: the same BLAS products as @, with less call overhead on these small arrays.
+        Kg = PHt.dot(S_inv)
+        P = self._P - Kg.dot(PHt.T)          # a new array: the window's states hold the old one
         P += P.T
         P *= 0.5
         self._P = P
-        d = Kg @ r
+        d = Kg.dot(r)
         d0, d1, d2, d3, d4, d5 = d[:6].tolist()
         R, (x, y, z) = self._camera_parts
         r0, r1, r2 = matmul3(so3_exp_scalar(d0, d1, d2), R)
@@ -209,8 +210,8 @@ class MonitorEngine:
         self._count += 1
         self._predict(s.t)
         r, H, R = self._innovation(s)
-        PHt = self._P @ H.T
-        (a, b, c), (_, d, e), (_, _, f) = (H @ PHt).tolist()
+        PHt = self._P.dot(H.T)
+        (a, b, c), (_, d, e), (_, _, f) = H.dot(PHt).tolist()
         S_inv = inv_sym3_floats(a + R[0], b + R[1], c + R[2], d + R[3], e + R[4], f + R[5])
         r0, r1, r2 = r
         i0, i1, i2, i3, i4, i5 = S_inv
@@ -266,7 +267,7 @@ class MonitorEngine:
             # test is for a move beyond the random walk over that time.
             offset_var = self._walk_per_h * ((s.t - stops.t[i]) / HOUR_S)
             k = 1.0 + 1.0 / stops.n[i]
-            (a, b, c), (_, d, e), (_, _, f) = ((Hc * offset_var) @ Hc.T).tolist()
+            (a, b, c), (_, d, e), (_, _, f) = (Hc * offset_var).dot(Hc.T).tolist()
             S_test_inv = sym3(inv_sym3_floats(a + k * R[0], b + k * R[1], c + k * R[2], d + k * R[3], e + k * R[4],
                                               f + k * R[5]))
         # While a re-learnt camera settles the stops still refine it: that is not a move.

@@ -157,8 +157,8 @@ def plain_cov(S):
         return None
     (a, b, c), (d, e, f), (g, h, i) = S.tolist()
     tol = 1e-9 * max(abs(a), abs(b), abs(c), abs(d), abs(e), abs(f), abs(g), abs(h), abs(i), 1e-30)
-    plain = (_within(a * a + b * b + c * c + d * d + e * e + f * f + g * g + h * h + i * i) and abs(b - d) <= tol and abs(c - g) <= tol
-             and abs(f - h) <= tol)
+    plain = (_within(a * a + b * b + c * c + d * d + e * e + f * f + g * g + h * h + i * i)
+             and abs(b - d) <= tol and abs(c - g) <= tol and abs(f - h) <= tol)
     return (a, b, c, e, f, i) if plain else None
 
 
@@ -210,7 +210,7 @@ def sample_floats(C, t_K, pose, theta, eye_to_hand: bool, factor=None, z=None):
     (c0, c1, c2), (c3, c4, c5), (c6, c7, c8) = C[0]
     a0, a1, a2, x, a3, a4, a5, y, a6, a7, a8, z_ = pose
     if factor is not None:
-        w0, w1, w2, w3, w4, w5 = (factor @ z).tolist()
+        w0, w1, w2, w3, w4, w5 = factor.dot(z).tolist()
         x, y, z_ = x + (a0 * w3 + a1 * w4 + a2 * w5), y + (a3 * w3 + a4 * w4 + a5 * w5), z_ + (a6 * w3 + a7 * w4
                                                                                              + a8 * w5)
         (a0, a1, a2), (a3, a4, a5), (a6, a7, a8) = matmul3(((a0, a1, a2), (a3, a4, a5), (a6, a7, a8)),
@@ -248,7 +248,7 @@ def sample_floats(C, t_K, pose, theta, eye_to_hand: bool, factor=None, z=None):
             X = [cross3(j, y) + (-j[0], -j[1], -j[2]) for j in JR]
         H = np.empty((3, 12 + factor.shape[1]))
         H[:, :12] = rows
-        H[:, 12:] = np.array(X) @ factor
+        H[:, 12:] = np.array(X).dot(factor)           # ndarray.dot: @'s product, less call overhead
     lx, ly, lz = lever if eye_to_hand else y
     lx, ly, lz = c0 * lx + c3 * ly + c6 * lz, c1 * lx + c4 * ly + c7 * lz, c2 * lx + c5 * ly + c8 * lz
     rho2 = ROBOT_RHO2
