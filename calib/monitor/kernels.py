@@ -4,7 +4,9 @@ One sample is a few 3x3 products: as numpy arrays each costs more in call overhe
 arithmetic, so the engine's hot path runs them on tuples of floats. `so3_exp_scalar` and
 `rotation_angle_scalar` are `calib.transforms.so3_exp` and `calib.transforms.rotation_angle` for one
 rotation, with the same formulas; `sample_model` is `calib.model.point_jacobians` for one sample
-(tested against it)."""
+(tested against it), `sample_floats` its arithmetic written out on floats, which the engine calls with
+the floats it already holds. `plain_transform`, `plain_point` and `plain_cov` check a sample's arrays on
+the floats they read and return them."""
 
 from __future__ import annotations
 
@@ -29,37 +31,12 @@ def parts(T):
     return ((a, b, c), (d, e, f), (g, h, i)), (x, y, z)
 
 
-def transpose3(M):
-    (a, b, c), (d, e, f), (g, h, i) = M
-    return (a, d, g), (b, e, h), (c, f, i)
-
-
-def matvec3(M, v, k: float = 1.0):
-    """``k M v``."""
-    (a, b, c), (d, e, f), (g, h, i) = M
-    x, y, z = v
-    return k * (a * x + b * y + c * z), k * (d * x + e * y + f * z), k * (g * x + h * y + i * z)
-
-
 def matmul3(M, N):
     (a, b, c), (d, e, f), (g, h, i) = M
     (p, q, r), (s, t, u), (v, w, x) = N
     return ((a * p + b * s + c * v, a * q + b * t + c * w, a * r + b * u + c * x),
             (d * p + e * s + f * v, d * q + e * t + f * w, d * r + e * u + f * x),
             (g * p + h * s + i * v, g * q + h * t + i * w, g * r + h * u + i * x))
-
-
-def add3(a, b, k: float = 1.0):
-    """``a + k b``."""
-    return a[0] + k * b[0], a[1] + k * b[1], a[2] + k * b[2]
-
-
-def scale3(a, k: float):
-    return k * a[0], k * a[1], k * a[2]
-
-
-def cross3(a, b):
-    return a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]
 
 
 def so3_exp_scalar(a0: float, a1: float, a2: float):
@@ -225,7 +202,7 @@ def sample_floats(C, t_K, pose, theta, eye_to_hand: bool, factor=None, z=None):
     lever = (m0 * kx + m1 * ky + m2 * kz, m3 * kx + m4 * ky + m5 * kz, m6 * kx + m7 * ky + m8 * kz)
     y = (lever[0] + mx, lever[1] + my, lever[2] + mz)       # marker center in C's parent frame
     tx, ty, tz = C[1]
-    v = vx, vy, vz = y[0] - tx, y[1] - ty, y[2] - tz
+    vx, vy, vz = y[0] - tx, y[1] - ty, y[2] - tz
     # The point without camera error: R_C^T v.
     qx, qy, qz = c0 * vx + c3 * vy + c6 * vz, c1 * vx + c4 * vy + c7 * vz, c2 * vx + c5 * vy + c8 * vz
     s, d, f = theta
@@ -237,15 +214,18 @@ def sample_floats(C, t_K, pose, theta, eye_to_hand: bool, factor=None, z=None):
     H_tK = matmul3(JR, R_M)
     J_theta = ((D * qx, D * qx / qz, qx * g), (D * qy, D * qy / qz, qy * g), (qz, 1.0, 0.0))
     # dq/d[dC, tC] = R_C^T [[v]x, -I]; a row r of J_p R_C^T times [v]x is r x v.
-    rows = [cross3(j, v) + (-j[0], -j[1], -j[2]) + k + J_theta[i] for i, (j, k) in enumerate(zip(JR, H_tK))]
+    rows = [(j1 * vz - j2 * vy, j2 * vx - j0 * vz, j0 * vy - j1 * vx, -j0, -j1, -j2) + k + J
+            for (j0, j1, j2), k, J in zip(JR, H_tK, J_theta)]
     if factor is None:
         H = np.array(rows)
     else:
-        # d/dxi: [-(H_tK [t_K]x), H_tK] eye-to-hand, [J_p R_C^T [y]x, -J_p R_C^T] eye-in-hand.
+        # d/dxi: [-(H_tK [t_K]x), H_tK] eye-to-hand, [J_p R_C^T [y]x, -J_p R_C^T] eye-in-hand (the crosses
+        # t_K x row and row x y written out).
         if eye_to_hand:
-            X = [cross3(t_K, k) + k for k in H_tK]
+            X = [(ky * k2 - kz * k1, kz * k0 - kx * k2, kx * k1 - ky * k0, k0, k1, k2) for k0, k1, k2 in H_tK]
         else:
-            X = [cross3(j, y) + (-j[0], -j[1], -j[2]) for j in JR]
+            y0, y1, y2 = y
+            X = [(j1 * y2 - j2 * y1, j2 * y0 - j0 * y2, j0 * y1 - j1 * y0, -j0, -j1, -j2) for j0, j1, j2 in JR]
         H = np.empty((3, 12 + factor.shape[1]))
         H[:, :12] = rows
         H[:, 12:] = np.array(X).dot(factor)           # ndarray.dot: @'s product, less call overhead
