@@ -233,7 +233,7 @@ class MonitorEngine:
         """`_linearize` at the live state on floats: innovation ``r`` (3 floats), ``H`` (3, n), and the noise ``R``'s
         upper triangle (6 floats)."""
         u = self._u
-        k0, k1, k2, s0, s1, s2 = u[:6].tolist()
+        k0, k1, k2, s0, s1, s2 = u.tolist()[:6]
         h, H, cof = sample_floats(self._camera_parts, (k0, k1, k2), s.pose, (s0, s1, s2), self._eye_to_hand,
                                   s.factor, u[6:])
         scale = self._noise_scale
