@@ -112,7 +112,7 @@ class ChangeDetector:
         Hr = self._Hr
         Hr[:, :6] = H
         Hr[:, 6] = r
-        Fg = H.T @ S_inv @ Hr
+        Fg = H.T.dot(S_inv).dot(Hr)         # ndarray.dot: @'s product, less call overhead on small arrays
         cfg, n, size, cum = self.config, self._count, self._size, self._cum
         slot = n % size
         now = np.add(cum[slot - 1], Fg, out=cum[slot])        # slot - 1 = -1 wraps to the last slot
@@ -153,6 +153,6 @@ def _glr(Fg, offset_var=None):
     diagonal += 1e-9 * (Fg.item(0, 0) + Fg.item(3, 3))
     F = Fg[:, :6]
     if offset_var is not None:
-        F = F + (F * offset_var) @ F
+        F = F + (F * offset_var).dot(F)
     _, x, info = dposv(F, g)
     return float(g.dot(x)) if info == 0 else 0.0

@@ -18,8 +18,8 @@ from calib.problem import CalibrationProblem
 from calib.result import CalibrationResult, CameraParameter, Residuals
 from calib.setup import Setup
 from calib.monitor.settings import MonitorSettings, MonitorUpdate
-from calib.monitor.kernels import (add3, inv_sym3, is_plain, is_plain_cov, is_plain_transform, matmul3, parts,
-    rotation_angle_scalar, sample_model, so3_exp_scalar)
+from calib.monitor.kernels import (inv_sym3, inv_sym3_floats, is_plain, matmul3, parts, plain_cov, plain_point,
+    plain_transform, rotation_angle_scalar, sample_floats, sample_model, so3_exp_scalar, sym3)
 from calib.monitor.reference import Reference, WorkspaceMoments, arm_reference, workspace_distance
 from calib.monitor.stops import HOUR_S, Rate, Stop, Stops, Visit
 
@@ -76,6 +76,8 @@ class MonitorEngine:
         """
         ref, cov = arm_reference(result, problem)
         self.reference = ref
+        self._eye_to_hand = ref.setup == Setup.EYE_TO_HAND
+        self._point_scale, self._robot_var = ref.noise.point_scale, ref.noise.robot ** 2     # the arming's levels
         self._C = ref.C.copy()
         self._u = np.r_[ref.K[:3, 3], ref.theta, np.zeros(len(cov) - 12)]
         self._P = cov
@@ -128,6 +130,15 @@ class MonitorEngine:
 
     # ------------------------------------------------------------------ the filter
 
+    @property
+    def _C(self) -> np.ndarray:
+        """The camera transform (4, 4); ``_camera_parts`` holds it as `parts` for the per-sample model."""
+        return self._camera
+
+    @_C.setter
+    def _C(self, C) -> None:
+        self._camera, self._camera_parts = C, parts(C)
+
     def _linearize(self, C, u, s: Stop):
         """Innovation ``r`` (3,), Jacobian ``H`` (3, n) of the predicted point w.r.t. the state, noise ``R`` (3, 3)."""
         ref = self.reference
@@ -138,23 +149,32 @@ class MonitorEngine:
     def _predict(self, t: float) -> None:
         """The random walk of the camera transform up to ``t``."""
         if t > self._t:
-            diagonal = np.einsum("ii->i", self._P[:6, :6])    # a view: the variances in place
+            P, n = self._P, len(self._P)
+            # A view of the variances, to add in place (the flat stride of a contiguous P's diagonal).
+            diagonal = P.reshape(-1)[:6 * n:n + 1] if P.flags.c_contiguous else np.einsum("ii->i", P[:6, :6])
             diagonal += self._walk_per_h * ((t - self._t) / HOUR_S)
         self._t = max(t, self._t)
 
-    def _fuse(self, r, H, R, PHt=None, S_inv=None) -> None:
-        """Kalman update of the whole state (``PHt = P H^T`` and the innovation's inverse covariance when known)."""
-        if PHt is None:
-            PHt = self._P @ H.T
-            S_inv = inv_sym3(H @ PHt + R)
-        Kg = PHt @ S_inv
-        P = self._P - Kg @ PHt.T
-        self._P = 0.5 * (P + P.T)
-        d = Kg @ r
+    def _fuse(self, r, H, R) -> None:
+        """Kalman update of the whole state with innovation ``r``, Jacobian ``H`` and noise ``R`` (arrays)."""
+        PHt = self._P.dot(H.T)
+        self._gain(PHt, inv_sym3(H.dot(PHt) + R), r)
+
+    def _gain(self, PHt, S_inv, r) -> None:
+        """Kalman update from ``PHt = P H^T``, the innovation's inverse covariance (3, 3) and the innovation."""
+        # ndarray.dot: the same BLAS products as @, with less call overhead on these small arrays.
+        Kg = PHt.dot(S_inv)
+        P = self._P - Kg.dot(PHt.T)          # a new array: the window's states hold the old one
+        P += P.T
+        P *= 0.5
+        self._P = P
+        d = Kg.dot(r)
         d0, d1, d2, d3, d4, d5 = d[:6].tolist()
-        R, (x, y, z) = parts(self._C)
+        R, (x, y, z) = self._camera_parts
         r0, r1, r2 = matmul3(so3_exp_scalar(d0, d1, d2), R)
-        self._C = np.array((r0 + (x + d3,), r1 + (y + d4,), r2 + (z + d5,), (0.0, 0.0, 0.0, 1.0)))
+        t = (x + d3, y + d4, z + d5)
+        self._camera = np.array(r0 + t[:1] + r1 + t[1:2] + r2 + t[2:] + (0.0, 0.0, 0.0, 1.0)).reshape(4, 4)
+        self._camera_parts = (r0, r1, r2), t
         self._u = self._u + d[6:]
 
     def _state(self):
@@ -189,20 +209,39 @@ class MonitorEngine:
         s = self._sample(t, T_base_flange, point_cam, point_cov, robot_factor)
         self._count += 1
         self._predict(s.t)
-        r, H, R = self._linearize(self._C, self._u, s)
-        PHt = self._P @ H.T
-        S_inv = inv_sym3(H @ PHt + R)
-        nis = float(r @ S_inv @ r)
+        r, H, R = self._innovation(s)
+        PHt = self._P.dot(H.T)
+        (a, b, c), (_, d, e), (_, _, f) = H.dot(PHt).tolist()
+        S_inv = inv_sym3_floats(a + R[0], b + R[1], c + R[2], d + R[3], e + R[4], f + R[5])
+        r0, r1, r2 = r
+        i0, i1, i2, i3, i4, i5 = S_inv
+        nis = ((r0 * i0 + r1 * i1 + r2 * i2) * r0 + (r0 * i1 + r1 * i3 + r2 * i4) * r1
+               + (r0 * i2 + r1 * i4 + r2 * i5) * r2)
         if not self._moved and nis < NIS_GATE:
             self._follow_noise(nis)
-        verify = math.sqrt(float(r @ r)) * 1e3          # |R_C r|: the prediction error in C's parent frame
+        verify = math.sqrt(r0 * r0 + r1 * r1 + r2 * r2) * 1e3   # |R_C r|: the prediction error in C's parent frame
+        r = np.array(r)
         if self._moved:
             self._relearn_set.append(s)
             del self._relearn_set[:-self.settings.relearn_samples]
             alarm, statistic, message = "", 0.0, self._relearn()
         else:
-            alarm, statistic, message = self._test(s, r, H, R, PHt, S_inv)
+            alarm, statistic, message = self._test(s, r, H, R, PHt, sym3(S_inv))
         return self._figures(s, self._next_state(), alarm, message, r, nis, verify, statistic)
+
+    def _innovation(self, s: Stop):
+        """`_linearize` at the live state on floats: innovation ``r`` (3 floats), ``H`` (3, n), and the noise ``R``'s
+        upper triangle (6 floats)."""
+        u = self._u
+        k0, k1, k2, s0, s1, s2 = u.tolist()[:6]
+        h, H, cof = sample_floats(self._camera_parts, (k0, k1, k2), s.pose, (s0, s1, s2), self._eye_to_hand,
+                                  s.factor, u[6:])
+        scale = self._noise_scale
+        k, m = scale * self._point_scale, scale * self._robot_var
+        (p0, p1, p2), (h0, h1, h2) = s.point, h
+        (a0, a1, a2, a3, a4, a5), (b0, b1, b2, b3, b4, b5) = s.shape_upper, cof
+        return ((p0 - h0, p1 - h1, p2 - h2), H,
+                (k * a0 + m * b0, k * a1 + m * b1, k * a2 + m * b2, k * a3 + m * b3, k * a4 + m * b4, k * a5 + m * b5))
 
     def _follow_noise(self, nis: float) -> None:
         """The arming noise levels come from a few dozen samples: their scale follows the innovations (a running
@@ -218,21 +257,25 @@ class MonitorEngine:
         stops = self._stops
         i = stops.lookup(s)
         r_test, S_test_inv, offset_var = r, S_inv, None
+        Hc = H[:, :6]
         if i is not None and stops.n[i] >= MIN_BASELINE:
             # Against the stop's own earlier visits: what they share (unmodelled errors of the robot or the
             # camera at that pose, the estimate's own error) is no change; only the camera moving is.
-            Hc = H[:, :6]
-            r_test = s.p - stops.mean[i]
+            (p0, p1, p2), (m0, m1, m2) = s.point, stops.mean[i]
+            r_test = p0 - m0, p1 - m1, p2 - m2
             # A drifting camera has moved since those visits by the same for every stop: the long window's
             # test is for a move beyond the random walk over that time.
             offset_var = self._walk_per_h * ((s.t - stops.t[i]) / HOUR_S)
-            S_test_inv = inv_sym3(R * (1.0 + 1.0 / stops.n[i]) + (Hc * offset_var) @ Hc.T)
+            k = 1.0 + 1.0 / stops.n[i]
+            (a, b, c), (_, d, e), (_, _, f) = (Hc * offset_var).dot(Hc.T).tolist()
+            S_test_inv = sym3(inv_sym3_floats(a + k * R[0], b + k * R[1], c + k * R[2], d + k * R[3], e + k * R[4],
+                                              f + k * R[5]))
         # While a re-learnt camera settles the stops still refine it: that is not a move.
-        fired = not self._settle and self.detector.update(r_test, S_test_inv, H[:, :6], offset_var)
+        fired = not self._settle and self.detector.update(r_test, S_test_inv, Hc, offset_var)
         statistic = self.detector.statistic
         if not fired:
             self._window.append(Visit(s, (self._C, self._u, self._P)))
-            self._fuse(r, H, R, PHt, S_inv)
+            self._gain(PHt, S_inv, r)
             if len(self._window) > self.settings.detector.window:
                 stops.add(self._window.pop(0).sample)
             return "", statistic, ""
@@ -267,27 +310,40 @@ class MonitorEngine:
     def _sample(self, t, T_base_flange, point_cam, point_cov, robot_factor) -> Stop:
         if self.reference is None:
             raise CalibrationError("the monitoring engine is not armed: give it a calibration result first")
-        # Float arrays of the right shape are checked on the spot; anything else goes through the validators.
-        A = T_base_flange.copy() if is_plain_transform(T_base_flange) else tf.check_transform(T_base_flange,
-                                                                                             "T_base_flange")
-        p = point_cam.copy() if is_plain(point_cam, (3,)) else tf.check_points(
-            np.asarray(point_cam, dtype=float).reshape(1, -1), "point_cam")[0]
-        if point_cov is None:
-            shape = default_point_cov(p[None])[0]
+        # Float arrays of the right shape are checked on the spot, as floats; anything else goes through the
+        # validators (their checks and messages).
+        pose = plain_transform(T_base_flange)
+        if pose is None:
+            A = tf.check_transform(T_base_flange, "T_base_flange")
+            pose = A[:3].ravel().tolist()
         else:
-            shape = point_cov.copy() if is_plain_cov(point_cov) else model.check_point_cov(point_cov, 1)[0]
+            A = T_base_flange.copy()
+        point = plain_point(point_cam)
+        if point is None:
+            p = tf.check_points(np.asarray(point_cam, dtype=float).reshape(1, -1), "point_cam")[0]
+            point = tuple(p.tolist())
+        else:
+            p = point_cam.copy()
+        upper = None if point_cov is None else plain_cov(point_cov)
+        if upper is None:
+            shape = default_point_cov(p[None])[0] if point_cov is None else model.check_point_cov(point_cov, 1)[0]
+            (a, b, c), (_, d, e), (_, _, f) = shape.tolist()
+            upper = a, b, c, d, e, f
+        else:
+            shape = point_cov.copy()
         factor = None
-        if self.n_factor:
+        n_factor = len(self._u) - 6
+        if n_factor:
             if robot_factor is None:
                 raise CalibrationError("the engine was armed with the robot's kinematic error: every sample "
                                        "needs its robot_factor (6, P)")
-            factor = robot_factor.copy() if is_plain(robot_factor, (6, self.n_factor)) else tf.as_real_array(
+            factor = robot_factor.copy() if is_plain(robot_factor, (6, n_factor)) else tf.as_real_array(
                 robot_factor, "robot_factor")
-            if factor.shape != (6, self.n_factor):
-                raise CalibrationError(f"robot_factor must have shape (6, {self.n_factor}), got {factor.shape}")
+            if factor.shape != (6, n_factor):
+                raise CalibrationError(f"robot_factor must have shape (6, {n_factor}), got {factor.shape}")
         if not math.isfinite(t) or t < self._t - 1e-9:
             raise CalibrationError(f"t must be finite and not before the previous sample's ({self._t}), got {t}")
-        return Stop(A, p, shape, factor, float(t), A[:3].ravel().tolist())
+        return Stop(A, p, shape, factor, float(t), pose, point, upper)
 
     # ------------------------------------------------------------------ stops
 
@@ -448,10 +504,11 @@ class MonitorEngine:
         ref, cfg = self.reference, self.settings
         if ref.C is not self._in_use[0]:             # the calibration in use as floats, once per change
             self._in_use = ref.C, parts(ref.C)
-        (R, t), (R0, t0) = parts(self._C), self._in_use[1]
-        dR = (add3(R[0], R0[0], -1.0), add3(R[1], R0[1], -1.0), add3(R[2], R0[2], -1.0))
-        dt = add3(t, t0, -1.0)
-        moved = self._workspace.displacement(dR, dt)
+        (R, t), (R0, t0) = self._camera_parts, self._in_use[1]
+        (a0, a1, a2), (a3, a4, a5), (a6, a7, a8) = R
+        (b0, b1, b2), (b3, b4, b5), (b6, b7, b8) = R0
+        dR = (a0 - b0, a1 - b1, a2 - b2), (a3 - b3, a4 - b4, a5 - b5), (a6 - b6, a7 - b7, a8 - b8)
+        moved = self._workspace.displacement(dR, (t[0] - t0[0], t[1] - t0[1], t[2] - t0[2]))
         drift_m = math.hypot(*moved)
         drift_deg = math.degrees(rotation_angle_scalar(R, R0))
         sigma = self._workspace.sigma(self._C, self._u[3:6], self._P)

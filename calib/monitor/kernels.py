@@ -4,7 +4,9 @@ One sample is a few 3x3 products: as numpy arrays each costs more in call overhe
 arithmetic, so the engine's hot path runs them on tuples of floats. `so3_exp_scalar` and
 `rotation_angle_scalar` are `calib.transforms.so3_exp` and `calib.transforms.rotation_angle` for one
 rotation, with the same formulas; `sample_model` is `calib.model.point_jacobians` for one sample
-(tested against it)."""
+(tested against it), `sample_floats` its arithmetic written out on floats, which the engine calls with
+the floats it already holds. `plain_transform`, `plain_point` and `plain_cov` check a sample's arrays on
+the floats they read and return them."""
 
 from __future__ import annotations
 
@@ -19,6 +21,8 @@ from calib.setup import Setup
 
 
 I3 = np.eye(3)
+#: `calib.model.ROBOT_ROTATION_PER_M` squared (the robot cofactor's lever weight).
+ROBOT_RHO2 = model.ROBOT_ROTATION_PER_M ** 2
 
 
 def parts(T):
@@ -27,37 +31,12 @@ def parts(T):
     return ((a, b, c), (d, e, f), (g, h, i)), (x, y, z)
 
 
-def transpose3(M):
-    (a, b, c), (d, e, f), (g, h, i) = M
-    return (a, d, g), (b, e, h), (c, f, i)
-
-
-def matvec3(M, v, k: float = 1.0):
-    """``k M v``."""
-    (a, b, c), (d, e, f), (g, h, i) = M
-    x, y, z = v
-    return k * (a * x + b * y + c * z), k * (d * x + e * y + f * z), k * (g * x + h * y + i * z)
-
-
 def matmul3(M, N):
     (a, b, c), (d, e, f), (g, h, i) = M
     (p, q, r), (s, t, u), (v, w, x) = N
     return ((a * p + b * s + c * v, a * q + b * t + c * w, a * r + b * u + c * x),
             (d * p + e * s + f * v, d * q + e * t + f * w, d * r + e * u + f * x),
             (g * p + h * s + i * v, g * q + h * t + i * w, g * r + h * u + i * x))
-
-
-def add3(a, b, k: float = 1.0):
-    """``a + k b``."""
-    return a[0] + k * b[0], a[1] + k * b[1], a[2] + k * b[2]
-
-
-def scale3(a, k: float):
-    return k * a[0], k * a[1], k * a[2]
-
-
-def cross3(a, b):
-    return a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]
 
 
 def so3_exp_scalar(a0: float, a1: float, a2: float):
@@ -76,18 +55,32 @@ def so3_exp_scalar(a0: float, a1: float, a2: float):
 
 def rotation_angle_scalar(R1, R2) -> float:
     """`calib.transforms.rotation_angle` of ``R1 R2^T`` (rotations as rows of floats), rad."""
-    (a, b, c), (d, e, f), (g, h, i) = matmul3(R1, transpose3(R2))
+    (a0, a1, a2), (a3, a4, a5), (a6, a7, a8) = R1
+    (b0, b1, b2), (b3, b4, b5), (b6, b7, b8) = R2
+    # The entries of R1 R2^T (row i of R1 dot row j of R2), written out.
+    a, b, c = a0 * b0 + a1 * b1 + a2 * b2, a0 * b3 + a1 * b4 + a2 * b5, a0 * b6 + a1 * b7 + a2 * b8
+    d, e, f = a3 * b0 + a4 * b1 + a5 * b2, a3 * b3 + a4 * b4 + a5 * b5, a3 * b6 + a4 * b7 + a5 * b8
+    g, h, i = a6 * b0 + a7 * b1 + a8 * b2, a6 * b3 + a7 * b4 + a8 * b5, a6 * b6 + a7 * b7 + a8 * b8
     return math.atan2(math.sqrt((h - f) ** 2 + (c - g) ** 2 + (d - b) ** 2) / 2.0, (a + e + i - 1.0) / 2.0)
 
 
 def inv_sym3(S) -> np.ndarray:
     """Inverse of a symmetric positive definite (3, 3) matrix (cofactors, from its upper triangle)."""
     (a, b, c), (_, d, e), (_, _, f) = S.tolist()
+    return sym3(inv_sym3_floats(a, b, c, d, e, f))
+
+
+def inv_sym3_floats(a, b, c, d, e, f):
+    """`inv_sym3` on the upper triangle ``(xx, xy, xz, yy, yz, zz)`` as floats; the inverse's, likewise."""
     A, B, C = d * f - e * e, c * e - b * f, b * e - c * d
     k = 1.0 / (a * A + b * B + c * C)
-    D, E, F = (a * f - c * c) * k, (b * c - a * e) * k, (a * d - b * b) * k
-    A, B, C = A * k, B * k, C * k
-    return np.array([[A, B, C], [B, D, E], [C, E, F]])
+    return A * k, B * k, C * k, (a * f - c * c) * k, (b * c - a * e) * k, (a * d - b * b) * k
+
+
+def sym3(upper) -> np.ndarray:
+    """The symmetric (3, 3) array of an upper triangle ``(xx, xy, xz, yy, yz, zz)``."""
+    A, B, C, D, E, F = upper
+    return np.array((A, B, C, B, D, E, C, E, F)).reshape(3, 3)
 
 
 def is_plain(a, shape) -> bool:
@@ -98,28 +91,52 @@ def is_plain(a, shape) -> bool:
             and float(np.vdot(a, a)) <= tf.MAX_MAGNITUDE ** 2)
 
 
-def is_plain_transform(T) -> bool:
-    """`is_plain` and a rigid transform within `calib.transforms.check_transform`'s tolerances."""
-    if not is_plain(T, (4, 4)):
-        return False
-    (a, b, c, _), (d, e, f, _), (g, h, i, _), (p, q, r, w) = T.tolist()
+def _is_float64(a, shape) -> bool:
+    return type(a) is np.ndarray and a.dtype == np.float64 and a.shape == shape
+
+
+def _within(sum_of_squares: float) -> bool:
+    """`is_plain`'s magnitude test on floats: the sum of squares within the bound's square (NaN and inf fail)."""
+    return sum_of_squares <= tf.MAX_MAGNITUDE ** 2
+
+
+def plain_point(p):
+    """``p`` as 3 floats when it `is_plain` of shape (3,), else None."""
+    if not _is_float64(p, (3,)):
+        return None
+    x, y, z = p.tolist()
+    return (x, y, z) if _within(x * x + y * y + z * z) else None
+
+
+def plain_transform(T):
+    """The first three rows of ``T`` flat (12 floats) when it `is_plain` and is a rigid transform within
+    `calib.transforms.check_transform`'s tolerances, else None."""
+    if not _is_float64(T, (4, 4)):
+        return None
+    (a, b, c, x), (d, e, f, y), (g, h, i, z), (p, q, r, w) = T.tolist()
     atol = tf.ROTATION_ATOL
     tol = max(atol, 1e-9) * 10
     det = a * (e * i - f * h) - b * (d * i - f * g) + c * (d * h - e * g)
-    return (abs(p) <= atol and abs(q) <= atol and abs(r) <= atol and abs(w - 1.0) <= atol
-            and abs(det - 1.0) <= atol * 10
-            and abs(a * a + b * b + c * c - 1.0) <= tol and abs(d * d + e * e + f * f - 1.0) <= tol
-            and abs(g * g + h * h + i * i - 1.0) <= tol and abs(a * d + b * e + c * f) <= tol
-            and abs(a * g + b * h + c * i) <= tol and abs(d * g + e * h + f * i) <= tol)
+    plain = (_within(a * a + b * b + c * c + d * d + e * e + f * f + g * g + h * h + i * i + x * x + y * y + z * z
+                     + p * p + q * q + r * r + w * w)
+             and abs(p) <= atol and abs(q) <= atol and abs(r) <= atol and abs(w - 1.0) <= atol
+             and abs(det - 1.0) <= atol * 10
+             and abs(a * a + b * b + c * c - 1.0) <= tol and abs(d * d + e * e + f * f - 1.0) <= tol
+             and abs(g * g + h * h + i * i - 1.0) <= tol and abs(a * d + b * e + c * f) <= tol
+             and abs(a * g + b * h + c * i) <= tol and abs(d * g + e * h + f * i) <= tol)
+    return [a, b, c, x, d, e, f, y, g, h, i, z] if plain else None
 
 
-def is_plain_cov(S) -> bool:
-    """`is_plain` and symmetric within `calib.model.check_point_cov`'s tolerance."""
-    if not is_plain(S, (3, 3)):
-        return False
+def plain_cov(S):
+    """The upper triangle ``(xx, xy, xz, yy, yz, zz)`` of ``S`` when it `is_plain` of shape (3, 3) and is
+    symmetric within `calib.model.check_point_cov`'s tolerance, else None."""
+    if not _is_float64(S, (3, 3)):
+        return None
     (a, b, c), (d, e, f), (g, h, i) = S.tolist()
     tol = 1e-9 * max(abs(a), abs(b), abs(c), abs(d), abs(e), abs(f), abs(g), abs(h), abs(i), 1e-30)
-    return abs(b - d) <= tol and abs(c - g) <= tol and abs(f - h) <= tol
+    plain = (_within(a * a + b * b + c * c + d * d + e * e + f * f + g * g + h * h + i * i)
+             and abs(b - d) <= tol and abs(c - g) <= tol and abs(f - h) <= tol)
+    return (a, b, c, e, f, i) if plain else None
 
 
 def sample_model(C, t_K, A, theta, setup: str, factor=None, z=None):
@@ -128,8 +145,7 @@ def sample_model(C, t_K, A, theta, setup: str, factor=None, z=None):
     The single-sample form of `calib.model.point_jacobians` and
     `calib.model.robot_cofactor` (the same model, tested against them), at
     the flange pose ``A Exp(factor z)`` when the state carries the robot's
-    kinematic error ``z``. Its 3-vectors and 3x3 blocks are Python floats:
-    numpy's per-call cost would be most of the engine's per-sample cost.
+    kinematic error ``z``. The arithmetic is `sample_floats`'.
 
     Parameters
     ----------
@@ -153,49 +169,70 @@ def sample_model(C, t_K, A, theta, setup: str, factor=None, z=None):
     cof : ndarray (3, 3)
         `calib.model.robot_cofactor` of the sample.
     """
-    R_C, t_C = parts(C)
-    R_A, t_A = parts(A)
+    h, H, (xx, xy, xz, yy, yz, zz) = sample_floats(parts(C), tuple(t_K.tolist()), A[:3].ravel().tolist(),
+                                                   theta.tolist(), setup == Setup.EYE_TO_HAND, factor, z)
+    return np.array(h), H, np.array([[xx, xy, xz], [xy, yy, yz], [xz, yz, zz]])
+
+
+def sample_floats(C, t_K, pose, theta, eye_to_hand: bool, factor=None, z=None):
+    """`sample_model` on floats, for the engine's hot path: numpy's per-call cost would be most of its per-sample
+    cost on 3-vectors and 3x3 blocks.
+
+    ``C`` is the camera transform as `parts`, ``pose`` the flange pose's first
+    three rows flat (12 floats), ``t_K`` and ``theta`` 3 floats each. Returns
+    ``h`` (3 floats), ``H`` (ndarray (3, 12 + P)) and the cofactor's upper
+    triangle ``(xx, xy, xz, yy, yz, zz)``.
+    """
+    # Written out on floats (no helper calls): the same products and sums as the 3x3 kernels above.
+    (c0, c1, c2), (c3, c4, c5), (c6, c7, c8) = C[0]
+    a0, a1, a2, x, a3, a4, a5, y, a6, a7, a8, z_ = pose
     if factor is not None:
-        w0, w1, w2, w3, w4, w5 = (factor @ z).tolist()
-        t_A = add3(t_A, matvec3(R_A, (w3, w4, w5)))
-        R_A = matmul3(R_A, so3_exp_scalar(w0, w1, w2))
-    eye_to_hand = setup == Setup.EYE_TO_HAND
+        w0, w1, w2, w3, w4, w5 = factor.dot(z).tolist()
+        x, y, z_ = x + (a0 * w3 + a1 * w4 + a2 * w5), y + (a3 * w3 + a4 * w4 + a5 * w5), z_ + (a6 * w3 + a7 * w4
+                                                                                             + a8 * w5)
+        (a0, a1, a2), (a3, a4, a5), (a6, a7, a8) = matmul3(((a0, a1, a2), (a3, a4, a5), (a6, a7, a8)),
+                                                           so3_exp_scalar(w0, w1, w2))
     if eye_to_hand:
-        R_M, t_M = R_A, t_A
+        R_M, (mx, my, mz) = ((a0, a1, a2), (a3, a4, a5), (a6, a7, a8)), (x, y, z_)
     else:
-        R_M = transpose3(R_A)
-        t_M = matvec3(R_M, t_A, -1.0)
-    t_K = tuple(t_K.tolist())
-    lever = matvec3(R_M, t_K)
-    y = add3(lever, t_M)                                # marker center in C's parent frame
-    v = add3(y, t_C, -1.0)
-    Ct = transpose3(R_C)
-    qx, qy, qz = matvec3(Ct, v)                             # the point without camera error
-    s, d, f = theta.tolist()
+        R_M = (a0, a3, a6), (a1, a4, a7), (a2, a5, a8)
+        mx, my, mz = -(a0 * x + a3 * y + a6 * z_), -(a1 * x + a4 * y + a7 * z_), -(a2 * x + a5 * y + a8 * z_)
+    (m0, m1, m2), (m3, m4, m5), (m6, m7, m8) = R_M
+    kx, ky, kz = t_K
+    lever = (m0 * kx + m1 * ky + m2 * kz, m3 * kx + m4 * ky + m5 * kz, m6 * kx + m7 * ky + m8 * kz)
+    y = (lever[0] + mx, lever[1] + my, lever[2] + mz)       # marker center in C's parent frame
+    tx, ty, tz = C[1]
+    vx, vy, vz = y[0] - tx, y[1] - ty, y[2] - tz
+    # The point without camera error: R_C^T v.
+    qx, qy, qz = c0 * vx + c3 * vy + c6 * vz, c1 * vx + c4 * vy + c7 * vz, c2 * vx + c5 * vy + c8 * vz
+    s, d, f = theta
     g, D, dz = 1.0 + s + d / qz, 1.0 + f, d / (qz * qz)
     # The camera's Jacobian J_p = [[gD, 0, jx], [0, gD, jy], [0, 0, jz]], and J_p R_C^T.
     gD, jx, jy, jz = g * D, -D * qx * dz, -D * qy * dz, g - qz * dz
-    c0, c1, c2 = Ct
-    JR = (add3(scale3(c0, gD), c2, jx), add3(scale3(c1, gD), c2, jy), scale3(c2, jz))
+    JR = ((gD * c0 + jx * c2, gD * c3 + jx * c5, gD * c6 + jx * c8),
+          (gD * c1 + jy * c2, gD * c4 + jy * c5, gD * c7 + jy * c8), (jz * c2, jz * c5, jz * c8))
     H_tK = matmul3(JR, R_M)
     J_theta = ((D * qx, D * qx / qz, qx * g), (D * qy, D * qy / qz, qy * g), (qz, 1.0, 0.0))
     # dq/d[dC, tC] = R_C^T [[v]x, -I]; a row r of J_p R_C^T times [v]x is r x v.
-    rows = [cross3(JR[i], v) + scale3(JR[i], -1.0) + H_tK[i] + J_theta[i] for i in range(3)]
+    rows = [(j1 * vz - j2 * vy, j2 * vx - j0 * vz, j0 * vy - j1 * vx, -j0, -j1, -j2) + k + J
+            for (j0, j1, j2), k, J in zip(JR, H_tK, J_theta)]
     if factor is None:
         H = np.array(rows)
     else:
-        # d/dxi: [-(H_tK [t_K]x), H_tK] eye-to-hand, [J_p R_C^T [y]x, -J_p R_C^T] eye-in-hand.
+        # d/dxi: [-(H_tK [t_K]x), H_tK] eye-to-hand, [J_p R_C^T [y]x, -J_p R_C^T] eye-in-hand (the crosses
+        # t_K x row and row x y written out).
         if eye_to_hand:
-            X = [cross3(t_K, H_tK[i]) + H_tK[i] for i in range(3)]
+            X = [(ky * k2 - kz * k1, kz * k0 - kx * k2, kx * k1 - ky * k0, k0, k1, k2) for k0, k1, k2 in H_tK]
         else:
-            X = [cross3(JR[i], y) + scale3(JR[i], -1.0) for i in range(3)]
+            y0, y1, y2 = y
+            X = [(j1 * y2 - j2 * y1, j2 * y0 - j0 * y2, j0 * y1 - j1 * y0, -j0, -j1, -j2) for j0, j1, j2 in JR]
         H = np.empty((3, 12 + factor.shape[1]))
         H[:, :12] = rows
-        H[:, 12:] = np.array(X) @ factor
-    lx, ly, lz = matvec3(Ct, lever if eye_to_hand else y)
-    rho2 = model.ROBOT_ROTATION_PER_M ** 2
+        H[:, 12:] = np.array(X).dot(factor)           # ndarray.dot: @'s product, less call overhead
+    lx, ly, lz = lever if eye_to_hand else y
+    lx, ly, lz = c0 * lx + c3 * ly + c6 * lz, c1 * lx + c4 * ly + c7 * lz, c2 * lx + c5 * ly + c8 * lz
+    rho2 = ROBOT_RHO2
     a = 1.0 + rho2 * (lx * lx + ly * ly + lz * lz)
-    cof = np.array([[a - rho2 * lx * lx, -rho2 * lx * ly, -rho2 * lx * lz],
-                    [-rho2 * lx * ly, a - rho2 * ly * ly, -rho2 * ly * lz],
-                    [-rho2 * lx * lz, -rho2 * ly * lz, a - rho2 * lz * lz]])
-    return np.array((qx * gD, qy * gD, qz * g)), H, cof
+    return ((qx * gD, qy * gD, qz * g), H,
+            (a - rho2 * lx * lx, -rho2 * lx * ly, -rho2 * lx * lz, a - rho2 * ly * ly, -rho2 * ly * lz,
+             a - rho2 * lz * lz))

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import NamedTuple
 
 import numpy as np
 
@@ -21,10 +22,12 @@ HOUR_S = 3600.0
 RATE_MIN_SPAN = 0.25
 
 
-@dataclass
+@dataclass(slots=True)
 class Stop:
-    """A sample: flange pose, measured point, its covariance shape, kinematic-error factor, time; ``pose`` is
-    ``A[:3]`` flat as floats (the stop lookup's key) and ``stop`` the lookup's memo (`Stops.lookup`)."""
+    """A sample: flange pose, measured point, its covariance shape, kinematic-error factor, time; as floats for
+    the per-sample model, ``pose`` is ``A[:3]`` flat (also the stop lookup's key), ``point`` is ``p`` and
+    ``shape_upper`` the shape's upper triangle ``(xx, xy, xz, yy, yz, zz)``; ``stop`` is the lookup's memo
+    (`Stops.lookup`)."""
 
     A: np.ndarray
     p: np.ndarray
@@ -32,11 +35,12 @@ class Stop:
     factor: np.ndarray | None
     t: float
     pose: list
+    point: tuple
+    shape_upper: tuple
     stop: tuple | None = None
 
 
-@dataclass
-class Visit:
+class Visit(NamedTuple):
     """A sample in the detector's window and the filter state before it was fused."""
 
     sample: Stop
@@ -56,7 +60,7 @@ class Stops:
 
     def __init__(self, translation_m: float, rotation_rad: float):
         self.poses: list[list] = []                     # per stop: its first flange pose, A[:3] flat
-        self.mean: list[np.ndarray] = []
+        self.mean: list[tuple] = []                      # per stop: the mean marker point, 3 floats
         self.n: list[float] = []
         self.t: list[float] = []                        # per stop: the mean time of the visits in its mean
         self.last: list[int] = []
@@ -99,13 +103,14 @@ class Stops:
                     del held[j]
             i = len(self.poses)
             self.poses.append(s.pose)
-            self.mean.append(np.zeros(3))
+            self.mean.append((0.0, 0.0, 0.0))
             self.n.append(0.0)
             self.t.append(0.0)
             self.last.append(0)
             self.generation += 1
         n = self.n[i] = min(self.n[i] + 1.0, BASELINE_VISITS)
-        self.mean[i] = self.mean[i] + (s.p - self.mean[i]) / n
+        (m0, m1, m2), (p0, p1, p2) = self.mean[i], s.point
+        self.mean[i] = (m0 + (p0 - m0) / n, m1 + (p1 - m1) / n, m2 + (p2 - m2) / n)
         self.t[i] += (s.t - self.t[i]) / n
         self._visits += 1
         self.last[i] = self._visits
