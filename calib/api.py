@@ -1,4 +1,5 @@
-"""The public entry point: ``solve(method, A, B, ...)`` and the table of methods.
+"""The public entry point: ``solve(method, problem)`` (or its array form ``solve(method, A, B, ...)``) and
+``solve_observations``; the table of methods (`calib.methods`) is re-exported here.
 
 Setups. Eye-to-hand (static camera, marker on the flange):
 ``T_base_flange @ T_flange_marker = T_base_cam @ T_cam_marker``, the paper's
@@ -10,9 +11,11 @@ and ``B = T_cam_marker`` (or the marker center in the camera frame).
 
 Example
 -------
->>> from calib import solve, METHODS
+>>> from calib import CalibrationProblem, solve
 >>> est = solve("YKronT'", A, points)            # doctest: +SKIP
 >>> est.T_base_cam, est.residuals.rms_translation  # doctest: +SKIP
+>>> problem = CalibrationProblem.from_arrays(A, B, point_cov=cov)  # doctest: +SKIP
+>>> solve("auto", problem).auto.camera_correction  # doctest: +SKIP
 """
 
 from __future__ import annotations
