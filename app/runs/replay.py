@@ -199,20 +199,18 @@ def heldout_error(method: str, observations, setup: Setup, *, refine: bool, robu
                   rng: np.random.Generator | None):
     """`calib.crossval.cross_validate` of ``method`` on the samples it uses (leave-one-out up to 10
     samples, else 5 folds: a few solves per method); returns ``(CrossValidation or None, reason or None)``."""
-    from calib.api import observations_to_arrays, resolve_method
+    from calib.api import resolve_method
     from calib.crossval import cross_validate
+    from calib.problem import CalibrationProblem
 
     try:
-        if _is_auto(method):
-            # As calib.api.solve_observations: "auto" takes the poses when every sample has one.
-            name, kind = method, "poses" if all(o.T_cam_marker is not None for o in observations) else "points"
-        else:
-            info = resolve_method(method)
-            name, kind = info.name, info.needs
-        A, B, point_cov, _ = observations_to_arrays(observations, kind)
-        folds = None if len(A) <= 10 else 5
-        return cross_validate(name, A, B, setup=setup, folds=folds, rng=rng, refine=refine, robust=robust,
-                              point_cov=point_cov), None
+        # The samples as calib.api.solve_observations takes them for this method.
+        info = None if _is_auto(method) else resolve_method(method)
+        problem = CalibrationProblem.from_observations(observations, setup,
+                                                       measurements="all" if info is None else info.needs)
+        name = method if info is None else info.name
+        folds = None if problem.n <= 10 else 5
+        return cross_validate(name, problem, folds=folds, rng=rng, refine=refine, robust=robust), None
     except HandeyeError as e:
         return None, str(e)
 
