@@ -155,10 +155,6 @@ class CalibrationProblem:
         """The same robot poses with other measurements of the same samples (e.g. flips resolved), trusted."""
         return CalibrationProblem(self.setup, self.A, B, self.point_cov, self.robot_shared_error, self.kept)
 
-    def points_only(self) -> "CalibrationProblem":
-        """The problem of the marker centres alone (for the point-only YKronT')."""
-        return self if not self.has_poses else self.with_measurements(self.points)
-
 
 def check_shared_error(robot_shared_error, n: int) -> np.ndarray | None:
     """Validate a shared robot-error factor (N, 6, P); None passes."""
