@@ -96,6 +96,7 @@ class MonitorEngine:
         self._moved = False
         self._settle = 0
         self._noise_scale, self._scale_sum, self._scale_n = 1.0, 0.0, 0.0
+        self._pending_scale = 1.0
         self._drifting = False
         self._alarms: list[tuple[int, float, str]] = []
         self.detector.reset()
@@ -147,7 +148,11 @@ class MonitorEngine:
         return s.p - h, H, (scale * ref.noise.point_scale) * s.shape + (scale * ref.noise.robot ** 2) * cof
 
     def _predict(self, t: float) -> None:
-        """The random walk of the camera transform up to ``t``."""
+        """The noise level's change since the last sample (`_follow_noise`), then the random walk of the camera
+        transform up to ``t``."""
+        if self._pending_scale != 1.0:
+            self._P = self._P * self._pending_scale      # a new array: the window's states hold the old one
+            self._pending_scale = 1.0
         if t > self._t:
             P, n = self._P, len(self._P)
             # A view of the variances, to add in place (the flat stride of a contiguous P's diagonal).
@@ -245,12 +250,18 @@ class MonitorEngine:
 
     def _follow_noise(self, nis: float) -> None:
         """The arming noise levels come from a few dozen samples: their scale follows the innovations (a running
-        mean of the NIS at unit scale, with the arming's level worth `NOISE_SCALE_PRIOR` samples)."""
+        mean of the NIS at unit scale, with the arming's level worth `NOISE_SCALE_PRIOR` samples).
+
+        The state covariance follows it too, from the next sample on: it is
+        the inverse information at the noise level of the data it came from,
+        and scales with that level."""
         keep = 1.0 - 1.0 / NOISE_SCALE_SAMPLES
         self._scale_sum = keep * self._scale_sum + nis * self._noise_scale / 3.0
         self._scale_n = keep * self._scale_n + 1.0
+        old = self._noise_scale
         self._noise_scale = min(max((NOISE_SCALE_PRIOR + self._scale_sum) / (NOISE_SCALE_PRIOR + self._scale_n),
                                     NOISE_SCALE_RANGE[0]), NOISE_SCALE_RANGE[1])
+        self._pending_scale *= self._noise_scale / old
 
     def _test(self, s: Stop, r, H, R, PHt, S_inv) -> tuple[str, float, str]:
         """The *moved* test of a sample: ``(alarm, statistic, message)``; fused if it passes, else the re-learn starts."""

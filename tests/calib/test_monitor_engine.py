@@ -136,6 +136,27 @@ def test_a_still_camera_raises_no_moved_alarm_and_stays_as_good_as_its_calibrati
     assert 2.0 < np.mean(run.nees) < 12.0
 
 
+def test_the_stated_covariance_follows_the_noise_level():
+    """Production points twice as noisy (1-sigma) as the arming's level: the tracked noise scale carries into the
+    state covariance (the a-posteriori variance factor), so the stated 1-sigma does not shrink as if every
+    sample were as good as the arming's; it does shrink at the arming's own level."""
+    real, res, engine = _armed(1)
+    twin = _armed(1)[2]
+    stream = simulate.shift_stream(real, dataclasses.replace(simulate.Shift(), hours=2.0, bumps=()),
+                                   np.random.default_rng([1, 1]), PROFILE)
+    F = PROFILE.dh_error_factor(stream.q)
+    rng = np.random.default_rng(9)
+    first = last = twin_last = None
+    for i in range(len(stream.t)):
+        noisy = stream.points[i] + rng.multivariate_normal(np.zeros(3), 3.0 * stream.point_cov[i])
+        last = engine.update(stream.t[i], stream.A[i], noisy, stream.point_cov[i], F[i]).sigma_mm
+        twin_last = twin.update(stream.t[i], stream.A[i], stream.points[i], stream.point_cov[i], F[i]).sigma_mm
+        first = first or last
+    assert last > 0.95 * first
+    assert twin_last < 0.9 * first
+    assert last > 1.3 * twin_last
+
+
 def test_a_bump_is_flagged_and_relearnt_from_the_production_stops_alone():
     shift = dataclasses.replace(simulate.Shift(), hours=2.0, bumps=((1.0, 5.0, 0.3),))
     run = bench_shift.run_seed(2, shift, MonitorSettings(), PROFILE)
