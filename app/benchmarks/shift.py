@@ -224,18 +224,18 @@ def table(summaries: list[dict], seeds: list[int]) -> str:
     return _md(headers, rows) + summary
 
 
-def plot(runs: list[SeedRun], path: Path) -> None:
+def plot(runs: list[SeedRun], seeds: list[int], path: Path) -> None:
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
     fig, ax = plt.subplots(figsize=(10, 4.5))
-    for k, run in enumerate(runs):
-        line, = ax.plot(run.t_h, run.error_mm, lw=0.8, label=f"seed {k}" if k < 5 else None)
+    for k, (seed, run) in enumerate(zip(seeds, runs)):
+        line, = ax.plot(run.t_h, run.error_mm, lw=0.8, label=f"seed {seed}" if k < 5 else None)
         for i, kind in run.alarms:
             ax.axvline(run.t_h[i], color=line.get_color(), ls="--" if kind == "moved" else ":", lw=0.7)
-    ax.axhline(runs[0].bound_mm, color="k", lw=0.8, label="bound (seed 0)")
+    ax.axhline(runs[0].bound_mm, color="k", lw=0.8, label=f"bound (seed {seeds[0]})")
     ax.set_xlabel("time [h]")
     ax.set_ylabel("live workspace error [mm]")
     ax.set_yscale("log")
@@ -266,6 +266,8 @@ def section_sizes(seeds: list[int], shift: simulate.Shift, settings: MonitorSett
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(prog="handeye bench --shift", description=__doc__.split("\n")[0])
     ap.add_argument("--seeds", type=int, default=10)
+    ap.add_argument("--first-seed", type=int, default=0, help="seeds first-seed .. first-seed + seeds - 1 (fresh "
+                    "cells beyond the 10 the defaults were measured on)")
     ap.add_argument("--hours", type=float, default=8.0)
     ap.add_argument("--stops", type=int, default=4)
     ap.add_argument("--tilt", type=float, default=10.0, help="largest tool tilt of the stops, deg")
@@ -276,7 +278,7 @@ def main(argv=None) -> int:
     args = ap.parse_args(argv)
     shift = dataclasses.replace(simulate.Shift(), hours=args.hours, stops=args.stops, max_tilt_deg=args.tilt)
     settings = MonitorSettings()
-    seeds = list(range(args.seeds))
+    seeds = list(range(args.first_seed, args.first_seed + args.seeds))
     t0 = time.monotonic()
     runs = [run_seed(s, shift, settings) for s in seeds]
     text = (f"### Production shift: {args.hours:g} h, {args.stops} stops (tilt <= {args.tilt:g} deg), sample every "
@@ -291,7 +293,7 @@ def main(argv=None) -> int:
     print(text)
     args.out.mkdir(parents=True, exist_ok=True)
     (args.out / "shift.md").write_text(text + "\n")
-    plot(runs, args.out / "shift.png")
+    plot(runs, seeds, args.out / "shift.png")
     return 0
 
 
