@@ -189,6 +189,18 @@ def test_slow_drift_is_followed_and_its_rate_reported():
     assert drifting and "tolerance" in drifting[0].message
 
 
+def test_a_three_stop_program_is_monitored_all_shift():
+    """Three stops (the fewest that determine the camera) for 8 hours: each of the three bumps is flagged and
+    re-learnt from those stops alone, and the engine is watching again after each."""
+    shift = dataclasses.replace(simulate.Shift(), stops=3)
+    run = bench_shift.run_seed(0, shift, MonitorSettings(), PROFILE)
+    s = bench_shift.summarize(run)
+    assert s["false"] == 0
+    assert all(d is not None and d <= bench_shift.DETECT_WITHIN for d in s["delays"]), s["delays"]
+    assert all(r is not None and r <= bench_shift.RECOVER_WITHIN for r in s["recovery"]), s["recovery"]
+    assert s["p95"] <= s["bound"]
+
+
 def test_two_stops_cannot_relearn_and_say_so():
     real, res, engine = _armed(4)
     shift = dataclasses.replace(simulate.Shift(), hours=1.0, stops=2, bumps=((0.5, 10.0, 0.5),))
