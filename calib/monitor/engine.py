@@ -87,7 +87,9 @@ class MonitorEngine:
         cfg = self.settings
         self._stops = Stops(cfg.stop_translation_m, np.deg2rad(cfg.stop_rotation_deg))
         self._relearn_set: list[Stop] = []
-        self._rate = Rate(cfg.rate_window_h * HOUR_S)
+        # An hour of the camera's world on the samples' clock.
+        self._hour_s = HOUR_S / cfg.time_scale
+        self._rate = Rate(cfg.rate_window_h * self._hour_s, self._hour_s)
         self._workspace = WorkspaceMoments(ref.workspace)
         self._in_use = None, None
         # The random walk's variance per hour (diagonal of the camera transform's block).
@@ -157,7 +159,7 @@ class MonitorEngine:
             P, n = self._P, len(self._P)
             # A view of the variances, to add in place (the flat stride of a contiguous P's diagonal).
             diagonal = P.reshape(-1)[:6 * n:n + 1] if P.flags.c_contiguous else np.einsum("ii->i", P[:6, :6])
-            diagonal += self._walk_per_h * ((t - self._t) / HOUR_S)
+            diagonal += self._walk_per_h * ((t - self._t) / self._hour_s)
         self._t = max(t, self._t)
 
     def _fuse(self, r, H, R) -> None:
@@ -276,7 +278,7 @@ class MonitorEngine:
             r_test = p0 - m0, p1 - m1, p2 - m2
             # A drifting camera has moved since those visits by the same for every stop: the long window's
             # test is for a move beyond the random walk over that time.
-            offset_var = self._walk_per_h * ((s.t - stops.t[i]) / HOUR_S)
+            offset_var = self._walk_per_h * ((s.t - stops.t[i]) / self._hour_s)
             k = 1.0 + 1.0 / stops.n[i]
             (a, b, c), (_, d, e), (_, _, f) = (Hc * offset_var).dot(Hc.T).tolist()
             S_test_inv = sym3(inv_sym3_floats(a + k * R[0], b + k * R[1], c + k * R[2], d + k * R[3], e + k * R[4],

@@ -47,6 +47,11 @@ class MonitorSettings(Params):
         counts them as collinear.
     detector : DetectorConfig
         The *moved* test (GLR windows, false-alarm rate per sample).
+    time_scale : float
+        Seconds of the camera's world per second of the samples' clock: 1 on
+        a real cell; a compressed simulation's mount ``time_scale``
+        (config/sim_shift.toml: 30). The random walk, the drift rates, the
+        rate window and the horizon are per hour of that world.
     """
 
     walk_mm_per_sqrt_h: NonNegativeFloat = 0.5
@@ -59,6 +64,7 @@ class MonitorSettings(Params):
     relearn_samples: Annotated[int, Field(strict=True, ge=3)] = 40
     min_spread_m: PositiveFloat = 0.02
     detector: DetectorConfig = Field(default_factory=lambda: DetectorConfig(false_alarm_rate=DETECTOR_FALSE_ALARM_RATE))
+    time_scale: PositiveFloat = 1.0
 
 
 class MonitorUpdate(NamedTuple):

@@ -123,8 +123,8 @@ class Stops:
 class Rate:
     """Exponentially weighted least-squares slope of a vector (a sequence of floats) against time (running sums: O(1))."""
 
-    def __init__(self, tau_s: float):
-        self.tau_s = tau_s
+    def __init__(self, tau_s: float, hour_s: float = HOUR_S):
+        self.tau_s, self.hour_s = tau_s, hour_s
         self.reset()
 
     def add(self, t: float, y) -> None:
@@ -132,14 +132,14 @@ class Rate:
             self.t0 = t
             self.y0, self.y1 = [0.0] * len(y), [0.0] * len(y)
         decay = math.exp(-(t - self.t_last) / self.tau_s) if self.s0 else 1.0
-        x = (t - self.t0) / HOUR_S
+        x = (t - self.t0) / self.hour_s
         self.s0, self.s1, self.s2 = self.s0 * decay + 1.0, self.s1 * decay + x, self.s2 * decay + x * x
         self.y0 = [a * decay + b for a, b in zip(self.y0, y)]
         self.y1 = [a * decay + x * b for a, b in zip(self.y1, y)]
         self.t_last = t
 
     def slope(self) -> list | None:
-        """Per hour, or None before the regression spans `RATE_MIN_SPAN` of its window."""
+        """Per ``hour_s`` of the clock, or None before the regression spans `RATE_MIN_SPAN` of its window."""
         if self.t0 is None or self.t_last - self.t0 < RATE_MIN_SPAN * self.tau_s:
             return None
         s0, s1 = self.s0, self.s1

@@ -201,6 +201,26 @@ def test_a_three_stop_program_is_monitored_all_shift():
     assert s["p95"] <= s["bound"]
 
 
+def test_a_compressed_clock_gives_the_same_shift():
+    """A simulation run 30x faster than its world (samples stamped with the wall clock) with ``time_scale=30``
+    is the same shift to the engine: same states, alarms and estimates, drift rates per world hour."""
+    shift = dataclasses.replace(simulate.Shift(), hours=3.0, bumps=((1.5, 5.0, 0.3),), drift_mm_h=1.0)
+    real, res, engine = _armed(2)
+    fast = _armed(2, MonitorSettings(time_scale=30.0))[2]
+    stream = simulate.shift_stream(real, shift, np.random.default_rng([2, 1]), PROFILE)
+    F = PROFILE.dh_error_factor(stream.q)
+    for i in range(len(stream.t)):
+        a = engine.update(stream.t[i], stream.A[i], stream.points[i], stream.point_cov[i], F[i])
+        b = fast.update(stream.t[i] / 30.0, stream.A[i], stream.points[i], stream.point_cov[i], F[i])
+        assert (a.state, a.alarm) == (b.state, b.alarm)
+        np.testing.assert_allclose(b.camera_transform, a.camera_transform, atol=1e-9)
+        assert (a.drift_rate_mm_h is None) == (b.drift_rate_mm_h is None)
+        if a.drift_rate_mm_h is not None:
+            assert b.drift_rate_mm_h == pytest.approx(a.drift_rate_mm_h, rel=1e-6)
+    assert [kind for _, _, kind in engine.alarms] == [kind for _, _, kind in fast.alarms]
+    assert "moved" in [kind for _, _, kind in engine.alarms]
+
+
 def test_two_stops_cannot_relearn_and_say_so():
     real, res, engine = _armed(4)
     shift = dataclasses.replace(simulate.Shift(), hours=1.0, stops=2, bumps=((0.5, 10.0, 0.5),))
