@@ -73,6 +73,13 @@ def workspace_error(C, correction, camera, Y_true, P) -> float:
     return float(np.sqrt(np.mean(np.sum((est - P) ** 2, axis=1))))
 
 
+def camera_nees(update, camera_true) -> float:
+    """NEES of an update's live camera transform against the true one (6 dof, the `calib.result` convention)."""
+    C = update.camera_transform
+    e = np.r_[tf.so3_log(C[:3, :3] @ camera_true[:3, :3].T), C[:3, 3] - camera_true[:3, 3]]
+    return float(e @ np.linalg.solve(update.cov, e))
+
+
 def armed_cell(seed: int, settings: MonitorSettings | None = None, profile: simulate.RealisticProfile | None = None):
     """A realistic cell calibrated by ``auto`` from 30 poses (the kinematic error in its covariance), and the
     engine armed from it: ``(cell, result, engine)``."""
@@ -114,9 +121,7 @@ def run_seed(seed: int, shift: simulate.Shift, settings: MonitorSettings,
                 print(seed, i, upd.alarm, f"{upd.statistic:.1f}", upd.message)
         err[i] = workspace_error(upd.camera_transform, engine.camera_correction, real.camera, stream.Y[i], P) * 1e3
         sig[i] = upd.sigma_mm
-        e = np.r_[tf.so3_log(upd.camera_transform[:3, :3] @ stream.Y[i][:3, :3].T),
-                  upd.camera_transform[:3, 3] - stream.Y[i][:3, 3]]
-        nees[i] = float(e @ np.linalg.solve(upd.cov, e))
+        nees[i] = camera_nees(upd, stream.Y[i])
     return SeedRun(stream.t / 3600.0, err, sig, nees, alarms, stream.bumped, arming, max(1.0, 1.5 * arming),
                    update_us, stats)
 
@@ -171,21 +176,24 @@ def section_eye_in_hand(seeds: list[int], shift: simulate.Shift, settings: Monit
         engine.arm(res, problem)
         stream = simulate.eye_in_hand_shift(cell, cell.A_true[30:34], shift, rng)
         seen = cell.points[:30]
-        err, alarms = np.empty(len(stream.t)), []
+        err, nees, alarms = np.empty(len(stream.t)), np.empty(len(stream.t)), []
         for i in range(len(stream.t)):
             upd = engine.update(stream.t[i], stream.A[i], stream.points[i], stream.point_cov[i])
             if upd.alarm:
                 alarms.append((i, upd.alarm))
             err[i] = workspace_error(upd.camera_transform, engine.camera_correction, ideal, stream.Y[i],
                                      tf.transform_points(stream.Y[i], seen)) * 1e3
+            nees[i] = camera_nees(upd, stream.Y[i])
         arming = workspace_error(res.X, res.camera_correction, ideal, cell.X, tf.transform_points(cell.X, seen)) * 1e3
-        run = SeedRun(stream.t / 3600.0, err, err, err, alarms, stream.bumped, arming, max(1.0, 1.5 * arming), np.zeros(0),
-                      err)
+        run = SeedRun(stream.t / 3600.0, err, err, nees, alarms, stream.bumped, arming, max(1.0, 1.5 * arming),
+                      np.zeros(0), err)
         s = summarize(run)
         rows.append([seed, s["false"], _fmt_list(s["delays"]), f"{arming:.2f}", f"{s['bound']:.2f}",
-                     f"{s['median']:.2f}", f"{s['p95']:.2f}", _fmt_list(s["recovery"])])
+                     f"{s['median']:.2f}", f"{s['p95']:.2f}", _fmt_list(s["recovery"]), f"{s['nees']:.2f}"])
+    mean_nees = np.mean([float(row[-1]) for row in rows]) if rows else float("nan")
     return _md(["seed", "false moved alarms", "bump -> alarm [samples]", "arming error [mm]", "bound [mm]",
-                "live median [mm]", "live p95 [mm]", "bump -> within bound [samples]"], rows)
+                "live median [mm]", "live p95 [mm]", "bump -> within bound [samples]", "NEES (target 6)"],
+               rows) + f"\n\nNEES {mean_nees:.2f} over the seeds."
 
 
 def _md(headers, rows) -> str:
