@@ -32,8 +32,9 @@ Per sample (fixed work and memory, independent of the shift's length):
    the estimate over-confident. The noise levels' scale follows the
    innovations.
 5. **Drift.** The live estimate's distance from the calibration in use
-   (the arming one, or the last re-learnt one), over the workspace the
-   arming samples covered, and its rate (exponentially weighted regression
+   (the arming one, or the last re-learnt one): how far apart the two put
+   the points of the workspace the arming samples covered, each with its
+   camera correction (RMS), and its rate (exponentially weighted regression
    over ``rate_window_h``). The *drifting* alarm fires when that distance
    reaches ``tolerance_mm`` or will within ``horizon_h`` at the current rate.
 

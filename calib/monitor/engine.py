@@ -19,7 +19,7 @@ from calib.result import CalibrationResult, CameraParameter, Residuals
 from calib.setup import Setup
 from calib.monitor.settings import MonitorSettings, MonitorUpdate
 from calib.monitor.kernels import (inv_sym3, inv_sym3_floats, is_plain, matmul3, parts, plain_cov, plain_point,
-    plain_transform, rotation_angle_scalar, sample_floats, sample_model, so3_exp_scalar, sym3)
+    plain_transform, rotation_vector_scalar, sample_floats, sample_model, so3_exp_scalar, sym3)
 from calib.monitor.reference import Reference, WorkspaceMoments, arm_reference, workspace_distance
 from calib.monitor.stops import HOUR_S, Rate, Stop, Stops, Visit
 
@@ -91,7 +91,7 @@ class MonitorEngine:
         self._hour_s = HOUR_S / cfg.time_scale
         self._rate = Rate(cfg.rate_window_h * self._hour_s, self._hour_s)
         self._workspace = WorkspaceMoments(ref.workspace)
-        self._in_use = None, None
+        self._in_use = (None,) * 5        # the calibration in use: C, theta, their floats, its drift factor
         # The random walk's variance per hour (diagonal of the camera transform's block).
         sr, st = np.deg2rad(cfg.walk_deg_per_sqrt_h), cfg.walk_mm_per_sqrt_h * 1e-3
         self._walk_per_h = np.array([sr * sr] * 3 + [st * st] * 3)
@@ -515,15 +515,21 @@ class MonitorEngine:
 
     def _figures(self, s: Stop, state, alarm, message, r, nis, verify, statistic) -> MonitorUpdate:
         ref, cfg = self.reference, self.settings
-        if ref.C is not self._in_use[0]:             # the calibration in use as floats, once per change
-            self._in_use = ref.C, parts(ref.C)
-        (R, t), (R0, t0) = self._camera_parts, self._in_use[1]
-        (a0, a1, a2), (a3, a4, a5), (a6, a7, a8) = R
-        (b0, b1, b2), (b3, b4, b5), (b6, b7, b8) = R0
-        dR = (a0 - b0, a1 - b1, a2 - b2), (a3 - b3, a4 - b4, a5 - b5), (a6 - b6, a7 - b7, a8 - b8)
-        moved = self._workspace.displacement(dR, (t[0] - t0[0], t[1] - t0[1], t[2] - t0[2]))
+        if ref.C is not self._in_use[0] or ref.theta is not self._in_use[1]:     # once per change of it
+            self._in_use = ref.C, ref.theta, parts(ref.C), ref.theta.tolist(), None
+        _, _, (R0, t0), (s0, d0, f0), factor = self._in_use
+        (R, t), (s1, d1, f1) = self._camera_parts, self._u[3:6].tolist()
+        w0, w1, w2 = rotation_vector_scalar(R, R0)
+        delta = (w0, w1, w2, t[0] - t0[0], t[1] - t0[1], t[2] - t0[2], 0.0, 0.0, 0.0, s1 - s0, d1 - d0, f1 - f0)
+        if any(delta):
+            if factor is None:               # once per calibration in use, when it is first drifted from
+                factor = self._workspace.drift_factor(ref.C, ref.theta)
+                self._in_use = self._in_use[:4] + (factor,)
+            moved = tuple(factor.dot(delta).tolist())
+        else:
+            moved = (0.0,) * 12
         drift_m = math.hypot(*moved)
-        drift_deg = math.degrees(rotation_angle_scalar(R, R0))
+        drift_deg = math.degrees(math.sqrt(w0 * w0 + w1 * w1 + w2 * w2))
         sigma = self._workspace.sigma(self._C, self._u[3:6], self._P)
         error_mm = math.hypot(drift_m * 1e3, ref.sigma_mm)
         rate_mm = rate_deg = hours = None

@@ -159,25 +159,19 @@ def workspace_distance(C1, C2, points) -> float:
 
 
 class WorkspaceMoments:
-    """`workspace_distance` and `workspace_sigma` over fixed camera-frame points (W, 3), at a cost independent of W.
+    """`workspace_sigma` over fixed camera-frame points (W, 3), and the drift of a calibration over them, at a
+    cost independent of W.
 
-    Both are RMS figures over the points of something the points enter
-    linearly: a point's displacement ``dR p + dt`` between two camera
-    transforms, and the Jacobian of where ``C`` and ``theta`` put it, which is
-    ``R_C G(p; theta) B`` with ``B = diag(R_C^T, R_C^T, I, I)`` and ``G``
-    linear in ``[1, focal_scale, depth_scale, depth_offset]`` with per-point
-    terms. So the mean and second moments of the points (and of those terms)
-    give them exactly, with a few small products per sample.
+    Both are RMS figures over the points of the Jacobian of where ``C`` and
+    ``theta`` put a point, which is ``R_C G(p; theta) B`` with ``B =
+    diag(R_C^T, R_C^T, I, I)`` and ``G`` linear in ``[1, focal_scale,
+    depth_scale, depth_offset]`` with per-point terms. So the second moments
+    of those terms give them exactly, with a few small products per sample.
     """
 
     def __init__(self, points):
         points = np.asarray(points, dtype=float)
         n = len(points)
-        mean = points.mean(axis=0)
-        c = points - mean
-        w, V = np.linalg.eigh(c.T @ c / n)
-        # [L | mean] with L L^T the points' centred second moment: RMS |dR p + dt| = |[dR L | dR mean + dt]|.
-        self.lever = tuple(map(tuple, np.column_stack([V * np.sqrt(np.clip(w, 0.0, None)), mean]).tolist()))
         xy, xy_z = points[:, :2], points[:, :2] / points[:, 2:]
         G = np.zeros((n, 4, 3, 12))                     # per point, the terms of G for 1, f, s, d
         G[:, 0, :, :3] = -tf.skew(points)
@@ -194,18 +188,22 @@ class WorkspaceMoments:
         self.terms = (Q[m, k] + np.where((m < k)[:, None, None], Q[k, m], 0.0)).reshape(10, 144)
         self._B = np.eye(12)
 
-    def displacement(self, dR, dt) -> tuple:
-        """The points' displacement ``dR p + dt`` (``dR = R_1 - R_2`` as rows of floats, ``dt = t_1 - t_2``) as 12
-        floats, linear in ``(dR, dt)``, whose norm is its RMS over the points (`workspace_distance`), m."""
-        (a0, a1, a2, a3), (b0, b1, b2, b3), (c0, c1, c2, c3) = self.lever
-        (r0, r1, r2), (r3, r4, r5), (r6, r7, r8) = dR
-        s0, s1, s2 = dt
-        return (r0 * a0 + r1 * b0 + r2 * c0, r0 * a1 + r1 * b1 + r2 * c1, r0 * a2 + r1 * b2 + r2 * c2,
-                r0 * a3 + r1 * b3 + r2 * c3 + s0,
-                r3 * a0 + r4 * b0 + r5 * c0, r3 * a1 + r4 * b1 + r5 * c1, r3 * a2 + r4 * b2 + r5 * c2,
-                r3 * a3 + r4 * b3 + r5 * c3 + s1,
-                r6 * a0 + r7 * b0 + r8 * c0, r6 * a1 + r7 * b1 + r8 * c1, r6 * a2 + r7 * b2 + r8 * c2,
-                r6 * a3 + r7 * b3 + r8 * c3 + s2)
+    def drift_factor(self, C, theta) -> np.ndarray:
+        """``F`` (12, 12) such that ``|F d|`` is the RMS displacement over the points of where ``C`` and ``theta``
+        put them when the state moves by ``d`` (12,): rotation vector and translation of the camera
+        transform, marker-side translation, camera correction (first order: `sigma` of ``d d^T``), m.
+
+        The camera correction is in it because the filter trades a depth
+        offset against the camera's translation along its axis: the transform
+        alone then moves where the points it corrects do not.
+        """
+        s, d, f = np.asarray(theta, dtype=float).tolist()
+        K = np.array([1.0, f, s, d, f * f, f * s, f * d, s * s, s * d, d * d]).dot(self.terms).reshape(12, 12)
+        B = np.eye(12)
+        B[:3, :3] = B[3:6, 3:6] = C[:3, :3]
+        metric = B.dot(0.5 * (K + K.T)).dot(B.T)
+        w, V = np.linalg.eigh(metric)
+        return (V * np.sqrt(np.clip(w, 0.0, None))).T
 
     def sigma(self, C, theta, cov) -> float:
         """`workspace_sigma` of ``C``, ``theta`` (3,) and the state covariance ``cov`` over the points, m."""

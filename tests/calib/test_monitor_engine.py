@@ -11,6 +11,7 @@ from calib import transforms as tf
 from calib.errors import CalibrationError
 from calib.monitor import (MonitorEngine, MonitorSettings, WorkspaceMoments, sample_model, workspace_distance,
                            workspace_sigma)
+from calib.monitor.kernels import rotation_vector_scalar
 from calib.problem import CalibrationProblem
 from calib.setup import Setup
 
@@ -92,9 +93,28 @@ def test_workspace_moments_give_the_workspace_figures(n):
         L = rng.normal(size=(36, 36))
         cov = L @ L.T * 1e-6
         assert moments.sigma(C1, theta, cov) == pytest.approx(workspace_sigma(C1, theta, points, cov), rel=1e-10)
-        dR = [tuple(r) for r in (C2[:3, :3] - C1[:3, :3]).tolist()]
-        moved = moments.displacement(dR, tuple((C2[:3, 3] - C1[:3, 3]).tolist()))
-        assert np.linalg.norm(moved) == pytest.approx(workspace_distance(C2, C1, points), rel=1e-10)
+        # The drift factor: |F d| is the sigma of d d^T, and to first order where C, theta put the points.
+        d = np.r_[tf.so3_log(C2[:3, :3] @ C1[:3, :3].T), C2[:3, 3] - C1[:3, 3], rng.normal(size=3) * 0.01,
+                  rng.normal(size=3) * [1e-4, 3e-5, 1e-4]]
+        F = moments.drift_factor(C1, theta)
+        assert np.linalg.norm(F @ d) == pytest.approx(moments.sigma(C1, theta, np.outer(d, d)), rel=1e-8)
+        moved = (tf.transform_points(C2, model.CameraCorrection(*(theta + d[9:])).correct(points))
+                 - tf.transform_points(C1, model.CameraCorrection(*theta).correct(points)))
+        assert np.linalg.norm(F @ d) == pytest.approx(np.sqrt(np.mean(np.sum(moved ** 2, axis=1))), rel=0.05)
+        # Without a change of the correction, the exact distance between the two camera transforms.
+        d[9:] = 0.0
+        assert np.linalg.norm(F @ d) == pytest.approx(workspace_distance(C2, C1, model.CameraCorrection(
+            *theta).correct(points)), rel=0.02)
+
+
+def test_rotation_vector_scalar_is_so3_log():
+    rng = np.random.default_rng(4)
+    for angle in (0.0, 1e-9, 1e-4, 0.3, 2.0, 3.1):
+        axis = rng.normal(size=3)
+        R2 = tf.so3_exp(rng.normal(size=3))
+        R1 = tf.so3_exp(axis / np.linalg.norm(axis) * angle) @ R2
+        w = rotation_vector_scalar([tuple(r) for r in R1.tolist()], [tuple(r) for r in R2.tolist()])
+        np.testing.assert_allclose(w, tf.so3_log(R1 @ R2.T), atol=1e-12)
 
 
 def test_samples_of_any_array_type_give_the_same_update():
