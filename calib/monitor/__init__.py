@@ -31,11 +31,12 @@ Per sample (fixed work and memory, independent of the shift's length):
    white noise, so a program that returns to the same few stops cannot make
    the estimate over-confident. The noise levels' scale follows the
    innovations.
-5. **Drift.** The live estimate's distance from the calibration in use
-   (the arming one, or the last re-learnt one): how far apart the two put
-   the points of the workspace the arming samples covered, each with its
-   camera correction (RMS), and its rate (exponentially weighted regression
-   over ``rate_window_h``). The *drifting* alarm fires when that distance
+5. **Drift.** How far the camera has walked since the calibration in use
+   (the arming one, or the last re-learnt one): six states that the random
+   walk moves with the camera transform, so that what the samples refine of
+   the estimate is not counted as drift; its RMS displacement of the points
+   of the workspace the arming samples covered, and its rate (exponentially
+   weighted regression over ``rate_window_h``, reported once it spans it). The *drifting* alarm fires when that distance
    reaches ``tolerance_mm`` or will within ``horizon_h`` at the current rate.
 
 After a *moved* alarm the engine re-learns the camera transform from the

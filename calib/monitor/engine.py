@@ -19,7 +19,7 @@ from calib.result import CalibrationResult, CameraParameter, Residuals
 from calib.setup import Setup
 from calib.monitor.settings import MonitorSettings, MonitorUpdate
 from calib.monitor.kernels import (inv_sym3, inv_sym3_floats, is_plain, matmul3, parts, plain_cov, plain_point,
-    plain_transform, rotation_vector_scalar, sample_floats, sample_model, so3_exp_scalar, sym3)
+    plain_transform, sample_floats, sample_model, so3_exp_scalar, sym3)
 from calib.monitor.reference import Reference, WorkspaceMoments, arm_reference, workspace_distance
 from calib.monitor.stops import HOUR_S, Rate, Stop, Stops, Visit
 
@@ -49,9 +49,10 @@ REGISTRATION_SAMPLES = 6
 class MonitorEngine:
     """The monitoring engine (module docstring). ``arm`` it, then ``update`` it with every sample.
 
-    State: the camera transform ``C`` (4, 4) and ``u = [t_K, theta, z]``
-    (`arm_reference`), with their joint covariance; a random walk moves ``C``
-    only. Parameters: ``settings`` (`MonitorSettings`).
+    State: the camera transform ``C`` (4, 4) and ``u = [t_K, theta, z, w]``
+    (`arm_reference`; ``w`` (6,) the camera's walk since the calibration in
+    use), with their joint covariance; a random walk moves ``C`` and ``w``
+    together. Parameters: ``settings`` (`MonitorSettings`).
     """
 
     def __init__(self, settings: MonitorSettings | None = None):
@@ -79,8 +80,14 @@ class MonitorEngine:
         self._eye_to_hand = ref.setup == Setup.EYE_TO_HAND
         self._point_scale, self._robot_var = ref.noise.point_scale, ref.noise.robot ** 2     # the arming's levels
         self._C = ref.C.copy()
-        self._u = np.r_[ref.K[:3, 3], ref.theta, np.zeros(len(cov) - 12)]
-        self._P = cov
+        # The state after the camera transform: marker translation, camera correction, kinematic error, and the
+        # camera's random walk since the calibration in use (`_predict`): the drift, told apart from what the
+        # samples refine.
+        self._nf = len(cov) - 12
+        m = self._columns = len(cov)
+        self._u = np.r_[ref.K[:3, 3], ref.theta, np.zeros(self._nf + 6)]
+        self._P = np.zeros((m + 6, m + 6))
+        self._P[:m, :m] = cov
         self._t = float(t)
         self._count = 0
         self._window: list[Visit] = []
@@ -91,10 +98,14 @@ class MonitorEngine:
         self._hour_s = HOUR_S / cfg.time_scale
         self._rate = Rate(cfg.rate_window_h * self._hour_s, self._hour_s)
         self._workspace = WorkspaceMoments(ref.workspace)
-        self._in_use = (None,) * 5        # the calibration in use: C, theta, their floats, its drift factor
-        # The random walk's variance per hour (diagonal of the camera transform's block).
+        self._in_use = None, None, None         # the calibration in use: C, theta, its drift factor
+        # The random walk's variance per hour (diagonal of the camera transform's block), and where it enters
+        # the flat covariance: the camera's variances, the walk states', and the two equal cross terms.
         sr, st = np.deg2rad(cfg.walk_deg_per_sqrt_h), cfg.walk_mm_per_sqrt_h * 1e-3
         self._walk_per_h = np.array([sr * sr] * 3 + [st * st] * 3)
+        n, i = m + 6, np.arange(6)
+        self._walk_at = np.r_[i * (n + 1), (m + i) * (n + 1), i * n + m + i, (m + i) * n + i]
+        self._walk_4 = np.tile(self._walk_per_h, 4)
         self._moved = False
         self._settle = 0
         self._noise_scale, self._scale_sum, self._scale_n = 1.0, 0.0, 0.0
@@ -121,7 +132,7 @@ class MonitorEngine:
     @property
     def n_factor(self) -> int:
         """Robot kinematic-error parameters in the state (0: none)."""
-        return len(self._u) - 6 if self.reference is not None else 0
+        return self._nf if self.reference is not None else 0
 
     @property
     def state_size(self) -> int:
@@ -145,7 +156,9 @@ class MonitorEngine:
     def _linearize(self, C, u, s: Stop):
         """Innovation ``r`` (3,), Jacobian ``H`` (3, n) of the predicted point w.r.t. the state, noise ``R`` (3, 3)."""
         ref = self.reference
-        h, H, cof = sample_model(C, u[:3], s.A, u[3:6], ref.setup, s.factor, u[6:])
+        h, H_model, cof = sample_model(C, u[:3], s.A, u[3:6], ref.setup, s.factor, u[6:6 + self._nf])
+        H = np.zeros((3, len(self._P)))
+        H[:, :self._columns] = H_model             # the walk states do not enter the measurement
         scale = self._noise_scale
         return s.p - h, H, (scale * ref.noise.point_scale) * s.shape + (scale * ref.noise.robot ** 2) * cof
 
@@ -156,10 +169,10 @@ class MonitorEngine:
             self._P = self._P * self._pending_scale      # a new array: the window's states hold the old one
             self._pending_scale = 1.0
         if t > self._t:
-            P, n = self._P, len(self._P)
-            # A view of the variances, to add in place (the flat stride of a contiguous P's diagonal).
-            diagonal = P.reshape(-1)[:6 * n:n + 1] if P.flags.c_contiguous else np.einsum("ii->i", P[:6, :6])
-            diagonal += self._walk_per_h * ((t - self._t) / self._hour_s)
+            if not self._P.flags.c_contiguous:
+                self._P = np.ascontiguousarray(self._P)
+            # The walk moves the camera and the walk states alike: both variances and their covariance grow.
+            self._P.reshape(-1)[self._walk_at] += self._walk_4 * ((t - self._t) / self._hour_s)
         self._t = max(t, self._t)
 
     def _fuse(self, r, H, R) -> None:
@@ -186,6 +199,16 @@ class MonitorEngine:
 
     def _state(self):
         return self._C, self._u, self._P
+
+    def _restart_walk(self) -> None:
+        """The calibration in use is the live estimate again: no walk since it."""
+        m = self._columns
+        if self._u[m - 6:].any() or self._P[m:].any():
+            u, P = self._u.copy(), self._P.copy()         # new arrays: the window's states hold the old ones
+            u[m - 6:] = 0.0
+            P[m:] = 0.0
+            P[:, m:] = 0.0
+            self._u, self._P = u, P
 
     def _restore(self, state) -> None:
         self._C, self._u, self._P = state
@@ -217,8 +240,8 @@ class MonitorEngine:
         self._count += 1
         self._predict(s.t)
         r, H, R = self._innovation(s)
-        PHt = self._P.dot(H.T)
-        (a, b, c), (_, d, e), (_, _, f) = H.dot(PHt).tolist()
+        PHt = self._P[:, :self._columns].dot(H.T)
+        (a, b, c), (_, d, e), (_, _, f) = H.dot(PHt[:self._columns]).tolist()
         S_inv = inv_sym3_floats(a + R[0], b + R[1], c + R[2], d + R[3], e + R[4], f + R[5])
         r0, r1, r2 = r
         i0, i1, i2, i3, i4, i5 = S_inv
@@ -237,12 +260,12 @@ class MonitorEngine:
         return self._figures(s, self._next_state(), alarm, message, r, nis, verify, statistic)
 
     def _innovation(self, s: Stop):
-        """`_linearize` at the live state on floats: innovation ``r`` (3 floats), ``H`` (3, n), and the noise ``R``'s
-        upper triangle (6 floats)."""
+        """`_linearize` at the live state on floats: innovation ``r`` (3 floats), ``H`` (3, 12 + P) (the model's
+        columns: not the walk states'), and the noise ``R``'s upper triangle (6 floats)."""
         u = self._u
         k0, k1, k2, s0, s1, s2 = u.tolist()[:6]
         h, H, cof = sample_floats(self._camera_parts, (k0, k1, k2), s.pose, (s0, s1, s2), self._eye_to_hand,
-                                  s.factor, u[6:])
+                                  s.factor, u[6:6 + self._nf])
         scale = self._noise_scale
         k, m = scale * self._point_scale, scale * self._robot_var
         (p0, p1, p2), (h0, h1, h2) = s.point, h
@@ -316,6 +339,7 @@ class MonitorEngine:
             self._settle -= 1
             ref = self.reference
             ref.C, ref.theta = self._C.copy(), self._u[3:6].copy()
+            self._restart_walk()
             ref.sigma_mm = self._workspace.sigma(self._C, ref.theta, self._P) * 1e3
             return "settling"
         return "armed" if self.detector.count >= 3 else "warming"
@@ -345,7 +369,7 @@ class MonitorEngine:
         else:
             shape = point_cov.copy()
         factor = None
-        n_factor = len(self._u) - 6
+        n_factor = self._nf
         if n_factor:
             if robot_factor is None:
                 raise CalibrationError("the engine was armed with the robot's kinematic error: every sample "
@@ -403,6 +427,7 @@ class MonitorEngine:
         self._stops.clear()        # the stops' marker points as the old camera saw them
         self._C, self._P = C, P
         ref.C, ref.theta = C.copy(), self._u[3:6].copy()
+        self._restart_walk()
         ref.sigma_mm = self._workspace.sigma(C, ref.theta, P) * 1e3
         self._rate.reset()
         self._settle = self.settings.detector.window
@@ -516,15 +541,15 @@ class MonitorEngine:
     def _figures(self, s: Stop, state, alarm, message, r, nis, verify, statistic) -> MonitorUpdate:
         ref, cfg = self.reference, self.settings
         if ref.C is not self._in_use[0] or ref.theta is not self._in_use[1]:     # once per change of it
-            self._in_use = ref.C, ref.theta, parts(ref.C), ref.theta.tolist(), None
-        _, _, (R0, t0), (s0, d0, f0), factor = self._in_use
-        (R, t), (s1, d1, f1) = self._camera_parts, self._u[3:6].tolist()
-        w0, w1, w2 = rotation_vector_scalar(R, R0)
-        delta = (w0, w1, w2, t[0] - t0[0], t[1] - t0[1], t[2] - t0[2], 0.0, 0.0, 0.0, s1 - s0, d1 - d0, f1 - f0)
+            self._in_use = ref.C, ref.theta, None
+        factor = self._in_use[2]
+        # The drift: the camera's walk since the calibration in use, not what the samples have refined since.
+        w0, w1, w2, w3, w4, w5 = self._u[-6:].tolist()
+        delta = (w0, w1, w2, w3, w4, w5, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
         if any(delta):
             if factor is None:               # once per calibration in use, when it is first drifted from
                 factor = self._workspace.drift_factor(ref.C, ref.theta)
-                self._in_use = self._in_use[:4] + (factor,)
+                self._in_use = ref.C, ref.theta, factor
             moved = tuple(factor.dot(delta).tolist())
         else:
             moved = (0.0,) * 12

@@ -1,10 +1,10 @@
 """The per-sample measurement model on plain floats (`sample_model`) and its 3x3 kernels.
 
 One sample is a few 3x3 products: as numpy arrays each costs more in call overhead than in
-arithmetic, so the engine's hot path runs them on tuples of floats. `so3_exp_scalar` and
-`rotation_vector_scalar` are `calib.transforms.so3_exp` and `calib.transforms.so3_log` (of ``R1 R2^T``)
-for one rotation; `sample_model` is `calib.model.point_jacobians` for one sample
-(tested against it), `sample_floats` its arithmetic written out on floats, which the engine calls with
+arithmetic, so the engine's hot path runs them on tuples of floats. `so3_exp_scalar` is
+`calib.transforms.so3_exp` for one rotation, with the same formula; `sample_model` is
+`calib.model.point_jacobians` for one sample (tested against it), `sample_floats` its arithmetic
+written out on floats, which the engine calls with
 the floats it already holds. `plain_transform`, `plain_point` and `plain_cov` check a sample's arrays on
 the floats they read and return them."""
 
@@ -51,21 +51,6 @@ def so3_exp_scalar(a0: float, a1: float, a2: float):
     return ((1.0 + b * (a0 * a0 - th2), b * a0 * a1 - a * a2, b * a0 * a2 + a * a1),
             (b * a0 * a1 + a * a2, 1.0 + b * (a1 * a1 - th2), b * a1 * a2 - a * a0),
             (b * a0 * a2 - a * a1, b * a1 * a2 + a * a0, 1.0 + b * (a2 * a2 - th2)))
-
-
-def rotation_vector_scalar(R1, R2) -> tuple:
-    """`calib.transforms.so3_log` of ``R1 R2^T`` (rotations as rows of floats), rad, for angles below pi."""
-    (a0, a1, a2), (a3, a4, a5), (a6, a7, a8) = R1
-    (b0, b1, b2), (b3, b4, b5), (b6, b7, b8) = R2
-    # The entries of R1 R2^T (row i of R1 dot row j of R2), written out.
-    a, b, c = a0 * b0 + a1 * b1 + a2 * b2, a0 * b3 + a1 * b4 + a2 * b5, a0 * b6 + a1 * b7 + a2 * b8
-    d, e, f = a3 * b0 + a4 * b1 + a5 * b2, a3 * b3 + a4 * b4 + a5 * b5, a3 * b6 + a4 * b7 + a5 * b8
-    g, h, i = a6 * b0 + a7 * b1 + a8 * b2, a6 * b3 + a7 * b4 + a8 * b5, a6 * b6 + a7 * b7 + a8 * b8
-    v0, v1, v2 = (h - f) / 2.0, (c - g) / 2.0, (d - b) / 2.0        # sin(angle) times the axis
-    sine = math.sqrt(v0 * v0 + v1 * v1 + v2 * v2)
-    angle = math.atan2(sine, (a + e + i - 1.0) / 2.0)
-    k = angle / sine if sine > 1e-12 else 1.0
-    return v0 * k, v1 * k, v2 * k
 
 
 def inv_sym3(S) -> np.ndarray:

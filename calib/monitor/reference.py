@@ -192,11 +192,7 @@ class WorkspaceMoments:
         """``F`` (12, 12) such that ``|F d|`` is the RMS displacement over the points of where ``C`` and ``theta``
         put them when the state moves by ``d`` (12,): rotation vector and translation of the camera
         transform, marker-side translation, camera correction (first order: `sigma` of ``d d^T``), m.
-
-        The camera correction is in it because the filter trades a depth
-        offset against the camera's translation along its axis: the transform
-        alone then moves where the points it corrects do not.
-        """
+        Linear in ``d``: the slope of ``F d`` over time is the drift rate."""
         s, d, f = np.asarray(theta, dtype=float).tolist()
         K = np.array([1.0, f, s, d, f * f, f * s, f * d, s * s, s * d, d * d]).dot(self.terms).reshape(12, 12)
         B = np.eye(12)

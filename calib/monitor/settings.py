@@ -101,9 +101,9 @@ class MonitorUpdate(NamedTuple):
     statistic : float
         The GLR statistic (0 while the detector does not run).
     drift_mm, drift_deg : float
-        Live estimate against the calibration in use: RMS distance between where
-        the two (camera transform and camera correction) put the workspace
-        points, mm, and the camera's rotation angle, deg.
+        How far the camera has walked since the calibration in use (the filter's
+        random-walk states, not what the samples refined): RMS displacement of
+        the workspace points, mm, and rotation angle, deg.
     drift_rate_mm_h, drift_rate_deg_h : float or None
         Rates of that drift (None until the regression covers enough time).
     error_mm : float

@@ -18,8 +18,9 @@ BASELINE_VISITS = 12
 MAX_STOPS = 64
 #: Seconds per hour: rates are per hour at the edges, times are seconds inside.
 HOUR_S = 3600.0
-#: A rate needs this much of its regression window covered before it is reported.
-RATE_MIN_SPAN = 0.25
+#: A rate needs this much of its regression window covered before it is reported: the drift is a random
+#: walk, whose slope over less than the window is mostly its noise.
+RATE_MIN_SPAN = 1.0
 
 
 @dataclass(slots=True)
