@@ -72,28 +72,27 @@ EH1_PATHS = [("parameters",), ("parameters", "eye_on_hand"), ("samples",), ("sam
              ("samples", "camera_marker_samples", 1), ("samples", "hand_world_samples", 2, "rotation", "x")]
 
 
+def _load_with_value(tmp_path, doc, where, value, name: str) -> None:
+    """A copy of ``doc`` with ``value`` at ``where``, written as YAML file ``name``, loads or raises a typed error."""
+    import copy
+
+    doc = copy.deepcopy(doc)
+    _set_path(doc, where, value)
+    p = tmp_path / name
+    p.write_text(yaml.safe_dump(doc))
+    _load_or_error(p)
+
+
 @SETTINGS
 @given(where=st.sampled_from(EH2_PATHS), value=YAML_VALUES)
 def test_easy_handeye2_any_value_anywhere(tmp_path, where, value):
-    import copy
-
-    doc = copy.deepcopy(EH2)
-    _set_path(doc, where, value)
-    p = tmp_path / "c.samples"
-    p.write_text(yaml.safe_dump(doc))
-    _load_or_error(p)
+    _load_with_value(tmp_path, EH2, where, value, "c.samples")
 
 
 @SETTINGS
 @given(where=st.sampled_from(EH1_PATHS), value=YAML_VALUES)
 def test_easy_handeye_any_value_anywhere(tmp_path, where, value):
-    import copy
-
-    doc = copy.deepcopy(EH1)
-    _set_path(doc, where, value)
-    p = tmp_path / "samples.yaml"
-    p.write_text(yaml.safe_dump(doc))
-    _load_or_error(p)
+    _load_with_value(tmp_path, EH1, where, value, "samples.yaml")
 
 
 @SETTINGS
