@@ -169,8 +169,7 @@ class MonitorEngine:
             self._P = self._P * self._pending_scale      # a new array: the window's states hold the old one
             self._pending_scale = 1.0
         if t > self._t:
-            if not self._P.flags.c_contiguous:
-                self._P = np.ascontiguousarray(self._P)
+            # Every covariance the engine holds is a fresh contiguous array, so its flat view adds in place.
             # The walk moves the camera and the walk states alike: both variances and their covariance grow.
             self._P.reshape(-1)[self._walk_at] += self._walk_4 * ((t - self._t) / self._hour_s)
         self._t = max(t, self._t)

@@ -124,7 +124,7 @@ class Stops:
 class Rate:
     """Exponentially weighted least-squares slope of a vector (a sequence of floats) against time (running sums: O(1))."""
 
-    def __init__(self, tau_s: float, hour_s: float = HOUR_S):
+    def __init__(self, tau_s: float, hour_s: float):
         self.tau_s, self.hour_s = tau_s, hour_s
         self.reset()
 
