@@ -15,6 +15,11 @@ from app.runs.monitor import MonitorReport, monitor
 #: 4 new poses, so the whole story (arming, bump, alarm, re-learn) fits in about a minute.
 DEMO_MONITOR = {"still_s": 0.2, "poll_s": 0.02, "reestimate_samples": 4}
 
+#: The demo's time limit when the config sets none: at least 300 s, and this many seconds per sample asked for
+#: (a stop of the production program comes about every 1.2 s on a 2-core box), so that ``--max-samples``
+#: ends the run and the limit only guards against a cell that gives no samples.
+DEMO_SECONDS_PER_SAMPLE = 3.0
+
 
 def demo(cfg: Config, *, progress: bool = True) -> CalibrationOutput:
     """Calibrate the simulated cell: the UR simulator (started by the robot driver, driven
@@ -53,6 +58,6 @@ def demo_monitor(cfg: Config, *, bump: Bump | None, reference: Path | None = Non
     mon.update(DEMO_MONITOR)
     after = bump.after if bump is not None else 0
     mon["max_samples"] = max_samples or (after + 32 if bump else 30)
-    mon["duration_s"] = cfg.monitor.duration_s or 300.0
+    mon["duration_s"] = cfg.monitor.duration_s or max(300.0, DEMO_SECONDS_PER_SAMPLE * mon["max_samples"])
     cfg = config_from_dict(data, "demo --monitor")
     return monitor(cfg, reference=reference, progress=progress, bump=bump, publish=publish)

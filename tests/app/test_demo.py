@@ -7,6 +7,7 @@ import pytest
 
 from app.config import Config, load_config
 from app.runs.calibrate import calibrate
+from app.runs import demo as demo_runs
 from app.runs.demo import demo
 from app.runs.replay import replay
 from app import devices
@@ -111,3 +112,17 @@ def test_targets_outside_the_workspace_are_skipped_not_sent(sim_config, loopback
     assert any(reason.startswith("limit:") for reason in out.report.skip_reasons)
     A = np.array([o.T_base_flange for o in read_session(out.report.session).observations])
     assert np.all(A[:, :3, 3] >= lo - 1e-3) and np.all(A[:, :3, 3] <= hi + 1e-3)
+
+
+@pytest.mark.parametrize("max_samples, config_s, expected_s", [(None, 0.0, 300.0), (300, 0.0, 900.0),
+                                                                (20, 0.0, 300.0), (300, 120.0, 120.0)])
+def test_demo_monitor_time_limit_leaves_the_samples_asked_for(monkeypatch, max_samples, config_s, expected_s):
+    """``demo --monitor --max-samples 300`` ends at 300 samples, not at a fixed 300 s (about 240 samples on a
+    2-core box); the config's own duration_s still rules."""
+    seen = {}
+    monkeypatch.setattr(demo_runs, "monitor", lambda cfg, **kw: seen.setdefault("cfg", cfg))
+    cfg = Config()
+    cfg = cfg.model_copy(update={"monitor": cfg.monitor.model_copy(update={"duration_s": config_s})})
+    demo_runs.demo_monitor(cfg, bump=None, max_samples=max_samples, progress=False)
+    assert seen["cfg"].monitor.duration_s == expected_s
+    assert seen["cfg"].monitor.max_samples == (max_samples or 30)
