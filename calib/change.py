@@ -71,12 +71,15 @@ class ChangeDetector:
         self.config = config or DetectorConfig()
         windows = 1 if self.config.long_window is None else 2
         self.threshold = float(chi2.ppf(1.0 - self.config.false_alarm_rate / windows, 6))
-        # Running sums of the per-sample H^T S^-1 [H | r] (F = [:, :6], g = [:, 6]) over the last
-        # size samples: a window sum is one difference, not an add and a subtract per window.
+        # Running sums of the per-sample H^T S^-1 [H | r | I] (F = [:, :6], g = [:, 6], G = [:, 7:]) over the
+        # last size samples: a window sum is one difference, not an add and a subtract per window.
         # Unwritten slots are zero, i.e. the sum before the first sample.
         self._size = (self.config.long_window or self.config.window) + 1
-        self._cum = np.zeros((self._size, 6, 7))
-        self._Hr = np.zeros((3, 7))
+        self._cum = np.zeros((self._size, 6, 10))
+        self._Hr = np.zeros((3, 10))
+        #: Variance (m^2 per axis) of an error of the predicted point that nearby samples share: the
+        #: calibration's own systematic error (`shared_error_var`); 0 treats the innovations as white.
+        self.shared_var = 0.0
         self.reset()
 
     @property
@@ -96,7 +99,7 @@ class ChangeDetector:
         self.statistic = 0.0
         self.statistics = (0.0, 0.0)
 
-    def update(self, r: np.ndarray, S_inv: np.ndarray, H: np.ndarray, offset_var=None) -> bool:
+    def update(self, r: np.ndarray, S_inv: np.ndarray, H: np.ndarray, offset_var=None, shared: bool = True) -> bool:
         """Add one innovation ``r`` (3,) with inverse covariance ``S_inv`` (3, 3) and Jacobian ``H`` (3, 6).
 
         ``offset_var`` (6,), optional: variances of a camera offset that the
@@ -106,12 +109,20 @@ class ChangeDetector:
         offset marginalised, ``g^T (F + F Q F)^-1 g`` (Q its diagonal
         covariance) is chi-square with 6 dof before a change.
 
+        ``shared``: the innovation is against the model's prediction, so it
+        carries the calibration's systematic error that the window's other
+        such innovations share (`shared_var`); False for an innovation against
+        earlier visits of the same pose, where that error cancels. With it
+        marginalised, ``g^T (F + shared_var G G^T)^-1 g``, ``G = sum H^T S^-1``
+        over those innovations, is chi-square with 6 dof before a change.
+
         Returns True if a window's GLR statistic exceeds the threshold.
         """
-        # [H^T S^-1 H | H^T S^-1 r] in one product.
+        # [H^T S^-1 H | H^T S^-1 r | H^T S^-1 (shared)] in one product.
         Hr = self._Hr
         Hr[:, :6] = H
         Hr[:, 6] = r
+        Hr[:, 7:] = _EYE3 if shared else 0.0
         Fg = H.T.dot(S_inv).dot(Hr)         # ndarray.dot: @'s product, less call overhead on small arrays
         cfg, n, size, cum = self.config, self._count, self._size, self._cum
         slot = n % size
@@ -120,12 +131,13 @@ class ChangeDetector:
         if self._count < 3:
             # Two points cannot yet separate six pose parameters.
             return False
-        short = _glr(now - cum[(n - cfg.window) % size])
+        shared_var = self.shared_var
+        short = _glr(now - cum[(n - cfg.window) % size], None, shared_var)
         long = self.statistics[1]
         # The long window is for slow, small moves: testing it every LONG_STRIDE samples
         # delays those alarms a little and saves a 6x6 solve per sample.
         if cfg.long_window is not None and self._count > cfg.window and self._count % LONG_STRIDE == 0:
-            long = _glr(now - cum[(n - cfg.long_window) % size], offset_var)
+            long = _glr(now - cum[(n - cfg.long_window) % size], offset_var, shared_var)
         self.statistics = (short, long)
         self.statistic = max(short, long)
         return self.statistic > self.threshold
@@ -139,20 +151,27 @@ class ChangeDetector:
         last = min(self._count, self.config.window)
         if last < 3:
             return last
-        stats = [_glr(cum[n % size] - cum[(n - k) % size]) for k in range(3, last + 1)]
+        stats = [_glr(cum[n % size] - cum[(n - k) % size], None, self.shared_var) for k in range(3, last + 1)]
         return 3 + int(np.argmax(stats))
 
 
-def _glr(Fg, offset_var=None):
-    """``g^T F^-1 g`` of a window sum ``[F | g]`` (6, 7); ``g^T (F + F Q F)^-1 g`` with ``Q = diag(offset_var)``."""
+_EYE3 = np.eye(3)
+
+
+def _glr(Fg, offset_var=None, shared_var=0.0):
+    """``g^T F^-1 g`` of a window sum ``[F | g | G]`` (6, 10); ``F + F Q F`` with ``Q = diag(offset_var)``, plus
+    ``shared_var G G^T``, in place of ``F``."""
     g = Fg[:, 6]
     # A tiny ridge keeps a rank-deficient window (robot standing still) solvable;
     # g lies in the range of F then, so the statistic is unaffected. Fg is a contiguous
-    # temporary: F's diagonal is every 8th entry of its (6, 7) rows.
-    diagonal = Fg.reshape(-1)[0:42:8]
+    # temporary: F's diagonal is every 11th entry of its (6, 10) rows.
+    diagonal = Fg.reshape(-1)[0:66:11]
     diagonal += 1e-9 * (Fg.item(0, 0) + Fg.item(3, 3))
     F = Fg[:, :6]
     if offset_var is not None:
         F = F + (F * offset_var).dot(F)
+    if shared_var:
+        G = Fg[:, 7:]
+        F = F + shared_var * G.dot(G.T)
     _, x, info = dposv(F, g)
     return float(g.dot(x)) if info == 0 else 0.0

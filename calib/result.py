@@ -141,12 +141,14 @@ class BlockedCandidate:
 
 @dataclass(frozen=True)
 class BlockedFolds:
-    """``auto``'s check of its model choice on blocked folds: the number of folds, every candidate, and
-    what decided (``chosen_by``)."""
+    """``auto``'s check of its model choice on blocked folds: the number of folds, every candidate, what
+    decided (``chosen_by``) and the held-out error of the model reported (``reported_m``, m; None when the
+    stretches did not determine the models)."""
 
     folds: int
     chosen_by: str
     candidates: tuple[BlockedCandidate, ...]
+    reported_m: float | None = None
 
 
 @dataclass(frozen=True)

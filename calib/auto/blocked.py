@@ -157,9 +157,9 @@ def blocked_choice(best: Candidate, free, problem: CalibrationProblem, shape, W_
     if e_start < (1.0 - START_GAIN) * chosen[2]:
         cand, note = _closed_form_choice(scored[0][0], best, problem, start, name, chosen[2], e_start)
         return cand, np.zeros(3, dtype=bool), note, BlockedFolds(len(folds), "blocked folds: closed form",
-                                                                 tuple(candidates))
+                                                                 tuple(candidates), e_start)
     if chosen[0] is best:
-        return best, free, None, BlockedFolds(len(folds), "leave-one-out", tuple(candidates))
+        return best, free, None, BlockedFolds(len(folds), "leave-one-out", tuple(candidates), e_best)
     cand, cfree, err = chosen
     cand.iterations += best.iterations
     dropped = []
@@ -170,7 +170,7 @@ def blocked_choice(best: Candidate, free, problem: CalibrationProblem, shape, W_
     return cand, cfree, (
         f"{' and '.join(dropped)}: contiguous stretches of the recording held out in turn are predicted "
         f"{err * 1e3:.2f} mm this way, {e_best * 1e3:.2f} mm as chosen by leave-one-out; the plainer model "
-        "carries to another session"), BlockedFolds(len(folds), "blocked folds", tuple(candidates))
+        "carries to another session"), BlockedFolds(len(folds), "blocked folds", tuple(candidates), err)
 
 
 def _closed_form_choice(plain: Candidate, best: Candidate, problem: CalibrationProblem, start: CalibrationResult,

@@ -23,7 +23,11 @@ Per sample (fixed work and memory, independent of the shift's length):
    on the innovations (`calib.change.ChangeDetector`) raises the *moved*
    alarm; at a stop visited `MIN_BASELINE` times before it tests the marker
    point's change from the stop's earlier visits instead, allowing for the
-   random walk since them.
+   random walk since them. Innovations against the model at nearby poses
+   share the calibration's systematic error (`shared_error_var`: what
+   ``auto``'s blocked folds show beyond its single held-out samples); the
+   test marginalises it, so that a real recording of a still camera is no
+   move.
 4. **Update.** A Kalman update of the state ``[camera transform, marker-side
    translation, camera parameters, kinematic error]`` from the arming
    calibration's joint covariance (`arm_reference`). What repeated stops
@@ -52,8 +56,9 @@ says what is missing and which stop would fix it.
 
 from calib.monitor.engine import MonitorEngine
 from calib.monitor.kernels import sample_model
-from calib.monitor.reference import Reference, WorkspaceMoments, arm_reference, workspace_distance, workspace_sigma
+from calib.monitor.reference import (Reference, WorkspaceMoments, arm_reference, shared_error_var, workspace_distance,
+                                     workspace_sigma)
 from calib.monitor.settings import MonitorSettings, MonitorUpdate
 
 __all__ = ["MonitorEngine", "MonitorSettings", "MonitorUpdate", "Reference", "WorkspaceMoments", "arm_reference",
-           "sample_model", "workspace_distance", "workspace_sigma"]
+           "sample_model", "shared_error_var", "workspace_distance", "workspace_sigma"]

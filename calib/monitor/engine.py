@@ -113,6 +113,7 @@ class MonitorEngine:
         self._drifting = False
         self._alarms: list[tuple[int, float, str]] = []
         self.detector.reset()
+        self.detector.shared_var = ref.shared_var
         return ref
 
     def disarm(self) -> None:
@@ -306,7 +307,7 @@ class MonitorEngine:
             S_test_inv = sym3(inv_sym3_floats(a + k * R[0], b + k * R[1], c + k * R[2], d + k * R[3], e + k * R[4],
                                               f + k * R[5]))
         # While a re-learnt camera settles the stops still refine it: that is not a move.
-        fired = not self._settle and self.detector.update(r_test, S_test_inv, Hc, offset_var)
+        fired = not self._settle and self.detector.update(r_test, S_test_inv, Hc, offset_var, offset_var is None)
         statistic = self.detector.statistic
         if not fired:
             self._window.append(Visit(s, (self._C, self._u, self._P)))

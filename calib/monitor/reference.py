@@ -43,6 +43,9 @@ class Reference:
         Its own 1-sigma over the workspace, mm.
     result : CalibrationResult
         The arming result.
+    shared_var : float
+        Variance (m^2 per axis) of the error of a predicted point that samples at nearby poses share
+        (`shared_error_var`): the *moved* test marginalises it.
     """
 
     setup: Setup
@@ -53,6 +56,25 @@ class Reference:
     workspace: np.ndarray
     sigma_mm: float
     result: CalibrationResult
+    shared_var: float = 0.0
+
+
+def shared_error_var(result: CalibrationResult) -> float:
+    """Variance (m^2 per axis) of the calibration's prediction error that contiguous samples share.
+
+    ``auto``'s blocked folds (from 100 samples) predict contiguous
+    stretches of the recording held out in turn; its self-check predicts
+    single samples held out. What the first adds to the second is error that
+    a stretch shares, beyond the independent noise of each sample: the
+    model's own systematic error at those poses (an unmodelled distortion,
+    a robot error that varies smoothly with the pose). Samples at new poses
+    near each other share it too, and a window of them must not read it as
+    a move: ``(stretch^2 - single^2) / 3``, 0 without blocked folds.
+    """
+    blocked = result.auto.blocked_folds if result.auto is not None else None
+    if blocked is None or blocked.reported_m is None or result.self_check is None:
+        return 0.0
+    return max(0.0, blocked.reported_m ** 2 - result.self_check.loo_observed_m ** 2) / 3.0
 
 
 def arm_reference(result: CalibrationResult, problem: CalibrationProblem, *,
@@ -112,7 +134,8 @@ def arm_reference(result: CalibrationResult, problem: CalibrationProblem, *,
     cov = state_covariance(C, K, M, theta, setup, noise, shape, held, robot_factor)
     cov = 0.5 * (cov + cov.T)
     q = model.CameraCorrection(*theta).correct(p)
-    ref = Reference(setup, C.copy(), K.copy(), theta, noise, q[::max(1, len(q) // WORKSPACE_POINTS)], 0.0, result)
+    ref = Reference(setup, C.copy(), K.copy(), theta, noise, q[::max(1, len(q) // WORKSPACE_POINTS)], 0.0, result,
+                    shared_error_var(result))
     ref.sigma_mm = workspace_sigma(C, theta, ref.workspace, cov) * 1e3
     return ref, cov
 

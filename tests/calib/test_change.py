@@ -83,3 +83,42 @@ def test_onset_is_the_change_point():
             r = rng.normal(size=3) + (H @ [0.0, 0.0, 0.0, 2.0, -1.5, 1.0] if k >= 60 - since else 0.0)
             det.update(r, np.eye(3), H)
         assert abs(det.onset() - since) <= 1
+
+
+def test_an_error_the_window_shares_is_no_move_once_marginalised():
+    """Innovations that share one random offset (variance s^2 per axis: a calibration's systematic error at
+    nearby poses) besides their white noise: with ``shared_var = s^2`` the window statistic is chi-square
+    with 6 dof, without it the offset reads as a move."""
+    rng = np.random.default_rng(52)
+    s2 = 4.0
+    stats = {0.0: [], s2: []}
+    for _ in range(400):
+        b = rng.normal(scale=np.sqrt(s2), size=3)
+        Hs = [rng.normal(size=(3, 6)) for _ in range(10)]
+        rs = [b + rng.normal(size=3) for _ in range(10)]
+        for var in stats:
+            det = ChangeDetector(DetectorConfig(window=10, long_window=None))
+            det.shared_var = var
+            for H, r in zip(Hs, rs):
+                det.update(r, np.eye(3), H)
+            stats[var].append(det.statistic)
+    assert 5.3 < np.mean(stats[s2]) < 6.7
+    assert np.mean(stats[0.0]) > 12.0
+
+
+def test_the_shared_error_term_matches_brute_force_and_skips_baseline_innovations():
+    """``g^T (F + s^2 G G^T)^-1 g`` with ``G`` summed over the innovations against the model only (an
+    innovation against a pose's earlier visits has that error cancelled)."""
+    rng = np.random.default_rng(53)
+    det = ChangeDetector(DetectorConfig(window=6, long_window=None))
+    det.shared_var = 0.7
+    F, g, G = np.zeros((6, 6)), np.zeros(6), np.zeros((6, 3))
+    for k in range(6):
+        H, r = rng.normal(size=(3, 6)), rng.normal(size=3)
+        S_inv = np.linalg.inv(np.eye(3) + 0.3 * np.diag(rng.random(3)))
+        shared = k % 2 == 0
+        det.update(r, S_inv, H, shared=shared)
+        F += H.T @ S_inv @ H
+        g += H.T @ S_inv @ r
+        G += H.T @ S_inv if shared else 0.0
+    assert det.statistic == pytest.approx(g @ np.linalg.solve(F + 0.7 * G @ G.T, g), rel=1e-6)   # (its ridge)

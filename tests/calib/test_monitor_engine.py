@@ -314,3 +314,38 @@ def test_eye_in_hand_camera_slipping_on_the_flange_is_flagged_and_relearnt():
     assert trans < 3e-3 and np.rad2deg(rot) < 0.3, (trans, np.rad2deg(rot))
     # The held base-marker pose is the arming one.
     np.testing.assert_allclose(engine.result().Y[:3, :3], res.Y[:3, :3])
+
+
+def _real_stream_alarms(shared: bool) -> tuple[list, float]:
+    """The ETH SR300 stream (tests/data/ethz/robot_arm, eye-in-hand, the camera never moved): the engine armed
+    by ``auto`` from the first half, the second half one sample a second (poses 7-18 cm apart, as a robot's
+    stops would be). Returns its *moved* alarms and the arming's shared error variance (m^2 per axis)."""
+    from pathlib import Path
+
+    from app.formats import load
+
+    obs = load(Path(__file__).parents[1] / "data" / "ethz" / "robot_arm").observations
+    first, second = obs[:len(obs) // 2], obs[len(obs) // 2:]
+    problem = CalibrationProblem.from_observations(first, Setup.EYE_IN_HAND)
+    engine = MonitorEngine()
+    ref = engine.arm(solve("auto", problem), problem, t=first[-1].t)
+    if not shared:
+        engine.detector.shared_var = 0.0
+    taken = [second[0]]
+    for o in second[1:]:
+        if o.t - taken[-1].t >= 1.0:
+            taken.append(o)
+    alarms = [k for k, o in enumerate(taken)
+              if engine.update(o.t, o.T_base_flange, o.point_cam, o.point_cov).alarm == "moved"]
+    return alarms, ref.shared_var
+
+
+def test_a_real_recording_of_a_still_camera_raises_no_moved_alarm():
+    """Real errors are not white: nearby poses share the calibration's systematic error (here the held-out
+    stretches of the arming half are predicted 3.69 mm against 3.44 mm for single samples, 0.77 mm per axis
+    shared). Marginalised, the *moved* test stays quiet over the other half; taken as white it raised a
+    false alarm 4 samples in (2026-12-02)."""
+    alarms, shared_var = _real_stream_alarms(shared=True)
+    assert alarms == []
+    assert 0.5e-3 < np.sqrt(shared_var) < 1.0e-3
+    assert _real_stream_alarms(shared=False)[0]
