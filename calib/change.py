@@ -27,6 +27,8 @@ from calib.params import Float, Int, Params
 #: The detector's long window is tested every this many samples.
 LONG_STRIDE = 4
 
+_EYE3 = np.eye(3)
+
 
 class DetectorConfig(Params):
     """Settings of `ChangeDetector`.
@@ -153,9 +155,6 @@ class ChangeDetector:
             return last
         stats = [_glr(cum[n % size] - cum[(n - k) % size], None, self.shared_var) for k in range(3, last + 1)]
         return 3 + int(np.argmax(stats))
-
-
-_EYE3 = np.eye(3)
 
 
 def _glr(Fg, offset_var=None, shared_var=0.0):

@@ -294,7 +294,8 @@ class MonitorEngine:
         i = stops.lookup(s)
         r_test, S_test_inv, offset_var = r, S_inv, None
         Hc = H[:, :6]
-        if i is not None and stops.n[i] >= MIN_BASELINE:
+        baseline = i is not None and stops.n[i] >= MIN_BASELINE
+        if baseline:
             # Against the stop's own earlier visits: what they share (unmodelled errors of the robot or the
             # camera at that pose, the estimate's own error) is no change; only the camera moving is.
             (p0, p1, p2), (m0, m1, m2) = s.point, stops.mean[i]
@@ -307,7 +308,7 @@ class MonitorEngine:
             S_test_inv = sym3(inv_sym3_floats(a + k * R[0], b + k * R[1], c + k * R[2], d + k * R[3], e + k * R[4],
                                               f + k * R[5]))
         # While a re-learnt camera settles the stops still refine it: that is not a move.
-        fired = not self._settle and self.detector.update(r_test, S_test_inv, Hc, offset_var, offset_var is None)
+        fired = not self._settle and self.detector.update(r_test, S_test_inv, Hc, offset_var, shared=not baseline)
         statistic = self.detector.statistic
         if not fired:
             self._window.append(Visit(s, (self._C, self._u, self._P)))
