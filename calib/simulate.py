@@ -403,7 +403,10 @@ class Shift:
     pose) visited in turn, one sample every ``sample_s``; the camera mount
     drifts ``drift_mm_h`` along a random direction, and is bumped at each
     ``(hour, mm, deg)`` of ``bumps`` (its center shifted, the camera turned
-    about it, random directions).
+    about it, random directions). ``stop_jitter_deg`` varies each visit of a
+    stop (every joint, 1-sigma, drawn anew per visit): a program whose stops
+    repeat only roughly, such as vision-guided picks (0.5 deg moves the tool
+    about 1 cm).
     """
 
     hours: float = 8.0
@@ -412,6 +415,7 @@ class Shift:
     max_tilt_deg: float = 10.0
     drift_mm_h: float = 0.5
     bumps: tuple = ((2.0, 5.0, 0.3), (4.5, 5.0, 0.3), (7.0, 5.0, 0.3))
+    stop_jitter_deg: float = 0.0
 
 
 @dataclass(frozen=True)
@@ -474,8 +478,10 @@ def shift_stream(real: RealisticData, shift: Shift, rng: np.random.Generator,
     t = np.arange(n) * shift.sample_s
     stop = np.arange(n) % shift.stops
     q = q_stops[stop]
-    A = ur_forward(q_stops, dh["d"], dh["a"], dh["alpha"], np.zeros(6))[stop]
-    A_true = ur_forward(q_stops, kin["d"], kin["a"], kin["alpha"], kin["offsets"])[stop]
+    if shift.stop_jitter_deg:
+        q = q + rng.normal(scale=np.deg2rad(shift.stop_jitter_deg), size=q.shape)
+    A = ur_forward(q, dh["d"], dh["a"], dh["alpha"], np.zeros(6))
+    A_true = ur_forward(q, kin["d"], kin["a"], kin["alpha"], kin["offsets"])
     A_true = A_true @ tf.from_rotvec_translation(rng.normal(scale=prof.repeatability_rad, size=(n, 3)),
                                                  rng.normal(scale=prof.repeatability_m, size=(n, 3)))
     direction = _random_direction(1, rng)[0]

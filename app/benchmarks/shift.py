@@ -279,17 +279,21 @@ def main(argv=None) -> int:
     ap.add_argument("--hours", type=float, default=8.0)
     ap.add_argument("--stops", type=int, default=4)
     ap.add_argument("--tilt", type=float, default=10.0, help="largest tool tilt of the stops, deg")
+    ap.add_argument("--stop-jitter", type=float, default=0.0, help="each visit of a stop off by this much on every "
+                    "joint, deg, 1-sigma (stops that repeat only roughly, e.g. vision-guided picks; 0.5 ~ 1 cm)")
     ap.add_argument("--sizes", action="store_true", help="also the smallest-bump table (5 sizes x the seeds)")
     ap.add_argument("--eye-in-hand", action="store_true", help="also the eye-in-hand shift (camera slipping on the "
                     "flange)")
     ap.add_argument("--out", type=Path, default=Path("out/bench"))
     args = ap.parse_args(argv)
-    shift = dataclasses.replace(simulate.Shift(), hours=args.hours, stops=args.stops, max_tilt_deg=args.tilt)
+    shift = dataclasses.replace(simulate.Shift(), hours=args.hours, stops=args.stops, max_tilt_deg=args.tilt,
+                                stop_jitter_deg=args.stop_jitter)
     settings = MonitorSettings()
     seeds = list(range(args.first_seed, args.first_seed + args.seeds))
     t0 = time.monotonic()
     runs = [run_seed(s, shift, settings) for s in seeds]
-    text = (f"### Production shift: {args.hours:g} h, {args.stops} stops (tilt <= {args.tilt:g} deg), sample every "
+    jitter = f", each visit {args.stop_jitter:g} deg off per joint" if args.stop_jitter else ""
+    text = (f"### Production shift: {args.hours:g} h, {args.stops} stops (tilt <= {args.tilt:g} deg{jitter}), sample every "
             f"{shift.sample_s:g} s, drift {shift.drift_mm_h:g} mm/h, bumps (h, mm, deg) {shift.bumps}\n\n"
             + table([summarize(r) for r in runs], seeds))
     if args.sizes:

@@ -259,13 +259,35 @@ class MonitorEngine:
             alarm, statistic, message = self._test(s, r, H, R, PHt, sym3(S_inv))
         return self._figures(s, self._next_state(), alarm, message, r, nis, verify, statistic)
 
+    def _model_at(self, pose, factor):
+        """`sample_floats` at the live state for a flange pose (``A[:3]`` flat) and kinematic-error factor."""
+        u = self._u
+        k0, k1, k2, s0, s1, s2 = u.tolist()[:6]
+        return sample_floats(self._camera_parts, (k0, k1, k2), pose, (s0, s1, s2), self._eye_to_hand, factor,
+                             u[6:6 + self._nf])
+
+    def _against_stop(self, i: int, s: Stop, r) -> tuple:
+        """Sample ``s``'s marker point against its stop ``i``'s earlier visits (3 floats), ``r`` its innovation.
+
+        Exact repeats: the point's change from their mean. A stop repeated only
+        roughly (vision-guided picks, a pallet's pattern: each visit a few mm
+        or cm off the last) has its mean point carried from the visits' mean
+        pose to this one by the model at the live state: the innovation less
+        the stop's mean innovation there. What the visits share (the
+        systematic errors at that place) still cancels."""
+        m0, m1, m2 = self._stops.mean[i]
+        pose = self._stops.pose_mean[i]
+        if pose == s.pose:
+            p0, p1, p2 = s.point
+            return p0 - m0, p1 - m1, p2 - m2
+        (h0, h1, h2), _, _ = self._model_at(pose, s.factor)
+        r0, r1, r2 = r
+        return r0 - (m0 - h0), r1 - (m1 - h1), r2 - (m2 - h2)
+
     def _innovation(self, s: Stop):
         """`_linearize` at the live state on floats: innovation ``r`` (3 floats), ``H`` (3, 12 + P) (the model's
         columns: not the walk states'), and the noise ``R``'s upper triangle (6 floats)."""
-        u = self._u
-        k0, k1, k2, s0, s1, s2 = u.tolist()[:6]
-        h, H, cof = sample_floats(self._camera_parts, (k0, k1, k2), s.pose, (s0, s1, s2), self._eye_to_hand,
-                                  s.factor, u[6:6 + self._nf])
+        h, H, cof = self._model_at(s.pose, s.factor)
         scale = self._noise_scale
         k, m = scale * self._point_scale, scale * self._robot_var
         (p0, p1, p2), (h0, h1, h2) = s.point, h
@@ -298,8 +320,7 @@ class MonitorEngine:
         if baseline:
             # Against the stop's own earlier visits: what they share (unmodelled errors of the robot or the
             # camera at that pose, the estimate's own error) is no change; only the camera moving is.
-            (p0, p1, p2), (m0, m1, m2) = s.point, stops.mean[i]
-            r_test = p0 - m0, p1 - m1, p2 - m2
+            r_test = self._against_stop(i, s, r)
             # A drifting camera has moved since those visits by the same for every stop: the long window's
             # test is for a move beyond the random walk over that time.
             offset_var = self._walk_per_h * ((s.t - stops.t[i]) / self._hour_s)
@@ -441,9 +462,10 @@ class MonitorEngine:
     def _jump(self, samples):
         """The move from the innovations' change at stops with a baseline: ``(ok, C, P)`` or None.
 
-        Weighted least squares of ``p_i - mean_stop = H_i delta`` (the marker point's change at its stop) at the
-        estimate from before the move; ``ok`` when the fit's chi-square agrees
-        with the noise (else the oldest sample is from before the move).
+        Weighted least squares of ``p_i - mean_stop = H_i delta`` (the marker
+        point's change at its stop, `_against_stop`) at the estimate from
+        before the move; ``ok`` when the fit's chi-square agrees with the noise
+        (else the oldest sample is from before the move).
         """
         rows, known = [], []
         stops = self._stops
@@ -454,8 +476,9 @@ class MonitorEngine:
             known.append(s)
             if stops.n[i] < MIN_BASELINE:
                 continue
-            _, H, R = self._linearize(self._C, self._u, s)
-            rows.append((s.p - stops.mean[i], H[:, :6], np.linalg.inv(R * (1.0 + 1.0 / stops.n[i]))))
+            r, H, R = self._linearize(self._C, self._u, s)
+            W = np.linalg.inv(R * (1.0 + 1.0 / stops.n[i]))
+            rows.append((np.array(self._against_stop(i, s, r)), H[:, :6], W))
         if len(self._distinct(known)) < 3:
             return None
         # A bump's prior (`JUMP_PRIOR`): where the stops cannot tell a turn of the camera from a shift (one marker

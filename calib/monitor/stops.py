@@ -62,6 +62,7 @@ class Stops:
     def __init__(self, translation_m: float, rotation_rad: float):
         self.poses: list[list] = []                     # per stop: its first flange pose, A[:3] flat
         self.mean: list[tuple] = []                      # per stop: the mean marker point, 3 floats
+        self.pose_mean: list[list] = []                  # per stop: the mean flange pose of those visits, likewise
         self.n: list[float] = []
         self.t: list[float] = []                        # per stop: the mean time of the visits in its mean
         self.last: list[int] = []
@@ -100,11 +101,12 @@ class Stops:
         if i is None:
             if len(self.poses) == MAX_STOPS:
                 j = self.last.index(min(self.last))
-                for held in (self.poses, self.mean, self.n, self.t, self.last):
+                for held in (self.poses, self.mean, self.pose_mean, self.n, self.t, self.last):
                     del held[j]
             i = len(self.poses)
             self.poses.append(s.pose)
             self.mean.append((0.0, 0.0, 0.0))
+            self.pose_mean.append(s.pose)
             self.n.append(0.0)
             self.t.append(0.0)
             self.last.append(0)
@@ -112,12 +114,14 @@ class Stops:
         n = self.n[i] = min(self.n[i] + 1.0, BASELINE_VISITS)
         (m0, m1, m2), (p0, p1, p2) = self.mean[i], s.point
         self.mean[i] = (m0 + (p0 - m0) / n, m1 + (p1 - m1) / n, m2 + (p2 - m2) / n)
+        if self.pose_mean[i] != s.pose:      # a stop repeated only roughly (exact repeats leave it as it is)
+            self.pose_mean[i] = [a + (b - a) / n for a, b in zip(self.pose_mean[i], s.pose)]
         self.t[i] += (s.t - self.t[i]) / n
         self._visits += 1
         self.last[i] = self._visits
 
     def clear(self) -> None:
-        self.poses, self.mean, self.n, self.t, self.last = [], [], [], [], []
+        self.poses, self.mean, self.pose_mean, self.n, self.t, self.last = [], [], [], [], [], []
         self.generation += 1
 
 
