@@ -141,7 +141,7 @@ class MonitorEngine:
         per_sample = 16 + 3 + 9 + 6 * self.n_factor
         state = 16 + len(self._u) + self._P.size
         return (state + self.detector.state_size + per_sample * len(self._relearn_set)
-                + (per_sample + 3 + state) * len(self._window) + 19 * self._stops.count)
+                + (per_sample + 3 + state) * len(self._window) + 31 * self._stops.count)
 
     # ------------------------------------------------------------------ the filter
 
