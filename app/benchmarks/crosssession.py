@@ -138,7 +138,7 @@ def cross_session_rows(sets) -> list[list]:
 MONITOR_SPACING_S = (1.0, 3.0)
 
 
-def _spaced(observations, spacing_s: float) -> list:
+def spaced(observations, spacing_s: float) -> list:
     """The first observation, then each one at least ``spacing_s`` after the last taken."""
     taken = [observations[0]]
     for o in observations[1:]:
@@ -200,7 +200,7 @@ def monitor_rows(sets, rng: np.random.Generator) -> list[list]:
             shift = 0.0 if stream[0].t >= t0 else t0 + 1.0 - stream[0].t
             stream = [dataclasses.replace(o, t=o.t + shift) for o in stream]
             for spacing in MONITOR_SPACING_S:
-                samples = _spaced(stream, spacing)
+                samples = spaced(stream, spacing)
                 alarms, verify, shared_var = _monitor_run(problem, result, t0, samples, shared=True)
                 white, _, _ = _monitor_run(problem, result, t0, samples, shared=False)
                 A = np.array([o.T_base_flange for o in samples])

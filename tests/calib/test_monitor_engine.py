@@ -335,6 +335,7 @@ def _real_stream_alarms(shared: bool) -> tuple[list, float]:
     stops would be). Returns its *moved* alarms and the arming's shared error variance (m^2 per axis)."""
     from pathlib import Path
 
+    from app.benchmarks.crosssession import spaced
     from app.formats import load
 
     obs = load(Path(__file__).parents[1] / "data" / "ethz" / "robot_arm").observations
@@ -344,11 +345,7 @@ def _real_stream_alarms(shared: bool) -> tuple[list, float]:
     ref = engine.arm(solve("auto", problem), problem, t=first[-1].t)
     if not shared:
         engine.detector.shared_var = 0.0
-    taken = [second[0]]
-    for o in second[1:]:
-        if o.t - taken[-1].t >= 1.0:
-            taken.append(o)
-    alarms = [k for k, o in enumerate(taken)
+    alarms = [k for k, o in enumerate(spaced(second, 1.0))
               if engine.update(o.t, o.T_base_flange, o.point_cam, o.point_cov).alarm == "moved"]
     return alarms, ref.shared_var
 
