@@ -406,7 +406,8 @@ class Shift:
     about it, random directions). ``stop_jitter_deg`` varies each visit of a
     stop (every joint, 1-sigma, drawn anew per visit): a program whose stops
     repeat only roughly, such as vision-guided picks (0.5 deg moves the tool
-    about 1 cm).
+    about 1 cm). `eye_in_hand_shift` turns the flange pose by it about each
+    axis and shifts it by that angle times `JITTER_REACH_M` along each.
     """
 
     hours: float = 8.0
@@ -416,6 +417,10 @@ class Shift:
     drift_mm_h: float = 0.5
     bumps: tuple = ((2.0, 5.0, 0.3), (4.5, 5.0, 0.3), (7.0, 5.0, 0.3))
     stop_jitter_deg: float = 0.0
+
+
+#: Lever (m) that turns `Shift.stop_jitter_deg` into the flange's shift per axis in `eye_in_hand_shift`.
+JITTER_REACH_M = 1.0
 
 
 @dataclass(frozen=True)
@@ -514,6 +519,10 @@ def eye_in_hand_shift(cell: SimulatedData, stops: np.ndarray, shift: Shift, rng:
     t = np.arange(n) * shift.sample_s
     stop = np.arange(n) % len(stops)
     A = stops[stop]
+    if shift.stop_jitter_deg:
+        jitter = np.deg2rad(shift.stop_jitter_deg)
+        A = A @ tf.from_rotvec_translation(rng.normal(scale=jitter, size=(n, 3)),
+                                           rng.normal(scale=jitter * JITTER_REACH_M, size=(n, 3)))
     direction = _random_direction(1, rng)[0]
     slip = np.broadcast_to(np.eye(4), (n, 4, 4)).copy()
     slip[:, :3, 3] = np.outer(t / 3600.0 * shift.drift_mm_h * 1e-3, direction)
