@@ -26,6 +26,9 @@ from calib.monitor.stops import HOUR_S, Rate, Stop, Stops, Visit
 
 #: Visits of a stop before the detector compares its marker point with the stop's earlier ones.
 MIN_BASELINE = 3
+#: A visit whose flange pose is within this of its stop's mean pose (m, and rad on the rotation entries) is an
+#: exact repeat: the marker point moves by some 10 um at most, so it is compared as it is (`_against_stop`).
+SAME_POSE_TOL = 1e-5
 #: Prior 1-sigma of the camera transform when a registration after a move starts the filter again
 #: (translation m, rotation rad): wide against the registration's own error, narrow for linearity.
 RELEARN_PRIOR = (0.01, np.deg2rad(1.0))
@@ -269,15 +272,16 @@ class MonitorEngine:
     def _against_stop(self, i: int, s: Stop, r) -> tuple:
         """Sample ``s``'s marker point against its stop ``i``'s earlier visits (3 floats), ``r`` its innovation.
 
-        Exact repeats: the point's change from their mean. A stop repeated only
-        roughly (vision-guided picks, a pallet's pattern: each visit a few mm
-        or cm off the last) has its mean point carried from the visits' mean
-        pose to this one by the model at the live state: the innovation less
-        the stop's mean innovation there. What the visits share (the
-        systematic errors at that place) still cancels."""
+        Exact repeats (within `SAME_POSE_TOL`: a robot's encoders): the
+        point's change from their mean. A stop repeated only roughly
+        (vision-guided picks, a pallet's pattern: each visit a few mm or cm off
+        the last) has its mean point carried from the visits' mean pose to this
+        one by the model at the live state: the innovation less the stop's mean
+        innovation there. What the visits share (the systematic errors at that
+        place) still cancels."""
         m0, m1, m2 = self._stops.mean[i]
         pose = self._stops.pose_mean[i]
-        if pose == s.pose:
+        if max(abs(a - b) for a, b in zip(pose, s.pose)) <= SAME_POSE_TOL:
             p0, p1, p2 = s.point
             return p0 - m0, p1 - m1, p2 - m2
         (h0, h1, h2), _, _ = self._model_at(pose, s.factor)
