@@ -50,7 +50,7 @@ class Visit(NamedTuple):
 
 class Stops:
     """Production stops' typical measured marker points (camera frame): the running mean of each stop's last
-    `BASELINE_VISITS` visits, for the `MAX_STOPS` most recently visited stops.
+    `BASELINE_VISITS` visits, and of their flange poses, for the `MAX_STOPS` most recently visited stops.
 
     Two flange poses are the same stop when closer than ``translation_m`` and
     ``rotation_rad``; a sample's stop is the least recently visited match.
