@@ -31,7 +31,7 @@ import yaml
 
 from app import devices
 from app.errors import SessionError
-from app.monitoring import arm_engine, reference_observations
+from app.monitoring import arm_engine, reference_observations, shared_error_note
 from app.session import read_session
 from calib import transforms as tf
 from calib.errors import CalibrationError
@@ -104,6 +104,9 @@ def replay_monitor(session: Path, reference: Path, out: Path, *, settings: Monit
         shared_error = None
         rep.notes.append("the samples have no joints: monitored without the robot's kinematic error")
     arm_engine(engine, reference_observations(reference, prod.setup), prod.setup, shared_error, rng=rng, t=first_t)
+    shared = shared_error_note(engine)
+    if shared:
+        rep.notes.append(shared)
     out = rep.out
     try:
         out.mkdir(parents=True, exist_ok=True)

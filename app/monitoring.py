@@ -9,6 +9,7 @@ samples once ``auto`` determines the camera from them.
 
 from __future__ import annotations
 
+import math
 from pathlib import Path
 
 import numpy as np
@@ -71,6 +72,16 @@ def arm_engine(engine: MonitorEngine, reference: list, setup: Setup, shared_erro
     except CalibrationError as e:
         raise SessionError(f"reference: cannot arm the monitoring engine: {e}") from None
     return result
+
+
+def shared_error_note(engine: MonitorEngine) -> str | None:
+    """Plain words for the calibration error that nearby poses share, which the armed engine's *moved* test
+    allows for (`calib.monitor.shared_error_var`), or None when there is none."""
+    shared = engine.reference.shared_var if engine.reference is not None else 0.0
+    if not shared:
+        return None
+    return (f"the moved test allows for {math.sqrt(shared) * 1e3:.2f} mm per axis of calibration error that nearby "
+            "poses share (the reference's blocked folds)")
 
 
 def sample_factor(engine: MonitorEngine, obs, shared_error):

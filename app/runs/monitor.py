@@ -30,7 +30,7 @@ from app import devices
 from app.acquire import take_sample
 from app.config import Config, MonitorConfig, hook_argv
 from app.errors import ConfigError, OutageError
-from app.monitoring import arm_engine, arm_from, reference_observations, sample_factor
+from app.monitoring import arm_engine, arm_from, reference_observations, sample_factor, shared_error_note
 from app.outage import OutageEvent, Reconnecting
 from app.production import Bump, start_production
 from app.progress import progress_bar, say, show_monitor
@@ -157,8 +157,9 @@ def monitor(cfg: Config, *, reference: Path | None = None, stop=None, progress: 
         if reference is not None:
             ref = reference_observations(reference, cfg.setup)
             arm_engine(engine, ref, cfg.setup, robot.shared_error_factor, rng=rng, t=time.time())
+            shared = shared_error_note(engine)
             say(f"reference {reference}: {len(ref)} samples solved with auto, monitoring engine armed from its "
-                "estimate, camera correction and covariance")
+                "estimate, camera correction and covariance" + (f"; {shared}" if shared else ""))
         if production:
             start_production(robot, cfg, rng, say=say)
         writer = SessionWriter.create(cfg.session.root, cfg.setup, config=cfg.to_dict(),
