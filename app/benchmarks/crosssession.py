@@ -214,9 +214,9 @@ def monitor_rows(sets, rng: np.random.Generator) -> list[list]:
                 def said(a):
                     return f"{len(a)} (sample {a[0]})" if a else "0"
 
+                bumps = f"{len(flagged)}/{len(delays)}" + (f" ({', '.join(map(str, flagged))})" if flagged else "")
                 rows.append([name, label, f"{spacing:g} s", len(samples), f"{shared_mm:.2f}", said(alarms), said(white),
-                             f"{np.sqrt(np.mean(np.square(verify))):.2f}", f"{static * 1e3:.2f}",
-                             f"{len(flagged)}/{len(delays)}" + (f" ({', '.join(map(str, flagged))})" if flagged else "")])
+                             f"{np.sqrt(np.mean(np.square(verify))):.2f}", f"{static * 1e3:.2f}", bumps])
     return rows
 
 
@@ -236,7 +236,8 @@ def main(argv=None) -> int:
     print(markdown_table(["set", "armed from -> streamed", "one sample per", "samples", "shared error per axis [mm]",
                           "moved alarms", "moved alarms, errors taken as white", "live verification RMS [mm]",
                           "arming calibration on them [mm]",
-                          f"a {MONITOR_BUMP[0]:g} mm / {MONITOR_BUMP[1]:g} deg bump a third in: flagged (samples after)"],
+                          f"a {MONITOR_BUMP[0]:g} mm / {MONITOR_BUMP[1]:g} deg bump a third in: "
+                          "flagged (samples after)"],
                          mon))
     return 0
 

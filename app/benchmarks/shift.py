@@ -293,8 +293,8 @@ def main(argv=None) -> int:
     t0 = time.monotonic()
     runs = [run_seed(s, shift, settings) for s in seeds]
     jitter = f", each visit {args.stop_jitter:g} deg off per joint" if args.stop_jitter else ""
-    text = (f"### Production shift: {args.hours:g} h, {args.stops} stops (tilt <= {args.tilt:g} deg{jitter}), sample every "
-            f"{shift.sample_s:g} s, drift {shift.drift_mm_h:g} mm/h, bumps (h, mm, deg) {shift.bumps}\n\n"
+    text = (f"### Production shift: {args.hours:g} h, {args.stops} stops (tilt <= {args.tilt:g} deg{jitter}), "
+            f"sample every {shift.sample_s:g} s, drift {shift.drift_mm_h:g} mm/h, bumps (h, mm, deg) {shift.bumps}\n\n"
             + table([summarize(r) for r in runs], seeds))
     if args.sizes:
         text += "\n\n#### Smallest bump flagged\n\n" + section_sizes(seeds, shift, settings)
