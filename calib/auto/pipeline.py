@@ -14,7 +14,7 @@ from calib.auto.camera import CAMERA_CORRECTIONS, MIN_SAMPLES_CAMERA, free_for, 
 from calib.auto.consider import camera_consider, shared_robot_consider
 from calib.auto.fit import Candidate, better, fit_components
 from calib.diagnostics import consistency, initial_noise
-from calib.errors import CalibrationError, InsufficientDataError
+from calib.errors import CalibrationError
 from calib.methods import closed_form
 from calib.problem import CalibrationProblem
 from calib.result import AutoDetails, CalibrationResult, CameraParameter, Residuals
@@ -102,18 +102,20 @@ def _resolve_flips(problem: CalibrationProblem, notes: list) -> tuple[Calibratio
 def _closed_form_start(problem: CalibrationProblem):
     """Closed-form candidates and the one with the smallest median point residual."""
     names = ["YKronT'"] + (["YQuatT'", "YKronRT"] if problem.has_poses else [])
-    best, best_med, tried = None, np.inf, []
+    best, best_med, tried, refused = None, np.inf, [], []
     for name in names:
         try:
             res = closed_form(name, problem)
-        except CalibrationError:
+        except CalibrationError as e:
+            refused.append(e)
             continue
         med = float(np.median(res.residuals.translation))
         tried.append((name, med))
         if med < best_med:
             best, best_med = res, med
     if best is None:
-        raise InsufficientDataError("no closed-form start could be computed for these samples")
+        # The first candidate's reason (the paper's YKronT'): what the samples lack, and what would fix it.
+        raise type(refused[0])(f"no closed-form start could be computed for these samples: {refused[0]}")
     return best, tried
 
 

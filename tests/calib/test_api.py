@@ -172,6 +172,17 @@ def test_degenerate_motion_is_detected(method, kind, match, setup):
         solve(method, A, B, setup=setup)
 
 
+@pytest.mark.parametrize("setup", ["eye_to_hand", "eye_in_hand"])
+@pytest.mark.parametrize("points", [False, True])
+def test_auto_names_what_a_degenerate_motion_lacks(setup, points):
+    """``auto`` refuses motions no closed form can start from with the closed forms' own reason and fix (it
+    said only that no start could be computed), as its type: a user with their own recording learns which
+    rotation is missing (the 10x10 circles set's 10 views about one flange axis)."""
+    A, B = motion_set("one_axis", setup, np.random.default_rng(1))
+    with pytest.raises(DegenerateMotionError, match=r"no closed-form start .*about one axis .*rotate about at least"):
+        solve("auto", A, B[:, :3, 3] if points else B, setup=setup)
+
+
 @pytest.mark.parametrize("kind", ["one_axis", "pure_translation"])
 @pytest.mark.parametrize("method", ALL)
 def test_degenerate_motion_with_robot_noise_is_detected(method, kind):
