@@ -70,8 +70,9 @@ def trace_row(obs_index: int, upd: MonitorUpdate, correction) -> dict:
         return "" if v is None else fmt.format(v)
 
     return {
-        "index": upd.index, "sample": obs_index, "t": f"{upd.t:.3f}", "alarm": upd.alarm, "level": upd.level,
-        "state": upd.state, **{k: f"{v * 1e3:.3f}" for k, v in zip(("x_mm", "y_mm", "z_mm"), xyz)},
+        "index": upd.index, "sample": obs_index, "t": f"{upd.t:.3f}", "alarm": str(upd.alarm),
+        "level": str(upd.level), "state": str(upd.state),
+        **{k: f"{v * 1e3:.3f}" for k, v in zip(("x_mm", "y_mm", "z_mm"), xyz)},
         **{k: f"{v:.6f}" for k, v in zip(("qx", "qy", "qz", "qw"), quat)},
         "depth_scale": f"{s:.6f}", "depth_offset_mm": f"{d * 1e3:.3f}", "focal_scale": f"{f:.6f}",
         "sigma_mm": f"{upd.sigma_mm:.3f}", "sigma_deg": f"{np.rad2deg(s_rot):.4f}",
@@ -133,7 +134,8 @@ def replay_monitor(session: Path, reference: Path, out: Path, *, settings: Monit
             times.append(upd.t)
             rows.append((upd.drift_mm, upd.verify_mm, upd.sigma_mm, upd.alarm))
             if upd.alarm:
-                rep.alarms.append({"sample": o.index, "t": float(upd.t), "alarm": upd.alarm, "message": upd.message})
+                rep.alarms.append({"sample": o.index, "t": float(upd.t), "alarm": str(upd.alarm),
+                                   "message": upd.message})
     (out / "alarms.yaml").write_text(yaml.safe_dump({
         "setup": str(prod.setup), "camera_transform": Setup(prod.setup).camera_name,
         "session": str(session), "reference": str(reference), "alarms": rep.alarms}, sort_keys=False))

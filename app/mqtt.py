@@ -373,7 +373,7 @@ class MqttPublisher:
                    "rotation_deg": report.drift[1]}
             if update is not None:
                 msg.update(rate_mm_h=update.drift_rate_mm_h, rate_deg_h=update.drift_rate_deg_h,
-                           level=update.level, verify_mm=update.verify_mm, error_mm=update.error_mm,
+                           level=str(update.level), verify_mm=update.verify_mm, error_mm=update.error_mm,
                            hours_to_tolerance=update.hours_to_tolerance)
             self.publish("drift", msg)
         if update is not None and update.alarm:

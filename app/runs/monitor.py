@@ -513,7 +513,7 @@ def bound_estimation_set(kept: list[Observation], cfg: MonitorConfig, engine: Mo
 
 def _raise_alarm(report: MonitorReport, obs: Observation, upd: MonitorUpdate, writer: SessionWriter, viz: Viz,
                  cfg: MonitorConfig) -> None:
-    info = {"alarm": upd.alarm, "statistic": float(upd.statistic), "n_samples": int(upd.index),
+    info = {"alarm": str(upd.alarm), "statistic": float(upd.statistic), "n_samples": int(upd.index),
             "drift_mm": upd.drift_mm, "drift_rate_mm_h": upd.drift_rate_mm_h,
             "hours_to_tolerance": upd.hours_to_tolerance, "message": upd.message}
     report.alarms.append(Alarm(obs.t, obs.index, info))

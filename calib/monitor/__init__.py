@@ -55,10 +55,11 @@ says what is missing and which stop would fix it.
 """
 
 from calib.monitor.engine import MonitorEngine
-from calib.monitor.kernels import sample_model
-from calib.monitor.reference import (Reference, WorkspaceMoments, arm_reference, shared_error_var, workspace_distance,
-                                     workspace_sigma)
-from calib.monitor.settings import MonitorSettings, MonitorUpdate
+from calib.monitor.filter import FilterState
+from calib.monitor.reference import (InUse, Reference, WorkspaceMoments, arm_reference, shared_error_var,
+                                     workspace_distance, workspace_sigma)
+from calib.monitor.settings import AlarmLevel, EngineState, MonitorSettings, MonitorUpdate
 
-__all__ = ["MonitorEngine", "MonitorSettings", "MonitorUpdate", "Reference", "WorkspaceMoments", "arm_reference",
-           "sample_model", "shared_error_var", "workspace_distance", "workspace_sigma"]
+__all__ = ["AlarmLevel", "EngineState", "FilterState", "InUse", "MonitorEngine", "MonitorSettings", "MonitorUpdate",
+           "Reference", "WorkspaceMoments", "arm_reference", "shared_error_var", "workspace_distance",
+           "workspace_sigma"]

@@ -1,12 +1,11 @@
-"""The per-sample measurement model on plain floats (`sample_model`) and its 3x3 kernels.
+"""The per-sample measurement model on plain floats (`sample_floats`) and its 3x3 kernels.
 
 One sample is a few 3x3 products: as numpy arrays each costs more in call overhead than in
-arithmetic, so the engine's hot path runs them on tuples of floats. `so3_exp_scalar` is
-`calib.transforms.so3_exp` for one rotation, with the same formula; `sample_model` is
-`calib.model.point_jacobians` for one sample (tested against it), `sample_floats` its arithmetic
-written out on floats, which the engine calls with
-the floats it already holds. `plain_transform`, `plain_point` and `plain_cov` check a sample's arrays on
-the floats they read and return them."""
+arithmetic, so the engine's hot path runs them on tuples of floats. `sample_floats` is the
+reference model `calib.model.point_jacobians` (with `calib.model.robot_cofactor`) for one sample,
+written out on floats (tested against it on random states); `so3_exp_scalar` is
+`calib.transforms.so3_exp` for one rotation, with the same formula. `plain_transform`, `plain_point`
+and `plain_cov` check a sample's arrays on the floats they read and return them."""
 
 from __future__ import annotations
 
@@ -64,6 +63,12 @@ def inv_sym3_floats(a, b, c, d, e, f):
     A, B, C = d * f - e * e, c * e - b * f, b * e - c * d
     k = 1.0 / (a * A + b * B + c * C)
     return A * k, B * k, C * k, (a * f - c * c) * k, (b * c - a * e) * k, (a * d - b * b) * k
+
+
+def is_positive_definite3(a, b, c, d, e, f) -> bool:
+    """The symmetric 3x3 matrix of the upper triangle ``(xx, xy, xz, yy, yz, zz)`` is positive definite (its
+    leading principal minors are positive; NaN fails)."""
+    return a > 0.0 and a * d - b * b > 0.0 and a * (d * f - e * e) - b * (b * f - c * e) + c * (b * e - c * d) > 0.0
 
 
 def sym3(upper) -> np.ndarray:
@@ -128,49 +133,35 @@ def plain_cov(S):
     return (a, b, c, e, f, i) if plain else None
 
 
-def sample_model(C, t_K, A, theta, setup: str, factor=None, z=None):
-    """One sample's predicted measured marker point, its Jacobian w.r.t. the engine's state, and its robot cofactor.
+def sample_floats(C, t_K, pose, theta, eye_to_hand: bool, factor=None, z=None):
+    """One sample's predicted measured marker point, its Jacobian w.r.t. the engine's state, and its robot
+    cofactor: `calib.model.point_jacobians` and `calib.model.robot_cofactor` for one sample, on floats.
 
-    The single-sample form of `calib.model.point_jacobians` and
-    `calib.model.robot_cofactor` (the same model, tested against them), at
-    the flange pose ``A Exp(factor z)`` when the state carries the robot's
-    kinematic error ``z``. The arithmetic is `sample_floats`'.
+    At the flange pose ``A Exp(factor z)`` when the state carries the
+    robot's kinematic error ``z``. Eye-to-hand ``C = T_base_cam`` and the
+    marker-side translation ``t_K`` is ``T_flange_marker``'s; eye-in-hand
+    ``C = T_flange_cam`` and ``t_K`` is ``T_base_marker``'s.
 
     Parameters
     ----------
-    C : ndarray (4, 4)
-        Camera transform.
-    t_K : ndarray (3,)
-        Marker-side translation.
-    A : ndarray (4, 4)
-        ``T_base_flange`` as the robot reports it.
-    theta : ndarray (3,)
+    C : tuple
+        The camera transform as `parts`.
+    t_K : 3 floats
+    pose : 12 floats
+        ``T_base_flange[:3]`` flat, as the robot reports it.
+    theta : 3 floats
         Camera parameters (`calib.model.CAMERA_PARAMS`).
-    setup : Setup
+    eye_to_hand : bool
     factor, z : ndarray (6, P) and (P,), optional
         The kinematic-error factor at the sample's joints and the error.
 
     Returns
     -------
-    h : ndarray (3,)
+    h : 3 floats
     H : ndarray (3, 12 + P)
         W.r.t. ``[dC, tC, t_K, theta, z]``.
-    cof : ndarray (3, 3)
-        `calib.model.robot_cofactor` of the sample.
-    """
-    h, H, (xx, xy, xz, yy, yz, zz) = sample_floats(parts(C), tuple(t_K.tolist()), A[:3].ravel().tolist(),
-                                                   theta.tolist(), setup == Setup.EYE_TO_HAND, factor, z)
-    return np.array(h), H, np.array([[xx, xy, xz], [xy, yy, yz], [xz, yz, zz]])
-
-
-def sample_floats(C, t_K, pose, theta, eye_to_hand: bool, factor=None, z=None):
-    """`sample_model` on floats, for the engine's hot path: numpy's per-call cost would be most of its per-sample
-    cost on 3-vectors and 3x3 blocks.
-
-    ``C`` is the camera transform as `parts`, ``pose`` the flange pose's first
-    three rows flat (12 floats), ``t_K`` and ``theta`` 3 floats each. Returns
-    ``h`` (3 floats), ``H`` (ndarray (3, 12 + P)) and the cofactor's upper
-    triangle ``(xx, xy, xz, yy, yz, zz)``.
+    cofactor : 6 floats
+        Upper triangle ``(xx, xy, xz, yy, yz, zz)`` of `calib.model.robot_cofactor`.
     """
     # Written out on floats (no helper calls): the same products and sums as the 3x3 kernels above.
     (c0, c1, c2), (c3, c4, c5), (c6, c7, c8) = C[0]

@@ -1,5 +1,5 @@
-"""The calibration in use (`Reference`): what the engine is armed from, its state covariance, and the
-workspace figures (1-sigma, distance between two camera transforms) over its points."""
+"""What the engine is armed from (`Reference`), the calibration in use (`InUse`), the state covariance, and the
+workspace figures (1-sigma, distance between two camera transforms) over the arming samples' points."""
 
 from __future__ import annotations
 
@@ -22,15 +22,15 @@ from calib.monitor.kernels import I3
 WORKSPACE_POINTS = 200
 
 
-@dataclass
+@dataclass(frozen=True)
 class Reference:
-    """The calibration in use, as the engine holds it: the arming one, then each re-learnt one.
+    """What the engine is armed from (fixed until it is armed again).
 
     Attributes
     ----------
     setup : Setup
     C : ndarray (4, 4)
-        Its camera transform (``T_base_cam`` / ``T_flange_cam``).
+        The arming calibration's camera transform (``T_base_cam`` / ``T_flange_cam``).
     K : ndarray (4, 4)
         Marker-side transform (``T_flange_marker`` / ``T_base_marker``) of the arming result.
     theta : ndarray (3,)
@@ -40,7 +40,7 @@ class Reference:
     workspace : ndarray (W, 3)
         True camera-frame marker points of the arming samples: where the drift and accuracy are measured.
     sigma_mm : float
-        Its own 1-sigma over the workspace, mm.
+        The arming calibration's 1-sigma over the workspace, mm.
     result : CalibrationResult
         The arming result.
     shared_var : float
@@ -57,6 +57,25 @@ class Reference:
     sigma_mm: float
     result: CalibrationResult
     shared_var: float = 0.0
+
+
+@dataclass(frozen=True)
+class InUse:
+    """The calibration in use: the arming one, then each re-learnt one (replaced, never changed).
+
+    Attributes
+    ----------
+    C : ndarray (4, 4)
+        Its camera transform.
+    theta : ndarray (3,)
+        Its camera correction.
+    sigma_mm : float
+        Its 1-sigma over the workspace, mm.
+    """
+
+    C: np.ndarray
+    theta: np.ndarray
+    sigma_mm: float
 
 
 def shared_error_var(result: CalibrationResult) -> float:
@@ -134,9 +153,9 @@ def arm_reference(result: CalibrationResult, problem: CalibrationProblem, *,
     cov = state_covariance(C, K, M, theta, setup, noise, shape, held, robot_factor)
     cov = 0.5 * (cov + cov.T)
     q = model.CameraCorrection(*theta).correct(p)
-    ref = Reference(setup, C.copy(), K.copy(), theta, noise, q[::max(1, len(q) // WORKSPACE_POINTS)], 0.0, result,
-                    shared_error_var(result))
-    ref.sigma_mm = workspace_sigma(C, theta, ref.workspace, cov) * 1e3
+    workspace = q[::max(1, len(q) // WORKSPACE_POINTS)]
+    ref = Reference(setup, C.copy(), K.copy(), theta, noise, workspace, workspace_sigma(C, theta, workspace, cov) * 1e3,
+                    result, shared_error_var(result))
     return ref, cov
 
 

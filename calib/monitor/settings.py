@@ -1,7 +1,9 @@
-"""The monitoring engine's settings (`MonitorSettings`) and what each update reports (`MonitorUpdate`)."""
+"""The monitoring engine's settings (`MonitorSettings`), what each update reports (`MonitorUpdate`), and its
+state and alarm levels (`EngineState`, `AlarmLevel`)."""
 
 from __future__ import annotations
 
+from enum import StrEnum
 from typing import Annotated, NamedTuple
 
 import numpy as np
@@ -14,6 +16,26 @@ from calib.params import NonNegativeFloat, Params, PositiveFloat
 #: Per-sample false-alarm rate of the *moved* test: against each stop's earlier visits, the
 #: statistic of a still camera stays far below its threshold over whole shifts (bench --shift).
 DETECTOR_FALSE_ALARM_RATE = 1e-5
+
+
+class EngineState(StrEnum):
+    """Where the engine is: ``warming`` (the detector's first samples after arming), ``armed`` (every sample
+    tested), ``relearning`` (after a move, until the production stops determine the camera) or ``settling``
+    (the detector's window after a re-learn: the calibration in use follows the estimate as the stops refine
+    it, the *moved* test waits)."""
+
+    WARMING = "warming"
+    ARMED = "armed"
+    RELEARNING = "relearning"
+    SETTLING = "settling"
+
+
+class AlarmLevel(StrEnum):
+    """An alarm, or the standing condition: none (``""``, false), ``drifting`` or ``moved``."""
+
+    NONE = ""
+    DRIFTING = "drifting"
+    MOVED = "moved"
 
 
 class MonitorSettings(Params):
@@ -76,17 +98,12 @@ class MonitorUpdate(NamedTuple):
         Samples given to the engine so far (this one included).
     t : float
         The sample's time, s.
-    state : str
-        ``"armed"``, ``"relearning"`` (after a move, until the stops determine
-        the camera), ``"settling"`` (the detector's window after a re-learn:
-        the calibration in use follows the estimate as the stops refine it,
-        the *moved* test waits) or
-        ``"warming"`` (the detector's first samples after arming).
-    alarm : str
-        ``""``, ``"drifting"`` or ``"moved"``: raised at this sample.
-    level : str
-        ``""``, ``"drifting"`` or ``"moved"``: the standing condition (moved
-        holds until the re-learn, drifting while it lasts).
+    state : EngineState
+        After this sample.
+    alarm : AlarmLevel
+        Raised at this sample (``AlarmLevel.NONE``, false, for none).
+    level : AlarmLevel
+        The standing condition: moved holds until the re-learn, drifting while it lasts.
     camera_transform : ndarray (4, 4)
         Live ``T_base_cam`` (eye-to-hand) or ``T_flange_cam`` (eye-in-hand).
     cov : ndarray (6, 6)
@@ -119,9 +136,9 @@ class MonitorUpdate(NamedTuple):
 
     index: int
     t: float
-    state: str
-    alarm: str
-    level: str
+    state: EngineState
+    alarm: AlarmLevel
+    level: AlarmLevel
     camera_transform: np.ndarray
     cov: np.ndarray
     innovation: np.ndarray

@@ -42,10 +42,11 @@ class Stop:
 
 
 class Visit(NamedTuple):
-    """A sample in the detector's window and the filter state before it was fused."""
+    """A sample in the detector's window and the filter state (`calib.monitor.filter.FilterState`) before it was
+    fused."""
 
     sample: Stop
-    state: tuple
+    state: object
 
 
 class Stops:

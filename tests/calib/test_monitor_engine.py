@@ -4,13 +4,15 @@ import dataclasses
 
 import numpy as np
 import pytest
+from hypothesis import assume, given, settings
+from hypothesis import strategies as st
 
 from app.benchmarks import shift as bench_shift
 from calib import model, simulate, solve
 from calib import transforms as tf
 from calib.errors import CalibrationError
-from calib.monitor import (MonitorEngine, MonitorSettings, WorkspaceMoments, sample_model, workspace_distance,
-                           workspace_sigma)
+from calib.monitor import MonitorEngine, MonitorSettings, WorkspaceMoments, workspace_distance, workspace_sigma
+from calib.monitor.kernels import parts, sample_floats
 from calib.problem import CalibrationProblem
 from calib.setup import Setup
 
@@ -52,30 +54,36 @@ def test_point_jacobians_match_finite_differences(setup):
                                    atol=1e-5)
 
 
-@pytest.mark.parametrize("setup", [Setup.EYE_TO_HAND, Setup.EYE_IN_HAND])
-def test_sample_model_is_the_model_at_one_sample(setup):
-    """The engine's per-sample form of the measurement model equals `calib.model`'s, kinematic error included."""
-    rng = np.random.default_rng(1)
-    for _ in range(5):
-        C = tf.from_rotvec_translation(rng.normal(size=3), [0.1, -0.2, 0.9])
-        K = tf.from_rotvec_translation(rng.normal(size=3), rng.normal(size=3) * 0.05)
-        A = tf.from_rotvec_translation(rng.normal(size=3), [0.5, 0.1, 0.4])
-        theta = rng.normal(size=3) * [0.01, 0.003, 0.01]
-        F, z = rng.normal(size=(6, 24)) * 1e-3, rng.normal(size=24)
-        w = F @ z
-        A_err = A @ tf.from_rotvec_translation(w[:3], w[3:])
-        M = (A_err if setup == Setup.EYE_TO_HAND else tf.invert(A_err))[None]
-        h, H_C, H_tK, H_th, H_xi = model.point_jacobians(C, K, M, theta, setup)
-        cof = model.robot_cofactor(C, K, M, setup)[0]
-        H = np.concatenate([H_C[0], H_tK[0], H_th[0], H_xi[0] @ F], axis=1)
-        got = sample_model(C, K[:3, 3], A, theta, setup, F, z)
-        np.testing.assert_allclose(got[0], h[0], rtol=1e-12, atol=1e-15)
-        np.testing.assert_allclose(got[1], H, rtol=1e-12, atol=1e-12)
-        np.testing.assert_allclose(got[2], cof, rtol=1e-12, atol=1e-15)
-        # Without the kinematic error: the flange pose as given, the first 12 columns.
-        got = sample_model(C, K[:3, 3], A_err, theta, setup)
-        np.testing.assert_allclose(got[0], h[0], rtol=1e-12, atol=1e-15)
-        np.testing.assert_allclose(got[1], H[:, :12], rtol=1e-12, atol=1e-12)
+def sample_model(C, t_K, A, theta, setup, factor=None, z=None):
+    """The engine's fast path (`sample_floats`) on arrays."""
+    h, H, (xx, xy, xz, yy, yz, zz) = sample_floats(parts(C), tuple(t_K.tolist()), A[:3].ravel().tolist(),
+                                                   theta.tolist(), setup == Setup.EYE_TO_HAND, factor, z)
+    return np.array(h), H, np.array([[xx, xy, xz], [xy, yy, yz], [xz, yz, zz]])
+
+
+@settings(max_examples=60, deadline=None)
+@given(setup=st.sampled_from([Setup.EYE_TO_HAND, Setup.EYE_IN_HAND]), seed=st.integers(0, 2**32 - 1),
+       n_factor=st.sampled_from([0, 1, 24]))
+def test_the_fast_path_is_the_reference_model(setup, seed, n_factor):
+    """The engine's per-sample model on floats equals `calib.model`'s (the reference that ``auto`` and the arming
+    use) on random states: prediction, Jacobian and robot cofactor, kinematic error included."""
+    rng = np.random.default_rng(seed)
+    C = tf.from_rotvec_translation(rng.normal(size=3), rng.normal(size=3) * 0.5 + [0.0, 0.0, 0.9])
+    K = tf.from_rotvec_translation(rng.normal(size=3), rng.normal(size=3) * 0.05)
+    A = tf.from_rotvec_translation(rng.normal(size=3), rng.normal(size=3) * 0.5)
+    theta = rng.normal(size=3) * [0.01, 0.003, 0.01]
+    F, z = (rng.normal(size=(6, n_factor)) * 1e-3, rng.normal(size=n_factor)) if n_factor else (None, None)
+    A_err = A if F is None else A @ tf.from_rotvec_translation((F @ z)[:3], (F @ z)[3:])
+    M = (A_err if setup == Setup.EYE_TO_HAND else tf.invert(A_err))[None]
+    h, H_C, H_tK, H_th, H_xi = model.point_jacobians(C, K, M, theta, setup)
+    assume(abs(h[0, 2]) > 1e-3)          # a point at the camera's centre has no projection
+    cof = model.robot_cofactor(C, K, M, setup)[0]
+    H = np.concatenate([H_C[0], H_tK[0], H_th[0]] + ([] if F is None else [H_xi[0] @ F]), axis=1)
+    got = sample_model(C, K[:3, 3], A, theta, setup, F, z)
+    scale = max(1.0, np.abs(h).max())
+    np.testing.assert_allclose(got[0], h[0], rtol=1e-10, atol=1e-12 * scale)
+    np.testing.assert_allclose(got[1], H, rtol=1e-9, atol=1e-9 * max(1.0, np.abs(H).max()))
+    np.testing.assert_allclose(got[2], cof, rtol=1e-10, atol=1e-12 * max(1.0, np.abs(cof).max()))
 
 
 @pytest.mark.parametrize("n", [1, 3, 200])
