@@ -540,3 +540,111 @@ def eye_in_hand_shift(cell: SimulatedData, stops: np.ndarray, shift: Shift, rng:
     cov = point_covariance(p_true, 0.001, 0.003)
     points = p_true + np.einsum("nij,nj->ni", np.linalg.cholesky(cov), rng.normal(size=(n, 3)))
     return ShiftData(t, A, points, cov, np.zeros((n, 6)), stop, X, np.array(bumped, dtype=int))
+
+
+# --------------------------------------------------------------------------- production cell, sample by sample
+
+@dataclass(frozen=True)
+class ProductionCell:
+    """A simulated cell in production, for the monitoring engine: its calibration samples, its program's stops,
+    and samples at those stops taken one at a time (`sample`) with whatever true camera transform the caller
+    holds (bumped, drifted: `moved`).
+
+    Eye-to-hand (`realistic_profile`: a UR10 with DH error and a camera with
+    systematic errors) the camera transform is ``T_base_cam``; eye-in-hand
+    (`realistic_cell`: point noise only) it is ``T_flange_cam``.
+
+    Attributes
+    ----------
+    setup : Setup
+    A, points, point_cov : ndarray (N, 4, 4), (N, 3), (N, 3, 3)
+        The calibration samples (flange poses as reported, measured marker centres, their covariance).
+    factor : ndarray (N, 6, P) or None
+        Their kinematic-error factor (eye-to-hand with ``joints``), else None.
+    C : ndarray (4, 4)
+        The true camera transform.
+    marker : ndarray (4, 4)
+        The true marker-side transform (``T_flange_marker`` / ``T_base_marker``).
+    stops : ndarray (S, 6) or (S, 4, 4)
+        The program's stops: joints eye-to-hand, true flange poses eye-in-hand.
+    real : RealisticData or None
+        Eye-to-hand: the cell (kinematics, camera errors).
+    """
+
+    setup: Setup
+    A: np.ndarray
+    points: np.ndarray
+    point_cov: np.ndarray
+    factor: np.ndarray | None
+    C: np.ndarray
+    marker: np.ndarray
+    stops: np.ndarray
+    real: RealisticData | None
+    profile: RealisticProfile
+
+    def sample(self, stop: int, C: np.ndarray, rng: np.random.Generator, jitter_deg: float = 0.0):
+        """A sample at ``stop`` with the true camera transform ``C``: ``(A, point, point_cov, factor)`` (factor
+        None without joints). ``jitter_deg`` (1-sigma) moves the robot off the stop, per joint eye-to-hand, per
+        axis (and that angle times `JITTER_REACH_M` of shift) eye-in-hand."""
+        prof = self.profile
+        if self.setup == Setup.EYE_TO_HAND:
+            kin, dh = self.real.kinematics, UR10_DH
+            q = self.stops[stop] + (rng.normal(scale=np.deg2rad(jitter_deg), size=6) if jitter_deg else 0.0)
+            A = ur_forward(q[None], dh["d"], dh["a"], dh["alpha"], np.zeros(6))[0]
+            A_true = ur_forward(q[None], kin["d"], kin["a"], kin["alpha"], kin["offsets"])[0]
+            A_true = A_true @ tf.from_rotvec_translation(rng.normal(scale=prof.repeatability_rad, size=3),
+                                                         rng.normal(scale=prof.repeatability_m, size=3))
+            p, cov = seen_points((tf.invert(C) @ A_true @ self.marker)[None], prof, self.real.camera, rng)
+            factor = None if self.factor is None else prof.dh_error_factor(q[None])[0]
+            return A, p[0], cov[0], factor
+        A = self.stops[stop]
+        if jitter_deg:
+            jitter = np.deg2rad(jitter_deg)
+            A = A @ tf.from_rotvec_translation(rng.normal(scale=jitter, size=3),
+                                               rng.normal(scale=jitter * JITTER_REACH_M, size=3))
+        p_true = (tf.invert(A @ C) @ self.marker)[:3, 3]
+        cov = point_covariance(p_true[None], 0.001, 0.003)[0]
+        return A, p_true + np.linalg.cholesky(cov) @ rng.normal(size=3), cov, None
+
+    def moved(self, C: np.ndarray, rotation: np.ndarray, translation: np.ndarray) -> np.ndarray:
+        """``C`` after a move by a rotation vector (rad) about the camera's centre and a translation (m): in the
+        base frame eye-to-hand (a bumped mount), in the camera frame eye-in-hand (a camera slipping on the
+        flange)."""
+        if self.setup == Setup.EYE_TO_HAND:
+            return tf.make_transform(tf.so3_exp(rotation) @ C[:3, :3], C[:3, 3] + translation)
+        return C @ tf.from_rotvec_translation(rotation, translation)
+
+    def displacement(self, C1: np.ndarray, C2: np.ndarray) -> float:
+        """RMS over the stops (at their nominal poses) of how far the marker centre moves in the camera's view
+        between true camera transforms ``C1`` and ``C2``, m: what the engine can see of a move."""
+        if self.setup == Setup.EYE_TO_HAND:
+            dh = UR10_DH
+            A = ur_forward(self.stops, dh["d"], dh["a"], dh["alpha"], np.zeros(6))
+            p1, p2 = ((tf.invert(C) @ A @ self.marker)[:, :3, 3] for C in (C1, C2))
+        else:
+            p1, p2 = ((tf.invert(self.stops @ C) @ self.marker)[:, :3, 3] for C in (C1, C2))
+        return float(np.sqrt(np.mean(np.sum((p1 - p2) ** 2, axis=1))))
+
+
+def production_cell(setup: Setup, n_calibration: int, n_stops: int, rng: np.random.Generator, *,
+                    joints: bool = True, max_tilt_deg: float = 10.0,
+                    profile: RealisticProfile | None = None) -> ProductionCell:
+    """A `ProductionCell` calibrated from ``n_calibration`` samples with a program of ``n_stops`` stops.
+
+    Eye-to-hand the stops are `production_stops` (tool tilt within
+    ``max_tilt_deg``, spread out); eye-in-hand they are further poses of
+    `realistic_cell`. ``joints``: the calibration samples (and `sample`) carry
+    the robot's kinematic-error factor (eye-to-hand only).
+    """
+    setup = check_setup(setup)
+    prof = profile if profile is not None else RealisticProfile()
+    if setup == Setup.EYE_TO_HAND:
+        real = realistic_profile(n_calibration, rng, prof)
+        d = real.data
+        stops = production_stops(real, n_stops, max_tilt_deg, rng)
+        factor = prof.dh_error_factor(real.q) if joints else None
+        return ProductionCell(setup, d.A, d.points, d.point_cov, factor, d.Y, d.X, stops, real, prof)
+    cell = realistic_cell(n_calibration + n_stops, rng, setup=setup)
+    n = n_calibration
+    return ProductionCell(setup, cell.A[:n], cell.points[:n], cell.point_cov[:n], None, cell.X, cell.Y,
+                          cell.A_true[n:], None, prof)

@@ -23,9 +23,10 @@ from calib.setup import Setup
 from calib.monitor.filter import (FilterState, NoiseTrack, SampleModel, Walk, filter_state, follow_noise, fuse,
                                   fuse_linear, innovate, linearize, predict, prediction, restart_walk)
 from calib.monitor.settings import AlarmLevel, EngineState, MonitorSettings, MonitorUpdate
-from calib.monitor.kernels import inv_sym3_floats, is_plain, is_positive_definite3, plain_cov, plain_point, \
-    plain_transform, sym3
+from calib.monitor.kernels import (inv_sym3_floats, is_plain, is_positive_definite3, parts, plain_cov,
+                                   plain_point, plain_transform, sym3)
 from calib.monitor.reference import InUse, Reference, WorkspaceMoments, arm_reference, workspace_distance
+from calib.monitor.snapshot import Snapshot
 from calib.monitor.stops import HOUR_S, Rate, Stop, Stops, Visit
 
 
@@ -42,6 +43,10 @@ RELEARN_PRIOR = (0.01, np.deg2rad(1.0))
 RELEARN_QUANTILE = 0.999
 #: An innovation beyond this gate (chi-square 3 dof, 1e-5) does not move the noise scale (a move, an outlier).
 NIS_GATE = float(chi2.ppf(1.0 - 1e-5, 3))
+#: A sample whose test statistic (chi-square, 3 dof) is beyond this quantile's value is one the state before it
+#: cannot explain on its own: when the move is flagged, the re-learn starts at the earliest such sample since the
+#: detector's onset.
+ONSET_GATE = float(chi2.ppf(1.0 - 1e-3, 3))
 #: Prior 1-sigma of a bump (translation m, rotation rad) in the estimate of the move from the stops.
 JUMP_PRIOR = (0.01, np.deg2rad(1.0))
 #: Fewest samples a re-learn registers the camera from (without stops visited before the move): three
@@ -80,6 +85,10 @@ class MonitorEngine:
         The *moved* test.
     reference : Reference or None
         What it is armed from (None: not armed).
+    origin : InUse or None
+        The cell's first calibration (the arming one, or that of the first run a snapshot carries).
+    relearns : int
+        Re-learns since ``origin``.
     in_use : InUse or None
         The calibration in use: the arming one, then each re-learnt one (replaced, never changed).
     filter : FilterState or None
@@ -92,6 +101,7 @@ class MonitorEngine:
         self.settings = settings or MonitorSettings()
         self.detector = ChangeDetector(self.settings.detector)
         self.reference: Reference | None = None
+        self.origin: InUse | None = None
         self.in_use: InUse | None = None
         self.filter: FilterState | None = None
         self.state = EngineState.WARMING
@@ -112,39 +122,64 @@ class MonitorEngine:
             The samples are malformed or do not determine the camera.
         """
         ref, cov = arm_reference(result, problem)
-        cfg = self.settings
-        self.reference = ref
-        self.model = SampleModel.of(ref.setup == Setup.EYE_TO_HAND, len(cov) - 12, ref.noise)
-        layout = self.model.layout
+        layout = SampleModel.of(ref.setup == Setup.EYE_TO_HAND, len(cov) - 12, ref.noise).layout
         P = np.zeros((layout.size, layout.size))
         P[:layout.model, :layout.model] = cov
         # After the camera transform: marker translation, camera correction, kinematic error, and the camera's
         # random walk since the calibration in use (the drift, told apart from what the samples refine).
         u = np.r_[ref.K[:3, 3], ref.theta, np.zeros(layout.n_factor + 6)]
-        self.filter = filter_state(ref.C.copy(), u, P, t)
-        self.noise_track = NoiseTrack()
-        self.in_use = InUse(ref.C.copy(), ref.theta.copy(), ref.sigma_mm)
+        in_use = InUse(ref.C.copy(), ref.theta.copy(), ref.sigma_mm)
+        self._start(Snapshot(ref, in_use, in_use, filter_state(ref.C.copy(), u, P, t), NoiseTrack()))
+        return ref
+
+    def resume(self, snapshot: Snapshot) -> Reference:
+        """Arm from where an earlier run left off (`snapshot`): its live estimate, covariance, noise level and
+        calibration in use; the next sample is tested at once, against the model (the stops' baselines are
+        learnt again), unless the run ended while a re-learnt camera settled (the settling goes on). Returns
+        what the first run was armed from."""
+        self._start(snapshot)
+        return snapshot.reference
+
+    def snapshot(self) -> Snapshot:
+        """What the next run continues from (`resume`; `calib.monitor.snapshot.snapshot_to_dict` for a file).
+
+        Raises
+        ------
+        CalibrationError
+            Not armed.
+        """
+        if not self.armed:
+            raise CalibrationError("the monitoring engine is not armed: there is no calibration to carry over")
+        return Snapshot(self.reference, self.origin, self.in_use, self.filter, self.noise_track, self.relearns,
+                        self._settle)
+
+    def _start(self, snap: Snapshot) -> None:
+        cfg, ref = self.settings, snap.reference
+        self.reference, self.origin, self.in_use, self.filter = ref, snap.origin, snap.in_use, snap.filter
+        self.model = SampleModel.of(ref.setup == Setup.EYE_TO_HAND, len(snap.filter.P) - 18, ref.noise)
+        self.noise_track = snap.noise_track
+        self.relearns = snap.relearns
         # An hour of the camera's world on the samples' clock.
         self.hour_s = HOUR_S / cfg.time_scale
-        self.walk = Walk.of(layout, np.deg2rad(cfg.walk_deg_per_sqrt_h), cfg.walk_mm_per_sqrt_h * 1e-3, self.hour_s)
+        self.walk = Walk.of(self.model.layout, np.deg2rad(cfg.walk_deg_per_sqrt_h), cfg.walk_mm_per_sqrt_h * 1e-3,
+                            self.hour_s, cfg.walk_max_gap_h)
         self.workspace = WorkspaceMoments(ref.workspace)
         self.stops = Stops(cfg.stop_translation_m, np.deg2rad(cfg.stop_rotation_deg))
         self.rate = Rate(cfg.rate_window_h * self.hour_s, self.hour_s)
         self._count = 0
         self._window: collections.deque[Visit] = collections.deque()
         self._relearn_set: list[Stop] = []
-        self._settle = 0
+        self._settle = snap.settle
         self._drifting = False
         self._drift_factor: tuple[InUse | None, np.ndarray | None] = (None, None)
         self._alarms: collections.deque[tuple[int, float, AlarmLevel]] = collections.deque(maxlen=MAX_ALARMS)
-        self.state = EngineState.WARMING
+        self.state = EngineState.SETTLING if snap.settle else EngineState.WARMING
         self.detector.reset()
         self.detector.shared_var = ref.shared_var
-        return ref
 
     def disarm(self) -> None:
         """Forget the calibration and everything learnt since (`arm` again to go on)."""
-        self.reference = self.in_use = self.filter = None
+        self.reference = self.origin = self.in_use = self.filter = None
         self.state = EngineState.WARMING
 
     @property
@@ -197,6 +232,7 @@ class MonitorEngine:
         s = self._sample(t, T_base_flange, point_cam, point_cov, robot_factor)
         self._count += 1
         f = predict(self.filter, s.t, self.walk)
+        s.walk_t = f.walk_t
         inn = innovate(f, s.pose, s.point, s.shape_upper, s.factor, self.model)
         relearning = self.state == EngineState.RELEARNING
         if not relearning and inn.nis < NIS_GATE:
@@ -247,7 +283,7 @@ class MonitorEngine:
             r_test = self._against_stop(i, s, inn.r)
             # A drifting camera has moved since those visits by the same for every stop: the long window's
             # test is for a move beyond the random walk over that time.
-            offset_var = self.walk.variance(s.t - stops.t[i])
+            offset_var = self.walk.variance(s.walk_t - stops.walk_t[i])
             k = 1.0 + 1.0 / stops.n[i]
             R = inn.R
             (a, b, c), (_, d, e), (_, _, f) = (Hc * offset_var).dot(Hc.T).tolist()
@@ -257,22 +293,29 @@ class MonitorEngine:
         fired = not self._settle and self.detector.update(r_test, S_test_inv, Hc, offset_var,
                                                           shared=not baseline)
         statistic = self.detector.statistic
+        r0, r1, r2 = r_test
+        nis = float(r0 * (S_test_inv[0] @ r_test) + r1 * (S_test_inv[1] @ r_test) + r2 * (S_test_inv[2] @ r_test))
         if not fired:
-            self._window.append(Visit(s, self.filter))
+            self._window.append(Visit(s, self.filter, nis))
             self.filter = fuse(self.filter, inn.PHt, S_inv, inn.r)
             if len(self._window) > self.settings.detector.window:
                 stops.add(self._window.popleft().sample)
             return AlarmLevel.NONE, statistic, ""
         message = (f"camera moved (GLR statistic {statistic:.1f} > {self.detector.threshold:.1f}); "
                    "re-learning it from the production stops")
-        # The move lies inside the window, most likely `onset` samples ago: go back to the state before it (the
-        # clock and the noise level as they are now) and re-learn from the samples since; those before it join
-        # their stops.
+        # The move lies inside the window, most likely `onset` samples ago (at least 3: the GLR's fewest). A sample
+        # since then that the state before it cannot explain on its own (`ONSET_GATE`) is after the move: a clear
+        # move starts at the earliest such sample, and the samples before it stay out of the re-learn. Go back to
+        # the state before the move (the clock and the noise level as they are now) and re-learn from the samples
+        # since; those before it join their stops.
         window = list(self._window)
         before = max(len(window) + 1 - self.detector.onset(), 0)
+        tail = [v.nis for v in window[before:]] + [nis]
+        before += next((k for k, x in enumerate(tail) if x > ONSET_GATE), 0)
         if before < len(window):
             now = self.filter
-            self.filter = window[before].state._replace(t=now.t, scale=now.scale, pending=now.pending)
+            self.filter = window[before].state._replace(t=now.t, walk_t=now.walk_t, scale=now.scale,
+                                                                pending=now.pending)
         for v in window[:before]:
             stops.add(v.sample)
         self._relearn_set = [v.sample for v in window[before:]] + [s]
@@ -360,19 +403,19 @@ class MonitorEngine:
         """Estimate the move from the samples since it; when the stops determine it, the filter goes on from
         there and re-arms. Returns what happened or what is missing, in plain words.
 
-        Stops visited `MIN_BASELINE` times before the move (three of them,
-        not on one line) give the move itself: their innovations' change,
-        with what the stop shares with its earlier visits cancelled
-        (`_jump`). Otherwise a rigid registration of the stops' marker points
-        (`_register`) from `REGISTRATION_SAMPLES` samples. A fit whose
-        residuals the noise does not explain had a sample from before the move
-        in it: the oldest is dropped and the fit tried again.
+        Stops visited `MIN_BASELINE` times before the
+        move (three of them, not on one line) give the move itself: their
+        innovations' change, with what the stop shares with its earlier
+        visits cancelled (`_jump`). Otherwise a rigid registration of the
+        stops' marker points (`_register`) from `REGISTRATION_SAMPLES`
+        samples. A fit whose residuals the noise does not explain still had a
+        sample from before the move in it: the oldest is dropped and the fit
+        tried again.
         """
         samples = self._relearn_set
         while True:
             fit = self._fit(samples)
             if isinstance(fit, Waiting):
-                self._relearn_set = samples
                 return fit.reason
             if fit.consistent:
                 break
@@ -380,7 +423,6 @@ class MonitorEngine:
         f = fit.state
         sigma_mm = self.workspace.sigma(f.C, f.u[3:6], f.P) * 1e3
         if fit.how == "registered" and sigma_mm > self.settings.tolerance_mm:
-            self._relearn_set = samples
             return (f"re-learning: registered from {len(samples)} samples, but its 1-sigma over the workspace is "
                     f"{sigma_mm:.1f} mm (tolerance {self.settings.tolerance_mm:g} mm): waiting for more stops, "
                     "spread across the workspace")
@@ -390,6 +432,7 @@ class MonitorEngine:
         self.stops.clear()        # the stops' marker points as the old camera saw them
         self.filter = f
         self._use_estimate()
+        self.relearns += 1
         self.rate.reset()
         self._settle = self.settings.detector.window
         self.state = EngineState.SETTLING
@@ -428,18 +471,14 @@ class MonitorEngine:
                            f"the line along {np.round(Vt[0], 2).tolist()} ({frame} frame) would determine the camera")
         return None
 
-    def _jump(self, samples) -> Fit | Waiting:
-        """The move from the innovations' change at stops with a baseline (`MIN_BASELINE` visits before the move).
-
-        Weighted least squares of ``p_i - mean_stop = H_i delta`` (the marker
-        point's change at its stop, `_against_stop`) at the estimate from
-        before the move, over the samples at such stops; those stops must be
-        three not on one line (else `Waiting` says which have too few visits).
-        Consistent when the fit's chi-square agrees with the noise.
-        """
-        rows, measured, short = [], [], []
+    def _rows(self, samples) -> tuple[list, list]:
+        """The samples at stops with a baseline (`MIN_BASELINE` visits before the move), as rows ``(k, r, H, W)``
+        of the move's least squares (``k`` the sample's place in ``samples``; ``r`` the marker point's change at
+        its stop, `_against_stop`, ``H`` its Jacobian (3, 6) w.r.t. the camera transform, ``W`` its weight),
+        and the visits from before the move of the stops that have none."""
+        rows, short = [], []
         stops = self.stops
-        for s in samples:
+        for k, s in enumerate(samples):
             i = stops.lookup(s)
             if i is None:
                 continue
@@ -447,34 +486,49 @@ class MonitorEngine:
                 short.append(int(stops.n[i]))
                 continue
             r, H, R = linearize(self.filter, s, self.model)
-            W = np.linalg.inv(R * (1.0 + 1.0 / stops.n[i]))
-            rows.append((np.array(self._against_stop(i, s, r)), H[:, :6], W))
-            measured.append(s)
-        waiting = self._spread(self._distinct(measured), f"with {MIN_BASELINE} visits from before the move")
+            rows.append((k, np.array(self._against_stop(i, s, r)), H[:, :6], np.linalg.inv(R * (1.0 + 1.0 / stops.n[i]))))
+        return rows, short
+
+    @staticmethod
+    def _jump_prior() -> np.ndarray:
+        """The information of a bump's prior (`JUMP_PRIOR`): where the stops cannot tell a turn of the camera from a
+        shift (one marker seen from the front, eye-in-hand), the estimate stays small instead of trading the two
+        without bound."""
+        st, sr = JUMP_PRIOR
+        return np.diag([1.0 / sr**2] * 3 + [1.0 / st**2] * 3)
+
+    def _jump(self, samples) -> Fit | Waiting:
+        """The move from the innovations' change at stops with a baseline (`MIN_BASELINE` visits before the move).
+
+        Weighted least squares of ``p_i - mean_stop = H_i delta`` (the marker
+        point's change at its stop, `_against_stop`) at the estimate from
+        before the move, over the samples at such stops (`_rows`); those
+        stops must be three not on one line (else `Waiting` says which have
+        too few visits). Consistent when the fit's chi-square agrees with the noise.
+        """
+        rows, short = self._rows(samples)
+        measured = self._distinct([samples[k] for k, _, _, _ in rows])
+        waiting = self._spread(measured, f"with {MIN_BASELINE} visits from before the move")
         if waiting is not None:
             if short:
                 visits = min(short)
-                return Waiting(f"{len(self._distinct(measured))} stops have {MIN_BASELINE} visits from before the "
-                               f"move to measure it against (a stop seen since has {visits} visit"
+                return Waiting(f"{len(measured)} of the stops seen since the move have {MIN_BASELINE} visits from "
+                               f"before it to measure the move against (one seen since has {visits} visit"
                                f"{'s' if visits != 1 else ''} from before it)")
             return Waiting(waiting.reason.removeprefix("re-learning: "))
-        # A bump's prior (`JUMP_PRIOR`): where the stops cannot tell a turn of the camera from a shift (one marker
-        # seen from the front, eye-in-hand), the estimate stays small instead of trading the two without bound.
-        st, sr = JUMP_PRIOR
-        prior = np.diag([1.0 / sr**2] * 3 + [1.0 / st**2] * 3)
-        info = sum(H.T @ W @ H for _, H, W in rows)
-        N = info + prior
-        g = sum(H.T @ W @ r for r, H, W in rows)
+        prior = self._jump_prior()
+        N = prior + sum(H.T @ W @ H for _, _, H, W in rows)
+        g = sum(H.T @ W @ r for _, r, H, W in rows)
         cov = np.linalg.inv(N)
         d = cov @ g
-        chi = sum(float((r - H @ d) @ W @ (r - H @ d)) for r, H, W in rows) + float(d @ prior @ d)
+        chi = sum(float((r - H @ d) @ W @ (r - H @ d)) for _, r, H, W in rows) + float(d @ prior @ d)
         dof = 3 * len(rows) - 6
         consistent = dof <= 0 or chi <= chi2.ppf(RELEARN_QUANTILE, dof)
         f = self.filter
         C = tf.make_transform(tf.so3_exp(d[:3]) @ f.C[:3, :3], f.C[:3, 3] + d[3:])
         P = f.P.copy()
         P[:6, :6] += 0.5 * (cov + cov.T)
-        return Fit(filter_state(C, f.u, P, f.t, f.scale, f.pending), "measured at", consistent)
+        return Fit(f._replace(C=C, P=P, parts=parts(C)), "measured at", consistent)
 
     def _parent_point(self, s: Stop) -> np.ndarray:
         M = s.A if self.reference.setup == Setup.EYE_TO_HAND else tf.invert(s.A)
@@ -497,7 +551,7 @@ class MonitorEngine:
         """
         st, sr = RELEARN_PRIOR
         saved = self.filter
-        f = filter_state(C, saved.u, saved.P, saved.t, saved.scale, saved.pending)
+        f = saved._replace(C=C, parts=parts(C))
         for _ in range(2):            # once more from the first pass's estimate: the registration is unweighted
             P = saved.P.copy()
             P[:6] = 0.0
@@ -512,7 +566,7 @@ class MonitorEngine:
             chi += float(r @ np.linalg.solve(R + H[:, 6:] @ f.P[6:, 6:] @ H[:, 6:].T, r))
         dof = 3 * len(samples) - 6
         consistent = dof <= 0 or chi <= chi2.ppf(RELEARN_QUANTILE, dof)
-        return Fit(filter_state(f.C, saved.u, f.P, saved.t, saved.scale, saved.pending), "registered", consistent)
+        return Fit(saved._replace(C=f.C, P=f.P, parts=f.parts), "registered", consistent)
 
     # ------------------------------------------------------------------ figures
 
@@ -565,6 +619,17 @@ class MonitorEngine:
         return MonitorUpdate(self._count, s.t, state, alarm, level, f.C.copy(), f.P[:6, :6].copy(), r, nis,
                              verify, statistic, drift_m * 1e3, drift_deg, rate_mm, rate_deg, error_mm, hours,
                              sigma * 1e3, message)
+
+    def moved_since(self, calibration: InUse) -> tuple[float, float]:
+        """How far the live estimate is from a calibration (e.g. `origin`: the camera's total move since the
+        cell's first calibration): RMS over the workspace points, mm, each with its camera correction, and the
+        rotation angle, deg."""
+        f = self.filter
+        corrected = model.CameraCorrection(*calibration.theta).correct(self.reference.workspace)
+        a = tf.transform_points(calibration.C, corrected)
+        b = tf.transform_points(f.C, model.CameraCorrection(*f.u[3:6]).correct(self.reference.workspace))
+        mm = float(np.sqrt(np.mean(np.sum((a - b) ** 2, axis=1)))) * 1e3
+        return mm, float(np.rad2deg(tf.rotation_angle(f.C[:3, :3] @ calibration.C[:3, :3].T)))
 
     @property
     def camera_transform(self) -> np.ndarray:

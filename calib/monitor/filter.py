@@ -65,7 +65,8 @@ class SampleModel(NamedTuple):
 
 
 class Walk(NamedTuple):
-    """The random walk of the camera transform: the variances it adds per second of the samples' clock.
+    """The random walk of the camera transform: the variances it adds per second of the samples' clock, over
+    at most ``max_gap_s`` between two samples.
 
     It moves the camera transform and the walk states alike, so their
     covariance grows by ``q dt [[I, I], [I, I]]`` over (camera, walk):
@@ -77,14 +78,16 @@ class Walk(NamedTuple):
     rows: np.ndarray
     cols: np.ndarray
     per_s: np.ndarray
+    max_gap_s: float
 
     @classmethod
     def of(cls, layout: Layout, rotation_rad_per_sqrt_h: float, translation_m_per_sqrt_h: float,
-           hour_s: float) -> Walk:
+           hour_s: float, max_gap_h: float) -> Walk:
         sr, st = rotation_rad_per_sqrt_h, translation_m_per_sqrt_h
         q = np.array([sr * sr] * 3 + [st * st] * 3) / hour_s
         camera, walk = np.arange(6), layout.model + np.arange(6)
-        return cls(np.r_[camera, walk, camera, walk], np.r_[camera, walk, walk, camera], np.tile(q, 4))
+        return cls(np.r_[camera, walk, camera, walk], np.r_[camera, walk, walk, camera], np.tile(q, 4),
+                   max_gap_h * hour_s)
 
     def variance(self, dt: float) -> np.ndarray:
         """The walk's variance (6,) of the camera transform over ``dt`` seconds (rotation, translation)."""
@@ -104,6 +107,8 @@ class FilterState(NamedTuple):
         Covariance of ``[dC, u]``.
     t : float
         Time of the estimate, s (the samples' clock).
+    walk_t : float
+        How long the random walk has run, s: the clock with each gap counted at most `Walk.max_gap_s`.
     scale : float
         The noise levels' scale: the arming's levels times this are the samples' noise.
     pending : float
@@ -117,27 +122,30 @@ class FilterState(NamedTuple):
     u: np.ndarray
     P: np.ndarray
     t: float
+    walk_t: float
     scale: float
     pending: float
     parts: tuple
 
 
-def filter_state(C, u, P, t: float, scale: float = 1.0, pending: float = 1.0) -> FilterState:
+def filter_state(C, u, P, t: float, walk_t: float = 0.0, scale: float = 1.0, pending: float = 1.0) -> FilterState:
     """A `FilterState` (``parts`` from ``C``)."""
-    return FilterState(C, u, P, float(t), scale, pending, parts(C))
+    return FilterState(C, u, P, float(t), float(walk_t), scale, pending, parts(C))
 
 
 def predict(state: FilterState, t: float, walk: Walk) -> FilterState:
     """The state at ``t``: the noise scale's pending change applied to ``P``, then the random walk since ``state.t``
-    (none for a ``t`` not after it)."""
-    P = state.P
+    (none for a ``t`` not after it; over at most `Walk.max_gap_s`)."""
+    P, walk_t = state.P, state.walk_t
     if state.pending != 1.0:
         P = P * state.pending
     if t > state.t:
         if P is state.P:
             P = P.copy()
-        P[walk.rows, walk.cols] += walk.per_s * (t - state.t)
-    return state._replace(P=P, t=max(float(t), state.t), pending=1.0)
+        dt = min(t - state.t, walk.max_gap_s)
+        P[walk.rows, walk.cols] += walk.per_s * dt
+        walk_t += dt
+    return state._replace(P=P, t=max(float(t), state.t), walk_t=walk_t, pending=1.0)
 
 
 class Innovation(NamedTuple):

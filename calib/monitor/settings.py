@@ -69,6 +69,11 @@ class MonitorSettings(Params):
         counts them as collinear.
     detector : DetectorConfig
         The *moved* test (GLR windows, false-alarm rate per sample).
+    walk_max_gap_h : float
+        The random walk over a gap between two samples counts at most this
+        many hours: a mount drifts while the cell works and warms, not
+        without bound while it stands idle over a weekend, so that a camera
+        knocked while the monitor was off is a move, not a walk.
     time_scale : float
         Seconds of the camera's world per second of the samples' clock: 1 on
         a real cell; a compressed simulation's mount ``time_scale``
@@ -86,6 +91,7 @@ class MonitorSettings(Params):
     relearn_samples: Annotated[int, Field(strict=True, ge=3)] = 40
     min_spread_m: PositiveFloat = 0.02
     detector: DetectorConfig = Field(default_factory=lambda: DetectorConfig(false_alarm_rate=DETECTOR_FALSE_ALARM_RATE))
+    walk_max_gap_h: PositiveFloat = 2.0
     time_scale: PositiveFloat = 1.0
 
 

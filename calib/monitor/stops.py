@@ -28,7 +28,8 @@ class Stop:
     """A sample: flange pose, measured point, its covariance shape, kinematic-error factor, time; as floats for
     the per-sample model, ``pose`` is ``A[:3]`` flat (also the stop lookup's key), ``point`` is ``p`` and
     ``shape_upper`` the shape's upper triangle ``(xx, xy, xz, yy, yz, zz)``; ``stop`` is the lookup's memo
-    (`Stops.lookup`)."""
+    (`Stops.lookup`); ``walk_t`` the random walk's clock at the sample
+    (`calib.monitor.filter.FilterState.walk_t`)."""
 
     A: np.ndarray
     p: np.ndarray
@@ -39,14 +40,16 @@ class Stop:
     point: tuple
     shape_upper: tuple
     stop: tuple | None = None
+    walk_t: float = 0.0
 
 
 class Visit(NamedTuple):
-    """A sample in the detector's window and the filter state (`calib.monitor.filter.FilterState`) before it was
-    fused."""
+    """A sample in the detector's window, the filter state (`calib.monitor.filter.FilterState`) before it was
+    fused, and its test statistic (chi-square, 3 dof, against that state or its stop's earlier visits)."""
 
     sample: Stop
     state: object
+    nis: float
 
 
 class Stops:
@@ -65,7 +68,7 @@ class Stops:
         self.mean: list[tuple] = []                      # per stop: the mean marker point, 3 floats
         self.pose_mean: list[list] = []                  # per stop: the mean flange pose of those visits, likewise
         self.n: list[float] = []
-        self.t: list[float] = []                        # per stop: the mean time of the visits in its mean
+        self.walk_t: list[float] = []                   # per stop: the mean walk clock of the visits in its mean
         self.last: list[int] = []
         self.generation = 0                             # changes whenever a stop is added or dropped
         self._visits = 0
@@ -102,14 +105,14 @@ class Stops:
         if i is None:
             if len(self.poses) == MAX_STOPS:
                 j = self.last.index(min(self.last))
-                for held in (self.poses, self.mean, self.pose_mean, self.n, self.t, self.last):
+                for held in (self.poses, self.mean, self.pose_mean, self.n, self.walk_t, self.last):
                     del held[j]
             i = len(self.poses)
             self.poses.append(s.pose)
             self.mean.append((0.0, 0.0, 0.0))
             self.pose_mean.append(s.pose)
             self.n.append(0.0)
-            self.t.append(0.0)
+            self.walk_t.append(0.0)
             self.last.append(0)
             self.generation += 1
         n = self.n[i] = min(self.n[i] + 1.0, BASELINE_VISITS)
@@ -117,12 +120,12 @@ class Stops:
         self.mean[i] = (m0 + (p0 - m0) / n, m1 + (p1 - m1) / n, m2 + (p2 - m2) / n)
         if self.pose_mean[i] != s.pose:      # a stop repeated only roughly (exact repeats leave it as it is)
             self.pose_mean[i] = [a + (b - a) / n for a, b in zip(self.pose_mean[i], s.pose)]
-        self.t[i] += (s.t - self.t[i]) / n
+        self.walk_t[i] += (s.walk_t - self.walk_t[i]) / n
         self._visits += 1
         self.last[i] = self._visits
 
     def clear(self) -> None:
-        self.poses, self.mean, self.pose_mean, self.n, self.t, self.last = [], [], [], [], [], []
+        self.poses, self.mean, self.pose_mean, self.n, self.walk_t, self.last = [], [], [], [], [], []
         self.generation += 1
 
 

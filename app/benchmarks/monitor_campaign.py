@@ -1,0 +1,438 @@
+"""The monitoring engine driven as users compose it: a stateful property campaign and composed production programs.
+
+Two campaigns over `calib.monitor.MonitorEngine` on simulated cells (`calib.simulate.production_cell`), both
+setups:
+
+- `EngineMachine`, a hypothesis state machine: arming from a calibration of
+  any size the arming accepts (with or without the robot's joints and its
+  kinematic error), self-arming from the program's own samples, or carrying
+  on from a previous run's snapshot; a program of 1-20 stops visited in any
+  order, revisits jittered or exact; bumps of 0-20 mm / 0-2 deg at any time
+  (the first sample included); slow drift; bad samples (outliers, NaN and inf,
+  duplicate and back-stepping timestamps, hour- to day-long gaps, covariances
+  that are not one); disarming and arming again. After every step: only
+  `calib.errors.HandeyeError` escapes, the state is finite with a symmetric
+  positive semi-definite covariance, the memory is bounded, and a bump that
+  moves the marker by 5 mm or more at the stops is flagged within
+  `DETECT_WITHIN` samples once three stops not on one line have been seen.
+- `composed_run`: whole shifts of programs composed as users compose them:
+  3-8 stops visited in turn or at random, 1-3 hours, a sample every 30 s,
+  0.5 mm/h of drift, bumps of 5 mm / 0.3 deg (the first as early as the 5th
+  sample), armed from 12-30 calibration poses. Counted: tracebacks, missed
+  bumps, false *moved* alarms.
+
+The suite runs a bounded campaign (tests/calib/test_monitor_campaign.py);
+``handeye bench --fuzz --only monitor`` runs a long one and prints the tables
+(docs/benchmarks.md).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import functools
+import math
+import time
+import traceback
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from calib import simulate, solve
+from calib.errors import HandeyeError
+from calib.monitor import AlarmLevel, EngineState, MonitorEngine, MonitorSettings
+from calib.monitor.filter import is_sound
+from calib.problem import CalibrationProblem
+from calib.setup import Setup
+
+#: A bump must be flagged within this many samples (issue 20's figure).
+DETECT_WITHIN = 20
+#: The bumps the detection property holds for: moving the marker by at least this at the stops, m.
+FLAGGED_DISPLACEMENT_M = 5e-3
+#: Floats the engine may hold, whatever the stream (its state for 20 stops, the detector, its windows).
+MAX_STATE_FLOATS = 200_000
+#: Seeds of the cells the state machine draws (each cell is built and calibrated once per process).
+CELL_SEEDS = (0, 1, 2)
+
+
+@functools.lru_cache(maxsize=64)
+def cell(setup: Setup, seed: int, n_calibration: int, n_stops: int, joints: bool) -> simulate.ProductionCell:
+    """A production cell (cached: the state machine draws the same few many times)."""
+    return simulate.production_cell(setup, n_calibration, n_stops, np.random.default_rng([seed, n_calibration,
+                                                                                          n_stops]), joints=joints)
+
+
+@functools.lru_cache(maxsize=64)
+def calibration(setup: Setup, seed: int, n_calibration: int, n_stops: int, joints: bool):
+    """``(result, problem)`` of ``auto`` on the cell's calibration samples, or the `HandeyeError` it raised."""
+    c = cell(setup, seed, n_calibration, n_stops, joints)
+    try:
+        problem = CalibrationProblem.from_arrays(c.A, c.points, setup=setup, point_cov=c.point_cov,
+                                                 robot_shared_error=c.factor)
+        return solve("auto", problem, rng=np.random.default_rng(seed)), problem
+    except HandeyeError as e:
+        return e
+
+
+def random_direction(rng: np.random.Generator) -> np.ndarray:
+    v = rng.normal(size=3)
+    return v / np.linalg.norm(v)
+
+
+@dataclass
+class BumpWatch:
+    """A bump the engine must flag: samples and distinct stops seen since it."""
+
+    displacement_m: float
+    samples: int = 0
+    stops: set = field(default_factory=set)
+
+
+class ProgramDriver:
+    """A production program on a `calib.simulate.ProductionCell` feeding an engine, with the truth it knows: the
+    true camera transform (bumped and drifted), the clock, and the bumps not flagged yet. Shared by the state
+    machine and the composed runs."""
+
+    def __init__(self, c: simulate.ProductionCell, engine: MonitorEngine, rng: np.random.Generator):
+        self.cell, self.engine, self.rng = c, engine, rng
+        self.C = c.C.copy()
+        self.t = 0.0
+        self.watch: BumpWatch | None = None
+        self.missed: list[str] = []
+        self.flagged_after: list[int] = []
+        self.moved_alarms = 0
+        self.updates = 0
+
+    def feed(self, t, A, p, cov, factor):
+        """One sample through the engine: its update, or None when it was refused with a `HandeyeError`."""
+        try:
+            upd = self.engine.update(t, A, p, cov, factor)
+        except HandeyeError:
+            return None
+        self.updates += 1
+        if upd.alarm == AlarmLevel.MOVED:
+            self.moved_alarms += 1
+        return upd
+
+    def visit(self, stop: int, dt: float, jitter_deg: float = 0.0):
+        """The robot stops at ``stop`` ``dt`` seconds after the last sample; the engine takes the sample."""
+        self.t += dt
+        A, p, cov, factor = self.cell.sample(stop, self.C, self.rng, jitter_deg)
+        upd = self.feed(self.t, A, p, cov, factor)
+        if upd is not None and self.watch is not None:
+            self.observe(stop, upd)
+        return upd
+
+    def observe(self, stop: int, upd) -> None:
+        w = self.watch
+        if upd.alarm == AlarmLevel.MOVED:
+            self.flagged_after.append(w.samples)
+            self.watch = None
+            return
+        w.samples += 1
+        w.stops.add(stop)
+        if w.samples >= DETECT_WITHIN and self.determined(w.stops):
+            self.missed.append(f"a bump moving the stops' marker points by {w.displacement_m * 1e3:.1f} mm not "
+                               f"flagged within {w.samples} samples ({len(w.stops)} stops seen)")
+            self.watch = None
+
+    def determined(self, stops) -> bool:
+        """Three of these stops, not on one line, would determine the camera (as the engine's re-learn asks)."""
+        if len(stops) < 3:
+            return False
+        c = self.cell
+        y = np.array([self.marker_in_parent(s) for s in stops])
+        sv = np.linalg.svd(y - y.mean(axis=0), compute_uv=False)
+        return bool(sv[1] / math.sqrt(len(y)) >= self.engine.settings.min_spread_m)
+
+    def marker_in_parent(self, stop: int) -> np.ndarray:
+        c = self.cell
+        if c.setup == Setup.EYE_TO_HAND:
+            from calib.robot_error import UR10_DH, ur_forward
+
+            dh = UR10_DH
+            A = ur_forward(c.stops[stop][None], dh["d"], dh["a"], dh["alpha"], np.zeros(6))[0]
+            return (A @ c.marker)[:3, 3]
+        return (np.linalg.inv(c.stops[stop]) @ c.marker)[:3, 3]
+
+    def bump(self, mm: float, deg: float) -> None:
+        """The camera is knocked: ``mm`` shift, ``deg`` turn, random directions. Watched when the engine is
+        testing (armed or warming) and the marker moves by `FLAGGED_DISPLACEMENT_M` or more at the stops."""
+        before = self.C
+        self.C = self.cell.moved(before, np.deg2rad(deg) * random_direction(self.rng),
+                                 mm * 1e-3 * random_direction(self.rng))
+        moved = self.cell.displacement(before, self.C)
+        testing = self.engine.armed and self.engine.state in (EngineState.ARMED, EngineState.WARMING)
+        if testing and moved >= FLAGGED_DISPLACEMENT_M and self.watch is None:
+            self.watch = BumpWatch(moved)
+
+    def drift(self, mm: float) -> None:
+        """A slow move of the camera's mount (``mm`` in a random direction, no turn)."""
+        self.C = self.cell.moved(self.C, np.zeros(3), mm * 1e-3 * random_direction(self.rng))
+
+
+# ------------------------------------------------------------------ the state machine
+
+def engine_machine():
+    """The `EngineMachine` class (built on first use: hypothesis is a test dependency)."""
+    from hypothesis import strategies as st
+    from hypothesis.stateful import RuleBasedStateMachine, initialize, invariant, precondition, rule
+
+    bad_kinds = ("outlier", "nan_point", "inf_pose", "nan_cov", "indefinite_cov", "zero_cov", "duplicate_t",
+                 "earlier_t", "nan_t", "bad_factor", "far_point")
+
+    class EngineMachine(RuleBasedStateMachine):
+        """The engine through arbitrary interleavings of arming, programs, moves and bad samples (module
+        docstring)."""
+
+        @initialize(setup=st.sampled_from([Setup.EYE_TO_HAND, Setup.EYE_IN_HAND]), seed=st.sampled_from(CELL_SEEDS),
+                    n_calibration=st.sampled_from([3, 4, 6, 12, 30]), n_stops=st.sampled_from([1, 2, 3, 4, 8, 20]),
+                    joints=st.booleans(), arming=st.sampled_from(["calibration", "self"]),
+                    settings=st.sampled_from(["default", "compressed"]))
+        def start(self, setup, seed, n_calibration, n_stops, joints, arming, settings):
+            self.key = (Setup(setup), seed, n_calibration, n_stops, joints and setup == Setup.EYE_TO_HAND)
+            c = cell(*self.key)
+            cfg = MonitorSettings() if settings == "default" else MonitorSettings(time_scale=30.0)
+            self.driver = ProgramDriver(c, MonitorEngine(cfg), np.random.default_rng([seed, 7]))
+            self.arming = arming
+            self.next_stop = 0
+            self.arm()
+
+        def arm(self) -> None:
+            """Arm from the cell's calibration, or from the program's own samples (self-arming): a typed error
+            leaves the engine unarmed."""
+            d, engine = self.driver, self.driver.engine
+            if self.arming == "calibration":
+                got = calibration(*self.key)
+                if isinstance(got, HandeyeError):
+                    return
+                result, problem = got
+            else:
+                c = d.cell
+                samples = [c.sample(i % len(c.stops), d.C, d.rng, 2.0) for i in range(max(6, 2 * len(c.stops)))]
+                A, p, cov, f = zip(*samples)
+                try:
+                    problem = CalibrationProblem.from_arrays(
+                        np.array(A), np.array(p), setup=c.setup, point_cov=np.array(cov),
+                        robot_shared_error=None if f[0] is None else np.array(f))
+                    result = solve("auto", problem, rng=np.random.default_rng(0))
+                except HandeyeError:
+                    return
+            try:
+                engine.arm(result, problem, t=d.t)
+            except HandeyeError:
+                return
+            d.watch = None
+
+        @rule(visits=st.integers(1, 40), order=st.sampled_from(["cycle", "random"]),
+              jitter_deg=st.sampled_from([0.0, 0.0, 0.5]), dt=st.sampled_from([1.0, 30.0, 120.0]))
+        def program(self, visits, order, jitter_deg, dt):
+            d = self.driver
+            n = len(d.cell.stops)
+            for _ in range(visits):
+                if order == "cycle":
+                    stop, self.next_stop = self.next_stop, (self.next_stop + 1) % n
+                else:
+                    stop = int(d.rng.integers(n))
+                d.visit(stop, dt, jitter_deg)
+
+        @rule(mm=st.floats(0.0, 20.0), deg=st.floats(0.0, 2.0))
+        def bump(self, mm, deg):
+            self.driver.bump(mm, deg)
+
+        @rule(mm=st.floats(0.0, 0.3))
+        def drift(self, mm):
+            self.driver.drift(mm)
+
+        @rule(hours=st.sampled_from([1.0, 8.0, 64.0]))
+        def gap(self, hours):
+            self.driver.t += hours * 3600.0
+
+        @rule(kind=st.sampled_from(bad_kinds))
+        def bad_sample(self, kind):
+            d = self.driver
+            stop = int(d.rng.integers(len(d.cell.stops)))
+            A, p, cov, f = d.cell.sample(stop, d.C, d.rng)
+            t = d.t + 30.0
+            if kind == "outlier":
+                p = p + d.rng.uniform(0.05, 0.2, size=3) * d.rng.choice([-1, 1], size=3)
+            elif kind == "far_point":
+                p = p * 50.0
+            elif kind == "nan_point":
+                p = p.copy()
+                p[int(d.rng.integers(3))] = np.nan
+            elif kind == "inf_pose":
+                A = A.copy()
+                A[0, 3] = np.inf
+            elif kind == "nan_cov":
+                cov = np.full((3, 3), np.nan)
+            elif kind == "indefinite_cov":
+                cov = -cov
+            elif kind == "zero_cov":
+                cov = np.zeros((3, 3))
+            elif kind == "duplicate_t":
+                t = d.t
+            elif kind == "earlier_t":
+                t = d.t - 600.0
+            elif kind == "nan_t":
+                t = float("nan")
+            elif kind == "bad_factor":
+                f = np.ones((5, 2)) if f is None else f[:, :-1]
+            upd = d.feed(t, A, p, cov, f)
+            if upd is not None:
+                d.t = max(d.t, t)
+                # An outlier that is taken as a move is flagged; one bump watched is about the camera.
+                if d.watch is not None and upd.alarm == AlarmLevel.MOVED:
+                    d.flagged_after.append(d.watch.samples)
+                    d.watch = None
+
+        @rule()
+        def rearm(self):
+            """Disarm and arm again: the engine starts over from the calibration, as a restarted run would."""
+            self.driver.engine.disarm()
+            self.arm()
+
+        @precondition(lambda self: self.driver.engine.armed)
+        @rule(data=st.data())
+        def carry_on(self, data):
+            """A new run armed from this one's snapshot (the calibration in use carries over runs)."""
+            d = self.driver
+            snapshot = d.engine.snapshot()
+            engine = MonitorEngine(d.engine.settings)
+            engine.resume(snapshot)
+            d.engine = engine
+
+        @invariant()
+        def sound(self):
+            e = self.driver.engine
+            if e.armed:
+                assert is_sound(e.filter), "the filter state is not finite or its covariance not PSD"
+                assert e.state_size <= MAX_STATE_FLOATS, e.state_size
+
+        @invariant()
+        def bumps_flagged(self):
+            assert not self.driver.missed, self.driver.missed
+
+    return EngineMachine
+
+
+# ------------------------------------------------------------------ composed programs
+
+@dataclass(frozen=True)
+class Composition:
+    """One composed production program (`composed_run`)."""
+
+    setup: Setup
+    seed: int
+    n_calibration: int
+    n_stops: int
+    order: str
+    hours: float
+    first_bump: int
+    joints: bool
+
+    @classmethod
+    def draw(cls, rng: np.random.Generator, seed: int) -> Composition:
+        setup = Setup.EYE_TO_HAND if rng.random() < 0.6 else Setup.EYE_IN_HAND
+        return cls(setup, seed, int(rng.integers(12, 31)), int(rng.integers(3, 9)),
+                   "cycle" if rng.random() < 0.5 else "random", float(rng.uniform(1.0, 3.0)),
+                   int(rng.integers(5, 60)), bool(rng.random() < 0.7))
+
+
+@dataclass
+class ComposedOutcome:
+    """What one composed run gave: bumps, those that move the stops' marker points by 5 mm or more (watched),
+    flagged within `DETECT_WITHIN` samples, flagged later, missed (watched, not flagged within it), and *moved*
+    alarms with no bump since the last one (false)."""
+
+    composition: Composition
+    traceback: str | None = None
+    bumps: int = 0
+    watched: int = 0
+    flagged: int = 0
+    late: int = 0
+    missed: int = 0
+    false_moved: int = 0
+    samples: int = 0
+    update_us: float = 0.0
+    alarms: list = field(default_factory=list)
+
+
+def composed_run(comp: Composition, *, sample_s: float = 30.0, bump_mm: float = 5.0, bump_deg: float = 0.3,
+                 drift_mm_h: float = 0.5) -> ComposedOutcome:
+    """A shift of a composed program: the engine armed from the cell's calibration, a sample every ``sample_s``,
+    the mount drifting ``drift_mm_h``, bumps of ``bump_mm`` / ``bump_deg`` at ``comp.first_bump`` and then every
+    hour. A *moved* alarm explains the oldest bump not explained yet (flagged, or late beyond `DETECT_WITHIN`
+    samples); one with none left to explain is false."""
+    out = ComposedOutcome(comp)
+    try:
+        joints = comp.joints and comp.setup == Setup.EYE_TO_HAND
+        c = simulate.production_cell(comp.setup, comp.n_calibration, comp.n_stops,
+                                     np.random.default_rng([comp.seed, 11]), joints=joints)
+        problem = CalibrationProblem.from_arrays(c.A, c.points, setup=c.setup, point_cov=c.point_cov,
+                                                 robot_shared_error=c.factor)
+        result = solve("auto", problem, rng=np.random.default_rng(comp.seed))
+        engine = MonitorEngine()
+        engine.arm(result, problem)
+        rng = np.random.default_rng([comp.seed, 12])
+        d = ProgramDriver(c, engine, rng)
+        n = int(comp.hours * 3600.0 / sample_s)
+        bumps = set(range(comp.first_bump, n, int(3600.0 / sample_s)))
+        drift_dir = random_direction(rng)
+        unexplained: list[tuple[int, bool]] = []      # (sample of the bump, watched)
+        t0 = time.perf_counter()
+        for i in range(n):
+            if i in bumps:
+                before = d.watch
+                d.bump(bump_mm, bump_deg)
+                watched = d.watch is not None and d.watch is not before
+                out.bumps += 1
+                out.watched += watched
+                unexplained.append((i, watched))
+            d.C = c.moved(d.C, np.zeros(3), drift_mm_h * 1e-3 * sample_s / 3600.0 * drift_dir)
+            stop = i % comp.n_stops if comp.order == "cycle" else int(rng.integers(comp.n_stops))
+            upd = d.visit(stop, sample_s)
+            if upd is not None and upd.alarm == AlarmLevel.MOVED:
+                out.alarms.append(i)
+                if not unexplained:
+                    out.false_moved += 1
+                    continue
+                bump, _ = unexplained.pop(0)
+                if i - bump <= DETECT_WITHIN:
+                    out.flagged += 1
+                else:
+                    out.late += 1
+        out.update_us = (time.perf_counter() - t0) / max(n, 1) * 1e6
+        out.samples = d.updates
+        out.missed = len(d.missed) + (d.watch is not None and d.watch.samples >= DETECT_WITHIN)
+    except Exception:            # noqa: BLE001 - the campaign counts tracebacks instead of stopping at one
+        out.traceback = traceback.format_exc()
+    return out
+
+
+def composed_campaign(runs: int, seed: int = 0) -> list[ComposedOutcome]:
+    rng = np.random.default_rng(seed)
+    return [composed_run(Composition.draw(rng, seed * 100_000 + k)) for k in range(runs)]
+
+
+def composed_table(outcomes: list[ComposedOutcome]) -> str:
+    """Per setup and order: runs, tracebacks, bumps (those moving the stops' marker points by 5 mm or more
+    watched), flagged within 20 samples, missed, false moved alarms."""
+    rows = []
+    groups: dict[tuple, list] = {}
+    for o in outcomes:
+        groups.setdefault((str(o.composition.setup), o.composition.order), []).append(o)
+    for (setup, order), group in sorted(groups.items()):
+        rows.append([setup, order, len(group), sum(o.traceback is not None for o in group),
+                     sum(o.bumps for o in group), sum(o.watched for o in group), sum(o.flagged for o in group),
+                     sum(o.late for o in group), sum(o.missed for o in group), sum(o.false_moved for o in group)])
+    total = [sum(r[k] for r in rows) for k in range(2, 10)]
+    rows.append(["all", "", *total])
+    lines = [f"| setup | order | runs | tracebacks | bumps | of which move the stops >= 5 mm | flagged within "
+             f"{DETECT_WITHIN} samples | flagged later | missed (>= 5 mm, not within {DETECT_WITHIN}) | false moved "
+             "alarms |", "|---|---|---:|---:|---:|---:|---:|---:|---:|---:|"]
+    lines += ["| " + " | ".join(str(c) for c in r) + " |" for r in rows]
+    tracebacks = [o for o in outcomes if o.traceback]
+    if tracebacks:
+        lines.append("\nFirst traceback (" + repr(dataclasses.astuple(tracebacks[0].composition)) + "):\n```\n"
+                     + tracebacks[0].traceback + "```")
+    return "\n".join(lines)

@@ -1,0 +1,15 @@
+"""The monitoring engine through arbitrary interleavings of arming, programs, moves and bad samples (a bounded run
+of app.benchmarks.monitor_campaign's state machine; ``handeye bench --fuzz --only monitor`` runs a long one)."""
+
+import os
+
+from hypothesis import HealthCheck, settings
+
+from app.benchmarks.monitor_campaign import engine_machine
+
+EngineMachine = engine_machine()
+
+TestEngineMachine = EngineMachine.TestCase
+TestEngineMachine.settings = settings(max_examples=int(os.environ.get("HANDEYE_CAMPAIGN_EXAMPLES", "25")),
+                                      stateful_step_count=25, deadline=None,
+                                      suppress_health_check=[HealthCheck.too_slow, HealthCheck.filter_too_much])
