@@ -188,7 +188,11 @@ class MonitorConfig(Params):
     docs/planning.md). Without ``--reference`` the monitoring engine is armed
     from that set once it holds ``arm_samples`` and ``auto`` gives a 1-sigma
     over the workspace within ``arm_sigma_mm`` (tried every
-    ``reestimate_samples`` new poses). ``alarm_hook`` is split like a shell
+    ``reestimate_samples`` new poses). ``carry_over``: a run continues from
+    the calibration in use at the end of the newest earlier run of the same
+    setup under ``session.root`` (its ``calibration_in_use.yaml``), a
+    restarted service and the next shift alike; ``--reference`` then serves
+    only the first run. ``alarm_hook`` is split like a shell
     line and must name a program on ``PATH``. ``[monitor.engine]`` configures
     the engine (`calib.monitor.MonitorSettings`: random-walk rates,
     ``tolerance_mm``, the drifting horizon, the detector).
@@ -214,6 +218,7 @@ class MonitorConfig(Params):
     arm_sigma_mm: PositiveFloat = 3.0
     keep_frames: NonNegativeInt = 100
     max_recording_mb: PositiveFloat = 200.0
+    carry_over: Bool = False
     engine: MonitorSettings = Field(default_factory=MonitorSettings)
 
     @model_validator(mode="after")

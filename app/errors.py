@@ -13,3 +13,7 @@ class SessionError(HandeyeError):
 
 class OutageError(HandeyeError):
     """A device stayed away longer than ``reconnect.max_outage_s``, or the run was stopped during its outage."""
+
+
+class MonitorError(HandeyeError):
+    """A monitoring run ended on an unexpected error at a sample (recorded in its session; a service restarts it)."""

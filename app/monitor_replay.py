@@ -10,7 +10,13 @@ directory (``replay --out``):
 - ``monitor_trace.csv``: one row per sample (`TRACE_COLUMNS`; the camera
   transform is ``T_base_cam`` eye-to-hand, ``T_flange_cam`` eye-in-hand);
 - ``alarms.yaml``: every alarm with its sample, time and message;
-- ``monitor_trace.png``: drift, running verification and 1-sigma against time, alarms marked.
+- ``monitor_trace.png``: drift, running verification and 1-sigma against time, alarms marked;
+- ``calibration_in_use.yaml`` (`app.calibration_in_use`): the calibration in use, written at arming, at every
+  re-learn, when a re-learnt camera has settled and at the end; another ``replay --monitor`` or ``monitor``
+  continues from it with ``--reference <out>``.
+
+``--reference`` may also be a previous monitoring run (its session or
+``--out`` directory): the engine continues from its calibration in use.
 
 Samples without a marker point are skipped and counted; a malformed one is
 skipped with a log line naming it (`calib.errors.CalibrationError`). A
@@ -29,13 +35,14 @@ from pathlib import Path
 import numpy as np
 import yaml
 
-from app import devices
-from app.errors import SessionError
-from app.monitoring import arm_engine, reference_observations, shared_error_note
+from app import calibration_in_use, devices
+from app.errors import MonitorError, SessionError
+from app.monitoring import arm_from_path
 from app.session import read_session
 from calib import transforms as tf
 from calib.errors import CalibrationError
 from calib.monitor import MonitorEngine, MonitorSettings, MonitorUpdate
+from calib.monitor.filter import is_sound
 from calib.result import worst_axis_sigma
 from calib.setup import Setup
 
@@ -85,7 +92,7 @@ def trace_row(obs_index: int, upd: MonitorUpdate, correction) -> dict:
 
 
 def replay_monitor(session: Path, reference: Path, out: Path, *, settings: MonitorSettings | None = None,
-                   shared_error=None, rng=None) -> MonitorReplay:
+                   shared_error=None, rng=None, frames: dict | None = None) -> MonitorReplay:
     """Stream ``session`` through the engine armed from ``reference``; write the trace into ``out``.
 
     Raises
@@ -93,6 +100,9 @@ def replay_monitor(session: Path, reference: Path, out: Path, *, settings: Monit
     SessionError
         Unreadable session or reference, a reference that cannot arm the engine, or an ``out`` that cannot be
         created.
+    MonitorError
+        An unexpected error at a sample (named; the trace, the alarms and the calibration in use up to it are
+        written).
     """
     prod = read_session(session)
     engine = MonitorEngine(settings)
@@ -104,15 +114,14 @@ def replay_monitor(session: Path, reference: Path, out: Path, *, settings: Monit
         # Without joints no sample can feed the kinematic-error block: the engine is armed without it.
         shared_error = None
         rep.notes.append("the samples have no joints: monitored without the robot's kinematic error")
-    arm_engine(engine, reference_observations(reference, prod.setup), prod.setup, shared_error, rng=rng, t=first_t)
-    shared = shared_error_note(engine)
-    if shared:
-        rep.notes.append(shared)
+    rep.notes.append(arm_from_path(engine, Path(reference), prod.setup, shared_error, rng=rng, t=first_t))
     out = rep.out
     try:
         out.mkdir(parents=True, exist_ok=True)
     except OSError as e:
         raise SessionError(f"--out {out}: cannot create ({e.strerror})") from None
+    in_use = calibration_in_use.InUseFile(out, frames)
+    in_use.armed(engine, first_t)
     times, rows = [], []
     with open(out / "monitor_trace.csv", "w", newline="") as fh:
         writer = csv.DictWriter(fh, fieldnames=TRACE_COLUMNS)
@@ -123,10 +132,18 @@ def replay_monitor(session: Path, reference: Path, out: Path, *, settings: Monit
                 continue
             try:
                 upd = engine.update(o.t, o.T_base_flange, o.point_cam, o.point_cov, F)
+                in_use.update(engine, upd, o.t)
             except CalibrationError as e:
                 log.warning("sample %d skipped: %s", o.index, e)
                 rep.n_skipped += 1
                 continue
+            except Exception as e:        # noqa: BLE001 - one line naming the sample, what came before it written
+                log.debug("sample %d", o.index, exc_info=True)
+                _write_alarms(out, prod.setup, session, reference, rep.alarms)
+                if is_sound(engine.filter):
+                    in_use.write(engine, o.t, "before an unexpected error")
+                raise MonitorError(f"sample {o.index}: unexpected error in the monitoring engine "
+                                   f"({type(e).__name__}: {e}); the trace and alarms up to it are in {out}") from e
             rep.n_samples += 1
             rep.last = upd
             rep.verify_mm.append(upd.verify_mm)
@@ -136,12 +153,17 @@ def replay_monitor(session: Path, reference: Path, out: Path, *, settings: Monit
             if upd.alarm:
                 rep.alarms.append({"sample": o.index, "t": float(upd.t), "alarm": str(upd.alarm),
                                    "message": upd.message})
-    (out / "alarms.yaml").write_text(yaml.safe_dump({
-        "setup": str(prod.setup), "camera_transform": Setup(prod.setup).camera_name,
-        "session": str(session), "reference": str(reference), "alarms": rep.alarms}, sort_keys=False))
+    in_use.end(engine, times[-1] if times else first_t)
+    _write_alarms(out, prod.setup, session, reference, rep.alarms)
     if rows:
         _plot(np.array(times) - times[0], rows, out / "monitor_trace.png", Setup(prod.setup).camera_name)
     return rep
+
+
+def _write_alarms(out: Path, setup, session, reference, alarms: list) -> None:
+    (out / "alarms.yaml").write_text(yaml.safe_dump({
+        "setup": str(setup), "camera_transform": Setup(setup).camera_name,
+        "session": str(session), "reference": str(reference), "alarms": alarms}, sort_keys=False))
 
 
 def _factors(samples, shared_error):

@@ -4,7 +4,10 @@
 The engine is armed from a calibration and the samples it was solved from:
 a reference session (or the ``result.yaml`` inside one) solved with ``auto``
 as ``calibrate`` solves it, or, without a reference, the monitor's own first
-samples once ``auto`` determines the camera from them.
+samples once ``auto`` determines the camera from them. A previous monitoring
+run (its session, a ``replay --monitor --out`` directory, or its
+``calibration_in_use.yaml``) is continued from where it left off
+(`app.calibration_in_use`).
 """
 
 from __future__ import annotations
@@ -14,7 +17,7 @@ from pathlib import Path
 
 import numpy as np
 
-from app import devices
+from app import calibration_in_use, devices
 from app.errors import SessionError
 from app.session import read_session
 from calib.api import solve_observations
@@ -34,6 +37,9 @@ def reference_observations(path: Path, setup: Setup) -> list:
         Not a session, another setup, or no sample with a marker point.
     """
     path = Path(path)
+    if not (path.parent if path.is_file() else path).joinpath("session.json").exists():
+        raise SessionError(f"reference {path}: neither a calibration session (no session.json) nor a monitoring run "
+                           f"(no {calibration_in_use.FILE_NAME})")
     ref = read_session(path.parent if path.is_file() else path)
     if ref.setup != setup:
         raise SessionError(f"reference {path} is {ref.setup}, the config is {setup}")
@@ -90,3 +96,37 @@ def sample_factor(engine: MonitorEngine, obs, shared_error):
         return None
     F = devices.robot_shared_error("auto", [obs], shared_error)
     return None if F is None else F[0]
+
+
+def arm_from_path(engine: MonitorEngine, path: Path, setup: Setup, shared_error=None, *, rng=None,
+                  t: float = 0.0) -> str:
+    """Arm ``engine`` from what ``path`` holds; returns one line saying what.
+
+    A previous monitoring run (a directory holding ``calibration_in_use.yaml``,
+    or the file): continued from its calibration in use (`MonitorEngine.resume`;
+    without ``shared_error`` the robot's kinematic error is marginalised out of
+    the state). Else a calibration session or its ``result.yaml``, solved with
+    ``auto`` (`arm_engine`).
+
+    Raises
+    ------
+    SessionError
+        Nothing to arm from there, another setup, or a file that cannot be read (named).
+    """
+    found = calibration_in_use.find(path)
+    if found is None:
+        reference = reference_observations(path, setup)
+        arm_engine(engine, reference, setup, shared_error, rng=rng, t=t)
+        shared = shared_error_note(engine)
+        return (f"reference {path}: {len(reference)} samples solved with auto, monitoring engine armed from its "
+                "estimate, camera correction and covariance" + (f"; {shared}" if shared else ""))
+    snapshot = calibration_in_use.read(found, setup)
+    if shared_error is None:
+        snapshot = snapshot.without_factor()
+    engine.resume(snapshot, t=t)
+    since = calibration_in_use.local_time(snapshot.filter.t) if snapshot.filter.t > 1e9 else \
+        f"t = {snapshot.filter.t:.0f} s"
+    relearnt = f", re-learnt {snapshot.relearns} time{'s' if snapshot.relearns != 1 else ''}" if snapshot.relearns \
+        else ""
+    return (f"continuing from {found}: the calibration in use at the end of that run ({since}{relearnt}), with its "
+            "covariance and camera correction")

@@ -353,6 +353,11 @@ class MqttPublisher:
         if event.event in ("outage_start", "outage_end"):
             self.publish("outage", self._outage_payload(event, event.message()))
 
+    def error(self, sample: int, message: str) -> None:
+        """An unexpected error that ends the run (`app.runs.monitor.run_monitor`'s ``on_error``): on the alarm
+        topic, ``event`` ``"monitor_error"``, held for an absent broker like an alarm."""
+        self.publish("alarm", {**self._base("alarm"), "event": "monitor_error", "sample": sample, "message": message})
+
     def __call__(self, obs, update, report) -> None:
         """`app.runs.monitor.run_monitor`'s ``on_update``: estimate (retained), drift, and the alarm if one fired."""
         self.session = str(report.session)

@@ -30,6 +30,7 @@ os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
 import argparse  # noqa: E402
 import dataclasses  # noqa: E402
+import json  # noqa: E402
 import time  # noqa: E402
 from dataclasses import dataclass  # noqa: E402
 from pathlib import Path  # noqa: E402
@@ -40,6 +41,7 @@ from calib import simulate, solve  # noqa: E402
 from calib import transforms as tf  # noqa: E402
 from calib.model import CameraCorrection  # noqa: E402
 from calib.monitor import MonitorEngine, MonitorSettings  # noqa: E402
+from calib.monitor.snapshot import snapshot_from_dict, snapshot_to_dict  # noqa: E402
 from calib.problem import CalibrationProblem  # noqa: E402
 
 #: Held-out workspace poses per cell.
@@ -95,8 +97,11 @@ def armed_cell(seed: int, settings: MonitorSettings | None = None, profile: simu
 
 
 def run_seed(seed: int, shift: simulate.Shift, settings: MonitorSettings,
-             profile: simulate.RealisticProfile | None = None) -> SeedRun:
-    """Calibrate a realistic cell from 30 poses, arm the engine, run the shift (module docstring)."""
+             profile: simulate.RealisticProfile | None = None, *, split_h: float | None = None) -> SeedRun:
+    """Calibrate a realistic cell from 30 poses, arm the engine, run the shift (module docstring).
+
+    ``split_h``: the shift is two runs, the second started at that hour from the first's snapshot through its
+    file form (`calib.monitor.snapshot`), as a restarted service or the next shift's run would."""
     prof = profile or simulate.RealisticProfile()
     real, res, engine = armed_cell(seed, settings, prof)
     d = real.data
@@ -110,7 +115,10 @@ def run_seed(seed: int, shift: simulate.Shift, settings: MonitorSettings,
     alarms = []
     update_us = np.empty(n)
     stats = np.empty(n)
+    split = n if split_h is None else int(np.searchsorted(stream.t, split_h * 3600.0))
     for i in range(n):
+        if i == split:
+            engine = carried_over(engine, stream.t[i])
         t0 = time.perf_counter()
         upd = engine.update(stream.t[i], stream.A[i], stream.points[i], stream.point_cov[i], F_stream[i])
         update_us[i] = (time.perf_counter() - t0) * 1e6
@@ -124,6 +132,31 @@ def run_seed(seed: int, shift: simulate.Shift, settings: MonitorSettings,
         nees[i] = camera_nees(upd, stream.Y[i])
     return SeedRun(stream.t / 3600.0, err, sig, nees, alarms, stream.bumped, arming, max(1.0, 1.5 * arming),
                    update_us, stats)
+
+
+def carried_over(engine: MonitorEngine, t: float) -> MonitorEngine:
+    """A new engine continuing from ``engine``'s snapshot, through the snapshot's file form (a new run)."""
+    snapshot = snapshot_from_dict(json.loads(json.dumps(snapshot_to_dict(engine.snapshot()))))
+    new = MonitorEngine(engine.settings)
+    new.resume(snapshot, t=t)
+    return new
+
+
+def section_split(seeds: list[int], settings: MonitorSettings, hours: float = 4.0, bump_h: float = 1.0,
+                  split_h: float = 2.0) -> str:
+    """A shift bumped at ``bump_h`` and split into two runs at ``split_h`` (the second armed from the first's
+    snapshot): moved alarms in each run, and the second run's live workspace error against the bound."""
+    shift = dataclasses.replace(simulate.Shift(), hours=hours, bumps=((bump_h, 5.0, 0.3),))
+    rows = []
+    for seed in seeds:
+        run = run_seed(seed, shift, settings, split_h=split_h)
+        second = run.t_h >= split_h
+        moved = [i for i, kind in run.alarms if kind == "moved"]
+        rows.append([seed, sum(not second[i] for i in moved), sum(second[i] for i in moved), f"{run.bound_mm:.2f}",
+                     f"{np.percentile(run.error_mm[second], 95):.2f}",
+                     "yes" if np.percentile(run.error_mm[second], 95) <= run.bound_mm else "no"])
+    return _md(["seed", "moved alarms, first run", "moved alarms, second run", "bound [mm]",
+                "second run live p95 [mm]", "within"], rows)
 
 
 def summarize(run: SeedRun) -> dict:
@@ -284,6 +317,8 @@ def main(argv=None) -> int:
     ap.add_argument("--sizes", action="store_true", help="also the smallest-bump table (5 sizes x the seeds)")
     ap.add_argument("--eye-in-hand", action="store_true", help="also the eye-in-hand shift (camera slipping on the "
                     "flange)")
+    ap.add_argument("--split", action="store_true", help="also a 4-hour shift bumped at 1 h and split into two "
+                    "runs at 2 h, the second continuing from the first (the calibration in use carried over)")
     ap.add_argument("--out", type=Path, default=Path("out/bench"))
     args = ap.parse_args(argv)
     shift = dataclasses.replace(simulate.Shift(), hours=args.hours, stops=args.stops, max_tilt_deg=args.tilt,
@@ -301,6 +336,9 @@ def main(argv=None) -> int:
     if args.eye_in_hand:
         text += ("\n\n#### Eye-in-hand: the camera slips on the flange (same drift and bumps, camera frame)\n\n"
                  + section_eye_in_hand(seeds, shift, settings))
+    if args.split:
+        text += ("\n\n#### A shift in two runs: bumped at 1 h, the second run (from 2 h) armed from the first's "
+                 "snapshot\n\n" + section_split(seeds, settings))
     text += f"\n\n({time.monotonic() - t0:.0f} s)"
     print(text)
     args.out.mkdir(parents=True, exist_ok=True)

@@ -28,7 +28,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    "--bump-deg 0 for no bump)")
     p.add_argument("--bump-deg", type=float, default=0.5, help="--monitor: camera rotation, deg (default 0.5)")
     p.add_argument("--bump-after", type=int, default=16, help="--monitor: samples before the bump (default 16)")
-    p.add_argument("--reference", type=Path, help="--monitor: session that arms the change detector at once")
+    p.add_argument("--reference", type=Path, help="--monitor: calibration session that arms the change detector at "
+                   "once, or a previous monitoring run to continue from")
     p.add_argument("--max-samples", type=int, help="--monitor: stop after this many samples")
 
 

@@ -24,7 +24,7 @@ EXIT_ALARM = 3
 def add_arguments(p: argparse.ArgumentParser) -> None:
     add_run_options(p)
     p.add_argument("--reference", type=Path, help="calibration session (or its result.yaml) that arms the "
-                   "monitoring engine at once")
+                   "monitoring engine at once, or a previous monitoring run (its session) to continue from")
     p.add_argument("--duration", type=float, help="seconds to run (overrides monitor.duration_s)")
     p.add_argument("--max-samples", type=int, help="stop after this many samples")
     p.add_argument("--hook", help="command to run on an alarm (overrides monitor.alarm_hook)")

@@ -39,11 +39,13 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    "--out uses")
     p.add_argument("--out", type=Path, metavar="DIR", help="write the result files, exports and report.html "
                    "of the recommended solver into DIR, as calibrate writes them into its session; with --monitor: "
-                   "monitor_trace.csv, alarms.yaml and monitor_trace.png (default <session>/monitor_replay)")
+                   "monitor_trace.csv, alarms.yaml, monitor_trace.png and calibration_in_use.yaml (default "
+                   "<session>/monitor_replay)")
     p.add_argument("--monitor", action="store_true", help="stream the session through the monitoring engine "
                    "(alarms, monitor_trace.csv and a plot into --out); needs --reference")
     p.add_argument("--reference", type=Path, help="--monitor: calibration session (or its result.yaml) that arms "
-                   "the engine")
+                   "the engine, or a previous monitoring run (a monitor session or a --monitor --out directory) to "
+                   "continue from")
 
 
 def run(args) -> int:
@@ -57,7 +59,8 @@ def run(args) -> int:
                                "the production session is judged against")
         rep = replay_monitor(args.source, args.reference, args.out or args.source / "monitor_replay",
                              settings=None if settings.config is None else settings.config.monitor.engine,
-                             shared_error=settings.shared_error, rng=np.random.default_rng(args.seed))
+                             shared_error=settings.shared_error, rng=np.random.default_rng(args.seed),
+                             frames=settings.frames)
         print(summary(rep))
         return 3 if any(a["alarm"] == "moved" for a in rep.alarms) else 0
     outcome = replay_source(args.source, methods, refine=args.refine, robust=args.robust, setup=args.setup,

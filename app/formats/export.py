@@ -186,14 +186,18 @@ def result_to_dict(result: CalibrationResult, frames: dict | None = None) -> dic
     setup = Setup(result.setup)
     marker_T = result.X if setup == Setup.EYE_TO_HAND else result.Y
     res = result.residuals
-    resid = {
-        "n_samples": int(result.n_samples),
-        "rms_translation_mm": res.rms_translation * 1e3,
-        "median_translation_mm": float(np.median(res.translation)) * 1e3,
-        "max_translation_mm": res.max_translation * 1e3,
-        "rms_rotation_deg": None if res.rms_rotation is None else math.degrees(res.rms_rotation),
-        "note": "per-sample residuals of A_i X = Y B_i (paper eq. 1); translation in the camera frame",
-    }
+    if len(res.translation):
+        resid = {
+            "n_samples": int(result.n_samples),
+            "rms_translation_mm": res.rms_translation * 1e3,
+            "median_translation_mm": float(np.median(res.translation)) * 1e3,
+            "max_translation_mm": res.max_translation * 1e3,
+            "rms_rotation_deg": None if res.rms_rotation is None else math.degrees(res.rms_rotation),
+            "note": "per-sample residuals of A_i X = Y B_i (paper eq. 1); translation in the camera frame",
+        }
+    else:
+        resid = {"n_samples": int(result.n_samples), "note": "no per-sample residuals: a live estimate of the "
+                 "monitoring engine (its verification is each sample's prediction error before it is fused)"}
     marker = _transform_dict(marker_T, setup.marker_name, *_marker_parent_child(setup, frames))
     marker["rotation_known"] = bool(result.marker_rotation_known)
     doc = {

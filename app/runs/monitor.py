@@ -5,10 +5,15 @@ Read-only: this module never commands a motion. Eye-to-hand (static camera,
 eye-in-hand (``X = T_flange_cam``) a camera that slips on the flange. Every
 standstill with the marker in view is a sample for the monitoring engine
 (`calib.monitor`, armed from a reference calibration or, without one, from
-the first samples ``auto`` can solve); a *moved* or *drifting* alarm is
-logged, recorded in the session, shown in rerun, published (MQTT) and runs
-the optional hook command. Only samples of distinct poses enter the bounded
-estimation set the first calibration and the final result are solved from.
+the first samples ``auto`` can solve, or continued from a previous run); a
+*moved* or *drifting* alarm is logged, recorded in the session, shown in
+rerun, published (MQTT) and runs the optional hook command. The calibration
+in use is kept in the session (``calibration_in_use.yaml``,
+`app.calibration_in_use`) for the next run. Only samples of distinct poses
+enter the bounded estimation set the first calibration and the final result
+are solved from. An unexpected error at a sample ends the run with one line
+and a non-zero exit (a service restarts it), once the sample, the error and
+any alarm of that sample are in the session and on MQTT.
 """
 
 from __future__ import annotations
@@ -20,17 +25,18 @@ import os
 import subprocess
 import threading
 import time
+import traceback
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Callable
 
 import numpy as np
 
-from app import devices
+from app import calibration_in_use, devices
 from app.acquire import take_sample
 from app.config import Config, MonitorConfig, hook_argv
-from app.errors import ConfigError, OutageError
-from app.monitoring import arm_engine, arm_from, reference_observations, sample_factor, shared_error_note
+from app.errors import ConfigError, MonitorError, OutageError
+from app.monitoring import arm_from, arm_from_path, sample_factor
 from app.outage import OutageEvent, Reconnecting
 from app.production import Bump, start_production
 from app.progress import progress_bar, say, show_monitor
@@ -38,7 +44,8 @@ from app.session import SessionWriter
 from app.viz import Viz
 from calib import transforms as tf
 from calib.errors import CalibrationError
-from calib.monitor import MonitorEngine, MonitorUpdate
+from calib.monitor import AlarmLevel, EngineState, MonitorEngine, MonitorUpdate
+from calib.monitor.filter import is_sound
 from calib.observation import Observation
 from calib.planner import least_informative
 from calib.result import CalibrationResult, worst_axis_sigma
@@ -129,9 +136,11 @@ def monitor(cfg: Config, *, reference: Path | None = None, stop=None, progress: 
     """Passive monitoring with a read-only robot connection (never moves the robot).
 
     ``reference``: a calibration session (or its ``result.yaml``), solved
-    with ``auto`` to arm the monitoring engine at once (`app.monitoring`);
-    without one the engine arms itself from the run's first samples that
-    ``auto`` can solve (`MonitorConfig.arm_samples`).
+    with ``auto`` to arm the monitoring engine at once, or a previous
+    monitoring run to continue from (`app.monitoring.arm_from_path`); with
+    ``[monitor] carry_over`` the newest earlier run under ``session.root``
+    takes its place; without either the engine arms itself from the run's
+    first samples that ``auto`` can solve (`MonitorConfig.arm_samples`).
 
     On a simulated cell (the ``ur_sim`` robot) the simulated controller
     runs a looping production program (``production``, `app.production`) so
@@ -154,12 +163,9 @@ def monitor(cfg: Config, *, reference: Path | None = None, stop=None, progress: 
                          stop=stop) as camera, \
             (publisher or contextlib.nullcontext()):
         publish = publish or publisher
+        reference = carried_over(cfg) or reference
         if reference is not None:
-            ref = reference_observations(reference, cfg.setup)
-            arm_engine(engine, ref, cfg.setup, robot.shared_error_factor, rng=rng, t=time.time())
-            shared = shared_error_note(engine)
-            say(f"reference {reference}: {len(ref)} samples solved with auto, monitoring engine armed from its "
-                "estimate, camera correction and covariance" + (f"; {shared}" if shared else ""))
+            say(arm_from_path(engine, reference, cfg.setup, robot.shared_error_factor, rng=rng, t=time.time()))
         if production:
             start_production(robot, cfg, rng, say=say)
         writer = SessionWriter.create(cfg.session.root, cfg.setup, config=cfg.to_dict(),
@@ -191,12 +197,25 @@ def monitor(cfg: Config, *, reference: Path | None = None, stop=None, progress: 
                     publish(obs, update, report)
                 outages.record_broker(publisher)
 
+            def on_error(obs, message):
+                if publisher is not None:
+                    publisher.error(obs.index, message)
+
             report = run_monitor(robot, camera, devices.make_measure(cfg), engine, solve, writer, cfg.monitor,
                                  viz, stop=stop, save_frames=cfg.session.save_frames, on_sample=on_sample,
-                                 on_update=on_update, say=say, shared_error=robot.shared_error_factor)
+                                 on_update=on_update, say=say, shared_error=robot.shared_error_factor,
+                                 frames=cfg.frames.model_dump(), on_error=on_error)
             outages.record_broker(publisher)
             report.truth = devices.camera_truth(cfg.setup, devices.truth(camera))
             return report
+
+
+def carried_over(cfg: Config) -> Path | None:
+    """With ``[monitor] carry_over``: the newest earlier run's ``calibration_in_use.yaml`` of this setup under
+    ``session.root`` (`app.calibration_in_use.latest`), else None."""
+    if not cfg.monitor.carry_over:
+        return None
+    return calibration_in_use.latest(Path(cfg.session.root), cfg.setup)
 
 
 @dataclass
@@ -297,6 +316,8 @@ def run_monitor(
     on_update: Callable[[Observation, object, MonitorReport], None] | None = None,
     say: Callable[[str], None] = log.info,
     shared_error=None,
+    frames: dict | None = None,
+    on_error: Callable[[Observation, str], None] | None = None,
 ) -> MonitorReport:
     """Passive run until ``cfg.max_samples``, ``cfg.duration_s``, ``stop`` or Ctrl-C.
 
@@ -321,10 +342,21 @@ def run_monitor(
         Where the engine's state changes are told.
     shared_error : callable, optional
         The robot's `Robot.shared_error_factor`, for samples with joints.
+    frames : dict, optional
+        ``[frames]`` names for ``calibration_in_use.yaml``.
+    on_error : callable(obs, message), optional
+        Told of an unexpected error at a sample before the run ends with `MonitorError` (the MQTT publisher).
+
+    Raises
+    ------
+    MonitorError
+        An unexpected error at a sample (recorded in the session first, with the sample).
     """
     t0 = time.monotonic()
     run = _PassiveRun(robot, camera, measure, engine, solve, writer, cfg, viz, save_frames, on_sample, on_update,
-                      say, shared_error, MonitorReport(writer.path, 0, 0))
+                      say, shared_error, MonitorReport(writer.path, 0, 0), calibration_in_use.InUseFile(writer.path, frames),
+                      on_error)
+    run.in_use.armed(engine, time.time())
     report = run.report
     report.samples_until_armed = _until_armed(engine, run.kept, cfg)
     say(f"monitoring engine: {_engine_state(engine, run.kept, cfg)}")
@@ -345,6 +377,7 @@ def run_monitor(
             raise
         # Stopped while waiting for a device: a normal end, every sample kept.
     report.elapsed_s = time.monotonic() - t0
+    run.in_use.end(engine, time.time())
     report.kept = [o.index for o in run.kept]
     writer.add_event(time.time(), "sample_set", indices=report.kept, keep_samples=cfg.keep_samples,
                      frames_pruned=writer.frames_pruned)
@@ -378,6 +411,8 @@ class _PassiveRun:
     say: Callable[[str], None]
     shared_error: object
     report: MonitorReport
+    in_use: calibration_in_use.InUseFile
+    on_error: Callable[[Observation, str], None] | None = None
     #: The bounded estimation set: distinct poses since the start or the last move.
     kept: list[Observation] = field(default_factory=list)
     still: _Standstill = field(default_factory=_Standstill)
@@ -402,10 +437,40 @@ class _PassiveRun:
         self.viz.rotate(self.cfg.max_recording_mb * 1e6)
         if self.on_sample is not None:
             self.on_sample(obs)
-        self.keep(obs)
-        update = self.estimate(obs)
-        if self.on_update is not None:
-            self.on_update(obs, update, self.report)
+        alarms, told = len(self.report.alarms), False
+        try:
+            self.keep(obs)
+            update = self.estimate(obs)
+            self.in_use.update(self.engine, update, obs.t)
+            if self.on_update is not None:
+                told = True
+                self.on_update(obs, update, self.report)
+        except (DeviceError, OutageError, MonitorError):
+            raise
+        except Exception as e:    # noqa: BLE001 - recorded, published and ended with one line (never a lost alarm)
+            self.fail(obs, e, alarms, told)
+
+    def fail(self, obs: Observation, error: Exception, alarms: int, told: bool) -> None:
+        """An unexpected error at sample ``obs``: the sample is in the session already; record the error, publish
+        any alarm of this sample not published yet and the error, keep the calibration in use if the engine's
+        state is sound, and end the run with `MonitorError` (one line; a service restarts it)."""
+        text = f"{type(error).__name__}: {error}"
+        message = (f"unexpected error at sample {obs.index} ({text}); the sample is kept in {self.writer.path}, "
+                   "the run ends for the service to restart it")
+        log.error("%s\n%s", message, traceback.format_exc())
+        self.writer.add_event(time.time(), "engine_error", sample_index=obs.index, error=text,
+                              traceback=traceback.format_exc(limit=8))
+        self.viz.event(obs.t, message, "ERROR")
+        if len(self.report.alarms) > alarms and not told and self.on_update is not None:
+            try:
+                self.on_update(obs, self.report.last, self.report)
+            except Exception:      # noqa: BLE001 - the alarm is in the session and the hook ran; say so
+                log.exception("sample %d: the alarm could not be published", obs.index)
+        if self.on_error is not None:
+            self.on_error(obs, message)
+        if self.engine.armed and is_sound(self.engine.filter):
+            self.in_use.write(self.engine, time.time(), "before an unexpected error")
+        raise MonitorError(message) from error
 
     def keep(self, obs: Observation) -> None:
         """Add a sample of a distinct pose to the bounded estimation set (its frames go with a dropped one)."""
@@ -422,12 +487,13 @@ class _PassiveRun:
         if self.engine.armed:
             update = _update(self.engine, obs, self.shared_error, self.report, self.writer, self.viz, self.cfg,
                              self.say)
-            if update is not None and update.alarm == "moved":
+            if update is not None and update.alarm == AlarmLevel.MOVED:
                 self.kept = [obs]      # the samples before it are of the old camera
         elif _arm_from_samples(self.engine, self.kept, self.solve, obs, self.shared_error, self.cfg):
             self.say(f"monitoring engine armed from {len(self.kept)} samples of distinct poses (auto)")
             self.writer.add_event(obs.t, "armed", n_samples=len(self.kept),
                                   T_camera=self.engine.camera_transform.tolist())
+            self.in_use.armed(self.engine, obs.t)
         before = self.report.samples_until_armed
         self.report.samples_until_armed = _until_armed(self.engine, self.kept, self.cfg)
         if before and not self.report.samples_until_armed:
@@ -453,7 +519,7 @@ def _update(engine: MonitorEngine, obs: Observation, shared_error, report: Monit
     viz.drift(obs.t, upd.drift_mm, upd.drift_deg)
     if upd.alarm:
         _raise_alarm(report, obs, upd, writer, viz, cfg)
-    if upd.state == "relearning" and upd.message and not upd.alarm:
+    if upd.state == EngineState.RELEARNING and upd.message and not upd.alarm:
         log.info("sample %d: %s", obs.index, upd.message)
     if upd.message.startswith("re-learnt") or "; re-learnt" in upd.message:
         report.reestimate = engine.result()
@@ -517,12 +583,13 @@ def _raise_alarm(report: MonitorReport, obs: Observation, upd: MonitorUpdate, wr
             "drift_mm": upd.drift_mm, "drift_rate_mm_h": upd.drift_rate_mm_h,
             "hours_to_tolerance": upd.hours_to_tolerance, "message": upd.message}
     report.alarms.append(Alarm(obs.t, obs.index, info))
-    if upd.alarm == "moved":
+    if upd.alarm == AlarmLevel.MOVED:
         text = f"ALARM: camera moved (detected at sample {obs.index}, GLR statistic {upd.statistic:.1f})"
     else:
         text = f"ALARM: {upd.message} (sample {obs.index})"
     log.warning(text)
     writer.add_event(obs.t, "alarm", sample_index=obs.index, **info)
-    viz.event(obs.t, text, "ERROR" if upd.alarm == "moved" else "WARN")
-    run_hook(cfg.alarm_hook, {"HANDEYE_EVENT": "camera_moved" if upd.alarm == "moved" else "camera_drifting",
+    viz.event(obs.t, text, "ERROR" if upd.alarm == AlarmLevel.MOVED else "WARN")
+    run_hook(cfg.alarm_hook, {"HANDEYE_EVENT": "camera_moved" if upd.alarm == AlarmLevel.MOVED else "camera_drifting",
                               "HANDEYE_SESSION": str(writer.path), "HANDEYE_SAMPLE": str(obs.index)})
+

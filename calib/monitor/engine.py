@@ -132,11 +132,18 @@ class MonitorEngine:
         self._start(Snapshot(ref, in_use, in_use, filter_state(ref.C.copy(), u, P, t), NoiseTrack()))
         return ref
 
-    def resume(self, snapshot: Snapshot) -> Reference:
+    def resume(self, snapshot: Snapshot, *, t: float | None = None) -> Reference:
         """Arm from where an earlier run left off (`snapshot`): its live estimate, covariance, noise level and
         calibration in use; the next sample is tested at once, against the model (the stops' baselines are
         learnt again), unless the run ended while a re-learnt camera settled (the settling goes on). Returns
-        what the first run was armed from."""
+        what the first run was armed from.
+
+        ``t``: the time this run starts (s, the samples' clock); the random walk runs from the snapshot's time
+        to the first sample (at most `MonitorSettings.walk_max_gap_h`). A ``t`` before the snapshot's time (a
+        recording older than the run the snapshot comes from, a clock set back) starts the clock there.
+        """
+        if t is not None and t < snapshot.filter.t:
+            snapshot = dataclasses.replace(snapshot, filter=snapshot.filter._replace(t=float(t)))
         self._start(snapshot)
         return snapshot.reference
 

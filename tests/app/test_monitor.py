@@ -107,17 +107,18 @@ class _StillRobot:
         return self.pose()
 
 
-class _RefusingEngine:
+def _refusing_engine():
     """An armed monitoring engine that refuses every sample (as `MonitorEngine.update` does a malformed one)."""
+    from app.benchmarks.shift import armed_cell
+    from calib.errors import CalibrationError
 
-    armed = True
-    samples_until_tested = 0
-    n_factor = 0          # (no robot error factor per sample)
+    engine = armed_cell(0)[2]
 
-    def update(self, *args):
-        from calib.errors import CalibrationError
-
+    def update(*args):
         raise CalibrationError("malformed sample")
+
+    engine.update = update
+    return engine
 
 
 def test_a_sample_the_engine_refuses_is_a_recorded_skip_and_the_run_goes_on(tmp_path):
@@ -138,9 +139,74 @@ def test_a_sample_the_engine_refuses_is_a_recorded_skip_and_the_run_goes_on(tmp_
     camera.follow(robot.pose)
     updates = []
     with camera, SessionWriter.create(tmp_path, cfg.setup, name="s") as writer, Viz(cfg.setup, None) as viz:
-        report = run_monitor(robot, camera, devices.make_measure(cfg), _RefusingEngine(), None, writer, mon, viz,
+        report = run_monitor(robot, camera, devices.make_measure(cfg), _refusing_engine(), None, writer, mon, viz,
                              on_update=lambda obs, update, rep: updates.append(update), say=lambda s: None)
     assert report.n_samples == 3 and updates == [None, None, None]
     assert report.alarms == [] and report.estimate is None
     skips = [s for s in read_session(tmp_path / "s").skipped if s["reason"] == "monitoring engine: malformed sample"]
     assert len(skips) == 3
+
+
+def test_an_unexpected_error_ends_the_run_with_its_sample_and_alarm_kept(tmp_path, monkeypatch):
+    """An error that is not a refused sample, at the sample after an alarm and at the alarm's own sample after it
+    was raised: the run ends with `MonitorError` (one line, exit 1: a service restarts it), the sample, the alarm
+    and the error are in the session, the alarm was published and its hook ran, the error was told
+    (``on_error``: MQTT), and the calibration in use was kept for the next run."""
+    from app import calibration_in_use
+    from app.config import load_config
+    from app.errors import MonitorError
+    from app.viz import Viz
+    from drivers.camera.registry import CAMERAS
+
+    cfg = load_config(None)
+    c = cfg.camera
+    T_cam_marker = tf.make_transform(np.diag([1.0, -1.0, -1.0]), [0.0, 0.0, 0.6])
+    T0 = np.asarray(c.T_base_cam) @ T_cam_marker @ tf.invert(np.asarray(c.T_flange_marker))
+    rng = np.random.default_rng(3)
+    poses = [tf.from_rotvec_translation(rng.normal(scale=0.15, size=3), rng.normal(scale=0.06, size=3)) @ T0
+             for _ in range(40)]
+    for where in ("next sample", "alarm sample"):
+        robot = _StillRobot(poses, reads=8)
+        mon = cfg.monitor.model_copy(update={"still_s": 0.0, "poll_s": 0.001, "max_samples": 40, "duration_s": 60.0,
+                                             "arm_samples": 8, "reestimate_samples": 2,
+                                             "alarm_hook": f"touch {tmp_path / where.replace(' ', '_')}"})
+        camera = CAMERAS.create(cfg.camera)
+        camera.follow(robot.pose)
+        engine = devices.make_engine(cfg)
+        real_update, seen, told, errors = engine.update, [], [], []
+
+        def update(*args, real_update=real_update, seen=seen):
+            if where == "next sample" and any(u.alarm for u in seen):
+                raise RuntimeError("a bug in the engine")
+            upd = real_update(*args)
+            seen.append(upd)
+            if engine.armed and len(seen) == 14:
+                camera.config.T_base_cam = (tf.from_rotvec_translation([0.0, 0.02, 0.0], [0.02, 0.0, 0.0])
+                                            @ np.asarray(c.T_base_cam)).tolist()
+            return upd
+
+        engine.update = update
+        if where == "alarm sample":
+            def failing(self, engine, update, t, real=calibration_in_use.InUseFile.update):
+                real(self, engine, update, t)
+                if update is not None and update.alarm:
+                    raise RuntimeError("a bug after the alarm")
+
+            monkeypatch.setattr(calibration_in_use.InUseFile, "update", failing)
+        name = where.replace(" ", "-")
+        with camera, SessionWriter.create(tmp_path, cfg.setup, name=name) as writer, Viz(cfg.setup, None) as viz:
+            with pytest.raises(MonitorError, match="unexpected error at sample") as raised:
+                run_monitor(robot, camera, devices.make_measure(cfg), engine,
+                            devices.make_solve(cfg.calibrate, cfg.setup, rng), writer, mon, viz,
+                            on_update=lambda obs, upd, rep: told.append(upd), say=lambda s: None,
+                            on_error=lambda obs, message: errors.append((obs.index, message)))
+        monkeypatch.undo()
+        session = read_session(tmp_path / name)
+        events = [e["event"] for e in session.events]
+        assert "alarm" in events and events[-1] == "engine_error", events
+        failed = session.events[-1]["sample_index"]
+        assert failed == session.observations[-1].index          # the sample is kept
+        assert errors and errors[0][0] == failed and str(failed) in str(raised.value)
+        assert any(u is not None and u.alarm == "moved" for u in told)     # published
+        assert (tmp_path / where.replace(" ", "_")).exists()            # the hook ran
+        assert calibration_in_use.find(tmp_path / name) is not None

@@ -373,3 +373,45 @@ def test_a_real_recording_of_a_still_camera_raises_no_moved_alarm():
     assert alarms == []
     assert 0.5e-3 < np.sqrt(shared_var) < 1.0e-3
     assert _real_stream_alarms(shared=False)[0]
+
+
+@pytest.mark.parametrize("gap_h", [0.0, 10.0])
+def test_a_run_continued_from_the_last_raises_no_alarm_for_a_bump_it_has_relearnt(gap_h):
+    """A 4-hour shift bumped at 1 h and split at 2 h into two runs (the second after ``gap_h`` hours, as the next
+    shift): armed from the first run's snapshot (through its file form) the second raises no moved alarm and keeps
+    the live estimate within the bound; armed again from the original calibration, what it sees at once is the
+    camera away from that calibration (a moved or, as the filter takes the first samples for its refinement, a
+    drifting alarm) and its error over the workspace is larger."""
+    from calib.monitor.snapshot import snapshot_from_dict, snapshot_to_dict
+
+    shift = dataclasses.replace(simulate.Shift(), hours=4.0, bumps=((1.0, 5.0, 0.3),))
+    real, res, engine = _armed(3)
+    stream = simulate.shift_stream(real, shift, np.random.default_rng([3, 1]), PROFILE)
+    F = PROFILE.dh_error_factor(stream.q)
+    P = simulate.workspace_points(real, 100, np.random.default_rng(0))
+    split = len(stream.t) // 2
+    first = [engine.update(stream.t[i], stream.A[i], stream.points[i], stream.point_cov[i], F[i]).alarm
+             for i in range(split)]
+    assert first.count("moved") == 1
+    snapshot = snapshot_from_dict(snapshot_to_dict(engine.snapshot()))
+    carried, again = MonitorEngine(), _armed(3)[2]
+    t0 = stream.t[split] + gap_h * 3600.0
+    carried.resume(snapshot, t=t0)
+    arming = bench_shift.workspace_error(res.Y, res.camera_correction, real.camera, real.data.Y, P)
+    errors, errors_again, alarms, alarms_again = [], [], [], []
+    for i in range(split, len(stream.t)):
+        t = stream.t[i] + gap_h * 3600.0
+        upd = carried.update(t, stream.A[i], stream.points[i], stream.point_cov[i], F[i])
+        alarms.append(upd.alarm)
+        errors.append(bench_shift.workspace_error(upd.camera_transform, carried.camera_correction, real.camera,
+                                                  stream.Y[i], P))
+        up2 = again.update(t, stream.A[i], stream.points[i], stream.point_cov[i], F[i])
+        alarms_again.append(up2.alarm)
+        errors_again.append(bench_shift.workspace_error(up2.camera_transform, again.camera_correction, real.camera,
+                                                        stream.Y[i], P))
+    assert "moved" not in alarms
+    assert not any(alarms[:20])
+    assert np.percentile(errors, 95) <= max(1e-3, 1.5 * arming)
+    assert any(alarms_again[:20])
+    assert np.mean(errors_again[:20]) > 1.5 * np.mean(errors[:20])
+    assert carried.relearns == 1 and carried.moved_since(carried.origin)[0] > 2.0
