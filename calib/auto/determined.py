@@ -129,6 +129,23 @@ def _open_sentence(problem: CalibrationProblem, flange: np.ndarray, eye_to_hand:
             f"or give {offset}")
 
 
+def held_equivalent(X, Y, A, setup: str, motion: MotionPrior) -> tuple[np.ndarray, np.ndarray]:
+    """``(X, Y)`` moved along ``motion``'s open directions to the values its prior holds (nearest, in its
+    weights, when it holds more than is open: a given marker offset).
+
+    The samples cannot tell the two apart (every predicted marker point is
+    the same), so this is what ``auto`` should report when ``(X, Y)`` is the
+    truth: the yardstick for a result that holds part of the answer.
+    """
+    C, K, _ = model.split(X, Y, A, setup)
+    if not motion.leaves_open:
+        return X, Y
+    t = np.concatenate([C[:3, 3], K[:3, 3]])
+    rows = motion.prior.rows
+    t = t + motion.open @ np.linalg.lstsq(rows @ motion.open, -rows @ (t - motion.prior.target), rcond=None)[0]
+    return model.join(tf.make_transform(C[:3, :3], t[:3]), tf.make_transform(K[:3, :3], t[3:]), setup)
+
+
 def held_start(problem: CalibrationProblem, motion: MotionPrior) -> CalibrationResult:
     """A start for motions that leave the translations partly open (``motion``): registration, the prior held.
 
