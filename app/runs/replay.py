@@ -361,7 +361,8 @@ def format_table(rows: list[ReplayRow], setup: Setup) -> str:
 
 def advice(rows: list[ReplayRow], observations, *, refine: bool, target_mm: float = 0.0,
            target_deg: float = 0.0) -> list[str]:
-    """Lines under the tables: the recommendation, why refined rows agree, and warnings.
+    """Lines under the tables: the recommendation, why refined rows agree, and warnings (among them what a
+    result leaves undetermined, `calib.result.CalibrationResult.undetermined`).
 
     ``target_mm`` / ``target_deg``: the config's 1-sigma targets
     (``calibrate.target_sigma_mm/_deg``); 0 falls back to `DEFAULT_TARGET_MM`
@@ -397,6 +398,9 @@ def advice(rows: list[ReplayRow], observations, *, refine: bool, target_mm: floa
                      f"{spread_mm:.3f} mm / {spread_deg:.4f} deg: maximum-likelihood refinement takes "
                      "every solver's closed-form start to the same optimum, so they differ only in time "
                      "(replay without --refine to compare the closed forms)")
+    for r in ok:
+        # What the samples leave open (a grid at one tool orientation): the answer holds only given that value.
+        lines += [f"warning: {r.method}: {sentence}" for sentence in r.result.undetermined]
     t_mm = target_mm or DEFAULT_TARGET_MM
     t_deg = target_deg or DEFAULT_TARGET_DEG
     where = "the config's calibrate.target_sigma" if (target_mm or target_deg) else "the default target"

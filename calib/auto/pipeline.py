@@ -218,21 +218,24 @@ def _choose_camera(best: Candidate, camera_correction: str, n: int, notes: list)
 def _covariance(best: Candidate, free, data_sigma, camera_correction: str, shared_factor):
     """Camera covariance (6, 6) with its consider terms, the camera parameters' 1-sigma (3,), the shared
     robot error's share of the camera translation's 1-sigma (m, None without one) and the marker-side
-    translation's covariance (3, 3; without consider terms)."""
+    translation's covariance (3, 3; with the camera parameters' consider term)."""
     info_mat, _ = best.information(free)
     full_cov = np.linalg.inv(info_mat)
     cov = model.camera_block(info_mat)
+    k = best.prob.n_pose
+    cov_K = full_cov[k - 3:k, k - 3:k]
     if camera_correction != "none" and not free.all():
-        cov = cov + camera_consider(best, free, data_sigma)
+        consider = camera_consider(best, free, data_sigma)
+        cov = cov + consider[:6, :6]
+        cov_K = cov_K + consider[k - 3:k, k - 3:k]
     shared_m = None
     if shared_factor is not None:
         shared = shared_robot_consider(best, info_mat, shared_factor)
         cov = cov + shared
         shared_m = float(np.sqrt(np.trace(shared[3:6, 3:6])))
     sig_theta = np.zeros(3)
-    sig_theta[free] = np.sqrt(np.diag(full_cov)[best.prob.n_pose:])
-    k = best.prob.n_pose
-    return cov, sig_theta, shared_m, full_cov[k - 3:k, k - 3:k]
+    sig_theta[free] = np.sqrt(np.diag(full_cov)[k:])
+    return cov, sig_theta, shared_m, cov_K
 
 
 def _result(problem, start: _Start, best: Candidate, free, data_sigma, camera_correction, blocked, flips,
