@@ -9,7 +9,7 @@ from calib.auto.determined import held_equivalent, motion_prior
 from calib.errors import CalibrationError, DegenerateMotionError
 from calib.problem import CalibrationProblem
 from calib.refine import error_vector
-from calib.simulate import realistic_cell
+from calib.simulate import realistic_cell, with_gross_outliers
 
 #: The camera's systematic error of the cells here: ``auto`` must determine it from a grid too.
 CAMERA = model.CameraCorrection(depth_scale=0.015, depth_offset=0.003)
@@ -104,6 +104,16 @@ def test_one_axis_names_the_axis_and_pose_data_work_too():
     assert res.auto.measurements == ("points", "orientations")
     rot, _ = tf.pose_error(res.camera_transform, d.Y)
     assert rot < 4 * res.sigma[0]
+
+
+@pytest.mark.parametrize("setup", ["eye_to_hand", "eye_in_hand"])
+def test_outliers_in_a_grid_are_found(setup):
+    """15% gross outliers in a grid: the outlier search runs around the registration start and names them all."""
+    d = realistic_cell(80, np.random.default_rng(21), setup=setup, angle_range=0.0)
+    points, bad = with_gross_outliers(d.points, 0.15, np.random.default_rng(1))
+    res = solve("auto", d.A, points, setup=setup)
+    assert res.auto.start == "registration+LMedS" and res.rejected.tolist() == bad.tolist()
+    assert res.undetermined
 
 
 def test_the_offset_is_held_with_full_motions_too():
