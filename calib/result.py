@@ -158,7 +158,8 @@ class AutoDetails:
     Attributes
     ----------
     start : str
-        The closed form it started from (``"+LMedS"`` when the outlier search ran).
+        The closed form it started from, or ``"registration"`` (`calib.auto.determined.held_start`) when
+        the motions leave part of the translations open (``"+LMedS"`` when the outlier search ran).
     start_candidates : dict of str to float
         Each closed form tried and its median point residual, m.
     measurements : tuple of str

@@ -71,7 +71,10 @@ def solve_auto(problem: CalibrationProblem, *, camera_correction: str = "auto",
         "consider" covariance of camera parameters left at nominal
         (`CONSIDER_SIGMA`, unless ``camera_correction="none"``) and of the
         robot's shared error; ``cov_kind`` "fisher-extended"; ``self_check``;
-        ``auto`` (`calib.result.AutoDetails`).
+        ``auto`` (`calib.result.AutoDetails`); ``undetermined``: what the
+        motions leave open (`calib.auto.determined`; ``cov`` is then the one
+        given the value held), empty when they determine everything or the
+        problem's ``marker_offset`` completes it.
     """
     if camera_correction not in CAMERA_CORRECTIONS:
         raise CalibrationError(f"camera_correction must be one of {', '.join(CAMERA_CORRECTIONS)}, got {camera_correction!r}")
