@@ -87,19 +87,26 @@ def make_measure(cfg: Config):
     return measure
 
 
-def make_solve(cal: CalibrateConfig, setup: Setup, rng: np.random.Generator, shared_error=None):
+def make_solve(cal: CalibrateConfig, setup: Setup, rng: np.random.Generator, shared_error=None, marker=None):
     """``solve(observations, *, final)``: the configured solver, refined while running too if configured, so
     that the stop on the predicted 1-sigma and the pose planner see the covariance of the result that will
     be reported (with "auto": the camera-correction uncertainty too, until the samples determine it);
     outlier rejection only at the end.
 
     ``shared_error``: the robot's `Robot.shared_error_factor`; with ``auto`` and the joints of every sample
-    (``Observation.joints``), the error it models joins the covariance as shared by all samples."""
+    (``Observation.joints``), the error it models joins the covariance as shared by all samples.
+    ``marker``: the ``[marker]`` config, whose ``offset_m`` (with ``offset_sigma_m``) ``auto`` holds."""
     from calib.api import solve_observations
+    from calib.methods import is_auto
+
+    offset = {}
+    if marker is not None and marker.offset_m is not None and is_auto(cal.method):
+        offset = {"marker_offset": marker.offset_m, "marker_offset_sigma": marker.offset_sigma_m}
 
     def solve(observations, *, final: bool):
         return solve_observations(cal.method, observations, setup, refine=cal.refine, robust=cal.robust and final,
-                                  rng=rng, robot_shared_error=robot_shared_error(cal.method, observations, shared_error))
+                                  rng=rng, robot_shared_error=robot_shared_error(cal.method, observations, shared_error),
+                                  **offset)
 
     return solve
 

@@ -65,7 +65,8 @@ def solve(method: str, problem, B=None, *, refine: bool = False, robust: bool = 
         ``T_base_flange`` (m) here, ``B`` (N, 4, 4) ``T_cam_marker`` or (N, 3)
         marker centres in the camera frame (m) next, and the keywords of
         `CalibrationProblem.from_arrays` (``setup``, ``point_cov``,
-        ``robot_shared_error``). Eye-to-hand: ``X = T_flange_marker``,
+        ``robot_shared_error``, ``marker_offset``, ``marker_offset_sigma``;
+        the last three ``"auto"`` only). Eye-to-hand: ``X = T_flange_marker``,
         ``Y = T_base_cam``; eye-in-hand: ``X = T_flange_cam``, ``Y = T_base_marker``.
     refine : bool
         Maximum-likelihood refinement of the closed form (calib.refine).
@@ -100,7 +101,12 @@ def solve(method: str, problem, B=None, *, refine: bool = False, robust: bool = 
     InsufficientDataError
         Fewer samples than the method's minimum.
     DegenerateMotionError
-        The motions do not determine every unknown (the message says what to add).
+        The motions do not determine every unknown (the message says what to
+        add). ``"auto"`` raises it only when they determine too little to
+        answer at all; when they leave just the split between the two
+        translations open (a tool that never turns, or turns about one axis),
+        it reports what they determine, given the open part held, and names
+        the rest in ``result.undetermined`` (`calib.auto.determined`).
     """
     problem = as_problem(problem, B, **arrays)
     if is_auto(method):
@@ -111,6 +117,8 @@ def solve(method: str, problem, B=None, *, refine: bool = False, robust: bool = 
         raise CalibrationError(f"camera_correction applies to method 'auto' only, not {method!r}")
     if problem.robot_shared_error is not None:
         raise CalibrationError(f"robot_shared_error applies to method 'auto' only, not {method!r}")
+    if problem.marker_offset is not None:
+        raise CalibrationError(f"marker_offset applies to method 'auto' only, not {method!r}")
     return _solve_paper_method(resolve_method(method), problem, refine=refine, robust=robust, rng=rng)
 
 
@@ -167,7 +175,7 @@ def _covariance(info: MethodInfo, result: CalibrationResult, problem: Calibratio
 
 def solve_observations(method: str, observations: Sequence[Observation], setup: Setup, *, refine: bool = False,
                        robust: bool = False, rng: np.random.Generator | None = None,
-                       robot_shared_error=None) -> CalibrationResult:
+                       robot_shared_error=None, marker_offset=None, marker_offset_sigma=0.0) -> CalibrationResult:
     """Solve ``A_i X = Y B_i`` (paper eq. 1) for a list of samples with a named solver.
 
     Point methods (YKronT') get the depth-lifted marker centres ``point_cam``
@@ -176,9 +184,12 @@ def solve_observations(method: str, observations: Sequence[Observation], setup: 
     ``"auto"`` gets every measurement the samples carry
     (`CalibrationProblem.from_observations`); ``refine``/``robust`` do not
     apply, it always does both. ``robot_shared_error`` (``"auto"`` only):
-    (N, 6, P), one row per observation.
+    (N, 6, P), one row per observation. ``marker_offset`` (3,), m, and
+    ``marker_offset_sigma``, m (``"auto"`` only): the known marker-side
+    translation (`CalibrationProblem`).
     """
     measurements = "all" if is_auto(method) else resolve_method(method).needs
     problem = CalibrationProblem.from_observations(observations, setup, measurements=measurements,
-                                                   robot_shared_error=robot_shared_error)
+                                                   robot_shared_error=robot_shared_error,
+                                                   marker_offset=marker_offset, marker_offset_sigma=marker_offset_sigma)
     return solve(method, problem, refine=refine, robust=robust, rng=rng)

@@ -124,7 +124,8 @@ def consistency(data: model.WeightedData, prob: model.Linearization, C, K, theta
     """`self_check`'s numbers from the fitted problem and its leave-one-out errors / predicted RMS (m)."""
     r = prob.raw(C, K, theta)[0]          # p minus the prediction (at the fit's estimate: evaluated already)
     d2 = float(np.sum(model.whitened_squares(data.shape_whitener, r)))
-    dof = max(3 * len(prob.p) - prob.n_params, 1)
+    # A prior's rows count as observations (a held direction is no unknown).
+    dof = max(3 * len(prob.p) + (0 if prob.prior is None else len(prob.prior.rows)) - prob.n_params, 1)
     p_value = float(chdtrc(dof, d2))           # chi2.sf(d2, dof) without scipy.stats' argument handling
     obs = float(np.sqrt(np.mean(errors**2)))
     pre = float(np.sqrt(np.mean(predicted**2)))

@@ -9,6 +9,7 @@ marker centre in the camera frame). Eye-to-hand ``X = T_flange_marker``,
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass
 from typing import Sequence
 
@@ -48,6 +49,14 @@ class CalibrationProblem:
         Only ``auto`` uses it (a "consider" covariance).
     kept : ndarray of int, shape (N,)
         Position of each sample in the observations it was built from (``arange(N)`` from arrays).
+    marker_offset : ndarray, shape (3,), or None
+        The marker-side translation, known (m): eye-to-hand the marker's
+        offset on the flange (``t_flange_marker``), eye-in-hand the static
+        marker's position in the base frame (``t_base_marker``). Only ``auto``
+        uses it: held at it (to ``marker_offset_sigma``), it completes what
+        motions that never turn the tool about two axes leave open.
+    marker_offset_sigma : float
+        Its 1-sigma per axis, m (0: held as given).
     """
 
     setup: Setup
@@ -56,10 +65,12 @@ class CalibrationProblem:
     point_cov: np.ndarray | None = None
     robot_shared_error: np.ndarray | None = None
     kept: np.ndarray | None = None
+    marker_offset: np.ndarray | None = None
+    marker_offset_sigma: float = 0.0
 
     @classmethod
     def from_arrays(cls, A, B, *, setup: Setup = Setup.EYE_TO_HAND, point_cov=None,
-                    robot_shared_error=None) -> "CalibrationProblem":
+                    robot_shared_error=None, marker_offset=None, marker_offset_sigma=0.0) -> "CalibrationProblem":
         """Validate arrays into a problem.
 
         Parameters
@@ -71,6 +82,10 @@ class CalibrationProblem:
         setup : {"eye_to_hand", "eye_in_hand"}
         point_cov : array_like, shape (3, 3) or (N, 3, 3), optional
         robot_shared_error : array_like, shape (N, 6, P), optional
+        marker_offset : array_like, shape (3,), optional
+            The known marker-side translation, m (see the class attributes).
+        marker_offset_sigma : float
+            Its 1-sigma, m (0: held as given).
 
         Raises
         ------
@@ -81,12 +96,14 @@ class CalibrationProblem:
         setup = check_setup(setup)
         A, B = check_measurements(A, B)
         n = len(A)
+        offset, sigma = check_marker_offset(marker_offset, marker_offset_sigma)
         return cls(setup, A, B, check_point_cov(point_cov, n), check_shared_error(robot_shared_error, n),
-                   np.arange(n))
+                   np.arange(n), offset, sigma)
 
     @classmethod
     def from_observations(cls, observations: Sequence[Observation], setup: Setup, *, measurements: str = "all",
-                          robot_shared_error=None) -> "CalibrationProblem":
+                          robot_shared_error=None, marker_offset=None,
+                          marker_offset_sigma=0.0) -> "CalibrationProblem":
         """The problem of a list of samples; samples lacking the measurement asked for are left out.
 
         ``measurements="all"``: the depth-lifted marker centres ``point_cam``
@@ -96,6 +113,7 @@ class CalibrationProblem:
         ``"points"``: the centres alone. ``"poses"``: ``T_cam_marker`` as
         measured, with the translation block of ``pose_cov`` as point
         covariance. ``robot_shared_error``: (N, 6, P), one row per observation.
+        ``marker_offset``, ``marker_offset_sigma``: as `from_arrays`.
         """
         if measurements not in MEASUREMENTS:
             raise CalibrationError(f"measurements must be one of {', '.join(MEASUREMENTS)}, got {measurements!r}")
@@ -115,13 +133,13 @@ class CalibrationProblem:
                 raise CalibrationError(f"robot_shared_error must have one row per observation ({len(observations)}), "
                                        f"got shape {factor.shape}")
             robot_shared_error = factor[kept]
-        problem = cls.from_arrays(A, B, setup=setup, point_cov=point_cov, robot_shared_error=robot_shared_error)
+        problem = cls.from_arrays(A, B, setup=setup, point_cov=point_cov, robot_shared_error=robot_shared_error,
+                                  marker_offset=marker_offset, marker_offset_sigma=marker_offset_sigma)
         return problem.with_kept(kept)
 
     def with_kept(self, kept) -> "CalibrationProblem":
         """The same samples, numbered by their positions ``kept`` in the source observations."""
-        return CalibrationProblem(self.setup, self.A, self.B, self.point_cov, self.robot_shared_error,
-                                  np.asarray(kept, dtype=int))
+        return dataclasses.replace(self, kept=np.asarray(kept, dtype=int))
 
     @property
     def n(self) -> int:
@@ -146,14 +164,14 @@ class CalibrationProblem:
     def subset(self, index) -> "CalibrationProblem":
         """The samples ``index`` (a boolean mask or indices), without re-validation."""
         idx = np.asarray(index)
-        return CalibrationProblem(
-            self.setup, self.A[idx], self.B[idx], None if self.point_cov is None else self.point_cov[idx],
-            None if self.robot_shared_error is None else self.robot_shared_error[idx],
-            None if self.kept is None else self.kept[idx])
+        return dataclasses.replace(
+            self, A=self.A[idx], B=self.B[idx], point_cov=None if self.point_cov is None else self.point_cov[idx],
+            robot_shared_error=None if self.robot_shared_error is None else self.robot_shared_error[idx],
+            kept=None if self.kept is None else self.kept[idx])
 
     def with_measurements(self, B) -> "CalibrationProblem":
         """The same robot poses with other measurements of the same samples (e.g. flips resolved), trusted."""
-        return CalibrationProblem(self.setup, self.A, B, self.point_cov, self.robot_shared_error, self.kept)
+        return dataclasses.replace(self, B=B)
 
 
 def check_shared_error(robot_shared_error, n: int) -> np.ndarray | None:
@@ -164,6 +182,19 @@ def check_shared_error(robot_shared_error, n: int) -> np.ndarray | None:
     if factor.ndim != 3 or factor.shape[:2] != (n, 6) or factor.shape[2] < 1:
         raise CalibrationError(f"robot_shared_error must have shape ({n}, 6, P), got {factor.shape}")
     return factor
+
+
+def check_marker_offset(marker_offset, sigma) -> tuple[np.ndarray | None, float]:
+    """Validate a known marker-side translation (3,), m, and its 1-sigma (m, >= 0); None passes."""
+    s = tf.as_real_array(sigma, "marker_offset_sigma")
+    if s.shape != () or s < 0.0:
+        raise CalibrationError(f"marker_offset_sigma must be one 1-sigma >= 0 (m), got {s.tolist()}")
+    if marker_offset is None:
+        return None, float(s)
+    offset = tf.as_real_array(marker_offset, "marker_offset")
+    if offset.shape != (3,):
+        raise CalibrationError(f"marker_offset must be 3 numbers (x, y, z in m), got shape {offset.shape}")
+    return offset.copy(), float(s)
 
 
 def observations_to_arrays(observations: Sequence[Observation], kind: str):
@@ -196,7 +227,8 @@ def observations_to_arrays(observations: Sequence[Observation], kind: str):
 
 def as_problem(problem_or_A, B=None, **arrays) -> CalibrationProblem:
     """``problem_or_A`` if it is a `CalibrationProblem`, else the array form ``(A, B, **arrays)`` validated
-    (`CalibrationProblem.from_arrays`: ``setup``, ``point_cov``, ``robot_shared_error``)."""
+    (`CalibrationProblem.from_arrays`: ``setup``, ``point_cov``, ``robot_shared_error``, ``marker_offset``,
+    ``marker_offset_sigma``)."""
     if isinstance(problem_or_A, CalibrationProblem):
         extra = [k for k, v in arrays.items() if v is not None] + (["B"] if B is not None else [])
         if extra:

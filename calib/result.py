@@ -158,7 +158,8 @@ class AutoDetails:
     Attributes
     ----------
     start : str
-        The closed form it started from (``"+LMedS"`` when the outlier search ran).
+        The closed form it started from, or ``"registration"`` (`calib.auto.determined.held_start`) when
+        the motions leave part of the translations open (``"+LMedS"`` when the outlier search ran).
     start_candidates : dict of str to float
         Each closed form tried and its median point residual, m.
     measurements : tuple of str
@@ -203,6 +204,13 @@ class CalibrationResult:
     The point-only method (YKronT') recovers only the translation of the
     marker-side transform and reports identity for its rotation
     (``marker_rotation_known`` is False).
+
+    ``undetermined`` names, in plain sentences, what the samples leave open
+    and the motion (or the known value) that closes it; empty when they
+    determine everything. ``auto`` fills it when the tool never turned or
+    turned about one axis only (`calib.auto.determined`): the open part is
+    then held at a stated value, and ``X``, ``Y`` and ``cov`` are the
+    determined answer given it.
     """
 
     method: str
@@ -221,6 +229,7 @@ class CalibrationResult:
     robust: RobustDetails | None = None
     refinement: RefineDetails | None = None
     auto: AutoDetails | None = None
+    undetermined: tuple[str, ...] = ()
 
     def __post_init__(self):
         # A NaN/inf anywhere means the data did not determine the solution (e.g. a

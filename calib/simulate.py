@@ -143,12 +143,15 @@ def realistic_cell(
     sigma_depth: float = 0.003,
     pose_noise: tuple[float, float] = (np.deg2rad(1.0), 0.002),
     robot_noise: tuple[float, float] = (0.0, 0.0),
+    rotation_axis=None,
 ) -> SimulatedData:
     """A UR10 cell like the paper's real experiment, with known truth.
 
     The flange starts ``distance`` m in front of the camera with the marker
     facing it; each sample moves the flange by up to ``translation_range`` m
-    per axis and rotates it by up to ``angle_range`` rad about a random axis.
+    per axis and rotates it by up to ``angle_range`` rad about a random axis,
+    or about ``rotation_axis`` (3,) of the flange frame only if given.
+    ``angle_range=0`` gives a grid recording: the tool at one orientation.
     Points get Gaussian noise with ``sigma_lateral`` across and ``sigma_depth``
     along the viewing ray; poses B get Gaussian noise of ``pose_noise``
     (rad, m) standard deviation per axis; A gets ``robot_noise`` likewise.
@@ -180,7 +183,12 @@ def realistic_cell(
         T_base_marker = A0 @ X @ tf.make_transform(Rotation.from_euler("y", np.pi).as_matrix(), [0, 0, distance])
         Y = T_base_marker
 
-    dR = tf.random_rotations(n, angle_range, rng)
+    if rotation_axis is None:
+        dR = tf.random_rotations(n, angle_range, rng)
+    else:
+        # About the flange axis u: R_flange0 Exp(a u) = Exp(a R_flange0 u) R_flange0.
+        u = R_flange0 @ (np.asarray(rotation_axis, dtype=float) / np.linalg.norm(rotation_axis))
+        dR = tf.so3_exp(rng.uniform(-angle_range, angle_range, size=(n, 1)) * u)
     dt = rng.uniform(-translation_range, translation_range, size=(n, 3))
     A_true = tf.make_transform(dR @ R_flange0, p0 + dt)
     if setup == Setup.EYE_TO_HAND:

@@ -29,6 +29,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--bag", action="store_true",
                    help="run only the ROS 2 bag import benchmark (app.benchmarks.ros2_bag: a 2-minute demo bag "
                    "per storage, 5.5 GB each, written and removed; other arguments go to it)")
+    p.add_argument("--grids", action="store_true",
+                   help="only the benchmark of recordings that leave part of the answer open (bench.grids: a grid "
+                   "at one tool orientation, rotations about one axis; --cells, --n)")
     p.add_argument("--realsense", action="store_true",
                    help="run only the RealSense path benchmark (bench.realsense: librealsense's software device)")
 
@@ -66,6 +69,10 @@ def run(args) -> int:
         from app.benchmarks import ros2_bag
 
         return int(ros2_bag.main(args.extra) or 0)
+    if args.grids:
+        from bench import grids
+
+        return int(grids.main(args.extra) or 0)
     if args.realsense:
         from bench import realsense
 

@@ -37,6 +37,17 @@ def until_sigma(text: str) -> tuple[float, float]:
     return mm, deg
 
 
+def marker_offset(text: str) -> tuple[float, float, float]:
+    """``--marker-offset`` value: ``X,Y,Z`` in mm (e.g. ``0,0,52.5``), returned in m."""
+    try:
+        xyz = tuple(float(v) * 1e-3 for v in text.split(","))
+    except ValueError:
+        xyz = ()
+    if len(xyz) != 3 or not np.isfinite(xyz).all():
+        raise argparse.ArgumentTypeError(f"expected X,Y,Z in mm (e.g. 0,0,52.5), got {text!r}")
+    return xyz
+
+
 def add_motion_options(p: argparse.ArgumentParser) -> None:
     """Where an active run moves (calibrate, demo)."""
     p.add_argument("--poses", help="'optimal' (information-planned, default), 'random', or a plan.json "

@@ -11,6 +11,7 @@ from pathlib import Path
 import numpy as np
 
 from app import devices
+from app.commands.common import marker_offset
 from app.errors import SessionError
 from app.runs.replay import replay_settings, replay_source, write_outputs
 from calib.setup import Setup
@@ -41,6 +42,13 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    "of the recommended solver into DIR, as calibrate writes them into its session; with --monitor: "
                    "monitor_trace.csv, alarms.yaml, monitor_trace.png and calibration_in_use.yaml (default "
                    "<session>/monitor_replay)")
+    p.add_argument("--marker-offset", type=marker_offset, metavar="X,Y,Z",
+                   help="where the marker is, in mm, when known (overrides the config's [marker] offset_m): "
+                   "eye-to-hand its centre in the flange frame (a measured TCP), eye-in-hand the static marker's "
+                   "centre in the base frame; auto holds it, which completes a recording whose tool never turned "
+                   "about two axes (a grid at one orientation)")
+    p.add_argument("--marker-offset-sigma", type=float, metavar="MM",
+                   help="1-sigma of --marker-offset per axis, mm (default 0: held as given)")
     p.add_argument("--monitor", action="store_true", help="stream the session through the monitoring engine "
                    "(alarms, monitor_trace.csv and a plot into --out); needs --reference")
     p.add_argument("--reference", type=Path, help="--monitor: calibration session (or its result.yaml) that arms "
@@ -50,7 +58,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 def run(args) -> int:
     methods = args.methods or ["auto"]
-    settings = replay_settings(args.config)
+    settings = replay_settings(args.config, marker_offset=args.marker_offset,
+                               marker_offset_sigma_mm=args.marker_offset_sigma)
     if args.monitor:
         from app.monitor_replay import replay_monitor, summary
 
@@ -66,6 +75,7 @@ def run(args) -> int:
     outcome = replay_source(args.source, methods, refine=args.refine, robust=args.robust, setup=args.setup,
                             rng=np.random.default_rng(args.seed), target_mm=settings.target_mm,
                             target_deg=settings.target_deg, shared_error=settings.shared_error,
+                            marker_offset=settings.marker_offset, marker_offset_sigma=settings.marker_offset_sigma,
                             import_options=devices.import_options(settings.config, frames=args.frames,
                                                                   topics=args.topics))
     print(outcome.text)

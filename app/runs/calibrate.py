@@ -125,7 +125,8 @@ def calibrate(cfg: Config, *, resume: Path | None = None, progress: bool = True)
             poses = planning.make_pose_source(cfg, robot, camera.intrinsics, robot.read().T_base_flange, rng)
             with progress_bar(total=cfg.calibrate.samples, initial=len(initial), enabled=progress) as bar:
                 report = run_calibration(robot, camera, devices.make_measure(cfg),
-                                         devices.make_solve(cfg.calibrate, cfg.setup, rng, robot.shared_error_factor),
+                                         devices.make_solve(cfg.calibrate, cfg.setup, rng, robot.shared_error_factor,
+                                                            cfg.marker),
                                          writer, cfg.calibrate,
                                          rng, viz, save_frames=cfg.session.save_frames, progress=bar,
                                          initial=initial, poses=poses)

@@ -42,7 +42,9 @@ class ReplaySettings:
     ``target_mm``/``target_deg``: the 1-sigma targets of the warnings (0: `DEFAULT_TARGET_MM` /
     `DEFAULT_TARGET_DEG`); ``shared_error``: the robot's kinematic error model
     (`KinematicModel.shared_error_factor`) or None; ``exports``, ``frames``: what ``--out`` writes;
-    ``config``: the config itself (None without one).
+    ``config``: the config itself (None without one); ``marker_offset`` (3,), m, or None and
+    ``marker_offset_sigma``, m: the known marker-side translation ``auto`` holds
+    (`calib.problem.CalibrationProblem.marker_offset`; ``--marker-offset`` or ``[marker] offset_m``).
     """
 
     target_mm: float = 0.0
@@ -51,19 +53,25 @@ class ReplaySettings:
     exports: list = field(default_factory=lambda: list(devices.RESULT_FILES))
     frames: dict | None = None
     config: object = None
+    marker_offset: tuple | None = None
+    marker_offset_sigma: float = 0.0
 
 
-def replay_settings(config: Path | None) -> ReplaySettings:
-    """`ReplaySettings` of the config at ``config`` (defaults for None)."""
+def replay_settings(config: Path | None, *, marker_offset=None, marker_offset_sigma_mm=None) -> ReplaySettings:
+    """`ReplaySettings` of the config at ``config`` (defaults for None), with the command line's marker offset
+    (m) and its 1-sigma (mm) over the config's ``[marker] offset_m`` / ``offset_sigma_m``."""
+    sigma = None if marker_offset_sigma_mm is None else marker_offset_sigma_mm * 1e-3
     if config is None:
-        return ReplaySettings()
+        return ReplaySettings(marker_offset=marker_offset, marker_offset_sigma=sigma or 0.0)
     from app.config import load_config
 
     cfg = load_config(config)
     model = kinematic_model(cfg.robot)   # (from the config: no driver is built)
     shared_error = None if model is None else model.shared_error_factor
     return ReplaySettings(cfg.calibrate.target_sigma_mm, cfg.calibrate.target_sigma_deg, shared_error,
-                          cfg.session.exports, cfg.frames.model_dump(), cfg)
+                          cfg.session.exports, cfg.frames.model_dump(), cfg,
+                          marker_offset if marker_offset is not None else cfg.marker.offset_m,
+                          sigma if sigma is not None else cfg.marker.offset_sigma_m)
 
 
 @dataclass
@@ -100,11 +108,12 @@ def write_outputs(outcome: "ReplayOutcome", out_dir: Path, exports, frames: dict
 def replay_source(source: Path, methods: list[str], *, refine: bool = False, robust: bool = False,
                   setup: Setup | None = None, rng: np.random.Generator | None = None,
                   target_mm: float = 0.0, target_deg: float = 0.0, shared_error=None,
+                  marker_offset=None, marker_offset_sigma: float = 0.0,
                   import_options: dict | None = None) -> ReplayOutcome:
     """Re-solve a session directory or an imported file with each method; returns the outcome whose
     ``text`` is the report: the tables grouped by what the solvers use and sorted by held-out error, then
-    the advice (`advice`; ``target_mm``/``target_deg`` are the config's 1-sigma targets; ``shared_error``:
-    `replay`; ``import_options``: `app.devices.import_options`)."""
+    the advice (`advice`; ``target_mm``/``target_deg`` are the config's 1-sigma targets; ``shared_error``,
+    ``marker_offset``, ``marker_offset_sigma``: `replay`; ``import_options``: `app.devices.import_options`)."""
     if not Path(source).exists():
         raise SessionError(f"{source}: no such file or directory")
     if (Path(source) / "session.json").exists():
@@ -123,7 +132,8 @@ def replay_source(source: Path, methods: list[str], *, refine: bool = False, rob
         methods = list(METHODS)
     T_true = devices.camera_truth(setup, truth)
     rows = replay(observations, setup, methods, refine=refine, robust=robust,
-                  truth=T_true, rng=rng, shared_error=shared_error)
+                  truth=T_true, rng=rng, shared_error=shared_error, marker_offset=marker_offset,
+                  marker_offset_sigma=marker_offset_sigma)
     if all(r.result is None for r in rows):
         raise HandeyeError(f"no solver succeeded on {source}: " + "; ".join(f"{r.method}: {r.error}" for r in rows))
     lines = advice(rows, observations, refine=refine, target_mm=target_mm, target_deg=target_deg)
@@ -196,9 +206,10 @@ def _uses(method: str) -> str:
 
 
 def heldout_error(method: str, observations, setup: Setup, *, refine: bool, robust: bool,
-                  rng: np.random.Generator | None):
+                  rng: np.random.Generator | None, marker_offset=None, marker_offset_sigma: float = 0.0):
     """`calib.crossval.cross_validate` of ``method`` on the samples it uses (leave-one-out up to 10
-    samples, else 5 folds: a few solves per method); returns ``(CrossValidation or None, reason or None)``."""
+    samples, else 5 folds: a few solves per method); returns ``(CrossValidation or None, reason or None)``.
+    ``marker_offset`` (m) and ``marker_offset_sigma`` (m): ``auto``'s known marker-side translation."""
     from calib.api import resolve_method
     from calib.crossval import cross_validate
     from calib.problem import CalibrationProblem
@@ -207,7 +218,9 @@ def heldout_error(method: str, observations, setup: Setup, *, refine: bool, robu
         # The samples as calib.api.solve_observations takes them for this method.
         info = None if _is_auto(method) else resolve_method(method)
         problem = CalibrationProblem.from_observations(observations, setup,
-                                                       measurements="all" if info is None else info.needs)
+                                                       measurements="all" if info is None else info.needs,
+                                                       marker_offset=marker_offset if info is None else None,
+                                                       marker_offset_sigma=marker_offset_sigma)
         name = method if info is None else info.name
         folds = None if problem.n <= 10 else 5
         return cross_validate(name, problem, folds=folds, rng=rng, refine=refine, robust=robust), None
@@ -226,6 +239,8 @@ def replay(
     rng: np.random.Generator | None = None,
     crossval: bool = True,
     shared_error=None,
+    marker_offset=None,
+    marker_offset_sigma: float = 0.0,
 ) -> list[ReplayRow]:
     """Solve the same samples with each method, time it, and cross-validate it.
 
@@ -244,6 +259,10 @@ def replay(
         A robot's `Robot.shared_error_factor`: ``auto`` adds the error it
         models as shared by the samples, when they carry their joints
         (`app.devices.robot_shared_error`).
+    marker_offset : array_like, shape (3,), optional
+        The known marker-side translation, m, and ``marker_offset_sigma`` its
+        1-sigma (m): ``auto`` holds it (`calib.problem.CalibrationProblem`);
+        the paper's methods do not take it.
 
     Returns
     -------
@@ -256,7 +275,8 @@ def replay(
         t0 = time.perf_counter()
         try:
             res = solve_observations(method, observations, setup, refine=refine, robust=robust, rng=rng,
-                                     robot_shared_error=devices.robot_shared_error(method, observations, shared_error))
+                                     robot_shared_error=devices.robot_shared_error(method, observations, shared_error),
+                                     **_offset(method, marker_offset, marker_offset_sigma))
         except HandeyeError as e:
             rows.append(ReplayRow(method, None, time.perf_counter() - t0, error=str(e), uses=_uses(method)))
             continue
@@ -268,9 +288,17 @@ def replay(
         row = ReplayRow(method, res, dt, truth_error=err, uses=_uses(method))
         if crossval:
             row.heldout, row.heldout_error = heldout_error(method, observations, setup, refine=refine,
-                                                           robust=robust, rng=rng)
+                                                           robust=robust, rng=rng,
+                                                           **_offset(method, marker_offset, marker_offset_sigma))
         rows.append(row)
     return rows
+
+
+def _offset(method: str, marker_offset, sigma: float) -> dict:
+    """The marker-offset keywords of ``method``'s solve: ``auto`` takes them, the paper's methods do not."""
+    if marker_offset is None or not _is_auto(method):
+        return {}
+    return {"marker_offset": marker_offset, "marker_offset_sigma": sigma}
 
 
 def _rank_key(r: ReplayRow):
@@ -333,7 +361,8 @@ def format_table(rows: list[ReplayRow], setup: Setup) -> str:
 
 def advice(rows: list[ReplayRow], observations, *, refine: bool, target_mm: float = 0.0,
            target_deg: float = 0.0) -> list[str]:
-    """Lines under the tables: the recommendation, why refined rows agree, and warnings.
+    """Lines under the tables: the recommendation, why refined rows agree, and warnings (among them what a
+    result leaves undetermined, `calib.result.CalibrationResult.undetermined`).
 
     ``target_mm`` / ``target_deg``: the config's 1-sigma targets
     (``calibrate.target_sigma_mm/_deg``); 0 falls back to `DEFAULT_TARGET_MM`
@@ -369,6 +398,9 @@ def advice(rows: list[ReplayRow], observations, *, refine: bool, target_mm: floa
                      f"{spread_mm:.3f} mm / {spread_deg:.4f} deg: maximum-likelihood refinement takes "
                      "every solver's closed-form start to the same optimum, so they differ only in time "
                      "(replay without --refine to compare the closed forms)")
+    for r in ok:
+        # What the samples leave open (a grid at one tool orientation): the answer holds only given that value.
+        lines += [f"warning: {r.method}: {sentence}" for sentence in r.result.undetermined]
     t_mm = target_mm or DEFAULT_TARGET_MM
     t_deg = target_deg or DEFAULT_TARGET_DEG
     where = "the config's calibrate.target_sigma" if (target_mm or target_deg) else "the default target"

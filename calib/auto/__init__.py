@@ -6,7 +6,12 @@ eye-in-hand ``X = T_flange_cam``, ``Y = T_base_marker``; paper eq. 1):
 1. Start: the best closed form of the paper for the data (YKronT' from the
    marker points; with marker poses also YQuatT' and YKronRT), chosen by the
    median point residual. Pose data first get their half-turn / flip
-   ambiguity resolved (`calib.symmetry`).
+   ambiguity resolved (`calib.symmetry`). Motions that leave the split
+   between the two translations open (the tool never turns, or turns about
+   one axis: `calib.auto.determined`) start from a registration instead
+   (no closed form of the paper can), and every fit holds that part (at a
+   given marker offset, else at zero) with a prior; the result names it in
+   ``undetermined``. A given marker offset is held whatever the motions.
 2. Outliers: if the start's residuals show any (chi-square test at a robust
    scale), the LMedS search of `calib.robust` around that closed form.
 3. Maximum likelihood on the inliers with the extended model: marker points
@@ -35,7 +40,7 @@ eye-in-hand ``X = T_flange_cam``, ``Y = T_base_marker``; paper eq. 1):
    inside every ``solve``).
 
 Modules: `calib.auto.pipeline` (``solve_auto``, the stages), `calib.auto.fit`,
-`calib.auto.camera`, `calib.auto.consider`, `calib.auto.blocked`.
+`calib.auto.camera`, `calib.auto.consider`, `calib.auto.blocked`, `calib.auto.determined`.
 """
 
 

@@ -11,7 +11,6 @@ from calib import transforms as tf
 from calib.auto.fit import FIT_TOL, Candidate, fit_components
 from calib.diagnostics import initial_noise
 from calib.errors import CalibrationError
-from calib.methods import closed_form
 from calib.problem import CalibrationProblem
 from calib.result import BlockedCandidate, BlockedFolds, CalibrationResult
 
@@ -58,7 +57,7 @@ def _blocked_error(cand: Candidate, free, problem: CalibrationProblem, shape, fo
     misses = []
     for test in folds:
         train = np.setdiff1d(np.arange(len(A)), test)
-        fit = model.WeightedData(A[train], B[train], setup, shape[train], cand.fit.use_rotation)
+        fit = model.WeightedData(A[train], B[train], setup, shape[train], cand.fit.use_rotation, prior=cand.fit.prior)
         prob, _ = fit.linearize(cand.C, cand.K, cand.noise, tuple(bool(f) for f in free))
         try:
             C, K, theta, *_ = model.minimize(prob, cand.C, cand.K, cand.theta, max_iterations=BLOCKED_ITERATIONS,
@@ -70,12 +69,12 @@ def _blocked_error(cand: Candidate, free, problem: CalibrationProblem, shape, fo
     return float(np.sqrt(np.mean(np.sum(np.concatenate(misses) ** 2, axis=1))))
 
 
-def _closed_form_blocked_error(name: str, problem: CalibrationProblem, folds) -> float:
-    """`_blocked_error` of the closed form ``name`` (solved again without each block); inf where it fails."""
+def _closed_form_blocked_error(solve_start, problem: CalibrationProblem, folds) -> float:
+    """`_blocked_error` of the start, ``solve_start(problem)`` solved again without each block; inf where it fails."""
     misses = []
     for test in folds:
         try:
-            res = closed_form(name, problem.subset(np.setdiff1d(np.arange(problem.n), test)))
+            res = solve_start(problem.subset(np.setdiff1d(np.arange(problem.n), test)))
         except CalibrationError:
             return float("inf")
         C, K, M = model.split(res.X, res.Y, problem.A[test], problem.setup)
@@ -91,9 +90,9 @@ def _scored(best: Candidate, free, problem: CalibrationProblem, shape, W_shape, 
     none = np.zeros(3, dtype=bool)
     fits = {best.fit.use_rotation: best.fit}
     if has_rotation and not best.fit.use_rotation:
-        fits[True] = model.WeightedData(A, B, setup, shape, True, shape_whitener=W_shape)
+        fits[True] = model.WeightedData(A, B, setup, shape, True, shape_whitener=W_shape, prior=best.fit.prior)
     elif has_rotation:
-        fits[False] = model.WeightedData(A, B, setup, shape, False, shape_whitener=W_shape)
+        fits[False] = model.WeightedData(A, B, setup, shape, False, shape_whitener=W_shape, prior=best.fit.prior)
     # (complexity, rotation, free): the plainest first; a dropped measurement set counts half a parameter.
     grid = sorted({(int(f.any()) * int(free.sum()) + (0.5 if not rot and has_rotation else 0.0), rot, f.any())
                    for rot in fits for f in ([none, free] if free.any() else [none])})
@@ -115,7 +114,8 @@ def _scored(best: Candidate, free, problem: CalibrationProblem, shape, W_shape, 
     return scored
 
 
-def blocked_choice(best: Candidate, free, problem: CalibrationProblem, shape, W_shape, start: CalibrationResult):
+def blocked_choice(best: Candidate, free, problem: CalibrationProblem, shape, W_shape, start: CalibrationResult,
+                   solve_start):
     """The model choices made by leave-one-out, checked against blocked folds: a simpler model that predicts
     contiguous held-out stretches of the recording at least as well replaces them.
 
@@ -131,7 +131,8 @@ def blocked_choice(best: Candidate, free, problem: CalibrationProblem, shape, W_
     Last, the closed-form start, solved again without each stretch: if it
     predicts them better by `START_GAIN`, it is reported (its covariance that
     of the plain model at its estimate), so that ``auto`` does not carry
-    worse to another session than where it started.
+    worse to another session than where it started (``solve_start(problem)``
+    solves it again: the closed form, or `calib.auto.determined.held_start`).
 
     Returns ``(best, free, note or None, BlockedFolds)``.
     """
@@ -152,7 +153,7 @@ def blocked_choice(best: Candidate, free, problem: CalibrationProblem, shape, W_
     chosen = simpler[0] if simpler else next(item for item in scored if item[0] is best)
     # The closed-form start, plainer still: reported when the fits do not predict the stretches better.
     name = start.method.split("+")[0]
-    e_start = _closed_form_blocked_error(name, problem, folds)
+    e_start = _closed_form_blocked_error(solve_start, problem, folds)
     candidates.insert(0, BlockedCandidate(heldout_m=e_start, closed_form=name))
     if e_start < (1.0 - START_GAIN) * chosen[2]:
         cand, note = _closed_form_choice(scored[0][0], best, problem, start, name, chosen[2], e_start)

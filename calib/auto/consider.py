@@ -16,7 +16,8 @@ CONSIDER_SIGMA = {"depth_scale": 0.01, "depth_offset": 0.003, "focal_scale": 0.0
 
 
 def camera_consider(best: Candidate, free, data_sigma) -> np.ndarray:
-    """Camera covariance (6, 6) added by the camera parameters left at nominal ("consider" covariance).
+    """Covariance of the pose unknowns (n_pose, n_pose; the camera transform first, 6) added by the camera
+    parameters left at nominal ("consider" covariance).
 
     They are not estimated, but a real camera has such errors: the estimate
     moves by ``S dtheta_c`` with ``S = -N_xx^-1 N_xc`` for an error
@@ -28,7 +29,7 @@ def camera_consider(best: Candidate, free, data_sigma) -> np.ndarray:
     info, n_pose = best.information((True, True, True))
     x = np.r_[np.arange(n_pose), n_pose + np.flatnonzero(free)]
     c = n_pose + np.flatnonzero(~free)
-    S = np.linalg.solve(info[np.ix_(x, x)], info[np.ix_(x, c)])[:6]
+    S = np.linalg.solve(info[np.ix_(x, x)], info[np.ix_(x, c)])[:n_pose]
     names = [model.CAMERA_PARAMS[i - n_pose] for i in c]
     sig = np.array([min(CONSIDER_SIGMA[m], data_sigma.get(m, np.inf)) for m in names])
     out = (S * sig**2) @ S.T

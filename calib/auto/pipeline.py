@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass
 
 import numpy as np
@@ -12,6 +13,7 @@ from calib import transforms as tf
 from calib.auto.blocked import MIN_SAMPLES_BLOCKED, blocked_choice
 from calib.auto.camera import CAMERA_CORRECTIONS, MIN_SAMPLES_CAMERA, free_for, select_camera, step_helps
 from calib.auto.consider import camera_consider, shared_robot_consider
+from calib.auto.determined import MotionPrior, determined_note, held_start, motion_prior
 from calib.auto.fit import Candidate, better, fit_components
 from calib.diagnostics import consistency, initial_noise
 from calib.errors import CalibrationError
@@ -69,23 +71,38 @@ def solve_auto(problem: CalibrationProblem, *, camera_correction: str = "auto",
         "consider" covariance of camera parameters left at nominal
         (`CONSIDER_SIGMA`, unless ``camera_correction="none"``) and of the
         robot's shared error; ``cov_kind`` "fisher-extended"; ``self_check``;
-        ``auto`` (`calib.result.AutoDetails`).
+        ``auto`` (`calib.result.AutoDetails`); ``undetermined``: what the
+        motions leave open (`calib.auto.determined`; ``cov`` is then the one
+        given the value held), empty when they determine everything or the
+        problem's ``marker_offset`` completes it.
     """
     if camera_correction not in CAMERA_CORRECTIONS:
         raise CalibrationError(f"camera_correction must be one of {', '.join(CAMERA_CORRECTIONS)}, got {camera_correction!r}")
     notes: list[str] = []
     problem, flips = _resolve_flips(problem, notes)
-    start = _robust_start(problem, rng, notes)
+    motion = motion_prior(problem)
+    if motion.note:
+        notes.append(motion.note)
+    start = _robust_start(problem, rng, notes, motion)
     inlying = problem.subset(start.inliers)
-    best = _choose_measurements(inlying, start, notes)
+    best = _choose_measurements(inlying, start, notes, motion.prior)
     best, free, data_sigma = _choose_camera(best, camera_correction, inlying.n, notes)
     blocked = None
     if inlying.n >= MIN_SAMPLES_BLOCKED:
         best, free, note, blocked = blocked_choice(best, free, inlying, start.shape[start.inliers],
-                                                   start.W_shape[start.inliers], start.result)
+                                                   start.W_shape[start.inliers], start.result,
+                                                   _start_solver(start.result.method, motion))
         if note:
             notes.append(note)
-    return _result(problem, start, best, free, data_sigma, camera_correction, blocked, flips, notes)
+    return _result(problem, start, best, free, data_sigma, camera_correction, blocked, flips, notes, motion)
+
+
+def _start_solver(name: str, motion: MotionPrior):
+    """``solver(problem) -> CalibrationResult`` of the start ``name``: a closed form, or `held_start` when the
+    motions leave part of the translations open."""
+    if motion.leaves_open:
+        return lambda sub: held_start(sub, motion)
+    return lambda sub: closed_form(name.split("+")[0], sub)
 
 
 def _resolve_flips(problem: CalibrationProblem, notes: list) -> tuple[CalibrationProblem, dict | None]:
@@ -99,8 +116,12 @@ def _resolve_flips(problem: CalibrationProblem, notes: list) -> tuple[Calibratio
     return problem.with_measurements(B), flips
 
 
-def _closed_form_start(problem: CalibrationProblem):
-    """Closed-form candidates and the one with the smallest median point residual."""
+def _closed_form_start(problem: CalibrationProblem, motion: MotionPrior):
+    """Closed-form candidates and the one with the smallest median point residual; `held_start` alone when the
+    motions leave part of the translations open (every closed form of the paper needs them determined)."""
+    if motion.leaves_open:
+        res = held_start(problem, motion)
+        return res, [(res.method, float(np.median(res.residuals.translation)))]
     names = ["YKronT'"] + (["YQuatT'", "YKronRT"] if problem.has_poses else [])
     best, best_med, tried, refused = None, np.inf, [], []
     for name in names:
@@ -125,19 +146,18 @@ def _needs_robust(d2) -> bool:
     return bool(np.any(d2 > _CHI2_3_OUTLIER * scale * 4.0))
 
 
-def _robust_start(problem: CalibrationProblem, rng, notes: list) -> _Start:
+def _robust_start(problem: CalibrationProblem, rng, notes: list, motion: MotionPrior) -> _Start:
     """Stages 1 and 2: the best closed form and, if its residuals show outliers, the LMedS search around it."""
     A, setup, n = problem.A, problem.setup, problem.n
     shape, _ = model.point_shape(problem.B, problem.point_cov)
-    start, tried = _closed_form_start(problem)
+    start, tried = _closed_form_start(problem, motion)
     inliers = np.ones(n, dtype=bool)
     W_shape = model.whitener(shape)
     d2 = model.point_d2(*model.split(start.X, start.Y, A, setup), problem.points, W_shape)
     if n >= 8 and _needs_robust(d2):
-        name = start.method
         try:
             # YKronT' needs 5 samples (6 steady it); the pose-based starts 3 (4).
-            hyp = robust_solve(lambda sub: closed_form(name, sub), problem,
+            hyp = robust_solve(_start_solver(start.method, motion), problem,
                                rng=rng if rng is not None else np.random.default_rng(0),
                                min_samples=4 if start.marker_rotation_known else 6)
         except CalibrationError as e:
@@ -148,8 +168,9 @@ def _robust_start(problem: CalibrationProblem, rng, notes: list) -> _Start:
     return _Start(start, tried, inliers, shape, W_shape, d2)
 
 
-def _choose_measurements(problem: CalibrationProblem, start: _Start, notes: list) -> Candidate:
-    """Stage 3a: marker orientations are used unless they make held-out points worse (pose data)."""
+def _choose_measurements(problem: CalibrationProblem, start: _Start, notes: list, prior) -> Candidate:
+    """Stage 3a: marker orientations are used unless they make held-out points worse (pose data); every fit
+    with the translation prior ``prior`` (`calib.auto.determined`, None without one)."""
     A, B, setup = problem.A, problem.B, problem.setup
     C0, K0, _ = model.split(start.result.X, start.result.Y, A, setup)
     theta = np.zeros(3)
@@ -157,7 +178,7 @@ def _choose_measurements(problem: CalibrationProblem, start: _Start, notes: list
     best = None
     for rot in ([True, False] if problem.has_poses else [False]):
         fit = model.WeightedData(A, B, setup, start.shape[start.inliers], rot,
-                                 shape_whitener=start.W_shape[start.inliers])
+                                 shape_whitener=start.W_shape[start.inliers], prior=prior)
         K = K0
         if rot and not start.result.marker_rotation_known:
             K = tf.make_transform(model.marker_rotation(C0, fit.M, B[:, :3, :3]), K0[:3, 3])
@@ -198,30 +219,35 @@ def _choose_camera(best: Candidate, camera_correction: str, n: int, notes: list)
 
 
 def _covariance(best: Candidate, free, data_sigma, camera_correction: str, shared_factor):
-    """Camera covariance (6, 6) with its consider terms, the camera parameters' 1-sigma (3,) and the shared
-    robot error's share of the camera translation's 1-sigma (m, None without one)."""
+    """Camera covariance (6, 6) with its consider terms, the camera parameters' 1-sigma (3,), the shared
+    robot error's share of the camera translation's 1-sigma (m, None without one) and the marker-side
+    translation's covariance (3, 3; with the camera parameters' consider term)."""
     info_mat, _ = best.information(free)
     full_cov = np.linalg.inv(info_mat)
     cov = model.camera_block(info_mat)
+    k = best.prob.n_pose
+    cov_K = full_cov[k - 3:k, k - 3:k]
     if camera_correction != "none" and not free.all():
-        cov = cov + camera_consider(best, free, data_sigma)
+        consider = camera_consider(best, free, data_sigma)
+        cov = cov + consider[:6, :6]
+        cov_K = cov_K + consider[k - 3:k, k - 3:k]
     shared_m = None
     if shared_factor is not None:
         shared = shared_robot_consider(best, info_mat, shared_factor)
         cov = cov + shared
         shared_m = float(np.sqrt(np.trace(shared[3:6, 3:6])))
     sig_theta = np.zeros(3)
-    sig_theta[free] = np.sqrt(np.diag(full_cov)[best.prob.n_pose:])
-    return cov, sig_theta, shared_m
+    sig_theta[free] = np.sqrt(np.diag(full_cov)[k:])
+    return cov, sig_theta, shared_m, cov_K
 
 
 def _result(problem, start: _Start, best: Candidate, free, data_sigma, camera_correction, blocked, flips,
-            notes) -> CalibrationResult:
+            notes, motion: MotionPrior) -> CalibrationResult:
     """Stage 5: covariance, self-check and residuals of the chosen model, as a result."""
     fit, inliers = best.fit, start.inliers
     C, K, theta, prob = best.C, best.K, best.theta, best.prob
     shared_factor = None if problem.robot_shared_error is None else problem.robot_shared_error[inliers]
-    cov, sig_theta, shared_m = _covariance(best, free, data_sigma, camera_correction, shared_factor)
+    cov, sig_theta, shared_m, cov_K = _covariance(best, free, data_sigma, camera_correction, shared_factor)
     X, Y = model.join(C, K, problem.setup)
     loo = best.loo_errors
     # Too few samples to hold one out: no self-check, the result stands.
@@ -245,10 +271,15 @@ def _result(problem, start: _Start, best: Candidate, free, data_sigma, camera_co
         correction_points=problem.points[inliers] if np.any(theta) else None,
         noise=best.noise, robot_shared_error_m=shared_m, blocked_folds=blocked, notes=tuple(notes), flips=flips,
         cost=float(prob.cost(C, K, theta)))
-    return CalibrationResult(method="auto", setup=problem.setup, X=X, Y=Y, n_samples=problem.n, residuals=r_all,
-                             cov=cov, marker_rotation_known=fit.use_rotation,
-                             inliers=None if inliers.all() else inliers, converged=best.converged,
-                             iterations=best.iterations, cov_kind="fisher-extended", self_check=check, auto=details)
+    result = CalibrationResult(method="auto", setup=problem.setup, X=X, Y=Y, n_samples=problem.n, residuals=r_all,
+                               cov=cov, marker_rotation_known=fit.use_rotation,
+                               inliers=None if inliers.all() else inliers, converged=best.converged,
+                               iterations=best.iterations, cov_kind="fisher-extended", self_check=check, auto=details,
+                               undetermined=motion.undetermined)
+    note = determined_note(result, motion, cov_K)
+    if note is None:
+        return result
+    return dataclasses.replace(result, auto=dataclasses.replace(details, notes=details.notes + (note,)))
 
 
 def _residuals(X, Y, problem: CalibrationProblem, theta, use_rotation) -> Residuals:

@@ -6,7 +6,8 @@ and the pose planner (information matrix).
 
 Modules: `calib.model.frames`, `calib.model.correction`, `calib.model.residuals`,
 `calib.model.weights`, `calib.model.linearization`, `calib.model.variance`,
-`calib.model.leave_one_out`, `calib.model.rows` (batched 3x3 algebra).
+`calib.model.leave_one_out`, `calib.model.prior` (what the motions leave open, a prior that holds it),
+`calib.model.rows` (batched 3x3 algebra).
 
 Unknowns
 --------
@@ -84,12 +85,14 @@ from calib.model.linearization import (
     minimize,
     WeightedData,
 )
+from calib.model.prior import HELD_SIGMA_M, TranslationPrior, held_prior, open_translations
 from calib.model.variance import variance_components
 from calib.model.leave_one_out import LEVERAGE_MARGIN, leave_one_out, leave_one_out_after_step
 
 __all__ = [
     "CAMERA_PARAMS",
     "CameraCorrection",
+    "HELD_SIGMA_M",
     "LEVERAGE_MARGIN",
     "Linearization",
     "MIN_INFORMATION_RATIO",
@@ -98,9 +101,11 @@ __all__ = [
     "MIN_ROTATION_SIGMA",
     "NoiseLevels",
     "ROBOT_ROTATION_PER_M",
+    "TranslationPrior",
     "WeightedData",
     "camera_block",
     "check_point_cov",
+    "held_prior",
     "information",
     "inv_right_jacobian",
     "join",
@@ -110,6 +115,7 @@ __all__ = [
     "measure",
     "measured_points",
     "minimize",
+    "open_translations",
     "point_d2",
     "point_jacobians",
     "point_residuals",

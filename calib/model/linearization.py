@@ -9,6 +9,7 @@ from calib import transforms as tf
 from calib.errors import DegenerateMotionError
 from calib.model.correction import measured_points
 from calib.model.frames import split
+from calib.model.prior import TranslationPrior
 from calib.model.residuals import robot_cofactor, rotation_residuals
 from calib.model.weights import NoiseLevels, whitener
 
@@ -57,9 +58,15 @@ class Linearization:
         parameter does not evaluate it twice, and the contiguous copies of
         ``M``'s blocks are made once. The arrays `raw` returns are then
         shared and must not be modified.
+    prior : TranslationPrior, optional
+        A prior on the translations (`calib.model.prior`: a known marker
+        mount, or what the motions leave open held): its rows join the normal
+        matrix, gradient and cost (not `whitened`, which holds the
+        measurement rows).
     """
 
-    def __init__(self, M, B, W_t, sigma_rot=None, free=(False, False, False), use_rotation=True, memo=None):
+    def __init__(self, M, B, W_t, sigma_rot=None, free=(False, False, False), use_rotation=True, memo=None,
+                 prior: TranslationPrior | None = None):
         self.M = M
         self._memo = memo
         self._store = memo if memo is not None else {}     # where `system` keeps its last result
@@ -81,6 +88,8 @@ class Linearization:
         self._key = tuple(bool(f) for f in self.free)      # memo key of this free set
         self.n_pose = 12 if self.rotations else 9
         self.n_params = self.n_pose + int(self.free.sum())
+        self.prior = prior
+        self._prior_J = None if prior is None else prior.jacobian(self.n_pose, self.n_params)
 
     @property
     def points(self) -> bool:
@@ -223,12 +232,14 @@ class Linearization:
             if self.rotations:
                 Je_flat = J_e.reshape(-1, self.n_params)
                 N = N + Je_flat.T @ Je_flat / self.sigma_rot**2
+            if self.prior is not None:
+                N = N + self._prior_J.T @ self._prior_J
             out = (raw, v, G, N_points, N)
         systems[key] = out
         return out
 
     def normal_equations(self, C, K, theta):
-        """Normal matrix ``J^T J``, gradient ``J^T r`` and cost ``r^T r`` of the whitened problem."""
+        """Normal matrix ``J^T J``, gradient ``J^T r`` and cost ``r^T r`` of the whitened problem (with the prior)."""
         (r, e, _, J_e), v, G, _, N = self.system(C, K, theta)
         v_flat = v.reshape(-1)
         g = G.reshape(-1, self.n_params).T @ v_flat
@@ -237,10 +248,14 @@ class Linearization:
             s2 = self.sigma_rot**2
             g = g + J_e.reshape(-1, self.n_params).T @ e.reshape(-1) / s2
             cost += float(np.sum(e * e)) / s2
+        if self.prior is not None:
+            rp = self.prior.residual(C, K)
+            g = g + self._prior_J.T @ rp
+            cost += float(rp @ rp)
         return N, g, cost
 
     def whitened(self, C, K, theta=None):
-        """Whitened residual vector (3N or 6N,) and Jacobian (3N or 6N, n_params)."""
+        """Whitened residual vector (3N or 6N,) and Jacobian (3N or 6N, n_params) of the measurements (no prior rows)."""
         (_, e, _, J_e), v, G, _, _ = self.system(C, K, theta)
         rw = v.reshape(-1)
         Jw = G.reshape(-1, self.n_params)
@@ -250,7 +265,7 @@ class Linearization:
         return rw, Jw
 
     def cost(self, C, K, theta=None) -> float:
-        """Whitened residual square sum (chi-square statistic)."""
+        """Whitened residual square sum (chi-square statistic), the prior's included."""
         last = self._store.get("system")
         if (last is not None and self._key in last[3] and last[0] is self.W_t and last[2] == self.sigma_rot
                 and same_point(last[1], (C, K, theta))):
@@ -262,6 +277,9 @@ class Linearization:
         if self.rotations:
             E = np.swapaxes(self.R_B, 1, 2) @ C[:3, :3].T @ self.M[:, :3, :3] @ K[:3, :3]
             cost += float(np.sum(tf.so3_log(E) ** 2)) / self.sigma_rot**2
+        if self.prior is not None:
+            rp = self.prior.residual(C, K)
+            cost += float(rp @ rp)
         return cost
 
     def retract(self, C, K, theta, delta):
@@ -299,13 +317,16 @@ class WeightedData:
         Whether orientation residuals are used (pose data).
     shape_whitener : ndarray, shape (N, 3, 3), optional
         `whitener` of ``shape`` when the caller has it.
+    prior : TranslationPrior, optional
+        A prior on the translations every `linearize` carries (`calib.model.prior`).
     """
 
-    def __init__(self, A, B, setup, shape, use_rotation, shape_whitener=None):
+    def __init__(self, A, B, setup, shape, use_rotation, shape_whitener=None, prior: TranslationPrior | None = None):
         self.setup = setup
         self.A, self.B = A, B
         self.shape = shape
         self.use_rotation = use_rotation
+        self.prior = prior
         self.M = split(np.eye(4), np.eye(4), A, setup)[2]
         self._cof_at = None
         self._memo: dict = {}      # the last raw evaluation, shared by the problems of this data set (`Linearization`)
@@ -340,7 +361,7 @@ class WeightedData:
             self._whitener_at = (noise, cof, whitener(noise.point_cov(self.shape, cof)))
         W = self._whitener_at[2]
         return Linearization(self.M, self.B, W, sigma_rot=noise.rotation, free=free, use_rotation=self.use_rotation,
-                             memo=self._memo), cof
+                             memo=self._memo, prior=self.prior), cof
 
 
 def information(problem: Linearization, C, K, theta=None) -> np.ndarray:

@@ -32,6 +32,7 @@ from calib.params import (
     PositiveFloat,
     PositiveInt,
     Str,
+    Vector3,
 )
 from calib.transforms import skew
 from calib.vision.lift import (
@@ -90,6 +91,14 @@ class TargetConfig(Params):
         Plane-fit rejection thresholds (see `calib.vision.lift.fit_plane`).
     depth_noise : DepthNoiseModel
         Per-pixel depth noise; a dict with its fields is accepted.
+    offset_m : tuple of 3 float, optional
+        Where the marker is, when known, m: eye-to-hand its centre in the
+        flange frame (``t_flange_marker``, e.g. a measured TCP), eye-in-hand
+        the static marker's centre in the base frame (``t_base_marker``).
+        ``auto`` holds it (`calib.problem.CalibrationProblem.marker_offset`):
+        it completes a recording whose tool never turned about two axes.
+    offset_sigma_m : float
+        Its 1-sigma per axis, m (0: held as given).
     """
 
     model_config = ConfigDict(frozen=True)
@@ -110,6 +119,8 @@ class TargetConfig(Params):
     max_chi2_ratio: PositiveFloat = 9.0
     min_inlier_fraction: Fraction = 0.6
     depth_noise: DepthNoiseModel = Field(default_factory=DepthNoiseModel)
+    offset_m: Vector3 | None = None
+    offset_sigma_m: NonNegativeFloat = 0.0
 
     @model_validator(mode="after")
     def _target(self):

@@ -150,3 +150,22 @@ def test_recorded_joints_are_checked_before_the_robot_model_uses_them(tmp_path, 
     (w.path / "samples.jsonl").write_text("\n".join(lines[:4] + [json.dumps(rec)]) + "\n")
     with pytest.raises(SessionError, match="joints"):
         read_session(w.path)
+
+
+def test_the_configured_marker_offset_reaches_auto():
+    """``[marker] offset_m`` is what calibrate's solve (`app.devices.make_solve`) holds with ``auto``: a grid
+    (the tool never turned) is then complete; another method is not given it (it would refuse it)."""
+    from app import devices
+    from calib.observation import Observation
+
+    d = realistic_cell(30, np.random.default_rng(11), angle_range=0.0)
+    obs = [Observation(i, float(i), d.A[i], d.points[i], d.point_cov[i]) for i in range(30)]
+    cfg = config_from_dict({"marker": {"offset_m": d.X[:3, 3].tolist(), "offset_sigma_m": 0.0005}}, "test")
+    rng = np.random.default_rng(0)
+    held = devices.make_solve(cfg.calibrate, "eye_to_hand", rng, marker=cfg.marker)(obs, final=True)
+    assert held.undetermined == () and np.allclose(held.X[:3, 3], d.X[:3, 3], atol=2e-3)
+    assert devices.make_solve(cfg.calibrate, "eye_to_hand", rng)(obs, final=True).undetermined
+    turning = realistic_cell(30, np.random.default_rng(12))
+    obs = [Observation(i, float(i), turning.A[i], turning.points[i], turning.point_cov[i]) for i in range(30)]
+    paper = cfg.calibrate.model_copy(update={"method": "YKronT'", "refine": False})
+    assert devices.make_solve(paper, "eye_to_hand", rng, marker=cfg.marker)(obs, final=True).method == "YKronT'"

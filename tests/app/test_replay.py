@@ -1,6 +1,7 @@
 """replay: re-solve a session with several solvers and print the comparison table."""
 
 import numpy as np
+import pytest
 
 from app.cli import main
 from app.runs.replay import format_table, replay
@@ -51,3 +52,43 @@ def test_replay_reports_failing_solver_row(tmp_path):
     rows = replay(read_session(w.path).observations, "eye_to_hand", ["YKronT'", "XKronRT"])
     assert rows[0].error is None and rows[1].result is None and rows[1].error
     assert "failed:" in format_table(rows, "eye_to_hand")
+
+
+def _write_grid_session(root, setup, n=40, seed=3):
+    """A session of a grid recording: every sample at one tool orientation (realistic cell, no rotation)."""
+    d = realistic_cell(n, np.random.default_rng(seed), setup=setup, angle_range=0.0)
+    key = "T_base_cam" if setup == "eye_to_hand" else "T_flange_cam"
+    with SessionWriter.create(root, setup, truth={key: d.Y if setup == "eye_to_hand" else d.X}, source="test") as w:
+        for i in range(n):
+            w.add_sample(Observation(i, float(i), d.A[i], d.points[i], d.point_cov[i]))
+    return w.path, d
+
+
+@pytest.mark.parametrize("setup", ["eye_to_hand", "eye_in_hand"])
+def test_replay_of_a_grid_gives_what_it_determines(tmp_path, capsys, setup):
+    """A grid recording (the tool never turns) is answered, with a warning naming what is open and how to close
+    it, instead of the closed forms' refusal; --marker-offset (mm) completes it: no warning, the truth found."""
+    path, d = _write_grid_session(tmp_path, setup)
+    assert main(["replay", str(path)]) == 0
+    out = capsys.readouterr().out
+    assert "warning: auto: " in out and "are not separated (the tool never turned)" in out
+    assert "| auto | 40 |" in out and "give --marker-offset X,Y,Z" in out
+    offset = (d.X if setup == "eye_to_hand" else d.Y)[:3, 3] * 1e3
+    assert main(["replay", str(path), "--marker-offset", ",".join(f"{v:.3f}" for v in offset)]) == 0
+    out = capsys.readouterr().out
+    assert "not separated" not in out
+    row = next(line for line in out.splitlines() if line.startswith("| auto |"))
+    err_mm, err_deg = (float(c) for c in row.split("|")[-4:-2])
+    assert err_mm < 5.0 and err_deg < 0.5, row
+
+
+def test_replay_takes_the_marker_offset_from_the_config(tmp_path, capsys):
+    """``[marker] offset_m`` of ``-c CONFIG`` completes a grid as --marker-offset does; a bad flag is refused."""
+    path, d = _write_grid_session(tmp_path, "eye_to_hand")
+    config = tmp_path / "cell.toml"
+    config.write_text("[marker]\noffset_m = [" + ", ".join(f"{v:.6f}" for v in d.X[:3, 3]) + "]\n")
+    assert main(["replay", str(path), "-c", str(config)]) == 0
+    assert "not separated" not in capsys.readouterr().out
+    with pytest.raises(SystemExit) as e:
+        main(["replay", str(path), "--marker-offset", "1,2"])
+    assert e.value.code == 2 and "expected X,Y,Z in mm" in capsys.readouterr().err

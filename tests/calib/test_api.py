@@ -174,12 +174,16 @@ def test_degenerate_motion_is_detected(method, kind, match, setup):
 
 @pytest.mark.parametrize("setup", ["eye_to_hand", "eye_in_hand"])
 @pytest.mark.parametrize("points", [False, True])
-def test_auto_names_what_a_degenerate_motion_lacks(setup, points):
-    """``auto`` refuses motions no closed form can start from with the closed forms' own reason and fix (it
-    said only that no start could be computed), as its type: a user with their own recording learns which
-    rotation is missing (the 10x10 circles set's 10 views about one flange axis)."""
-    A, B = motion_set("one_axis", setup, np.random.default_rng(1))
-    with pytest.raises(DegenerateMotionError, match=r"no closed-form start .*about one axis .*rotate about at least"):
+@pytest.mark.parametrize("kind", ["one_axis", "pure_translation"])
+def test_auto_answers_what_a_degenerate_motion_determines(setup, points, kind):
+    """Where the closed forms refuse, ``auto`` gives what the motions determine and names the rest with the
+    motion that closes it (`calib.auto.determined`); motions that determine nothing stay a typed refusal."""
+    A, B = motion_set(kind, setup, np.random.default_rng(1))
+    res = solve("auto", A, B[:, :3, 3] if points else B, setup=setup)
+    assert len(res.undetermined) == 1 and "not separated" in res.undetermined[0]
+    assert ("a second axis" if kind == "one_axis" else "about two axes") in res.undetermined[0]
+    A, B = motion_set("identical", setup, np.random.default_rng(1))
+    with pytest.raises(DegenerateMotionError, match="no motion: all 20 robot poses are identical"):
         solve("auto", A, B[:, :3, 3] if points else B, setup=setup)
 
 
