@@ -131,11 +131,16 @@ def arm_reference(result: CalibrationResult, problem: CalibrationProblem, *,
     Raises
     ------
     CalibrationError
-        Malformed samples, or samples that do not determine the camera.
+        Malformed samples, samples that do not determine the camera, or a result that leaves part of it open
+        (``result.undetermined``: a recording whose tool never turned, without the marker's offset).
     """
     setup = Setup(result.setup)
     if problem.setup != setup:
         raise CalibrationError(f"the result is {setup}, its samples {problem.setup}")
+    if result.undetermined:
+        # The open part was held at a guess: at the production's other tool orientations it would read as a move.
+        raise CalibrationError("the calibration leaves part of the camera open, which the monitor cannot follow: "
+                               + "; ".join(result.undetermined))
     A, p, point_cov, robot_factor = problem.A, problem.points, problem.point_cov, problem.robot_shared_error
     C, K, M = model.split(result.X, result.Y, A, setup)
     theta = result.camera_correction.as_array()

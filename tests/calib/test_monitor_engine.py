@@ -415,3 +415,15 @@ def test_a_run_continued_from_the_last_raises_no_alarm_for_a_bump_it_has_relearn
     assert any(alarms_again[:20])
     assert np.mean(errors_again[:20]) > 1.5 * np.mean(errors[:20])
     assert carried.relearns == 1 and carried.moved_since(carried.origin)[0] > 2.0
+
+
+def test_a_calibration_that_leaves_the_camera_open_does_not_arm():
+    """A recording whose tool never turned leaves the marker's offset and the camera's position unseparated
+    (`CalibrationResult.undetermined`): held at a guess, the production's other tool orientations would read as a
+    move, so the engine refuses it with the reason and the fix."""
+    d = simulate.realistic_cell(30, np.random.default_rng(4), angle_range=0.0)
+    problem = CalibrationProblem.from_arrays(d.A, d.points, point_cov=d.point_cov)
+    res = solve("auto", problem, rng=np.random.default_rng(4))
+    assert res.undetermined
+    with pytest.raises(CalibrationError, match="leaves part of the camera open.*marker-offset"):
+        MonitorEngine().arm(res, problem)
