@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import dataclasses
 from dataclasses import dataclass
+from typing import NamedTuple
 
 import numpy as np
 from scipy.spatial.transform import Rotation
@@ -552,6 +553,17 @@ def eye_in_hand_shift(cell: SimulatedData, stops: np.ndarray, shift: Shift, rng:
 
 # --------------------------------------------------------------------------- production cell, sample by sample
 
+class CellSample(NamedTuple):
+    """One sample of a `ProductionCell`: the flange pose as reported, the measured marker centre, its
+    covariance, the kinematic-error factor (6, P) or None, and the joints (6,) or None."""
+
+    A: np.ndarray
+    point: np.ndarray
+    point_cov: np.ndarray
+    factor: np.ndarray | None
+    joints: np.ndarray | None
+
+
 @dataclass(frozen=True)
 class ProductionCell:
     """A simulated cell in production, for the monitoring engine: its calibration samples, its program's stops,
@@ -590,10 +602,10 @@ class ProductionCell:
     real: RealisticData | None
     profile: RealisticProfile
 
-    def sample(self, stop: int, C: np.ndarray, rng: np.random.Generator, jitter_deg: float = 0.0):
-        """A sample at ``stop`` with the true camera transform ``C``: ``(A, point, point_cov, factor)`` (factor
-        None without joints). ``jitter_deg`` (1-sigma) moves the robot off the stop, per joint eye-to-hand, per
-        axis (and that angle times `JITTER_REACH_M` of shift) eye-in-hand."""
+    def sample(self, stop: int, C: np.ndarray, rng: np.random.Generator, jitter_deg: float = 0.0) -> CellSample:
+        """A sample at ``stop`` with the true camera transform ``C`` (factor and joints None without joints).
+        ``jitter_deg`` (1-sigma) moves the robot off the stop, per joint eye-to-hand, per axis (and that angle
+        times `JITTER_REACH_M` of shift) eye-in-hand."""
         prof = self.profile
         if self.setup == Setup.EYE_TO_HAND:
             kin, dh = self.real.kinematics, UR10_DH
@@ -603,8 +615,9 @@ class ProductionCell:
             A_true = A_true @ tf.from_rotvec_translation(rng.normal(scale=prof.repeatability_rad, size=3),
                                                          rng.normal(scale=prof.repeatability_m, size=3))
             p, cov = seen_points((tf.invert(C) @ A_true @ self.marker)[None], prof, self.real.camera, rng)
-            factor = None if self.factor is None else prof.dh_error_factor(q[None])[0]
-            return A, p[0], cov[0], factor
+            if self.factor is None:
+                return CellSample(A, p[0], cov[0], None, None)
+            return CellSample(A, p[0], cov[0], prof.dh_error_factor(q[None])[0], q)
         A = self.stops[stop]
         if jitter_deg:
             jitter = np.deg2rad(jitter_deg)
@@ -612,7 +625,7 @@ class ProductionCell:
                                                rng.normal(scale=jitter * JITTER_REACH_M, size=3))
         p_true = (tf.invert(A @ C) @ self.marker)[:3, 3]
         cov = point_covariance(p_true[None], 0.001, 0.003)[0]
-        return A, p_true + np.linalg.cholesky(cov) @ rng.normal(size=3), cov, None
+        return CellSample(A, p_true + np.linalg.cholesky(cov) @ rng.normal(size=3), cov, None, None)
 
     def moved(self, C: np.ndarray, rotation: np.ndarray, translation: np.ndarray) -> np.ndarray:
         """``C`` after a move by a rotation vector (rad) about the camera's centre and a translation (m): in the

@@ -19,6 +19,12 @@ What counts as a failure:
   return within ``HANG_S`` seconds, or a file opened outside the data
   directory (seen by an audit hook on ``open``).
 
+- the monitoring engine (``--only monitor``, `app.benchmarks.monitor_campaign`):
+  its state machine (``--monitor-examples`` runs), composed production programs
+  (``--monitor-runs``) and the same through ``replay --monitor`` armed from a
+  session, a result.yaml and a previous run (``--monitor-replays`` each):
+  a traceback, a broken invariant, a missed bump or a false moved alarm.
+
 Inputs are seeded (``--seed``); every case is a small mutation of a valid
 input, so most cases reach deep into the code instead of failing the first
 shape check. Eye-to-hand data unless a case picks ``eye_in_hand``.
@@ -766,8 +772,12 @@ def main(argv=None) -> int:
     ap.add_argument("--solver-cases", type=int, default=10_000)
     ap.add_argument("--file-cases", type=int, default=500, help="cases for each of configs, sessions, imports")
     ap.add_argument("--bag-cases", type=int, default=500, help="damaged ROS 2 bags (MCAP and sqlite3)")
-    ap.add_argument("--only", choices=["solver", "config", "session", "import", "bags"], action="append",
+    ap.add_argument("--only", choices=["solver", "config", "session", "import", "bags", "monitor"], action="append",
                     help="run only these campaigns (repeatable; default all)")
+    ap.add_argument("--monitor-examples", type=int, default=300, help="runs of the monitoring engine's state machine")
+    ap.add_argument("--monitor-runs", type=int, default=200, help="composed production programs through the engine")
+    ap.add_argument("--monitor-replays", type=int, default=20,
+                    help="composed programs through replay --monitor, per kind of reference")
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--out", default="out/bench")
     args = ap.parse_args(argv)
@@ -776,8 +786,15 @@ def main(argv=None) -> int:
     logging.disable(logging.WARNING)  # torn lines and skipped images are expected by the thousand
     rng = np.random.default_rng(args.seed)
     t0 = time.perf_counter()
-    only = set(args.only or ["solver", "config", "session", "import", "bags"])
+    only = set(args.only or ["solver", "config", "session", "import", "bags", "monitor"])
     rows = {"solver API": run_solver_campaign(args.solver_cases, rng)} if "solver" in only else {}
+    monitor_text, monitor_failed = "", False
+    if "monitor" in only:
+        from app.benchmarks import monitor_campaign
+
+        monitor_text = monitor_campaign.report(args.monitor_examples, args.monitor_runs, args.monitor_replays,
+                                               args.seed)
+        monitor_failed = "FAILED" in monitor_text or monitor_campaign.failed(monitor_text)
     import tempfile
 
     with tempfile.TemporaryDirectory(prefix="handeye-fuzz-") as tmp:
@@ -793,12 +810,12 @@ def main(argv=None) -> int:
                 rows.update({f"- {name}": t for name, t in by_seed.items()})
             else:
                 rows[label] = by_seed[kind]
-    report = "## Input fuzzing\n\n" + format_table(rows, time.perf_counter() - t0)
+    report = ("## Input fuzzing\n\n" + format_table(rows, time.perf_counter() - t0) if rows else "") + monitor_text
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     (out / "fuzz.md").write_text(report)
     print(report)
-    return 1 if any(t.failures for t in rows.values()) else 0
+    return 1 if monitor_failed or any(t.failures for t in rows.values()) else 0
 
 
 if __name__ == "__main__":

@@ -46,6 +46,9 @@ from calib.setup import Setup
 
 #: A bump must be flagged within this many samples (issue 20's figure).
 DETECT_WITHIN = 20
+#: A re-learn must be done within this many samples once three stops not on one line have been seen since the
+#: move (the engine is in "relearning", its moved level standing, until then).
+RELEARN_WITHIN = 60
 #: The bumps the detection property holds for: moving the marker by at least this at the stops, m.
 FLAGGED_DISPLACEMENT_M = 5e-3
 #: Floats the engine may hold, whatever the stream (its state for 20 stops, the detector, its windows).
@@ -97,6 +100,8 @@ class ProgramDriver:
         self.C = c.C.copy()
         self.t = 0.0
         self.watch: BumpWatch | None = None
+        self.relearning: BumpWatch | None = None
+        self.stuck: list[str] = []
         self.missed: list[str] = []
         self.flagged_after: list[int] = []
         self.moved_alarms = 0
@@ -116,11 +121,26 @@ class ProgramDriver:
     def visit(self, stop: int, dt: float, jitter_deg: float = 0.0):
         """The robot stops at ``stop`` ``dt`` seconds after the last sample; the engine takes the sample."""
         self.t += dt
-        A, p, cov, factor = self.cell.sample(stop, self.C, self.rng, jitter_deg)
+        A, p, cov, factor, _ = self.cell.sample(stop, self.C, self.rng, jitter_deg)
         upd = self.feed(self.t, A, p, cov, factor)
         if upd is not None and self.watch is not None:
             self.observe(stop, upd)
+        if upd is not None:
+            self.follow_relearn(stop, upd)
         return upd
+
+    def follow_relearn(self, stop: int, upd) -> None:
+        """A re-learn that goes on for `RELEARN_WITHIN` samples after three stops not on one line were seen."""
+        if upd.state != EngineState.RELEARNING:
+            self.relearning = None
+            return
+        r = self.relearning = self.relearning or BumpWatch(0.0)
+        r.stops.add(stop)
+        if self.determined(r.stops):
+            r.samples += 1
+            if r.samples == RELEARN_WITHIN:
+                self.stuck.append(f"still re-learning {RELEARN_WITHIN} samples after {len(r.stops)} stops were "
+                                  f"seen: {upd.message}")
 
     def observe(self, stop: int, upd) -> None:
         w = self.watch
@@ -209,7 +229,7 @@ def engine_machine():
             else:
                 c = d.cell
                 samples = [c.sample(i % len(c.stops), d.C, d.rng, 2.0) for i in range(max(6, 2 * len(c.stops)))]
-                A, p, cov, f = zip(*samples)
+                A, p, cov, f, _ = zip(*samples)
                 try:
                     problem = CalibrationProblem.from_arrays(
                         np.array(A), np.array(p), setup=c.setup, point_cov=np.array(cov),
@@ -251,7 +271,7 @@ def engine_machine():
         def bad_sample(self, kind):
             d = self.driver
             stop = int(d.rng.integers(len(d.cell.stops)))
-            A, p, cov, f = d.cell.sample(stop, d.C, d.rng)
+            A, p, cov, f, _ = d.cell.sample(stop, d.C, d.rng)
             t = d.t + 30.0
             if kind == "outlier":
                 p = p + d.rng.uniform(0.05, 0.2, size=3) * d.rng.choice([-1, 1], size=3)
@@ -312,6 +332,10 @@ def engine_machine():
         def bumps_flagged(self):
             assert not self.driver.missed, self.driver.missed
 
+        @invariant()
+        def relearns_done(self):
+            assert not self.driver.stuck, self.driver.stuck
+
     return EngineMachine
 
 
@@ -352,6 +376,7 @@ class ComposedOutcome:
     late: int = 0
     missed: int = 0
     false_moved: int = 0
+    stuck: int = 0
     samples: int = 0
     update_us: float = 0.0
     alarms: list = field(default_factory=list)
@@ -404,6 +429,7 @@ def composed_run(comp: Composition, *, sample_s: float = 30.0, bump_mm: float = 
         out.update_us = (time.perf_counter() - t0) / max(n, 1) * 1e6
         out.samples = d.updates
         out.missed = len(d.missed) + (d.watch is not None and d.watch.samples >= DETECT_WITHIN)
+        out.stuck = len(d.stuck)
     except Exception:            # noqa: BLE001 - the campaign counts tracebacks instead of stopping at one
         out.traceback = traceback.format_exc()
     return out
@@ -424,15 +450,170 @@ def composed_table(outcomes: list[ComposedOutcome]) -> str:
     for (setup, order), group in sorted(groups.items()):
         rows.append([setup, order, len(group), sum(o.traceback is not None for o in group),
                      sum(o.bumps for o in group), sum(o.watched for o in group), sum(o.flagged for o in group),
-                     sum(o.late for o in group), sum(o.missed for o in group), sum(o.false_moved for o in group)])
-    total = [sum(r[k] for r in rows) for k in range(2, 10)]
+                     sum(o.late for o in group), sum(o.missed for o in group), sum(o.false_moved for o in group),
+                     sum(o.stuck for o in group)])
+    total = [sum(r[k] for r in rows) for k in range(2, 11)]
     rows.append(["all", "", *total])
     lines = [f"| setup | order | runs | tracebacks | bumps | of which move the stops >= 5 mm | flagged within "
              f"{DETECT_WITHIN} samples | flagged later | missed (>= 5 mm, not within {DETECT_WITHIN}) | false moved "
-             "alarms |", "|---|---|---:|---:|---:|---:|---:|---:|---:|---:|"]
+             f"alarms | re-learns not done within {RELEARN_WITHIN} samples |",
+             "|---|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|"]
     lines += ["| " + " | ".join(str(c) for c in r) + " |" for r in rows]
     tracebacks = [o for o in outcomes if o.traceback]
     if tracebacks:
         lines.append("\nFirst traceback (" + repr(dataclasses.astuple(tracebacks[0].composition)) + "):\n```\n"
                      + tracebacks[0].traceback + "```")
     return "\n".join(lines)
+
+
+# ------------------------------------------------------------------ the app: replay --monitor of composed sessions
+
+#: The references ``replay --monitor`` is armed from in `replay_run`.
+REFERENCES = ("session", "result.yaml", "previous run")
+
+
+def write_session(root, name: str, setup: Setup, samples, times) -> object:
+    """A handeye session of ``samples`` (`calib.simulate.CellSample`) at ``times`` (s)."""
+    from app.session import SessionWriter
+    from calib.observation import Observation
+
+    with SessionWriter.create(root, setup, name=name, source="monitor campaign") as w:
+        for i, (s, t) in enumerate(zip(samples, times)):
+            w.add_sample(Observation(i, float(t), s.A, s.point, s.point_cov, joints=s.joints))
+    return w.path
+
+
+def replay_run(comp: Composition, reference: str, root) -> ComposedOutcome:
+    """``handeye replay <production> --monitor --reference <...>`` of a composed program written as sessions: the
+    calibration session, its ``result.yaml``, or a previous run (the program's first half replayed into an
+    ``--out`` directory, the second half continued from it). Counted as `composed_run` (a traceback or an exit
+    status other than 0 or 3 is a traceback); bumps from the moved alarms of ``alarms.yaml``."""
+    import contextlib
+    import csv
+    import io
+    from pathlib import Path
+
+    import yaml
+
+    from app.cli import main
+    from app.formats.export import write_result
+
+    out = ComposedOutcome(comp)
+    root = Path(root)
+    try:
+        joints = comp.joints and comp.setup == Setup.EYE_TO_HAND
+        c = simulate.production_cell(comp.setup, comp.n_calibration, comp.n_stops,
+                                     np.random.default_rng([comp.seed, 11]), joints=joints)
+        rng = np.random.default_rng([comp.seed, 12])
+        cal = write_session(root, "cal", comp.setup, [simulate.CellSample(c.A[i], c.points[i], c.point_cov[i],
+                                                                          None, None) for i in range(len(c.A))],
+                            1.9e9 + np.arange(len(c.A)))
+        if reference == "result.yaml":
+            problem = CalibrationProblem.from_arrays(c.A, c.points, setup=c.setup, point_cov=c.point_cov)
+            write_result(solve("auto", problem, rng=np.random.default_rng(comp.seed)), cal / "result.yaml")
+        n = int(comp.hours * 3600.0 / 30.0)
+        bumps = set(range(comp.first_bump, n, 120))
+        C, samples, bumped = c.C, [], []
+        for i in range(n):
+            if i in bumps:
+                before = C
+                C = c.moved(C, np.deg2rad(0.3) * random_direction(rng), 5e-3 * random_direction(rng))
+                bumped.append((i, c.displacement(before, C) >= FLAGGED_DISPLACEMENT_M))
+            stop = i % comp.n_stops if comp.order == "cycle" else int(rng.integers(comp.n_stops))
+            samples.append(c.sample(stop, C, rng))
+        times = 2e9 + 30.0 * np.arange(n)
+        half = n // 2 if reference == "previous run" else 0
+        runs = [(0, half), (half, n)] if half else [(0, n)]
+        moved = []
+        ref = cal / "result.yaml" if reference == "result.yaml" else cal
+        for k, (a, b) in enumerate(runs):
+            prod = write_session(root, f"prod{k}", comp.setup, samples[a:b], times[a:b])
+            trace = root / f"trace{k}"
+            with contextlib.redirect_stdout(io.StringIO()), contextlib.redirect_stderr(io.StringIO()) as err:
+                rc = main(["replay", str(prod), "--monitor", "--reference", str(ref), "--out", str(trace)])
+            if rc not in (0, 3):
+                out.traceback = f"exit {rc}: {err.getvalue().strip()[:300]}"
+                return out
+            alarms = yaml.safe_load((trace / "alarms.yaml").read_text())["alarms"]
+            moved += [a + x["sample"] for x in alarms if x["alarm"] == "moved"]
+            states = [row["state"] for row in csv.DictReader(open(trace / "monitor_trace.csv"))]
+            out.stuck += sum(len(run) > RELEARN_WITHIN + 2 * comp.n_stops
+                             for run in "".join("r" if x == "relearning" else " " for x in states).split())
+            ref = trace
+        out.samples = n
+        unexplained = list(bumped)
+        for i in moved:
+            if not unexplained or unexplained[0][0] > i:
+                out.false_moved += 1
+                continue
+            bump, _ = unexplained.pop(0)
+            if i - bump <= DETECT_WITHIN:
+                out.flagged += 1
+            else:
+                out.late += 1
+        out.bumps, out.watched = len(bumped), sum(w for _, w in bumped)
+        flagged_watched = {b for b, w in bumped if w and any(0 <= i - b <= DETECT_WITHIN for i in moved)}
+        out.missed = sum(w for b, w in bumped if b + DETECT_WITHIN < n) - len(flagged_watched)
+    except Exception:            # noqa: BLE001 - counted
+        out.traceback = traceback.format_exc()
+    return out
+
+
+def replay_campaign(runs: int, seed: int = 0) -> dict[str, list[ComposedOutcome]]:
+    """`replay_run` of ``runs`` composed programs per kind of reference."""
+    import tempfile
+
+    rng = np.random.default_rng([seed, 99])
+    outcomes: dict[str, list] = {r: [] for r in REFERENCES}
+    for k in range(runs):
+        comp = Composition.draw(rng, seed * 100_000 + k)
+        for reference in REFERENCES:
+            with tempfile.TemporaryDirectory(prefix="handeye-campaign-") as tmp:
+                outcomes[reference].append(replay_run(comp, reference, tmp))
+    return outcomes
+
+
+def engine_campaign(examples: int, steps: int = 40) -> tuple[int, str | None]:
+    """The state machine for ``examples`` runs of up to ``steps`` steps: ``(examples, first failure or None)``."""
+    from hypothesis import HealthCheck, settings
+    from hypothesis.stateful import run_state_machine_as_test
+
+    try:
+        run_state_machine_as_test(engine_machine(), settings=settings(
+            max_examples=examples, stateful_step_count=steps, deadline=None, database=None,
+            suppress_health_check=list(HealthCheck)))
+    except Exception as e:       # noqa: BLE001 - the first failure, shrunk, is the report
+        return examples, f"{type(e).__name__}: {e}"
+    return examples, None
+
+
+def failed(text: str) -> bool:
+    """A table of `report` counts a traceback, a missed bump or a false moved alarm."""
+    for line in text.splitlines():
+        if line.startswith("| all |"):
+            cells = [c.strip() for c in line.strip("|").split("|")]
+            tracebacks, missed, false, stuck = int(cells[3]), int(cells[8]), int(cells[9]), int(cells[10])
+            if tracebacks or missed or false or stuck:
+                return True
+    return False
+
+
+def report(examples: int, composed: int, replays: int, seed: int = 0) -> str:
+    """The campaign's tables (``handeye bench --fuzz --only monitor``)."""
+    t0 = time.perf_counter()
+    n, failure = engine_campaign(examples)
+    text = ["### The monitoring engine as users compose it", "",
+            f"State machine (arming of any size, self-arming, carry-over, 1-20 stops in any order, bumps of 0-20 mm "
+            f"/ 0-2 deg at any time, drift, bad samples, gaps, disarm): {n} runs of up to 40 steps, "
+            + ("no invariant broken." if failure is None else f"FAILED: {failure}"), ""]
+    outcomes = composed_campaign(composed, seed)
+    text += [f"Composed production programs through the engine ({composed} runs: 3-8 stops in turn or at random, "
+             "1-3 h, a sample every 30 s, 0.5 mm/h drift, bumps of 5 mm / 0.3 deg hourly from sample 5-60, armed "
+             "from 12-30 calibration poses, with or without joints):", "", composed_table(outcomes), ""]
+    if replays:
+        by_reference = replay_campaign(replays, seed)
+        text += [f"The same through `handeye replay --monitor` ({replays} programs per reference):", ""]
+        for reference, group in by_reference.items():
+            text += [f"Armed from {reference}:", "", composed_table(group), ""]
+    text.append(f"({time.perf_counter() - t0:.0f} s)")
+    return "\n".join(text)

@@ -429,10 +429,14 @@ class MonitorEngine:
             samples = samples[1:]         # the oldest is from before the move
         f = fit.state
         sigma_mm = self.workspace.sigma(f.C, f.u[3:6], f.P) * 1e3
-        if fit.how == "registered" and sigma_mm > self.settings.tolerance_mm:
+        # A registration from a few stops may not yet determine the camera to what a plant can use: the tolerance,
+        # or what the arming calibration itself was good for when that is less (its marker mount and camera
+        # correction are held, so the re-learnt camera cannot be better than they allow).
+        enough = max(self.settings.tolerance_mm, 1.5 * self.reference.sigma_mm)
+        if fit.how == "registered" and sigma_mm > enough:
             return (f"re-learning: registered from {len(samples)} samples, but its 1-sigma over the workspace is "
-                    f"{sigma_mm:.1f} mm (tolerance {self.settings.tolerance_mm:g} mm): waiting for more stops, "
-                    "spread across the workspace")
+                    f"{sigma_mm:.1f} mm (it must be within {enough:.1f} mm): waiting for more stops, spread across "
+                    "the workspace")
         before = self.filter.C
         moved_mm = workspace_distance(f.C, before, self.reference.workspace) * 1e3
         moved_deg = float(np.rad2deg(tf.rotation_angle(f.C[:3, :3] @ before[:3, :3].T)))
