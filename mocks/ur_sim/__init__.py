@@ -55,7 +55,8 @@ def main(argv: list[str] | None = None) -> int:
                     "(JSON of mocks.ur_sim.truth.SimRobotError)")
     ap.add_argument("--program", help="JSON file: a looping production program to run (mocks.ur_sim.program)")
     ap.add_argument("--parent-pid", type=int, metavar="PID",
-                    help="stop as soon as this process is no longer our parent (it died)")
+                    help="stop as soon as this process is no longer our parent (it died); SIGINT is then "
+                    "ignored (the parent stops the simulator with SIGTERM)")
     ap.add_argument("-v", "--verbose", action="store_true")
     args = ap.parse_args(argv)
     logging.basicConfig(level=logging.INFO if args.verbose else logging.WARNING, format="ur_sim: %(message)s")
@@ -93,7 +94,10 @@ def main(argv: list[str] | None = None) -> int:
         server.stopping = True  # async-signal-safe: no lock, re-entry harmless (see SimServer.stopping)
 
     if threading.current_thread() is threading.main_thread():
-        signal.signal(signal.SIGINT, _stop)
+        # A launched simulator (--parent-pid) is stopped by its parent, with SIGTERM, after the parent
+        # has stopped the robot: a Ctrl-C meant for the parent (a terminal's, or a service manager's
+        # KillSignal=SIGINT to the whole group) must not take the controller away first.
+        signal.signal(signal.SIGINT, _stop if args.parent_pid is None else signal.SIG_IGN)
         signal.signal(signal.SIGTERM, _stop)
     print(f"ur_sim ready on {args.host}: {ctl.model} controller {'.'.join(map(str, ctl.version))} "
           f"at {ctl.frequency:.0f} Hz", flush=True)
@@ -220,7 +224,10 @@ def launch(host: str = "127.0.0.1", model: str = "ur10", controller: str = "5.11
     # to free the ports: an immediate `--resume` waits for it instead of failing.
     bind_deadline = time.monotonic() + min(timeout, 5.0)
     while True:
-        proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+        # Its own session: a terminal's Ctrl-C (SIGINT to the foreground process group) is for the
+        # parent, which stops the robot, then the simulator (`SimProcess.stop`).
+        proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                                start_new_session=True)
         ready: list[str] = []
         reader = threading.Thread(target=lambda: ready.append(proc.stdout.readline()), daemon=True)
         reader.start()
