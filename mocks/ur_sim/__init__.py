@@ -24,18 +24,24 @@ import collections
 import json
 import logging
 import os
+import shlex
 import signal
 import socket
 import subprocess
 import sys
 import threading
 import time
+from pathlib import Path
 
 import numpy as np
 
 from drivers.errors import DeviceError
 
-__all__ = ["main", "launch", "SimProcess"]
+__all__ = ["main", "launch", "SimProcess", "PortsTakenError", "dashboard_command"]
+
+
+class PortsTakenError(DeviceError):
+    """The simulator cannot bind its address: another simulator (or another program) holds its ports."""
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -130,11 +136,7 @@ class SimProcess:
 
     def command(self, line: str, timeout: float = 5.0) -> str:
         """Send one dashboard line on a fresh connection and return the one-line answer."""
-        with socket.create_connection((self.host, 29999), timeout=timeout) as s:
-            f = s.makefile("rb")
-            f.readline()  # greeting
-            s.sendall(line.encode() + b"\n")
-            return f.readline().decode().strip()
+        return dashboard_command(self.host, line, timeout)
 
     def state(self) -> dict:
         """Ground truth: q, T_base_flange, tcp_offset, command log, script uploads ..."""
@@ -196,6 +198,33 @@ class SimProcess:
         return False
 
 
+def dashboard_command(host: str, line: str, timeout: float = 5.0) -> str:
+    """Send one line to the dashboard port (29999) of ``host`` on a fresh connection; the one-line answer."""
+    with socket.create_connection((host, 29999), timeout=timeout) as s:
+        f = s.makefile("rb")
+        f.readline()  # greeting
+        s.sendall(line.encode() + b"\n")
+        return f.readline().decode().strip()
+
+
+def ports_holder(host: str) -> str:
+    """Who holds the simulator's ports on ``host``: the run that launched a simulator there (its pid and command
+    line), a simulator started by hand, or another program."""
+    try:
+        owner = json.loads(dashboard_command(host, "sim owner", timeout=1.0))
+        pid = owner["parent_pid"] or owner["pid"]
+    except (OSError, ValueError, KeyError, TypeError):
+        return "held by another program"
+    what = "the simulated controller of process" if owner["parent_pid"] else "a simulator started by hand, process"
+    try:
+        argv = [a.decode(errors="replace") for a in Path(f"/proc/{pid}/cmdline").read_bytes().split(b"\0") if a]
+    except OSError:
+        return f"held by {what} {pid}"
+    if len(argv) > 1 and Path(argv[0]).name.startswith("python") and not argv[1].startswith("-"):
+        argv = argv[1:]  # a console script (.venv/bin/handeye): its name, not the interpreter's
+    return f"held by {what} {pid}: {shlex.join([Path(argv[0]).name, *argv[1:]])[:160]}"
+
+
 def launch(host: str = "127.0.0.1", model: str = "ur10", controller: str = "5.11", initial_q=None,
            tcp_offset=None, timeout: float = 15.0, robot_error: dict | None = None) -> SimProcess:
     """Start ``python -m mocks.ur_sim`` and wait until its ports accept connections.
@@ -207,7 +236,8 @@ def launch(host: str = "127.0.0.1", model: str = "ur10", controller: str = "5.11
     ------
     DeviceError
         If the simulator exits or does not report ready within ``timeout`` s
-        (message includes its stderr, e.g. address already in use).
+        (message includes its stderr); `PortsTakenError` when its address is taken (the message
+        names who holds it).
     """
     # The simulator watches this process (--parent-pid) and stops when it dies, even by SIGKILL.
     # Not PR_SET_PDEATHSIG: that fires when the launching *thread* exits (one signal per thread of
@@ -236,9 +266,12 @@ def launch(host: str = "127.0.0.1", model: str = "ur10", controller: str = "5.11
             break
         proc.kill()
         _, err = proc.communicate()
-        if "in use" in err and time.monotonic() < bind_deadline:
-            time.sleep(0.2)
-            continue
+        if "in use" in err:
+            if time.monotonic() < bind_deadline:
+                time.sleep(0.2)
+                continue
+            raise PortsTakenError(f"simulated UR controller on {host} did not start: {err.strip()} "
+                                  f"({ports_holder(host)})")
         raise DeviceError(f"simulated UR controller on {host} did not start: {err.strip() or 'timeout'}")
     sim = SimProcess(host, proc)
     # The ready line is printed after bind/listen; one dashboard round trip proves the loop runs.
