@@ -38,7 +38,7 @@ def demo(cfg: Config, *, resume: Path | None = None, progress: bool = True) -> C
     if not devices.simulated(cfg):
         raise ConfigError("demo runs only a simulated cell (a simulated robot.type and camera.backend); "
                           "use 'handeye calibrate' for hardware")
-    if resume is not None and not read_session(resume).header.get("truth"):
+    if resume is not None and not read_session(resume).truth:
         raise SessionError(f"session {resume} was recorded on a real cell: continue it there with "
                            f"'handeye calibrate -c <its config> --resume {resume}'")
     return calibrate(cfg, resume=resume, progress=progress)
