@@ -67,6 +67,9 @@ def print_calibration_summary(out: CalibrationOutput) -> None:
     if r.stopped_by == "no_marker":
         print("gave up: too many consecutive frames without a marker (calibrate.max_missed_frames); check that "
               "the marker is in view and the [marker] section names it")
+    if r.result is None and r.stopped_by == "interrupted":
+        print(f"no calibration: interrupted with {r.n_samples} samples, all kept in {r.session}")
+        return
     if r.result is None:
         print(f"no calibration: {r.n_samples} samples are too few (every skip and its reason is in "
               f"{r.session / 'samples.jsonl'})")
