@@ -257,6 +257,9 @@ class _ActiveRun:
             raise
         except KeyboardInterrupt:
             self.robot.stop()
+            # The session is what was kept: a Ctrl-C while a sample's line was being synced to disk leaves
+            # the sample in the session but not yet in this run's list.
+            self.observations = read_session(self.writer.path).observations
             self.stopped_by = "interrupted"
             log.warning("interrupted: robot stopped, %d samples kept in %s", len(self.observations),
                         self.writer.path)
