@@ -66,12 +66,14 @@ class URSimRobot(URRobot):
     def connect(self) -> None:
         if self.sim is None:
             cfg = self.config
+            error = None if cfg.sim_robot_error is None else cfg.sim_robot_error.model_dump()
             try:
                 self.sim = launch(cfg.host, cfg.model, cfg.controller, cfg.initial_q, cfg.sim_tcp_offset,
-                                  robot_error=None if cfg.sim_robot_error is None else cfg.sim_robot_error.model_dump())
+                                  robot_error=error)
             except PortsTakenError as e:
-                raise PortsTakenError(f"{e}; stop that run, or give this one another loopback address (127.x.y.z) "
-                                      "as [robot] host in its config (-c; the demo's cell is config/sim.toml)") from None
+                raise PortsTakenError(f"{e}; stop that run, or give this one another loopback address "
+                                      "(127.x.y.z) as [robot] host in its config (-c; the demo's cell is "
+                                      "config/sim.toml)") from None
         super().connect()
 
     def true_flange_pose(self) -> np.ndarray:

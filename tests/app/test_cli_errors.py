@@ -89,7 +89,8 @@ def test_wrong_marker_id_skips_every_frame_with_reason(tmp_path, capsys, loopbac
 
 @pytest.mark.parametrize("argv, expected", [
     (["demo", "--no-viz"], "handeye demo --no-viz --resume 'my sessions/s1'"),
-    (["-v", "calibrate", "--resume", "old", "-c", "a b.toml"], "handeye -v calibrate -c 'a b.toml' --resume 'my sessions/s1'"),
+    (["-v", "calibrate", "--resume", "old", "-c", "a b.toml"],
+     "handeye -v calibrate -c 'a b.toml' --resume 'my sessions/s1'"),
     (["calibrate", "--resume=old", "--yes-move"], "handeye calibrate --yes-move --resume 'my sessions/s1'"),
     (["demo", "--res", "old", "--samples", "9"], "handeye demo --samples 9 --resume 'my sessions/s1'"),
 ])

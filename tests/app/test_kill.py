@@ -198,7 +198,7 @@ def test_ctrl_c_to_the_process_group_ends_a_monitor_normally(tmp_path, loopback,
 
 
 def test_ctrl_c_at_the_worst_moments_keeps_what_the_session_holds(sim_config, loopback, monkeypatch):
-    """Deterministic Ctrl-Cs where a timed signal rarely lands: while the 5th sample's line is synced (it is in
+    """Deterministic Ctrl-Cs where a timed signal rarely lands: while the 3rd sample's line is synced (it is in
     the session, so it is in the final solve and the counts), then during that final solve (no result, the run
     ends as interrupted with every sample kept, the interruption recorded twice)."""
     from app import devices
@@ -208,7 +208,7 @@ def test_ctrl_c_at_the_worst_moments_keeps_what_the_session_holds(sim_config, lo
 
     def add_sample_then_ctrl_c(self, obs, **kw):
         kept = add_sample(self, obs, **kw)
-        if self.n_samples == 5:
+        if self.n_samples == 3:
             raise KeyboardInterrupt
         return kept
 
@@ -224,13 +224,13 @@ def test_ctrl_c_at_the_worst_moments_keeps_what_the_session_holds(sim_config, lo
 
     monkeypatch.setattr(SessionWriter, "add_sample", add_sample_then_ctrl_c)
     monkeypatch.setattr(devices, "make_solve", solve_with_ctrl_c)
-    cfg = sim_config(loopback(9), samples=8, min_samples=5, target_sigma_mm=0.0, target_sigma_deg=0.0)
+    cfg = sim_config(loopback(9), samples=8, min_samples=3, target_sigma_mm=0.0, target_sigma_deg=0.0)
     cfg = cfg.model_copy(update={"viz": cfg.viz.model_copy(update={"enabled": False}),
                                  "session": cfg.session.model_copy(update={"save_frames": False})})
     out = calibrate(cfg, progress=False)
-    assert solved == [5] and out.report.n_samples == 5 and out.report.result is None
+    assert solved == [3] and out.report.n_samples == 3 and out.report.result is None
     assert out.report.stopped_by == "interrupted" and not (out.report.session / "result.yaml").exists()
     session = read_session(out.report.session)
-    assert len(session.observations) == 5 and session.interrupted
+    assert len(session.observations) == 3 and session.interrupted
     assert [(e["event"], e["n_samples"], e.get("stage")) for e in session.events] == [
-        ("interrupted", 5, None), ("interrupted", 5, "final solve")]
+        ("interrupted", 3, None), ("interrupted", 3, "final solve")]
