@@ -211,10 +211,14 @@ def ports_holder(host: str) -> str:
     """Who holds the simulator's ports on ``host``: the run that launched a simulator there (its pid and command
     line), a simulator started by hand, or another program."""
     try:
-        owner = json.loads(dashboard_command(host, "sim owner", timeout=1.0))
-        pid = owner["parent_pid"] or owner["pid"]
-    except (OSError, ValueError, KeyError, TypeError):
+        reply = dashboard_command(host, "sim owner", timeout=1.0)
+    except OSError:
         return "held by another program"
+    try:
+        owner = json.loads(reply)
+        pid = owner["parent_pid"] or owner["pid"]
+    except (ValueError, KeyError, TypeError):
+        return "held by another simulator or UR controller, which does not say which process it is"
     what = "the simulated controller of process" if owner["parent_pid"] else "a simulator started by hand, process"
     try:
         argv = [a.decode(errors="replace") for a in Path(f"/proc/{pid}/cmdline").read_bytes().split(b"\0") if a]
