@@ -183,18 +183,24 @@ def test_ctrl_c_to_the_process_group_stops_calibrate_with_too_few_samples(tmp_pa
     assert "no result to verify" in err and f"handeye demo [-c <config>] --resume {session_dir}" in err
 
 
-@pytest.mark.parametrize("command", [["monitor"], ["demo", "--monitor"]])
-def test_ctrl_c_to_the_process_group_ends_a_monitor_normally(tmp_path, loopback, command):
-    """monitor and demo --monitor: Ctrl-C is the normal end (summary, exit 0 without an alarm), not a lost
-    controller: the simulator running the production program does not take the SIGINT."""
-    root = tmp_path / "sessions"
-    argv = _cli(*command, "-c", str(_sim_cell(tmp_path, loopback(8))), "--session-root", str(root), "--no-viz",
-                "--no-frames")
-    rc, out, err = _ctrl_c(argv, root, 1)
-    assert rc == 0, err
-    assert "samples: " in out and "alarms: 0" in out and "error" not in err
-    session = read_session(next(root.iterdir()))
-    assert [e["event"] for e in session.events][-2:] == ["interrupted", "sample_set"]
+def test_ctrl_c_to_the_process_group_ends_monitor_and_demo_monitor_normally(tmp_path, loopback):
+    """monitor and demo --monitor (side by side, each on its own address): Ctrl-C is the normal end (summary,
+    exit 0 without an alarm), not a lost controller: the simulator running the production program does not
+    take the SIGINT."""
+    runs = {}
+    for slot, command in ((8, ["monitor"]), (9, ["demo", "--monitor"])):
+        (tmp_path / command[-1]).mkdir()
+        root = tmp_path / command[-1] / "sessions"
+        runs[command[-1]] = (_cli(*command, "-c", str(_sim_cell(tmp_path / command[-1], loopback(slot))),
+                                  "--session-root", str(root), "--no-viz", "--no-frames"), root)
+    ended = {}
+    ended["monitor"] = _ctrl_c(*runs["monitor"], 1, while_running=lambda _: ended.update(
+        {"--monitor": _ctrl_c(*runs["--monitor"], 1)}))
+    for name, (rc, out, err) in ended.items():
+        assert rc == 0, (name, err)
+        assert "samples: " in out and "alarms: 0" in out and "error" not in err, (name, out, err)
+        session = read_session(next(runs[name][1].iterdir()))
+        assert [e["event"] for e in session.events][-2:] == ["interrupted", "sample_set"], name
 
 
 def test_ctrl_c_at_the_worst_moments_keeps_what_the_session_holds(sim_config, loopback, monkeypatch):
@@ -224,7 +230,7 @@ def test_ctrl_c_at_the_worst_moments_keeps_what_the_session_holds(sim_config, lo
 
     monkeypatch.setattr(SessionWriter, "add_sample", add_sample_then_ctrl_c)
     monkeypatch.setattr(devices, "make_solve", solve_with_ctrl_c)
-    cfg = sim_config(loopback(9), samples=8, min_samples=3, target_sigma_mm=0.0, target_sigma_deg=0.0)
+    cfg = sim_config(loopback(12), samples=8, min_samples=3, target_sigma_mm=0.0, target_sigma_deg=0.0)
     cfg = cfg.model_copy(update={"viz": cfg.viz.model_copy(update={"enabled": False}),
                                  "session": cfg.session.model_copy(update={"save_frames": False})})
     out = calibrate(cfg, progress=False)
