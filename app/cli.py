@@ -37,6 +37,7 @@ def main(argv: list[str] | None = None) -> int:
     if extra and not getattr(command, "PASSTHROUGH", False):
         parser.error(f"unrecognized arguments: {' '.join(extra)}")
     args.extra = extra
+    args.argv = list(sys.argv[1:] if argv is None else argv)  # as typed: the command a run prints to continue it
     logging.basicConfig(level=logging.WARNING - 10 * min(args.verbose, 2),
                         format="%(asctime)s %(levelname)s %(name)s: %(message)s")
     t0 = time.monotonic()

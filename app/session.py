@@ -100,6 +100,16 @@ class Session:
         """True transforms (4x4 arrays) recorded by simulated sources, else empty (checked by `read_session`)."""
         return {k: np.asarray(v, dtype=float) for k, v in (self.header.get("truth") or {}).items()}
 
+    @property
+    def interrupted(self) -> bool:
+        """True when this calibration session's last run was stopped by Ctrl-C and no later run completed it
+        (of its ``interrupted`` and ``stopped`` events, the last is ``interrupted``): ``--resume`` continues it.
+        A monitor's Ctrl-C is its normal end: False for other sources than ``handeye`` (calibrate, demo)."""
+        if self.header.get("source") != "handeye":
+            return False
+        ends = [e.get("event") for e in self.events if e.get("event") in ("interrupted", "stopped")]
+        return bool(ends) and ends[-1] == "interrupted"
+
     def load_frames(self, obs: Observation) -> tuple[np.ndarray | None, np.ndarray | None]:
         """Color (H, W, 3) uint8 BGR and depth (H, W) float32 m of a sample, or None if not stored
         (or pruned by a monitor's ``keep_frames`` budget)."""

@@ -10,7 +10,8 @@ from pathlib import Path
 
 import numpy as np
 
-from app.commands.common import add_motion_options, add_run_options, confirm_motion, load_config_args, pose_line
+from app.commands.common import (add_motion_options, add_run_options, confirm_motion, load_config_args, pose_line,
+                                 resume_command)
 from app.runs.calibrate import CalibrationOutput, calibrate
 from calib import transforms as tf
 from app.formats.export import model_report
@@ -36,7 +37,14 @@ def run(args) -> int:
     confirm_motion(args.yes_move)
     out = calibrate(cfg, resume=args.resume)
     print_calibration_summary(out)
+    print_continue(out, args)
     return exit_code(out)
+
+
+def print_continue(out: CalibrationOutput, args) -> None:
+    """After Ctrl-C: the command that continues the run (`app.commands.common.resume_command`)."""
+    if out.report.stopped_by == "interrupted":
+        print(f"continue this run:   {resume_command(args, out.report.session)}")
 
 
 def exit_code(out: CalibrationOutput) -> int:
@@ -59,6 +67,9 @@ def print_calibration_summary(out: CalibrationOutput) -> None:
     if r.stopped_by == "no_marker":
         print("gave up: too many consecutive frames without a marker (calibrate.max_missed_frames); check that "
               "the marker is in view and the [marker] section names it")
+    if r.result is None and r.stopped_by == "interrupted":
+        print(f"no calibration: interrupted with {r.n_samples} samples, all kept in {r.session}")
+        return
     if r.result is None:
         print(f"no calibration: {r.n_samples} samples are too few (every skip and its reason is in "
               f"{r.session / 'samples.jsonl'})")

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import shlex
 import sys
 from pathlib import Path
 
@@ -132,6 +133,21 @@ def confirm_motion(yes_move: bool, *, stdin=None) -> None:
     answer = input("The robot will move to calibration poses around its current pose. Continue? [y/N] ")
     if answer.strip().lower() not in ("y", "yes"):
         raise HandeyeError("robot motion not confirmed; nothing moved")
+
+
+def resume_command(args, session: Path) -> str:
+    """The command line that continues ``session``: this run's as typed (``args.argv``, set by `app.cli.main`),
+    its own ``--resume`` (or an abbreviation argparse accepted) replaced by ``--resume session``."""
+    argv, resume_value_next = [], False
+    for arg in args.argv:
+        name = arg.split("=", 1)[0]
+        if resume_value_next:
+            resume_value_next = False
+        elif len(name) > 2 and "--resume".startswith(name):
+            resume_value_next = "=" not in arg
+        else:
+            argv.append(arg)
+    return shlex.join(["handeye", *argv, "--resume", str(session)])
 
 
 def pose_line(T: np.ndarray) -> str:

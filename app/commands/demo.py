@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from app.commands.calibrate import exit_code, print_calibration_summary
+from app.commands.calibrate import exit_code, print_calibration_summary, print_continue
 from app.commands.common import add_motion_options, add_run_options, load_config_args
 from app.commands.monitor import EXIT_ALARM, print_monitor_summary
 from app.production import Bump
@@ -22,6 +22,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--samples", type=int, help="number of samples (default from the config)")
     p.add_argument("--seed", type=int, help="seed of the pose candidates")
     add_motion_options(p)
+    p.add_argument("--resume", type=Path, help="continue this demo session (e.g. after Ctrl-C) on the simulated "
+                   "cell: its samples count towards --samples, new ones are appended")
     p.add_argument("--monitor", action="store_true", help="passive monitoring instead: the simulated robot runs a "
                    "looping production program, the camera is bumped partway; exit status 3 on the alarm")
     p.add_argument("--bump-mm", type=float, default=10.0, help="--monitor: camera shift, mm (default 10; 0 and "
@@ -36,12 +38,15 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 def run(args) -> int:
     if args.monitor:
         return _run_monitor(args)
-    out = demo(load_config_args(args))
+    out = demo(load_config_args(args), resume=args.resume)
     print_calibration_summary(out)
+    print_continue(out, args)
     return exit_code(out)
 
 
 def _run_monitor(args) -> int:
+    if args.resume is not None:
+        raise HandeyeError("--resume continues a calibration; demo --monitor records a new session each run")
     if args.bump_after < 1:
         raise HandeyeError(f"--bump-after must be >= 1, got {args.bump_after}")
     cfg = load_config_args(args)

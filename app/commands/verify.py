@@ -22,7 +22,9 @@ from pathlib import Path
 import numpy as np
 
 from app.commands.common import add_run_options, confirm_motion, load_config_args
+from app.errors import SessionError
 from app.runs.verify import verify
+from app.session import read_session
 from calib.errors import HandeyeError
 
 NAME = "verify"
@@ -94,12 +96,35 @@ def _config(args):
 def run(args) -> int:
     if args.passive and args.session is not None:
         raise HandeyeError("--passive samples the cell, --session verifies against a recording: give one of them")
+    resumable = continue_note(args.result)
+    if resumable is not None:
+        if not (args.result / "result.yaml" if args.result.is_dir() else args.result).exists():
+            raise SessionError(f"no result to verify: {resumable}")
+        print(f"note: {resumable}")
     out = verify(_config(args), args.result, session=args.session, setup=args.setup, passive=args.passive,
                  expect_xyz=args.expect_xyz, confirm=lambda: confirm_motion(args.yes_move))
     if out.interrupted:
         print(f"interrupted: robot stopped; {out.n_poses} poses measured (session {out.session})")
     print_verify_summary(out.doc, out.path, out.report)
     return 0 if out.passed else EXIT_FAIL
+
+
+def continue_note(result: Path) -> str | None:
+    """When ``result`` (a result file or its session) comes from a calibration stopped by Ctrl-C and not
+    continued since (`app.session.Session.interrupted`): what it holds and the command that continues it."""
+    directory = result if result.is_dir() else result.parent
+    if not (directory / "session.json").exists():
+        return None
+    try:
+        session = read_session(directory)
+    except SessionError:
+        return None  # verify itself reports an unreadable session
+    if not session.interrupted:
+        return None
+    command = (f"handeye demo [-c <config>] --resume {directory}" if session.truth
+               else f"handeye calibrate -c <the cell's config> --resume {directory}")
+    return (f"the calibration in {directory} was interrupted (Ctrl-C) after {len(session.observations)} samples; "
+            f"continue it with: {command}")
 
 
 def print_verify_summary(doc: dict, path: Path, report: Path) -> None:

@@ -258,6 +258,9 @@ class _ActiveRun:
             raise
         except KeyboardInterrupt:
             self.robot.stop()
+            # The session is what was kept: a Ctrl-C while a sample's line was being synced to disk leaves
+            # the sample in the session but not yet in this run's list.
+            self.observations = read_session(self.writer.path).observations
             self.stopped_by = "interrupted"
             log.warning("interrupted: robot stopped, %d samples kept in %s", len(self.observations),
                         self.writer.path)
@@ -347,7 +350,8 @@ class _ActiveRun:
         return None
 
     def final_solve(self) -> CalibrationResult | None:
-        """The refined solve of every sample (None with fewer than 3, or when it fails: logged and recorded)."""
+        """The refined solve of every sample (None with fewer than 3, or when it fails: logged and recorded;
+        also None after a Ctrl-C during the solve: recorded as an interruption, the samples kept)."""
         result = None
         if len(self.observations) >= 3:
             try:
@@ -357,6 +361,14 @@ class _ActiveRun:
             except CalibrationError as e:
                 log.error("final solve failed: %s", e)
                 self.writer.add_event(time.time(), "solve_failed", error=str(e))
+            except KeyboardInterrupt:
+                # Ctrl-C (a first one, or a second after the one that stopped the robot) during the solve of
+                # the kept samples: the run ends as interrupted, its --resume solves them again.
+                self.stopped_by = "interrupted"
+                log.warning("final solve interrupted: %d samples kept in %s", len(self.observations),
+                            self.writer.path)
+                self.writer.add_event(time.time(), "interrupted", n_samples=len(self.observations),
+                                      stage="final solve")
         return result
 
 

@@ -6,10 +6,11 @@ from pathlib import Path
 
 from app import devices
 from app.config import Config
-from app.errors import ConfigError
+from app.errors import ConfigError, SessionError
 from app.production import Bump
 from app.runs.calibrate import CalibrationOutput, calibrate
 from app.runs.monitor import MonitorReport, monitor
+from app.session import read_session
 
 #: Monitor settings of ``handeye demo --monitor``: quick standstills and a first calibration tried every
 #: 4 new poses, so the whole story (arming, bump, alarm, re-learn) fits in about a minute.
@@ -21,19 +22,26 @@ DEMO_MONITOR = {"still_s": 0.2, "poll_s": 0.02, "reestimate_samples": 4}
 DEMO_SECONDS_PER_SAMPLE = 3.0
 
 
-def demo(cfg: Config, *, progress: bool = True) -> CalibrationOutput:
+def demo(cfg: Config, *, resume: Path | None = None, progress: bool = True) -> CalibrationOutput:
     """Calibrate the simulated cell: the UR simulator (started by the robot driver, driven
     through the real ur_rtde client) and the rendered camera, whose true pose is known.
+
+    ``resume``: a session of a simulated cell to continue, as `app.runs.calibrate.calibrate` does.
 
     Raises
     ------
     ConfigError
         If the config names real hardware: the demo moves without asking.
+    SessionError
+        If ``resume`` was recorded on a real cell (no simulated truth): its samples are not the demo's.
     """
     if not devices.simulated(cfg):
         raise ConfigError("demo runs only a simulated cell (a simulated robot.type and camera.backend); "
                           "use 'handeye calibrate' for hardware")
-    return calibrate(cfg, progress=progress)
+    if resume is not None and not read_session(resume).truth:
+        raise SessionError(f"session {resume} was recorded on a real cell: continue it there with "
+                           f"'handeye calibrate -c <its config> --resume {resume}'")
+    return calibrate(cfg, resume=resume, progress=progress)
 
 
 def demo_monitor(cfg: Config, *, bump: Bump | None, reference: Path | None = None, max_samples: int | None = None,

@@ -272,7 +272,9 @@ def run_hook(command: str, env: dict) -> None:
         argv = hook_argv(command)
         if not argv:
             return
-        done = subprocess.run(argv, env={**os.environ, **env}, timeout=30, capture_output=True, text=True)
+        # Its own session: a terminal's Ctrl-C is for the monitor, not for the hook and the programs it starts.
+        done = subprocess.run(argv, env={**os.environ, **env}, timeout=30, capture_output=True, text=True,
+                              start_new_session=True)
     except (OSError, subprocess.TimeoutExpired, ConfigError) as e:
         log.error("alarm hook %r failed: %s", command, e)
         return

@@ -19,7 +19,9 @@ thread it does not own, so the driver never calls ur_rtde in its own process:
   SIGKILLs the child: no ur_rtde teardown ever runs next to ur_rtde's own
   recovery, and a native crash of the child can only become a
   `ConnectionLostError` in the driver;
-- the child exits when its parent dies (socket EOF, or re-parenting).
+- the child exits when its parent dies (socket EOF, or re-parenting), and runs
+  in its own session: a terminal's Ctrl-C is for the parent, which stops the
+  robot and then closes the child.
 
 Wire protocol over a socketpair (`multiprocessing.connection` framing).
 Child -> parent: ``("ready",)``, ``("fatal", msg)``, ``("lost", msg)``,
@@ -147,7 +149,9 @@ def serve(conn: Connection, host: str, frequency: float, read_only: bool, variab
 
 def _main(argv: list[str]) -> int:
     fd, spec = int(argv[0]), json.loads(argv[1])
-    signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C is the parent's to handle; it closes us
+    # Ctrl-C is the parent's to handle; it closes us. Our own session (`RTDEClient.start`) keeps a
+    # terminal's SIGINT away from the start on; this also ignores a service manager's SIGINT to the group.
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
     code = serve(Connection(fd), spec["host"], spec["frequency"], spec["read_only"], spec["variables"])
     # Skip interpreter teardown: ur_rtde's destructors would disconnect again, and an orphaned
     # client must not block on a dead stream. The kernel closes the sockets.
@@ -197,7 +201,7 @@ class RTDEClient:
             self.proc = subprocess.Popen(
                 [sys.executable, "-m", "drivers.robot.ur_client", str(theirs.fileno()), self._spec],
                 pass_fds=(theirs.fileno(),), stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL,
-                stderr=subprocess.PIPE, text=True)
+                stderr=subprocess.PIPE, text=True, start_new_session=True)
         finally:
             theirs.close()
         self._conn = Connection(ours.detach())

@@ -24,18 +24,24 @@ import collections
 import json
 import logging
 import os
+import shlex
 import signal
 import socket
 import subprocess
 import sys
 import threading
 import time
+from pathlib import Path
 
 import numpy as np
 
 from drivers.errors import DeviceError
 
-__all__ = ["main", "launch", "SimProcess"]
+__all__ = ["main", "launch", "SimProcess", "PortsTakenError", "dashboard_command"]
+
+
+class PortsTakenError(DeviceError):
+    """The simulator cannot bind its address: another simulator (or another program) holds its ports."""
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -55,7 +61,8 @@ def main(argv: list[str] | None = None) -> int:
                     "(JSON of mocks.ur_sim.truth.SimRobotError)")
     ap.add_argument("--program", help="JSON file: a looping production program to run (mocks.ur_sim.program)")
     ap.add_argument("--parent-pid", type=int, metavar="PID",
-                    help="stop as soon as this process is no longer our parent (it died)")
+                    help="stop as soon as this process is no longer our parent (it died); SIGINT is then "
+                    "ignored (the parent stops the simulator with SIGTERM)")
     ap.add_argument("-v", "--verbose", action="store_true")
     args = ap.parse_args(argv)
     logging.basicConfig(level=logging.INFO if args.verbose else logging.WARNING, format="ur_sim: %(message)s")
@@ -93,7 +100,10 @@ def main(argv: list[str] | None = None) -> int:
         server.stopping = True  # async-signal-safe: no lock, re-entry harmless (see SimServer.stopping)
 
     if threading.current_thread() is threading.main_thread():
-        signal.signal(signal.SIGINT, _stop)
+        # A launched simulator (--parent-pid) is stopped by its parent, with SIGTERM, after the parent
+        # has stopped the robot: a Ctrl-C meant for the parent (a terminal's, or a service manager's
+        # KillSignal=SIGINT to the whole group) must not take the controller away first.
+        signal.signal(signal.SIGINT, _stop if args.parent_pid is None else signal.SIG_IGN)
         signal.signal(signal.SIGTERM, _stop)
     print(f"ur_sim ready on {args.host}: {ctl.model} controller {'.'.join(map(str, ctl.version))} "
           f"at {ctl.frequency:.0f} Hz", flush=True)
@@ -126,11 +136,7 @@ class SimProcess:
 
     def command(self, line: str, timeout: float = 5.0) -> str:
         """Send one dashboard line on a fresh connection and return the one-line answer."""
-        with socket.create_connection((self.host, 29999), timeout=timeout) as s:
-            f = s.makefile("rb")
-            f.readline()  # greeting
-            s.sendall(line.encode() + b"\n")
-            return f.readline().decode().strip()
+        return dashboard_command(self.host, line, timeout)
 
     def state(self) -> dict:
         """Ground truth: q, T_base_flange, tcp_offset, command log, script uploads ..."""
@@ -192,6 +198,37 @@ class SimProcess:
         return False
 
 
+def dashboard_command(host: str, line: str, timeout: float = 5.0) -> str:
+    """Send one line to the dashboard port (29999) of ``host`` on a fresh connection; the one-line answer."""
+    with socket.create_connection((host, 29999), timeout=timeout) as s:
+        f = s.makefile("rb")
+        f.readline()  # greeting
+        s.sendall(line.encode() + b"\n")
+        return f.readline().decode().strip()
+
+
+def ports_holder(host: str) -> str:
+    """Who holds the simulator's ports on ``host``: the run that launched a simulator there (its pid and command
+    line), a simulator started by hand, or another program."""
+    try:
+        reply = dashboard_command(host, "sim owner", timeout=1.0)
+    except OSError:
+        return "held by another program"
+    try:
+        owner = json.loads(reply)
+        pid = owner["parent_pid"] or owner["pid"]
+    except (ValueError, KeyError, TypeError):
+        return "held by another simulator or UR controller, which does not say which process it is"
+    what = "the simulated controller of process" if owner["parent_pid"] else "a simulator started by hand, process"
+    try:
+        argv = [a.decode(errors="replace") for a in Path(f"/proc/{pid}/cmdline").read_bytes().split(b"\0") if a]
+    except OSError:
+        return f"held by {what} {pid}"
+    if len(argv) > 1 and Path(argv[0]).name.startswith("python") and not argv[1].startswith("-"):
+        argv = argv[1:]  # a console script (.venv/bin/handeye): its name, not the interpreter's
+    return f"held by {what} {pid}: {shlex.join([Path(argv[0]).name, *argv[1:]])[:160]}"
+
+
 def launch(host: str = "127.0.0.1", model: str = "ur10", controller: str = "5.11", initial_q=None,
            tcp_offset=None, timeout: float = 15.0, robot_error: dict | None = None) -> SimProcess:
     """Start ``python -m mocks.ur_sim`` and wait until its ports accept connections.
@@ -203,7 +240,8 @@ def launch(host: str = "127.0.0.1", model: str = "ur10", controller: str = "5.11
     ------
     DeviceError
         If the simulator exits or does not report ready within ``timeout`` s
-        (message includes its stderr, e.g. address already in use).
+        (message includes its stderr); `PortsTakenError` when its address is taken (the message
+        names who holds it).
     """
     # The simulator watches this process (--parent-pid) and stops when it dies, even by SIGKILL.
     # Not PR_SET_PDEATHSIG: that fires when the launching *thread* exits (one signal per thread of
@@ -220,7 +258,10 @@ def launch(host: str = "127.0.0.1", model: str = "ur10", controller: str = "5.11
     # to free the ports: an immediate `--resume` waits for it instead of failing.
     bind_deadline = time.monotonic() + min(timeout, 5.0)
     while True:
-        proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+        # Its own session: a terminal's Ctrl-C (SIGINT to the foreground process group) is for the
+        # parent, which stops the robot, then the simulator (`SimProcess.stop`).
+        proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                                start_new_session=True)
         ready: list[str] = []
         reader = threading.Thread(target=lambda: ready.append(proc.stdout.readline()), daemon=True)
         reader.start()
@@ -229,9 +270,12 @@ def launch(host: str = "127.0.0.1", model: str = "ur10", controller: str = "5.11
             break
         proc.kill()
         _, err = proc.communicate()
-        if "in use" in err and time.monotonic() < bind_deadline:
-            time.sleep(0.2)
-            continue
+        if "in use" in err:
+            if time.monotonic() < bind_deadline:
+                time.sleep(0.2)
+                continue
+            raise PortsTakenError(f"simulated UR controller on {host} did not start: {err.strip()} "
+                                  f"({ports_holder(host)})")
         raise DeviceError(f"simulated UR controller on {host} did not start: {err.strip() or 'timeout'}")
     sim = SimProcess(host, proc)
     # The ready line is printed after bind/listen; one dashboard round trip proves the loop runs.

@@ -17,7 +17,7 @@ from calib.params import Str, Vector6
 from drivers.errors import DeviceError
 from drivers.robot.registry import ROBOTS
 from drivers.robot.ur import URRobot, URRobotConfig
-from mocks.ur_sim import SimProcess, launch
+from mocks.ur_sim import PortsTakenError, SimProcess, launch
 from mocks.ur_sim.controller import parse_version
 from mocks.ur_sim.truth import SimRobotError
 
@@ -66,8 +66,14 @@ class URSimRobot(URRobot):
     def connect(self) -> None:
         if self.sim is None:
             cfg = self.config
-            self.sim = launch(cfg.host, cfg.model, cfg.controller, cfg.initial_q, cfg.sim_tcp_offset,
-                              robot_error=None if cfg.sim_robot_error is None else cfg.sim_robot_error.model_dump())
+            error = None if cfg.sim_robot_error is None else cfg.sim_robot_error.model_dump()
+            try:
+                self.sim = launch(cfg.host, cfg.model, cfg.controller, cfg.initial_q, cfg.sim_tcp_offset,
+                                  robot_error=error)
+            except PortsTakenError as e:
+                raise PortsTakenError(f"{e}; stop that run, or give this one another loopback address "
+                                      "(127.x.y.z) as [robot] host in its config (-c; the demo's cell is "
+                                      "config/sim.toml)") from None
         super().connect()
 
     def true_flange_pose(self) -> np.ndarray:

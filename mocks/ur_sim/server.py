@@ -21,6 +21,9 @@ line each, answered with one line:
 ``sim set_q q1 ... q6``       teleport the idle arm (rad)
 ``sim program <json>``        run a looping production program (`mocks.ur_sim.program`)
 ``sim program stop``          end it (the arm finishes its current motion)
+``sim owner``                 JSON ``{"pid": ..., "parent_pid": ...}``: this simulator and the process that launched
+                              it (``--parent-pid``; null when started by hand), for a second run that finds its
+                              ports taken
 """
 
 from __future__ import annotations
@@ -460,6 +463,8 @@ class SimServer:
                 return "ok", lambda: self.drop_all(seconds)
             if cmd == "program":
                 return self._program_command(" ".join(words[1:])), None
+            if cmd == "owner":
+                return json.dumps({"pid": os.getpid(), "parent_pid": self.parent_pid}), None
             if cmd == "set_q":
                 ctl.set_q([float(w) for w in words[1:7]])
                 return "ok", None

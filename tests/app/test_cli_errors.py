@@ -85,3 +85,33 @@ def test_wrong_marker_id_skips_every_frame_with_reason(tmp_path, capsys, loopbac
 
     session = read_session(next(tmp_path.glob("*_eye_to_hand")))
     assert len(session.skipped) == 3 and not session.observations
+
+
+@pytest.mark.parametrize("argv, expected", [
+    (["demo", "--no-viz"], "handeye demo --no-viz --resume 'my sessions/s1'"),
+    (["-v", "calibrate", "--resume", "old", "-c", "a b.toml"],
+     "handeye -v calibrate -c 'a b.toml' --resume 'my sessions/s1'"),
+    (["calibrate", "--resume=old", "--yes-move"], "handeye calibrate --yes-move --resume 'my sessions/s1'"),
+    (["demo", "--res", "old", "--samples", "9"], "handeye demo --samples 9 --resume 'my sessions/s1'"),
+])
+def test_resume_command_is_the_runs_own_with_its_session(argv, expected):
+    """The command an interrupted run prints to continue: what was typed, its own --resume (also abbreviated or
+    with '=') replaced, quoted for a shell."""
+    import argparse
+    from pathlib import Path
+
+    from app.commands.common import resume_command
+
+    assert resume_command(argparse.Namespace(argv=argv), Path("my sessions/s1")) == expected
+
+
+def test_demo_resume_refusals(tmp_path, capsys):
+    """demo --resume continues only a simulated cell's calibration session, and not with --monitor."""
+    from app.session import SessionWriter
+
+    assert "--resume continues a calibration" in _one_line_error(
+        capsys, main(["demo", "--monitor", "--resume", str(tmp_path)]))
+    with SessionWriter.create(tmp_path, "eye_to_hand") as w:  # a real cell's session: no simulated truth
+        pass
+    line = _one_line_error(capsys, main(["demo", "--resume", str(w.path), "--session-root", str(tmp_path)]))
+    assert "recorded on a real cell" in line and f"handeye calibrate -c <its config> --resume {w.path}" in line

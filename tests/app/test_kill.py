@@ -1,6 +1,9 @@
 """A session killed mid-run (SIGKILL, no cleanup) keeps every sample taken and replays."""
 
 import os
+import re
+import shlex
+import shutil
 import signal
 import subprocess
 import sys
@@ -62,26 +65,178 @@ def test_sigkill_mid_run_then_replay_and_resume(tmp_path, capsys, sim_config, lo
     assert (session_dir / "result.yaml").exists()
 
 
-def test_ctrl_c_stops_and_keeps_samples(tmp_path, loopback):
+def _cli(*args) -> list[str]:
+    return [sys.executable, "-m", "app.cli", *args]
+
+
+def _sim_cell(tmp_path, host: str, **calibrate) -> Path:
+    """config/sim.toml on ``host`` with ``[calibrate]`` values replaced."""
+    text = Path("config/sim.toml").read_text().replace('host = "127.0.0.2"', f'host = "{host}"')
+    for key, value in calibrate.items():
+        text = re.sub(rf"(?m)^{key} = \S+", f"{key} = {value}", text, count=1)
     cfg = tmp_path / "sim.toml"
-    cfg.write_text(Path("config/sim.toml").read_text().replace('host = "127.0.0.2"', f'host = "{loopback(6)}"'))
-    root = tmp_path / "sessions"
-    proc = subprocess.Popen([sys.executable, "-m", "app.cli", "calibrate", "--yes-move", "-c", str(cfg),
-                             "--session-root", str(root), "--no-viz", "--no-frames"],
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, start_new_session=True)
+    cfg.write_text(text)
+    return cfg
+
+
+def _ctrl_c(argv: list[str], root: Path, n_samples: int, while_running=None) -> tuple[int, str, str]:
+    """Run ``argv`` in its own session, and once ``root`` holds ``n_samples`` samples send SIGINT to the
+    whole process group, as a terminal's Ctrl-C does (the children the run started included).
+    ``while_running()`` is called once meanwhile. Returns (exit status, stdout, stderr)."""
+    proc = subprocess.Popen(argv, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, start_new_session=True)
     try:
-        deadline = time.monotonic() + 60
-        while _sample_lines(root) < 2:
-            assert proc.poll() is None and time.monotonic() < deadline
+        if while_running is not None:
+            while_running(proc)
+        deadline = time.monotonic() + 90
+        while _sample_lines(root) < n_samples:
+            assert proc.poll() is None, proc.communicate()
+            assert time.monotonic() < deadline, f"fewer than {n_samples} samples in 90 s"
             time.sleep(0.05)
-        proc.send_signal(signal.SIGINT)  # what Ctrl-C at the terminal sends
+        os.killpg(proc.pid, signal.SIGINT)
         out, err = proc.communicate(timeout=60)
     finally:
         if proc.poll() is None:
             os.killpg(proc.pid, signal.SIGKILL)
             proc.wait()
-    assert proc.returncode == 130, err
-    assert "stopped by: interrupted" in out
-    session = read_session(next(root.iterdir()))
-    assert len(session.observations) >= 2
+    # The run stopped its own children (they have sessions of their own): none is left behind.
+    assert not _processes_naming(f"--parent-pid {proc.pid}")
+    assert "Traceback" not in err, err
+    return proc.returncode, out, err
+
+
+def _processes_naming(text: str) -> list[str]:
+    found = []
+    for cmdline in Path("/proc").glob("[0-9]*/cmdline"):
+        try:
+            line = cmdline.read_bytes().replace(b"\0", b" ").decode(errors="replace")
+        except OSError:
+            continue
+        if text in line:
+            found.append(line)
+    return found
+
+
+def test_ctrl_c_to_the_process_group_keeps_the_demo_result_and_resumes(tmp_path, capsys, loopback):
+    """Ctrl-C after min_samples samples: the simulator does not take the SIGINT, the run stops the robot,
+    solves the kept samples, writes result.yaml and report.html, records the interruption and prints the
+    command that continues it, exit 130; that command resumes the session to the samples asked for.
+    Meanwhile a second demo on the same address says who holds it and which setting to change."""
+    host = loopback(7)
+    cfg = _sim_cell(tmp_path, host, min_samples=5)
+    root = tmp_path / "sessions"
+    argv = ["demo", "-c", str(cfg), "--samples", "7", "--until-sigma", "off", "--session-root", str(root),
+            "--no-viz", "--no-frames"]
+
+    def second_demo(proc):
+        while not _sample_lines(root):
+            time.sleep(0.05)
+        assert main(argv) == 1
+        err = capsys.readouterr().err
+        assert f"cannot bind {host}" in err and "Address already in use" in err, err
+        assert f"held by the simulated controller of process {proc.pid}: " in err and " demo -c " in err
+        assert "[robot] host" in err
+
+    rc, out, err = _ctrl_c(_cli(*argv), root, 5, while_running=second_demo)
+    assert rc == 130, err
+    session_dir = next(root.iterdir())
+    session = read_session(session_dir)
+    n = len(session.observations)
+    assert 5 <= n < 7 and f"samples: {n}" in out and "stopped by: interrupted" in out
+    assert session.events[-1] == {**session.events[-1], "event": "interrupted", "n_samples": n}
+    assert session.interrupted
+    assert (session_dir / "result.yaml").stat().st_size > 0 and (session_dir / "report.html").stat().st_size > 0
+    resume = [line.split(":", 1)[1].strip() for line in out.splitlines() if line.startswith("continue this run:")]
+    assert resume == [shlex.join(["handeye", *argv, "--resume", str(session_dir)])], out
+
+    # verify of the interrupted calibration's result names the command that continues it (offline, on the same
+    # samples: against a copy, as verify refuses the result's own session)
+    copy = shutil.copytree(session_dir, tmp_path / "copy")
+    assert main(["verify", "--result", str(copy), "--session", str(session_dir),
+                 "--session-root", str(tmp_path / "verify")]) == 0
+    assert f"interrupted (Ctrl-C) after {n} samples; continue it with: handeye demo [-c <config>] --resume " \
+           f"{copy}" in capsys.readouterr().out
+
+    # ... and the printed command continues the session (same address: the simulator has gone with its run)
+    assert main(shlex.split(resume[0])[1:]) == 0
+    out = capsys.readouterr().out
+    assert "samples: 7" in out and "stopped by: samples" in out
+    session = read_session(session_dir)
+    assert [o.index for o in session.observations] == list(range(7)) and not session.interrupted
+
+
+def test_ctrl_c_to_the_process_group_stops_calibrate_with_too_few_samples(tmp_path, capsys, loopback):
+    """Ctrl-C before there is anything to solve: exit 130, no result, the samples kept, the interruption
+    recorded, the continue command printed; verify of that session says there is no result and how to go on."""
+    cfg = _sim_cell(tmp_path, loopback(6))
+    root = tmp_path / "sessions"
+    argv = ["calibrate", "--yes-move", "-c", str(cfg), "--session-root", str(root), "--no-viz", "--no-frames"]
+    rc, out, err = _ctrl_c(_cli(*argv), root, 2)
+    assert rc == 130, err
+    session_dir = next(root.iterdir())
+    session = read_session(session_dir)
+    n = len(session.observations)
+    assert n >= 2 and "stopped by: interrupted" in out and f"no calibration: interrupted with {n} samples" in out
     assert session.events[-1]["event"] == "interrupted"
+    assert f"continue this run:   {shlex.join(['handeye', *argv, '--resume', str(session_dir)])}" in out
+    assert main(["verify", "--result", str(session_dir)]) == 1
+    err = capsys.readouterr().err
+    assert "no result to verify" in err and f"handeye demo [-c <config>] --resume {session_dir}" in err
+
+
+def test_ctrl_c_to_the_process_group_ends_monitor_and_demo_monitor_normally(tmp_path, loopback):
+    """monitor and demo --monitor (side by side, each on its own address): Ctrl-C is the normal end (summary,
+    exit 0 without an alarm), not a lost controller: the simulator running the production program does not
+    take the SIGINT."""
+    runs = {}
+    for slot, command in ((8, ["monitor"]), (9, ["demo", "--monitor"])):
+        (tmp_path / command[-1]).mkdir()
+        root = tmp_path / command[-1] / "sessions"
+        runs[command[-1]] = (_cli(*command, "-c", str(_sim_cell(tmp_path / command[-1], loopback(slot))),
+                                  "--session-root", str(root), "--no-viz", "--no-frames"), root)
+    ended = {}
+    ended["monitor"] = _ctrl_c(*runs["monitor"], 1, while_running=lambda _: ended.update(
+        {"--monitor": _ctrl_c(*runs["--monitor"], 1)}))
+    for name, (rc, out, err) in ended.items():
+        assert rc == 0, (name, err)
+        assert "samples: " in out and "alarms: 0" in out and "error" not in err, (name, out, err)
+        session = read_session(next(runs[name][1].iterdir()))
+        assert [e["event"] for e in session.events][-2:] == ["interrupted", "sample_set"], name
+
+
+def test_ctrl_c_at_the_worst_moments_keeps_what_the_session_holds(sim_config, loopback, monkeypatch):
+    """Deterministic Ctrl-Cs where a timed signal rarely lands: while the 3rd sample's line is synced (it is in
+    the session, so it is in the final solve and the counts), then during that final solve (no result, the run
+    ends as interrupted with every sample kept, the interruption recorded twice)."""
+    from app import devices
+    from app.session import SessionWriter
+
+    add_sample, make_solve, solved = SessionWriter.add_sample, devices.make_solve, []
+
+    def add_sample_then_ctrl_c(self, obs, **kw):
+        kept = add_sample(self, obs, **kw)
+        if self.n_samples == 3:
+            raise KeyboardInterrupt
+        return kept
+
+    def solve_with_ctrl_c(*args, **kw):
+        solve = make_solve(*args, **kw)
+
+        def run(observations, *, final):
+            if final:
+                solved.append(len(observations))
+                raise KeyboardInterrupt
+            return solve(observations, final=final)
+        return run
+
+    monkeypatch.setattr(SessionWriter, "add_sample", add_sample_then_ctrl_c)
+    monkeypatch.setattr(devices, "make_solve", solve_with_ctrl_c)
+    cfg = sim_config(loopback(12), samples=8, min_samples=3, target_sigma_mm=0.0, target_sigma_deg=0.0)
+    cfg = cfg.model_copy(update={"viz": cfg.viz.model_copy(update={"enabled": False}),
+                                 "session": cfg.session.model_copy(update={"save_frames": False})})
+    out = calibrate(cfg, progress=False)
+    assert solved == [3] and out.report.n_samples == 3 and out.report.result is None
+    assert out.report.stopped_by == "interrupted" and not (out.report.session / "result.yaml").exists()
+    session = read_session(out.report.session)
+    assert len(session.observations) == 3 and session.interrupted
+    assert [(e["event"], e["n_samples"], e.get("stage")) for e in session.events] == [
+        ("interrupted", 3, None), ("interrupted", 3, "final solve")]

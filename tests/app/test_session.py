@@ -88,3 +88,20 @@ def test_missing_session_and_bad_lines(tmp_path):
     (tmp_path / "samples.jsonl").write_text('garbage\n{"kind": "event", "t": 1, "event": "x"}\n')
     with pytest.raises(SessionError, match="line 1: invalid JSON"):
         read_session(tmp_path)
+
+
+def test_interrupted_is_how_the_calibrations_last_run_ended(tmp_path):
+    """`Session.interrupted`: the last of a calibration's interrupted/stopped events is an interruption (a
+    resumed run that ended normally clears it); a monitor's Ctrl-C is its normal end."""
+    def ends(events, source="handeye"):
+        with SessionWriter.create(tmp_path, "eye_to_hand", source=source) as w:
+            for i, (event, fields) in enumerate(events):
+                w.add_event(float(i), event, **fields)
+        return read_session(w.path).interrupted
+
+    assert not ends([])
+    assert ends([("interrupted", {"n_samples": 6})])
+    assert not ends([("interrupted", {"n_samples": 6}), ("stopped", {"stopped_by": "samples"})])
+    assert ends([("stopped", {"stopped_by": "samples"}), ("interrupted", {"stage": "final solve"}),
+                 ("alarm", {})])
+    assert not ends([("interrupted", {"n_samples": 6})], source="handeye monitor")
