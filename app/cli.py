@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import argparse
 import logging
+import signal
 import sys
 import time
 
@@ -31,6 +32,10 @@ def build_parser() -> tuple[argparse.ArgumentParser, dict]:
 
 
 def main(argv: list[str] | None = None) -> int:
+    # A shell without job control starts a background command with SIGINT ignored; handeye's Ctrl-C is a clean
+    # stop (the robot stopped, every sample kept, exit 130), so `handeye ... & kill -INT -- -PGID` must reach it.
+    if signal.getsignal(signal.SIGINT) is signal.SIG_IGN:
+        signal.signal(signal.SIGINT, signal.default_int_handler)
     parser, commands = build_parser()
     args, extra = parser.parse_known_args(argv)
     command = commands[args.command]
