@@ -281,7 +281,7 @@ class MonitorEngine:
         stops = self.stops
         i = stops.lookup(s)
         S_inv = sym3(inn.S_inv)
-        r_test, S_test_inv, offset_var = inn.r, S_inv, None
+        r_test, S_test_inv, test_inv, offset_var = inn.r, S_inv, inn.S_inv, None
         Hc = inn.H[:, :6]
         baseline = i is not None and stops.n[i] >= MIN_BASELINE
         if baseline:
@@ -294,14 +294,16 @@ class MonitorEngine:
             k = 1.0 + 1.0 / stops.n[i]
             R = inn.R
             (a, b, c), (_, d, e), (_, _, f) = (Hc * offset_var).dot(Hc.T).tolist()
-            S_test_inv = sym3(inv_sym3_floats(a + k * R[0], b + k * R[1], c + k * R[2], d + k * R[3], e + k * R[4],
-                                              f + k * R[5]))
+            test_inv = inv_sym3_floats(a + k * R[0], b + k * R[1], c + k * R[2], d + k * R[3], e + k * R[4],
+                                       f + k * R[5])
+            S_test_inv = sym3(test_inv)
         # While a re-learnt camera settles the stops still refine it: that is not a move.
         fired = not self._settle and self.detector.update(r_test, S_test_inv, Hc, offset_var,
                                                           shared=not baseline)
         statistic = self.detector.statistic
-        r0, r1, r2 = r_test
-        nis = float(r0 * (S_test_inv[0] @ r_test) + r1 * (S_test_inv[1] @ r_test) + r2 * (S_test_inv[2] @ r_test))
+        (r0, r1, r2), (i0, i1, i2, i3, i4, i5) = r_test, test_inv
+        nis = ((r0 * i0 + r1 * i1 + r2 * i2) * r0 + (r0 * i1 + r1 * i3 + r2 * i4) * r1
+               + (r0 * i2 + r1 * i4 + r2 * i5) * r2)
         if not fired:
             self._window.append(Visit(s, self.filter, nis))
             self.filter = fuse(self.filter, inn.PHt, S_inv, inn.r)

@@ -70,13 +70,15 @@ class Walk(NamedTuple):
 
     It moves the camera transform and the walk states alike, so their
     covariance grows by ``q dt [[I, I], [I, I]]`` over (camera, walk):
-    ``rows`` and ``cols`` are those 24 entries of ``P``, ``per_s`` their
+    ``rows`` and ``cols`` are those 24 entries of ``P`` (``flat``: the same
+    as indices into a contiguous ``P``'s flat view), ``per_s`` their
     increments (4 copies of the diagonal ``q``: rotation rad^2, translation
     m^2 per second).
     """
 
     rows: np.ndarray
     cols: np.ndarray
+    flat: np.ndarray
     per_s: np.ndarray
     max_gap_s: float
 
@@ -86,8 +88,8 @@ class Walk(NamedTuple):
         sr, st = rotation_rad_per_sqrt_h, translation_m_per_sqrt_h
         q = np.array([sr * sr] * 3 + [st * st] * 3) / hour_s
         camera, walk = np.arange(6), layout.model + np.arange(6)
-        return cls(np.r_[camera, walk, camera, walk], np.r_[camera, walk, walk, camera], np.tile(q, 4),
-                   max_gap_h * hour_s)
+        rows, cols = np.r_[camera, walk, camera, walk], np.r_[camera, walk, walk, camera]
+        return cls(rows, cols, rows * layout.size + cols, np.tile(q, 4), max_gap_h * hour_s)
 
     def variance(self, dt: float) -> np.ndarray:
         """The walk's variance (6,) of the camera transform over ``dt`` seconds (rotation, translation)."""
@@ -143,9 +145,10 @@ def predict(state: FilterState, t: float, walk: Walk) -> FilterState:
         if P is state.P:
             P = P.copy()
         dt = min(t - state.t, walk.max_gap_s)
-        P[walk.rows, walk.cols] += walk.per_s * dt
+        # P[rows, cols] += ..., on the fresh contiguous array's flat view (a third of the indexing's cost)
+        P.reshape(-1)[walk.flat] += walk.per_s * dt
         walk_t += dt
-    return state._replace(P=P, t=max(float(t), state.t), walk_t=walk_t, pending=1.0)
+    return FilterState(state.C, state.u, P, max(float(t), state.t), walk_t, state.scale, 1.0, state.parts)
 
 
 class Innovation(NamedTuple):
@@ -225,7 +228,7 @@ def fuse(state: FilterState, PHt: np.ndarray, S_inv: np.ndarray, r) -> FilterSta
     r0, r1, r2 = matmul3(so3_exp_scalar(d0, d1, d2), R)
     t = (x + d3, y + d4, z + d5)
     C = np.array(r0 + t[:1] + r1 + t[1:2] + r2 + t[2:] + (0.0, 0.0, 0.0, 1.0)).reshape(4, 4)
-    return state._replace(C=C, u=state.u + d[6:], P=P, parts=((r0, r1, r2), t))
+    return FilterState(C, state.u + d[6:], P, state.t, state.walk_t, state.scale, state.pending, ((r0, r1, r2), t))
 
 
 def fuse_linear(state: FilterState, r, H: np.ndarray, R: np.ndarray) -> FilterState:
@@ -273,7 +276,8 @@ def follow_noise(state: FilterState, track: NoiseTrack, nis: float) -> tuple[Fil
     track = NoiseTrack(keep * track.total + nis * state.scale / 3.0, keep * track.n + 1.0)
     scale = min(max((NOISE_SCALE_PRIOR + track.total) / (NOISE_SCALE_PRIOR + track.n), NOISE_SCALE_RANGE[0]),
                 NOISE_SCALE_RANGE[1])
-    return state._replace(scale=scale, pending=state.pending * scale / state.scale), track
+    return FilterState(state.C, state.u, state.P, state.t, state.walk_t, scale, state.pending * scale / state.scale,
+                       state.parts), track
 
 
 def is_sound(state: FilterState, tol: float = 1e-9) -> bool:
