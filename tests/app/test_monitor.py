@@ -210,3 +210,34 @@ def test_an_unexpected_error_ends_the_run_with_its_sample_and_alarm_kept(tmp_pat
         assert any(u is not None and u.alarm == "moved" for u in told)     # published
         assert (tmp_path / where.replace(" ", "_")).exists()            # the hook ran
         assert calibration_in_use.find(tmp_path / name) is not None
+
+
+def test_the_next_run_carries_the_relearnt_camera_over(sim_config, loopback):
+    """``[monitor] carry_over``: a run bumped and re-learnt, then the next run on the same (bumped) camera
+    continues from the first's calibration_in_use.yaml: it says so, raises no moved alarm, and its estimate is
+    the moved camera; the first run armed itself from its own samples."""
+    from app import calibration_in_use
+    from app.production import Bump
+    from app.runs.demo import demo_monitor
+
+    cfg = sim_config(loopback(31))
+    data = cfg.model_dump()
+    data["monitor"]["carry_over"] = True
+    first = demo_monitor(Config.model_validate(data), bump=Bump(18), max_samples=42, progress=False)
+    assert [a.kind for a in first.alarms if a.kind == "moved"] == ["moved"] and first.reestimate is not None
+    kept = calibration_in_use.find(first.session)
+    assert kept is not None and calibration_in_use.latest(first.session.parent, cfg.setup) == kept
+    data["camera"]["T_base_cam"] = first.truth.tolist()      # the camera stays where the bump left it
+    told = []
+    import app.runs.monitor as runs_monitor
+
+    real_say = runs_monitor.say
+    runs_monitor.say = lambda text: (told.append(text), real_say(text))
+    try:
+        second = demo_monitor(Config.model_validate(data), bump=None, max_samples=14, progress=False)
+    finally:
+        runs_monitor.say = real_say
+    assert any(text.startswith(f"continuing from {kept}") for text in told), told
+    assert not second.moved_alarms, [a.info["message"] for a in second.alarms]
+    rot, trans = tf.pose_error(second.estimate, first.truth)
+    assert trans < 3e-3 and np.rad2deg(rot) < 0.2, (trans, np.rad2deg(rot))
