@@ -21,11 +21,16 @@ def build_parser() -> tuple[argparse.ArgumentParser, dict]:
     """The parser and ``{command name: module}``."""
     parser = argparse.ArgumentParser(prog="handeye", description="Hand-eye calibration from 3D marker points "
                                      "(Grossmann & Krueger: YKronT', YQuatT').")
-    parser.add_argument("-v", "--verbose", action="count", default=0)
+    parser.add_argument("-v", "--verbose", action="count", default=0,
+                        help="the statistics behind the verdict (chi-square, noise levels, ...) and more log")
     sub = parser.add_subparsers(dest="command", required=True)
     commands = {}
     for module in command_modules():
-        module.add_arguments(sub.add_parser(module.NAME, help=module.HELP))
+        command = sub.add_parser(module.NAME, help=module.HELP)
+        module.add_arguments(command)
+        # Also after the command (`handeye demo -v`); SUPPRESS keeps a -v given before it.
+        command.add_argument("-v", "--verbose", action="count", default=argparse.SUPPRESS,
+                             help="the statistics behind the verdict (chi-square, noise levels, ...) and more log")
         commands[module.NAME] = module
     return parser, commands
 

@@ -91,17 +91,33 @@ def make_solve(cal: CalibrateConfig, setup: Setup, rng: np.random.Generator, sha
     """``solve(observations, *, final)``: the configured solver, refined while running too if configured, so
     that the stop on the predicted 1-sigma and the pose planner see the covariance of the result that will
     be reported (with "auto": the camera-correction uncertainty too, until the samples determine it);
-    outlier rejection only at the end.
+    outlier rejection only at the end, where the result also gets its verdict against
+    ``[calibrate] tolerance_mm / tolerance_deg`` (`judge`).
 
     ``shared_error``: the robot's `Robot.shared_error_factor`; with ``auto`` and the joints of every sample
     (``Observation.joints``), the error it models joins the covariance as shared by all samples."""
     from calib.api import solve_observations
 
     def solve(observations, *, final: bool):
-        return solve_observations(cal.method, observations, setup, refine=cal.refine, robust=cal.robust and final,
-                                  rng=rng, robot_shared_error=robot_shared_error(cal.method, observations, shared_error))
+        result = solve_observations(cal.method, observations, setup, refine=cal.refine, robust=cal.robust and final,
+                                    rng=rng,
+                                    robot_shared_error=robot_shared_error(cal.method, observations, shared_error))
+        if not final:
+            return result
+        return judge(result, cal.method, observations, setup, (cal.tolerance_mm, cal.tolerance_deg), shared_error)
 
     return solve
+
+
+def judge(result, method: str, observations, setup: Setup, tolerance: tuple[float, float], shared_error=None):
+    """``result`` of ``method`` on ``observations`` with its predicted accuracy and verdict
+    (`calib.verdict.judge`) against ``tolerance`` (mm, deg); ``shared_error``: as `make_solve`'s."""
+    from calib.api import observations_problem
+    from calib.verdict import judge as judge_result
+
+    problem = observations_problem(method, observations, setup,
+                                   robot_shared_error=robot_shared_error(method, observations, shared_error))
+    return judge_result(result, problem, tolerance_mm=tolerance[0], tolerance_deg=tolerance[1])
 
 
 def robot_shared_error(method: str, observations, shared_error) -> np.ndarray | None:

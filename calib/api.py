@@ -38,8 +38,8 @@ from calib.result import CalibrationResult
 from calib.robust import default_subset, robust_solve
 from calib.setup import Setup
 
-__all__ = ["AUTO", "METHODS", "MethodInfo", "CalibrationProblem", "closed_form", "observations_to_arrays",
-           "resolve_method", "solve", "solve_observations"]
+__all__ = ["AUTO", "METHODS", "MethodInfo", "CalibrationProblem", "closed_form", "observations_problem",
+           "observations_to_arrays", "resolve_method", "solve", "solve_observations"]
 
 
 def solve(method: str, problem, B=None, *, refine: bool = False, robust: bool = False,
@@ -178,7 +178,14 @@ def solve_observations(method: str, observations: Sequence[Observation], setup: 
     apply, it always does both. ``robot_shared_error`` (``"auto"`` only):
     (N, 6, P), one row per observation.
     """
-    measurements = "all" if is_auto(method) else resolve_method(method).needs
-    problem = CalibrationProblem.from_observations(observations, setup, measurements=measurements,
-                                                   robot_shared_error=robot_shared_error)
+    problem = observations_problem(method, observations, setup, robot_shared_error=robot_shared_error)
     return solve(method, problem, refine=refine, robust=robust, rng=rng)
+
+
+def observations_problem(method: str, observations: Sequence[Observation], setup: Setup, *,
+                         robot_shared_error=None) -> CalibrationProblem:
+    """The `CalibrationProblem` `solve_observations` solves with ``method``: the measurements it uses
+    (``"auto"``: all the samples carry; a paper method: its ``needs``), samples lacking them left out."""
+    measurements = "all" if is_auto(method) else resolve_method(method).needs
+    return CalibrationProblem.from_observations(observations, setup, measurements=measurements,
+                                                robot_shared_error=robot_shared_error)

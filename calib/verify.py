@@ -189,8 +189,9 @@ class Verification:
     calibration itself, the noise model's share removed, with its bootstrap
     95 % interval ``calibration_ci_mm`` / ``_deg``; ``noise_removed``: False
     when the samples carry no covariance (then the observed RMS stands in).
-    ``passed``: ``calibration_mm <= tolerance_mm`` and, with orientations,
-    ``calibration_deg <= tolerance_deg``.
+    ``noise_rms_deg``: the RMS angle the noise model expects of each pose's orientation
+    measurement (None: unknown). ``passed``: ``calibration_mm <= tolerance_mm`` and, with
+    orientations, ``calibration_deg <= tolerance_deg``.
     """
 
     errors_mm: np.ndarray
@@ -203,6 +204,7 @@ class Verification:
     tolerance_mm: float
     tolerance_deg: float
     noise_removed: bool
+    noise_rms_deg: float | None = None
 
     @property
     def n_poses(self) -> int:
@@ -239,6 +241,7 @@ class Verification:
             "calibration_error_deg": self.calibration_deg,
             "calibration_error_ci95_deg": None if self.calibration_ci_deg is None else list(self.calibration_ci_deg),
             "measurement_noise_rms_mm": self.noise_rms_mm,
+            "measurement_noise_rms_deg": self.noise_rms_deg,
             "noise_removed": self.noise_removed,
             "observed_mm": self.stats_mm(),
             "observed_deg": self.stats_deg(),
@@ -286,9 +289,34 @@ def verify(errors: PoseErrors, *, tolerance_mm: float, tolerance_deg: float,
         rboot = np.sqrt(np.maximum((r[ridx] ** 2).mean(axis=1) - rn, 0.0))
         ci_deg = tuple(float(v) for v in np.rad2deg(np.percentile(rboot, [2.5, 97.5])))
         rot_deg = np.rad2deg(rot)
+    noise_deg = None if errors.rotation is None or errors.rotation_noise_var is None else \
+        float(np.rad2deg(np.sqrt(errors.rotation_noise_var)))
     return Verification(e * 1e3, rot_deg, calib_mm, ci_mm,
                         float(np.sqrt(noise.mean())) * 1e3 if known else None, cal_deg, ci_deg,
-                        float(tolerance_mm), float(tolerance_deg), known)
+                        float(tolerance_mm), float(tolerance_deg), known, noise_deg)
+
+
+#: A verification pose this close to a calibration pose repeats it (m, deg): a robot returning to a
+#: taught pose lands within a few tenths of a millimetre; planned fresh poses are centimetres apart.
+REPEAT_M, REPEAT_DEG = 0.005, 0.5
+
+
+def repeated_poses(A, A_calibration, *, translation_m: float = REPEAT_M, rotation_deg: float = REPEAT_DEG
+                   ) -> np.ndarray:
+    """Indices of the flange poses ``A`` (N, 4, 4) within ``translation_m`` and ``rotation_deg`` of a pose of
+    ``A_calibration`` (M, 4, 4): there a verification repeats the calibration instead of testing it."""
+    A = tf.check_transforms(A, "A")
+    C = tf.check_transforms(A_calibration, "A_calibration")
+    if len(A) == 0 or len(C) == 0:
+        return np.zeros(0, dtype=int)
+    near = np.linalg.norm(A[:, None, :3, 3] - C[None, :, :3, 3], axis=2) <= translation_m
+    hits = []
+    for i, js in enumerate(near):
+        js = np.flatnonzero(js)
+        if len(js) and np.min(tf.rotation_angle(A[i, :3, :3] @ np.swapaxes(C[js, :3, :3], 1, 2))) \
+                <= np.deg2rad(rotation_deg):
+            hits.append(i)
+    return np.array(hits, dtype=int)
 
 
 @dataclass(frozen=True)

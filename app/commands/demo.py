@@ -36,7 +36,7 @@ def run(args) -> int:
     if args.monitor:
         return _run_monitor(args)
     out = demo(load_config_args(args))
-    print_calibration_summary(out)
+    print_calibration_summary(out, verbose=args.verbose > 0, config=args.config)
     return exit_code(out)
 
 

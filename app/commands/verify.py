@@ -21,7 +21,7 @@ from pathlib import Path
 
 import numpy as np
 
-from app.commands.common import add_run_options, confirm_motion, load_config_args
+from app.commands.common import add_run_options, confirm_motion, load_config_args, tolerance
 from app.runs.verify import verify
 from calib.errors import HandeyeError
 
@@ -29,17 +29,6 @@ NAME = "verify"
 HELP = "judge a result on fresh poses (or another session): error in mm/deg, pass/fail, verify.yaml + report"
 #: Exit status of a verification that fails its tolerance.
 EXIT_FAIL = 4
-
-
-def tolerance(text: str) -> tuple[float, float]:
-    """``--tolerance`` value: ``MM,DEG``, both positive."""
-    try:
-        mm, deg = (float(v) for v in text.split(","))
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected MM,DEG (e.g. 2,0.5), got {text!r}") from None
-    if not (mm > 0 and deg > 0 and np.isfinite(mm) and np.isfinite(deg)):
-        raise argparse.ArgumentTypeError(f"both tolerances must be positive numbers, got {text!r}")
-    return mm, deg
 
 
 def expect_xyz(text: str) -> np.ndarray:

@@ -202,10 +202,19 @@ def result_to_dict(result: CalibrationResult, frames: dict | None = None) -> dic
         "setup": setup.value,
         "equation": setup.equation,
         "solver": result.method,
+    }
+    if result.verdict is not None:
+        doc["verdict"] = result.verdict.to_dict()
+    if result.accuracy is not None:
+        doc["accuracy"] = accuracy_dict(result)
+    if result.undetermined:
+        doc["undetermined"] = list(result.undetermined)
+    doc.update({
+        "which_transform": which_transform(result),
         "frames": frames,
         "camera_transform": _transform_dict(result.camera_transform, setup.camera_name, *_parent_child(setup, frames),
                                             cov=result.cov),
-    }
+    })
     if result.raw_points_fit is not None:
         doc["camera_transform_raw_points"] = raw_points_dict(result, frames)
     doc.update({
@@ -221,6 +230,34 @@ def result_to_dict(result: CalibrationResult, frames: dict | None = None) -> dic
         "model": model_report(result),
     })
     return doc
+
+
+def accuracy_dict(result: CalibrationResult) -> dict:
+    """``result.accuracy`` (`calib.verdict.workspace_accuracy`) with its units and what it means."""
+    acc = result.accuracy
+    parent = "base" if Setup(result.setup) == Setup.EYE_TO_HAND else "flange"
+    return {"rms_mm": acc.rms_mm, "p95_mm": acc.p95_mm, "rms_deg": acc.rms_deg, "p95_deg": acc.p95_deg,
+            "note": f"predicted error of a marker point measured where the calibration samples were, in the "
+                    f"{parent} frame, camera correction included: RMS over the workspace and at most at 95 %; "
+                    "deg: the camera's rotation"}
+
+
+def which_transform(result: CalibrationResult) -> str:
+    """Which camera transform goes with which points, in one sentence (result.yaml, the console, the report)."""
+    cam = Setup(result.setup).camera_name
+    if result.raw_points_fit is None:
+        return (f"one transform, camera_transform ({cam}): {result.method} estimates no camera correction, so it "
+                "holds for the camera's points as its driver publishes them (ROS tf, URDF, the "
+                "static_transform_publisher line)")
+    cc = model_report(result)["camera_correction"]
+    parts = ", ".join(f"{name.replace('_percent', '').replace('_mm', '').replace('_', ' ')} "
+                      f"{c['value']:+.2f} {'%' if name.endswith('_percent') else 'mm'}"
+                      for name, c in cc.items() if c["estimated"])
+    rot, trans = tf.pose_error(result.camera_transform_raw_points, result.camera_transform)
+    return (f"use camera_transform_raw_points ({cam} for uncorrected points) with the points a camera driver "
+            "publishes: ROS tf, URDF and the static_transform_publisher line carry it; camera_transform holds "
+            f"for points corrected by model.camera_correction ({parts}), as handeye's verify and monitor use them; "
+            f"the two differ by {trans * 1e3:.2f} mm / {math.degrees(rot):.3f} deg")
 
 
 def model_report(result: CalibrationResult) -> dict | None:
@@ -293,10 +330,8 @@ def raw_points_dict(result: CalibrationResult, frames: dict | None = None) -> di
     d = _transform_dict(result.camera_transform_raw_points, setup.camera_name + " for uncorrected points",
                         *_parent_child(setup, check_frames(frames)))
     d["misfit_mm"] = result.raw_points_fit["misfit_m"] * 1e3
-    d["note"] = ("camera_transform holds for the camera's points corrected by model.camera_correction; for "
-                 "uncorrected points (ROS, URDF: what the ros2/urdf lines and the other exports carry) use this "
-                 "one, the correction folded in as a rigid transform (RMS misfit over the calibration samples: "
-                 "misfit_mm)")
+    d["note"] = ("the camera correction folded into a rigid transform (which_transform says when to use it); "
+                 "misfit_mm: its RMS misfit over the calibration samples")
     return d
 
 
@@ -455,7 +490,8 @@ def write_result(result: CalibrationResult, path, fmt: str = "yaml", frames: dic
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     if fmt == "yaml":
-        text = (f"# handeye calibration result ({result.setup}); camera_transform = {Setup(result.setup).camera_name}\n"
+        text = (f"# handeye calibration result ({result.setup}); camera_transform = {Setup(result.setup).camera_name}; "
+                "verdict: pass | warn | fail with its reasons\n"
                 "# The camera frame is the OPTICAL frame (z forward, x right, y down); camera_frame gives a ROS "
                 "camera_link.\n"
                 + yaml.dump(result_to_dict(result, frames), Dumper=_Dumper, sort_keys=False, width=1000))

@@ -19,14 +19,19 @@ SEEDED = ["easy_handeye2", "easy_handeye", "visp", "opencv_storage", "moveit_cal
 
 
 def check_outputs(out: Path, capsys) -> dict:
-    """Every export of RESULT_FILES and report.html are in ``out``, the printed table names them; returns
-    result.yaml."""
+    """Every export of RESULT_FILES and report.html are in ``out``, the printout names them; returns
+    result.yaml, whose verdict the printout opens with."""
     printed = capsys.readouterr().out
     for kind, name in {**RESULT_FILES, "report": "report.html"}.items():
         assert (out / name).is_file() and (out / name).stat().st_size > 0, kind
-        assert f"| {kind} | {out / name} |" in printed
+        assert str(out / name) in printed
     doc = yaml.safe_load((out / "result.yaml").read_text())
     assert doc["format"] == "handeye-result" and doc["solver"] == "auto"
+    verdict = doc["verdict"]
+    assert verdict["level"] in ("pass", "warn", "fail") and verdict["summary"]
+    lines = printed.splitlines()
+    first = next(i for i, line in enumerate(lines) if line.startswith(("PASS:", "WARN:", "FAIL:")))
+    assert lines[first] == f"{verdict['level'].upper()}: {verdict['summary']}" and first <= 3, lines[:5]
     tf.check_transform(np.array(doc["camera_transform"]["matrix"]), "camera_transform")
     return doc
 
