@@ -148,12 +148,15 @@ def make_engine(cfg: Config):
     return MonitorEngine(cfg.monitor.engine)
 
 
-def write_result(result, session: Path, formats, frames: dict | None = None) -> dict:
+def write_result(result, session: Path, formats, frames: dict | None = None, samples_from=None,
+                 cell: dict | None = None) -> dict:
     """Write the result in each export format into the session directory, with the ``[frames]``
-    names; returns ``{format: path}``."""
+    names, where its samples came from (``samples_from``) and the cell (`app.provenance.cell`);
+    returns ``{format: path}``."""
     from app.formats import write_result as export
 
-    return {fmt: export(result, Path(session) / RESULT_FILES[fmt], fmt, frames) for fmt in formats}
+    return {fmt: export(result, Path(session) / RESULT_FILES[fmt], fmt, frames, samples_from=samples_from,
+                        cell=cell) for fmt in formats}
 
 
 def import_options(cfg: Config | None, *, frames: str | None = None, topics: str | None = None) -> dict:

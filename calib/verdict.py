@@ -217,6 +217,28 @@ def verified_error_phrase(v: Verification) -> str:
     return text
 
 
+def per_pose_phrase(v: Verification) -> str:
+    """Why each pose's error is larger than the calibration error: a measured error is the measurement's
+    noise plus the calibration's own error, and the noise model says how much of it is noise."""
+    e = v.errors_mm
+    text = f"per pose: {e.min():.2f}-{e.max():.2f} mm"
+    if v.rotation_deg is not None:
+        r = v.rotation_deg[np.isfinite(v.rotation_deg)]
+        text += f" and {r.min():.2f}-{r.max():.2f} deg"
+    text += ", the measurement's noise plus the calibration's own error"
+    noise = []
+    if v.noise_rms_mm is not None:
+        noise.append(f"{v.noise_rms_mm:.2f} mm")
+    if v.rotation_deg is not None and v.noise_rms_deg is not None:
+        noise.append(f"{v.noise_rms_deg:.2f} deg")
+    if not noise:
+        return text + "; the samples carry no noise model, so the calibration error above includes the noise"
+    why = " (a marker's orientation is measured far less precisely than its centre)" if len(noise) == 2 else ""
+    return (text + f". The noise alone is expected at {' and '.join(noise)} RMS per pose{why}, so errors of that "
+            "size do not mean the calibration is off by as much: the calibration error above is what is left once "
+            "the noise is removed")
+
+
 def judge_verification(v: Verification, *, rigid: Verification | None = None, repeated: int = 0,
                        warnings=()) -> Verdict:
     """The verdict of a verification (`calib.verify.verify`) on ``v.n_poses`` poses.

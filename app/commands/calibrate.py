@@ -10,8 +10,8 @@ from pathlib import Path
 
 import numpy as np
 
-from app.commands.common import (add_motion_options, add_run_options, confirm_motion, load_config_args, next_steps,
-                                 program, transform_lines, verdict_lines)
+from app.commands.common import (add_motion_options, add_report_options, add_run_options, confirm_motion,
+                                 load_config_args, next_steps, program, transform_lines, verdict_lines)
 from app.runs.calibrate import CalibrationOutput, calibrate
 from app.formats.export import model_report
 from calib.result import CalibrationResult
@@ -29,6 +29,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--method", help="solver, paper name (overrides calibrate.method), e.g. \"YKronT'\"")
     p.add_argument("--resume", type=Path, help="continue this session (e.g. after a crash or Ctrl-C)")
     add_motion_options(p)
+    add_report_options(p)
 
 
 def run(args) -> int:

@@ -24,6 +24,18 @@ def add_run_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("--no-frames", action="store_true", help="do not store color/depth PNGs in the session")
 
 
+def add_report_options(p: argparse.ArgumentParser) -> None:
+    """Who and where, as report.html and result.yaml name them (override ``[report]``)."""
+    p.add_argument("--site", help="plant, as the report names it (overrides report.site)")
+    p.add_argument("--cell", help="robot cell, as the report names it (overrides report.cell)")
+    p.add_argument("--operator", help="who ran it, as the report names them (overrides report.operator)")
+
+
+def report_overrides(args) -> dict:
+    """The ``[report]`` fields given on the command line (`add_report_options`)."""
+    return {k: getattr(args, k) for k in ("site", "cell", "operator") if getattr(args, k, None) is not None}
+
+
 def until_sigma(text: str) -> tuple[float, float]:
     """``--until-sigma`` value: ``MM,DEG`` (e.g. ``1,0.1``) or ``off``."""
     if text.strip().lower() in ("off", "0", "0,0"):
@@ -93,7 +105,8 @@ def apply_overrides(cfg, args):
     if getattr(args, "no_frames", False):
         ses["save_frames"] = False
     data = cfg.model_dump()
-    for section, changes in (("calibrate", cal), ("monitor", mon), ("viz", viz), ("session", ses)):
+    for section, changes in (("calibrate", cal), ("monitor", mon), ("viz", viz), ("session", ses),
+                             ("report", report_overrides(args))):
         data[section].update(changes)
     return config_from_dict(data, "command line")
 

@@ -6,7 +6,7 @@ import argparse
 from pathlib import Path
 
 from app.commands.calibrate import exit_code, print_calibration_summary
-from app.commands.common import add_motion_options, add_run_options, load_config_args
+from app.commands.common import add_motion_options, add_report_options, add_run_options, load_config_args
 from app.commands.monitor import EXIT_ALARM, print_monitor_summary
 from app.production import Bump
 from app.runs.demo import demo, demo_monitor
@@ -22,6 +22,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--samples", type=int, help="number of samples (default from the config)")
     p.add_argument("--seed", type=int, help="seed of the pose candidates")
     add_motion_options(p)
+    add_report_options(p)
     p.add_argument("--monitor", action="store_true", help="passive monitoring instead: the simulated robot runs a "
                    "looping production program, the camera is bumped partway; exit status 3 on the alarm")
     p.add_argument("--bump-mm", type=float, default=10.0, help="--monitor: camera shift, mm (default 10; 0 and "

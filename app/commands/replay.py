@@ -13,7 +13,8 @@ import numpy as np
 
 from app import devices
 from app.commands.calibrate import print_statistics
-from app.commands.common import next_steps, program, tolerance, transform_lines, verdict_lines
+from app.commands.common import (add_report_options, next_steps, program, report_overrides, tolerance,
+                                 transform_lines, verdict_lines)
 from app.errors import SessionError
 from app.runs.replay import replay_settings, replay_source, write_outputs
 from calib.setup import Setup
@@ -39,6 +40,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("-c", "--config", type=Path, help="config whose calibrate.tolerance_mm/_deg the verdict "
                    "judges against (default 2 mm, 1 deg), whose robot's kinematic_error auto adds as shared by the "
                    "samples (sessions with joints), and whose session.exports and [frames] --out uses")
+    add_report_options(p)
     p.add_argument("--tolerance", type=tolerance, metavar="MM,DEG",
                    help="the error the cell accepts, for the verdict (overrides calibrate.tolerance_mm/_deg)")
     p.add_argument("--out", type=Path, metavar="DIR", help="write the result files, exports and report.html "
@@ -69,7 +71,8 @@ def run(args) -> int:
                             shared_error=settings.shared_error,
                             import_options=devices.import_options(settings.config, frames=args.frames,
                                                                   topics=args.topics))
-    files = {} if args.out is None else write_outputs(outcome, args.out, settings.exports, settings.frames)
+    report = {**(settings.config.report.model_dump() if settings.config is not None else {}), **report_overrides(args)}
+    files = {} if args.out is None else write_outputs(outcome, args.out, settings.exports, settings.frames, report)
     print_replay(outcome, files, settings.frames, verbose=args.verbose > 0, config=args.config)
     return 0
 

@@ -163,14 +163,20 @@ def urdf_origin(result: CalibrationResult) -> str:
             f'rpy="{" ".join(_fmt(v) for v in rpy)}"/>')
 
 
-def result_to_dict(result: CalibrationResult, frames: dict | None = None) -> dict:
-    """The main result document (YAML/JSON): transforms, uncertainty, residuals, ready-to-paste lines.
+def result_to_dict(result: CalibrationResult, frames: dict | None = None, samples_from=None,
+                   cell: dict | None = None) -> dict:
+    """The main result document (YAML/JSON): the verdict, transforms, uncertainty, residuals, ready-to-paste lines.
 
     Parameters
     ----------
     result : CalibrationResult
     frames : dict, optional
         Names for ``base``, ``flange``, ``camera``, ``marker``.
+    samples_from : str or Path, optional
+        The session (or imported file) the result was solved from, as ``samples_from``: verify
+        reads its poses back (to avoid and to flag them).
+    cell : dict, optional
+        Who made it, where and with what (`app.provenance.cell`), as ``cell``.
 
     Returns
     -------
@@ -211,6 +217,8 @@ def result_to_dict(result: CalibrationResult, frames: dict | None = None) -> dic
         doc["undetermined"] = list(result.undetermined)
     doc.update({
         "which_transform": which_transform(result),
+        **({"cell": cell} if cell is not None else {}),
+        **({"samples_from": str(samples_from)} if samples_from is not None else {}),
         "frames": frames,
         "camera_transform": _transform_dict(result.camera_transform, setup.camera_name, *_parent_child(setup, frames),
                                             cov=result.cov),
@@ -461,7 +469,7 @@ def ros2_launch(result: CalibrationResult, frames: dict | None = None, camera_tf
 
 
 def write_result(result: CalibrationResult, path, fmt: str = "yaml", frames: dict | None = None,
-                 camera_tf: dict | None = None) -> Path:
+                 camera_tf: dict | None = None, samples_from=None, cell: dict | None = None) -> Path:
     """Write a calibration result in one of `EXPORT_FORMATS`.
 
     Parameters
@@ -478,6 +486,10 @@ def write_result(result: CalibrationResult, path, fmt: str = "yaml", frames: dic
         Frame names (``base``, ``flange``, ``camera``, ``marker``).
     camera_tf : dict, optional
         ``ros2_launch`` only: publish to the camera driver's tf root (`published_transform`).
+    samples_from : str or Path, optional
+        ``yaml`` / ``json``: where the samples came from (`result_to_dict`).
+    cell : dict, optional
+        ``yaml`` / ``json``: who made it, where and with what (`result_to_dict`).
 
     Returns
     -------
@@ -494,9 +506,10 @@ def write_result(result: CalibrationResult, path, fmt: str = "yaml", frames: dic
                 "verdict: pass | warn | fail with its reasons\n"
                 "# The camera frame is the OPTICAL frame (z forward, x right, y down); camera_frame gives a ROS "
                 "camera_link.\n"
-                + yaml.dump(result_to_dict(result, frames), Dumper=_Dumper, sort_keys=False, width=1000))
+                + yaml.dump(result_to_dict(result, frames, samples_from, cell), Dumper=_Dumper, sort_keys=False,
+                            width=1000))
     elif fmt == "json":
-        text = json.dumps(result_to_dict(result, frames), indent=2) + "\n"
+        text = json.dumps(result_to_dict(result, frames, samples_from, cell), indent=2) + "\n"
     elif fmt == "easy_handeye":
         text = yaml.safe_dump(easy_handeye_dict(result, frames), default_flow_style=False)
     elif fmt == "easy_handeye2":

@@ -22,7 +22,7 @@ from pathlib import Path
 
 import numpy as np
 
-from app import devices
+from app import devices, provenance
 from app.config import CalibrateConfig
 from app.errors import SessionError
 from app.runs.calibrate import write_run_report
@@ -72,7 +72,8 @@ class ReplayOutcome:
     ``header``: the source, setup, samples and what an importer measured; ``table``: the solvers'
     comparison (`format_table`); ``advice``: the lines under it (`advice`); ``best``: the row whose
     result ``--out`` writes (the recommended one, else the first that solved), judged; ``truth``:
-    the recorded camera truth (4, 4) or None.
+    the recorded camera truth (4, 4) or None; ``devices``: what identified the robot and camera of a
+    handeye session (its header's ``devices``), else None.
     """
 
     header: str
@@ -84,18 +85,24 @@ class ReplayOutcome:
     setup: Setup
     source: Path
     truth: np.ndarray | None = None
+    devices: dict | None = None
 
 
-def write_outputs(outcome: "ReplayOutcome", out_dir: Path, exports, frames: dict | None = None) -> dict:
+def write_outputs(outcome: "ReplayOutcome", out_dir: Path, exports, frames: dict | None = None,
+                  report=None) -> dict:
     """Write ``outcome.best``'s result into ``out_dir`` in each export format (`app.devices.write_result`)
-    and its ``report.html``, as calibrate writes its session's; returns ``{kind: path}``."""
+    and its ``report.html``, as calibrate writes its session's; ``report``: the ``[report]`` fields (site,
+    cell, operator; a config's or a dict); returns ``{kind: path}``."""
     out_dir = Path(out_dir)
     try:
         out_dir.mkdir(parents=True, exist_ok=True)
     except OSError as e:
         raise SessionError(f"--out {out_dir}: cannot create ({e.strerror})") from None
-    files = devices.write_result(outcome.best.result, out_dir, exports, frames)
-    files["report"] = write_run_report(outcome.best.result, out_dir, outcome.observations, frames)
+    cell = provenance.cell(report or {}, outcome.devices)
+    source = outcome.source.resolve()
+    files = devices.write_result(outcome.best.result, out_dir, exports, frames, samples_from=source, cell=cell)
+    files["report"] = write_run_report(outcome.best.result, out_dir, outcome.observations, frames,
+                                       samples_from=source, cell=cell)
     return files
 
 
@@ -114,10 +121,10 @@ def replay_source(source: Path, methods: list[str], *, refine: bool = False, rob
         if setup is not None and setup != session.setup:
             raise SessionError(f"{source} is an {session.setup} session; --setup {setup} contradicts it")
         observations, file_setup, truth = session.observations, session.setup, session.truth
-        header = ""
+        header, identity = "", session.header.get("devices")
     else:
         observations, file_setup, meta = devices.import_observations(Path(source), setup, **(import_options or {}))
-        truth, header = {}, _import_summary(meta)
+        truth, header, identity = {}, _import_summary(meta), None
     setup = setup or file_setup
     if not observations:
         raise InsufficientDataError(f"{source}: no samples to replay")
@@ -130,7 +137,8 @@ def replay_source(source: Path, methods: list[str], *, refine: bool = False, rob
         raise HandeyeError(f"no solver succeeded on {source}: " + "; ".join(f"{r.method}: {r.error}" for r in rows))
     best = recommended(rows) or next(r for r in rows if r.result is not None)
     return ReplayOutcome(f"{source} ({setup}, {len(observations)} samples)\n{header}", format_table(rows, setup),
-                         advice(rows, refine=refine), rows, best, observations, Setup(setup), Path(source), T_true)
+                         advice(rows, refine=refine), rows, best, observations, Setup(setup), Path(source), T_true,
+                         identity)
 
 
 def _import_summary(meta: dict) -> str:

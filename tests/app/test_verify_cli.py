@@ -38,7 +38,7 @@ def _verify(capsys, *argv):
 
 
 def _doc(out):
-    path = re.search(r"\| verify.yaml \| (\S+) \|", out).group(1)
+    path = re.search(r"verify.yaml \(the figures\): (\S+)", out).group(1)
     return yaml.safe_load(open(path)), path
 
 
@@ -108,18 +108,21 @@ def test_report_renders_in_headless_chromium(two_sessions, tmp_path, capsys, ren
     capsys.readouterr()
     rc, out, _ = _verify(capsys, "--result", s0, "--session", s1, "--session-root", tmp_path / "v")
     assert rc == 0
-    verify_report = re.search(r"\| report \| (\S+) \|", out).group(1)
+    verify_report = re.search(r"hand over the report: (\S+)", out).group(1)
     for page, n_plots in ((s0 / "report.html", 5), (verify_report, 6)):
         text = open(page, encoding="utf-8").read()
         assert not re.search(r"""(src|href)\s*=\s*["']?(https?:)?//""", text), "the page must not fetch anything"
         dom, console = render_page(page)
         assert console == [], console
-        plots = re.findall(rf'<div class="{PLOT_CLASS}" data-title="([^"]+)"><h3>[^<]*</h3><svg', dom)
+        plots = re.findall(rf'<figure class="{PLOT_CLASS}" data-title="([^"]+)"><svg', dom)
         assert len(plots) == n_plots, plots
-        for heading in ("Setup and frames", "Pose coverage", "Residuals per sample", "Error ellipsoid",
-                        "Held-out prediction", "Camera correction", "Warnings"):
-            assert f"<h2>{heading}" in dom, heading
-    assert "<h2>Verification</h2>" in dom and "PASS" in dom
+        headings = re.findall(r"<h2>([^<]+)</h2>", dom)
+        for heading in ("Cell", "Camera transform", "Setup and frames", "Pose coverage", "Residuals per sample",
+                        "Error ellipses of the camera position", "Held-out prediction", "Camera correction",
+                        "Appendix: statistics"):
+            assert heading in headings, heading
+        assert len(headings) == len(set(headings)) and not re.search(r"<h3>", dom)   # no heading twice
+    assert "<h2>Verification</h2>" in dom and '<span class="level">PASS</span>' in dom
 
 
 def test_the_browser_check_sees_console_errors_and_missing_plots(tmp_path, render_page):
@@ -129,7 +132,7 @@ def test_the_browser_check_sees_console_errors_and_missing_plots(tmp_path, rende
                     "</script></body></html>")
     dom, console = render_page(page)
     assert len(console) == 2 and "nope is not defined" in console[1]
-    assert not re.findall(rf'<div class="{PLOT_CLASS}" data-title="([^"]+)"><h3>[^<]*</h3><svg', dom)
+    assert not re.findall(rf'<figure class="{PLOT_CLASS}" data-title="([^"]+)"><svg', dom)
 
 
 RESULT_PATHS = [("setup",), ("camera_transform",), ("camera_transform", "matrix"), ("camera_transform", "matrix", 0),

@@ -16,7 +16,7 @@ from calib import verify as cv
 
 pytestmark = pytest.mark.slow
 
-PLOT = rf'<div class="{PLOT_CLASS}" data-title="([^"]+)"><h3>[^<]*</h3><svg'
+PLOT = rf'<figure class="{PLOT_CLASS}" data-title="([^"]+)"><svg'
 
 
 def test_demo_result_verified_on_fresh_poses(sim_config, loopback, tmp_path, capsys, render_page):
