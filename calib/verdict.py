@@ -202,18 +202,19 @@ def _coverage_reasons(result: CalibrationResult, problem: CalibrationProblem) ->
     return reasons
 
 
-def bounded(value: float, ci: tuple[float, float], unit: str, digits: int) -> str:
+def bounded(value: float, ci: tuple[float, float], unit: str, digits: int, floor: float | None = None) -> str:
     """A verified error in words: ``0.53 mm (at most 0.90 mm at 95 %)``, or when the noise hides it
-    entirely ``below the noise floor: at most 0.62 deg at 95 %``."""
-    hi = f"at most {ci[1]:.{digits}f} {unit} at 95 %"
+    entirely ``below the noise floor: at most 0.62 deg at 95 %``; the bound is never below ``floor``, the
+    smallest error the poses tell from their noise (`calib.verify.Verification.noise_floor_mm`)."""
+    hi = f"at most {max(ci[1], floor or 0.0):.{digits}f} {unit} at 95 %"
     return f"below the noise floor: {hi}" if value <= 0 else f"{value:.{digits}f} {unit} ({hi})"
 
 
 def verified_error_phrase(v: Verification) -> str:
     """The calibration error a verification found, in mm and (with orientations) deg, noise floor said."""
-    text = bounded(v.calibration_mm, v.calibration_ci_mm, "mm", 2)
+    text = bounded(v.calibration_mm, v.calibration_ci_mm, "mm", 2, v.noise_floor_mm)
     if v.calibration_deg is not None:
-        text += "; " + bounded(v.calibration_deg, v.calibration_ci_deg, "deg", 3)
+        text += "; " + bounded(v.calibration_deg, v.calibration_ci_deg, "deg", 3, v.noise_floor_deg)
     return text
 
 

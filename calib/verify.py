@@ -217,6 +217,23 @@ class Verification:
             ok = ok and self.calibration_deg <= self.tolerance_deg
         return bool(ok)
 
+    @staticmethod
+    def _floor(noise_rms: float | None, n: int) -> float | None:
+        # The smallest calibration error the poses can tell from the noise: the one that raises the mean
+        # squared error by two standard errors of the noise's own (3 n squared Gaussian components).
+        return None if noise_rms is None else float(noise_rms * np.sqrt(2.0 * np.sqrt(2.0 / (3 * n))))
+
+    @property
+    def noise_floor_mm(self) -> float | None:
+        """The smallest calibration error (mm) these poses tell from their noise (None: noise unknown)."""
+        return self._floor(self.noise_rms_mm, self.n_poses)
+
+    @property
+    def noise_floor_deg(self) -> float | None:
+        """The same for the rotation, deg."""
+        r = self.rotation_deg
+        return None if r is None else self._floor(self.noise_rms_deg, int(np.isfinite(r).sum()))
+
     def stats_mm(self) -> dict:
         e = self.errors_mm
         return {"mean": float(e.mean()), "rms": float(np.sqrt(np.mean(e**2))), "p95": float(np.percentile(e, 95)),
@@ -242,6 +259,8 @@ class Verification:
             "calibration_error_ci95_deg": None if self.calibration_ci_deg is None else list(self.calibration_ci_deg),
             "measurement_noise_rms_mm": self.noise_rms_mm,
             "measurement_noise_rms_deg": self.noise_rms_deg,
+            "noise_floor_mm": self.noise_floor_mm,
+            "noise_floor_deg": self.noise_floor_deg,
             "noise_removed": self.noise_removed,
             "observed_mm": self.stats_mm(),
             "observed_deg": self.stats_deg(),
@@ -250,7 +269,8 @@ class Verification:
             [None if not np.isfinite(v) else float(v) for v in self.rotation_deg],
             "note": "observed: measured minus predicted marker, base frame (measurement noise included); "
                     "calibration_error: RMS with the noise model's share removed, bootstrap 95 % interval over the "
-                    "poses; passed: calibration_error within both tolerances",
+                    "poses; noise_floor: the smallest calibration error these poses tell from their noise; "
+                    "passed: calibration_error within both tolerances",
         }
 
 

@@ -4,6 +4,7 @@ import json
 
 import numpy as np
 import pytest
+import yaml
 
 from app.config import Config, load_config
 from app.runs.calibrate import calibrate
@@ -64,6 +65,13 @@ def test_demo_recovers_true_camera_pose(sim_config, loopback):
         assert (out.report.session / name).stat().st_size > 0, name
     text = (out.report.session / "result.yaml").read_text()
     assert "T_base_cam" in text and "heldout_observed_mm" in text and "camera_correction" in text
+    # The verdict, and the cell as the drivers named it (the simulated controller's dashboard answers).
+    doc = yaml.safe_load(text)
+    assert doc["verdict"]["level"] == "pass" and doc["accuracy"]["p95_mm"] < cfg.calibrate.tolerance_mm, doc["verdict"]
+    robot, camera = doc["cell"]["robot"], doc["cell"]["camera"]
+    assert robot["model"] == "UR10" and robot["serial"] == "20235500001" and robot["software"].startswith("URSoftware")
+    assert camera["backend"] == "rendered" and camera["resolution"] == "640x480"
+    assert doc["samples_from"] == str(out.report.session.resolve())
 
 
 def test_demo_refuses_hardware_config():

@@ -1,6 +1,7 @@
 """``handeye verify --session`` (offline, the cross-session check) and report.html in headless Chromium."""
 
 import re
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -69,6 +70,27 @@ def test_cross_session_pass_and_a_shifted_result_fails(two_sessions, tmp_path, c
                    "--tolerance", "5,1")[0] == 0
 
 
+def test_verification_poses_that_repeat_the_calibrations_are_flagged(two_sessions, tmp_path, capsys):
+    """A verification session whose first 13 poses are the calibration's own (replay --out's result names its
+    samples): the verdict warns, says how many, and verify.yaml lists them."""
+    (s0, s1), d = two_sessions
+    out_dir = tmp_path / "out"
+    assert main(["replay", str(s0), "--out", str(out_dir)]) == 0
+    capsys.readouterr()
+    with SessionWriter.create(tmp_path / "sessions", "eye_to_hand", name="mixed", source="test") as w:
+        for i in list(range(13)) + list(range(25, 37)):
+            w.add_sample(Observation(i, float(i), d.A[i], d.points[i], d.point_cov[i], d.B[i], None))
+    rc, out, _ = _verify(capsys, "--result", out_dir / "result.yaml", "--session", w.path, "--session-root",
+                         tmp_path / "v")
+    doc, _ = _doc(out)
+    assert rc == 0 and doc["verdict"]["level"] == "warn" and doc["repeated_calibration_poses"] == list(range(13))
+    assert "13 of 25 verification poses repeat calibration poses" in out
+    # The fresh session alone: no such warning.
+    rc, out, _ = _verify(capsys, "--result", out_dir / "result.yaml", "--session", s1, "--session-root",
+                         tmp_path / "v")
+    assert rc == 0 and "repeat calibration poses" not in out and _doc(out)[0]["repeated_calibration_poses"] == []
+
+
 def test_frame_safety_warns_about_an_inverted_result(two_sessions, tmp_path, capsys):
     (s0, s1), d = two_sessions
     assert main(["replay", str(s0), "--out", str(s0)]) == 0
@@ -101,8 +123,10 @@ def test_verify_refuses_its_own_session_and_bad_input(two_sessions, tmp_path, ca
         main(["verify", "--result", str(s0), "--expect-xyz", "1,2"])
 
 
-def test_report_renders_in_headless_chromium(two_sessions, tmp_path, capsys, render_page):
-    """replay --out's and verify's report.html: every plot present, no console message, nothing fetched."""
+def test_report_renders_in_headless_chromium(two_sessions, tmp_path, capsys, render_page, render_pdf):
+    """replay --out's and verify's report.html: every plot present, no console message, nothing fetched, one
+    heading per section; printed to PDF, the verdict is the first text (and the calibration's verdict is the
+    one in result.yaml, the verification's the one in verify.yaml)."""
     (s0, s1), _ = two_sessions
     assert main(["replay", str(s0), "--out", str(s0)]) == 0
     capsys.readouterr()
@@ -122,6 +146,12 @@ def test_report_renders_in_headless_chromium(two_sessions, tmp_path, capsys, ren
                         "Appendix: statistics"):
             assert heading in headings, heading
         assert len(headings) == len(set(headings)) and not re.search(r"<h3>", dom)   # no heading twice
+        verdict = yaml.safe_load(open(Path(page).parent / ("verify.yaml" if page == verify_report
+                                                          else "result.yaml")))["verdict"]
+        pdf, first_page = render_pdf(page)
+        words = " ".join(first_page.split())
+        assert words.startswith(f"{verdict['level'].upper()} {' '.join(verdict['summary'].split()[:6])}"), words[:300]
+        assert "Cell" in words and pdf.stat().st_size < 2e6
     assert "<h2>Verification</h2>" in dom and '<span class="level">PASS</span>' in dom
 
 
