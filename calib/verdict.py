@@ -111,11 +111,10 @@ def rotation_spread_deg(A) -> float:
     return float(np.rad2deg(np.max(tf.rotation_angle(R @ mean.T))))
 
 
-def accuracy_phrase(acc: Accuracy, tolerance_mm: float, tolerance_deg: float) -> str:
-    """``predicted error over the workspace 0.26 mm RMS, at most 0.52 mm / 0.05 deg at 95 % (tolerance 2 mm /
-    1 deg)``."""
+def accuracy_phrase(acc: Accuracy) -> str:
+    """``predicted error over the workspace 0.26 mm RMS, at most 0.73 mm / 0.05 deg at 95 %``."""
     return (f"predicted error over the workspace {acc.rms_mm:.2f} mm RMS, at most {acc.p95_mm:.2f} mm / "
-            f"{acc.p95_deg:.2f} deg at 95 % (tolerance {tolerance_mm:g} mm / {tolerance_deg:g} deg)")
+            f"{acc.p95_deg:.2f} deg at 95 %")
 
 
 def judge(result: CalibrationResult, problem: CalibrationProblem, *, tolerance_mm: float,
@@ -143,12 +142,11 @@ def judge(result: CalibrationResult, problem: CalibrationProblem, *, tolerance_m
     reasons += _consistency_reasons(result, problem)
     reasons += _coverage_reasons(result, problem)
     level = worst(lv for lv, _ in reasons)
-    tolerance = f"{tolerance_mm:g} mm / {tolerance_deg:g} deg"
-    what = accuracy_phrase(acc, tolerance_mm, tolerance_deg) if acc is not None else \
-        f"no predicted error (tolerance {tolerance})"
-    lead = {"pass": "within the tolerance", "warn": "usable once the reasons below are checked",
+    lead = {"pass": "within the tolerance", "warn": "check the reasons below before use",
             "fail": "do not use as it is"}[level]
-    verdict = Verdict(level, f"{lead}: {what}", tuple(text for _, text in reasons))
+    what = accuracy_phrase(acc) if acc is not None else "no predicted error"
+    verdict = Verdict(level, f"{lead} ({tolerance_mm:g} mm / {tolerance_deg:g} deg): {what}",
+                      tuple(text for _, text in reasons))
     return dataclasses.replace(result, accuracy=acc, verdict=verdict)
 
 
@@ -268,5 +266,5 @@ def judge_verification(v: Verification, *, rigid: Verification | None = None, re
     level = worst(lv for lv, _ in reasons)
     lead = {"pass": "within the tolerance", "warn": "within the tolerance, but check the reasons below",
             "fail": "outside the tolerance"}[level]
-    summary = f"{lead} on {v.n_poses} poses: calibration error {verified_error_phrase(v)} (tolerance {tolerance})"
+    summary = f"{lead} ({tolerance}) on {v.n_poses} poses: calibration error {verified_error_phrase(v)}"
     return Verdict(level, summary, tuple(text for _, text in reasons))

@@ -70,3 +70,11 @@ def test_replay_pose_streams(capsys):
     out = _replay(capsys, DATA / "ethz" / "robot_arm_sim", "-m", "YKronT'", "-v")
     assert "eye_in_hand" in out
     assert float(_rows(out)["YKronT'"][2]) < 1.6   # 1.22 mm, as in tests/regression
+
+
+def test_an_unknown_source_names_every_known_format_first_a_handeye_session(tmp_path, capsys):
+    (tmp_path / "empty").mkdir()
+    assert main(["replay", str(tmp_path / "empty")]) == 1
+    err = capsys.readouterr().err
+    assert "no known sample format; known: a handeye session (a directory with session.json), or easy_handeye" in err
+    assert len(err.strip().splitlines()) == 1
