@@ -30,6 +30,7 @@ import numpy as np
 
 from calib.observation import Observation
 from calib.setup import Setup
+from calib.verdict import bounded
 
 REPORT_NAME = "report.html"
 #: Marker (class) of every plot's container: the browser test counts them.
@@ -43,7 +44,7 @@ h1{font-size:1.45em;margin:.8em 0 .2em}h2{font-size:1.15em;margin-top:1.8em;bord
 .sub{color:#555;margin:0 0 1em}
 table{border-collapse:collapse;margin:.5em 0}td,th{border:1px solid #ccc;padding:.25em .6em;text-align:right;
 vertical-align:top}th{background:#f3f3f3}td:first-child,th:first-child{text-align:left}
-table.kv td:nth-child(2),table.kv th{text-align:left}
+table.kv td:nth-child(2),table.kv th{text-align:left}table:not(.kv) td:not(:first-child){white-space:nowrap}
 pre,code{font-family:ui-monospace,Menlo,Consolas,monospace;font-size:.88em}
 pre{margin:0;white-space:pre-wrap;overflow-wrap:anywhere}
 .verdict{border-radius:6px;padding:.7em 1em;margin:0 0 .5em;border-left:10px solid}
@@ -303,15 +304,16 @@ def _cell_section(cell: dict, result_doc: dict) -> list[str]:
     robot, camera, sw = cell.get("robot") or {}, cell.get("camera") or {}, cell.get("software") or {}
     unknown = "not recorded"
 
-    def join(d: dict, keys) -> str:
-        return ", ".join(f"{d[k]}" for k in keys if d.get(k)) or unknown
+    def named(d: dict, key: str, label: str) -> str:
+        """``UR10 (driver ur_sim)``: the device's own name and the backend that spoke to it."""
+        return " ".join(p for p in (d.get("model", ""), f"({label} {d[key]})" if d.get(key) else "") if p) or unknown
 
     rows = [["site", cell.get("site") or unknown], ["cell", cell.get("cell") or unknown],
             ["operator", cell.get("operator") or unknown],
-            ["robot", join(robot, ("model", "type"))], ["robot serial number", robot.get("serial") or unknown],
+            ["robot", named(robot, "type", "driver")], ["robot serial number", robot.get("serial") or unknown],
             ["robot controller software", robot.get("software") or unknown],
             ["robot address", robot.get("host") or unknown],
-            ["camera", join(camera, ("model", "backend"))], ["camera serial number", camera.get("serial") or unknown],
+            ["camera", named(camera, "backend", "backend")], ["camera serial number", camera.get("serial") or unknown],
             ["camera resolution [px]", camera.get("resolution") or unknown],
             ["handeye", f"{sw.get('handeye', unknown)} (commit {sw.get('commit', unknown)})"],
             ["written (local time)", cell.get("written") or unknown],
@@ -512,13 +514,12 @@ def _verification_table(doc: dict) -> str:
         rows.append(["measurement noise per pose [mm] RMS (noise model)", f"{v['measurement_noise_rms_mm']:.2f}"])
     if v.get("measurement_noise_rms_deg") is not None:
         rows.append(["measurement noise per pose [deg] RMS (noise model)", f"{v['measurement_noise_rms_deg']:.3f}"])
-    lo, hi = v["calibration_error_ci95_mm"]
-    rows.append(["calibration error [mm], noise removed (95 % interval)",
-                 f"{v['calibration_error_mm']:.2f} [{lo:.2f}, {hi:.2f}]"])
+    rows.append(["calibration error, noise removed",
+                 bounded(v["calibration_error_mm"], v["calibration_error_ci95_mm"], "mm", 2, v.get("noise_floor_mm"))])
     if v["calibration_error_deg"] is not None:
-        lo, hi = v["calibration_error_ci95_deg"]
-        rows.append(["calibration error [deg], noise removed (95 % interval)",
-                     f"{v['calibration_error_deg']:.3f} [{lo:.3f}, {hi:.3f}]"])
+        rows.append(["calibration error of the rotation, noise removed",
+                     bounded(v["calibration_error_deg"], v["calibration_error_ci95_deg"], "deg", 3,
+                             v.get("noise_floor_deg"))])
     rows.append(["tolerance", f"{v['tolerance_mm']:g} mm / {v['tolerance_deg']:g} deg"])
     if "rigid_export" in doc:
         rows.append(["ROS/URDF transform (camera_transform_raw_points, uncorrected points): calibration error [mm]",
