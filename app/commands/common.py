@@ -36,28 +36,27 @@ def report_overrides(args) -> dict:
     return {k: getattr(args, k) for k in ("site", "cell", "operator") if getattr(args, k, None) is not None}
 
 
+def _mm_deg(text: str, example: str, what: str, alternative: str = "") -> tuple[float, float]:
+    """``MM,DEG``, both positive and finite; `argparse.ArgumentTypeError` otherwise."""
+    try:
+        mm, deg = (float(v) for v in text.split(","))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected MM,DEG (e.g. {example}){alternative}, got {text!r}") from None
+    if not (mm > 0 and deg > 0 and np.isfinite(mm) and np.isfinite(deg)):
+        raise argparse.ArgumentTypeError(f"both {what} must be positive numbers, got {text!r}")
+    return mm, deg
+
+
 def until_sigma(text: str) -> tuple[float, float]:
     """``--until-sigma`` value: ``MM,DEG`` (e.g. ``1,0.1``) or ``off``."""
     if text.strip().lower() in ("off", "0", "0,0"):
         return 0.0, 0.0
-    try:
-        mm, deg = (float(v) for v in text.split(","))
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected MM,DEG (e.g. 1,0.1) or 'off', got {text!r}") from None
-    if not (mm > 0 and deg > 0 and np.isfinite(mm) and np.isfinite(deg)):
-        raise argparse.ArgumentTypeError(f"both targets must be positive numbers, got {text!r}")
-    return mm, deg
+    return _mm_deg(text, "1,0.1", "targets", " or 'off'")
 
 
 def tolerance(text: str) -> tuple[float, float]:
     """``--tolerance`` value: ``MM,DEG``, both positive."""
-    try:
-        mm, deg = (float(v) for v in text.split(","))
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected MM,DEG (e.g. 2,0.5), got {text!r}") from None
-    if not (mm > 0 and deg > 0 and np.isfinite(mm) and np.isfinite(deg)):
-        raise argparse.ArgumentTypeError(f"both tolerances must be positive numbers, got {text!r}")
-    return mm, deg
+    return _mm_deg(text, "2,0.5", "tolerances")
 
 
 def add_motion_options(p: argparse.ArgumentParser) -> None:
