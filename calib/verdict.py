@@ -142,11 +142,12 @@ def judge(result: CalibrationResult, problem: CalibrationProblem, *, tolerance_m
     reasons += _consistency_reasons(result, problem)
     reasons += _coverage_reasons(result, problem)
     level = worst(lv for lv, _ in reasons)
-    lead = {"pass": "within the tolerance", "warn": "check the reasons below before use",
-            "fail": "do not use as it is"}[level]
+    tolerance = f"{tolerance_mm:g} mm / {tolerance_deg:g} deg"
     what = accuracy_phrase(acc) if acc is not None else "no predicted error"
-    verdict = Verdict(level, f"{lead} ({tolerance_mm:g} mm / {tolerance_deg:g} deg): {what}",
-                      tuple(text for _, text in reasons))
+    summary = {"pass": f"within the tolerance {tolerance}: {what}",
+               "warn": f"check the reasons below before use: {what} (tolerance {tolerance})",
+               "fail": f"do not use as it is: {what} (tolerance {tolerance})"}[level]
+    verdict = Verdict(level, summary, tuple(text for _, text in reasons))
     return dataclasses.replace(result, accuracy=acc, verdict=verdict)
 
 
@@ -169,11 +170,14 @@ def _consistency_reasons(result: CalibrationResult, problem: CalibrationProblem)
     reasons = []
     ratio, expected = noise_ratio(result, problem)
     if ratio > INCONSISTENT_RATIO:
+        # auto searches for outliers itself, as does a robust solve: then rejecting more is no fix.
+        searched = result.auto is not None or result.robust is not None
+        outliers = ("; the outliers the solver could find are rejected already" if searched else
+                    ", or reject outliers (replay --robust, [calibrate] robust = true)")
         reasons.append(("warn", f"residuals are {ratio:.0f}x what the camera's noise explains "
                                 f"({result.residuals.rms_translation * 1e3:.2f} mm RMS against {expected * 1e3:.2f} "
                                 "mm): check the setup (eye-in-hand or eye-to-hand?), the clock offset between robot "
-                                "and camera, a camera or marker that moved during the recording, or reject outliers "
-                                "(replay --robust, [calibrate] robust = true)"))
+                                f"and camera, a camera or marker that moved during the recording{outliers}"))
     check = result.self_check
     if check is not None and check.loo_ratio > LOO_TOLERANCE:
         reasons.append(("warn", f"samples held out are predicted to {check.loo_observed_m * 1e3:.2f} mm, "
@@ -264,7 +268,7 @@ def judge_verification(v: Verification, *, rigid: Verification | None = None, re
                                 "on fresh poses (the active mode picks them)"))
     reasons += [("warn", w) for w in warnings]
     level = worst(lv for lv, _ in reasons)
-    lead = {"pass": "within the tolerance", "warn": "within the tolerance, but check the reasons below",
-            "fail": "outside the tolerance"}[level]
-    summary = f"{lead} ({tolerance}) on {v.n_poses} poses: calibration error {verified_error_phrase(v)}"
+    lead = {"pass": f"within the tolerance {tolerance}", "warn": f"within the tolerance {tolerance}, but check the "
+            "reasons below", "fail": f"outside the tolerance {tolerance}"}[level]
+    summary = f"{lead}: calibration error on {v.n_poses} poses {verified_error_phrase(v)}"
     return Verdict(level, summary, tuple(text for _, text in reasons))

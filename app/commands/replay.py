@@ -6,6 +6,7 @@ The replay is `app.runs.replay` (``--monitor``: `app.monitor_replay`); this modu
 from __future__ import annotations
 
 import argparse
+import re
 import shlex
 from pathlib import Path
 
@@ -98,7 +99,9 @@ def print_replay(outcome, files: dict, frames: dict | None = None, *, verbose: b
         print_statistics(res, files)
     print()
     if not files:
-        method = "" if outcome.best.method == "auto" else f" -m {shlex.quote(outcome.best.method)}"
+        name = outcome.best.method
+        method = "" if name == "auto" else f' -m "{name}"' if re.fullmatch(r"[\w'*+.-]+", name) else \
+            f" -m {shlex.quote(name)}"
         print(f"next: write the result files and report.html: {program()} replay "
               f"{shlex.quote(str(outcome.source))}{method} --out DIR")
         return
