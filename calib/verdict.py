@@ -254,9 +254,9 @@ def judge_verification(v: Verification, *, rigid: Verification | None = None, re
     reasons = []
     tolerance = f"{v.tolerance_mm:g} mm / {v.tolerance_deg:g} deg"
     if not v.passed:
-        reasons.append(("fail", f"on poses it did not see, the calibration is off by {verified_error_phrase(v)}, "
-                                f"above the tolerance {tolerance}: recalibrate (more samples, more rotation between "
-                                "them), or check that the camera and the marker did not move since the calibration"))
+        reasons.append(("fail", "the calibration misses the tolerance on poses it did not see: recalibrate (more "
+                                "samples, more rotation between them), or check that the camera and the marker did "
+                                "not move since the calibration"))
     if rigid is not None and not rigid.passed:
         reasons.append(("warn", f"the ROS/URDF transform (camera_transform_raw_points, for uncorrected points) is off "
                                 f"by {rigid.calibration_mm:.2f} mm, above the tolerance: a consumer without the camera "

@@ -113,7 +113,9 @@ def print_verify_summary(doc: dict, path: Path, report: Path, *, verbose: bool =
         print(f"simulator: the result's true error over these poses is {doc['truth']['calibration_error_mm']:.2f} mm")
     if verbose:
         print_verify_statistics(doc)
-    print(f"\nnext:\n  hand over the report: {report}\n  verify.yaml (the figures): {path}")
+    failed = (doc.get("verdict") or {}).get("level") == "fail"
+    print("\nnext:\n" + ("  do not use this result: recalibrate (the reasons above say what to change)\n" if failed else "")
+          + f"  hand over the report: {report}\n  verify.yaml (the figures): {path}")
 
 
 def print_verify_statistics(doc: dict) -> None:
