@@ -22,8 +22,9 @@ venv: $(STAMP)
 # libusb-1.0-0: open3d. libopenni2-0: the OpenNI2 camera driver (its dummy device is tested).
 SYSLIBS := libusb-1.0.so.0:libusb-1.0-0 libOpenNI2.so.0:libopenni2-0
 # mosquitto: the MQTT broker the alarm tests publish through (real broker on loopback).
-# chromium: the headless browser the report tests render report.html in.
-SYSBINS := /usr/sbin/mosquitto:mosquitto /usr/bin/chromium:chromium
+# chromium: the headless browser the report tests render report.html in (and print to PDF);
+# poppler-utils: pdftotext, which reads the printed report back.
+SYSBINS := /usr/sbin/mosquitto:mosquitto /usr/bin/chromium:chromium /usr/bin/pdftotext:poppler-utils
 
 sysdeps:
 	@missing=""; for pair in $(SYSLIBS); do \

@@ -22,11 +22,19 @@ def build_parser() -> tuple[argparse.ArgumentParser, dict]:
     """The parser and ``{command name: module}``."""
     parser = argparse.ArgumentParser(prog="handeye", description="Hand-eye calibration from 3D marker points "
                                      "(Grossmann & Krueger: YKronT', YQuatT').")
-    parser.add_argument("-v", "--verbose", action="count", default=0)
+    parser.add_argument("-v", "--verbose", action="count", default=0,
+                        help="more detail: the statistics behind a verdict (chi-square, noise levels, ...), "
+                        "info log lines")
     sub = parser.add_subparsers(dest="command", required=True)
     commands = {}
     for module in command_modules():
-        module.add_arguments(sub.add_parser(module.NAME, help=module.HELP))
+        command = sub.add_parser(module.NAME, help=module.HELP)
+        module.add_arguments(command)
+        if not getattr(module, "PASSTHROUGH", False):   # (a passthrough command's -v is its program's)
+            # Also after the command (`handeye demo -v`); SUPPRESS keeps a -v given before it.
+            command.add_argument("-v", "--verbose", action="count", default=argparse.SUPPRESS,
+                                 help="more detail: the statistics behind a verdict (chi-square, noise levels, "
+                                 "...), info log lines")
         commands[module.NAME] = module
     return parser, commands
 

@@ -143,12 +143,18 @@ class CalibrateConfig(Params):
     guarantee assumes. ``travel_weight``: information (nats) one second of
     motion is worth. ``max_missed_frames``: the run gives up after this many
     consecutive frames without a marker measurement, saying what the camera saw.
+
+    ``tolerance_mm`` / ``tolerance_deg``: the error the cell accepts; the result's verdict
+    (`calib.verdict.judge`) compares its predicted error over the workspace with them, as
+    ``[verify]``'s judge a verification.
     """
 
     samples: Annotated[Int, Field(ge=3)] = 30
     min_samples: Annotated[Int, Field(ge=3)] = 8
     target_sigma_mm: NonNegativeFloat = 1.0
     target_sigma_deg: NonNegativeFloat = 0.1
+    tolerance_mm: PositiveFloat = 2.0
+    tolerance_deg: PositiveFloat = 1.0
     poses: NonEmptyStr = "optimal"
     translation_range_m: Annotated[PositiveFloat, Field(le=1.0)] = 0.25
     tilt_deg: Annotated[PositiveFloat, Field(le=90.0)] = 40.0
@@ -319,6 +325,16 @@ class VerifyConfig(Params):
     seed: NonNegativeInt = 1
 
 
+class ReportConfig(Params):
+    """``[report]``: who and where, as ``report.html`` names them (`app.report`): the ``site`` (plant),
+    the robot ``cell`` and the ``operator`` who ran the calibration (CLI: ``--site``, ``--cell``,
+    ``--operator``)."""
+
+    site: Str = ""
+    cell: Str = ""
+    operator: Str = ""
+
+
 class SessionConfig(Params):
     """``[session]``: where sessions (samples, frames, result, .rrd) are written.
 
@@ -430,6 +446,7 @@ class Config(Params):
     monitor: MonitorConfig = Field(default_factory=MonitorConfig)
     session: SessionConfig = Field(default_factory=SessionConfig)
     verify: VerifyConfig = Field(default_factory=VerifyConfig)
+    report: ReportConfig = Field(default_factory=ReportConfig)
     viz: VizConfig = Field(default_factory=VizConfig)
     frames: FramesConfig = Field(default_factory=FramesConfig)
     mqtt: MqttConfig = Field(default_factory=MqttConfig)

@@ -91,7 +91,8 @@ def make_solve(cal: CalibrateConfig, setup: Setup, rng: np.random.Generator, sha
     """``solve(observations, *, final)``: the configured solver, refined while running too if configured, so
     that the stop on the predicted 1-sigma and the pose planner see the covariance of the result that will
     be reported (with "auto": the camera-correction uncertainty too, until the samples determine it);
-    outlier rejection only at the end.
+    outlier rejection only at the end, where the result also gets its verdict against
+    ``[calibrate] tolerance_mm / tolerance_deg`` (`judge`).
 
     ``shared_error``: the robot's `Robot.shared_error_factor`; with ``auto`` and the joints of every sample
     (``Observation.joints``), the error it models joins the covariance as shared by all samples.
@@ -104,11 +105,30 @@ def make_solve(cal: CalibrateConfig, setup: Setup, rng: np.random.Generator, sha
         offset = {"marker_offset": marker.offset_m, "marker_offset_sigma": marker.offset_sigma_m}
 
     def solve(observations, *, final: bool):
-        return solve_observations(cal.method, observations, setup, refine=cal.refine, robust=cal.robust and final,
-                                  rng=rng, robot_shared_error=robot_shared_error(cal.method, observations, shared_error),
-                                  **offset)
+        result = solve_observations(cal.method, observations, setup, refine=cal.refine, robust=cal.robust and final,
+                                    rng=rng,
+                                    robot_shared_error=robot_shared_error(cal.method, observations, shared_error),
+                                    **offset)
+        if not final:
+            return result
+        return judge(result, cal.method, observations, setup, (cal.tolerance_mm, cal.tolerance_deg), shared_error,
+                     **offset)
 
     return solve
+
+
+def judge(result, method: str, observations, setup: Setup, tolerance: tuple[float, float], shared_error=None,
+          marker_offset=None, marker_offset_sigma=0.0):
+    """``result`` of ``method`` on ``observations`` with its predicted accuracy and verdict
+    (`calib.verdict.judge`) against ``tolerance`` (mm, deg); ``shared_error``: as `make_solve`'s; the marker
+    offset the result was solved with (`calib.api.observations_problem`)."""
+    from calib.api import observations_problem
+    from calib.verdict import judge as judge_result
+
+    problem = observations_problem(method, observations, setup,
+                                   robot_shared_error=robot_shared_error(method, observations, shared_error),
+                                   marker_offset=marker_offset, marker_offset_sigma=marker_offset_sigma)
+    return judge_result(result, problem, tolerance_mm=tolerance[0], tolerance_deg=tolerance[1])
 
 
 def robot_shared_error(method: str, observations, shared_error) -> np.ndarray | None:
@@ -139,12 +159,15 @@ def make_engine(cfg: Config):
     return MonitorEngine(cfg.monitor.engine)
 
 
-def write_result(result, session: Path, formats, frames: dict | None = None) -> dict:
+def write_result(result, session: Path, formats, frames: dict | None = None, samples_from=None,
+                 cell: dict | None = None) -> dict:
     """Write the result in each export format into the session directory, with the ``[frames]``
-    names; returns ``{format: path}``."""
+    names, where its samples came from (``samples_from``) and the cell (`app.provenance.cell`);
+    returns ``{format: path}``."""
     from app.formats import write_result as export
 
-    return {fmt: export(result, Path(session) / RESULT_FILES[fmt], fmt, frames) for fmt in formats}
+    return {fmt: export(result, Path(session) / RESULT_FILES[fmt], fmt, frames, samples_from=samples_from,
+                        cell=cell) for fmt in formats}
 
 
 def import_options(cfg: Config | None, *, frames: str | None = None, topics: str | None = None) -> dict:

@@ -2,23 +2,26 @@
 
 Written by ``calibrate``, ``replay --out`` and ``verify`` (`write_report`) from
 the result document (`app.formats.result_to_dict`, i.e. ``result.yaml``), the
-calibration samples, and the verification (``verify.yaml``) when there is one:
+calibration samples, and the verification (``verify.yaml``) when there is one.
+In this order, so that it reads from the answer down to the evidence:
 
-- setup and frames drawn (base, camera, the flange at each sample, the marker);
-- pose coverage of the workspace (flange positions, calibration and verification);
-- residuals per sample (marker measured minus predicted, base frame, mm);
-- the error ellipsoid of the camera transform (1-sigma, translation, three views);
-- held-out prediction (the result's self-check; the verification poses);
-- the camera correction with its 1-sigma;
-- the verification table; warnings in plain words.
+- the verdict (`calib.verdict`: pass, warn or fail, the summary, each reason with its fix);
+- the cell: site, cell, operator, robot and camera as their drivers named them, handeye's
+  version and commit, the date and time (`app.provenance`);
+- the camera transform in every form people paste (4x4, xyz + quaternion, xyz + rpy,
+  URDF ``<origin>``, ``static_transform_publisher``), its frames, which transform goes with
+  which points, and its predicted accuracy;
+- the verification (verify): its errors, per pose, and what they are made of;
+- setup and frames in 3D, pose coverage, residuals per sample, the error ellipses, held-out
+  prediction, the camera correction;
+- an appendix with the statistics (chi-square, noise levels, the solver's decisions).
 
-Eye-to-hand: ``X = T_flange_marker``, ``Y = T_base_cam``; eye-in-hand:
-``X = T_flange_cam``, ``Y = T_base_marker`` (paper eq. 1).
+It prints on A4 or Letter (print CSS). Eye-to-hand: ``X = T_flange_marker``, ``Y = T_base_cam``;
+eye-in-hand: ``X = T_flange_cam``, ``Y = T_base_marker`` (paper eq. 1).
 """
 
 from __future__ import annotations
 
-import datetime as _dt
 import html
 import io
 from pathlib import Path
@@ -27,20 +30,35 @@ import numpy as np
 
 from calib.observation import Observation
 from calib.setup import Setup
+from calib.verdict import bounded
 
 REPORT_NAME = "report.html"
 #: Marker (class) of every plot's container: the browser test counts them.
 PLOT_CLASS = "plot"
+#: Id of the verdict block, the first thing on the page.
+VERDICT_ID = "verdict"
 
 _STYLE = """
-body{font-family:system-ui,sans-serif;max-width:1100px;margin:2em auto;padding:0 1em;color:#222}
-h1{font-size:1.5em}h2{font-size:1.15em;margin-top:2em;border-bottom:1px solid #ccc}
-table{border-collapse:collapse;margin:.5em 0}td,th{border:1px solid #ccc;padding:.25em .6em;text-align:right}
-th{background:#f3f3f3}td:first-child,th:first-child{text-align:left}
-.pass{color:#fff;background:#2a7d2a;padding:.3em .8em;border-radius:4px;font-weight:bold}
-.fail{color:#fff;background:#b22;padding:.3em .8em;border-radius:4px;font-weight:bold}
-.warn{background:#fff4d6;border-left:4px solid #e0a000;padding:.4em .8em;margin:.3em 0}
-.plot svg{max-width:100%;height:auto}.note{color:#555;font-size:.9em}
+body{font-family:system-ui,sans-serif;max-width:1100px;margin:1.5em auto;padding:0 1em;color:#222;line-height:1.35}
+h1{font-size:1.45em;margin:.8em 0 .2em}h2{font-size:1.15em;margin-top:1.8em;border-bottom:1px solid #ccc}
+.sub{color:#555;margin:0 0 1em}
+table{border-collapse:collapse;margin:.5em 0}td,th{border:1px solid #ccc;padding:.25em .6em;text-align:right;
+vertical-align:top}th{background:#f3f3f3}td:first-child,th:first-child{text-align:left}
+table.kv td:nth-child(2),table.kv th{text-align:left}table:not(.kv) td:not(:first-child){white-space:nowrap}
+pre,code{font-family:ui-monospace,Menlo,Consolas,monospace;font-size:.88em}
+pre{margin:0;white-space:pre-wrap;overflow-wrap:anywhere}
+.verdict{border-radius:6px;padding:.7em 1em;margin:0 0 .5em;border-left:10px solid}
+.verdict.pass{background:#e8f5e8;border-color:#2a7d2a}.verdict.warn{background:#fff4d6;border-color:#e0a000}
+.verdict.fail{background:#fbe3e3;border-color:#b22}
+.verdict .level{font-weight:bold;font-size:1.3em;margin-right:.5em}
+.verdict ul{margin:.4em 0 0 1.2em;padding:0}
+.use{background:#eef3fb;border-left:4px solid #4a78c2;padding:.4em .8em}
+figure.plot{margin:.5em 0}figure.plot svg{max-width:100%;height:auto}
+figcaption,.note{color:#555;font-size:.9em}
+@page{margin:14mm}
+@media print{body{max-width:none;margin:0;padding:0;font-size:10pt}h2{break-after:avoid}
+figure.plot,tr,.verdict,.use{break-inside:avoid}figure.plot svg{max-height:120mm;width:auto}
+.verdict,.use{-webkit-print-color-adjust:exact;print-color-adjust:exact}}
 """
 
 
@@ -66,52 +84,79 @@ def _figure(*args, **kwargs):
     return plt.subplots(*args, **kwargs)
 
 
-def _plot(title: str, svg: str, note: str = "") -> str:
-    return (f'<div class="{PLOT_CLASS}" data-title="{html.escape(title)}"><h3>{html.escape(title)}</h3>{svg}'
-            + (f'<p class="note">{html.escape(note)}</p>' if note else "") + "</div>")
+def _plot(title: str, svg: str, caption: str = "") -> str:
+    """A figure: the SVG and one caption under it (the section's heading names it; no second heading)."""
+    return (f'<figure class="{PLOT_CLASS}" data-title="{html.escape(title)}">{svg}'
+            f'<figcaption>{html.escape(caption or title)}</figcaption></figure>')
 
 
-def _table(head: list[str], rows: list[list]) -> str:
-    cells = "".join(f"<th>{html.escape(str(h))}</th>" for h in head)
-    body = "".join("<tr>" + "".join(f"<td>{html.escape(str(c))}</td>" for c in r) + "</tr>" for r in rows)
-    return f"<table><tr>{cells}</tr>{body}</table>"
+class _Raw(str):
+    """A table cell that is HTML already (escaped where it was built)."""
 
 
-def _axes(ax, T, name: str, length: float) -> None:
+def _table(head: list[str] | None, rows: list[list], cls: str = "") -> str:
+    """A table; ``head`` None: no header row; ``cls="kv"``: a two-column table of names and values."""
+    cells = "" if head is None else "<tr>" + "".join(f"<th>{html.escape(str(h))}</th>" for h in head) + "</tr>"
+    body = "".join("<tr>" + "".join(f"<td>{c if isinstance(c, _Raw) else html.escape(str(c))}</td>" for c in r)
+                   + "</tr>" for r in rows)
+    attr = f' class="{cls}"' if cls else ""
+    return f"<table{attr}>{cells}{body}</table>"
+
+
+def _code(text: str) -> "_Raw":
+    return _Raw(f"<pre>{html.escape(text)}</pre>")
+
+
+def _axes(ax, T, name: str, length: float, offset) -> None:
     o = T[:3, 3]
     for k, color in enumerate(("r", "g", "b")):
         e = o + T[:3, k] * length
         ax.plot([o[0], e[0]], [o[1], e[1]], [o[2], e[2]], color=color, lw=2)
-    ax.text(*o, " " + name, fontsize=9)
+    p = o + np.asarray(offset, dtype=float)
+    ax.text(*p, name, fontsize=10, fontweight="bold", ha="center", va="bottom",
+            bbox={"boxstyle": "round,pad=0.2", "fc": "white", "ec": "0.6", "alpha": 0.85})
 
 
 def frames_plot(model, observations: list[Observation], verify_obs: list[Observation]) -> str:
-    """3D view of the setup: base and camera frames, the flange at each sample, the marker."""
-    fig = _figure(figsize=(6.5, 5.5), subplot_kw={"projection": "3d"})[0]
+    """3D view of the setup in the base frame (m): base and camera frames, the flange at each sample, the marker.
+
+    The axes are scaled alike (a metre is as long on each), the frames' names stand above their origins
+    (one label per frame, the samples in the legend), so that they do not overlap the points.
+    """
+    fig = _figure(figsize=(9, 7.5), subplot_kw={"projection": "3d"})[0]
     ax = fig.axes[0]
     A = np.array([o.T_base_flange for o in observations]) if observations else np.zeros((0, 4, 4))
-    span = max(float(np.ptp(A[:, :3, 3], axis=0).max()) if len(A) else 0.0, 0.3)
-    L = span / 6
-    _axes(ax, np.eye(4), "base", L)
+    frames = [(np.eye(4), "base")]
     if model.setup == Setup.EYE_TO_HAND:
-        _axes(ax, model.Y, "camera", L)
+        frames.append((model.Y, "camera"))
         marker = (A @ model.X)[:, :3, 3] if len(A) else np.zeros((0, 3))
     else:
-        _axes(ax, model.Y, "marker", L)
+        frames.append((model.Y, "marker"))
         if len(A):
-            _axes(ax, A[0] @ model.X, "camera (sample 0)", L)
-        marker = np.broadcast_to(model.Y[:3, 3], (len(A), 3))
+            frames.append((A[0] @ model.X, "camera (sample 0)"))
+        marker = np.zeros((0, 3))
+    V = np.array([o.T_base_flange[:3, 3] for o in verify_obs]) if verify_obs else np.zeros((0, 3))
+    pts = np.vstack([A[:, :3, 3], marker, V] + [T[None, :3, 3] for T, _ in frames])
+    lo, hi = pts.min(axis=0), pts.max(axis=0)
+    span = float(max((hi - lo).max(), 0.3))
+    L = span / 8
+    for T, name in frames:
+        _axes(ax, T, name, L, (0.0, 0.0, span / 12))
     if len(A):
-        ax.scatter(*A[:, :3, 3].T, s=12, c="tab:blue", label="flange (calibration)")
-        if model.setup == Setup.EYE_TO_HAND:
-            ax.scatter(*marker.T, s=6, c="tab:orange", label="marker")
-    if verify_obs:
-        V = np.array([o.T_base_flange[:3, 3] for o in verify_obs])
-        ax.scatter(*V.T, s=20, c="tab:green", marker="^", label="flange (verification)")
+        ax.scatter(*A[:, :3, 3].T, s=14, c="tab:blue", label="flange at each calibration sample", depthshade=False)
+        if len(marker):
+            ax.scatter(*marker.T, s=8, c="tab:orange", label="marker at each sample", depthshade=False)
+    if len(V):
+        ax.scatter(*V.T, s=24, c="tab:green", marker="^", label="flange at each verification pose", depthshade=False)
+    mid = (lo + hi) / 2
+    for setter, m in zip((ax.set_xlim, ax.set_ylim, ax.set_zlim), mid):
+        setter(m - span * 0.6, m + span * 0.6)
+    ax.set_box_aspect((1, 1, 1))
     ax.set_xlabel("x [m]")
     ax.set_ylabel("y [m]")
     ax.set_zlabel("z [m]")
-    ax.legend(fontsize=8, loc="upper left")
+    ax.view_init(elev=22, azim=-60)
+    ax.legend(fontsize=9, loc="upper left", bbox_to_anchor=(0.0, 1.02))
     return _svg(fig)
 
 
@@ -133,20 +178,20 @@ def coverage_plot(observations: list[Observation], verify_obs: list[Observation]
     return _svg(fig)
 
 
-def residual_plot(errors_mm: np.ndarray, title: str, tolerance_mm: float | None = None) -> str:
-    """Bar per sample: marker measured minus predicted, base frame, mm (and the tolerance line)."""
+def residual_plot(errors_mm: np.ndarray, ylabel: str, xlabel: str, tolerance_mm: float | None = None) -> str:
+    """Bar per sample or pose: the length of the marker point measured minus predicted, mm (and the tolerance)."""
     fig, ax = _figure(figsize=(9, 3.2))
     ax.bar(np.arange(len(errors_mm)), errors_mm, color="tab:blue")
     if tolerance_mm is not None:
         ax.axhline(tolerance_mm, color="tab:red", ls="--", label=f"tolerance {tolerance_mm:g} mm")
         ax.legend(fontsize=8)
-    ax.set_xlabel("sample" if tolerance_mm is None else "verification pose")
-    ax.set_ylabel(title)
+    ax.set_xlabel(xlabel)
+    ax.set_ylabel(ylabel)
     ax.grid(alpha=0.3, axis="y")
     return _svg(fig)
 
 
-def ellipsoid_plot(cov_t_m: np.ndarray) -> str:
+def ellipsoid_plot(cov_t_m: np.ndarray, parent: str) -> str:
     """1-sigma error ellipse of the camera translation in the xy, xz and yz planes of its parent frame, mm."""
     fig, axs = _figure(1, 3, figsize=(10, 3.4))
     C = np.asarray(cov_t_m, dtype=float) * 1e6
@@ -161,8 +206,8 @@ def ellipsoid_plot(cov_t_m: np.ndarray) -> str:
         ax.set_xlim(-r, r)
         ax.set_ylim(-r, r)
         ax.set_aspect("equal")
-        ax.set_xlabel("d" + "xyz"[i] + " [mm]")
-        ax.set_ylabel("d" + "xyz"[j] + " [mm]")
+        ax.set_xlabel(f"d{'xyz'[i]} [mm] ({parent} frame)")
+        ax.set_ylabel(f"d{'xyz'[j]} [mm] ({parent} frame)")
         ax.grid(alpha=0.3)
     fig.tight_layout()
     return _svg(fig)
@@ -176,22 +221,26 @@ def correction_plot(cc: dict) -> str:
     sig = [cc[n]["sigma"] for n in names]
     colors = ["tab:blue" if cc[n]["estimated"] else "tab:gray" for n in names]
     ax.barh(np.arange(len(names)), vals, xerr=sig, color=colors, capsize=4)
-    ax.set_yticks(np.arange(len(names)), [n.replace("_percent", " [%]").replace("_mm", " [mm]") for n in names])
+    ax.set_yticks(np.arange(len(names)), [_param_label(n) for n in names])
     ax.axvline(0, color="k", lw=0.8)
     ax.set_xlabel("value ± 1-sigma (gray: not estimated, kept at zero)")
     ax.grid(alpha=0.3, axis="x")
     return _svg(fig)
 
 
+def _param_label(name: str) -> str:
+    return name.replace("_percent", " [%]").replace("_mm", " [mm]").replace("_", " ")
+
+
 def write_report(directory: Path, *, result_doc: dict, observations: list[Observation] | None = None,
                  verify_doc: dict | None = None, verify_observations: list[Observation] | None = None,
-                 warnings: list[str] | None = None, title: str = "handeye calibration report") -> Path:
+                 title: str = "handeye calibration report", cell: dict | None = None) -> Path:
     """Write ``directory/report.html`` (module docstring); returns its path.
 
     ``result_doc``: the result document (``result.yaml``'s content); ``observations``:
     the calibration samples; ``verify_doc`` / ``verify_observations``: a verification
-    and the per-pose samples it judged; ``warnings``: sentences to show besides
-    those the documents carry.
+    and the per-pose samples it judged; ``cell``: who made it, where and with what
+    (`app.provenance.cell`; default: the result document's ``cell``).
     """
     from app.verify import models_of
 
@@ -199,14 +248,17 @@ def write_report(directory: Path, *, result_doc: dict, observations: list[Observ
     verify_observations = list(verify_observations or [])
     model, _ = models_of(result_doc, Path(directory) / "result")
     mdl = result_doc.get("model") or {}
-    parts = [f"<h1>{html.escape(title)}</h1>", _verdict(verify_doc)]
-    parts += _result_section(result_doc, len(observations))
-    parts += _warnings_section(warnings, mdl, verify_doc)
-    parts += _plots_section(model, result_doc["camera_transform"], observations, verify_observations)
+    verdict = _verification_verdict(verify_doc) if verify_doc is not None else result_doc.get("verdict")
+    cell = cell if cell is not None else result_doc.get("cell") or {}
+    parts = [_verdict_block(verdict), f"<h1>{html.escape(title)}</h1>", _subtitle(result_doc, cell, verify_doc)]
+    parts += _cell_section(cell, result_doc)
+    parts += _transform_section(result_doc, verify_doc is not None)
+    if verify_doc is not None:
+        parts += _verification_section(verify_doc)
+    parts += _plots_section(model, result_doc, observations, verify_observations)
     parts += _heldout_section(mdl, verify_doc)
     parts += _correction_section(mdl)
-    if verify_doc is not None:
-        parts.append("<h2>Verification</h2>" + _verification_table(verify_doc))
+    parts += _appendix(result_doc, mdl, verify_doc)
     page = ("<!DOCTYPE html><html lang=\"en\"><head><meta charset=\"utf-8\">"
             f"<title>{html.escape(title)}</title><style>{_STYLE}</style></head><body>"
             + "".join(parts) + "</body></html>\n")
@@ -215,94 +267,171 @@ def write_report(directory: Path, *, result_doc: dict, observations: list[Observ
     return path
 
 
-def _verdict(verify_doc: dict | None) -> str:
-    """The PASS/FAIL line of a verification ("" without one)."""
-    if verify_doc is None:
-        return ""
+def _verification_verdict(verify_doc: dict) -> dict:
+    """A verification's verdict (``verify.yaml``'s), or one from its pass/fail alone for a document without."""
+    if verify_doc.get("verdict"):
+        return verify_doc["verdict"]
     v = verify_doc["verification"]
-    return (f'<p><span class="{"pass" if v["passed"] else "fail"}">{"PASS" if v["passed"] else "FAIL"}</span> '
-            f'calibration error {v["calibration_error_mm"]:.2f} mm against the tolerance '
-            f'{v["tolerance_mm"]:g} mm / {v["tolerance_deg"]:g} deg ({verify_doc["mode"]}, '
-            f'{v["n_poses"]} poses)</p>')
+    return {"level": "pass" if v["passed"] else "fail", "reasons": [],
+            "summary": f"calibration error {v['calibration_error_mm']:.2f} mm on {v['n_poses']} poses against the "
+                       f"tolerance {v['tolerance_mm']:g} mm / {v['tolerance_deg']:g} deg"}
 
 
-def _result_section(result_doc: dict, n_observations: int) -> list[str]:
-    """Setup, solver, samples, the camera transform with its 1-sigma, residual RMS."""
+def _verdict_block(verdict: dict | None) -> str:
+    """The verdict: level, summary, each reason (the first thing on the page)."""
+    if not verdict:
+        return (f'<div class="verdict warn" id="{VERDICT_ID}"><span class="level">NO VERDICT</span>this result was '
+                "written before results carried one: replay its session to judge it</div>")
+    reasons = "".join(f"<li>{html.escape(r)}</li>" for r in verdict["reasons"])
+    return (f'<div class="verdict {verdict["level"]}" id="{VERDICT_ID}"><span class="level">'
+            f'{verdict["level"].upper()}</span>{html.escape(verdict["summary"])}'
+            + (f"<ul>{reasons}</ul>" if reasons else "") + "</div>")
+
+
+def _subtitle(result_doc: dict, cell: dict, verify_doc: dict | None) -> str:
     setup = Setup(result_doc["setup"])
-    cam = result_doc["camera_transform"]
-    xyz = np.array(cam["translation_m"]) * 1e3
-    summary = [["setup", f"{setup.value}: {setup.equation}"], ["solver", result_doc.get("solver", "")],
-               ["samples", result_doc.get("n_samples", n_observations)],
-               [f"{cam['name']} xyz [mm]", " ".join(f"{x:.2f}" for x in xyz)],
-               [f"{cam['name']} quaternion (x, y, z, w)", " ".join(f"{q:.5f}" for q in cam["quaternion_xyzw"])],
-               ["residual RMS [mm] (camera frame)", f"{result_doc['residuals']['rms_translation_mm']:.2f}"]]
-    if "sigma_1" in cam:
-        summary.append(["1-sigma per axis [mm]", " ".join(f"{s:.2f}" for s in cam["sigma_1"]["translation_mm"])])
-        summary.append(["1-sigma per axis [deg]", " ".join(f"{s:.3f}" for s in cam["sigma_1"]["rotation_deg"])])
-    summary.append(["written", _dt.datetime.now(_dt.timezone.utc).strftime("%Y-%m-%d %H:%M UTC")])
-    return ["<h2>Result</h2>", _table(["quantity", "value"], summary)]
-
-
-def _warnings_section(warnings: list[str] | None, mdl: dict, verify_doc: dict | None) -> list[str]:
-    """The caller's warnings, the model's self-check and notes, and what a failed verification means."""
-    notes = list(warnings or [])
-    check = mdl.get("self_check") or {}
-    if check.get("warning"):
-        notes.append(check["warning"])
-    notes += list(mdl.get("notes") or [])
+    bits = [setup.value.replace("_", "-"), f"solver {result_doc.get('solver', '')}",
+            f"{result_doc.get('n_samples', '?')} calibration samples"]
     if verify_doc is not None:
-        notes += list((verify_doc.get("frame_safety") or {}).get("warnings", []))
-        if not verify_doc["verification"]["passed"]:
-            notes.append("the verification failed: the result predicts the marker worse than the tolerance on poses "
-                         "it did not see; recalibrate (more samples, more rotation between them) or check that the "
-                         "camera did not move")
-        rig = verify_doc.get("rigid_export")
-        if rig is not None and not rig["passed"]:
-            notes.append("the ROS/URDF exports (a rigid transform for uncorrected points) fail the tolerance: a "
-                         "consumer without the camera correction sees larger errors")
-    return ["<h2>Warnings</h2>",
-            "".join(f'<div class="warn">{html.escape(n)}</div>' for n in notes) or "<p>none</p>"]
+        bits.append(f"{verify_doc['verification']['n_poses']} verification poses ({verify_doc['mode']})")
+    if cell.get("written"):
+        bits.append(f"written {cell['written']}")
+    return f'<p class="sub">{html.escape(" · ".join(bits))}</p>'
 
 
-def _plots_section(model, cam: dict, observations: list[Observation],
+def _cell_section(cell: dict, result_doc: dict) -> list[str]:
+    """Who, where, with what: `app.provenance.cell`'s fields, each on a row (blank where not known)."""
+    robot, camera, sw = cell.get("robot") or {}, cell.get("camera") or {}, cell.get("software") or {}
+    unknown = "not recorded"
+
+    def named(d: dict, key: str, label: str) -> str:
+        """``UR10 (driver ur_sim)``: the device's own name and the backend that spoke to it."""
+        return " ".join(p for p in (d.get("model", ""), f"({label} {d[key]})" if d.get(key) else "") if p) or unknown
+
+    rows = [["site", cell.get("site") or unknown], ["cell", cell.get("cell") or unknown],
+            ["operator", cell.get("operator") or unknown],
+            ["robot", named(robot, "type", "driver")], ["robot serial number", robot.get("serial") or unknown],
+            ["robot controller software", robot.get("software") or unknown],
+            ["robot address", robot.get("host") or unknown],
+            ["camera", named(camera, "backend", "backend")], ["camera serial number", camera.get("serial") or unknown],
+            ["camera resolution [px]", camera.get("resolution") or unknown],
+            ["handeye", f"{sw.get('handeye', unknown)} (commit {sw.get('commit', unknown)})"],
+            ["written (local time)", cell.get("written") or unknown],
+            ["samples from", result_doc.get("samples_from") or unknown]]
+    return ["<h2>Cell</h2>", _table(None, rows, "kv")]
+
+
+def _transform_section(result_doc: dict, verified: bool) -> list[str]:
+    """The camera transform to paste in every form, its frames, which transform for which points, its accuracy."""
+    setup = Setup(result_doc["setup"])
+    paste = result_doc.get("camera_transform_raw_points") or result_doc["camera_transform"]
+    cam = result_doc["camera_transform"]
+    parent, child = paste["parent_frame"], paste["child_frame"]
+    T = np.array(paste["matrix"])
+    xyz = np.array(paste["translation_m"])
+    q = paste["quaternion_xyzw"]
+    rpy = paste["rpy_deg"]
+    matrix = "\n".join(" ".join(f"{v:+.6f}" for v in row) for row in T)
+    rows = [["4x4 matrix (m), p_parent = T p_child", _code(matrix)],
+            ["xyz [m] + quaternion (x, y, z, w)",
+             _code(" ".join(f"{v:.6f}" for v in xyz) + "   " + " ".join(f"{v:.6f}" for v in q))],
+            ["xyz [m] + rpy [deg] (URDF: roll about x, pitch about y, yaw about z, fixed axes)",
+             _code(" ".join(f"{v:.6f}" for v in xyz) + "   " + " ".join(f"{v:.4f}" for v in rpy))]]
+    if result_doc.get("urdf_origin"):
+        rows.append(["URDF <origin> (rad)", _code(result_doc["urdf_origin"])])
+    if result_doc.get("ros2_static_transform_publisher"):
+        rows.append(["ROS 2 static_transform_publisher", _code(result_doc["ros2_static_transform_publisher"])])
+    link = (result_doc.get("camera_frame") or {}).get("camera_link_transform")
+    if link:
+        rows.append([f"a ROS camera_link at the same origin: xyz [m] + quaternion (x, y, z, w) in {parent}",
+                     _code(" ".join(f"{v:.6f}" for v in link["translation_m"]) + "   "
+                           + " ".join(f"{v:.6f}" for v in link["quaternion_xyzw"]))])
+    where = "base" if setup == Setup.EYE_TO_HAND else "flange"
+    parts = ["<h2>Camera transform</h2>",
+             f"<p><b>{html.escape(setup.camera_name)}</b>: the pose of the camera's optical frame "
+             f"(<code>{html.escape(child)}</code>: z forward, x right, y down in the image) in the {where} frame "
+             f"(<code>{html.escape(parent)}</code>); {html.escape(setup.equation)}.</p>"]
+    if result_doc.get("which_transform"):
+        parts.append(f'<p class="use">{html.escape(result_doc["which_transform"])}. The forms below are the one '
+                     "to paste.</p>")
+    parts.append(_table(["form", "value"], rows, "kv"))
+    acc = result_doc.get("accuracy")
+    summary = []
+    if acc:
+        summary.append([f"predicted error over the workspace [mm], RMS / at most at 95 %",
+                        f"{acc['rms_mm']:.2f} / {acc['p95_mm']:.2f}"])
+        summary.append([f"predicted error of the camera's rotation [deg], RMS / at most at 95 %",
+                        f"{acc['rms_deg']:.3f} / {acc['p95_deg']:.3f}"])
+    if "sigma_1" in cam:
+        summary.append([f"1-sigma per axis of {cam['name']}: translation [mm] (x y z, {parent} frame)",
+                        " ".join(f"{v:.2f}" for v in cam["sigma_1"]["translation_mm"])])
+        summary.append(["1-sigma per axis: rotation [deg]", " ".join(f"{v:.3f}" for v in cam["sigma_1"]["rotation_deg"])])
+    summary.append(["residual RMS [mm] (marker point measured minus predicted, over the calibration samples)",
+                    f"{result_doc['residuals']['rms_translation_mm']:.2f}"])
+    parts.append(_table(["accuracy", "value"], summary))
+    if not verified:
+        parts.append('<p class="note">A verification on fresh poses (handeye verify) measures the error instead of '
+                     "predicting it.</p>")
+    return parts
+
+
+def _verification_section(doc: dict) -> list[str]:
+    """The verification: its table, what the per-pose errors are made of, each pose, and their plot."""
+    v = doc["verification"]
+    parts = ["<h2>Verification</h2>",
+             f'<p>{html.escape(doc["mode"])} verification of {html.escape(doc["result"]["path"])} against '
+             f'{html.escape(doc["source"])}. Each error is the length of the marker point measured minus the one '
+             "the result predicts, in the base frame.</p>"]
+    if doc.get("per_pose_note"):
+        parts.append(f'<p class="use">{html.escape(doc["per_pose_note"])}.</p>')
+    parts.append(_verification_table(doc))
+    parts.append(_plot("error per verification pose", residual_plot(np.array(v["per_pose_mm"]), "error [mm]",
+                                                                     "verification pose", v["tolerance_mm"]),
+                       "error per verification pose [mm], measurement noise included; dashed: the tolerance"))
+    return parts
+
+
+def _plots_section(model, result_doc: dict, observations: list[Observation],
                    verify_observations: list[Observation]) -> list[str]:
-    """Frames, pose coverage, residuals per sample and the error ellipsoid of the camera transform."""
+    """Frames, pose coverage, residuals per sample and the error ellipses of the camera transform."""
     from app.verify import pose_errors
 
+    cam = result_doc["camera_transform"]
+    parent = cam["parent_frame"]
     parts = ["<h2>Setup and frames</h2>",
-             _plot("setup and frames (base frame, m; axes x red, y green, z blue)",
-                   frames_plot(model, observations, verify_observations)),
+             _plot("setup and frames", frames_plot(model, observations, verify_observations),
+                   "base frame, m; each frame's axes: x red, y green, z blue"),
              "<h2>Pose coverage</h2>",
-             _plot("flange positions in the base frame", coverage_plot(observations, verify_observations),
-                   "the spread of positions and orientations determines the camera transform; a verification "
-                   "inside the calibration's region judges interpolation, outside it extrapolation")]
+             _plot("pose coverage", coverage_plot(observations, verify_observations),
+                   "flange positions in the base frame, mm: the spread of positions and orientations determines "
+                   "the camera transform; a verification inside the calibration's region judges interpolation, "
+                   "outside it extrapolation")]
     if observations:
         e = np.linalg.norm(pose_errors(model, observations).translation, axis=1) * 1e3
         parts.append("<h2>Residuals per sample</h2>")
-        parts.append(_plot("residual per calibration sample [mm] (base frame)", residual_plot(e, "residual [mm]"),
-                           f"RMS {np.sqrt(np.mean(e**2)):.2f} mm, max {e.max():.2f} mm: the samples the result was "
-                           "fitted to, so these understate its error on new poses"))
-    if "covariance" in cam:
-        C = np.array(cam["covariance"]["matrix"])
-        parts.append("<h2>Error ellipsoid of the camera transform</h2>")
-        parts.append(_plot(f"1-sigma error ellipse of the {cam['name']} translation [mm]", ellipsoid_plot(C[3:, 3:]),
-                           "the translation block of the result's covariance, projected on the parent frame's planes"))
-    elif "sigma_1" in cam:
-        s = np.array(cam["sigma_1"]["translation_mm"]) * 1e-3
-        parts.append("<h2>Error ellipsoid of the camera transform</h2>")
-        parts.append(_plot(f"1-sigma error ellipse of the {cam['name']} translation [mm] (axes only)",
-                           ellipsoid_plot(np.diag(s**2))))
+        parts.append(_plot("residuals per sample", residual_plot(e, "residual [mm]", "calibration sample"),
+                           f"length of the marker point measured minus predicted [mm] (the same in every frame): "
+                           f"RMS {np.sqrt(np.mean(e**2)):.2f} mm, max {e.max():.2f} mm, over the samples the result "
+                           "was fitted to, so they understate its error on new poses"))
+    if "covariance" in cam or "sigma_1" in cam:
+        C = (np.array(cam["covariance"]["matrix"])[3:, 3:] if "covariance" in cam
+             else np.diag((np.array(cam["sigma_1"]["translation_mm"]) * 1e-3) ** 2))
+        parts.append("<h2>Error ellipses of the camera position</h2>")
+        parts.append(_plot("error ellipses", ellipsoid_plot(C, parent),
+                           f"1-sigma error ellipse of the {cam['name']} translation [mm] in the {parent} frame's "
+                           "planes (the translation block of the result's covariance"
+                           + ("" if "covariance" in cam else ", axes only") + ")"))
     return parts
 
 
 def _heldout_section(mdl: dict, verify_doc: dict | None) -> list[str]:
-    """Held-out prediction: leave-one-out, blocked folds, the verification poses (and their error plot)."""
+    """Held-out prediction: leave-one-out, blocked folds, the verification poses."""
     check = mdl.get("self_check") or {}
     parts = ["<h2>Held-out prediction</h2>"]
     rows = []
     if check:
-        rows.append(["leave-one-out over the calibration samples (camera frame)",
-                     f"{check['heldout_observed_mm']:.2f}", f"{check['heldout_predicted_mm']:.2f}"])
+        rows.append(["leave-one-out over the calibration samples", f"{check['heldout_observed_mm']:.2f}",
+                     f"{check['heldout_predicted_mm']:.2f}"])
     for c in (mdl.get("blocked_folds") or {}).get("candidates", []):
         what = (f"closed form {c['closed_form']}" if "closed_form" in c else
                 ("points + orientations" if c["orientations"] else "points") + ", camera correction: "
@@ -311,15 +440,10 @@ def _heldout_section(mdl: dict, verify_doc: dict | None) -> list[str]:
                      f"{c['heldout_mm']:.2f}", "-"])
     if verify_doc is not None:
         v = verify_doc["verification"]
-        rows.append([f"verification poses ({verify_doc['mode']}, base frame, observed RMS)",
-                     f"{v['observed_mm']['rms']:.2f}",
+        rows.append([f"verification poses ({verify_doc['mode']}), observed RMS", f"{v['observed_mm']['rms']:.2f}",
                      "-" if v["measurement_noise_rms_mm"] is None else f"{v['measurement_noise_rms_mm']:.2f} (noise)"])
-    parts.append(_table(["prediction of samples not fitted", "observed [mm]", "predicted [mm]"], rows) if rows
-                 else "<p>no held-out prediction for this solver</p>")
-    if verify_doc is not None:
-        v = verify_doc["verification"]
-        parts.append(_plot("error per verification pose [mm] (base frame, noise included)",
-                           residual_plot(np.array(v["per_pose_mm"]), "error [mm]", v["tolerance_mm"])))
+    parts.append(_table(["prediction of samples not fitted (marker point)", "observed [mm]", "predicted [mm]"], rows)
+                 if rows else "<p>no held-out prediction for this solver</p>")
     return parts
 
 
@@ -329,13 +453,52 @@ def _correction_section(mdl: dict) -> list[str]:
     parts = ["<h2>Camera correction</h2>"]
     if cc:
         parts.append(_table(["parameter", "value", "1-sigma", "estimated"],
-                            [[k, f"{c['value']:+.3f}", f"{c['sigma']:.3f}", "yes" if c["estimated"] else "no"]
-                             for k, c in cc.items()]))
-        parts.append(_plot("camera correction ± 1-sigma", correction_plot(cc),
-                           "measured depth (1 + scale) z + offset, lateral coordinates scaled by (1 + focal scale); "
-                           "the ROS/URDF exports carry camera_transform_raw_points, the correction folded in"))
+                            [[_param_label(k), f"{c['value']:+.3f}", f"{c['sigma']:.3f}",
+                              "yes" if c["estimated"] else "no"] for k, c in cc.items()]))
+        parts.append(_plot("camera correction", correction_plot(cc),
+                           "camera correction ± 1-sigma: measured depth (1 + scale) z + offset, lateral coordinates "
+                           "scaled by (1 + focal scale)"))
     else:
         parts.append("<p>none: this solver estimates no camera correction</p>")
+    return parts
+
+
+def _appendix(result_doc: dict, mdl: dict, verify_doc: dict | None) -> list[str]:
+    """The statistics behind the verdict: consistency tests, noise levels, the solver's decisions, the other
+    camera transform."""
+    rows = []
+    check = mdl.get("self_check") or {}
+    if check:
+        rows.append(["chi-square of the residuals against the camera's noise model (dof, p-value)",
+                     f"{check['chi2']:.1f} ({check['dof']}, {check['p_value']:.3g})"])
+        rows.append(["held-out error observed / predicted", f"{check['heldout_ratio']:.2f}"])
+    noise = mdl.get("noise") or {}
+    if noise:
+        rows.append(["camera point noise: scale on its covariance", f"{noise['camera_point_scale']:.3g}"])
+        rows.append(["robot flange error [mm] (estimated)", f"{noise['robot_mm']:.3f}"])
+        if noise.get("marker_rotation_deg") is not None:
+            rows.append(["marker orientation noise [deg]", f"{noise['marker_rotation_deg']:.3f}"])
+    if mdl.get("robot_shared_error_mm") is not None:
+        rows.append(["robot kinematic error in the 1-sigma [mm]", f"{mdl['robot_shared_error_mm']:.3f}"])
+    if mdl.get("raw_points_misfit_mm") is not None:
+        rows.append(["camera_transform_raw_points: RMS misfit of the rigid stand-in for the correction [mm]",
+                     f"{mdl['raw_points_misfit_mm']:.3f}"])
+    if "camera_transform_raw_points" in result_doc:
+        cam = result_doc["camera_transform"]
+        rows.append([f"camera_transform ({cam['name']} for corrected points): xyz [m] + quaternion (x, y, z, w)",
+                     _code(" ".join(f"{v:.6f}" for v in cam["translation_m"]) + "   "
+                           + " ".join(f"{v:.6f}" for v in cam["quaternion_xyzw"]))])
+    rows.append(["samples rejected as outliers", ", ".join(map(str, result_doc.get("rejected_samples") or []))
+                 or "none"])
+    rows.append(["converged, iterations", f"{result_doc.get('converged')}, {result_doc.get('iterations')}"])
+    if verify_doc is not None and "truth" in verify_doc:
+        rows.append(["true calibration error over the verification poses [mm] (simulator)",
+                     f"{verify_doc['truth']['calibration_error_mm']:.2f}"])
+    parts = ["<h2>Appendix: statistics</h2>", _table(["quantity", "value"], rows, "kv")]
+    notes = list(mdl.get("notes") or [])
+    if notes:
+        parts.append("<p>How the solver decided:</p><ul>" + "".join(f"<li>{html.escape(n)}</li>" for n in notes)
+                     + "</ul>")
     return parts
 
 
@@ -347,22 +510,23 @@ def _verification_table(doc: dict) -> str:
     if v["observed_deg"] is not None:
         d = v["observed_deg"]
         rows.append(["observed error [deg] mean / p95 / max", f"{d['mean']:.3f} / {d['p95']:.3f} / {d['max']:.3f}"])
-    lo, hi = v["calibration_error_ci95_mm"]
-    rows.append(["calibration error [mm], noise removed (95 % interval)",
-                 f"{v['calibration_error_mm']:.2f} [{lo:.2f}, {hi:.2f}]"])
+    if v["measurement_noise_rms_mm"] is not None:
+        rows.append(["measurement noise per pose [mm] RMS (noise model)", f"{v['measurement_noise_rms_mm']:.2f}"])
+    if v.get("measurement_noise_rms_deg") is not None:
+        rows.append(["measurement noise per pose [deg] RMS (noise model)", f"{v['measurement_noise_rms_deg']:.3f}"])
+    rows.append(["calibration error, noise removed",
+                 bounded(v["calibration_error_mm"], v["calibration_error_ci95_mm"], "mm", 2, v.get("noise_floor_mm"))])
     if v["calibration_error_deg"] is not None:
-        lo, hi = v["calibration_error_ci95_deg"]
-        rows.append(["calibration error [deg], noise removed (95 % interval)",
-                     f"{v['calibration_error_deg']:.3f} [{lo:.3f}, {hi:.3f}]"])
+        rows.append(["calibration error of the rotation, noise removed",
+                     bounded(v["calibration_error_deg"], v["calibration_error_ci95_deg"], "deg", 3,
+                             v.get("noise_floor_deg"))])
     rows.append(["tolerance", f"{v['tolerance_mm']:g} mm / {v['tolerance_deg']:g} deg"])
-    rows.append(["verdict", "PASS" if v["passed"] else "FAIL"])
     if "rigid_export" in doc:
-        rows.append(["ROS/URDF export (uncorrected points): calibration error [mm]",
+        rows.append(["ROS/URDF transform (camera_transform_raw_points, uncorrected points): calibration error [mm]",
                      f"{doc['rigid_export']['calibration_error_mm']:.2f}"])
-    if "truth" in doc:
-        rows.append(["true calibration error over these poses [mm] (simulator)",
-                     f"{doc['truth']['calibration_error_mm']:.2f}"])
+    repeated = set(doc.get("repeated_calibration_poses") or [])
     per = _table(["pose", "error [mm]", "error [deg]"],
-                 [[i, f"{mm:.2f}", "-" if dg is None else f"{dg:.3f}"]
+                 [[f"{i}{' (repeats a calibration pose)' if i in repeated else ''}", f"{mm:.2f}",
+                   "-" if dg is None else f"{dg:.3f}"]
                   for i, (mm, dg) in enumerate(zip(v["per_pose_mm"], v["per_pose_deg"] or [None] * v["n_poses"]))])
     return _table(["quantity", "value"], rows) + per

@@ -172,6 +172,7 @@ class SessionWriter:
         name: str | None = None,
         source: str = "handeye",
         keep_frames: int | None = None,
+        devices: dict | None = None,
     ) -> "SessionWriter":
         """Create ``root/<name or UTC timestamp>_<setup>/`` with ``session.json``.
 
@@ -188,6 +189,8 @@ class SessionWriter:
             Keep the frame PNGs of only the last this many samples and skips
             (older ones are deleted as new ones are written; their lines stay).
             None keeps every frame.
+        devices : dict, optional
+            What identifies the robot and the camera (`app.provenance.device_identity`).
         """
         setup = check_setup(setup, error=SessionError)
         now = _dt.datetime.now(_dt.timezone.utc)
@@ -209,6 +212,8 @@ class SessionWriter:
             "truth": _jsonable(truth) if truth else None,
             "config": _jsonable(config) if config else None,
         }
+        if devices:
+            header["devices"] = _jsonable(devices)
         _fsync_write(path / "session.json", json.dumps(header, indent=2).encode())
         return cls(path, header, keep_frames=keep_frames)
 

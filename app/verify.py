@@ -8,12 +8,17 @@ the robot (`verify_passive`), and writes ``verify.yaml`` (`write_verify`).
 
 ``verify.yaml``::
 
-    format: handeye-verify, version: 1, setup, equation, mode (active | passive | offline),
+    format: handeye-verify, version: 1, setup, equation,
+    verdict: {level: pass | warn | fail, summary, reasons} (calib.verdict.judge_verification)
+    per_pose_note: what the per-pose errors are made of (calib.verdict.per_pose_phrase)
+    cell: who verified, where, with what (app.provenance.cell)
+    mode (active | passive | offline),
     result: {path, solver, camera_transform (name), camera_transform_raw_points present}
     source: the session verified against (offline) or recorded (active)
     verification: calib.verify.Verification.to_dict() (mm, deg; passed)
     rigid_export: the same for camera_transform_raw_points on uncorrected points (ROS/URDF), if any
     frame_safety: calib.verify.FrameSafety.to_dict() (with --expect-xyz)
+    repeated_calibration_poses: indices of the poses within a few mm / tenths of a degree of a calibration pose
     truth: {calibration_error_mm} of the simulated cell's truth over the same poses (simulators only)
 """
 
@@ -29,7 +34,7 @@ from pathlib import Path
 import numpy as np
 import yaml
 
-from app import devices, planning
+from app import devices, planning, provenance
 from app.acquire import take_sample
 from app.config import Config
 from app.errors import SessionError
@@ -38,10 +43,11 @@ from app.session import SessionWriter, read_session
 from calib import planner as pl
 from calib import transforms as tf
 from calib import verify as cv
-from calib.errors import CalibrationError
+from calib.errors import CalibrationError, HandeyeError
 from calib.model import CameraCorrection
 from calib.observation import Observation
 from calib.setup import Setup
+from calib.verdict import per_pose_phrase
 from drivers.errors import DeviceError, LimitViolationError
 
 log = logging.getLogger(__name__)
@@ -67,6 +73,28 @@ class LoadedResult:
         """The calibration session the result was written into (its samples are not reused), if any."""
         d = self.path.parent
         return d if (d / "session.json").exists() else None
+
+    @property
+    def samples_from(self) -> Path | None:
+        """Where the result's samples are: ``samples_from`` in the file (a session or an imported file, as
+        calibrate and replay --out write it) when it still exists, else the session holding the file, else None."""
+        named = self.doc.get("samples_from")
+        if isinstance(named, str) and named and Path(named).exists():
+            return Path(named)
+        return self.session
+
+    def calibration_samples(self) -> list[Observation]:
+        """The samples the result was solved from (`samples_from`), or none when they cannot be read."""
+        source = self.samples_from
+        if source is None:
+            return []
+        try:
+            if (source / "session.json").exists():
+                return read_session(source).observations
+            return devices.import_observations(source, self.model.setup.value)[0]
+        except HandeyeError as e:
+            log.warning("the calibration's samples (%s) cannot be read: %s", source, e)
+            return []
 
 
 def _get(doc, keys: str, where: Path):
@@ -253,7 +281,7 @@ def verify_active(cfg: Config, loaded: LoadedResult, *, rng: np.random.Generator
     at each, record everything in a new session under ``session.root``; returns the per-pose observations."""
     if loaded.model.setup != cfg.setup:
         raise SessionError(f"{loaded.path} is an {loaded.model.setup} result, the config is {cfg.setup}")
-    calibration = read_session(loaded.session).observations if loaded.session is not None else []
+    calibration = loaded.calibration_samples()
     devices.check_session_root(cfg)
     measure = devices.make_measure(cfg)
     observations, groups, n_skipped, interrupted = [], [], 0, False
@@ -267,7 +295,8 @@ def verify_active(cfg: Config, loaded: LoadedResult, *, rng: np.random.Generator
                                "marker in view from the start pose?)")
         writer = SessionWriter.create(cfg.session.root, cfg.setup, config=cfg.to_dict(),
                                       intrinsics=dataclasses.asdict(camera.intrinsics), truth=truth,
-                                      source="handeye verify")
+                                      source="handeye verify",
+                                      devices=provenance.device_identity(cfg, robot, camera))
         with writer, devices.make_viz(cfg, writer.path) as viz:
             try:
                 for k, T in enumerate(poses):
@@ -328,11 +357,16 @@ def verify_passive(cfg: Config, loaded: LoadedResult, *, progress: bool = False)
 
 def verify_document(loaded: LoadedResult, mode: str, source: Path, verification: cv.Verification,
                     rigid: cv.Verification | None, safety: cv.FrameSafety | None,
-                    truth_mm: float | None = None) -> dict:
-    """The content of ``verify.yaml`` (module docstring)."""
+                    truth_mm: float | None = None, *, verdict=None, repeated=(), cell: dict | None = None) -> dict:
+    """The content of ``verify.yaml`` (module docstring); ``verdict``: `calib.verdict.judge_verification`'s,
+    ``repeated``: the poses that repeat calibration poses (`calib.verify.repeated_poses`); ``cell``: who
+    verified, where, with what (`app.provenance.cell`)."""
     setup = loaded.model.setup
     doc = {
         "format": VERIFY_FORMAT, "version": VERIFY_VERSION, "setup": setup.value, "equation": setup.equation,
+        **({"verdict": verdict.to_dict()} if verdict is not None else {}),
+        "per_pose_note": per_pose_phrase(verification),
+        **({"cell": cell} if cell is not None else {}),
         "mode": mode,
         "result": {"path": str(loaded.path), "solver": loaded.model.method, "camera_transform": setup.camera_name,
                    "camera_correction_applied": loaded.model.correction.as_array().tolist()},
@@ -344,6 +378,7 @@ def verify_document(loaded: LoadedResult, mode: str, source: Path, verification:
                                        "consumers of the exports get", **rigid.to_dict()}
     if safety is not None:
         doc["frame_safety"] = safety.to_dict()
+    doc["repeated_calibration_poses"] = [int(i) for i in repeated]
     if truth_mm is not None:
         doc["truth"] = {"calibration_error_mm": truth_mm,
                         "note": "RMS over the same poses of the result's marker against the simulator's true one"}

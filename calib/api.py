@@ -38,8 +38,8 @@ from calib.result import CalibrationResult
 from calib.robust import default_subset, robust_solve
 from calib.setup import Setup
 
-__all__ = ["AUTO", "METHODS", "MethodInfo", "CalibrationProblem", "closed_form", "observations_to_arrays",
-           "resolve_method", "solve", "solve_observations"]
+__all__ = ["AUTO", "METHODS", "MethodInfo", "CalibrationProblem", "closed_form", "observations_problem",
+           "observations_to_arrays", "resolve_method", "solve", "solve_observations"]
 
 
 def solve(method: str, problem, B=None, *, refine: bool = False, robust: bool = False,
@@ -188,8 +188,17 @@ def solve_observations(method: str, observations: Sequence[Observation], setup: 
     ``marker_offset_sigma``, m (``"auto"`` only): the known marker-side
     translation (`CalibrationProblem`).
     """
-    measurements = "all" if is_auto(method) else resolve_method(method).needs
-    problem = CalibrationProblem.from_observations(observations, setup, measurements=measurements,
-                                                   robot_shared_error=robot_shared_error,
-                                                   marker_offset=marker_offset, marker_offset_sigma=marker_offset_sigma)
+    problem = observations_problem(method, observations, setup, robot_shared_error=robot_shared_error,
+                                   marker_offset=marker_offset, marker_offset_sigma=marker_offset_sigma)
     return solve(method, problem, refine=refine, robust=robust, rng=rng)
+
+
+def observations_problem(method: str, observations: Sequence[Observation], setup: Setup, *,
+                         robot_shared_error=None, marker_offset=None, marker_offset_sigma=0.0) -> CalibrationProblem:
+    """The `CalibrationProblem` `solve_observations` solves with ``method``: the measurements it uses
+    (``"auto"``: all the samples carry; a paper method: its ``needs``), samples lacking them left out, and the
+    known marker offset (``"auto"`` only)."""
+    measurements = "all" if is_auto(method) else resolve_method(method).needs
+    return CalibrationProblem.from_observations(observations, setup, measurements=measurements,
+                                                robot_shared_error=robot_shared_error, marker_offset=marker_offset,
+                                                marker_offset_sigma=marker_offset_sigma)

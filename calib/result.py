@@ -196,6 +196,64 @@ class AutoDetails:
 
 
 @dataclass(frozen=True)
+class Accuracy:
+    """The predicted error of a camera transform over the workspace (`calib.verdict.workspace_accuracy`).
+
+    The workspace is where the calibration samples put the marker: the error of a
+    marker point the camera measures there, mapped into the camera's parent frame
+    (the base frame eye-to-hand, the flange frame eye-in-hand), camera correction included.
+
+    Attributes
+    ----------
+    rms_mm : float
+        RMS over the workspace of the point's 1-sigma error (3D), mm: what a verification
+        on fresh poses there should find, noise removed.
+    p95_mm : float
+        At most this error at 95 % anywhere in the workspace, mm (1.96 times the largest
+        point's 3D RMS error: a bound for a Gaussian error of any shape).
+    rms_deg, p95_deg : float
+        The same for the camera's rotation, deg.
+    """
+
+    rms_mm: float
+    p95_mm: float
+    rms_deg: float
+    p95_deg: float
+
+
+#: Verdict levels, from best to worst.
+LEVELS = ("pass", "warn", "fail")
+
+
+@dataclass(frozen=True)
+class Verdict:
+    """Whether to use a result, in the words of the person who acts on it (`calib.verdict`).
+
+    Attributes
+    ----------
+    level : {"pass", "warn", "fail"}
+        ``pass``: within the tolerance, nothing to check; ``warn``: usable once the reasons are
+        checked; ``fail``: do not use as it is.
+    summary : str
+        One sentence: the level's meaning and the predicted (or verified) error against the tolerance.
+    reasons : tuple of str
+        One plain sentence per problem, each with what to do about it (empty for ``pass``).
+    """
+
+    level: str
+    summary: str
+    reasons: tuple[str, ...] = ()
+
+    def __post_init__(self):
+        if self.level not in LEVELS:
+            raise ValueError(f"verdict level must be one of {LEVELS}, got {self.level!r}")
+
+    def to_dict(self) -> dict:
+        """``{level, summary, reasons: [...]}``, as result.yaml and verify.yaml hold it."""
+        return {"level": self.level, "summary": self.summary, "reasons": list(self.reasons)}
+
+
+@dataclass(frozen=True)
 class CalibrationResult:
     """Solution of ``A_i X = Y B_i`` (paper eq. 1) and how much to trust it.
 
@@ -210,7 +268,9 @@ class CalibrationResult:
     determine everything. ``auto`` fills it when the tool never turned or
     turned about one axis only (`calib.auto.determined`): the open part is
     then held at a stated value, and ``X``, ``Y`` and ``cov`` are the
-    determined answer given it.
+    determined answer given it. ``accuracy`` and
+    ``verdict``: the predicted error over the workspace and whether to use the result against a
+    tolerance, set by `calib.verdict.judge` (None until judged).
     """
 
     method: str
@@ -230,6 +290,8 @@ class CalibrationResult:
     refinement: RefineDetails | None = None
     auto: AutoDetails | None = None
     undetermined: tuple[str, ...] = ()
+    accuracy: Accuracy | None = None
+    verdict: Verdict | None = None
 
     def __post_init__(self):
         # A NaN/inf anywhere means the data did not determine the solution (e.g. a

@@ -189,8 +189,9 @@ class Verification:
     calibration itself, the noise model's share removed, with its bootstrap
     95 % interval ``calibration_ci_mm`` / ``_deg``; ``noise_removed``: False
     when the samples carry no covariance (then the observed RMS stands in).
-    ``passed``: ``calibration_mm <= tolerance_mm`` and, with orientations,
-    ``calibration_deg <= tolerance_deg``.
+    ``noise_rms_deg``: the RMS angle the noise model expects of each pose's orientation
+    measurement (None: unknown). ``passed``: ``calibration_mm <= tolerance_mm`` and, with
+    orientations, ``calibration_deg <= tolerance_deg``.
     """
 
     errors_mm: np.ndarray
@@ -203,6 +204,7 @@ class Verification:
     tolerance_mm: float
     tolerance_deg: float
     noise_removed: bool
+    noise_rms_deg: float | None = None
 
     @property
     def n_poses(self) -> int:
@@ -214,6 +216,23 @@ class Verification:
         if self.calibration_deg is not None:
             ok = ok and self.calibration_deg <= self.tolerance_deg
         return bool(ok)
+
+    @staticmethod
+    def _floor(noise_rms: float | None, n: int) -> float | None:
+        # The smallest calibration error the poses can tell from the noise: the one that raises the mean
+        # squared error by two standard errors of the noise's own (3 n squared Gaussian components).
+        return None if noise_rms is None else float(noise_rms * np.sqrt(2.0 * np.sqrt(2.0 / (3 * n))))
+
+    @property
+    def noise_floor_mm(self) -> float | None:
+        """The smallest calibration error (mm) these poses tell from their noise (None: noise unknown)."""
+        return self._floor(self.noise_rms_mm, self.n_poses)
+
+    @property
+    def noise_floor_deg(self) -> float | None:
+        """The same for the rotation, deg."""
+        r = self.rotation_deg
+        return None if r is None else self._floor(self.noise_rms_deg, int(np.isfinite(r).sum()))
 
     def stats_mm(self) -> dict:
         e = self.errors_mm
@@ -239,6 +258,9 @@ class Verification:
             "calibration_error_deg": self.calibration_deg,
             "calibration_error_ci95_deg": None if self.calibration_ci_deg is None else list(self.calibration_ci_deg),
             "measurement_noise_rms_mm": self.noise_rms_mm,
+            "measurement_noise_rms_deg": self.noise_rms_deg,
+            "noise_floor_mm": self.noise_floor_mm,
+            "noise_floor_deg": self.noise_floor_deg,
             "noise_removed": self.noise_removed,
             "observed_mm": self.stats_mm(),
             "observed_deg": self.stats_deg(),
@@ -247,7 +269,8 @@ class Verification:
             [None if not np.isfinite(v) else float(v) for v in self.rotation_deg],
             "note": "observed: measured minus predicted marker, base frame (measurement noise included); "
                     "calibration_error: RMS with the noise model's share removed, bootstrap 95 % interval over the "
-                    "poses; passed: calibration_error within both tolerances",
+                    "poses; noise_floor: the smallest calibration error these poses tell from their noise; "
+                    "passed: calibration_error within both tolerances",
         }
 
 
@@ -286,9 +309,34 @@ def verify(errors: PoseErrors, *, tolerance_mm: float, tolerance_deg: float,
         rboot = np.sqrt(np.maximum((r[ridx] ** 2).mean(axis=1) - rn, 0.0))
         ci_deg = tuple(float(v) for v in np.rad2deg(np.percentile(rboot, [2.5, 97.5])))
         rot_deg = np.rad2deg(rot)
+    noise_deg = None if errors.rotation is None or errors.rotation_noise_var is None else \
+        float(np.rad2deg(np.sqrt(errors.rotation_noise_var)))
     return Verification(e * 1e3, rot_deg, calib_mm, ci_mm,
                         float(np.sqrt(noise.mean())) * 1e3 if known else None, cal_deg, ci_deg,
-                        float(tolerance_mm), float(tolerance_deg), known)
+                        float(tolerance_mm), float(tolerance_deg), known, noise_deg)
+
+
+#: A verification pose this close to a calibration pose repeats it (m, deg): a robot returning to a
+#: taught pose lands within a few tenths of a millimetre; planned fresh poses are centimetres apart.
+REPEAT_M, REPEAT_DEG = 0.005, 0.5
+
+
+def repeated_poses(A, A_calibration, *, translation_m: float = REPEAT_M, rotation_deg: float = REPEAT_DEG
+                   ) -> np.ndarray:
+    """Indices of the flange poses ``A`` (N, 4, 4) within ``translation_m`` and ``rotation_deg`` of a pose of
+    ``A_calibration`` (M, 4, 4): there a verification repeats the calibration instead of testing it."""
+    A = tf.check_transforms(A, "A")
+    C = tf.check_transforms(A_calibration, "A_calibration")
+    if len(A) == 0 or len(C) == 0:
+        return np.zeros(0, dtype=int)
+    near = np.linalg.norm(A[:, None, :3, 3] - C[None, :, :3, 3], axis=2) <= translation_m
+    hits = []
+    for i, js in enumerate(near):
+        js = np.flatnonzero(js)
+        if len(js) and np.min(tf.rotation_angle(A[i, :3, :3] @ np.swapaxes(C[js, :3, :3], 1, 2))) \
+                <= np.deg2rad(rotation_deg):
+            hits.append(i)
+    return np.array(hits, dtype=int)
 
 
 @dataclass(frozen=True)

@@ -29,6 +29,11 @@ class Device(abc.ABC):
     @abc.abstractmethod
     def is_connected(self) -> bool: ...
 
+    def identity(self) -> dict:
+        """What identifies the connected device in a report, as far as it can read it (model, serial number,
+        firmware or controller software: plain strings by name); ``{}`` when it can read nothing."""
+        return {}
+
     def reconnect(self) -> None:
         """Connect again after the connection was lost: ``disconnect()`` (errors of a half-dead device
         ignored), then ``connect()``. A backend with more state to keep overrides this."""

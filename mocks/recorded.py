@@ -70,6 +70,9 @@ class RecordedCamera(Camera):
         self._pos = 0
         self._t0_wall = 0.0
 
+    def identity(self) -> dict:
+        return {"model": "recorded sequence (played back)", "source": str(self.config.path)}
+
     def connect(self) -> None:
         root = Path(self.config.path)
         if not (root / "frames.csv").is_file():

@@ -10,10 +10,10 @@ from pathlib import Path
 
 import numpy as np
 
-from app.commands.common import (add_motion_options, add_run_options, confirm_motion, load_config_args, pose_line,
-                                 resume_command)
+from app.commands.common import (add_motion_options, add_report_options, add_run_options, confirm_motion,
+                                 load_config_args, next_steps, program, resume_command, transform_lines,
+                                 verdict_lines)
 from app.runs.calibrate import CalibrationOutput, calibrate
-from calib import transforms as tf
 from app.formats.export import model_report
 from calib.result import CalibrationResult
 from calib.setup import Setup
@@ -30,13 +30,14 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--method", help="solver, paper name (overrides calibrate.method), e.g. \"YKronT'\"")
     p.add_argument("--resume", type=Path, help="continue this session (e.g. after a crash or Ctrl-C)")
     add_motion_options(p)
+    add_report_options(p)
 
 
 def run(args) -> int:
     cfg = load_config_args(args)
     confirm_motion(args.yes_move)
     out = calibrate(cfg, resume=args.resume)
-    print_calibration_summary(out)
+    print_calibration_summary(out, verbose=args.verbose > 0, config=args.config)
     print_continue(out, args)
     return exit_code(out)
 
@@ -54,9 +55,10 @@ def exit_code(out: CalibrationOutput) -> int:
     return 0 if out.report.result is not None else 1
 
 
-def print_calibration_summary(out: CalibrationOutput) -> None:
+def print_calibration_summary(out: CalibrationOutput, *, verbose: bool = False, config: Path | None = None) -> None:
+    """The run in the words of the person who acts on it: the verdict, the transform to paste, what to do next;
+    ``verbose``: the statistics too (residuals, 1-sigma, camera correction, self-check, files)."""
     r = out.report
-    cam = Setup(out.setup).camera_name
     print(f"\nsession: {r.session}")
     print(f"setup: {out.setup}   solver: {out.method}   samples: {r.n_samples}   skipped: {r.n_skipped}   "
           f"stopped by: {r.stopped_by}   time: {r.elapsed_s:.1f} s (robot motions: {r.n_motions}, "
@@ -75,41 +77,47 @@ def print_calibration_summary(out: CalibrationOutput) -> None:
               f"{r.session / 'samples.jsonl'})")
         return
     res = r.result
-    rows = [("estimate " + cam, pose_line(res.camera_transform))]
-    if out.truth is not None:
-        rows.append(("truth    " + cam, pose_line(out.truth)))
-    for name, line in rows:
-        print(f"  {name}: {line}")
     print()
-    print("| quantity | value |\n|---|---|")
+    for line in verdict_lines(None if res.verdict is None else res.verdict.to_dict()):
+        print(line)
+    print()
+    for line in transform_lines(res, truth=out.truth):
+        print(line)
+    if verbose:
+        print_statistics(res, out.files)
+    print_next_steps(out, config)
+
+
+def print_statistics(res: CalibrationResult, files: dict) -> None:
+    """``--verbose``: residuals, 1-sigma, the camera correction, noise levels, the self-check, the files written."""
+    print("\n| quantity | value |\n|---|---|")
     print(f"| residual RMS [mm] | {res.residuals.rms_translation * 1e3:.2f} |")
     print(f"| residual max [mm] | {res.residuals.max_translation * 1e3:.2f} |")
     if res.sigma is not None:
         s_rot, s_t = res.sigma
-        print(f"| 1-sigma [mm] | {s_t * 1e3:.2f} |\n| 1-sigma [deg] | {np.rad2deg(s_rot):.3f} |")
-    if out.truth is not None:
-        rot, trans = tf.pose_error(res.camera_transform, out.truth)
-        print(f"| error vs truth [mm] | {trans * 1e3:.2f} |\n| error vs truth [deg] | {np.rad2deg(rot):.3f} |")
-    for kind, path in out.files.items():
+        print(f"| 1-sigma of the camera transform, worst axis [mm] | {s_t * 1e3:.2f} |\n"
+              f"| 1-sigma of the camera transform, worst axis [deg] | {np.rad2deg(s_rot):.3f} |")
+    notes = print_model_summary(res)
+    for kind, path in files.items():
         print(f"| {kind} | {path} |")
-    print_model_summary(res)
-    print_next_steps(out)
+    for note in notes:
+        print(f"note: {note}")
 
 
-def print_model_summary(res: CalibrationResult) -> None:
-    """Camera correction, noise levels and the self-check of ``res`` (`app.formats.export.model_report`), then any warning."""
+def print_model_summary(res: CalibrationResult) -> list[str]:
+    """Camera correction, noise levels and the self-check of ``res`` (`app.formats.export.model_report`) as
+    table rows; returns ``auto``'s notes."""
     rep = model_report(res)
     if rep is None:
-        return
+        return []
     rows = []
     for name, c in rep.get("camera_correction", {}).items():
         if c["estimated"]:
             label = name.replace("_percent", " [%]").replace("_mm", " [mm]").replace("_", " ")
             rows.append((label, f"{c['value']:+.2f} ± {c['sigma']:.2f}"))
     if "raw_points_misfit_mm" in rep:
-        cam = Setup(res.setup).camera_name
-        rows.append((f"ROS/URDF exports: {cam} for uncorrected points, misfit [mm]",
-                     f"{rep['raw_points_misfit_mm']:.2f} (result.yaml: camera_transform_raw_points)"))
+        rows.append(("camera_transform_raw_points: misfit of the rigid stand-in for the correction [mm]",
+                     f"{rep['raw_points_misfit_mm']:.2f}"))
     if "noise" in rep:
         rows.append(("robot error [mm] (estimated)", f"{rep['noise']['robot_mm']:.2f}"))
     if "robot_shared_error_mm" in rep:
@@ -121,22 +129,21 @@ def print_model_summary(res: CalibrationResult) -> None:
         rows.append(("chi-square vs camera noise model", f"{check['chi2']:.0f} for {check['dof']} dof"))
     for name, value in rows:
         print(f"| {name} | {value} |")
-    for note in rep.get("notes", []):
-        print(f"note: {note}")
-    if check is not None and check["warning"] and check["warning"] not in rep.get("notes", []):
-        print(f"warning: {check['warning']}")
+    return list(rep.get("notes", []))
 
 
-def print_next_steps(out: CalibrationOutput) -> None:
-    """How to look at the run (rerun), use its result (ROS 2) and verify it, as commands to paste."""
+def print_next_steps(out: CalibrationOutput, config: Path | None = None) -> None:
+    """What to do with the result (`app.commands.common.next_steps`), and the recording to look at."""
     from app.formats import ros2_command
     from app.viz import open_command
 
+    res = out.report.result
+    cfg = f" -c {config}" if config is not None else ""
     print()
+    for line in next_steps(res.verdict.level if res.verdict is not None else "warn", report=out.files.get("report"),
+                           ros2=ros2_command(res, out.frames),
+                           verify=f"{program()} verify{cfg} --result {out.files['yaml']} --yes-move"
+                           if "yaml" in out.files else None):
+        print(line)
     if out.recording is not None and out.recording.exists():
-        print(f"open the recording:  {open_command(out.recording)}")
-    if out.report.result is not None:
-        print(f"publish in ROS 2:    {ros2_command(out.report.result, out.frames)}")
-    if "yaml" in out.files:
-        # The same -c as this run (the embedded simulated cell without one).
-        print(f"verify on fresh poses: handeye verify [-c <config>] --result {out.files['yaml']}")
+        print(f"  open the recording:  {open_command(out.recording)}")

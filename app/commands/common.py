@@ -25,17 +25,39 @@ def add_run_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("--no-frames", action="store_true", help="do not store color/depth PNGs in the session")
 
 
+def add_report_options(p: argparse.ArgumentParser) -> None:
+    """Who and where, as report.html and result.yaml name them (override ``[report]``)."""
+    p.add_argument("--site", help="plant, as the report names it (overrides report.site)")
+    p.add_argument("--cell", help="robot cell, as the report names it (overrides report.cell)")
+    p.add_argument("--operator", help="who ran it, as the report names them (overrides report.operator)")
+
+
+def report_overrides(args) -> dict:
+    """The ``[report]`` fields given on the command line (`add_report_options`)."""
+    return {k: getattr(args, k) for k in ("site", "cell", "operator") if getattr(args, k, None) is not None}
+
+
+def _mm_deg(text: str, example: str, what: str, alternative: str = "") -> tuple[float, float]:
+    """``MM,DEG``, both positive and finite; `argparse.ArgumentTypeError` otherwise."""
+    try:
+        mm, deg = (float(v) for v in text.split(","))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected MM,DEG (e.g. {example}){alternative}, got {text!r}") from None
+    if not (mm > 0 and deg > 0 and np.isfinite(mm) and np.isfinite(deg)):
+        raise argparse.ArgumentTypeError(f"both {what} must be positive numbers, got {text!r}")
+    return mm, deg
+
+
 def until_sigma(text: str) -> tuple[float, float]:
     """``--until-sigma`` value: ``MM,DEG`` (e.g. ``1,0.1``) or ``off``."""
     if text.strip().lower() in ("off", "0", "0,0"):
         return 0.0, 0.0
-    try:
-        mm, deg = (float(v) for v in text.split(","))
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected MM,DEG (e.g. 1,0.1) or 'off', got {text!r}") from None
-    if not (mm > 0 and deg > 0 and np.isfinite(mm) and np.isfinite(deg)):
-        raise argparse.ArgumentTypeError(f"both targets must be positive numbers, got {text!r}")
-    return mm, deg
+    return _mm_deg(text, "1,0.1", "targets", " or 'off'")
+
+
+def tolerance(text: str) -> tuple[float, float]:
+    """``--tolerance`` value: ``MM,DEG``, both positive."""
+    return _mm_deg(text, "2,0.5", "tolerances")
 
 
 def marker_offset(text: str) -> tuple[float, float, float]:
@@ -94,7 +116,8 @@ def apply_overrides(cfg, args):
     if getattr(args, "no_frames", False):
         ses["save_frames"] = False
     data = cfg.model_dump()
-    for section, changes in (("calibrate", cal), ("monitor", mon), ("viz", viz), ("session", ses)):
+    for section, changes in (("calibrate", cal), ("monitor", mon), ("viz", viz), ("session", ses),
+                             ("report", report_overrides(args))):
         data[section].update(changes)
     return config_from_dict(data, "command line")
 
@@ -147,11 +170,70 @@ def resume_command(args, session: Path) -> str:
             resume_value_next = "=" not in arg
         else:
             argv.append(arg)
-    return shlex.join(["handeye", *argv, "--resume", str(session)])
+    return shlex.join([program(), *argv, "--resume", str(session)])
 
 
-def pose_line(T: np.ndarray) -> str:
-    """``xyz [mm] = [...]  quat (x,y,z,w) = [...]`` of a transform, for printing."""
+def pose_line(T: np.ndarray, *, rpy: bool = False) -> str:
+    """``xyz [mm] = [...]  quat (x,y,z,w) = [...]`` of a transform (and URDF's ``rpy [deg]``), for printing."""
+    from app.formats.export import rpy_deg
+
     xyz, q = tf.to_xyz_quat(T)
     return (f"xyz [mm] = {np.array2string(xyz * 1e3, precision=2)}  "
-            f"quat (x,y,z,w) = {np.array2string(q, precision=5)}")
+            f"quat (x,y,z,w) = {np.array2string(q, precision=5)}"
+            + (f"  rpy [deg] = {np.array2string(rpy_deg(T), formatter={'float_kind': '{:.3f}'.format})}"
+               if rpy else ""))
+
+
+def program() -> str:
+    """The ``handeye`` command as the user typed it (``.venv/bin/handeye``), for the commands printed to paste."""
+    typed = sys.argv[0] if sys.argv else ""
+    return typed if Path(typed).name == "handeye" else "handeye"
+
+
+def verdict_lines(verdict: dict | None) -> list[str]:
+    """``PASS: <summary>`` and one ``  - <reason>`` line per reason (`calib.result.Verdict.to_dict`)."""
+    from calib.verdict import WORDS
+
+    if verdict is None:
+        return []
+    return [f"{WORDS[verdict['level']]}: {verdict['summary']}"] + [f"  - {r}" for r in verdict["reasons"]]
+
+
+def next_steps(level: str, *, report: Path | None, ros2: str | None, verify: str | None) -> list[str]:
+    """What to do with a judged result, as lines to paste: the report to hand over, the ROS 2 line and the
+    verification for a ``pass`` or ``warn`` (after checking the reasons); for a ``fail``, not to publish it."""
+    lines = ["next:"]
+    if level == "fail":
+        lines.append("  do not publish this result: fix what the reasons above say and calibrate again"
+                     + (f"; the report shows every sample: {report}" if report is not None else ""))
+        return lines
+    if level == "warn":
+        lines.append("  check the reasons above first")
+    if report is not None:
+        lines.append(f"  hand over the report: {report}  (result.yaml, URDF and ROS 2 launch file beside it)")
+    if ros2 is not None:
+        lines.append(f"  publish in ROS 2:    {ros2}")
+    if verify is not None:
+        lines.append(f"  verify on fresh poses: {verify}")
+    return lines
+
+
+def transform_lines(result, *, truth: np.ndarray | None = None) -> list[str]:
+    """The camera transform to paste (`CalibrationResult.camera_transform_raw_points`: what the ROS and URDF
+    exports carry), the simulator's truth beside it, and which transform goes with which points."""
+    from app.formats.export import which_transform
+    from calib.setup import Setup
+
+    setup = Setup(result.setup)
+    parent = "base" if setup == Setup.EYE_TO_HAND else "flange"
+    T = result.camera_transform_raw_points
+    lines = [f"{setup.camera_name} (the camera's optical frame in the {parent} frame):",
+             f"  {pose_line(T, rpy=True)}"]
+    if truth is not None:
+        # The truth is the camera's pose: what camera_transform estimates (the other absorbs the depth error).
+        rot, trans = tf.pose_error(result.camera_transform, truth)
+        which = "error" if result.raw_points_fit is None else "camera_transform's error"
+        lines.append(f"  truth (simulator): {pose_line(truth)}  {which} {trans * 1e3:.2f} mm / "
+                     f"{np.rad2deg(rot):.3f} deg")
+    lines.append(f"  {which_transform(result)}")
+    return lines

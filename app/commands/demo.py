@@ -6,7 +6,7 @@ import argparse
 from pathlib import Path
 
 from app.commands.calibrate import exit_code, print_calibration_summary, print_continue
-from app.commands.common import add_motion_options, add_run_options, load_config_args
+from app.commands.common import add_motion_options, add_report_options, add_run_options, load_config_args
 from app.commands.monitor import EXIT_ALARM, print_monitor_summary
 from app.production import Bump
 from app.runs.demo import demo, demo_monitor
@@ -24,6 +24,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     add_motion_options(p)
     p.add_argument("--resume", type=Path, help="continue this demo session (e.g. after Ctrl-C) on the simulated "
                    "cell: its samples count towards --samples, new ones are appended")
+    add_report_options(p)
     p.add_argument("--monitor", action="store_true", help="passive monitoring instead: the simulated robot runs a "
                    "looping production program, the camera is bumped partway; exit status 3 on the alarm")
     p.add_argument("--bump-mm", type=float, default=10.0, help="--monitor: camera shift, mm (default 10; 0 and "
@@ -39,7 +40,7 @@ def run(args) -> int:
     if args.monitor:
         return _run_monitor(args)
     out = demo(load_config_args(args), resume=args.resume)
-    print_calibration_summary(out)
+    print_calibration_summary(out, verbose=args.verbose > 0, config=args.config)
     print_continue(out, args)
     return exit_code(out)
 

@@ -6,12 +6,16 @@ The replay is `app.runs.replay` (``--monitor``: `app.monitor_replay`); this modu
 from __future__ import annotations
 
 import argparse
+import re
+import shlex
 from pathlib import Path
 
 import numpy as np
 
 from app import devices
-from app.commands.common import marker_offset
+from app.commands.calibrate import print_statistics
+from app.commands.common import (add_report_options, marker_offset, next_steps, program, report_overrides, tolerance,
+                                 transform_lines, verdict_lines)
 from app.errors import SessionError
 from app.runs.replay import replay_settings, replay_source, write_outputs
 from calib.setup import Setup
@@ -34,10 +38,12 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--frames", help="ROS 2 bag: tf frames as base=NAME,flange=NAME[,camera=NAME] "
                    "(default: the config's [frames])")
     p.add_argument("--topics", help="ROS 2 bag: color=TOPIC,depth=TOPIC,info=TOPIC,marker=TOPIC where it has several")
-    p.add_argument("-c", "--config", type=Path, help="config whose calibrate.target_sigma_mm/_deg the 1-sigma "
-                   "warnings use (default targets: 3 mm, 0.2 deg), and whose robot's kinematic_error auto adds "
-                   "as shared by the samples (sessions with joints), and whose session.exports and [frames] "
-                   "--out uses")
+    p.add_argument("-c", "--config", type=Path, help="config whose calibrate.tolerance_mm/_deg the verdict "
+                   "judges against (default 2 mm, 1 deg), whose robot's kinematic_error auto adds as shared by the "
+                   "samples (sessions with joints), and whose session.exports and [frames] --out uses")
+    add_report_options(p)
+    p.add_argument("--tolerance", type=tolerance, metavar="MM,DEG",
+                   help="the error the cell accepts, for the verdict (overrides calibrate.tolerance_mm/_deg)")
     p.add_argument("--out", type=Path, metavar="DIR", help="write the result files, exports and report.html "
                    "of the recommended solver into DIR, as calibrate writes them into its session; with --monitor: "
                    "monitor_trace.csv, alarms.yaml, monitor_trace.png and calibration_in_use.yaml (default "
@@ -73,15 +79,48 @@ def run(args) -> int:
         print(summary(rep))
         return 3 if any(a["alarm"] == "moved" for a in rep.alarms) else 0
     outcome = replay_source(args.source, methods, refine=args.refine, robust=args.robust, setup=args.setup,
-                            rng=np.random.default_rng(args.seed), target_mm=settings.target_mm,
-                            target_deg=settings.target_deg, shared_error=settings.shared_error,
-                            marker_offset=settings.marker_offset, marker_offset_sigma=settings.marker_offset_sigma,
+                            rng=np.random.default_rng(args.seed), tolerance=args.tolerance or settings.tolerance,
+                            shared_error=settings.shared_error, marker_offset=settings.marker_offset,
+                            marker_offset_sigma=settings.marker_offset_sigma,
                             import_options=devices.import_options(settings.config, frames=args.frames,
                                                                   topics=args.topics))
-    print(outcome.text)
-    if args.out is not None:
-        files = write_outputs(outcome, args.out, settings.exports, settings.frames)
-        print("\n| output | file |\n|---|---|")
-        for kind, path in files.items():
-            print(f"| {kind} | {path} |")
+    report = {**(settings.config.report.model_dump() if settings.config is not None else {}), **report_overrides(args)}
+    files = {} if args.out is None else write_outputs(outcome, args.out, settings.exports, settings.frames, report)
+    print_replay(outcome, files, settings.frames, verbose=args.verbose > 0, config=args.config)
     return 0
+
+
+def print_replay(outcome, files: dict, frames: dict | None = None, *, verbose: bool = False,
+                 config: Path | None = None) -> None:
+    """The verdict of the result replay recommends (and ``--out`` writes), its transform, the solvers'
+    comparison when several ran (or ``verbose``), the statistics (``verbose``) and what to do next."""
+    from app.formats import ros2_command
+
+    res = outcome.best.result
+    print(outcome.header.rstrip("\n") + f"; result of {outcome.best.method}:\n")
+    for line in verdict_lines(res.verdict.to_dict()):
+        print(line)
+    print()
+    for line in transform_lines(res, truth=outcome.truth):
+        print(line)
+    if verbose or len(outcome.rows) > 1:
+        print("\n" + outcome.table)
+        if outcome.advice:
+            print("\n" + "\n".join(outcome.advice))
+    if verbose:
+        print_statistics(res, files)
+    print()
+    if not files:
+        name = outcome.best.method
+        method = "" if name == "auto" else f' -m "{name}"' if re.fullmatch(r"[\w'*+.-]+", name) else \
+            f" -m {shlex.quote(name)}"
+        print(f"next: write the result files and report.html: {program()} replay "
+              f"{shlex.quote(str(outcome.source))}{method} --out DIR")
+        return
+    cfg = f" -c {config}" if config is not None else " -c <cell.toml>"
+    for line in next_steps(res.verdict.level, report=files["report"], ros2=ros2_command(res, frames),
+                           verify=f"{program()} verify{cfg} --result {files['yaml']} --yes-move"
+                           if "yaml" in files else None):
+        print(line)
+    if not verbose:
+        print(f"  files: {', '.join(str(p) for p in files.values())}")

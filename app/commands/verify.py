@@ -21,27 +21,18 @@ from pathlib import Path
 
 import numpy as np
 
-from app.commands.common import add_run_options, confirm_motion, load_config_args
+from app.commands.common import (add_report_options, add_run_options, confirm_motion, load_config_args, program,
+                                 tolerance, verdict_lines)
 from app.errors import SessionError
 from app.runs.verify import verify
 from app.session import read_session
 from calib.errors import HandeyeError
+from calib.verdict import per_pose_phrase
 
 NAME = "verify"
 HELP = "judge a result on fresh poses (or another session): error in mm/deg, pass/fail, verify.yaml + report"
 #: Exit status of a verification that fails its tolerance.
 EXIT_FAIL = 4
-
-
-def tolerance(text: str) -> tuple[float, float]:
-    """``--tolerance`` value: ``MM,DEG``, both positive."""
-    try:
-        mm, deg = (float(v) for v in text.split(","))
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected MM,DEG (e.g. 2,0.5), got {text!r}") from None
-    if not (mm > 0 and deg > 0 and np.isfinite(mm) and np.isfinite(deg)):
-        raise argparse.ArgumentTypeError(f"both tolerances must be positive numbers, got {text!r}")
-    return mm, deg
 
 
 def expect_xyz(text: str) -> np.ndarray:
@@ -64,6 +55,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    "(as monitor: still robot, a pose unlike the recent ones) until verify.poses samples or "
                    "monitor.duration_s; never moves the robot")
     add_run_options(p)
+    add_report_options(p)
     p.add_argument("--yes-move", action="store_true", help="allow robot motion without the confirmation prompt")
     # (dest: calibrate's --poses names a pose source, which the shared config overrides read as args.poses)
     p.add_argument("--poses", type=int, dest="verify_poses", metavar="K",
@@ -105,7 +97,7 @@ def run(args) -> int:
                  expect_xyz=args.expect_xyz, confirm=lambda: confirm_motion(args.yes_move))
     if out.interrupted:
         print(f"interrupted: robot stopped; {out.n_poses} poses measured (session {out.session})")
-    print_verify_summary(out.doc, out.path, out.report)
+    print_verify_summary(out.doc, out.path, out.report, verbose=args.verbose > 0, verification=out.verification)
     return 0 if out.passed else EXIT_FAIL
 
 
@@ -121,21 +113,46 @@ def continue_note(result: Path) -> str | None:
         return None  # verify itself reports an unreadable session
     if not session.interrupted:
         return None
-    command = (f"handeye demo [-c <config>] --resume {directory}" if session.truth
-               else f"handeye calibrate -c <the cell's config> --resume {directory}")
+    command = (f"{program()} demo [-c <config>] --resume {directory}" if session.truth
+               else f"{program()} calibrate -c <the cell's config> --resume {directory}")
     return (f"the calibration in {directory} was interrupted (Ctrl-C) after {len(session.observations)} samples; "
             f"continue it with: {command}")
 
 
-def print_verify_summary(doc: dict, path: Path, report: Path) -> None:
+def print_verify_summary(doc: dict, path: Path, report: Path, *, verbose: bool = False,
+                         verification=None) -> None:
+    """The verdict first, what the per-pose errors are made of, the ROS/URDF export's and the simulator's
+    figures, what to do next; ``verbose``: every pose and the statistics."""
+    v = doc["verification"]
+    print(f"\nverify ({doc['mode']}): {doc['result']['path']} against {doc['source']} ({doc['setup']}, "
+          f"{v['n_poses']} poses)\n")
+    for line in verdict_lines(doc.get("verdict")):
+        print(line)
+    if verification is not None:
+        print(f"\n{per_pose_phrase(verification)}")
+    if "rigid_export" in doc:
+        r = doc["rigid_export"]
+        print(f"the ROS/URDF transform (camera_transform_raw_points, uncorrected points): calibration error "
+              f"{r['calibration_error_mm']:.2f} mm ({'within' if r['passed'] else 'OUTSIDE'} the tolerance)")
+    if "truth" in doc:
+        print(f"simulator: the result's true error over these poses is {doc['truth']['calibration_error_mm']:.2f} mm")
+    if verbose:
+        print_verify_statistics(doc)
+    failed = (doc.get("verdict") or {}).get("level") == "fail"
+    print("\nnext:\n" + ("  do not use this result: recalibrate (the reasons above say what to change)\n" if failed else "")
+          + f"  hand over the report: {report}\n  verify.yaml (the figures): {path}")
+
+
+def print_verify_statistics(doc: dict) -> None:
+    """``--verbose``: every pose's error and the statistics of the verification."""
     v = doc["verification"]
     obs = v["observed_mm"]
-    print(f"\nverify ({doc['mode']}): {doc['result']['path']} against {doc['source']} ({doc['setup']}, "
-          f"{v['n_poses']} poses)")
     print("\n| pose | error [mm] | error [deg] |\n|---|---|---|")
     per_deg = v["per_pose_deg"] or [None] * v["n_poses"]
+    repeated = set(doc.get("repeated_calibration_poses") or [])
     for i, (mm, deg) in enumerate(zip(v["per_pose_mm"], per_deg)):
-        print(f"| {i} | {mm:.2f} | {'-' if deg is None else f'{deg:.3f}'} |")
+        print(f"| {i}{' (repeats a calibration pose)' if i in repeated else ''} | {mm:.2f} | "
+              f"{'-' if deg is None else f'{deg:.3f}'} |")
     print("\n| quantity | value |\n|---|---|")
     print(f"| observed error [mm] mean / p95 / max | {obs['mean']:.2f} / {obs['p95']:.2f} / {obs['max']:.2f} |")
     if v["observed_deg"] is not None:
@@ -143,6 +160,8 @@ def print_verify_summary(doc: dict, path: Path, report: Path) -> None:
         print(f"| observed error [deg] mean / p95 / max | {od['mean']:.3f} / {od['p95']:.3f} / {od['max']:.3f} |")
     if v["measurement_noise_rms_mm"] is not None:
         print(f"| measurement noise (noise model) [mm] | {v['measurement_noise_rms_mm']:.2f} |")
+    if v.get("measurement_noise_rms_deg") is not None:
+        print(f"| measurement noise (noise model) [deg] | {v['measurement_noise_rms_deg']:.3f} |")
     lo, hi = v["calibration_error_ci95_mm"]
     print(f"| calibration error [mm] (noise removed), 95 % interval | {v['calibration_error_mm']:.2f} "
           f"[{lo:.2f}, {hi:.2f}] |")
@@ -150,19 +169,5 @@ def print_verify_summary(doc: dict, path: Path, report: Path) -> None:
         lo, hi = v["calibration_error_ci95_deg"]
         print(f"| calibration error [deg] (noise removed), 95 % interval | {v['calibration_error_deg']:.3f} "
               f"[{lo:.3f}, {hi:.3f}] |")
-    if "rigid_export" in doc:
-        r = doc["rigid_export"]
-        print(f"| ROS/URDF export (raw points): calibration error [mm] | {r['calibration_error_mm']:.2f} "
-              f"({'pass' if r['passed'] else 'FAIL'}) |")
-    if "truth" in doc:
-        print("| true calibration error over these poses [mm] (simulator) | "
-              f"{doc['truth']['calibration_error_mm']:.2f} |")
-    print(f"| verify.yaml | {path} |\n| report | {report} |")
     if not v["noise_removed"]:
         print("note: the samples carry no covariance: the calibration error is the observed RMS, noise included")
-    for w in (doc.get("frame_safety") or {}).get("warnings", []):
-        print(f"warning: {w}")
-    verdict = "PASS" if v["passed"] else "FAIL"
-    print(f"\n{verdict}: calibration error {v['calibration_error_mm']:.2f} mm"
-          + (f" / {v['calibration_error_deg']:.3f} deg" if v["calibration_error_deg"] is not None else "")
-          + f" against the tolerance {v['tolerance_mm']:g} mm / {v['tolerance_deg']:g} deg")

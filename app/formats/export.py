@@ -163,14 +163,20 @@ def urdf_origin(result: CalibrationResult) -> str:
             f'rpy="{" ".join(_fmt(v) for v in rpy)}"/>')
 
 
-def result_to_dict(result: CalibrationResult, frames: dict | None = None) -> dict:
-    """The main result document (YAML/JSON): transforms, uncertainty, residuals, ready-to-paste lines.
+def result_to_dict(result: CalibrationResult, frames: dict | None = None, samples_from=None,
+                   cell: dict | None = None) -> dict:
+    """The main result document (YAML/JSON): the verdict, transforms, uncertainty, residuals, ready-to-paste lines.
 
     Parameters
     ----------
     result : CalibrationResult
     frames : dict, optional
         Names for ``base``, ``flange``, ``camera``, ``marker``.
+    samples_from : str or Path, optional
+        The session (or imported file) the result was solved from, as ``samples_from``: verify
+        reads its poses back (to avoid and to flag them).
+    cell : dict, optional
+        Who made it, where and with what (`app.provenance.cell`), as ``cell``.
 
     Returns
     -------
@@ -206,10 +212,21 @@ def result_to_dict(result: CalibrationResult, frames: dict | None = None) -> dic
         "setup": setup.value,
         "equation": setup.equation,
         "solver": result.method,
+    }
+    if result.verdict is not None:
+        doc["verdict"] = result.verdict.to_dict()
+    if result.accuracy is not None:
+        doc["accuracy"] = accuracy_dict(result)
+    if result.undetermined:
+        doc["undetermined"] = list(result.undetermined)
+    doc.update({
+        "which_transform": which_transform(result),
+        **({"cell": cell} if cell is not None else {}),
+        **({"samples_from": str(samples_from)} if samples_from is not None else {}),
         "frames": frames,
         "camera_transform": _transform_dict(result.camera_transform, setup.camera_name, *_parent_child(setup, frames),
                                             cov=result.cov),
-    }
+    })
     if result.raw_points_fit is not None:
         doc["camera_transform_raw_points"] = raw_points_dict(result, frames)
     doc.update({
@@ -225,6 +242,34 @@ def result_to_dict(result: CalibrationResult, frames: dict | None = None) -> dic
         "model": model_report(result),
     })
     return doc
+
+
+def accuracy_dict(result: CalibrationResult) -> dict:
+    """``result.accuracy`` (`calib.verdict.workspace_accuracy`) with its units and what it means."""
+    acc = result.accuracy
+    parent = "base" if Setup(result.setup) == Setup.EYE_TO_HAND else "flange"
+    return {"rms_mm": acc.rms_mm, "p95_mm": acc.p95_mm, "rms_deg": acc.rms_deg, "p95_deg": acc.p95_deg,
+            "note": f"predicted error of a marker point measured where the calibration samples were, in the "
+                    f"{parent} frame, camera correction included: RMS over the workspace and at most at 95 %; "
+                    "deg: the camera's rotation"}
+
+
+def which_transform(result: CalibrationResult) -> str:
+    """Which camera transform goes with which points, in one sentence (result.yaml, the console, the report)."""
+    cam = Setup(result.setup).camera_name
+    if result.raw_points_fit is None:
+        return (f"one transform, camera_transform ({cam}): {result.method} estimates no camera correction, so it "
+                "holds for the camera's points as its driver publishes them (ROS tf, URDF, the "
+                "static_transform_publisher line)")
+    cc = model_report(result)["camera_correction"]
+    parts = ", ".join(f"{name.replace('_percent', '').replace('_mm', '').replace('_', ' ')} "
+                      f"{c['value']:+.2f} {'%' if name.endswith('_percent') else 'mm'}"
+                      for name, c in cc.items() if c["estimated"])
+    rot, trans = tf.pose_error(result.camera_transform_raw_points, result.camera_transform)
+    return (f"use camera_transform_raw_points ({cam} for uncorrected points) with the points a camera driver "
+            "publishes: ROS tf, URDF and the static_transform_publisher line carry it; camera_transform holds "
+            f"for points corrected by model.camera_correction ({parts}), as handeye's verify and monitor use them; "
+            f"the two differ by {trans * 1e3:.2f} mm / {math.degrees(rot):.3f} deg")
 
 
 def model_report(result: CalibrationResult) -> dict | None:
@@ -297,10 +342,8 @@ def raw_points_dict(result: CalibrationResult, frames: dict | None = None) -> di
     d = _transform_dict(result.camera_transform_raw_points, setup.camera_name + " for uncorrected points",
                         *_parent_child(setup, check_frames(frames)))
     d["misfit_mm"] = result.raw_points_fit["misfit_m"] * 1e3
-    d["note"] = ("camera_transform holds for the camera's points corrected by model.camera_correction; for "
-                 "uncorrected points (ROS, URDF: what the ros2/urdf lines and the other exports carry) use this "
-                 "one, the correction folded in as a rigid transform (RMS misfit over the calibration samples: "
-                 "misfit_mm)")
+    d["note"] = ("the camera correction folded into a rigid transform (which_transform says when to use it); "
+                 "misfit_mm: its RMS misfit over the calibration samples")
     return d
 
 
@@ -430,7 +473,7 @@ def ros2_launch(result: CalibrationResult, frames: dict | None = None, camera_tf
 
 
 def write_result(result: CalibrationResult, path, fmt: str = "yaml", frames: dict | None = None,
-                 camera_tf: dict | None = None) -> Path:
+                 camera_tf: dict | None = None, samples_from=None, cell: dict | None = None) -> Path:
     """Write a calibration result in one of `EXPORT_FORMATS`.
 
     Parameters
@@ -447,6 +490,10 @@ def write_result(result: CalibrationResult, path, fmt: str = "yaml", frames: dic
         Frame names (``base``, ``flange``, ``camera``, ``marker``).
     camera_tf : dict, optional
         ``ros2_launch`` only: publish to the camera driver's tf root (`published_transform`).
+    samples_from : str or Path, optional
+        ``yaml`` / ``json``: where the samples came from (`result_to_dict`).
+    cell : dict, optional
+        ``yaml`` / ``json``: who made it, where and with what (`result_to_dict`).
 
     Returns
     -------
@@ -459,12 +506,14 @@ def write_result(result: CalibrationResult, path, fmt: str = "yaml", frames: dic
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     if fmt == "yaml":
-        text = (f"# handeye calibration result ({result.setup}); camera_transform = {Setup(result.setup).camera_name}\n"
+        text = (f"# handeye calibration result ({result.setup}); camera_transform = {Setup(result.setup).camera_name}; "
+                "verdict: pass | warn | fail with its reasons\n"
                 "# The camera frame is the OPTICAL frame (z forward, x right, y down); camera_frame gives a ROS "
                 "camera_link.\n"
-                + yaml.dump(result_to_dict(result, frames), Dumper=_Dumper, sort_keys=False, width=1000))
+                + yaml.dump(result_to_dict(result, frames, samples_from, cell), Dumper=_Dumper, sort_keys=False,
+                            width=1000))
     elif fmt == "json":
-        text = json.dumps(result_to_dict(result, frames), indent=2) + "\n"
+        text = json.dumps(result_to_dict(result, frames, samples_from, cell), indent=2) + "\n"
     elif fmt == "easy_handeye":
         text = yaml.safe_dump(easy_handeye_dict(result, frames), default_flow_style=False)
     elif fmt == "easy_handeye2":

@@ -88,9 +88,10 @@ def detect_format(path) -> str:
     for fmt in formats.values():
         if fmt.detect(path, document):
             return fmt.name
+    known = f"a handeye session (a directory with session.json), or {', '.join(formats)}"
     if path.is_dir():
-        raise SessionError(f"{path}: directory holds no known sample format ({', '.join(formats)})")
-    raise SessionError(f"{path}: not a known sample format ({', '.join(formats)})")
+        raise SessionError(f"{path}: directory holds no known sample format; known: {known}")
+    raise SessionError(f"{path}: not a known sample format; known: {known}")
 
 
 def get_format(name: str) -> ImportFormat:

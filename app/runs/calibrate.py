@@ -19,7 +19,7 @@ from typing import Callable
 
 import numpy as np
 
-from app import devices, planning
+from app import devices, planning, provenance
 from app.acquire import take_sample
 from app.config import CalibrateConfig, Config
 from app.errors import SessionError
@@ -116,7 +116,8 @@ def calibrate(cfg: Config, *, resume: Path | None = None, progress: bool = True)
             writer = SessionWriter.resume(resume)
         else:
             writer = SessionWriter.create(cfg.session.root, cfg.setup, config=cfg.to_dict(),
-                                          intrinsics=dataclasses.asdict(camera.intrinsics), truth=truth)
+                                          intrinsics=dataclasses.asdict(camera.intrinsics), truth=truth,
+                                          devices=provenance.device_identity(cfg, robot, camera))
         with writer, devices.make_viz(cfg, writer.path) as viz:
             recording = viz.rrd_path
             T_true = devices.camera_truth(cfg.setup, truth)
@@ -130,25 +131,27 @@ def calibrate(cfg: Config, *, resume: Path | None = None, progress: bool = True)
                                          writer, cfg.calibrate,
                                          rng, viz, save_frames=cfg.session.save_frames, progress=bar,
                                          initial=initial, poses=poses)
-    files = (devices.write_result(report.result, writer.path, cfg.session.exports, cfg.frames.model_dump())
-             if report.result is not None else {})
+    cell = provenance.cell(cfg.report, writer.header.get("devices"))
+    files = (devices.write_result(report.result, writer.path, cfg.session.exports, cfg.frames.model_dump(),
+                                  samples_from=writer.path.resolve(), cell=cell) if report.result is not None else {})
     if "json" in files:
         _add_run_summary(files["json"], report, cfg.calibrate.poses)
     if report.result is not None:
         files["report"] = write_run_report(report.result, writer.path, read_session(writer.path).observations,
-                                           cfg.frames.model_dump())
+                                           cfg.frames.model_dump(), samples_from=writer.path.resolve(), cell=cell)
     return CalibrationOutput(report, cfg.setup, cfg.calibrate.method, files, devices.camera_truth(cfg.setup, truth),
                              recording, cfg.frames.model_dump())
 
 
-def write_run_report(result: CalibrationResult, directory: Path, observations, frames: dict | None = None,
-                     warnings: list[str] | None = None) -> Path:
-    """``report.html`` of a calibration (`app.report`) beside its result files."""
+def write_run_report(result: CalibrationResult, directory: Path, observations, frames: dict | None = None, *,
+                     samples_from=None, cell: dict | None = None) -> Path:
+    """``report.html`` of a calibration (`app.report`) beside its result files (the document of result.yaml:
+    `app.formats.result_to_dict` with the same ``samples_from`` and ``cell``)."""
     from app.formats import result_to_dict
     from app.report import write_report
 
-    return write_report(directory, result_doc=result_to_dict(result, frames), observations=observations,
-                        warnings=warnings)
+    return write_report(directory, result_doc=result_to_dict(result, frames, samples_from, cell),
+                        observations=observations)
 
 
 def _add_run_summary(path: Path, report: RunReport, poses: str) -> None:

@@ -8,10 +8,10 @@ The report groups the solvers by what they use (marker points or marker
 poses), sorts each group by the held-out prediction error of the marker
 point (`calib.crossval.cross_validate`: each fold solved without its
 samples, their points predicted from the robot poses), marks the recommended
-result (the lowest held-out error), explains refined rows that agree
-(refinement takes every start to the same maximum-likelihood optimum), and
-warns about a 1-sigma above the target and about residuals the measurement
-noise does not explain (`advice`).
+result (the lowest held-out error) and explains refined rows that agree
+(refinement takes every start to the same maximum-likelihood optimum)
+(`advice`). Every result is judged against the tolerance (`calib.verdict`):
+the verdict of the recommended one comes first.
 """
 
 from __future__ import annotations
@@ -22,12 +22,13 @@ from pathlib import Path
 
 import numpy as np
 
-from app import devices
+from app import devices, provenance
+from app.config import CalibrateConfig
 from app.errors import SessionError
 from app.runs.calibrate import write_run_report
 from app.session import read_session
 from calib import transforms as tf
-from calib.api import METHODS, solve_observations
+from calib.api import METHODS, observations_problem, solve_observations
 from calib.errors import HandeyeError, InsufficientDataError
 from calib.observation import Observation
 from calib.result import CalibrationResult
@@ -39,16 +40,15 @@ from drivers.robot.registry import kinematic_model
 class ReplaySettings:
     """What ``replay -c CONFIG`` takes from a config (the defaults without one).
 
-    ``target_mm``/``target_deg``: the 1-sigma targets of the warnings (0: `DEFAULT_TARGET_MM` /
-    `DEFAULT_TARGET_DEG`); ``shared_error``: the robot's kinematic error model
-    (`KinematicModel.shared_error_factor`) or None; ``exports``, ``frames``: what ``--out`` writes;
-    ``config``: the config itself (None without one); ``marker_offset`` (3,), m, or None and
-    ``marker_offset_sigma``, m: the known marker-side translation ``auto`` holds
-    (`calib.problem.CalibrationProblem.marker_offset`; ``--marker-offset`` or ``[marker] offset_m``).
+    ``tolerance``: ``[calibrate] tolerance_mm, tolerance_deg`` the verdicts judge against;
+    ``shared_error``: the robot's kinematic error model (`KinematicModel.shared_error_factor`) or
+    None; ``exports``, ``frames``: what ``--out`` writes; ``config``: the config itself (None without one);
+    ``marker_offset`` (3,), m, or None and ``marker_offset_sigma``, m: the known marker-side translation
+    ``auto`` holds (`calib.problem.CalibrationProblem.marker_offset`; ``--marker-offset`` or ``[marker]
+    offset_m``).
     """
 
-    target_mm: float = 0.0
-    target_deg: float = 0.0
+    tolerance: tuple[float, float] = (CalibrateConfig().tolerance_mm, CalibrateConfig().tolerance_deg)
     shared_error: object = None
     exports: list = field(default_factory=lambda: list(devices.RESULT_FILES))
     frames: dict | None = None
@@ -68,7 +68,7 @@ def replay_settings(config: Path | None, *, marker_offset=None, marker_offset_si
     cfg = load_config(config)
     model = kinematic_model(cfg.robot)   # (from the config: no driver is built)
     shared_error = None if model is None else model.shared_error_factor
-    return ReplaySettings(cfg.calibrate.target_sigma_mm, cfg.calibrate.target_sigma_deg, shared_error,
+    return ReplaySettings((cfg.calibrate.tolerance_mm, cfg.calibrate.tolerance_deg), shared_error,
                           cfg.session.exports, cfg.frames.model_dump(), cfg,
                           marker_offset if marker_offset is not None else cfg.marker.offset_m,
                           sigma if sigma is not None else cfg.marker.offset_sigma_m)
@@ -76,44 +76,54 @@ def replay_settings(config: Path | None, *, marker_offset=None, marker_offset_si
 
 @dataclass
 class ReplayOutcome:
-    """What `replay_source` found: the printed report, the rows, and what `write_outputs` needs.
+    """What `replay_source` found: the rows and the advice on them, and what `write_outputs` needs.
 
-    ``text``: tables and advice; ``best``: the row whose result ``--out`` writes (the recommended one,
-    else the first that solved); ``truth``: the recorded camera truth (4, 4) or None.
+    ``header``: the source, setup, samples and what an importer measured; ``table``: the solvers'
+    comparison (`format_table`); ``advice``: the lines under it (`advice`); ``best``: the row whose
+    result ``--out`` writes (the recommended one, else the first that solved), judged; ``truth``:
+    the recorded camera truth (4, 4) or None; ``devices``: what identified the robot and camera of a
+    handeye session (its header's ``devices``), else None.
     """
 
-    text: str
+    header: str
+    table: str
+    advice: list
     rows: list
     best: object
     observations: list
     setup: Setup
     source: Path
-    warnings: list
     truth: np.ndarray | None = None
+    devices: dict | None = None
 
 
-def write_outputs(outcome: "ReplayOutcome", out_dir: Path, exports, frames: dict | None = None) -> dict:
+def write_outputs(outcome: "ReplayOutcome", out_dir: Path, exports, frames: dict | None = None,
+                  report=None) -> dict:
     """Write ``outcome.best``'s result into ``out_dir`` in each export format (`app.devices.write_result`)
-    and its ``report.html``, as calibrate writes its session's; returns ``{kind: path}``."""
+    and its ``report.html``, as calibrate writes its session's; ``report``: the ``[report]`` fields (site,
+    cell, operator; a config's or a dict); returns ``{kind: path}``."""
     out_dir = Path(out_dir)
     try:
         out_dir.mkdir(parents=True, exist_ok=True)
     except OSError as e:
         raise SessionError(f"--out {out_dir}: cannot create ({e.strerror})") from None
-    files = devices.write_result(outcome.best.result, out_dir, exports, frames)
-    files["report"] = write_run_report(outcome.best.result, out_dir, outcome.observations, frames, outcome.warnings)
+    cell = provenance.cell(report or {}, outcome.devices)
+    source = outcome.source.resolve()
+    files = devices.write_result(outcome.best.result, out_dir, exports, frames, samples_from=source, cell=cell)
+    files["report"] = write_run_report(outcome.best.result, out_dir, outcome.observations, frames,
+                                       samples_from=source, cell=cell)
     return files
 
 
 def replay_source(source: Path, methods: list[str], *, refine: bool = False, robust: bool = False,
                   setup: Setup | None = None, rng: np.random.Generator | None = None,
-                  target_mm: float = 0.0, target_deg: float = 0.0, shared_error=None,
+                  tolerance: tuple[float, float] = ReplaySettings.tolerance, shared_error=None,
                   marker_offset=None, marker_offset_sigma: float = 0.0,
                   import_options: dict | None = None) -> ReplayOutcome:
-    """Re-solve a session directory or an imported file with each method; returns the outcome whose
-    ``text`` is the report: the tables grouped by what the solvers use and sorted by held-out error, then
-    the advice (`advice`; ``target_mm``/``target_deg`` are the config's 1-sigma targets; ``shared_error``,
-    ``marker_offset``, ``marker_offset_sigma``: `replay`; ``import_options``: `app.devices.import_options`)."""
+    """Re-solve a session directory or an imported file with each method, each result judged against
+    ``tolerance`` (mm, deg); returns the outcome: the tables grouped by what the solvers use and sorted by
+    held-out error, the advice (`advice`), the recommended row (``shared_error``, ``marker_offset``,
+    ``marker_offset_sigma``: `replay`; ``import_options``: `app.devices.import_options`)."""
     if not Path(source).exists():
         raise SessionError(f"{source}: no such file or directory")
     if (Path(source) / "session.json").exists():
@@ -121,10 +131,10 @@ def replay_source(source: Path, methods: list[str], *, refine: bool = False, rob
         if setup is not None and setup != session.setup:
             raise SessionError(f"{source} is an {session.setup} session; --setup {setup} contradicts it")
         observations, file_setup, truth = session.observations, session.setup, session.truth
-        header = ""
+        header, identity = "", session.header.get("devices")
     else:
         observations, file_setup, meta = devices.import_observations(Path(source), setup, **(import_options or {}))
-        truth, header = {}, _import_summary(meta)
+        truth, header, identity = {}, _import_summary(meta), None
     setup = setup or file_setup
     if not observations:
         raise InsufficientDataError(f"{source}: no samples to replay")
@@ -132,16 +142,14 @@ def replay_source(source: Path, methods: list[str], *, refine: bool = False, rob
         methods = list(METHODS)
     T_true = devices.camera_truth(setup, truth)
     rows = replay(observations, setup, methods, refine=refine, robust=robust,
-                  truth=T_true, rng=rng, shared_error=shared_error, marker_offset=marker_offset,
-                  marker_offset_sigma=marker_offset_sigma)
+                  truth=T_true, rng=rng, shared_error=shared_error, tolerance=tolerance,
+                  marker_offset=marker_offset, marker_offset_sigma=marker_offset_sigma)
     if all(r.result is None for r in rows):
         raise HandeyeError(f"no solver succeeded on {source}: " + "; ".join(f"{r.method}: {r.error}" for r in rows))
-    lines = advice(rows, observations, refine=refine, target_mm=target_mm, target_deg=target_deg)
-    text = (f"{source} ({setup}, {len(observations)} samples)\n{header}\n" + format_table(rows, setup)
-            + ("\n\n" + "\n".join(lines) if lines else ""))
     best = recommended(rows) or next(r for r in rows if r.result is not None)
-    return ReplayOutcome(text, rows, best, observations, Setup(setup), Path(source),
-                         [line.removeprefix("warning: ") for line in lines if line.startswith("warning:")], T_true)
+    return ReplayOutcome(f"{source} ({setup}, {len(observations)} samples)\n{header}", format_table(rows, setup),
+                         advice(rows, refine=refine), rows, best, observations, Setup(setup), Path(source), T_true,
+                         identity)
 
 
 def _import_summary(meta: dict) -> str:
@@ -157,11 +165,6 @@ def _import_summary(meta: dict) -> str:
     return line + "\n"
 
 
-#: 1-sigma targets when the config sets none (calibrate.target_sigma_mm/_deg = 0): the project's accuracy target.
-DEFAULT_TARGET_MM = 3.0
-DEFAULT_TARGET_DEG = 0.2
-#: Held-out (or in-sample) error this many times what the noise model predicts: the residuals are inconsistent.
-INCONSISTENT_RATIO = 2.0
 #: Refined results closer than this (mm, deg) count as the same optimum (well inside any 1-sigma we accept).
 SAME_MM, SAME_DEG = 0.5, 0.05
 
@@ -175,7 +178,8 @@ class ReplayRow:
     ``(deg, mm)`` of the camera transform against the recorded truth, if any;
     ``uses`` is ``"points"`` or ``"poses"``; ``heldout`` the
     `calib.crossval.CrossValidation` of the method on these samples (None if
-    cross-validation was off or failed, with ``heldout_error`` saying why).
+    cross-validation was off or failed, with ``heldout_error`` saying why). The result carries its
+    verdict (`calib.verdict.judge`).
     """
 
     method: str
@@ -212,16 +216,11 @@ def heldout_error(method: str, observations, setup: Setup, *, refine: bool, robu
     ``marker_offset`` (m) and ``marker_offset_sigma`` (m): ``auto``'s known marker-side translation."""
     from calib.api import resolve_method
     from calib.crossval import cross_validate
-    from calib.problem import CalibrationProblem
 
     try:
-        # The samples as calib.api.solve_observations takes them for this method.
-        info = None if _is_auto(method) else resolve_method(method)
-        problem = CalibrationProblem.from_observations(observations, setup,
-                                                       measurements="all" if info is None else info.needs,
-                                                       marker_offset=marker_offset if info is None else None,
-                                                       marker_offset_sigma=marker_offset_sigma)
-        name = method if info is None else info.name
+        problem = observations_problem(method, observations, setup,
+                                       **_offset(method, marker_offset, marker_offset_sigma))
+        name = method if _is_auto(method) else resolve_method(method).name
         folds = None if problem.n <= 10 else 5
         return cross_validate(name, problem, folds=folds, rng=rng, refine=refine, robust=robust), None
     except HandeyeError as e:
@@ -239,10 +238,11 @@ def replay(
     rng: np.random.Generator | None = None,
     crossval: bool = True,
     shared_error=None,
+    tolerance: tuple[float, float] = ReplaySettings.tolerance,
     marker_offset=None,
     marker_offset_sigma: float = 0.0,
 ) -> list[ReplayRow]:
-    """Solve the same samples with each method, time it, and cross-validate it.
+    """Solve the same samples with each method, time it, judge it, and cross-validate it.
 
     Parameters
     ----------
@@ -259,6 +259,8 @@ def replay(
         A robot's `Robot.shared_error_factor`: ``auto`` adds the error it
         models as shared by the samples, when they carry their joints
         (`app.devices.robot_shared_error`).
+    tolerance : (float, float)
+        mm, deg: what each result's verdict judges against (`app.devices.judge`).
     marker_offset : array_like, shape (3,), optional
         The known marker-side translation, m, and ``marker_offset_sigma`` its
         1-sigma (m): ``auto`` holds it (`calib.problem.CalibrationProblem`);
@@ -281,6 +283,8 @@ def replay(
             rows.append(ReplayRow(method, None, time.perf_counter() - t0, error=str(e), uses=_uses(method)))
             continue
         dt = time.perf_counter() - t0
+        res = devices.judge(res, method, observations, setup, tolerance, shared_error,
+                            **_offset(method, marker_offset, marker_offset_sigma))
         err = None
         if truth is not None:
             rot, trans = tf.pose_error(res.camera_transform, truth)
@@ -320,7 +324,7 @@ def format_table(rows: list[ReplayRow], setup: Setup) -> str:
 
     Columns: solver, samples, inliers, residual RMS (mm), camera xyz (mm),
     1-sigma (mm, deg), held-out prediction error (mm) and what the model
-    predicts for it, time, error vs. truth, and the recommendation.
+    predicts for it, time, error vs. truth, the verdict's level and the recommendation.
     """
     cam = Setup(setup).camera_name
     has_truth = any(r.truth_error is not None for r in rows)
@@ -329,7 +333,7 @@ def format_table(rows: list[ReplayRow], setup: Setup) -> str:
             "held-out [mm]", "predicted [mm]", "time [ms]"]
     if has_truth:
         head += ["err [mm]", "err [deg]"]
-    head.append("advice")
+    head += ["verdict", "advice"]
     out = []
     for uses, title in (("points", "solvers using marker points"), ("poses", "solvers using marker poses"),
                         ("auto", "the solver 'auto' (calib.auto: camera and robot model)"),
@@ -354,20 +358,15 @@ def format_table(rows: list[ReplayRow], setup: Setup) -> str:
                 if has_truth:
                     cells += ["-", "-"] if r.truth_error is None else [f"{r.truth_error[1]:.2f}",
                                                                       f"{r.truth_error[0]:.3f}"]
+                cells.append(res.verdict.level if res.verdict is not None else "-")
                 cells.append("**recommended**" if r is best else "")
             out.append("| " + " | ".join(cells) + " |")
     return "\n".join(out).lstrip("\n")
 
 
-def advice(rows: list[ReplayRow], observations, *, refine: bool, target_mm: float = 0.0,
-           target_deg: float = 0.0) -> list[str]:
-    """Lines under the tables: the recommendation, why refined rows agree, and warnings (among them what a
-    result leaves undetermined, `calib.result.CalibrationResult.undetermined`).
-
-    ``target_mm`` / ``target_deg``: the config's 1-sigma targets
-    (``calibrate.target_sigma_mm/_deg``); 0 falls back to `DEFAULT_TARGET_MM`
-    / `DEFAULT_TARGET_DEG`.
-    """
+def advice(rows: list[ReplayRow], *, refine: bool) -> list[str]:
+    """Lines under the tables: the recommendation and why refined rows agree (each result's problems are
+    its verdict's reasons)."""
     lines = []
     ok = [r for r in rows if r.result is not None]
     # Groups whose refined rows all reach the same optimum: one result, however many solvers.
@@ -398,52 +397,7 @@ def advice(rows: list[ReplayRow], observations, *, refine: bool, target_mm: floa
                      f"{spread_mm:.3f} mm / {spread_deg:.4f} deg: maximum-likelihood refinement takes "
                      "every solver's closed-form start to the same optimum, so they differ only in time "
                      "(replay without --refine to compare the closed forms)")
-    for r in ok:
-        # What the samples leave open (a grid at one tool orientation): the answer holds only given that value.
-        lines += [f"warning: {r.method}: {sentence}" for sentence in r.result.undetermined]
-    t_mm = target_mm or DEFAULT_TARGET_MM
-    t_deg = target_deg or DEFAULT_TARGET_DEG
-    where = "the config's calibrate.target_sigma" if (target_mm or target_deg) else "the default target"
-    above, inconsistent = [], []
-    for r in ok:
-        if r.result.sigma is not None:
-            s_deg, s_mm = _sigma_deg_mm(r.result)
-            if s_mm > t_mm or s_deg > t_deg:
-                above.append((s_mm, s_deg, r.method))
-        ratio, basis = _consistency(r, observations)
-        if ratio is not None and ratio > INCONSISTENT_RATIO:
-            inconsistent.append((ratio, basis, r.method))
-    if above:
-        worst = max(above)
-        lines.append(f"warning: 1-sigma above {where} ({t_mm:g} mm / {t_deg:g} deg) for {_names(above, ok)} "
-                     f"(largest: {worst[2]}, {worst[0]:.2f} mm / {worst[1]:.3f} deg): take more samples, with more "
-                     "rotation between them")
-    if inconsistent:
-        worst = max(inconsistent)
-        lines.append(f"warning: inconsistent residuals for {_names(inconsistent, ok)}: {worst[1]} up to "
-                     f"{worst[0]:.1f}x what the measurement noise explains ({worst[2]}): outliers (try --robust), "
-                     "a wrong --setup, a clock offset between robot and camera, or a camera that moved during "
-                     "the recording")
     return lines
-
-
-def _names(flagged: list, ok: list) -> str:
-    return f"all {len(ok)} solvers" if len(flagged) == len(ok) else ", ".join(f[2] for f in flagged)
-
-
-def _consistency(r: ReplayRow, observations) -> tuple[float | None, str]:
-    """The larger of two observed / expected ratios: the in-sample residual RMS against the noise the
-    samples' covariances claim, and the held-out error against what the fitted noise model predicts
-    (which adapts its noise levels to the data, so it misses a uniformly inflated noise)."""
-    ratios = []
-    if r.heldout is not None:
-        ratios.append((r.heldout.ratio, "held-out errors are"))
-    covs = [o.point_cov for o in observations if o.point_cov is not None]
-    if covs and len(covs) == len(observations):
-        expected = float(np.sqrt(np.mean([np.trace(c) for c in covs])))
-        if expected > 0:
-            ratios.append((r.result.residuals.rms_translation / expected, "residuals are"))
-    return max(ratios) if ratios else (None, "")
 
 
 def _sigma_deg_mm(res: CalibrationResult) -> tuple[float, float]:

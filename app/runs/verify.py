@@ -22,7 +22,7 @@ from typing import Callable
 
 import numpy as np
 
-from app import devices
+from app import devices, provenance
 from app import verify as av
 from app.config import Config
 from app.errors import SessionError
@@ -30,6 +30,7 @@ from app.report import write_report
 from app.session import read_session
 from calib import verify as cv
 from calib.errors import HandeyeError
+from calib.verdict import judge_verification
 
 
 @dataclass
@@ -38,7 +39,8 @@ class VerifyOutput:
 
     ``doc``: the verify.yaml document (`app.verify.verify_document`); ``path``: verify.yaml;
     ``report``: report.html; ``passed``: within the tolerance; ``interrupted``: Ctrl-C stopped the
-    robot after ``n_poses`` poses (``session`` holds them).
+    robot after ``n_poses`` poses (``session`` holds them); ``verification``: the judged
+    `calib.verify.Verification`.
     """
 
     doc: dict
@@ -48,6 +50,7 @@ class VerifyOutput:
     n_poses: int
     session: Path
     interrupted: bool = False
+    verification: cv.Verification | None = None
 
 
 def verify(cfg: Config, result: Path, *, session: Path | None = None, setup: str | None = None,
@@ -81,12 +84,20 @@ def verify(cfg: Config, result: Path, *, session: Path | None = None, setup: str
     rigid = None if loaded.rigid is None else cv.verify(av.pose_errors(loaded.rigid, observations), rng=rng, **tol)
     safety = None if expect_xyz is None else cv.frame_safety(loaded.model.camera_transform, loaded.model.setup,
                                                              expect_xyz)
-    doc = av.verify_document(loaded, mode, source, verification, rigid, safety, truth_mm)
+    calibration = loaded.calibration_samples()
+    repeated = cv.repeated_poses([o.T_base_flange for o in observations], [o.T_base_flange for o in calibration]) \
+        if calibration else []
+    verdict = judge_verification(verification, rigid=rigid, repeated=len(repeated),
+                                 warnings=() if safety is None else safety.warnings)
+    cell = provenance.cell(cfg.report, read_session(out_dir).header.get("devices") if mode != "offline"
+                           else (loaded.doc.get("cell") or {}))
+    doc = av.verify_document(loaded, mode, source, verification, rigid, safety, truth_mm, verdict=verdict,
+                             repeated=repeated, cell=cell)
     path = av.write_verify(doc, out_dir)
-    calibration = read_session(loaded.session).observations if loaded.session is not None else []
     report = write_report(out_dir, result_doc=loaded.doc, observations=calibration, verify_doc=doc,
-                          verify_observations=observations, title="handeye verification report")
-    return VerifyOutput(doc, path, report, verification.passed, len(observations), out_dir, interrupted)
+                          verify_observations=observations, title="handeye verification report", cell=cell)
+    return VerifyOutput(doc, path, report, verification.passed, len(observations), out_dir, interrupted,
+                        verification)
 
 
 def _offline_samples(source: Path, setup, loaded):
@@ -99,7 +110,7 @@ def _offline_samples(source: Path, setup, loaded):
         observations, file_setup, _ = devices.import_observations(Path(source), setup or loaded.model.setup.value)
     if file_setup != loaded.model.setup:
         raise SessionError(f"{source} is an {file_setup} session, {loaded.path} an {loaded.model.setup} result")
-    if loaded.session is not None and Path(source).resolve() == loaded.session.resolve():
+    if loaded.samples_from is not None and Path(source).resolve() == loaded.samples_from.resolve():
         raise HandeyeError(f"{source} is the session {loaded.path} was calibrated on: verify it on samples it did "
                            "not see (another session, or the active mode)")
     return observations

@@ -217,6 +217,19 @@ class OpenNI2Camera(Camera):
         log.info("OpenNI2 camera: intrinsics from the device's field of view (no distortion): fx=%.1f fy=%.1f", fx, fy)
         return CameraIntrinsics(c.width, c.height, fx, fy, (c.width - 1) / 2.0, (c.height - 1) / 2.0)
 
+    def identity(self) -> dict:
+        """Vendor, name and URI of the opened device, as OpenNI2 reports them."""
+        if self._device is None:
+            return {}
+        try:
+            info = self._device.get_device_info()
+        except Exception as e:  # the bindings raise their own OpenNIError
+            log.info("OpenNI2 camera: no device info (%s)", e)
+            return {}
+        text = {k: (v.decode(errors="replace") if isinstance(v, bytes) else str(v)).strip()
+                for k, v in (("vendor", info.vendor), ("name", info.name), ("uri", info.uri))}
+        return {"model": f"{text['vendor']} {text['name']}".strip(), "uri": text["uri"]}
+
     def disconnect(self) -> None:
         for s in (self._depth, self._color):
             if s is not None:

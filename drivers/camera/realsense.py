@@ -178,6 +178,12 @@ class RealSenseCamera(Camera):
         self._align = rs.align(rs.stream.color)
         self._index = 0
 
+    def identity(self) -> dict:
+        """Model, serial number and firmware of the connected device (`device_info`)."""
+        info = self.device_info
+        return {k: str(info[f]) for k, f in (("model", "name"), ("serial", "serial_number"),
+                                             ("firmware", "firmware_version")) if info.get(f)}
+
     def _prepare(self, dev) -> None:
         """Link check, depth scale, preset and global time on ``dev`` (before its streams start)."""
         rs, c = self._rs, self.config

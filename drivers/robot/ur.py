@@ -26,6 +26,7 @@ from __future__ import annotations
 
 import logging
 import math
+import socket
 import threading
 import time
 from dataclasses import dataclass
@@ -46,6 +47,10 @@ from drivers.robot.buffer import ClockMapper, StateBuffer, pose_path
 from drivers.robot.ur_client import ClientDied, RTDEClient
 
 log = logging.getLogger(__name__)
+
+#: The controller's dashboard server (model, serial number, software version: `URRobot.identity`).
+DASHBOARD_PORT = 29999
+DASHBOARD_TIMEOUT_S = 1.0
 
 # UR safety modes (RTDE ``safety_mode``) that stop the arm.
 SAFETY_STOPPED = {3: "protective stop", 5: "safeguard stop", 6: "system emergency stop", 7: "robot emergency stop",
@@ -359,6 +364,26 @@ class URRobot(Robot):
             self._close_interfaces()
             raise
         self._check_model()
+
+    def identity(self) -> dict:
+        """The arm's model, serial number and software as its dashboard server (port `DASHBOARD_PORT`) answers
+        them; read-only queries, also in read-only mode. What it does not answer (a CB3 before 3.2, no network
+        path to the port) is left out; ``model`` is then the configured one."""
+        info = {"model": f"{self.config.model.upper()} (configured)"}
+        try:
+            with socket.create_connection((self.config.host, DASHBOARD_PORT), timeout=DASHBOARD_TIMEOUT_S) as s:
+                reply = s.makefile("rb")
+                reply.readline()                                 # the server's greeting
+                for key, query in (("model", "get robot model"), ("serial", "get serial number"),
+                                   ("software", "PolyscopeVersion")):
+                    s.sendall(query.encode() + b"\n")
+                    answer = reply.readline().decode(errors="replace").strip()
+                    if answer and not answer.lower().startswith(("could not understand", "error")):
+                        info[key] = answer
+                s.sendall(b"quit\n")
+        except OSError as e:
+            log.info("UR at %s: no identity from the dashboard server (%s)", self.config.host, e)
+        return info
 
     def _check_model(self) -> None:
         # Nominal FK against the controller's pose: catches a wrong `model` (decimetres),

@@ -248,6 +248,9 @@ class RenderedCamera(Camera):
 
     simulated = True
 
+    def identity(self) -> dict:
+        return {"model": "rendered RGB-D camera (simulated)"}
+
     def __init__(self, config: RenderedCameraConfig, flange_pose_source: Callable[[], np.ndarray] | None = None):
         self.config = config
         self._source = flange_pose_source

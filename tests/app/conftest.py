@@ -140,3 +140,30 @@ def render_page(tmp_path):
         return done.stdout, console
 
     return render
+
+
+PDFTOTEXT = shutil.which("pdftotext") or "/usr/bin/pdftotext"
+
+
+@pytest.fixture
+def render_pdf(tmp_path):
+    """``render_pdf(html_path) -> (pdf_path, first_page_text)``: the page printed to PDF by headless Chromium (the
+    print CSS, Letter paper: the narrower of Letter and A4) and the text of its first page in reading order
+    (``pdftotext``, Debian package poppler-utils, from ``make sysdeps``; without it the test fails)."""
+    assert Path(CHROMIUM).exists(), "chromium is missing: run `make sysdeps` (Debian package chromium)"
+    assert Path(PDFTOTEXT).exists(), "pdftotext is missing: run `make sysdeps` (Debian package poppler-utils)"
+
+    def render(page: Path):
+        pdf = tmp_path / (Path(page).parent.name + ".pdf")
+        profile = tmp_path / f"chromium-pdf-{pdf.stem}"
+        argv = [CHROMIUM, "--headless", "--no-sandbox", "--disable-gpu", "--disable-background-networking",
+                "--disable-component-update", "--disable-sync", "--no-first-run", f"--user-data-dir={profile}",
+                "--proxy-server=127.0.0.1:9", "--no-pdf-header-footer", f"--print-to-pdf={pdf}",
+                Path(page).resolve().as_uri()]
+        done = subprocess.run(argv, capture_output=True, text=True, timeout=120)
+        assert done.returncode == 0 and pdf.exists() and pdf.read_bytes().startswith(b"%PDF"), done.stderr[-2000:]
+        text = subprocess.run([PDFTOTEXT, "-f", "1", "-l", "1", str(pdf), "-"], capture_output=True, text=True,
+                              timeout=60, check=True).stdout
+        return pdf, text
+
+    return render

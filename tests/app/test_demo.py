@@ -4,7 +4,9 @@ import json
 
 import numpy as np
 import pytest
+import yaml
 
+from app.commands.calibrate import print_calibration_summary
 from app.config import Config, load_config
 from app.runs.calibrate import calibrate
 from app.runs import demo as demo_runs
@@ -16,6 +18,7 @@ from drivers.robot import ur_kinematics as kin
 from drivers.robot.ur import URKinematicError, URRobot
 from calib import transforms as tf
 from app.errors import ConfigError
+from tests.test_docs import check_demo_printout
 
 pytestmark = pytest.mark.slow
 
@@ -24,7 +27,7 @@ def test_sim_toml_is_the_embedded_default():
     assert load_config("config/sim.toml") == Config()
 
 
-def test_demo_recovers_true_camera_pose(sim_config, loopback):
+def test_demo_recovers_true_camera_pose(sim_config, loopback, capsys):
     """The shipped demo: planned poses until auto's predicted 1-sigma is below 1 mm and 0.1 deg (at most 16
     here); the error lies within the target and within the 1-sigma the result states."""
     cfg = sim_config(loopback(1), samples=16)
@@ -64,6 +67,17 @@ def test_demo_recovers_true_camera_pose(sim_config, loopback):
         assert (out.report.session / name).stat().st_size > 0, name
     text = (out.report.session / "result.yaml").read_text()
     assert "T_base_cam" in text and "heldout_observed_mm" in text and "camera_correction" in text
+    # The verdict, and the cell as the drivers named it (the simulated controller's dashboard answers).
+    doc = yaml.safe_load(text)
+    assert doc["verdict"]["level"] == "pass" and doc["accuracy"]["p95_mm"] < cfg.calibrate.tolerance_mm, doc["verdict"]
+    robot, camera = doc["cell"]["robot"], doc["cell"]["camera"]
+    assert robot["model"] == "UR10" and robot["serial"] == "20235500001" and robot["software"].startswith("URSoftware")
+    assert camera["backend"] == "rendered" and camera["resolution"] == "640x480"
+    assert doc["samples_from"] == str(out.report.session.resolve())
+    # What `make demo` prints has the lines of the README's example, in its order.
+    capsys.readouterr()
+    print_calibration_summary(out)
+    check_demo_printout(capsys.readouterr().out)
 
 
 def test_demo_refuses_hardware_config():

@@ -1,5 +1,5 @@
 """Replay that advises: grouped and sorted tables, the recommendation, the note on agreeing
-refined rows, warnings for a large 1-sigma and for inconsistent residuals."""
+refined rows, a verdict per result (few samples, inconsistent residuals)."""
 
 import numpy as np
 import pytest
@@ -30,32 +30,34 @@ def test_groups_sorted_and_agreeing_refined_rows_explained():
     pose_rows = [ln for ln in lines[i_poses:] if ln.startswith("| Y")]
     rms = [float(ln.split("|")[4]) for ln in pose_rows]
     assert len(rms) == 3 and rms == sorted(rms)     # without held-out errors: by residual RMS
-    notes = advice(rows, obs, refine=True)
+    notes = advice(rows, refine=True)
     assert any(n.startswith("note: the 3 refined rows using marker poses agree within") for n in notes), notes
     assert any(n.startswith("no recommendation") for n in notes) or recommended(rows) is not None
     assert not any("warning" in n for n in notes), notes   # 40 good samples: precise and consistent
-    assert not any("agree" in n for n in advice(replay(obs, "eye_to_hand", POSE_METHODS, crossval=False), obs,
+    assert not any("agree" in n for n in advice(replay(obs, "eye_to_hand", POSE_METHODS, crossval=False),
                                                  refine=False))
 
 
-def test_warnings_for_large_sigma_and_inconsistent_residuals():
+def test_each_row_is_judged_few_samples_and_outliers_are_reasons():
+    """The problems the advice used to list per solver are each result's verdict reasons now."""
     rng = np.random.default_rng(32)
     d = simulate.realistic_cell(8, rng)
     few = _observations(d)
-    rows = replay(few, "eye_to_hand", POINT_METHODS, crossval=False)
-    warn = [n for n in advice(rows, few, refine=False) if n.startswith("warning: 1-sigma above the default target")]
-    assert len(warn) == 1 and "YKronT'" in warn[0]
-    assert not any(n.startswith("warning: 1-sigma") for n in advice(rows, few, refine=False, target_mm=500,
-                                                                   target_deg=50))
+    (row,) = replay(few, "eye_to_hand", POINT_METHODS, crossval=False)
+    v = row.result.verdict
+    assert v.level in ("warn", "fail") and any("only 8 samples" in r for r in v.reasons), v
+    (row,) = replay(few, "eye_to_hand", POINT_METHODS, crossval=False, tolerance=(500, 50))
+    assert not any("tolerance" in r for r in row.result.verdict.reasons)
+    assert "| warn |" in format_table([row], "eye_to_hand")
     d = simulate.realistic_cell(30, rng)
     bad, _ = simulate.with_gross_outliers(d.points, 0.3, rng)
     obs = _observations(d, bad)
-    rows = replay(obs, "eye_to_hand", POINT_METHODS, crossval=False)
-    (msg,) = [n for n in advice(rows, obs, refine=False) if "inconsistent residuals" in n]
-    assert "try --robust" in msg
+    (row,) = replay(obs, "eye_to_hand", POINT_METHODS, crossval=False)
+    (msg,) = [r for r in row.result.verdict.reasons if "what the camera's noise explains" in r]
+    assert "--robust" in msg and row.result.verdict.level != "pass"
     clean = _observations(d)
-    rows = replay(clean, "eye_to_hand", POINT_METHODS, crossval=False)
-    assert not any("inconsistent" in n for n in advice(rows, clean, refine=False))
+    (row,) = replay(clean, "eye_to_hand", POINT_METHODS, crossval=False, tolerance=(5.0, 1.0))
+    assert row.result.verdict.level == "pass", row.result.verdict     # (30 samples, 1 / 3 mm noise: ~2 mm)
 
 
 def test_recommendation_by_held_out_error():
@@ -67,7 +69,7 @@ def test_recommendation_by_held_out_error():
     assert best is not None and all(r.heldout is not None for r in rows)
     assert best.heldout.observed_rms == min(r.heldout.observed_rms for r in rows)
     assert "**recommended**" in format_table(rows, "eye_to_hand")
-    assert advice(rows, obs, refine=False)[0].startswith(f"recommended: {best.method}")
+    assert advice(rows, refine=False)[0].startswith(f"recommended: {best.method}")
 
 
 def test_auto_gets_its_own_group_and_a_held_out_error():

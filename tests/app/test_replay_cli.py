@@ -55,17 +55,26 @@ def test_replay_easy_handeye_ros1_needs_and_takes_setup(cell, tmp_path, capsys):
     assert main(["replay", str(tmp_path / "samples.yaml")]) == 1
     assert "pass setup=" in capsys.readouterr().err
     out = _replay(capsys, tmp_path / "samples.yaml", "--setup", "eye_to_hand")
-    # The default solver is calibrate's: auto.
-    assert "eye_to_hand, 15 samples" in out and "| auto | 15 |" in out and not _rows(out)
+    # The default solver is calibrate's: auto; one solver, no comparison table (but with --verbose).
+    assert "eye_to_hand, 15 samples); result of auto" in out and "| auto |" not in out and not _rows(out)
+    assert "| auto | 15 |" in _replay(capsys, tmp_path / "samples.yaml", "--setup", "eye_to_hand", "--verbose")
 
 
 def test_replay_industrial_calibration(capsys):
-    out = _replay(capsys, DATA / "circle_grid" / "cal_data.yaml", "-m", "YKronT'")
+    out = _replay(capsys, DATA / "circle_grid" / "cal_data.yaml", "-m", "YKronT'", "-v")
     assert "eye_in_hand, 15 samples" in out
     assert float(_rows(out)["YKronT'"][2]) == pytest.approx(10.1, abs=0.5)   # mm, as in tests/regression
 
 
 def test_replay_pose_streams(capsys):
-    out = _replay(capsys, DATA / "ethz" / "robot_arm_sim", "-m", "YKronT'")
+    out = _replay(capsys, DATA / "ethz" / "robot_arm_sim", "-m", "YKronT'", "-v")
     assert "eye_in_hand" in out
     assert float(_rows(out)["YKronT'"][2]) < 1.6   # 1.22 mm, as in tests/regression
+
+
+def test_an_unknown_source_names_every_known_format_first_a_handeye_session(tmp_path, capsys):
+    (tmp_path / "empty").mkdir()
+    assert main(["replay", str(tmp_path / "empty")]) == 1
+    err = capsys.readouterr().err
+    assert "no known sample format; known: a handeye session (a directory with session.json), or " in err
+    assert len(err.strip().splitlines()) == 1

@@ -1,6 +1,7 @@
 """``handeye verify --session`` (offline, the cross-session check) and report.html in headless Chromium."""
 
 import re
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -38,7 +39,7 @@ def _verify(capsys, *argv):
 
 
 def _doc(out):
-    path = re.search(r"\| verify.yaml \| (\S+) \|", out).group(1)
+    path = re.search(r"verify.yaml \(the figures\): (\S+)", out).group(1)
     return yaml.safe_load(open(path)), path
 
 
@@ -67,6 +68,27 @@ def test_cross_session_pass_and_a_shifted_result_fails(two_sessions, tmp_path, c
     # A looser tolerance passes it.
     assert _verify(capsys, "--result", bad, "--session", s1, "--session-root", tmp_path / "v",
                    "--tolerance", "5,1")[0] == 0
+
+
+def test_verification_poses_that_repeat_the_calibrations_are_flagged(two_sessions, tmp_path, capsys):
+    """A verification session whose first 13 poses are the calibration's own (replay --out's result names its
+    samples): the verdict warns, says how many, and verify.yaml lists them."""
+    (s0, s1), d = two_sessions
+    out_dir = tmp_path / "out"
+    assert main(["replay", str(s0), "--out", str(out_dir)]) == 0
+    capsys.readouterr()
+    with SessionWriter.create(tmp_path / "sessions", "eye_to_hand", name="mixed", source="test") as w:
+        for i in list(range(13)) + list(range(25, 37)):
+            w.add_sample(Observation(i, float(i), d.A[i], d.points[i], d.point_cov[i], d.B[i], None))
+    rc, out, _ = _verify(capsys, "--result", out_dir / "result.yaml", "--session", w.path, "--session-root",
+                         tmp_path / "v")
+    doc, _ = _doc(out)
+    assert rc == 0 and doc["verdict"]["level"] == "warn" and doc["repeated_calibration_poses"] == list(range(13))
+    assert "13 of 25 verification poses repeat calibration poses" in out
+    # The fresh session alone: no such warning.
+    rc, out, _ = _verify(capsys, "--result", out_dir / "result.yaml", "--session", s1, "--session-root",
+                         tmp_path / "v")
+    assert rc == 0 and "repeat calibration poses" not in out and _doc(out)[0]["repeated_calibration_poses"] == []
 
 
 def test_frame_safety_warns_about_an_inverted_result(two_sessions, tmp_path, capsys):
@@ -101,25 +123,36 @@ def test_verify_refuses_its_own_session_and_bad_input(two_sessions, tmp_path, ca
         main(["verify", "--result", str(s0), "--expect-xyz", "1,2"])
 
 
-def test_report_renders_in_headless_chromium(two_sessions, tmp_path, capsys, render_page):
-    """replay --out's and verify's report.html: every plot present, no console message, nothing fetched."""
+def test_report_renders_in_headless_chromium(two_sessions, tmp_path, capsys, render_page, render_pdf):
+    """replay --out's and verify's report.html: every plot present, no console message, nothing fetched, one
+    heading per section; printed to PDF, the verdict is the first text (and the calibration's verdict is the
+    one in result.yaml, the verification's the one in verify.yaml)."""
     (s0, s1), _ = two_sessions
     assert main(["replay", str(s0), "--out", str(s0)]) == 0
     capsys.readouterr()
     rc, out, _ = _verify(capsys, "--result", s0, "--session", s1, "--session-root", tmp_path / "v")
     assert rc == 0
-    verify_report = re.search(r"\| report \| (\S+) \|", out).group(1)
+    verify_report = re.search(r"hand over the report: (\S+)", out).group(1)
     for page, n_plots in ((s0 / "report.html", 5), (verify_report, 6)):
         text = open(page, encoding="utf-8").read()
         assert not re.search(r"""(src|href)\s*=\s*["']?(https?:)?//""", text), "the page must not fetch anything"
         dom, console = render_page(page)
         assert console == [], console
-        plots = re.findall(rf'<div class="{PLOT_CLASS}" data-title="([^"]+)"><h3>[^<]*</h3><svg', dom)
+        plots = re.findall(rf'<figure class="{PLOT_CLASS}" data-title="([^"]+)"><svg', dom)
         assert len(plots) == n_plots, plots
-        for heading in ("Setup and frames", "Pose coverage", "Residuals per sample", "Error ellipsoid",
-                        "Held-out prediction", "Camera correction", "Warnings"):
-            assert f"<h2>{heading}" in dom, heading
-    assert "<h2>Verification</h2>" in dom and "PASS" in dom
+        headings = re.findall(r"<h2>([^<]+)</h2>", dom)
+        for heading in ("Cell", "Camera transform", "Setup and frames", "Pose coverage", "Residuals per sample",
+                        "Error ellipses of the camera position", "Held-out prediction", "Camera correction",
+                        "Appendix: statistics"):
+            assert heading in headings, heading
+        assert len(headings) == len(set(headings)) and not re.search(r"<h3>", dom)   # no heading twice
+        verdict = yaml.safe_load(open(Path(page).parent / ("verify.yaml" if page == verify_report
+                                                          else "result.yaml")))["verdict"]
+        pdf, first_page = render_pdf(page)
+        words = " ".join(first_page.split())
+        assert words.startswith(f"{verdict['level'].upper()} {' '.join(verdict['summary'].split()[:6])}"), words[:300]
+        assert "Cell" in words and pdf.stat().st_size < 2e6
+    assert "<h2>Verification</h2>" in dom and '<span class="level">PASS</span>' in dom
 
 
 def test_the_browser_check_sees_console_errors_and_missing_plots(tmp_path, render_page):
@@ -129,7 +162,7 @@ def test_the_browser_check_sees_console_errors_and_missing_plots(tmp_path, rende
                     "</script></body></html>")
     dom, console = render_page(page)
     assert len(console) == 2 and "nope is not defined" in console[1]
-    assert not re.findall(rf'<div class="{PLOT_CLASS}" data-title="([^"]+)"><h3>[^<]*</h3><svg', dom)
+    assert not re.findall(rf'<figure class="{PLOT_CLASS}" data-title="([^"]+)"><svg', dom)
 
 
 RESULT_PATHS = [("setup",), ("camera_transform",), ("camera_transform", "matrix"), ("camera_transform", "matrix", 0),

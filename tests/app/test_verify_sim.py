@@ -16,7 +16,7 @@ from calib import verify as cv
 
 pytestmark = pytest.mark.slow
 
-PLOT = rf'<div class="{PLOT_CLASS}" data-title="([^"]+)"><h3>[^<]*</h3><svg'
+PLOT = rf'<figure class="{PLOT_CLASS}" data-title="([^"]+)"><svg'
 
 
 def test_demo_result_verified_on_fresh_poses(sim_config, loopback, tmp_path, capsys, render_page):
@@ -28,6 +28,7 @@ def test_demo_result_verified_on_fresh_poses(sim_config, loopback, tmp_path, cap
     assert out.files["report"] == report and report.stat().st_size < 2e6
     dom, console = render_page(report)
     assert console == [] and len(re.findall(PLOT, dom)) == 5
+    assert re.search(r'<body><div class="verdict pass" id="verdict"><span class="level">PASS</span>', dom)
 
     toml = tmp_path / "cell.toml"
     toml.write_text(Path("config/sim.toml").read_text().replace('host = "127.0.0.2"', f'host = "{loopback(62)}"'))
@@ -51,6 +52,7 @@ def test_demo_result_verified_on_fresh_poses(sim_config, loopback, tmp_path, cap
     assert gap.min() >= cfg.verify.min_separation_m - 1e-3
     dom, console = render_page(vdir / "report.html")
     assert console == [] and len(re.findall(PLOT, dom)) == 6
+    assert re.search(r'<body><div class="verdict (pass|warn)" id="verdict">', dom) and "UR10" in dom
 
     # Results 3 mm / 0.3 deg off (across the view), judged on the same fresh poses: failed at 2 mm, the
     # reported error within 20 % of the true one the simulator knows.

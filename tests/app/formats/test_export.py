@@ -164,10 +164,15 @@ def test_rigid_exports_carry_the_camera_correction_folded_in(result, tmp_path):
     if result.raw_points_fit is None:
         assert "camera_transform_raw_points" not in doc and "uncorrected" not in urdf
         np.testing.assert_array_equal(result.camera_transform_raw_points, result.camera_transform)
+        assert doc["which_transform"].startswith("one transform, camera_transform")
         return
     raw = doc["camera_transform_raw_points"]
     G = result.raw_points_fit["transform"]
     np.testing.assert_allclose(raw["matrix"], result.camera_transform @ G, atol=1e-12)
     assert tf.pose_error(result.camera_transform_raw_points, result.camera_transform)[1] > 1e-3
     assert raw["misfit_mm"] == pytest.approx(result.raw_points_fit["misfit_m"] * 1e3)
-    assert "uncorrected points" in urdf and "uncorrected points" in raw["note"]
+    assert "uncorrected points" in urdf and "uncorrected points" in raw["name"]
+    # Said once, which transform goes with which points: the correction's values and how far apart they are.
+    use = doc["which_transform"]
+    assert use.startswith("use camera_transform_raw_points") and "static_transform_publisher" in use
+    assert "depth scale" in use and "the two differ by" in use

@@ -31,7 +31,7 @@ def _same(imported, A, B):
 
 
 def _replay_error_mm(path, setup, truth, capsys) -> float:
-    assert main(["replay", str(path), "--setup", setup, "-m", "YKronT'"]) == 0
+    assert main(["replay", str(path), "--setup", setup, "-m", "YKronT'", "--verbose"]) == 0   # (the table)
     out = capsys.readouterr().out
     row = next(line for line in out.splitlines() if line.startswith("| YKronT'"))
     xyz = np.array(row.split("|")[5].split(), dtype=float)

@@ -29,7 +29,8 @@ def test_a_registered_format_is_detected_and_loaded(tmp_path):
 def test_unknown_files_and_formats_name_the_known_ones(tmp_path):
     p = tmp_path / "x.txt"
     p.write_text("just: text\n")
-    with pytest.raises(SessionError, match=r"not a known sample format \(.*pose_csv"):
+    with pytest.raises(SessionError, match=r"not a known sample format; known: a handeye session \(a directory "
+                                           r"with session.json\), or .*pose_csv"):
         detect_format(p)
     with pytest.raises(SessionError, match="unknown import format 'nope'"):
         load(p, "nope")
