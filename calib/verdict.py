@@ -137,13 +137,16 @@ def judge(result: CalibrationResult, problem: CalibrationProblem, *, tolerance_m
     for name, v in (("tolerance_mm", tolerance_mm), ("tolerance_deg", tolerance_deg)):
         if not (isinstance(v, (int, float)) and np.isfinite(v) and v > 0):
             raise CalibrationError(f"{name} must be a positive number, got {v!r}")
-    acc = workspace_accuracy(result, problem)
-    reasons = _accuracy_reasons(acc, tolerance_mm, tolerance_deg, result.method)
+    # With part of the answer open (held at a guess), no error over the workspace can be stated: the reason
+    # that names the open part says what to do instead.
+    acc = None if result.undetermined else workspace_accuracy(result, problem)
+    reasons = [] if result.undetermined else _accuracy_reasons(acc, tolerance_mm, tolerance_deg, result.method)
     reasons += _consistency_reasons(result, problem)
     reasons += _coverage_reasons(result, problem)
     level = worst(lv for lv, _ in reasons)
     tolerance = f"{tolerance_mm:g} mm / {tolerance_deg:g} deg"
-    what = accuracy_phrase(acc) if acc is not None else "no predicted error"
+    what = (accuracy_phrase(acc) if acc is not None else "its error over the workspace is unknown while part of "
+            "the answer is open" if result.undetermined else "no predicted error")
     summary = {"pass": f"within the tolerance {tolerance}: {what}",
                "warn": f"check the reasons below before use: {what} (tolerance {tolerance})",
                "fail": f"do not use as it is: {what} (tolerance {tolerance})"}[level]
@@ -194,7 +197,8 @@ def _coverage_reasons(result: CalibrationResult, problem: CalibrationProblem) ->
         reasons.append(("warn", f"only {n} samples: one bad sample would move the result unnoticed; take at least "
                                 f"{MIN_ADVISED_SAMPLES}"))
     spread = rotation_spread_deg(problem.A)
-    if not result.undetermined and spread < MIN_ROTATION_SPREAD_DEG:
+    # A known marker offset stands in for the rotation the motions lack (`calib.problem.CalibrationProblem`).
+    if not result.undetermined and problem.marker_offset is None and spread < MIN_ROTATION_SPREAD_DEG:
         reasons.append(("warn", f"the flange turned at most {spread:.1f} deg from its mean orientation: the camera's "
                                 "rotation rests on little motion; add poses tilted 20-40 deg about different axes"))
     rejected = len(result.rejected)

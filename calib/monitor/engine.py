@@ -119,8 +119,13 @@ class MonitorEngine:
         Raises
         ------
         CalibrationError
-            The samples are malformed or do not determine the camera.
+            The samples are malformed or do not determine the camera, or the result leaves part of it open
+            (``result.undetermined``: a recording whose tool never turned, without the marker's offset).
         """
+        if result.undetermined:
+            # The open part was held at a guess: at the production's other tool orientations it would read as a move.
+            raise CalibrationError("the calibration leaves part of the camera open, which the monitor cannot follow: "
+                                   + "; ".join(result.undetermined))
         ref, cov = arm_reference(result, problem)
         layout = SampleModel.of(ref.setup == Setup.EYE_TO_HAND, len(cov) - 12, ref.noise).layout
         P = np.zeros((layout.size, layout.size))
@@ -175,6 +180,7 @@ class MonitorEngine:
         self.rate = Rate(cfg.rate_window_h * self.hour_s, self.hour_s)
         self._count = 0
         self._window: collections.deque[Visit] = collections.deque()
+        self._window_visits: collections.Counter[int] = collections.Counter()   # per stop key, its visits in it
         self._relearn_set: list[Stop] = []
         self._settle = snap.settle
         self._drifting = False
@@ -281,7 +287,7 @@ class MonitorEngine:
         stops = self.stops
         i = stops.lookup(s)
         S_inv = sym3(inn.S_inv)
-        r_test, S_test_inv, test_inv, offset_var = inn.r, S_inv, inn.S_inv, None
+        r_test, S_test_inv, test_inv, offset_var, stop_id = inn.r, S_inv, inn.S_inv, None, None
         Hc = inn.H[:, :6]
         baseline = i is not None and stops.n[i] >= MIN_BASELINE
         if baseline:
@@ -291,7 +297,10 @@ class MonitorEngine:
             # A drifting camera has moved since those visits by the same for every stop: the long window's
             # test is for a move beyond the random walk over that time.
             offset_var = self.walk.variance(s.walk_t - stops.walk_t[i])
-            k = 1.0 + 1.0 / stops.n[i]
+            # The m visits of this stop in the window share the error of its mean of n earlier visits: their sum
+            # has the variance of m samples each of (1 + m / n) times the noise, not (1 + 1 / n).
+            stop_id = stops.ids[i]
+            k = 1.0 + (self._window_visits[stop_id] + 1) / stops.n[i]
             R = inn.R
             (a, b, c), (_, d, e), (_, _, f) = (Hc * offset_var).dot(Hc.T).tolist()
             test_inv = inv_sym3_floats(a + k * R[0], b + k * R[1], c + k * R[2], d + k * R[3], e + k * R[4],
@@ -305,10 +314,15 @@ class MonitorEngine:
         nis = ((r0 * i0 + r1 * i1 + r2 * i2) * r0 + (r0 * i1 + r1 * i3 + r2 * i4) * r1
                + (r0 * i2 + r1 * i4 + r2 * i5) * r2)
         if not fired:
-            self._window.append(Visit(s, self.filter, nis))
+            self._window.append(Visit(s, self.filter, nis, stop_id))
+            if stop_id is not None:
+                self._window_visits[stop_id] += 1
             self.filter = fuse(self.filter, inn.PHt, S_inv, inn.r)
             if len(self._window) > self.settings.detector.window:
-                stops.add(self._window.popleft().sample)
+                old = self._window.popleft()
+                if old.stop_id is not None:
+                    self._window_visits[old.stop_id] -= 1
+                stops.add(old.sample)
             return AlarmLevel.NONE, statistic, ""
         message = (f"camera moved (GLR statistic {statistic:.1f} > {self.detector.threshold:.1f}); "
                    "re-learning it from the production stops")
@@ -329,6 +343,7 @@ class MonitorEngine:
             stops.add(v.sample)
         self._relearn_set = [v.sample for v in window[before:]] + [s]
         self._window.clear()
+        self._window_visits.clear()
         self.state = EngineState.RELEARNING
         self._drifting = False
         return AlarmLevel.MOVED, statistic, message + "; " + self._relearn()
@@ -489,7 +504,7 @@ class MonitorEngine:
         of the move's least squares (``k`` the sample's place in ``samples``; ``r`` the marker point's change at
         its stop, `_against_stop`, ``H`` its Jacobian (3, 6) w.r.t. the camera transform, ``W`` its weight),
         and the visits from before the move of the stops that have none."""
-        rows, short = [], []
+        measured, short = [], []
         stops = self.stops
         for k, s in enumerate(samples):
             i = stops.lookup(s)
@@ -498,8 +513,15 @@ class MonitorEngine:
             if stops.n[i] < MIN_BASELINE:
                 short.append(int(stops.n[i]))
                 continue
+            measured.append((k, i))
+        # The m samples of a stop share the error of its mean of n earlier visits (as in `_test`).
+        visits = collections.Counter(i for _, i in measured)
+        rows = []
+        for k, i in measured:
+            s = samples[k]
             r, H, R = linearize(self.filter, s, self.model)
-            rows.append((k, np.array(self._against_stop(i, s, r)), H[:, :6], np.linalg.inv(R * (1.0 + 1.0 / stops.n[i]))))
+            rows.append((k, np.array(self._against_stop(i, s, r)), H[:, :6],
+                         np.linalg.inv(R * (1.0 + visits[i] / stops.n[i]))))
         return rows, short
 
     @staticmethod
@@ -579,7 +601,7 @@ class MonitorEngine:
             chi += float(r @ np.linalg.solve(R + H[:, 6:] @ f.P[6:, 6:] @ H[:, 6:].T, r))
         dof = 3 * len(samples) - 6
         consistent = dof <= 0 or chi <= chi2.ppf(RELEARN_QUANTILE, dof)
-        return Fit(saved._replace(C=f.C, P=f.P, parts=f.parts), "registered", consistent)
+        return Fit(f, "registered", consistent)
 
     # ------------------------------------------------------------------ figures
 

@@ -20,6 +20,8 @@ from calib.monitor.kernels import I3
 
 #: Workspace points kept from the arming samples (the drift and accuracy figures are RMS over them).
 WORKSPACE_POINTS = 200
+#: A marker offset given with no uncertainty is taken as known to this (1-sigma per axis, m).
+MARKER_OFFSET_FLOOR_M = 1e-6
 
 
 @dataclass(frozen=True)
@@ -131,16 +133,11 @@ def arm_reference(result: CalibrationResult, problem: CalibrationProblem, *,
     Raises
     ------
     CalibrationError
-        Malformed samples, samples that do not determine the camera, or a result that leaves part of it open
-        (``result.undetermined``: a recording whose tool never turned, without the marker's offset).
+        Malformed samples, or samples that do not determine the camera.
     """
     setup = Setup(result.setup)
     if problem.setup != setup:
         raise CalibrationError(f"the result is {setup}, its samples {problem.setup}")
-    if result.undetermined:
-        # The open part was held at a guess: at the production's other tool orientations it would read as a move.
-        raise CalibrationError("the calibration leaves part of the camera open, which the monitor cannot follow: "
-                               + "; ".join(result.undetermined))
     A, p, point_cov, robot_factor = problem.A, problem.points, problem.point_cov, problem.robot_shared_error
     C, K, M = model.split(result.X, result.Y, A, setup)
     theta = result.camera_correction.as_array()
@@ -155,7 +152,10 @@ def arm_reference(result: CalibrationResult, problem: CalibrationProblem, *,
     held = np.array([0.0 if name in correction and correction[name].estimated else consider[name] ** -2
                      for name in model.CAMERA_PARAMS])
     shape, _ = model.point_shape(p, point_cov)
-    cov = state_covariance(C, K, M, theta, setup, noise, shape, held, robot_factor)
+    # A known marker offset (`CalibrationProblem.marker_offset`) is information on the marker-side translation:
+    # held as given (sigma 0) is held to a micrometre.
+    offset_info = None if problem.marker_offset is None else max(problem.marker_offset_sigma, MARKER_OFFSET_FLOOR_M) ** -2
+    cov = state_covariance(C, K, M, theta, setup, noise, shape, held, robot_factor, offset_info)
     cov = 0.5 * (cov + cov.T)
     q = model.CameraCorrection(*theta).correct(p)
     workspace = q[::max(1, len(q) // WORKSPACE_POINTS)]
@@ -164,15 +164,18 @@ def arm_reference(result: CalibrationResult, problem: CalibrationProblem, *,
     return ref, cov
 
 
-def state_covariance(C, K, M, theta, setup, noise, shape, held, robot_factor) -> np.ndarray:
+def state_covariance(C, K, M, theta, setup, noise, shape, held, robot_factor, offset_info=None) -> np.ndarray:
     """`arm_reference`'s state covariance: the inverse information of the samples (``M`` (N, 4, 4), point
     covariance shapes ``shape`` (N, 3, 3), ``noise``) about ``[dC, tC, t_K, theta]``, ``held`` (3,) added to
-    the camera parameters' information, then the kinematic error's block from ``robot_factor`` (N, 6, P)."""
+    the camera parameters' information and ``offset_info`` (1/m^2, None: none) to the marker-side
+    translation's, then the kinematic error's block from ``robot_factor`` (N, 6, P)."""
     _, H_C, H_tK, H_th, H_xi = model.point_jacobians(C, K, M, theta, setup)
     W = np.linalg.inv(noise.point_cov(shape, model.robot_cofactor(C, K, M, setup)))
     J = np.concatenate([H_C, H_tK, H_th], axis=2)                     # (N, 3, 12)
     N = np.einsum("nki,nkl,nlj->ij", J, W, J)
     N[9:12, 9:12] += np.diag(held)
+    if offset_info is not None:
+        N[6:9, 6:9] += offset_info * I3
     try:
         cov = np.linalg.inv(N)
     except np.linalg.LinAlgError:

@@ -45,11 +45,13 @@ class Stop:
 
 class Visit(NamedTuple):
     """A sample in the detector's window, the filter state (`calib.monitor.filter.FilterState`) before it was
-    fused, and its test statistic (chi-square, 3 dof, against that state or its stop's earlier visits)."""
+    fused, its test statistic (chi-square, 3 dof, against that state or its stop's earlier visits), and the key
+    of the stop it was compared with (`Stops.ids`; None: against the model)."""
 
     sample: Stop
     state: object
     nis: float
+    stop_id: int | None
 
 
 class Stops:
@@ -70,6 +72,8 @@ class Stops:
         self.n: list[float] = []
         self.walk_t: list[float] = []                   # per stop: the mean walk clock of the visits in its mean
         self.last: list[int] = []
+        self.ids: list[int] = []                        # per stop: a key no other stop of this set has had
+        self._next_id = 0
         self.generation = 0                             # changes whenever a stop is added or dropped
         self._visits = 0
         self._t2 = translation_m * translation_m
@@ -105,7 +109,7 @@ class Stops:
         if i is None:
             if len(self.poses) == MAX_STOPS:
                 j = self.last.index(min(self.last))
-                for held in (self.poses, self.mean, self.pose_mean, self.n, self.walk_t, self.last):
+                for held in (self.poses, self.mean, self.pose_mean, self.n, self.walk_t, self.last, self.ids):
                     del held[j]
             i = len(self.poses)
             self.poses.append(s.pose)
@@ -114,6 +118,8 @@ class Stops:
             self.n.append(0.0)
             self.walk_t.append(0.0)
             self.last.append(0)
+            self.ids.append(self._next_id)
+            self._next_id += 1
             self.generation += 1
         n = self.n[i] = min(self.n[i] + 1.0, BASELINE_VISITS)
         (m0, m1, m2), (p0, p1, p2) = self.mean[i], s.point
@@ -125,7 +131,7 @@ class Stops:
         self.last[i] = self._visits
 
     def clear(self) -> None:
-        self.poses, self.mean, self.pose_mean, self.n, self.walk_t, self.last = [], [], [], [], [], []
+        self.poses, self.mean, self.pose_mean, self.n, self.walk_t, self.last, self.ids = [], [], [], [], [], [], []
         self.generation += 1
 
 
