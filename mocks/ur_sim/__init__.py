@@ -35,7 +35,7 @@ import numpy as np
 
 from drivers.errors import DeviceError
 
-__all__ = ["main", "launch", "SimProcess"]
+__all__ = ["main", "launch", "SimProcess", "dashboard"]
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -101,6 +101,16 @@ def main(argv: list[str] | None = None) -> int:
     return 0
 
 
+def dashboard(host: str, line: str, timeout: float = 5.0) -> str:
+    """Send one line to the dashboard port (29999) of the controller on ``host`` on a fresh connection and
+    return the one-line answer (``"sim truth"``, ``"sim state"``: the simulator's own commands)."""
+    with socket.create_connection((host, 29999), timeout=timeout) as s:
+        f = s.makefile("rb")
+        f.readline()  # greeting
+        s.sendall(line.encode() + b"\n")
+        return f.readline().decode().strip()
+
+
 class SimProcess:
     """Handle on a simulator subprocess started by `launch`.
 
@@ -126,11 +136,7 @@ class SimProcess:
 
     def command(self, line: str, timeout: float = 5.0) -> str:
         """Send one dashboard line on a fresh connection and return the one-line answer."""
-        with socket.create_connection((self.host, 29999), timeout=timeout) as s:
-            f = s.makefile("rb")
-            f.readline()  # greeting
-            s.sendall(line.encode() + b"\n")
-            return f.readline().decode().strip()
+        return dashboard(self.host, line, timeout)
 
     def state(self) -> dict:
         """Ground truth: q, T_base_flange, tcp_offset, command log, script uploads ..."""

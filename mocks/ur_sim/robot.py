@@ -64,11 +64,16 @@ class URSimRobot(URRobot):
         self.sim: SimProcess | None = None
 
     def connect(self) -> None:
+        self.launch_controller()
+        super().connect()
+
+    def launch_controller(self) -> SimProcess:
+        """The simulated controller of the config, launched on ``host`` unless it runs already."""
         if self.sim is None:
             cfg = self.config
             self.sim = launch(cfg.host, cfg.model, cfg.controller, cfg.initial_q, cfg.sim_tcp_offset,
                               robot_error=None if cfg.sim_robot_error is None else cfg.sim_robot_error.model_dump())
-        super().connect()
+        return self.sim
 
     def true_flange_pose(self) -> np.ndarray:
         """Where the flange really is, ``T_base_flange`` (4, 4): what a rendered camera sees.
