@@ -18,7 +18,8 @@ publishes:
   its message the verdict and its reason in words, and key-value pairs:
   ``error_mm``, ``drift_mm_h``, ``sigma_mm``, ``verify_mm``, ``last_alarm``,
   ``samples`` (and ``state``, ``drift_mm``, ``drift_deg``, ``statistic``,
-  ``alarms``, ``outage``); numbers as text, ``nan`` where not known yet;
+  ``alarms``, ``last_relearn``: how far the camera moved, ``outage``); numbers
+  as text, ``nan`` where not known yet;
 - ``geometry_msgs/TransformStamped`` on ``~/camera_transform`` (``/handeye/camera_transform``)
   after every sample with an estimate: ``T_base_cam`` (eye-to-hand) or
   ``T_flange_cam`` (eye-in-hand) of the camera's optical frame, named from
@@ -95,6 +96,8 @@ class DiagnosticsPublisher:
         self._update = None
         self._report = None
         self._outages: dict[str, str] = {}
+        self._moved = ""    # the last moved alarm's figures, and the last re-learn
+        self._relearnt = ""
         self.published = 0
 
     # ------------------------------------------------------------ lifecycle
@@ -114,7 +117,8 @@ class DiagnosticsPublisher:
         if self.node.node is None:
             return
         self.node.cancel_timer(self.timer)
-        self._publish(STALE, "monitor stopped", self._values())
+        level, message, values = self.status()
+        self._publish(STALE, f"monitor stopped; last: {LEVEL_NAMES[level]} {message}", values)
         time.sleep(0.1)  # let a reliable subscriber take the last message before the node goes
         self.node.close()
 
@@ -131,6 +135,11 @@ class DiagnosticsPublisher:
         with self._lock:
             if update is not None:
                 self._update = update
+                if update.alarm == "moved":
+                    self._moved = (f"the marker {update.verify_mm:.1f} mm from where the calibration puts it at "
+                                   f"sample {obs.index} (GLR statistic {update.statistic:.0f})")
+                if "re-learnt" in update.message:
+                    self._relearnt = update.message.split("; ")[-1]
             self._report = report
         if report.estimate is not None:
             self._publish_transform(report.estimate, obs.t)
@@ -156,7 +165,7 @@ class DiagnosticsPublisher:
             device, error = next(iter(outages.items()))
             return ERROR, f"{device} away: {error}", values
         if upd is not None and upd.level == "moved":
-            return ERROR, f"camera moved: {values['last_alarm']}; re-learning from the next stops", values
+            return ERROR, f"camera moved: {self._moved}; re-learning it from the next stops", values
         if upd is not None and upd.level == "drifting":
             return WARN, f"camera drifting: {upd.message or 'predicted error ' + values['error_mm'] + ' mm'}", values
         if report is None:
@@ -172,8 +181,8 @@ class DiagnosticsPublisher:
         if report is not None and report.alarms:
             a = report.alarms[-1]
             when = time.strftime("%Y-%m-%dT%H:%M:%S%z", time.localtime(a.t))
-            alarm = (f"{a.kind} at sample {a.sample_index}, {when}, GLR statistic {a.info.get('statistic', 0):.1f}, "
-                     f"drift {a.info.get('drift_mm', 0.0):.2f} mm")
+            alarm = f"{a.kind} at sample {a.sample_index}, {when}" + (f": {self._moved}" if a.kind == "moved" else
+                                                                       f": {a.info.get('message', '')}")
         return {
             "state": "" if upd is None else upd.state,
             "error_mm": _number(None if upd is None else upd.error_mm),
@@ -186,6 +195,7 @@ class DiagnosticsPublisher:
             "last_alarm": alarm,
             "alarms": str(0 if report is None else len(report.alarms)),
             "samples": str(0 if report is None else report.n_samples),
+            "last_relearn": self._relearnt or "none",
             "outage": ", ".join(f"{d}: {e}" for d, e in (outages or {}).items()) or "none",
         }
 

@@ -180,7 +180,7 @@ class Ros2Camera(Camera):
             while self._info is None or self._pair() is None:
                 left = deadline - time.monotonic()
                 if left <= 0:
-                    raise DeviceError(f"ROS 2 camera: {self._why()}")
+                    raise DeviceError(f"ROS 2 camera: {self._why(self.config.connect_timeout_s)}")
                 self._cv.wait(left)
 
     def disconnect(self) -> None:
@@ -191,6 +191,11 @@ class Ros2Camera(Camera):
     @property
     def is_connected(self) -> bool:
         return self._node is not None
+
+    def queues(self) -> tuple:
+        """The colour and depth messages held for pairing (at most ``queue_size`` each)."""
+        with self._cv:
+            return tuple(self._color.queue), tuple(self._depth.queue)
 
     @property
     def intrinsics(self) -> CameraIntrinsics:
@@ -227,10 +232,11 @@ class Ros2Camera(Camera):
                 return color, depth
         return None
 
-    def _why(self) -> str:
+    def _why(self, waited: float | None = None) -> str:
         """Why no frame came within ``timeout_s`` (under the lock): the first topic without a publisher or a
         message, else the stamps that do not pair."""
         c = self.config
+        waited = c.timeout_s if waited is None else waited
         for topic, got in ((c.color_topic, self._color.received), (c.depth_topic, self._depth.received),
                            (c.info_topic, self._info is not None)):
             if got:
@@ -238,7 +244,7 @@ class Ros2Camera(Camera):
             n = self._node.publishers(topic) if self._node is not None else 0
             if not n:
                 return f"no publisher on {topic} (is the camera driver running, in this ROS_DOMAIN_ID?)"
-            return f"no message on {topic} within {c.timeout_s:g} s ({n} publisher{'s' * (n > 1)})"
+            return f"no message on {topic} within {waited:g} s ({n} publisher{'s' * (n > 1)})"
         color, depth = self._color.queue[-1], self._depth.queue[-1] if self._depth.queue else None
         if time.time() - color.arrival > c.timeout_s:
             return f"no new message on {c.color_topic} for {time.time() - color.arrival:.1f} s (publisher stopped?)"
