@@ -291,6 +291,7 @@ class Ros2Camera(Camera):
             raise DeviceError(f"ROS 2 camera: depth ({c.depth_topic}) is in frame {frame_d!r}, colour in {frame_c!r}: "
                               "depth must be registered to colour (realsense2_camera: align_depth.enable:=true "
                               "and its aligned_depth_to_color topic)")
+        t0 = time.perf_counter()
         rgb = color_image(color.msg, where, DeviceError)
         bgr = cv2.cvtColor(rgb, cv2.COLOR_GRAY2BGR) if rgb.ndim == 2 else rgb
         depth_m = depth_image(depth.msg, f"ROS 2 camera: {c.depth_topic} at {depth.stamp:.3f} s", DeviceError)
@@ -302,7 +303,7 @@ class Ros2Camera(Camera):
                           index=self._index,
                           meta={"source": "ros2", "color_topic": c.color_topic, "frame_id": frame_c,
                                 "depth_skew_ms": (depth.stamp - color.stamp) * 1e3,
-                                "arrival_ms": offset * 1e3})
+                                "arrival_ms": offset * 1e3, "decode_ms": (time.perf_counter() - t0) * 1e3})
         self._index += 1
         return frame
 
