@@ -258,3 +258,23 @@ class SkipLog:
         n = self.counts[reason]
         if n == 10 ** (len(str(n)) - 1):
             log.warning("%s: %d message%s skipped: %s", self.what, n, "s" if n > 1 else "", reason)
+
+
+class NodeDevice:
+    """The connection of a device that is one `Ros2Node` named by its config's ``node_name`` (mixed into the
+    ROS 2 camera and robot before their base class)."""
+
+    _node: Ros2Node | None = None
+
+    def open_node(self) -> Ros2Node:
+        self._node = Ros2Node(self.config.node_name).open()
+        return self._node
+
+    def disconnect(self) -> None:
+        node, self._node = self._node, None
+        if node is not None:
+            node.close()
+
+    @property
+    def is_connected(self) -> bool:
+        return self._node is not None

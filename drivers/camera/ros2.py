@@ -48,7 +48,7 @@ from drivers.camera.base import Camera, CameraIntrinsics, RGBDFrame
 from drivers.camera.registry import CAMERAS
 from drivers.camera.ros_messages import MAX_SKEW_S, camera_intrinsics, color_image, depth_image
 from drivers.errors import ConnectionLostError, DeviceError
-from drivers.ros2 import NodeName, Ros2Node, SkipLog, TopicName, messages, stamp_seconds
+from drivers.ros2 import NodeDevice, NodeName, SkipLog, TopicName, messages, stamp_seconds
 
 log = logging.getLogger(__name__)
 
@@ -119,7 +119,7 @@ class _Stream:
 
 
 @CAMERAS.register("ros2", Ros2CameraConfig)
-class Ros2Camera(Camera):
+class Ros2Camera(NodeDevice, Camera):
     """Colour, registered depth and CameraInfo from ROS 2 topics; see the module docstring.
 
     Parameters
@@ -129,7 +129,6 @@ class Ros2Camera(Camera):
 
     def __init__(self, config: Ros2CameraConfig):
         self.config = config
-        self._node: Ros2Node | None = None
         self._cv = threading.Condition()
         self.skips = SkipLog(f"ROS 2 camera {config.color_topic}")
         self._reset()
@@ -158,8 +157,7 @@ class Ros2Camera(Camera):
             return
         c = self.config
         self._reset()
-        node = Ros2Node(c.node_name).open()
-        self._node = node
+        node = self.open_node()
         try:
             Image, CompressedImage, CameraInfo = messages("sensor_msgs", "Image", "CompressedImage", "CameraInfo")
             missing = node.wait_for_publishers((c.color_topic, c.depth_topic, c.info_topic), c.connect_timeout_s)
@@ -183,14 +181,6 @@ class Ros2Camera(Camera):
                     raise DeviceError(f"ROS 2 camera: {self._why(self.config.connect_timeout_s)}")
                 self._cv.wait(left)
 
-    def disconnect(self) -> None:
-        node, self._node = self._node, None
-        if node is not None:
-            node.close()
-
-    @property
-    def is_connected(self) -> bool:
-        return self._node is not None
 
     def queues(self) -> tuple:
         """The colour and depth messages held for pairing (at most ``queue_size`` each)."""

@@ -47,7 +47,7 @@ from drivers.robot.base import Robot, RobotLimits, RobotState
 from drivers.robot.buffer import StateBuffer
 from drivers.robot.registry import ROBOTS
 from drivers.robot.ur import URKinematicError, URKinematics
-from drivers.ros2 import NodeName, Ros2Node, SkipLog, TopicName, messages, stamp_seconds
+from drivers.ros2 import NodeDevice, NodeName, SkipLog, TopicName, messages, stamp_seconds
 
 log = logging.getLogger(__name__)
 
@@ -128,7 +128,7 @@ class Ros2RobotConfig(Params):
 
 
 @ROBOTS.register("ros2", Ros2RobotConfig)
-class Ros2Robot(Robot):
+class Ros2Robot(NodeDevice, Robot):
     """Read-only UR arm from ROS 2 topics; see the module docstring.
 
     Parameters
@@ -138,7 +138,6 @@ class Ros2Robot(Robot):
 
     def __init__(self, config: Ros2RobotConfig):
         self.config = config
-        self._node: Ros2Node | None = None
         self._buffer = StateBuffer(config.buffer_seconds)
         self._cv = threading.Condition()
         self._T_tcp_flange = invert(from_ur_pose(config.tcp_offset)) if config.tcp_offset is not None else None
@@ -176,8 +175,7 @@ class Ros2Robot(Robot):
             return
         c = self.config
         self._reset()
-        node = Ros2Node(c.node_name).open()
-        self._node = node
+        node = self.open_node()
         try:
             (JointState,) = messages("sensor_msgs", "JointState")
             topics = [c.joint_states_topic] + ([c.pose_topic] if c.source == "pose" else [])
@@ -200,14 +198,6 @@ class Ros2Robot(Robot):
             self.disconnect()
             raise
 
-    def disconnect(self) -> None:
-        node, self._node = self._node, None
-        if node is not None:
-            node.close()
-
-    @property
-    def is_connected(self) -> bool:
-        return self._node is not None
 
     def _silent(self) -> str:
         """The first topic without a message: no publisher, or a publisher that sends nothing."""
