@@ -21,7 +21,8 @@ real DDS (rclpy, `drivers.ros2`), on the simulated cell:
 
 Each node prints ``ready`` once it publishes, answers JSON commands on stdin
 one line each (the camera's: ``frame``, ``resume``, ``bump``, ``truth``) and exits when
-stdin closes (its parent died). `NodeProcess` starts one.
+stdin closes (its parent stopped it, or died); it ignores SIGINT, which a terminal's
+Ctrl-C sends to the whole process group: its parent's clean stop needs it to the end. `NodeProcess` starts one.
 
 Registered like every simulator (``simulated = True``), by `app.backends`:
 
@@ -44,6 +45,7 @@ import array
 import json
 import logging
 import queue
+import signal
 import subprocess
 import sys
 import threading
@@ -294,6 +296,9 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("spec", help="JSON: the node's settings (NodeProcess writes it)")
     args = ap.parse_args(argv)
     logging.basicConfig(level=logging.WARNING, format="ros2_cell: %(message)s")
+    # A terminal's Ctrl-C reaches the whole process group: the node lives on until its parent, which
+    # stops cleanly, closes its stdin (or dies).
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
     spec = json.loads(args.spec)
     try:
         return run_camera_node(spec) if args.role == "camera" else run_robot_node(spec)
