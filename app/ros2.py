@@ -204,7 +204,7 @@ class DiagnosticsPublisher:
         self._publish(*self.status())
 
     def _publish(self, level: int, message: str, values: dict) -> None:
-        if self.node.node is None:
+        if self.node.node is None:  # not open (or closed): nothing goes out, the verdict is still kept
             return
         status = self.DiagnosticStatus(level=bytes([level]), name=STATUS_NAME, message=message,
                                        hardware_id=self.config.hardware_id or self.frames["camera"],
@@ -215,6 +215,8 @@ class DiagnosticsPublisher:
         self.published += 1
 
     def _publish_transform(self, T: np.ndarray, t: float) -> None:
+        if self.node.node is None:
+            return
         msg = self.TransformStamped()
         set_stamp(msg.header, t)
         msg.header.frame_id = self.frames["flange"] if self.setup.camera_on_flange else self.frames["base"]

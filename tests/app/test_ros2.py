@@ -89,3 +89,44 @@ def test_monitor_from_ros2_turns_diagnostics_to_error_for_another_process(calibr
     assert error["values"]["last_alarm"].startswith(f"moved at sample {moved[0].sample_index}")
     assert {"error_mm", "drift_mm_h", "sigma_mm", "verify_mm", "last_alarm", "samples"} <= set(error["values"])
     assert statuses[-1]["level"] == 3 and statuses[-1]["message"].startswith("monitor stopped")
+
+
+def _report(n: int, estimate=None, alarms=()):
+    from app.runs.monitor import MonitorReport
+
+    return MonitorReport(session="s", n_samples=n, n_skipped=0, alarms=list(alarms), estimate=estimate,
+                         samples_until_armed=0 if estimate is not None else 4)
+
+
+def test_the_diagnostics_level_says_quiet_drifting_moved_or_away(engine_update):
+    """OK calibrated and quiet; WARN drifting or not calibrated yet; ERROR moved (with the move's figures)
+    until the level clears, or a device away (until it is back). The verdict is kept without a node (nothing is
+    published before `open`)."""
+    from types import SimpleNamespace
+
+    from app.outage import OutageEvent
+    from app.ros2 import ERROR, OK, WARN, DiagnosticsPublisher, Ros2Config
+    from app.runs.monitor import Alarm
+
+    pub = DiagnosticsPublisher(Ros2Config(diagnostics=True), "eye_to_hand", load_config(None).frames.model_dump())
+    assert pub.status()[0] == WARN  # no sample yet
+    quiet = engine_update(5, np.eye(4), np.eye(6) * 1e-8, alarm=False)
+    pub(SimpleNamespace(index=5, t=0.0), quiet, _report(1))
+    assert pub.status()[:2] == (WARN, "not calibrated yet: collecting samples (4 more before the moved test runs)")
+    pub(SimpleNamespace(index=6, t=0.0), quiet, _report(2, np.eye(4)))
+    level, message, values = pub.status()
+    assert level == OK and message.startswith("calibrated: predicted error 2.000 mm")
+    assert values["error_mm"] == "2.000" and values["verify_mm"] == "0.400" and values["samples"] == "2"
+    moved = engine_update(7, np.eye(4), np.eye(6) * 1e-8, alarm=True)
+    alarm = Alarm(0.0, 7, {"alarm": "moved", "statistic": 123.4})
+    pub(SimpleNamespace(index=7, t=0.0), moved, _report(3, np.eye(4), [alarm]))
+    level, message, values = pub.status()
+    assert level == ERROR and "the marker 0.4 mm from where the calibration puts it at sample 7" in message
+    assert values["last_alarm"].startswith("moved at sample 7") and values["alarms"] == "1"
+    drifting = moved._replace(alarm="", level="drifting", message="drifting 0.5 mm/h")
+    pub(SimpleNamespace(index=8, t=0.0), drifting, _report(4, np.eye(4), [alarm]))
+    assert pub.status()[:2] == (WARN, "camera drifting: drifting 0.5 mm/h")
+    pub.outage(OutageEvent("camera", "outage_start", 0.0, "no publisher on /camera", 0, 0.0))
+    assert pub.status()[:2] == (ERROR, "camera away: no publisher on /camera")
+    pub.outage(OutageEvent("camera", "outage_end", 0.0, "", 1, 2.0))
+    assert pub.status()[0] == WARN and pub.status()[2]["outage"] == "none"
