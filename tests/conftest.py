@@ -138,13 +138,17 @@ class Ros2Publisher:
 
 @pytest.fixture(scope="module")
 def ros2_publisher(ros2_graph):
-    """``ros2_publisher(prefix)`` starts a `Ros2Publisher` (killed at module end)."""
+    """``ros2_publisher(prefix)`` starts a `Ros2Publisher` (killed at module end). A node of this process stays
+    open meanwhile: the process's DDS participant, and what it discovered, outlive each test's devices."""
+    from drivers.ros2 import Ros2Node
+
     started = []
 
     def start(prefix: str) -> Ros2Publisher:
         started.append(Ros2Publisher(prefix))
         return started[-1]
 
-    yield start
+    with Ros2Node("tests"):
+        yield start
     for p in started:
         p.kill()

@@ -26,7 +26,7 @@ def robot(**kw) -> Ros2Robot:
                                         "tcp_offset": TCP, "frozen_timeout": 0.3, **kw}))
 
 
-def publish(publisher, n=300, rate=100, q=Q, qd=(0.0,) * 6, names=UR_JOINTS, tcp=TCP, order=range(6)):
+def publish(publisher, n=200, rate=100, q=Q, qd=(0.0,) * 6, names=UR_JOINTS, tcp=TCP, order=range(6)):
     """Stream joint states (listed in ``order``) and the TCP pose of ``q`` (ur_robot_driver's, with TCP
     ``tcp``) in a thread."""
     T_tcp = kin.forward(np.array(q), "ur10") @ tf.from_ur_pose(np.array(tcp))
