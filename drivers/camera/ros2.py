@@ -92,7 +92,7 @@ class Ros2CameraConfig(Params):
 
 
 @dataclass(frozen=True)
-class _Message:
+class StampedMessage:
     """A message as it arrived: its header stamp and host arrival time (s, ``time.time()`` clock)."""
 
     stamp: float
@@ -100,22 +100,54 @@ class _Message:
     msg: object
 
 
-class _Stream:
-    """The newest messages of one topic, stamps increasing (older or equal stamps are skipped)."""
+class Stream:
+    """The newest ``size`` messages of one topic, stamps increasing (an older or equal stamp is a skip)."""
 
     def __init__(self, topic: str, size: int, skips: SkipLog):
         self.topic, self.skips = topic, skips
-        self.queue: collections.deque[_Message] = collections.deque(maxlen=size)
+        self.queue: collections.deque[StampedMessage] = collections.deque(maxlen=size)
         self.received = 0
 
-    def add(self, msg) -> bool:
-        m = _Message(stamp_seconds(msg.header), time.time(), msg)
+    def add(self, stamp: float, arrival: float, msg) -> bool:
+        """Keep the message (True), or count it as a skip when its stamp is not after the newest one's."""
         self.received += 1
-        if self.queue and m.stamp <= self.queue[-1].stamp:
+        if self.queue and stamp <= self.queue[-1].stamp:
             self.skips(f"{self.topic}: stamp not after the previous message's (out of order or repeated)")
             return False
-        self.queue.append(m)
+        self.queue.append(StampedMessage(stamp, arrival, msg))
         return True
+
+
+class FramePairer:
+    """Colour and depth streams of one camera, paired by stamp; pure (the camera feeds it under its lock).
+
+    `take` hands out the newest colour message after the last one handed out that has a depth message
+    within ``max_skew_s``, with that depth message: colour stamps handed out only increase.
+    """
+
+    def __init__(self, color_topic: str, depth_topic: str, size: int, max_skew_s: float, skips: SkipLog):
+        self.color, self.depth = Stream(color_topic, size, skips), Stream(depth_topic, size, skips)
+        self.max_skew_s = max_skew_s
+        self.last = -np.inf  # stamp of the last colour message handed out
+
+    def pair(self) -> tuple[StampedMessage, StampedMessage] | None:
+        """The pair `take` would hand out, without taking it."""
+        for color in reversed(self.color.queue):
+            if color.stamp <= self.last:
+                return None
+            depth = self.nearest_depth(color.stamp)
+            if depth is not None and abs(depth.stamp - color.stamp) <= self.max_skew_s:
+                return color, depth
+        return None
+
+    def take(self) -> tuple[StampedMessage, StampedMessage] | None:
+        pair = self.pair()
+        if pair is not None:
+            self.last = pair[0].stamp
+        return pair
+
+    def nearest_depth(self, stamp: float) -> StampedMessage | None:
+        return min(self.depth.queue, key=lambda d: abs(d.stamp - stamp), default=None)
 
 
 @CAMERAS.register("ros2", Ros2CameraConfig)
@@ -135,12 +167,10 @@ class Ros2Camera(NodeDevice, Camera):
 
     def _reset(self) -> None:
         c = self.config
-        self._color = _Stream(c.color_topic, c.queue_size, self.skips)
-        self._depth = _Stream(c.depth_topic, c.queue_size, self.skips)
+        self._frames = FramePairer(c.color_topic, c.depth_topic, c.queue_size, c.max_skew_s, self.skips)
         self._info = None
         self._intr: CameraIntrinsics | None = None
         self._intr_key: tuple | None = None
-        self._last = -np.inf  # stamp of the last frame returned
         self._index = 0
 
     # ------------------------------------------------------------ connection
@@ -164,8 +194,8 @@ class Ros2Camera(NodeDevice, Camera):
             if missing:
                 raise DeviceError(f"ROS 2 camera: no publisher on {missing[0]} (is the camera driver running, in "
                                   "this ROS_DOMAIN_ID?)")
-            node.subscribe(CompressedImage if c.compressed else Image, c.color_topic, self._on(self._color))
-            node.subscribe(Image, c.depth_topic, self._on(self._depth))
+            node.subscribe(CompressedImage if c.compressed else Image, c.color_topic, self._on(self._frames.color))
+            node.subscribe(Image, c.depth_topic, self._on(self._frames.depth))
             node.subscribe(CameraInfo, c.info_topic, self._on_info)
             self._wait_first()
         except BaseException:
@@ -175,7 +205,7 @@ class Ros2Camera(NodeDevice, Camera):
     def _wait_first(self) -> None:
         deadline = time.monotonic() + self.config.connect_timeout_s
         with self._cv:
-            while self._info is None or self._pair() is None:
+            while self._info is None or self._frames.pair() is None:
                 left = deadline - time.monotonic()
                 if left <= 0:
                     raise DeviceError(f"ROS 2 camera: {self._why(self.config.connect_timeout_s)}")
@@ -185,7 +215,7 @@ class Ros2Camera(NodeDevice, Camera):
     def queues(self) -> tuple:
         """The colour and depth messages held for pairing (at most ``queue_size`` each)."""
         with self._cv:
-            return tuple(self._color.queue), tuple(self._depth.queue)
+            return tuple(self._frames.color.queue), tuple(self._frames.depth.queue)
 
     @property
     def intrinsics(self) -> CameraIntrinsics:
@@ -197,10 +227,10 @@ class Ros2Camera(NodeDevice, Camera):
         return self._intrinsics(info, None)
 
     # ------------------------------------------------------------- callbacks
-    def _on(self, stream: _Stream):
+    def _on(self, stream: Stream):
         def callback(msg) -> None:
             with self._cv:
-                if stream.add(msg):
+                if stream.add(stamp_seconds(msg.header), time.time(), msg):
                     self._cv.notify_all()
 
         return callback
@@ -211,23 +241,13 @@ class Ros2Camera(NodeDevice, Camera):
             self._cv.notify_all()
 
     # --------------------------------------------------------------- reading
-    def _pair(self) -> tuple[_Message, _Message] | None:
-        """The newest colour message after the last frame returned, and the depth message nearest its stamp
-        within ``max_skew_s`` (under the lock)."""
-        for color in reversed(self._color.queue):
-            if color.stamp <= self._last:
-                return None
-            depth = min(self._depth.queue, key=lambda d: abs(d.stamp - color.stamp), default=None)
-            if depth is not None and abs(depth.stamp - color.stamp) <= self.config.max_skew_s:
-                return color, depth
-        return None
-
     def _why(self, waited: float | None = None) -> str:
         """Why no frame came within ``timeout_s`` (under the lock): the first topic without a publisher or a
         message, else the stamps that do not pair."""
         c = self.config
         waited = c.timeout_s if waited is None else waited
-        for topic, got in ((c.color_topic, self._color.received), (c.depth_topic, self._depth.received),
+        frames = self._frames
+        for topic, got in ((c.color_topic, frames.color.received), (c.depth_topic, frames.depth.received),
                            (c.info_topic, self._info is not None)):
             if got:
                 continue
@@ -235,13 +255,13 @@ class Ros2Camera(NodeDevice, Camera):
             if not n:
                 return f"no publisher on {topic} (is the camera driver running, in this ROS_DOMAIN_ID?)"
             return f"no message on {topic} within {waited:g} s ({n} publisher{'s' * (n > 1)})"
-        color, depth = self._color.queue[-1], self._depth.queue[-1] if self._depth.queue else None
+        color = frames.color.queue[-1]
+        depth = frames.nearest_depth(color.stamp)
         if time.time() - color.arrival > c.timeout_s:
             return f"no new message on {c.color_topic} for {time.time() - color.arrival:.1f} s (publisher stopped?)"
         if depth is not None:
-            near = min(self._depth.queue, key=lambda d: abs(d.stamp - color.stamp))
             return (f"colour and depth stamps out of sync: the newest colour image ({color.stamp:.3f} s) is "
-                    f"{abs(near.stamp - color.stamp) * 1e3:.0f} ms from the nearest depth image (camera.max_skew_s "
+                    f"{abs(depth.stamp - color.stamp) * 1e3:.0f} ms from the nearest depth image (camera.max_skew_s "
                     f"= {c.max_skew_s:g} s)")
         return f"no new depth on {c.depth_topic}"
 
@@ -259,16 +279,15 @@ class Ros2Camera(NodeDevice, Camera):
             raise DeviceError("ROS 2 camera is not connected")
         deadline = time.monotonic() + self.config.timeout_s
         with self._cv:
-            while (pair := self._pair()) is None:
+            while (pair := self._frames.take()) is None:
                 left = deadline - time.monotonic()
                 if left <= 0:
                     raise ConnectionLostError(f"ROS 2 camera: {self._why()}")
                 self._cv.wait(left)
-            self._last = pair[0].stamp
             info = self._info
         return self._frame(*pair, info)
 
-    def _frame(self, color: _Message, depth: _Message, info) -> RGBDFrame:
+    def _frame(self, color: StampedMessage, depth: StampedMessage, info) -> RGBDFrame:
         c = self.config
         offset = color.arrival - color.stamp
         if abs(offset) > c.max_clock_offset_s:

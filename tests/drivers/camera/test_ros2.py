@@ -7,14 +7,58 @@ import threading
 
 import numpy as np
 import pytest
+from hypothesis import strategies as st
+from hypothesis.stateful import RuleBasedStateMachine, invariant, rule
 
 from app.outage import ReconnectConfig, Reconnecting
-from drivers.camera.ros2 import Ros2Camera, Ros2CameraConfig
+from drivers.camera.ros2 import FramePairer, Ros2Camera, Ros2CameraConfig
 from drivers.errors import ConnectionLostError, DeviceError
-from drivers.ros2 import import_rclpy
+from drivers.ros2 import SkipLog, import_rclpy
 
-pytestmark = pytest.mark.slow
 PREFIX = "/cam_test"
+SIZE, SKEW = 4, 0.02
+
+
+class PairingMachine(RuleBasedStateMachine):
+    """Colour and depth messages arriving in any order, late, lost or flooding, with `take` between them:
+    the pairs handed out are the newest pairable colour each time, in increasing stamp order, within the
+    skew, and the queues never hold more than their size."""
+
+    def __init__(self):
+        super().__init__()
+        self.frames = FramePairer("c", "d", SIZE, SKEW, SkipLog("test"))
+        self.t = 0.0
+        self.taken: list[float] = []
+
+    @rule(dt=st.sampled_from([1 / 30, 1 / 100, 0.0]), back=st.sampled_from([0.0, 0.0, 0.2]))
+    def colour(self, dt, back):
+        self.t += dt
+        self.frames.color.add(self.t - back, 0.0, None)
+
+    @rule(offset=st.sampled_from([0.0, 0.005, -0.015, 0.05, -0.2]))
+    def depth(self, offset):
+        self.frames.depth.add(self.t + offset, 0.0, None)
+
+    @rule()
+    def take(self):
+        pair = self.frames.take()
+        newer = [c for c in self.frames.color.queue if c.stamp > (pair[0].stamp if pair else self.frames.last)]
+        pairable = [c for c in newer if (d := self.frames.nearest_depth(c.stamp)) and abs(d.stamp - c.stamp) <= SKEW]
+        assert not pairable  # nothing newer could have been handed out instead
+        if pair is not None:
+            color, depth = pair
+            assert abs(depth.stamp - color.stamp) <= SKEW
+            assert not self.taken or color.stamp > self.taken[-1]
+            self.taken.append(color.stamp)
+
+    @invariant()
+    def bounded(self):
+        assert len(self.frames.color.queue) <= SIZE and len(self.frames.depth.queue) <= SIZE
+        stamps = [m.stamp for m in self.frames.color.queue]
+        assert stamps == sorted(set(stamps))
+
+
+TestPairing = PairingMachine.TestCase
 
 
 @pytest.fixture(scope="module")
@@ -39,6 +83,7 @@ def streaming(publisher, **cmd):
         thread.join()
 
 
+@pytest.mark.slow
 def test_frames_pair_colour_and_depth_by_stamp_with_the_camera_info(publisher):
     cam = camera()
     with streaming(publisher, n=60, rate=30) as answer, cam:
@@ -52,6 +97,7 @@ def test_frames_pair_colour_and_depth_by_stamp_with_the_camera_info(publisher):
     assert f.meta["depth_skew_ms"] == 0.0 and f.meta["frame_id"] == "cam"
 
 
+@pytest.mark.slow
 def test_a_flood_of_out_of_order_stamps_is_skipped_and_logged_in_bounded_memory(publisher, caplog):
     """100 Hz with every third stamp 0.2 s back: those are logged skips, frames come in stamp order, the
     queues never hold more than queue_size messages, nothing raises."""
@@ -67,6 +113,7 @@ def test_a_flood_of_out_of_order_stamps_is_skipped_and_logged_in_bounded_memory(
     assert len(caplog.records) <= 8  # the 1st, 10th, 100th ... of each kind, not one line per message
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("cmd, match", [
     ({"depth_frame": "camera_depth_optical_frame"}, "must be registered to colour"),
     ({"depth_offset_s": 0.05, "rate": 10, "n": 30}, r"stamps out of sync: .* 50 ms from the nearest depth"),
@@ -88,6 +135,7 @@ def test_no_publisher_is_a_typed_error_naming_the_topic(ros2_graph):
     assert not cam.is_connected
 
 
+@pytest.mark.slow
 def test_a_publisher_that_stops_and_restarts_is_an_outage_ridden_out(publisher):
     """The stream ends: read raises ConnectionLostError (no traceback, the reason named); under
     `Reconnecting` (monitor) that is an outage, and the next frame after the restart ends it."""
