@@ -6,6 +6,9 @@ Run ``python -m bench.ros2 [--frames N] [--out DIR]`` (``handeye bench --ros2``)
 ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST as set here unless given), stamped when published (colour rgb8,
 aligned depth 16UC1, CameraInfo). This process reads them with `drivers.camera.ros2.Ros2Camera` (the newest
 pair) and measures the marker (`calib.vision.extract.extract`), one frame after the other as a run does.
+``--flood SECONDS``: a 100 Hz publisher with every third stamp out of order instead, read as fast as it
+comes: frames read, messages skipped (logged), this process's resident memory over the run.
+
 Per frame (ms, median and 95th percentile, wall clock): ``transport`` (stamp -> the colour message in the
 camera's queue: building the messages, DDS), ``decode`` (to BGR and metres), ``extract``, and ``frame ->
 sample`` (stamp -> measurement, also the time a frame waits while the one before is measured); the table
@@ -27,8 +30,9 @@ TOPICS = {"color_topic": "/bench/color/image_raw", "depth_topic": "/bench/aligne
           "info_topic": "/bench/color/camera_info"}
 
 
-def publish(n: int, rate: float) -> int:
-    """The publisher process: render ``min(n, 30)`` poses, then publish ``n`` frames at ``rate``."""
+def publish(n: int, rate: float, shuffle: bool = False) -> int:
+    """The publisher process: render ``min(n, 30)`` poses, then publish ``n`` frames at ``rate`` (``shuffle``:
+    every third one stamped 0.2 s back, out of order)."""
     from calib import simulate
     from drivers.camera.ros2 import Ros2CameraConfig
     from drivers.ros2 import Ros2Node
@@ -46,10 +50,59 @@ def publish(n: int, rate: float) -> int:
         due = time.monotonic()
         for k in range(n):
             f = frames[k % len(frames)]
-            out.publish(f.color, f.depth, f.intrinsics, time.time())
+            out.publish(f.color, f.depth, f.intrinsics, time.time() - (0.2 if shuffle and k % 3 == 2 else 0.0))
             due += 1.0 / rate
             time.sleep(max(due - time.monotonic(), 0.0))
     return 0
+
+
+def _env() -> None:
+    """This run's ROS graph: the given one, else this machine only and a domain from the pid."""
+    os.environ.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
+    os.environ.setdefault("ROS_DOMAIN_ID", str(50 + os.getpid() % 50))
+
+
+def _publisher(n: int, rate: float, shuffle: bool) -> subprocess.Popen:
+    pub = subprocess.Popen([sys.executable, "-m", "bench.ros2", "--publish", "--frames", str(n), "--rate", str(rate)]
+                           + ["--shuffle"] * shuffle, stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True)
+    assert pub.stdout.readline().strip() == "ready"
+    return pub
+
+
+def flood(seconds: float, rate: float = 100.0) -> dict:
+    """A publisher flooding 640x480 frames at ``rate`` with every third stamp out of order, read as fast as they
+    come: frames read, skips, and this process's resident memory (MB) over the run."""
+    import resource
+
+    from drivers.camera.ros2 import Ros2Camera, Ros2CameraConfig
+    from drivers.errors import ConnectionLostError
+
+    _env()
+    n = int(seconds * rate)
+    pub = _publisher(n, rate, True)
+    cam = Ros2Camera(Ros2CameraConfig(**TOPICS, timeout_s=3.0, connect_timeout_s=20.0))
+    pub.stdin.write("go\n")
+    pub.stdin.flush()
+    rss, reads, t_next = [], 0, 0.0
+
+    def rss_mb() -> float:
+        with open("/proc/self/statm") as f:
+            return int(f.read().split()[1]) * resource.getpagesize() / 1e6
+
+    try:
+        with cam:
+            while True:
+                try:
+                    cam.read()
+                except ConnectionLostError:
+                    break
+                reads += 1
+                if time.monotonic() > t_next:
+                    rss.append(rss_mb())
+                    t_next = time.monotonic() + 1.0
+    finally:
+        pub.wait(60)
+    return {"published": n, "read": reads, "skips": sum(cam.skips.counts.values()), "rss": np.array(rss)}
 
 
 def run(n: int, rate: float) -> dict:
@@ -58,12 +111,8 @@ def run(n: int, rate: float) -> dict:
     from drivers.camera.ros2 import Ros2Camera, Ros2CameraConfig
     from drivers.errors import ConnectionLostError
 
-    env = {"ROS_AUTOMATIC_DISCOVERY_RANGE": "LOCALHOST", "ROS_DOMAIN_ID": str(50 + os.getpid() % 50),
-           **{k: v for k, v in os.environ.items() if k in ("ROS_DOMAIN_ID", "ROS_AUTOMATIC_DISCOVERY_RANGE")}}
-    os.environ.update(env)
-    pub = subprocess.Popen([sys.executable, "-m", "bench.ros2", "--publish", "--frames", str(n), "--rate", str(rate)],
-                           stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True)
-    assert pub.stdout.readline().strip() == "ready"
+    _env()
+    pub = _publisher(n, rate, False)
     target = TargetConfig()
     rows = {"transport": [], "decode": [], "extract": [], "total": []}
     cam = Ros2Camera(Ros2CameraConfig(**TOPICS, timeout_s=3.0, connect_timeout_s=20.0))
@@ -106,10 +155,21 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--frames", type=int, default=300)
     ap.add_argument("--rate", type=float, default=30.0)
     ap.add_argument("--out", default="out/bench")
+    ap.add_argument("--flood", type=float, metavar="SECONDS",
+                    help="instead: a 100 Hz publisher with out-of-order stamps for SECONDS; memory and skips")
     ap.add_argument("--publish", action="store_true", help=argparse.SUPPRESS)
+    ap.add_argument("--shuffle", action="store_true", help=argparse.SUPPRESS)
     args = ap.parse_args(argv)
     if args.publish:
-        return publish(args.frames, args.rate)
+        return publish(args.frames, args.rate, args.shuffle)
+    if args.flood:
+        r = flood(args.flood)
+        rss = r["rss"]
+        quarters = " / ".join(f"{rss[int(q * (len(rss) - 1))]:.0f}" for q in (0, 0.25, 0.5, 0.75, 1))
+        print(f"| flood | published | read | skipped (logged) | RSS at 0, 1/4, 1/2, 3/4, end [MB] |\n"
+              f"|---|---:|---:|---:|---:|\n| 640x480 @ 100 Hz, every third stamp 0.2 s back, {args.flood:g} s "
+              f"| {r['published']} | {r['read']} | {r['skips']} | {quarters} |")
+        return 0
     import cv2
 
     cv2.setNumThreads(1)  # as bench.vision and bench.realsense: one core for OpenCV
