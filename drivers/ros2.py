@@ -167,7 +167,9 @@ class Ros2Node:
         try:
             from rclpy.node import Node
 
-            self.node = Node(self.name, context=context)
+            # No /rosout: handeye logs to its own console and journal, and a node opened again under the same
+            # name (a reconnect) would have rcl warn about its rosout publisher.
+            self.node = Node(self.name, context=context, enable_rosout=False)
             executor.add_node(self.node)
         except Exception as e:  # a bad node name, a middleware failure
             self.node = None
