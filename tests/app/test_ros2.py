@@ -36,7 +36,7 @@ def sim_ros2(root, slot: int, **calibrate):
 @pytest.fixture(scope="module")
 def calibrated(ros2_graph, tmp_path_factory):
     """calibrate on the simulated cell with its frames through ROS 2 (6 planned poses)."""
-    cfg = sim_ros2(tmp_path_factory.mktemp("sessions"), 160, samples=6, min_samples=6)
+    cfg = sim_ros2(tmp_path_factory.mktemp("sessions"), 170, samples=6, min_samples=6)
     return cfg, calibrate(cfg, progress=False)
 
 
@@ -63,7 +63,7 @@ def test_monitor_from_ros2_turns_diagnostics_to_error_for_another_process(calibr
     the camera is knocked after 3 samples: the moved alarm comes within 5 samples, and a subscriber in
     another process sees /diagnostics go OK -> ERROR with the move's figures."""
     cfg, out = calibrated
-    cfg = sim_ros2(cfg.session.root, 161)
+    cfg = sim_ros2(cfg.session.root, 171)
     inbox = tmp_path / "diagnostics.jsonl"
     listener = subprocess.Popen([sys.executable, "-m", "tests.app.diagnostics_listener", str(inbox), "300"],
                                 stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True)
