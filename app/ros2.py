@@ -164,7 +164,7 @@ class DiagnosticsPublisher:
         if outages:
             device, error = next(iter(outages.items()))
             return ERROR, f"{device} away: {error}", values
-        if upd is not None and upd.level == "moved":
+        if upd is not None and (upd.level == "moved" or upd.state == "relearning"):  # until it is re-learnt
             return ERROR, f"camera moved: {self._moved}; re-learning it from the next stops", values
         if upd is not None and upd.level == "drifting":
             return WARN, f"camera drifting: {upd.message or 'predicted error ' + values['error_mm'] + ' mm'}", values

@@ -123,6 +123,9 @@ def test_the_diagnostics_level_says_quiet_drifting_moved_or_away(engine_update):
     level, message, values = pub.status()
     assert level == ERROR and "the marker 0.4 mm from where the calibration puts it at sample 7" in message
     assert values["last_alarm"].startswith("moved at sample 7") and values["alarms"] == "1"
+    relearning = moved._replace(alarm="", level="", state="relearning")
+    pub(SimpleNamespace(index=8, t=0.0), relearning, _report(4, np.eye(4), [alarm]))
+    assert pub.status()[0] == ERROR  # until the stops have re-learnt the camera
     drifting = moved._replace(alarm="", level="drifting", message="drifting 0.5 mm/h")
     pub(SimpleNamespace(index=8, t=0.0), drifting, _report(4, np.eye(4), [alarm]))
     assert pub.status()[:2] == (WARN, "camera drifting: drifting 0.5 mm/h")
