@@ -43,7 +43,7 @@ $(STAMP): pyproject.toml | sysdeps
 	$(PYTHON) -m venv $(VENV)
 	$(BIN)/python -m pip install -q --upgrade pip
 	@# setuptools' notice about editable installs is not actionable; keep the install quiet.
-	PYTHONWARNINGS=ignore $(BIN)/python -m pip install -q -e '.[test,openni,ros,realsense]'
+	PYTHONWARNINGS=ignore $(BIN)/python -m pip install -q -e '.[test,openni,ros,ros2,realsense]'
 	touch $(STAMP)
 
 clean:

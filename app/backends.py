@@ -8,7 +8,10 @@ plus one line below (docs/architecture.md has a worked example).
 
 from drivers.camera import openni2  # noqa: F401  camera "openni2"
 from drivers.camera import realsense  # noqa: F401  camera "realsense"
+from drivers.camera import ros2  # noqa: F401  camera "ros2"
+from drivers.robot import ros2 as robot_ros2  # noqa: F401  robot "ros2"
 from drivers.robot import ur  # noqa: F401  robot "ur"
 from mocks import recorded  # noqa: F401  camera "recorded"
+from mocks import ros2_cell  # noqa: F401  camera "ros2_sim", robot "ros2_sim"
 from mocks.render import camera  # noqa: F401  camera "rendered"
 from mocks.ur_sim import robot  # noqa: F401  robot "ur_sim"

@@ -3,7 +3,7 @@
 Every table is a pydantic model (`calib.params.Params`: unknown keys rejected,
 numbers finite and never booleans): ``[calibrate]``, ``[monitor]`` (with
 ``[monitor.engine]`` = `calib.monitor.MonitorSettings`), ``[session]``, ``[viz]``,
-``[frames]``, ``[mqtt]`` (`app.mqtt.MqttConfig`), ``[production]`` (the simulated robot's program), ``[console]``,
+``[frames]``, ``[mqtt]`` (`app.mqtt.MqttConfig`), ``[ros2]`` (`app.ros2.Ros2Config`), ``[production]`` (the simulated robot's program), ``[console]``,
 ``[reconnect]`` (`app.outage.ReconnectConfig`),
 ``[marker]`` = `calib.vision.extract.TargetConfig`, and ``[robot]`` /
 ``[camera]``, a union over the registered backends selected by ``type`` /
@@ -31,6 +31,7 @@ from app import backends  # noqa: F401  every backend registers itself before th
 from app.errors import ConfigError
 from app.mqtt import MqttConfig
 from app.outage import ReconnectConfig
+from app.ros2 import Ros2Config
 from app.files import read_text_file
 from calib.monitor import MonitorSettings
 from calib.params import (
@@ -450,6 +451,7 @@ class Config(Params):
     viz: VizConfig = Field(default_factory=VizConfig)
     frames: FramesConfig = Field(default_factory=FramesConfig)
     mqtt: MqttConfig = Field(default_factory=MqttConfig)
+    ros2: Ros2Config = Field(default_factory=Ros2Config)
     production: ProductionConfig = Field(default_factory=ProductionConfig)
     console: ConsoleConfig = Field(default_factory=ConsoleConfig)
     reconnect: ReconnectConfig = Field(default_factory=ReconnectConfig)

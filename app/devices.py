@@ -41,9 +41,12 @@ def open_robot(cfg: Config, *, read_only: bool):
     """The configured robot (not yet connected; use as a context manager).
 
     ``read_only=True`` (monitor) forces the driver's read-only mode: it then
-    refuses every motion command.
+    refuses every motion command (a backend without that mode, the ``ros2`` robot, is read-only anyway).
     """
-    return ROBOTS.create(cfg.robot.model_copy(update={"read_only": True}) if read_only else cfg.robot)
+    robot = cfg.robot
+    if read_only and "read_only" in type(robot).model_fields:
+        robot = robot.model_copy(update={"read_only": True})
+    return ROBOTS.create(robot)
 
 
 def open_camera(cfg: Config, robot):

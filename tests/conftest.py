@@ -87,3 +87,68 @@ class OutsideReads:
 def outside_reads() -> OutsideReads:
     """An `OutsideReads` watcher: ``with outside_reads.watch(data_dir): load(...)``."""
     return OutsideReads()
+
+
+#: The ROS 2 graph of the tests: this machine only, and a domain of this run's own (50..99 from the pid:
+#: never a developer's default domain 0, and seldom the same for two runs of the suite on one machine).
+ROS2_ENV = {"ROS_AUTOMATIC_DISCOVERY_RANGE": "LOCALHOST", "ROS_DOMAIN_ID": str(50 + os.getpid() % 50)}
+
+
+@pytest.fixture(scope="session")
+def ros2_graph():
+    """Real DDS on loopback with a test-only ``ROS_DOMAIN_ID`` (`ROS2_ENV`), for this process and the
+    node processes it starts; fails with the install line when rclpy is missing (``make`` installs it)."""
+    try:
+        import rclpy  # noqa: F401
+    except ImportError:
+        pytest.fail("rclpy missing: run `make venv` (installs handeye[ros2])")
+    saved = {k: os.environ.get(k) for k in (*ROS2_ENV, "ROS_STATIC_PEERS")}
+    os.environ.update(ROS2_ENV)
+    os.environ.pop("ROS_STATIC_PEERS", None)
+    yield ROS2_ENV
+    for k, v in saved.items():
+        if v is None:
+            os.environ.pop(k, None)
+        else:
+            os.environ[k] = v
+
+
+class Ros2Publisher:
+    """`tests.ros2_publisher` in a child process: ``send(cmd)`` runs one command and returns its answer."""
+
+    def __init__(self, prefix: str):
+        import subprocess
+
+        self.prefix = prefix
+        self.proc = subprocess.Popen([sys.executable, "-m", "tests.ros2_publisher", prefix], stdin=subprocess.PIPE,
+                                     stdout=subprocess.PIPE, text=True, bufsize=1)
+        assert self.proc.stdout.readline().strip() == "ready", "test publisher did not start"
+
+    def send(self, cmd: dict) -> dict:
+        import json
+
+        self.proc.stdin.write(json.dumps(cmd) + "\n")
+        self.proc.stdin.flush()
+        return json.loads(self.proc.stdout.readline())
+
+    def kill(self) -> None:
+        self.proc.kill()
+        self.proc.wait()
+
+
+@pytest.fixture(scope="module")
+def ros2_publisher(ros2_graph):
+    """``ros2_publisher(prefix)`` starts a `Ros2Publisher` (killed at module end). A node of this process stays
+    open meanwhile: the process's DDS participant, and what it discovered, outlive each test's devices."""
+    from drivers.ros2 import Ros2Node
+
+    started = []
+
+    def start(prefix: str) -> Ros2Publisher:
+        started.append(Ros2Publisher(prefix))
+        return started[-1]
+
+    with Ros2Node("tests"):
+        yield start
+    for p in started:
+        p.kill()

@@ -34,6 +34,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    "at one tool orientation, rotations about one axis; --cells, --n)")
     p.add_argument("--realsense", action="store_true",
                    help="run only the RealSense path benchmark (bench.realsense: librealsense's software device)")
+    p.add_argument("--ros2", action="store_true",
+                   help="run only the ROS 2 camera latency benchmark (bench.ros2: a publisher process, real DDS)")
 
 
 def run(args) -> int:
@@ -77,6 +79,10 @@ def run(args) -> int:
         from bench import realsense
 
         return int(realsense.main(args.extra) or 0)
+    if args.ros2:
+        from bench import ros2
+
+        return int(ros2.main(args.extra) or 0)
     from bench import solvers
 
     rc = int(solvers.main(args.extra) or 0)

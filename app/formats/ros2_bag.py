@@ -58,9 +58,7 @@ import struct
 from collections import defaultdict
 from dataclasses import dataclass, field
 from pathlib import Path
-from types import SimpleNamespace
 
-import cv2
 import numpy as np
 
 from app.errors import ConfigError, SessionError
@@ -71,6 +69,7 @@ from calib import transforms as tf
 from calib.errors import CalibrationError, ExtractionError, HandeyeError, ParameterError
 from calib.observation import Observation
 from calib.setup import Setup, check_setup
+from drivers.camera.ros_messages import MAX_SKEW_S, camera_intrinsics, color_image, depth_image
 
 log = logging.getLogger(__name__)
 
@@ -84,27 +83,17 @@ TF_TOPICS = ("tf", "tf_static")
 
 #: Largest message deserialized (bytes): a 4K RGB frame is 25 MB; anything far above is damage.
 MAX_MESSAGE_BYTES = 64 * 1024 * 1024
-#: Largest image side (px).
-MAX_IMAGE_SIDE = 16384
 #: Flange still: every tf pose in the window within this of the pose at the stamp (encoder noise is ~1e-3 mm).
 STILL_MM, STILL_DEG = 0.1, 0.01
 #: Default still window before a frame (s): `app.config.MonitorConfig.still_s`'s default.
 STILL_S = 0.3
 #: Frames of one standstill tried for the marker before the standstill is skipped.
 TRIES_PER_STANDSTILL = 3
-#: Depth and colour frames paired if their stamps differ by at most this (s).
-MAX_SKEW_S = 0.02
 #: A tf link whose samples are further apart than this (s) around a stamp has dropped out there.
 MAX_TF_GAP_S = 0.5
 #: Clock-offset estimate used only above this correlation of the two angular-speed profiles.
 MIN_OFFSET_SCORE = 0.8
 
-#: Colour encodings: channels and the conversion to BGR (None: already BGR or gray).
-COLOR_ENCODINGS = {"bgr8": (3, None),
-                   "rgb8": (3, cv2.COLOR_RGB2BGR), "bgra8": (4, cv2.COLOR_BGRA2BGR),
-                   "rgba8": (4, cv2.COLOR_RGBA2BGR), "mono8": (1, None)}
-DEPTH_ENCODINGS = {"16UC1": (np.uint16, 1e-3), "mono16": (np.uint16, 1e-3), "32FC1": (np.float32, 1.0)}
-DISTORTION_MODELS = {"plumb_bob": (5,), "rational_polynomial": (8,), "": (0, 4, 5, 8, 12, 14)}
 
 #: What rosbags and its storage backends raise on damaged bytes: a deserializer reading past the end,
 #: a corrupt sqlite page, a broken zstd/lz4 frame, a length field sending it astray.
@@ -351,89 +340,6 @@ class _TfTree:
         return np.unique(np.concatenate(ts)) if ts else np.zeros(0)
 
 
-def _intrinsics(msg, where: str, size: tuple[int, int] | None) -> SimpleNamespace:
-    K = np.asarray(msg.k, dtype=float).reshape(-1)
-    dist = np.asarray(msg.d, dtype=float).reshape(-1)
-    if K.size != 9 or not np.isfinite(K).all() or K[0] <= 0 or K[4] <= 0:
-        raise SessionError(f"{where}: k must be 9 finite numbers with fx, fy > 0, got {K.tolist()!r:.100}")
-    model = msg.distortion_model
-    if model not in DISTORTION_MODELS or dist.size not in DISTORTION_MODELS[model]:
-        raise SessionError(f"{where}: distortion_model {model!r:.40} with {dist.size} coefficients is not one "
-                           f"OpenCV's pinhole model reads (plumb_bob: 5, rational_polynomial: 8)")
-    if not np.isfinite(dist).all():
-        raise SessionError(f"{where}: distortion coefficients are not finite")
-    if size is not None and (msg.width, msg.height) != size and (msg.width, msg.height) != (0, 0):
-        raise SessionError(f"{where}: {msg.width}x{msg.height}, but the images are {size[0]}x{size[1]}")
-    return SimpleNamespace(K=K.reshape(3, 3), dist=dist if dist.size else np.zeros(5),
-                           width=int(msg.width), height=int(msg.height), frame_id=msg.header.frame_id)
-
-
-def _raw_image(msg, where: str, encodings: dict) -> tuple[np.ndarray, str]:
-    """(H, W[, C]) array of a ``sensor_msgs/Image`` and its encoding; `SessionError` on a bad layout."""
-    enc = msg.encoding
-    if enc not in encodings:
-        raise SessionError(f"{where}: encoding {enc!r:.40} is not one of {', '.join(encodings)}")
-    h, w, step = int(msg.height), int(msg.width), int(msg.step)
-    if not (0 < h <= MAX_IMAGE_SIDE and 0 < w <= MAX_IMAGE_SIDE):
-        raise SessionError(f"{where}: image size {w}x{h} is not 1..{MAX_IMAGE_SIDE} px per side")
-    dtype, channels = (np.dtype(encodings[enc][0]), 1) if encodings is DEPTH_ENCODINGS \
-        else (np.dtype(np.uint8), encodings[enc][0])
-    row = w * channels * dtype.itemsize
-    data = np.asarray(msg.data, dtype=np.uint8)
-    if step < row or data.size < step * h:
-        raise SessionError(f"{where}: {data.size} data bytes for {w}x{h} {enc} with step {step} "
-                           f"(needs {row} <= step and step x height bytes)")
-    rows = data[:step * h].reshape(h, step)[:, :row]
-    arr = np.ascontiguousarray(rows).view(dtype.newbyteorder(">") if msg.is_bigendian else dtype)
-    arr = arr.astype(dtype, copy=False).reshape((h, w) if channels == 1 else (h, w, channels))
-    return arr, enc
-
-
-def _color(msg, where: str) -> np.ndarray:
-    """BGR (or gray) uint8 image of an Image or CompressedImage message."""
-    if hasattr(msg, "encoding"):
-        img, enc = _raw_image(msg, where, COLOR_ENCODINGS)
-        code = COLOR_ENCODINGS[enc][1]
-        return img if code is None else cv2.cvtColor(img, code)
-    img = _decode(msg, where, cv2.IMREAD_COLOR)
-    return img
-
-
-def _decode(msg, where: str, flags) -> np.ndarray:
-    data = np.asarray(msg.data, dtype=np.uint8)
-    try:
-        img = cv2.imdecode(data, flags) if data.size else None
-    except cv2.error:
-        img = None
-    if img is None:
-        raise SessionError(f"{where}: cannot decode the {msg.format!r:.40} image")
-    if img.shape[0] > MAX_IMAGE_SIDE or img.shape[1] > MAX_IMAGE_SIDE:
-        raise SessionError(f"{where}: image size {img.shape[1]}x{img.shape[0]} is above {MAX_IMAGE_SIDE} px")
-    return img
-
-
-#: image_transport's compressedDepth header: int32 format + two float32 depth-quantisation parameters.
-_COMPRESSED_DEPTH_HEADER = 12
-
-
-def _depth(msg, where: str) -> np.ndarray:
-    """Depth in metres (float, 0 = no reading) of an Image (16UC1 mm / 32FC1 m) or a compressedDepth png."""
-    if hasattr(msg, "encoding"):
-        raw, enc = _raw_image(msg, where, DEPTH_ENCODINGS)
-        depth = raw.astype(np.float64) * DEPTH_ENCODINGS[enc][1]
-    else:
-        fmt = msg.format.replace(" ", "")
-        if not fmt.startswith(("16UC1;compressedDepth", "mono16;compressedDepth")):
-            raise SessionError(f"{where}: depth format {msg.format!r:.40} is not '16UC1; compressedDepth png' "
-                               "(32FC1 compressedDepth is quantised inverse depth: publish 16UC1 or raw)")
-        inner = SimpleNamespace(data=np.asarray(msg.data, np.uint8)[_COMPRESSED_DEPTH_HEADER:], format=msg.format)
-        raw = _decode(inner, where, cv2.IMREAD_UNCHANGED)
-        if raw.dtype != np.uint16 or raw.ndim != 2:
-            raise SessionError(f"{where}: compressedDepth image is not 16-bit single-channel")
-        depth = raw.astype(np.float64) * 1e-3
-    return np.where(np.isfinite(depth) & (depth > 0), depth, 0.0)
-
-
 def _why(e: BaseException) -> str:
     if isinstance(e, MemoryError):  # rosbags allocates what a length field says before reading
         return "a record length beyond memory: a damaged length field"
@@ -671,7 +577,7 @@ def load_ros2_bag(path, setup: str | None = None, frames: dict | None = None, to
             "clock_offset_s": float(offset), "clock_offset_from": offset_how, "frames_read": counts,
             "skipped": skipped}
     if intr is not None:
-        meta["intrinsics"] = {"K": intr.K.tolist(), "dist": intr.dist.tolist()}
+        meta["intrinsics"] = {"K": intr.K.tolist(), "dist": list(intr.dist)}
     # The camera driver's own tf (camera_link -> ... -> optical frame): a static transform for the
     # calibration must attach to its root, since a tf frame has one parent (docs/formats.md, "Use it in ROS 2").
     camera_tf = tree.static_root_pose(cam_frame)
@@ -770,7 +676,7 @@ def _image_samples(bag: _Bag, roles: _Topics, streams: dict, infos: list, tries:
     tgt = _target(target, use_depth)
     colors, depths = _second_pass(bag, roles, wanted, {j: i for i, j in pair.items() if j is not None}, folder)
     size = next(((c.shape[1], c.shape[0]) for c in colors.values()), None)
-    intr = _intrinsics(*infos[0], size)
+    intr = camera_intrinsics(*infos[0], SessionError, size)
     obs, skipped, done = [], [], set()
     for i in sorted(wanted):
         g = wanted[i]
@@ -807,7 +713,7 @@ def _second_pass(bag: _Bag, roles: _Topics, wanted: dict, need_depth: dict, fold
     conns = [roles.color] + ([roles.depth] if use_depth else [])
     for conn, k, raw in bag.messages(conns):
         if conn.id == roles.color.id and k in wanted:
-            colors[k] = _color(bag.decode(conn, k, raw), f"{folder}: {conn.topic} message {k}")
+            colors[k] = color_image(bag.decode(conn, k, raw), f"{folder}: {conn.topic} message {k}", SessionError)
         elif use_depth and conn.id == roles.depth.id and k in need_depth:
-            depths[k] = _depth(bag.decode(conn, k, raw), f"{folder}: {conn.topic} message {k}")
+            depths[k] = depth_image(bag.decode(conn, k, raw), f"{folder}: {conn.topic} message {k}", SessionError)
     return colors, depths

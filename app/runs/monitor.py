@@ -149,19 +149,23 @@ def monitor(cfg: Config, *, reference: Path | None = None, stop=None, progress: 
     ``[mqtt]`` publisher when enabled (`app.mqtt`).
     """
     from app.mqtt import make_publisher
+    from app.ros2 import make_diagnostics
 
     rng = np.random.default_rng(cfg.calibrate.seed)
     engine = devices.make_engine(cfg)
     devices.check_session_root(cfg)
     publisher = make_publisher(cfg.mqtt, cfg.setup, cfg.frames.model_dump()) if publish is None else None
+    # ROS 2 (/diagnostics, ~/camera_transform; [ros2] diagnostics): beside MQTT or a given publish, gets the same.
+    diagnostics = make_diagnostics(cfg.ros2, cfg.setup, cfg.frames.model_dump())
+    outage_sinks = [p.outage for p in (publisher, diagnostics) if p is not None]
     stop = stop or threading.Event()
-    outages = _OutageLog(publish=None if publisher is None else publisher.outage)
+    outages = _OutageLog(publish=(lambda e: [sink(e) for sink in outage_sinks]) if outage_sinks else None)
     # A device that goes away mid-shift is an outage and a reconnect with backoff (`app.outage`), not an exit.
     with Reconnecting("robot", devices.open_robot(cfg, read_only=True), cfg.reconnect, on_event=outages,
                       stop=stop) as robot, \
             Reconnecting("camera", devices.open_camera(cfg, robot), cfg.reconnect, on_event=outages,
                          stop=stop) as camera, \
-            (publisher or contextlib.nullcontext()):
+            (publisher or contextlib.nullcontext()), (diagnostics or contextlib.nullcontext()):
         publish = publish or publisher
         reference = carried_over(cfg) or reference
         if reference is not None:
@@ -195,6 +199,8 @@ def monitor(cfg: Config, *, reference: Path | None = None, stop=None, progress: 
                 show_monitor(bar, report)
                 if publish is not None:
                     publish(obs, update, report)
+                if diagnostics is not None:
+                    diagnostics(obs, update, report)
                 outages.record_broker(publisher)
 
             def on_error(obs, message):

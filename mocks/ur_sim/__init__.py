@@ -37,7 +37,7 @@ import numpy as np
 
 from drivers.errors import DeviceError
 
-__all__ = ["main", "launch", "SimProcess", "PortsTakenError", "dashboard_command"]
+__all__ = ["main", "launch", "SimProcess", "PortsTakenError", "dashboard"]
 
 
 class PortsTakenError(DeviceError):
@@ -111,6 +111,16 @@ def main(argv: list[str] | None = None) -> int:
     return 0
 
 
+def dashboard(host: str, line: str, timeout: float = 5.0) -> str:
+    """Send one line to the dashboard port (29999) of the controller on ``host`` on a fresh connection and
+    return the one-line answer (``"sim truth"``, ``"sim state"``: the simulator's own commands)."""
+    with socket.create_connection((host, 29999), timeout=timeout) as s:
+        f = s.makefile("rb")
+        f.readline()  # greeting
+        s.sendall(line.encode() + b"\n")
+        return f.readline().decode().strip()
+
+
 class SimProcess:
     """Handle on a simulator subprocess started by `launch`.
 
@@ -136,7 +146,7 @@ class SimProcess:
 
     def command(self, line: str, timeout: float = 5.0) -> str:
         """Send one dashboard line on a fresh connection and return the one-line answer."""
-        return dashboard_command(self.host, line, timeout)
+        return dashboard(self.host, line, timeout)
 
     def state(self) -> dict:
         """Ground truth: q, T_base_flange, tcp_offset, command log, script uploads ..."""
@@ -198,20 +208,11 @@ class SimProcess:
         return False
 
 
-def dashboard_command(host: str, line: str, timeout: float = 5.0) -> str:
-    """Send one line to the dashboard port (29999) of ``host`` on a fresh connection; the one-line answer."""
-    with socket.create_connection((host, 29999), timeout=timeout) as s:
-        f = s.makefile("rb")
-        f.readline()  # greeting
-        s.sendall(line.encode() + b"\n")
-        return f.readline().decode().strip()
-
-
 def ports_holder(host: str) -> str:
     """Who holds the simulator's ports on ``host``: the run that launched a simulator there (its pid and command
     line), a simulator started by hand, or another program."""
     try:
-        reply = dashboard_command(host, "sim owner", timeout=1.0)
+        reply = dashboard(host, "sim owner", timeout=1.0)
     except OSError:
         return "held by another program"
     try:

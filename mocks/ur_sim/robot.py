@@ -64,6 +64,11 @@ class URSimRobot(URRobot):
         self.sim: SimProcess | None = None
 
     def connect(self) -> None:
+        self.launch_controller()
+        super().connect()
+
+    def launch_controller(self) -> SimProcess:
+        """The simulated controller of the config, launched on ``host`` unless it runs already."""
         if self.sim is None:
             cfg = self.config
             error = None if cfg.sim_robot_error is None else cfg.sim_robot_error.model_dump()
@@ -74,7 +79,7 @@ class URSimRobot(URRobot):
                 raise PortsTakenError(f"{e}; stop that run, or give this one another loopback address "
                                       "(127.x.y.z) as [robot] host in its config (-c; the demo's cell is "
                                       "config/sim.toml)") from None
-        super().connect()
+        return self.sim
 
     def true_flange_pose(self) -> np.ndarray:
         """Where the flange really is, ``T_base_flange`` (4, 4): what a rendered camera sees.
