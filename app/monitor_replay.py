@@ -9,8 +9,10 @@ directory (``replay --out``):
 
 - ``monitor_trace.csv``: one row per sample (`TRACE_COLUMNS`; the camera
   transform is ``T_base_cam`` eye-to-hand, ``T_flange_cam`` eye-in-hand);
-- ``alarms.yaml``: every alarm with its sample, time and message;
-- ``monitor_trace.png``: drift, running verification and 1-sigma against time, alarms marked;
+- ``alarms.yaml``: every alarm with its sample, local time, message and, for a move, its re-learn
+  (`app.shift_record`);
+- ``monitor_trace.png`` and ``report.html``: the timeline (the move since the cell's first calibration, the
+  drift since the calibration in use, the verification, the 1-sigma, the alarms) and the shift report;
 - ``calibration_in_use.yaml`` (`app.calibration_in_use`): the calibration in use, written at arming, at every
   re-learn, when a re-learnt camera has settled and at the end; another ``replay --monitor`` or ``monitor``
   continues from it with ``--reference <out>``.
@@ -33,12 +35,12 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
-import yaml
 
 from app import calibration_in_use, devices
 from app.errors import MonitorError, SessionError
 from app.monitoring import arm_from_path
 from app.session import read_session
+from app.shift_record import ShiftRecord
 from calib import transforms as tf
 from calib.errors import CalibrationError
 from calib.monitor import MonitorEngine, MonitorSettings, MonitorUpdate
@@ -56,16 +58,21 @@ TRACE_COLUMNS = ("index", "sample", "t", "alarm", "level", "state", "x_mm", "y_m
 
 @dataclass
 class MonitorReplay:
-    """What a replay saw: counts, the alarms, the last update, where the files went."""
+    """What a replay saw: counts, the shift record (alarms, outcome, timeline), the last update, where the
+    files went."""
 
     setup: Setup
+    record: ShiftRecord
     n_samples: int = 0
     n_skipped: int = 0
-    alarms: list = field(default_factory=list)
     last: MonitorUpdate | None = None
     verify_mm: list = field(default_factory=list)
     out: Path | None = None
     notes: list = field(default_factory=list)
+
+    @property
+    def alarms(self) -> list[dict]:
+        return list(self.record.alarms)
 
 
 def trace_row(obs_index: int, upd: MonitorUpdate, correction) -> dict:
@@ -108,7 +115,7 @@ def replay_monitor(session: Path, reference: Path, out: Path, *, settings: Monit
     engine = MonitorEngine(settings)
     samples = [o for o in prod.observations]
     first_t = min((o.t for o in samples), default=0.0)
-    rep = MonitorReplay(prod.setup, out=Path(out))
+    rep = MonitorReplay(prod.setup, ShiftRecord(prod.setup, str(session), str(reference)), out=Path(out))
     factors = _factors(samples, shared_error)
     if shared_error is not None and all(F is None for F in factors):
         # Without joints no sample can feed the kinematic-error block: the engine is armed without it.
@@ -122,7 +129,6 @@ def replay_monitor(session: Path, reference: Path, out: Path, *, settings: Monit
         raise SessionError(f"--out {out}: cannot create ({e.strerror})") from None
     in_use = calibration_in_use.InUseFile(out, frames)
     in_use.armed(engine, first_t)
-    times, rows = [], []
     with open(out / "monitor_trace.csv", "w", newline="") as fh:
         writer = csv.DictWriter(fh, fieldnames=TRACE_COLUMNS)
         writer.writeheader()
@@ -139,7 +145,7 @@ def replay_monitor(session: Path, reference: Path, out: Path, *, settings: Monit
                 continue
             except Exception as e:        # noqa: BLE001 - one line naming the sample, what came before it written
                 log.debug("sample %d", o.index, exc_info=True)
-                _write_alarms(out, prod.setup, session, reference, rep.alarms)
+                rep.record.write(out)
                 if is_sound(engine.filter):
                     in_use.write(engine, o.t, "before an unexpected error")
                 raise MonitorError(f"sample {o.index}: unexpected error in the monitoring engine "
@@ -148,22 +154,10 @@ def replay_monitor(session: Path, reference: Path, out: Path, *, settings: Monit
             rep.last = upd
             rep.verify_mm.append(upd.verify_mm)
             writer.writerow(trace_row(o.index, upd, engine.camera_correction))
-            times.append(upd.t)
-            rows.append((upd.drift_mm, upd.verify_mm, upd.sigma_mm, upd.alarm))
-            if upd.alarm:
-                rep.alarms.append({"sample": o.index, "t": float(upd.t), "alarm": str(upd.alarm),
-                                   "message": upd.message})
-    in_use.end(engine, times[-1] if times else first_t)
-    _write_alarms(out, prod.setup, session, reference, rep.alarms)
-    if rows:
-        _plot(np.array(times) - times[0], rows, out / "monitor_trace.png", Setup(prod.setup).camera_name)
+            rep.record.add(o.index, upd, engine)
+    in_use.end(engine, rep.last.t if rep.last is not None else first_t)
+    rep.record.write(out)
     return rep
-
-
-def _write_alarms(out: Path, setup, session, reference, alarms: list) -> None:
-    (out / "alarms.yaml").write_text(yaml.safe_dump({
-        "setup": str(setup), "camera_transform": Setup(setup).camera_name,
-        "session": str(session), "reference": str(reference), "alarms": alarms}, sort_keys=False))
 
 
 def _factors(samples, shared_error):
@@ -176,45 +170,38 @@ def _factors(samples, shared_error):
     return [next(it) if o.point_cam is not None else None for o in samples]
 
 
-def _plot(t_s, rows, path: Path, camera: str) -> None:
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    drift, verify, sigma, alarms = zip(*rows)
-    t_h = t_s / 3600.0
-    fig, ax = plt.subplots(figsize=(10, 4))
-    ax.plot(t_h, verify, ".", ms=2, color="0.6", label="verify: prediction error before fusing [mm]")
-    ax.plot(t_h, drift, lw=1.2, label=f"drift of {camera} vs the calibration in use [mm]")
-    ax.plot(t_h, sigma, lw=1.0, label="live 1-sigma over the workspace [mm]")
-    for t, a in zip(t_h, alarms):
-        if a:
-            ax.axvline(t, color="r" if a == "moved" else "orange", ls="--", lw=0.8)
-    ax.set_xlabel("time since the first sample [h]")
-    ax.set_ylabel("mm")
-    ax.set_title("monitor replay (red: moved, orange: drifting)")
-    ax.legend(fontsize=7)
-    fig.tight_layout()
-    fig.savefig(path, dpi=100)
-    plt.close(fig)
-
-
 def summary(rep: MonitorReplay) -> str:
-    """The printed summary: counts, the alarms, the live estimate and its figures."""
+    """The printed summary: the state at the end in plain words, every alarm with its local time and outcome,
+    the live estimate, then the counts and the files."""
     cam = Setup(rep.setup).camera_name
-    lines = [f"monitor replay: {rep.n_samples} samples, {rep.n_skipped} skipped, {len(rep.alarms)} alarms"]
-    lines += [f"  note: {n}" for n in rep.notes]
-    for a in rep.alarms:
-        lines.append(f"  {a['alarm'].upper()} at sample {a['sample']} (t = {a['t']:.1f} s): {a['message']}")
+    level, sentence = rep.record.status()
+    lines = [f"{level.upper()}: {sentence}"]
+    lines += alarm_lines(rep.record)
     if rep.last is not None:
         u = rep.last
         xyz, quat = tf.to_xyz_quat(u.camera_transform)
         v = np.array(rep.verify_mm)
         lines.append(f"  live {cam}: xyz [mm] = {np.round(xyz * 1e3, 2)}  quat (x,y,z,w) = {np.round(quat, 5)}")
-        lines.append(f"  1-sigma over the workspace {u.sigma_mm:.2f} mm; drift vs the calibration in use "
+        lines.append(f"  1-sigma over the workspace {u.sigma_mm:.2f} mm; drift since the calibration in use "
                      f"{u.drift_mm:.2f} mm / {u.drift_deg:.3f} deg; verification (prediction before fusing) "
                      f"median {np.median(v):.2f} mm, p95 {np.percentile(v, 95):.2f} mm")
-    lines.append(f"  trace: {rep.out / 'monitor_trace.csv'}  alarms: {rep.out / 'alarms.yaml'}  "
-                 f"plot: {rep.out / 'monitor_trace.png'}")
+    lines.append(f"  {rep.n_samples} samples, {rep.n_skipped} skipped")
+    lines += [f"  note: {n}" for n in rep.notes]
+    lines.append(f"  report: {rep.out / 'report.html'}  alarms: {rep.out / 'alarms.yaml'}  trace: "
+                 f"{rep.out / 'monitor_trace.csv'}  the calibration in use: {rep.out / 'calibration_in_use.yaml'}")
     return "\n".join(lines)
+
+
+def alarm_lines(record: ShiftRecord) -> list[str]:
+    """One line per alarm: kind, local time, sample, what, and for a move what became of it."""
+    lines = []
+    for a in record.alarms:
+        if a["alarm"] == "moved":
+            then = a.get("relearnt")
+            outcome = (f"; {then['message']} ({then['time']}, sample {then['sample']})" if then
+                       else "; not re-learnt yet")
+            lines.append(f"  ALARM camera moved at {a['time']} (sample {a['sample']}): "
+                         f"{a['message'].split('; re-learn')[0]}{outcome}")
+        else:
+            lines.append(f"  ALARM {a['message']} ({a['time']}, sample {a['sample']})")
+    return lines

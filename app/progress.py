@@ -137,7 +137,7 @@ def show_monitor(bar, report) -> None:
     if bar is None or not hasattr(bar, "set_postfix_str"):
         return
     n = report.samples_until_armed
-    parts = ["armed" if n == 0 else f"armed after {n}"]
+    parts = ["testing" if n == 0 else f"testing in {n}"]
     if report.estimate_sigma is not None:
         parts.append(sigma_text(report.estimate_sigma))
     if report.drift is not None:

@@ -38,7 +38,7 @@ PLOT_CLASS = "plot"
 #: Id of the verdict block, the first thing on the page.
 VERDICT_ID = "verdict"
 
-_STYLE = """
+REPORT_STYLE = """
 body{font-family:system-ui,sans-serif;max-width:1100px;margin:1.5em auto;padding:0 1em;color:#222;line-height:1.35}
 h1{font-size:1.45em;margin:.8em 0 .2em}h2{font-size:1.15em;margin-top:1.8em;border-bottom:1px solid #ccc}
 .sub{color:#555;margin:0 0 1em}
@@ -62,7 +62,7 @@ figure.plot,tr,.verdict,.use{break-inside:avoid}figure.plot svg{max-height:120mm
 """
 
 
-def _svg(fig) -> str:
+def svg_of(fig) -> str:
     """A matplotlib figure as inline SVG (no XML header), closed afterwards."""
     import matplotlib.pyplot as plt
 
@@ -94,7 +94,7 @@ class _Raw(str):
     """A table cell that is HTML already (escaped where it was built)."""
 
 
-def _table(head: list[str] | None, rows: list[list], cls: str = "") -> str:
+def table(head: list[str] | None, rows: list[list], cls: str = "") -> str:
     """A table; ``head`` None: no header row; ``cls="kv"``: a two-column table of names and values."""
     cells = "" if head is None else "<tr>" + "".join(f"<th>{html.escape(str(h))}</th>" for h in head) + "</tr>"
     body = "".join("<tr>" + "".join(f"<td>{c if isinstance(c, _Raw) else html.escape(str(c))}</td>" for c in r)
@@ -157,7 +157,7 @@ def frames_plot(model, observations: list[Observation], verify_obs: list[Observa
     ax.set_zlabel("z [m]")
     ax.view_init(elev=22, azim=-60)
     ax.legend(fontsize=9, loc="upper left", bbox_to_anchor=(0.0, 1.02))
-    return _svg(fig)
+    return svg_of(fig)
 
 
 def coverage_plot(observations: list[Observation], verify_obs: list[Observation]) -> str:
@@ -175,7 +175,7 @@ def coverage_plot(observations: list[Observation], verify_obs: list[Observation]
         ax.grid(alpha=0.3)
     axs[0].legend(fontsize=8)
     fig.tight_layout()
-    return _svg(fig)
+    return svg_of(fig)
 
 
 def residual_plot(errors_mm: np.ndarray, ylabel: str, xlabel: str, tolerance_mm: float | None = None) -> str:
@@ -188,7 +188,7 @@ def residual_plot(errors_mm: np.ndarray, ylabel: str, xlabel: str, tolerance_mm:
     ax.set_xlabel(xlabel)
     ax.set_ylabel(ylabel)
     ax.grid(alpha=0.3, axis="y")
-    return _svg(fig)
+    return svg_of(fig)
 
 
 def ellipsoid_plot(cov_t_m: np.ndarray, parent: str) -> str:
@@ -210,7 +210,7 @@ def ellipsoid_plot(cov_t_m: np.ndarray, parent: str) -> str:
         ax.set_ylabel(f"d{'xyz'[j]} [mm] ({parent} frame)")
         ax.grid(alpha=0.3)
     fig.tight_layout()
-    return _svg(fig)
+    return svg_of(fig)
 
 
 def correction_plot(cc: dict) -> str:
@@ -225,7 +225,7 @@ def correction_plot(cc: dict) -> str:
     ax.axvline(0, color="k", lw=0.8)
     ax.set_xlabel("value ± 1-sigma (gray: not estimated, kept at zero)")
     ax.grid(alpha=0.3, axis="x")
-    return _svg(fig)
+    return svg_of(fig)
 
 
 def _param_label(name: str) -> str:
@@ -260,7 +260,7 @@ def write_report(directory: Path, *, result_doc: dict, observations: list[Observ
     parts += _correction_section(mdl)
     parts += _appendix(result_doc, mdl, verify_doc)
     page = ("<!DOCTYPE html><html lang=\"en\"><head><meta charset=\"utf-8\">"
-            f"<title>{html.escape(title)}</title><style>{_STYLE}</style></head><body>"
+            f"<title>{html.escape(title)}</title><style>{REPORT_STYLE}</style></head><body>"
             + "".join(parts) + "</body></html>\n")
     path = Path(directory) / REPORT_NAME
     path.write_text(page, encoding="utf-8")
@@ -318,7 +318,7 @@ def _cell_section(cell: dict, result_doc: dict) -> list[str]:
             ["handeye", f"{sw.get('handeye', unknown)} (commit {sw.get('commit', unknown)})"],
             ["written (local time)", cell.get("written") or unknown],
             ["samples from", result_doc.get("samples_from") or unknown]]
-    return ["<h2>Cell</h2>", _table(None, rows, "kv")]
+    return ["<h2>Cell</h2>", table(None, rows, "kv")]
 
 
 def _transform_section(result_doc: dict, verified: bool) -> list[str]:
@@ -354,7 +354,7 @@ def _transform_section(result_doc: dict, verified: bool) -> list[str]:
     if result_doc.get("which_transform"):
         parts.append(f'<p class="use">{html.escape(result_doc["which_transform"])}. The forms below are the one '
                      "to paste.</p>")
-    parts.append(_table(["form", "value"], rows, "kv"))
+    parts.append(table(["form", "value"], rows, "kv"))
     acc = result_doc.get("accuracy")
     summary = []
     if acc:
@@ -368,7 +368,7 @@ def _transform_section(result_doc: dict, verified: bool) -> list[str]:
         summary.append(["1-sigma per axis: rotation [deg]", " ".join(f"{v:.3f}" for v in cam["sigma_1"]["rotation_deg"])])
     summary.append(["residual RMS [mm] (marker point measured minus predicted, over the calibration samples)",
                     f"{result_doc['residuals']['rms_translation_mm']:.2f}"])
-    parts.append(_table(["accuracy", "value"], summary))
+    parts.append(table(["accuracy", "value"], summary))
     if not verified:
         parts.append('<p class="note">A verification on fresh poses (handeye verify) measures the error instead of '
                      "predicting it.</p>")
@@ -442,7 +442,7 @@ def _heldout_section(mdl: dict, verify_doc: dict | None) -> list[str]:
         v = verify_doc["verification"]
         rows.append([f"verification poses ({verify_doc['mode']}), observed RMS", f"{v['observed_mm']['rms']:.2f}",
                      "-" if v["measurement_noise_rms_mm"] is None else f"{v['measurement_noise_rms_mm']:.2f} (noise)"])
-    parts.append(_table(["prediction of samples not fitted (marker point)", "observed [mm]", "predicted [mm]"], rows)
+    parts.append(table(["prediction of samples not fitted (marker point)", "observed [mm]", "predicted [mm]"], rows)
                  if rows else "<p>no held-out prediction for this solver</p>")
     return parts
 
@@ -452,7 +452,7 @@ def _correction_section(mdl: dict) -> list[str]:
     cc = mdl.get("camera_correction")
     parts = ["<h2>Camera correction</h2>"]
     if cc:
-        parts.append(_table(["parameter", "value", "1-sigma", "estimated"],
+        parts.append(table(["parameter", "value", "1-sigma", "estimated"],
                             [[_param_label(k), f"{c['value']:+.3f}", f"{c['sigma']:.3f}",
                               "yes" if c["estimated"] else "no"] for k, c in cc.items()]))
         parts.append(_plot("camera correction", correction_plot(cc),
@@ -494,7 +494,7 @@ def _appendix(result_doc: dict, mdl: dict, verify_doc: dict | None) -> list[str]
     if verify_doc is not None and "truth" in verify_doc:
         rows.append(["true calibration error over the verification poses [mm] (simulator)",
                      f"{verify_doc['truth']['calibration_error_mm']:.2f}"])
-    parts = ["<h2>Appendix: statistics</h2>", _table(["quantity", "value"], rows, "kv")]
+    parts = ["<h2>Appendix: statistics</h2>", table(["quantity", "value"], rows, "kv")]
     notes = list(mdl.get("notes") or [])
     if notes:
         parts.append("<p>How the solver decided:</p><ul>" + "".join(f"<li>{html.escape(n)}</li>" for n in notes)
@@ -525,8 +525,8 @@ def _verification_table(doc: dict) -> str:
         rows.append(["ROS/URDF transform (camera_transform_raw_points, uncorrected points): calibration error [mm]",
                      f"{doc['rigid_export']['calibration_error_mm']:.2f}"])
     repeated = set(doc.get("repeated_calibration_poses") or [])
-    per = _table(["pose", "error [mm]", "error [deg]"],
+    per = table(["pose", "error [mm]", "error [deg]"],
                  [[f"{i}{' (repeats a calibration pose)' if i in repeated else ''}", f"{mm:.2f}",
                    "-" if dg is None else f"{dg:.3f}"]
                   for i, (mm, dg) in enumerate(zip(v["per_pose_mm"], v["per_pose_deg"] or [None] * v["n_poses"]))])
-    return _table(["quantity", "value"], rows) + per
+    return table(["quantity", "value"], rows) + per

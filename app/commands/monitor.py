@@ -6,13 +6,12 @@ The run is `app.runs.monitor` (read-only: it never commands a motion); this modu
 from __future__ import annotations
 
 import argparse
-import time
 from pathlib import Path
 
 import numpy as np
 
 from app.commands.common import add_run_options, load_config_args, pose_line
-from app.runs.monitor import MonitorReport, detector_state, monitor
+from app.runs.monitor import MonitorReport, monitor
 from calib import transforms as tf
 from calib.setup import Setup
 
@@ -38,40 +37,41 @@ def run(args) -> int:
 
 
 def print_monitor_summary(report: MonitorReport, setup: Setup = Setup.EYE_TO_HAND) -> None:
-    """Counts, detector state, live estimate with 1-sigma, drift and its rate, every alarm, the re-learnt camera."""
+    """The state of the cell in plain words first (`app.shift_record.ShiftRecord.status`), every alarm with its
+    local time and what became of it, the live estimate, the move since the cell's first calibration and the
+    drift since the calibration in use, then the counts and the files."""
+    from app.monitor_replay import alarm_lines
+
     cam = Setup(setup).camera_name
-    print(f"\nsession: {report.session}")
-    print(f"samples: {report.n_samples}   skipped: {report.n_skipped}   alarms: {len(report.alarms)}   "
-          f"time: {report.elapsed_s:.1f} s   change detector: {detector_state(report.samples_until_armed)}")
-    if report.estimate is None:
-        print("  estimate: none yet (the monitoring engine is not armed: give --reference, or it arms itself "
-              "once auto determines the camera from the samples)")
+    record = report.record
+    if report.estimate is None or record is None or record.last is None:
+        print("\nNOT WATCHING: the monitoring engine was never armed: give --reference (a calibration session, or a "
+              "previous monitoring run), or let it see enough distinct poses to calibrate itself")
     else:
-        line = f"  estimate {cam}: {pose_line(report.estimate)}"
+        level, sentence = record.status()
+        print(f"\n{level.upper()}: {sentence}")
+        for line in alarm_lines(record):
+            print(line)
+        line = f"  live {cam}: {pose_line(report.estimate)}"
         if report.estimate_sigma is not None:
             line += f"  1-sigma {report.estimate_sigma[1] * 1e3:.2f} mm {np.rad2deg(report.estimate_sigma[0]):.3f} deg"
         print(line)
-    u = report.last
-    if report.drift is not None and u is not None:
-        rate = "" if u.drift_rate_mm_h is None else f"  rate {u.drift_rate_mm_h:.2f} mm/h {u.drift_rate_deg_h:.3f} deg/h"
-        print(f"  drift vs. reference: {report.drift[0]:.2f} mm  {report.drift[1]:.3f} deg{rate}   "
-              f"live 1-sigma over the workspace {u.sigma_mm:.2f} mm   last verification {u.verify_mm:.2f} mm")
-    for a in report.alarms:
-        when = time.strftime('%H:%M:%S', time.localtime(a.t))
-        if a.kind == "moved":
-            print(f"  ALARM camera moved at sample {a.sample_index} ({when}, "
-                  f"GLR statistic {a.info.get('statistic', float('nan')):.1f})")
-        else:
-            print(f"  ALARM camera drifting at sample {a.sample_index} ({when}): {a.info.get('message', '')}")
-    if report.last_alarm is None:
-        print("  last alarm: none")
-    if report.reestimate is not None:
-        print(f"  re-estimate after the move (re-learnt from the production stops): "
-              f"{pose_line(report.reestimate.camera_transform)}")
+        u = report.last
+        mm, deg = record.moved_total
+        rate = "" if u.drift_rate_mm_h is None else f" at {u.drift_rate_mm_h:.2f} mm/h"
+        print(f"  moved since the cell's first calibration: {mm:.2f} mm / {deg:.3f} deg; drift since the calibration "
+              f"in use: {u.drift_mm:.2f} mm / {u.drift_deg:.3f} deg{rate}; predicted error {u.error_mm:.2f} mm; "
+              f"last verification {u.verify_mm:.2f} mm")
     if report.truth is not None and report.estimate is not None:
         rot, trans = tf.pose_error(report.estimate, report.truth)
-        print(f"  simulated camera now: {pose_line(report.truth)}  live estimate {trans * 1e3:.2f} mm / "
-              f"{np.rad2deg(rot):.3f} deg from it")
+        print(f"  simulator: the true camera is {trans * 1e3:.2f} mm / {np.rad2deg(rot):.3f} deg from the live estimate")
+    watching = "the moved test runs" if report.samples_until_armed == 0 else \
+        f"the moved test runs from {report.samples_until_armed} more samples"
+    print(f"  {report.n_samples} samples, {report.n_skipped} skipped, {report.elapsed_s:.0f} s; {watching}")
+    print(f"\nsession: {report.session}")
+    for name in ("report.html", "alarms.yaml", "calibration_in_use.yaml"):
+        if report.session is not None and (report.session / name).exists():
+            print(f"  {name}: {report.session / name}")
     if report.session is not None and (report.session / "recording.rrd").exists():
         from app.viz import open_command
 

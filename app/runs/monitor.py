@@ -41,6 +41,7 @@ from app.outage import OutageEvent, Reconnecting
 from app.production import Bump, start_production
 from app.progress import progress_bar, say, show_monitor
 from app.session import SessionWriter
+from app.shift_record import ShiftRecord
 from app.viz import Viz
 from calib import transforms as tf
 from calib.errors import CalibrationError
@@ -98,6 +99,9 @@ class MonitorReport:
         Indices of the bounded estimation set at the end.
     last : MonitorUpdate or None
         The engine's latest figures (drift rate, running verification, level).
+    record : ShiftRecord or None
+        The timeline, every alarm with what became of it, the outages (`app.shift_record`: the session's
+        ``alarms.yaml``, ``monitor_trace.png`` and ``report.html``, written at every alarm and at the end).
     truth : ndarray (4, 4) or None
         A simulated camera's true camera transform at the end (None for a real one).
     """
@@ -116,6 +120,7 @@ class MonitorReport:
     kept: list[int] = field(default_factory=list)
     last: MonitorUpdate | None = None
     truth: np.ndarray | None = None
+    record: ShiftRecord | None = None
 
     @property
     def last_alarm(self) -> Alarm | None:
@@ -127,8 +132,8 @@ class MonitorReport:
 
 
 def detector_state(n: int) -> str:
-    """``"armed"`` or ``"armed after N more samples"``."""
-    return "armed" if n == 0 else f"armed after {n} more sample{'s' if n != 1 else ''}"
+    """When the *moved* test runs, in words: ``"testing every sample"`` or ``"testing from N more samples"``."""
+    return "testing every sample" if n == 0 else f"testing from {n} more sample{'s' if n != 1 else ''}"
 
 
 def monitor(cfg: Config, *, reference: Path | None = None, stop=None, progress: bool = True,
@@ -181,6 +186,7 @@ def monitor(cfg: Config, *, reference: Path | None = None, stop=None, progress: 
             publisher.session = str(writer.path)
         with writer, devices.make_viz(cfg, writer.path) as viz, progress_bar(enabled=progress) as bar:
             outages.writer, outages.viz = writer, viz
+            outages.shift = ShiftRecord(cfg.setup, str(writer.path), str(reference or ""))
             seen = []
 
             def on_sample(obs):
@@ -210,7 +216,7 @@ def monitor(cfg: Config, *, reference: Path | None = None, stop=None, progress: 
             report = run_monitor(robot, camera, devices.make_measure(cfg), engine, solve, writer, cfg.monitor,
                                  viz, stop=stop, save_frames=cfg.session.save_frames, on_sample=on_sample,
                                  on_update=on_update, say=say, shared_error=robot.shared_error_factor,
-                                 frames=cfg.frames.model_dump(), on_error=on_error)
+                                 frames=cfg.frames.model_dump(), on_error=on_error, record=outages.shift)
             outages.record_broker(publisher)
             report.truth = devices.camera_truth(cfg.setup, devices.truth(camera))
             return report
@@ -232,6 +238,7 @@ class _OutageLog:
     publish: Callable[[OutageEvent], None] | None = None
     writer: SessionWriter | None = None
     viz: Viz | None = None
+    shift: ShiftRecord | None = None
 
     def __call__(self, event: OutageEvent) -> None:
         say(event.message())
@@ -252,6 +259,8 @@ class _OutageLog:
                                                            if k not in ("t", "event")})
         if self.viz is not None:
             self.viz.event(event.t, event.message(), "WARN" if event.event != "outage_end" else "INFO")
+        if self.shift is not None and event.event in ("outage_start", "outage_end"):
+            self.shift.outage(event.t, event.device, event.event, event.message())
 
 
 def is_diverse(T: np.ndarray, recent, min_translation_m: float, min_rotation_deg: float) -> bool:
@@ -326,6 +335,7 @@ def run_monitor(
     shared_error=None,
     frames: dict | None = None,
     on_error: Callable[[Observation, str], None] | None = None,
+    record: ShiftRecord | None = None,
 ) -> MonitorReport:
     """Passive run until ``cfg.max_samples``, ``cfg.duration_s``, ``stop`` or Ctrl-C.
 
@@ -354,6 +364,9 @@ def run_monitor(
         ``[frames]`` names for ``calibration_in_use.yaml``.
     on_error : callable(obs, message), optional
         Told of an unexpected error at a sample before the run ends with `MonitorError` (the MQTT publisher).
+    record : ShiftRecord, optional
+        Where the timeline, the alarms and the outages go (a new one by default); written into the session
+        (``alarms.yaml``, ``monitor_trace.png``, ``report.html``) at every alarm and at the end.
 
     Raises
     ------
@@ -361,9 +374,10 @@ def run_monitor(
         An unexpected error at a sample (recorded in the session first, with the sample).
     """
     t0 = time.monotonic()
+    report = MonitorReport(writer.path, 0, 0, record=record or ShiftRecord(engine.reference.setup if engine.armed
+                                                                         else writer.header["setup"], str(writer.path)))
     run = _PassiveRun(robot, camera, measure, engine, solve, writer, cfg, viz, save_frames, on_sample, on_update,
-                      say, shared_error, MonitorReport(writer.path, 0, 0), calibration_in_use.InUseFile(writer.path, frames),
-                      on_error)
+                      say, shared_error, report, calibration_in_use.InUseFile(writer.path, frames), on_error)
     run.in_use.armed(engine, time.time())
     report = run.report
     report.samples_until_armed = _until_armed(engine, run.kept, cfg)
@@ -386,6 +400,7 @@ def run_monitor(
         # Stopped while waiting for a device: a normal end, every sample kept.
     report.elapsed_s = time.monotonic() - t0
     run.in_use.end(engine, time.time())
+    report.record.write(writer.path)
     report.kept = [o.index for o in run.kept]
     writer.add_event(time.time(), "sample_set", indices=report.kept, keep_samples=cfg.keep_samples,
                      frames_pruned=writer.frames_pruned)
@@ -478,6 +493,7 @@ class _PassiveRun:
             self.on_error(obs, message)
         if self.engine.armed and is_sound(self.engine.filter):
             self.in_use.write(self.engine, time.time(), "before an unexpected error")
+        self.report.record.write(self.writer.path)
         raise MonitorError(message) from error
 
     def keep(self, obs: Observation) -> None:
@@ -505,7 +521,7 @@ class _PassiveRun:
         before = self.report.samples_until_armed
         self.report.samples_until_armed = _until_armed(self.engine, self.kept, self.cfg)
         if before and not self.report.samples_until_armed:
-            self.say(f"change detector: armed (sample {obs.index})")
+            self.say(f"change detector: testing every sample from sample {obs.index} on")
         return update
 
 
@@ -520,6 +536,7 @@ def _update(engine: MonitorEngine, obs: Observation, shared_error, report: Monit
         writer.add_skip(obs.t, f"monitoring engine: {e}", T_base_flange=obs.T_base_flange)
         return None
     report.last = upd
+    report.record.add(obs.index, upd, engine)
     report.estimate, report.estimate_cov = upd.camera_transform, upd.cov
     report.estimate_sigma = worst_axis_sigma(upd.cov)
     report.drift = (upd.drift_mm, upd.drift_deg)
@@ -527,12 +544,14 @@ def _update(engine: MonitorEngine, obs: Observation, shared_error, report: Monit
     viz.drift(obs.t, upd.drift_mm, upd.drift_deg)
     if upd.alarm:
         _raise_alarm(report, obs, upd, writer, viz, cfg)
+        report.record.write(writer.path)        # a plant reads alarms.yaml and the report as the alarm happens
     if upd.state == EngineState.RELEARNING and upd.message and not upd.alarm:
         log.info("sample %d: %s", obs.index, upd.message)
     if upd.message.startswith("re-learnt") or "; re-learnt" in upd.message:
         report.reestimate = engine.result()
         writer.add_event(obs.t, "relearnt", sample_index=obs.index, T_camera=upd.camera_transform.tolist(),
                          message=upd.message)
+        report.record.write(writer.path)        # the alarm's outcome, true when read
         viz.event(obs.t, upd.message, "WARN")
         say(upd.message.split("; ")[-1])
     return upd

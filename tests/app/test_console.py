@@ -32,7 +32,7 @@ def test_progress_bar_off_a_terminal_is_line_mode_and_carries_the_monitor_state(
             bar.update(1)
             show_monitor(bar, Report())
     out, err = capsys.readouterr()
-    state = "armed, 1σ 0.80 mm 0.057°, drift 1.5 mm 0.02°, ALARMS 1"
+    state = "testing, 1σ 0.80 mm 0.057°, drift 1.5 mm 0.02°, ALARMS 1"
     assert out.splitlines() == [f"samples: {n} | {state}" for n in (2, 4)]
     assert "\r" not in out + err
     with progress_bar(mode="lines", enabled=False) as bar:

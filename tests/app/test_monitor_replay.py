@@ -3,6 +3,7 @@
 import csv
 import dataclasses
 import json
+import re
 
 import numpy as np
 import yaml
@@ -65,7 +66,13 @@ def test_replay_monitor_finds_the_bump_and_writes_the_trace_into_out(tmp_path, c
     rc = main(["replay", str(prod), "--monitor", "--reference", str(cal), "--out", str(out)])
     text = capsys.readouterr().out
     assert rc == 3
-    assert "MOVED at sample" in text and "re-learnt the camera" in text and str(out / "monitor_trace.csv") in text
+    lines = text.splitlines()
+    # The state at the end first, then each alarm with its local ISO time and what became of it.
+    assert lines[0].startswith("OK: calibrated and quiet") and "since the cell's first calibration" in lines[0]
+    moved_line = next(line for line in lines if line.startswith("  ALARM camera moved at "))
+    assert re.search(r"at \d{4}-\d\d-\d\dT\d\d:\d\d:\d\d[+-]\d\d:\d\d \(sample \d+\)", moved_line), moved_line
+    assert "; re-learnt the camera" in moved_line and str(out / "monitor_trace.csv") in text
+    assert (out / "report.html").exists() and (out / "monitor_trace.png").exists()
     rows = _trace(out)
     assert tuple(rows[0].keys()) == TRACE_COLUMNS and set(ISSUE_COLUMNS) <= set(TRACE_COLUMNS)
     assert len(rows) == len(s.t)
@@ -78,6 +85,10 @@ def test_replay_monitor_finds_the_bump_and_writes_the_trace_into_out(tmp_path, c
     alarms = yaml.safe_load((out / "alarms.yaml").read_text())
     assert alarms["camera_transform"] == "T_base_cam"
     assert [a["sample"] for a in alarms["alarms"] if a["alarm"] == "moved"] == moved
+    # True when read: the move's alarm says it was re-learnt, when and by how much (not "re-learning... needs 6").
+    (alarm,) = [a for a in alarms["alarms"] if a["alarm"] == "moved"]
+    assert alarm["relearnt"]["message"].startswith("re-learnt the camera") and alarm["relearnt"]["sample"] >= moved[0]
+    assert re.fullmatch(r"\d{4}-\d\d-\d\dT\d\d:\d\d:\d\d[+-]\d\d:\d\d", alarm["time"])
     assert (out / "monitor_trace.png").stat().st_size > 10_000
     assert not (prod / "monitor_replay").exists()
     # The trace's camera transform before and after the bump differs by about the bump.

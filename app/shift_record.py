@@ -1,0 +1,193 @@
+"""What a monitoring run leaves for the plant: ``alarms.yaml``, ``monitor_trace.png`` and a shift ``report.html``.
+
+Shared by the live ``monitor`` (written into its session at every alarm and
+at its end) and ``replay --monitor`` (into ``--out``). `ShiftRecord` keeps,
+bounded, the per-sample figures the timeline needs, every alarm with what
+became of it (a *moved* alarm's re-learn: when, and how far the camera
+moved), and the device outages.
+
+Times shown to people are local ISO 8601 (`app.calibration_in_use.local_time`).
+The camera transform is ``T_base_cam`` eye-to-hand, ``T_flange_cam``
+eye-in-hand. Two distances are kept apart: the *drift* is how far the camera
+has walked since the calibration in use (the arming one, then each re-learnt
+one), the *move since the first calibration* how far the live estimate is
+from the cell's first calibration (it steps at a bump and stays).
+"""
+
+from __future__ import annotations
+
+import collections
+import html
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+import yaml
+
+from app.calibration_in_use import local_time
+from calib.monitor import AlarmLevel, EngineState, MonitorEngine, MonitorUpdate
+from calib.setup import Setup
+
+#: Samples of the timeline kept (the newest; months of monitoring stay bounded).
+MAX_ROWS = 20_000
+#: Alarms and outages kept in the record (the newest).
+MAX_EVENTS = 2_000
+ALARMS_FILE = "alarms.yaml"
+PLOT_FILE = "monitor_trace.png"
+REPORT_FILE = "report.html"
+
+
+@dataclass
+class ShiftRecord:
+    """The figures of a monitoring run for ``alarms.yaml``, the plot and the shift report (module docstring)."""
+
+    setup: Setup
+    source: str = ""
+    reference: str = ""
+    rows: collections.deque = field(default_factory=lambda: collections.deque(maxlen=MAX_ROWS))
+    alarms: collections.deque = field(default_factory=lambda: collections.deque(maxlen=MAX_EVENTS))
+    outages: collections.deque = field(default_factory=lambda: collections.deque(maxlen=MAX_EVENTS))
+    n_samples: int = 0
+    last: MonitorUpdate | None = None
+    moved_total: tuple[float, float] = (0.0, 0.0)
+
+    def add(self, sample: int, upd: MonitorUpdate, engine: MonitorEngine) -> None:
+        """One engine update of session sample ``sample``."""
+        self.n_samples += 1
+        self.last = upd
+        self.moved_total = engine.moved_since(engine.origin)
+        self.rows.append((upd.t, upd.drift_mm, upd.verify_mm, upd.sigma_mm, self.moved_total[0], str(upd.alarm)))
+        if upd.alarm:
+            self.alarms.append({"sample": sample, "time": local_time(upd.t), "t": float(upd.t),
+                                "alarm": str(upd.alarm), "message": upd.message})
+        if "re-learnt the camera" in upd.message:
+            moved = next((a for a in reversed(self.alarms) if a["alarm"] == AlarmLevel.MOVED), None)
+            if moved is not None and "relearnt" not in moved:
+                moved["relearnt"] = {"sample": sample, "time": local_time(upd.t),
+                                     "message": upd.message.split("; ")[-1]}
+
+    def outage(self, t: float, device: str, event: str, message: str) -> None:
+        self.outages.append({"time": local_time(t), "t": float(t), "device": device, "event": event,
+                             "message": message})
+
+    # -------------------------------------------------------------- what it says
+
+    def status(self) -> tuple[str, str]:
+        """``(level, sentence)``: the cell's state now, for the report's first line: ``ok``, ``drifting``,
+        ``moved`` (re-learning) or ``unknown`` (no sample)."""
+        u = self.last
+        if u is None:
+            return "unknown", "no sample reached the monitoring engine"
+        mm, deg = self.moved_total
+        since = f"the camera has moved {mm:.1f} mm / {deg:.2f} deg since the cell's first calibration"
+        if u.state == EngineState.RELEARNING:
+            return "moved", f"the camera moved and is being re-learnt from the production stops: {u.message}"
+        if u.level == AlarmLevel.DRIFTING:
+            return "drifting", (f"the camera is drifting: {u.drift_mm:.2f} mm over the workspace since the "
+                                f"calibration in use (predicted error {u.error_mm:.2f} mm); {since}")
+        moved = [a for a in self.alarms if a["alarm"] == AlarmLevel.MOVED]
+        relearnt = f"; re-learnt after {len(moved)} move{'s' if len(moved) != 1 else ''} this run" if moved else ""
+        return "ok", (f"calibrated and quiet: predicted error {u.error_mm:.2f} mm over the workspace, last "
+                      f"verification {u.verify_mm:.2f} mm; {since}{relearnt}")
+
+    def alarms_document(self) -> dict:
+        return {"setup": str(self.setup), "camera_transform": Setup(self.setup).camera_name,
+                "session": self.source, "reference": self.reference, "alarms": list(self.alarms),
+                "outages": list(self.outages)}
+
+    # -------------------------------------------------------------- files
+
+    def write(self, directory: Path, *, plot: bool = True, report: bool = True) -> None:
+        """``alarms.yaml``, and (when there are samples) the plot and the shift report, into ``directory``."""
+        directory = Path(directory)
+        (directory / ALARMS_FILE).write_text(yaml.safe_dump(self.alarms_document(), sort_keys=False, width=1000))
+        if not self.rows:
+            return
+        if plot:
+            fig = self._figure(figsize=(10, 4))
+            fig.savefig(directory / PLOT_FILE, dpi=100)
+            import matplotlib.pyplot as plt
+
+            plt.close(fig)
+        if report:
+            (directory / REPORT_FILE).write_text(self._report(), encoding="utf-8")
+
+    def _figure(self, figsize):
+        import matplotlib
+
+        matplotlib.use("Agg")
+        import matplotlib.pyplot as plt
+
+        t, drift, verify, sigma, total, alarm = zip(*self.rows)
+        t_h = (np.array(t) - t[0]) / 3600.0
+        cam = Setup(self.setup).camera_name
+        fig, ax = plt.subplots(figsize=figsize)
+        ax.plot(t_h, verify, ".", ms=2, color="0.6", label="verification: prediction error before fusing [mm]")
+        ax.plot(t_h, total, lw=1.4, color="C3", label=f"{cam}: move since the cell's first calibration [mm]")
+        ax.plot(t_h, drift, lw=1.2, color="C0", label="drift since the calibration in use [mm]")
+        ax.plot(t_h, sigma, lw=1.0, color="C2", label="live 1-sigma over the workspace [mm]")
+        for x, a in zip(t_h, alarm):
+            if a:
+                ax.axvline(x, color="r" if a == AlarmLevel.MOVED else "orange", ls="--", lw=0.8)
+        t0 = t[0]
+        for o in self.outages:
+            if o["event"] == "outage_start":
+                ax.axvline((o["t"] - t0) / 3600.0, color="0.3", ls=":", lw=0.8)
+        ax.set_xlabel(f"hours since {local_time(t0)}")
+        ax.set_ylabel("mm")
+        ax.set_title("monitoring (red: moved, orange: drifting, dotted: device outage)")
+        ax.legend(fontsize=7)
+        fig.tight_layout()
+        return fig
+
+    def _report(self) -> str:
+        """The shift report: the state now, the timeline, the alarms with their outcome, the outages, the live
+        camera transform; self-contained, prints on A4 or Letter."""
+        from app.report import REPORT_STYLE, svg_of, table
+
+        level, sentence = self.status()
+        css = {"ok": "pass", "drifting": "warn", "moved": "fail", "unknown": "warn"}[level]
+        t = [r[0] for r in self.rows]
+        cam = Setup(self.setup).camera_name
+        parts = [f'<div class="verdict {css}" id="verdict"><span class="level">{level.upper()}</span>'
+                 f"{html.escape(sentence)}</div>",
+                 "<h1>handeye monitoring report</h1>",
+                 f'<p class="sub">{html.escape(str(self.setup).replace("_", "-"))} · {self.n_samples} samples from '
+                 f"{html.escape(local_time(t[0]))} to {html.escape(local_time(t[-1]))}"
+                 + (f" · {html.escape(self.source)}" if self.source else "") + "</p>",
+                 "<h2>Timeline</h2>", f'<figure class="plot">{svg_of(self._figure(figsize=(10, 4.2)))}'
+                 "<figcaption>the move since the cell's first calibration steps at a bump and stays; the drift "
+                 "is the camera's walk since the calibration in use (back to zero at a re-learn)</figcaption>"
+                 "</figure>"]
+        rows = []
+        for a in self.alarms:
+            outcome = a.get("relearnt", {}).get("message", "") if a["alarm"] == AlarmLevel.MOVED else ""
+            if a["alarm"] == AlarmLevel.MOVED and not outcome:
+                outcome = "not re-learnt yet"
+            rows.append([a["time"], a["sample"], a["alarm"], a["message"].split("; re-learn")[0], outcome])
+        parts += ["<h2>Alarms</h2>", table(["time", "sample", "alarm", "what", "then"], rows) if rows
+                  else "<p>none</p>"]
+        outages = [[o["time"], o["device"], o["event"].replace("_", " "), o["message"]] for o in self.outages]
+        parts += ["<h2>Device outages</h2>", table(["time", "device", "event", "message"], outages) if outages
+                  else "<p>none</p>"]
+        u = self.last
+        if u is not None:
+            from calib import transforms as tf
+
+            xyz, quat = tf.to_xyz_quat(u.camera_transform)
+            rate = "not yet measured" if u.drift_rate_mm_h is None else f"{u.drift_rate_mm_h:.2f} mm/h"
+            kv = [[f"live {cam}: xyz [mm]", " ".join(f"{v * 1e3:.2f}" for v in xyz)],
+                  ["quaternion (x, y, z, w)", " ".join(f"{v:.5f}" for v in quat)],
+                  ["move since the cell's first calibration", f"{self.moved_total[0]:.2f} mm / "
+                                                               f"{self.moved_total[1]:.3f} deg"],
+                  ["drift since the calibration in use", f"{u.drift_mm:.2f} mm / {u.drift_deg:.3f} deg, {rate}"],
+                  ["predicted error of the calibration in use", f"{u.error_mm:.2f} mm"],
+                  ["live 1-sigma over the workspace", f"{u.sigma_mm:.2f} mm"],
+                  ["last verification (prediction before fusing)", f"{u.verify_mm:.2f} mm"]]
+            parts += ["<h2>The camera now</h2>", table(None, kv, "kv"),
+                      "<p class=\"note\">the whole result with every export: calibration_in_use.yaml beside this "
+                      "report</p>"]
+        title = "handeye monitoring report"
+        return ("<!DOCTYPE html><html lang=\"en\"><head><meta charset=\"utf-8\">"
+                f"<title>{title}</title><style>{REPORT_STYLE}</style></head><body>" + "".join(parts)
+                + "</body></html>\n")
