@@ -25,6 +25,7 @@ import numpy as np
 import yaml
 
 from app.calibration_in_use import local_time
+from app.page import REPORT_STYLE, svg_of, table
 from calib.monitor import AlarmLevel, EngineState, MonitorEngine, MonitorUpdate
 from calib.setup import Setup
 
@@ -143,7 +144,6 @@ class ShiftRecord:
     def _report(self) -> str:
         """The shift report: the state now, the timeline, the alarms with their outcome, the outages, the live
         camera transform; self-contained, prints on A4 or Letter."""
-        from app.report import REPORT_STYLE, svg_of, table
 
         level, sentence = self.status()
         css = {"ok": "pass", "drifting": "warn", "moved": "fail", "unknown": "warn"}[level]
