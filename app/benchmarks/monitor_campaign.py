@@ -146,7 +146,7 @@ class ProgramDriver:
             r.samples += 1
             if r.samples == RELEARN_WITHIN:
                 self.stuck.append(f"still re-learning {RELEARN_WITHIN} samples after {len(r.stops)} stops were "
-                                  f"seen: {upd.message}")
+                                  f"seen: {upd.message}; the last steps:\n" + "\n".join(self.history))
 
     def observe(self, stop: int, upd) -> None:
         w = self.watch
