@@ -13,6 +13,7 @@ import numpy as np
 from app.commands.common import add_run_options, load_config_args, pose_line
 from app.runs.monitor import MonitorReport, monitor
 from calib import transforms as tf
+from calib.monitor import EngineState
 from calib.setup import Setup
 
 NAME = "monitor"
@@ -65,8 +66,12 @@ def print_monitor_summary(report: MonitorReport, setup: Setup = Setup.EYE_TO_HAN
     if report.truth is not None and report.estimate is not None:
         rot, trans = tf.pose_error(report.estimate, report.truth)
         print(f"  simulator: the true camera is {trans * 1e3:.2f} mm / {np.rad2deg(rot):.3f} deg from the live estimate")
-    watching = "the moved test runs" if report.samples_until_armed == 0 else \
-        f"the moved test runs from {report.samples_until_armed} more samples"
+    if record is not None and record.last is not None and record.last.state == EngineState.RELEARNING:
+        watching = "the moved test waits for the re-learn"
+    elif report.samples_until_armed == 0:
+        watching = "the moved test runs"
+    else:
+        watching = f"the moved test runs from {report.samples_until_armed} more samples"
     print(f"  {report.n_samples} samples, {report.n_skipped} skipped, {report.elapsed_s:.0f} s; {watching}")
     print(f"\nsession: {report.session}")
     for name in ("report.html", "alarms.yaml", "calibration_in_use.yaml"):
