@@ -11,5 +11,5 @@ EngineMachine = engine_machine()
 
 TestEngineMachine = EngineMachine.TestCase
 TestEngineMachine.settings = settings(max_examples=int(os.environ.get("HANDEYE_CAMPAIGN_EXAMPLES", "25")),
-                                      stateful_step_count=25, deadline=None,
+                                      stateful_step_count=25, deadline=None, derandomize=True, database=None,
                                       suppress_health_check=[HealthCheck.too_slow, HealthCheck.filter_too_much])
