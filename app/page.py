@@ -14,6 +14,7 @@ h1{font-size:1.45em;margin:.8em 0 .2em}h2{font-size:1.15em;margin-top:1.8em;bord
 table{border-collapse:collapse;margin:.5em 0}td,th{border:1px solid #ccc;padding:.25em .6em;text-align:right;
 vertical-align:top}th{background:#f3f3f3}td:first-child,th:first-child{text-align:left}
 table.kv td:nth-child(2),table.kv th{text-align:left}table:not(.kv) td:not(:first-child){white-space:nowrap}
+table.log td{white-space:normal;text-align:left}
 pre,code{font-family:ui-monospace,Menlo,Consolas,monospace;font-size:.88em}
 pre{margin:0;white-space:pre-wrap;overflow-wrap:anywhere}
 .verdict{border-radius:6px;padding:.7em 1em;margin:0 0 .5em;border-left:10px solid}
@@ -47,7 +48,8 @@ class Raw(str):
 
 
 def table(head: list[str] | None, rows: list[list], cls: str = "") -> str:
-    """A table; ``head`` None: no header row; ``cls="kv"``: a two-column table of names and values."""
+    """A table; ``head`` None: no header row; ``cls="kv"``: a two-column table of names and values;
+    ``cls="log"``: rows of sentences (alarms, outages) that wrap."""
     cells = "" if head is None else "<tr>" + "".join(f"<th>{html.escape(str(h))}</th>" for h in head) + "</tr>"
     body = "".join("<tr>" + "".join(f"<td>{c if isinstance(c, Raw) else html.escape(str(c))}</td>" for c in r)
                    + "</tr>" for r in rows)

@@ -165,10 +165,10 @@ class ShiftRecord:
             if a["alarm"] == AlarmLevel.MOVED and not outcome:
                 outcome = "not re-learnt yet"
             rows.append([a["time"], a["sample"], a["alarm"], a["message"].split("; re-learn")[0], outcome])
-        parts += ["<h2>Alarms</h2>", table(["time", "sample", "alarm", "what", "then"], rows) if rows
+        parts += ["<h2>Alarms</h2>", table(["time", "sample", "alarm", "what", "then"], rows, "log") if rows
                   else "<p>none</p>"]
         outages = [[o["time"], o["device"], o["event"].replace("_", " "), o["message"]] for o in self.outages]
-        parts += ["<h2>Device outages</h2>", table(["time", "device", "event", "message"], outages) if outages
+        parts += ["<h2>Device outages</h2>", table(["time", "device", "event", "message"], outages, "log") if outages
                   else "<p>none</p>"]
         u = self.last
         if u is not None:

@@ -20,8 +20,9 @@ from typing import Annotated
 import numpy as np
 from pydantic import Field, model_validator
 from scipy.linalg.lapack import dposv
-from scipy.stats import chi2
+from scipy.stats import chi2, ncx2
 
+from calib.errors import CalibrationError
 from calib.params import Float, Int, Params
 
 #: The detector's long window is tested every this many samples.
@@ -174,3 +175,59 @@ def _glr(Fg, offset_var=None, shared_var=0.0):
         F = F + shared_var * G.dot(G.T)
     _, x, info = dposv(F, g)
     return float(g.dot(x)) if info == 0 else 0.0
+
+
+def move_information(H, R, visits, baseline) -> np.ndarray:
+    """Information (6, 6) on a rigid move of the camera transform from a window of samples at repeated stops.
+
+    The detection limit's model: noise known, the move's onset known, and each
+    stop's marker point compared with the mean of its ``baseline`` visits from
+    before the move, so that what the visits of a stop share (the
+    calibration's systematic error there) cancels. Stop ``j``'s ``visits``
+    samples in the window average to a point whose change has covariance
+    ``R_j (1 / m_j + 1 / n_j)``; the move ``delta`` shows in it as ``H_j delta``.
+
+    Parameters
+    ----------
+    H : array_like, shape (S, 3, 6)
+        Each stop's marker point Jacobian w.r.t. the camera transform
+        (left perturbation ``[rotation, translation]``, rad and m, as `calib.result`).
+    R : array_like, shape (S, 3, 3)
+        The covariance of one sample's point at each stop, m^2.
+    visits : array_like of int, shape (S,)
+        Samples of each stop in the window (stops with none add nothing).
+    baseline : array_like of int, shape (S,)
+        Visits of each stop before the move (stops with none add nothing).
+
+    Returns
+    -------
+    N : ndarray, shape (6, 6)
+        ``sum_j H_j^T (R_j (1/m_j + 1/n_j))^-1 H_j``; ``delta^T N delta`` is the
+        non-centrality of the GLR statistic ``g^T N^-1 g`` (chi-square, 6 dof).
+    """
+    H = np.asarray(H, dtype=float)
+    R = np.asarray(R, dtype=float)
+    m = np.asarray(visits, dtype=float)
+    n = np.asarray(baseline, dtype=float)
+    S = len(H)
+    if H.shape != (S, 3, 6) or R.shape != (S, 3, 3) or m.shape != (S,) or n.shape != (S,):
+        raise CalibrationError(f"move_information needs H (S, 3, 6), R (S, 3, 3), visits and baseline (S,); got "
+                               f"{H.shape}, {R.shape}, {m.shape}, {n.shape}")
+    if not (np.all(np.isfinite(H)) and np.all(np.isfinite(R)) and np.all(m >= 0) and np.all(n >= 0)):
+        raise CalibrationError("move_information needs finite H and R and visit counts >= 0")
+    used = (m > 0) & (n > 0)
+    N = np.zeros((6, 6))
+    for Hj, Rj, mj, nj in zip(H[used], R[used], m[used], n[used]):
+        N += Hj.T @ np.linalg.solve(Rj * (1.0 / mj + 1.0 / nj), Hj)
+    return N
+
+
+def detection_power(N, delta, threshold: float) -> float:
+    """Probability that the GLR statistic of a window with information ``N`` (`move_information`) exceeds
+    ``threshold`` when the camera moved by ``delta`` (6,): ``P(chi2_6(delta^T N delta) > threshold)``."""
+    N = np.asarray(N, dtype=float)
+    delta = np.asarray(delta, dtype=float)
+    if N.shape != (6, 6) or delta.shape != (6,) or not threshold > 0:
+        raise CalibrationError(f"detection_power needs N (6, 6), delta (6,) and threshold > 0; got {N.shape}, "
+                               f"{delta.shape}, {threshold}")
+    return float(ncx2.sf(threshold, 6, max(float(delta @ N @ delta), 1e-12)))

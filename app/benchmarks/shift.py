@@ -155,7 +155,7 @@ def section_split(seeds: list[int], settings: MonitorSettings, hours: float = 4.
         rows.append([seed, sum(not second[i] for i in moved), sum(second[i] for i in moved), f"{run.bound_mm:.2f}",
                      f"{np.percentile(run.error_mm[second], 95):.2f}",
                      "yes" if np.percentile(run.error_mm[second], 95) <= run.bound_mm else "no"])
-    return _md(["seed", "moved alarms, first run", "moved alarms, second run", "bound [mm]",
+    return markdown(["seed", "moved alarms, first run", "moved alarms, second run", "bound [mm]",
                 "second run live p95 [mm]", "within"], rows)
 
 
@@ -191,6 +191,19 @@ def summarize(run: SeedRun) -> dict:
     }
 
 
+def eye_in_hand_armed(seed: int, settings: MonitorSettings):
+    """An eye-in-hand `calib.simulate.realistic_cell` of 34 poses, ``auto`` from the first 30, and the engine armed
+    from it: ``(cell, result, engine, rng)`` (``rng`` goes on to draw the shift)."""
+    rng = np.random.default_rng([seed, 3])
+    cell = simulate.realistic_cell(34, rng, setup="eye_in_hand")
+    problem = CalibrationProblem.from_arrays(cell.A[:30], cell.points[:30], setup="eye_in_hand",
+                                             point_cov=cell.point_cov[:30])
+    res = solve("auto", problem, rng=rng)
+    engine = MonitorEngine(settings)
+    engine.arm(res, problem)
+    return cell, res, engine, rng
+
+
 def section_eye_in_hand(seeds: list[int], shift: simulate.Shift, settings: MonitorSettings) -> str:
     """Eye-in-hand: `calib.simulate.realistic_cell` (point noise, exact robot and camera), ``auto`` from 30
     poses, then `calib.simulate.eye_in_hand_shift` over 4 of the cell's other poses; the camera slips on the
@@ -200,13 +213,7 @@ def section_eye_in_hand(seeds: list[int], shift: simulate.Shift, settings: Monit
     ideal = CameraCorrection()
     rows, nees_per_seed = [], []
     for seed in seeds:
-        rng = np.random.default_rng([seed, 3])
-        cell = simulate.realistic_cell(34, rng, setup="eye_in_hand")
-        problem = CalibrationProblem.from_arrays(cell.A[:30], cell.points[:30], setup="eye_in_hand",
-                                                 point_cov=cell.point_cov[:30])
-        res = solve("auto", problem, rng=rng)
-        engine = MonitorEngine(settings)
-        engine.arm(res, problem)
+        cell, res, engine, rng = eye_in_hand_armed(seed, settings)
         stream = simulate.eye_in_hand_shift(cell, cell.A_true[30:34], shift, rng)
         seen = cell.points[:30]
         err, nees, alarms = np.empty(len(stream.t)), np.empty(len(stream.t)), []
@@ -224,12 +231,13 @@ def section_eye_in_hand(seeds: list[int], shift: simulate.Shift, settings: Monit
         nees_per_seed.append(s["nees"])
         rows.append([seed, s["false"], _fmt_list(s["delays"]), f"{arming:.2f}", f"{s['bound']:.2f}",
                      f"{s['median']:.2f}", f"{s['p95']:.2f}", _fmt_list(s["recovery"]), f"{s['nees']:.2f}"])
-    return _md(["seed", "false moved alarms", "bump -> alarm [samples]", "arming error [mm]", "bound [mm]",
+    return markdown(["seed", "false moved alarms", "bump -> alarm [samples]", "arming error [mm]", "bound [mm]",
                 "live median [mm]", "live p95 [mm]", "bump -> within bound [samples]", "NEES (target 6)"],
                rows) + f"\n\nNEES {np.mean(nees_per_seed):.2f} over the seeds."
 
 
-def _md(headers, rows) -> str:
+def markdown(headers, rows) -> str:
+    """A markdown table."""
     lines = ["| " + " | ".join(headers) + " |", "|" + "---|" * len(headers)]
     lines += ["| " + " | ".join(str(c) for c in row) + " |" for row in rows]
     return "\n".join(lines)
@@ -262,7 +270,7 @@ def table(summaries: list[dict], seeds: list[int]) -> str:
                f"({sum(r is None or r > RECOVER_WITHIN for r in rec)} over {RECOVER_WITHIN}); "
                f"NEES {nees.mean():.2f} +- {nees.std(ddof=1) / np.sqrt(len(nees)) if len(nees) > 1 else 0:.2f}; "
                f"one update {np.median(times):.0f} us median, {np.percentile(times, 95):.0f} us p95.")
-    return _md(headers, rows) + summary
+    return markdown(headers, rows) + summary
 
 
 def plot(runs: list[SeedRun], seeds: list[int], path: Path) -> None:
@@ -288,22 +296,6 @@ def plot(runs: list[SeedRun], seeds: list[int], path: Path) -> None:
     plt.close(fig)
 
 
-def section_sizes(seeds: list[int], shift: simulate.Shift, settings: MonitorSettings,
-                  sizes_mm=(1.0, 2.0, 3.0, 4.0, 5.0), deg_per_mm: float = 0.06) -> str:
-    """The smallest bump flagged: share of bumps (3 per shift, random directions) flagged within
-    `DETECT_WITHIN` samples, and false moved alarms, per bump size (rotation ``deg_per_mm`` per mm)."""
-    rows = []
-    for mm in sizes_mm:
-        bumps = tuple((h, mm, mm * deg_per_mm) for h, _, _ in shift.bumps)
-        s = [summarize(run_seed(seed, dataclasses.replace(shift, bumps=bumps), settings)) for seed in seeds]
-        delays = [d for x in s for d in x["delays"]]
-        flagged = [d for d in delays if d is not None]
-        rows.append([f"{mm:g} mm / {mm * deg_per_mm:.2f} deg", f"{len(flagged)}/{len(delays)}",
-                     "-" if not flagged else f"{np.median(flagged):.0f}", sum(x["false"] for x in s)])
-    return _md(["bump", f"flagged within {DETECT_WITHIN} samples", "median samples to the alarm",
-                "false moved alarms"], rows)
-
-
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(prog="handeye bench --shift", description=__doc__.split("\n")[0])
     ap.add_argument("--seeds", type=int, default=10)
@@ -314,7 +306,6 @@ def main(argv=None) -> int:
     ap.add_argument("--tilt", type=float, default=10.0, help="largest tool tilt of the stops, deg")
     ap.add_argument("--stop-jitter", type=float, default=0.0, help="each visit of a stop off by this much on every "
                     "joint, deg, 1-sigma (stops that repeat only roughly, e.g. vision-guided picks; 0.5 ~ 1 cm)")
-    ap.add_argument("--sizes", action="store_true", help="also the smallest-bump table (5 sizes x the seeds)")
     ap.add_argument("--eye-in-hand", action="store_true", help="also the eye-in-hand shift (camera slipping on the "
                     "flange)")
     ap.add_argument("--split", action="store_true", help="also a 4-hour shift bumped at 1 h and split into two "
@@ -331,8 +322,6 @@ def main(argv=None) -> int:
     text = (f"### Production shift: {args.hours:g} h, {args.stops} stops (tilt <= {args.tilt:g} deg{jitter}), "
             f"sample every {shift.sample_s:g} s, drift {shift.drift_mm_h:g} mm/h, bumps (h, mm, deg) {shift.bumps}\n\n"
             + table([summarize(r) for r in runs], seeds))
-    if args.sizes:
-        text += "\n\n#### Smallest bump flagged\n\n" + section_sizes(seeds, shift, settings)
     if args.eye_in_hand:
         text += ("\n\n#### Eye-in-hand: the camera slips on the flange (same drift and bumps, camera frame)\n\n"
                  + section_eye_in_hand(seeds, shift, settings))

@@ -20,6 +20,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    "other arguments go to it)")
     p.add_argument("--shift", action="store_true",
                    help="only the production-shift benchmark of the monitoring engine (app.benchmarks.shift; --seeds, --hours)")
+    p.add_argument("--detection", action="store_true",
+                   help="only the smallest bump flagged beside the derived detection limit (app.benchmarks.detection; "
+                   "--seeds, --programs; minutes)")
     p.add_argument("--verify", action="store_true",
                    help="only the handeye verify benchmark on the simulated cell (app.benchmarks.verify; about a minute)")
     p.add_argument("--cross-session", action="store_true",
@@ -55,6 +58,10 @@ def run(args) -> int:
         from app.benchmarks import shift
 
         return int(shift.main(args.extra) or 0)
+    if args.detection:
+        from app.benchmarks import detection
+
+        return int(detection.main(args.extra) or 0)
     if args.cross_session:
         from app.benchmarks import crosssession
 

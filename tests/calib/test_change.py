@@ -122,3 +122,51 @@ def test_the_shared_error_term_matches_brute_force_and_skips_baseline_innovation
         g += H.T @ S_inv @ r
         G += H.T @ S_inv if shared else 0.0
     assert det.statistic == pytest.approx(g @ np.linalg.solve(F + 0.7 * G @ G.T, g), rel=1e-6)   # (its ridge)
+
+
+def test_detection_power_matches_a_simulated_glr_with_known_noise():
+    """`detection_power` of `move_information`: the share of simulated windows (stops compared with their
+    baselines' means, noise known) whose GLR statistic exceeds the threshold."""
+    from scipy.stats import chi2
+
+    from calib.change import detection_power, move_information
+
+    rng = np.random.default_rng(52)
+    S = 4
+    H = rng.normal(size=(S, 3, 6))
+    L = rng.normal(size=(S, 3, 3)) * 0.3 + np.eye(3)
+    R = L @ L.transpose(0, 2, 1)
+    m, n = np.array([5, 5, 4, 6]), np.array([60, 20, 3, 40])
+    N = move_information(H, R, m, n)
+    threshold = float(chi2.ppf(0.99, 6))
+    delta = rng.normal(size=6)
+    delta *= 2.5 / np.sqrt(delta @ N @ delta)          # non-centrality 6.25: a power near 0.2
+    expected = detection_power(N, delta, threshold)
+    trials, hits = 4000, 0
+    W = [np.linalg.inv(R[j] * (1 / m[j] + 1 / n[j])) for j in range(S)]
+    Ninv = np.linalg.inv(N)
+    for _ in range(trials):
+        g = np.zeros(6)
+        for j in range(S):
+            base = rng.multivariate_normal(np.zeros(3), R[j], size=n[j]).mean(axis=0)
+            window = rng.multivariate_normal(H[j] @ delta, R[j], size=m[j]).mean(axis=0)
+            g += H[j].T @ W[j] @ (window - base)
+        hits += g @ Ninv @ g > threshold
+    assert 0.1 < expected < 0.5
+    assert abs(hits / trials - expected) < 4 * np.sqrt(expected * (1 - expected) / trials)
+    # no move: the false-alarm rate; a stop without a baseline adds nothing
+    assert abs(detection_power(N, np.zeros(6), threshold) - 0.01) < 1e-9
+    assert np.allclose(move_information(H, R, m, np.array([60, 20, 0, 40])),
+                       move_information(H[[0, 1, 3]], R[[0, 1, 3]], m[[0, 1, 3]], n[[0, 1, 3]]))
+
+
+def test_detection_limit_inputs_are_checked():
+    from calib.change import detection_power, move_information
+    from calib.errors import CalibrationError
+
+    with pytest.raises(CalibrationError, match="H \\(S, 3, 6\\)"):
+        move_information(np.zeros((2, 3, 5)), np.zeros((2, 3, 3)), [1, 1], [1, 1])
+    with pytest.raises(CalibrationError, match="visit counts"):
+        move_information(np.zeros((1, 3, 6)), np.eye(3)[None], [-1], [1])
+    with pytest.raises(CalibrationError, match="threshold"):
+        detection_power(np.eye(6), np.zeros(6), 0.0)
