@@ -82,11 +82,12 @@ def camera_nees(update, camera_true) -> float:
     return float(e @ np.linalg.solve(update.cov, e))
 
 
-def armed_cell(seed: int, settings: MonitorSettings | None = None, profile: simulate.RealisticProfile | None = None):
-    """A realistic cell calibrated by ``auto`` from 30 poses (the kinematic error in its covariance), and the
-    engine armed from it: ``(cell, result, engine)``."""
+def armed_cell(seed: int, settings: MonitorSettings | None = None, profile: simulate.RealisticProfile | None = None,
+               distance: float = 0.8):
+    """A realistic cell (camera ``distance`` m from the marker) calibrated by ``auto`` from 30 poses (the
+    kinematic error in its covariance), and the engine armed from it: ``(cell, result, engine)``."""
     prof = profile or simulate.RealisticProfile()
-    real = simulate.realistic_profile(30, np.random.default_rng([seed, 0]), prof)
+    real = simulate.realistic_profile(30, np.random.default_rng([seed, 0]), prof, distance=distance)
     d = real.data
     F = prof.dh_error_factor(real.q)
     problem = CalibrationProblem.from_arrays(d.A, d.points, point_cov=d.point_cov, robot_shared_error=F)
@@ -97,13 +98,14 @@ def armed_cell(seed: int, settings: MonitorSettings | None = None, profile: simu
 
 
 def run_seed(seed: int, shift: simulate.Shift, settings: MonitorSettings,
-             profile: simulate.RealisticProfile | None = None, *, split_h: float | None = None) -> SeedRun:
+             profile: simulate.RealisticProfile | None = None, *, split_h: float | None = None,
+             distance: float = 0.8) -> SeedRun:
     """Calibrate a realistic cell from 30 poses, arm the engine, run the shift (module docstring).
 
     ``split_h``: the shift is two runs, the second started at that hour from the first's snapshot through its
     file form (`calib.monitor.snapshot`), as a restarted service or the next shift's run would."""
     prof = profile or simulate.RealisticProfile()
-    real, res, engine = armed_cell(seed, settings, prof)
+    real, res, engine = armed_cell(seed, settings, prof, distance)
     d = real.data
     correction = res.camera_correction
     stream = simulate.shift_stream(real, shift, np.random.default_rng([seed, 1]), prof)
@@ -304,6 +306,8 @@ def main(argv=None) -> int:
     ap.add_argument("--hours", type=float, default=8.0)
     ap.add_argument("--stops", type=int, default=4)
     ap.add_argument("--tilt", type=float, default=10.0, help="largest tool tilt of the stops, deg")
+    ap.add_argument("--distance", type=float, default=0.8, help="camera to marker at the calibration, m")
+    ap.add_argument("--drift", type=float, default=0.5, help="the camera mount's drift, mm/h")
     ap.add_argument("--stop-jitter", type=float, default=0.0, help="each visit of a stop off by this much on every "
                     "joint, deg, 1-sigma (stops that repeat only roughly, e.g. vision-guided picks; 0.5 ~ 1 cm)")
     ap.add_argument("--eye-in-hand", action="store_true", help="also the eye-in-hand shift (camera slipping on the "
@@ -313,13 +317,14 @@ def main(argv=None) -> int:
     ap.add_argument("--out", type=Path, default=Path("out/bench"))
     args = ap.parse_args(argv)
     shift = dataclasses.replace(simulate.Shift(), hours=args.hours, stops=args.stops, max_tilt_deg=args.tilt,
-                                stop_jitter_deg=args.stop_jitter)
+                                stop_jitter_deg=args.stop_jitter, drift_mm_h=args.drift)
     settings = MonitorSettings()
     seeds = list(range(args.first_seed, args.first_seed + args.seeds))
     t0 = time.monotonic()
-    runs = [run_seed(s, shift, settings) for s in seeds]
+    runs = [run_seed(s, shift, settings, distance=args.distance) for s in seeds]
     jitter = f", each visit {args.stop_jitter:g} deg off per joint" if args.stop_jitter else ""
     text = (f"### Production shift: {args.hours:g} h, {args.stops} stops (tilt <= {args.tilt:g} deg{jitter}), "
+            f"camera {args.distance:g} m away, "
             f"sample every {shift.sample_s:g} s, drift {shift.drift_mm_h:g} mm/h, bumps (h, mm, deg) {shift.bumps}\n\n"
             + table([summarize(r) for r in runs], seeds))
     if args.eye_in_hand:

@@ -247,6 +247,7 @@ class MonitorEngine:
         f = predict(self.filter, s.t, self.walk)
         s.walk_t = f.walk_t
         inn = innovate(f, s.pose, s.point, s.shape_upper, s.factor, self.model)
+        s.w = tuple(f.u[-6:].tolist())
         relearning = self.state == EngineState.RELEARNING
         if not relearning and inn.nis < NIS_GATE:
             f, self.noise_track = follow_noise(f, self.noise_track, inn.nis)
@@ -262,24 +263,36 @@ class MonitorEngine:
         self.state = self._next_state()
         return self._figures(s, alarm, message, np.array(inn.r), inn.nis, verify, statistic)
 
-    def _against_stop(self, i: int, s: Stop, r) -> tuple:
-        """Sample ``s``'s marker point against its stop ``i``'s earlier visits (3 floats), ``r`` its innovation.
+    def _against_stop(self, i: int, s: Stop, ref: FilterState, r, Hc) -> tuple:
+        """Sample ``s``'s marker point against its stop ``i``'s earlier visits (3 floats): its change from their
+        mean, less the change the camera's walk since them explains.
 
-        Exact repeats (within `SAME_POSE_TOL`: a robot's encoders): the
-        point's change from their mean. A stop repeated only roughly
-        (vision-guided picks, a pallet's pattern: each visit a few mm or cm off
-        the last) has its mean point carried from the visits' mean pose to this
-        one by the model at the live state: the innovation less the stop's mean
-        innovation there. What the visits share (the systematic errors at that
-        place) still cancels."""
-        m0, m1, m2 = self.stops.mean[i]
-        pose = self.stops.pose_mean[i]
+        ``ref`` is the state the sample is judged at, ``r`` its innovation
+        there and ``Hc`` (3, 6) the point's Jacobian w.r.t. the camera
+        transform. What the visits share (the systematic errors at that
+        place) cancels. The walk the filter followed between those visits
+        and ``ref`` (its walk states' change: the drift, not what the filter
+        has since learnt about the calibration) is taken off, so that a
+        stop's baseline does not lag a drifting camera. ``ref`` is the state
+        from before the detector's window (`_test`) or from before the move
+        (`_rows`): the filter has fused the window's samples, which takes part
+        of a move away from its live walk.
+
+        A stop repeated only roughly (vision-guided picks, a pallet's
+        pattern: each visit a few mm or cm off the last) has its mean point
+        carried from the visits' mean pose to this one by the model at
+        ``ref``: the innovation less the stop's mean innovation there."""
+        stops = self.stops
+        m0, m1, m2 = stops.mean[i]
+        pose = stops.pose_mean[i]
+        dw = np.subtract(ref.u[-6:], stops.mean_w[i])
+        d0, d1, d2 = Hc.dot(dw).tolist() if dw.any() else (0.0, 0.0, 0.0)
         if max(abs(a - b) for a, b in zip(pose, s.pose)) <= SAME_POSE_TOL:
             p0, p1, p2 = s.point
-            return p0 - m0, p1 - m1, p2 - m2
-        (h0, h1, h2), _, _ = prediction(self.filter, pose, s.factor, self.model)
+            return p0 - m0 - d0, p1 - m1 - d1, p2 - m2 - d2
+        (h0, h1, h2), _, _ = prediction(ref, pose, s.factor, self.model)
         r0, r1, r2 = r
-        return r0 - (m0 - h0), r1 - (m1 - h1), r2 - (m2 - h2)
+        return r0 - (m0 - h0) - d0, r1 - (m1 - h1) - d1, r2 - (m2 - h2) - d2
 
     def _test(self, s: Stop, inn) -> tuple[AlarmLevel, float, str]:
         """The *moved* test of a sample: ``(alarm, statistic, message)``; fused if it passes, else the re-learn
@@ -293,10 +306,17 @@ class MonitorEngine:
         if baseline:
             # Against the stop's own earlier visits: what they share (unmodelled errors of the robot or the
             # camera at that pose, the estimate's own error) is no change; only the camera moving is.
-            r_test = self._against_stop(i, s, inn.r)
-            # A drifting camera has moved since those visits by the same for every stop: the long window's
-            # test is for a move beyond the random walk over that time.
-            offset_var = self.walk.variance(s.walk_t - stops.walk_t[i])
+            ref = self._window[0].state if self._window else self.filter
+            r = inn.r
+            if ref is not self.filter and max(abs(a - b) for a, b in zip(stops.pose_mean[i], s.pose)) > SAME_POSE_TOL:
+                (h0, h1, h2), _, _ = prediction(ref, s.pose, s.factor, self.model)
+                p0, p1, p2 = s.point
+                r = p0 - h0, p1 - h1, p2 - h2
+            r_test = self._against_stop(i, s, ref, r, Hc)
+            # The camera may have walked since the reference state by the same for every stop, and the filter
+            # followed the walk since the stop's visits only to within its own lag: the long window's test is for
+            # a move beyond the random walk over the window.
+            offset_var = self.walk.variance(s.walk_t - ref.walk_t)
             # The m visits of this stop in the window share the error of its mean of n earlier visits: their sum
             # has the variance of m samples each of (1 + m / n) times the noise, not (1 + 1 / n).
             stop_id = stops.ids[i]
@@ -520,7 +540,7 @@ class MonitorEngine:
         for k, i in measured:
             s = samples[k]
             r, H, R = linearize(self.filter, s, self.model)
-            rows.append((k, np.array(self._against_stop(i, s, r)), H[:, :6],
+            rows.append((k, np.array(self._against_stop(i, s, self.filter, r, H[:, :6])), H[:, :6],
                          np.linalg.inv(R * (1.0 + visits[i] / stops.n[i]))))
         return rows, short
 

@@ -13,7 +13,7 @@ import numpy as np
 
 
 #: A stop's typical marker point is the running mean of at most this many of its last visits.
-BASELINE_VISITS = 12
+BASELINE_VISITS = 48
 #: Stops whose typical marker point is kept (the most recently visited).
 MAX_STOPS = 64
 #: Seconds per hour: rates are per hour at the edges, times are seconds inside.
@@ -29,7 +29,8 @@ class Stop:
     the per-sample model, ``pose`` is ``A[:3]`` flat (also the stop lookup's key), ``point`` is ``p`` and
     ``shape_upper`` the shape's upper triangle ``(xx, xy, xz, yy, yz, zz)``; ``stop`` is the lookup's memo
     (`Stops.lookup`); ``walk_t`` the random walk's clock at the sample
-    (`calib.monitor.filter.FilterState.walk_t`)."""
+    (`calib.monitor.filter.FilterState.walk_t`); ``w`` the filter's walk states then (6 floats: how far the
+    camera had walked since the calibration in use, as the filter saw it before this sample)."""
 
     A: np.ndarray
     p: np.ndarray
@@ -41,6 +42,7 @@ class Stop:
     shape_upper: tuple
     stop: tuple | None = None
     walk_t: float = 0.0
+    w: tuple = (0.0,) * 6
 
 
 class Visit(NamedTuple):
@@ -56,7 +58,8 @@ class Visit(NamedTuple):
 
 class Stops:
     """Production stops' typical measured marker points (camera frame): the running mean of each stop's last
-    `BASELINE_VISITS` visits, and of their flange poses, for the `MAX_STOPS` most recently visited stops.
+    `BASELINE_VISITS` visits, of the filter's walk states at them, and of their flange poses, for the
+    `MAX_STOPS` most recently visited stops.
 
     Two flange poses are the same stop when closer than ``translation_m`` and
     ``rotation_rad``; a sample's stop is the least recently visited match.
@@ -68,6 +71,7 @@ class Stops:
     def __init__(self, translation_m: float, rotation_rad: float):
         self.poses: list[list] = []                     # per stop: its first flange pose, A[:3] flat
         self.mean: list[tuple] = []                      # per stop: the mean marker point, 3 floats
+        self.mean_w: list[tuple] = []                    # per stop: the mean walk states, 6 floats
         self.pose_mean: list[list] = []                  # per stop: the mean flange pose of those visits, likewise
         self.n: list[float] = []
         self.walk_t: list[float] = []                   # per stop: the mean walk clock of the visits in its mean
@@ -109,11 +113,13 @@ class Stops:
         if i is None:
             if len(self.poses) == MAX_STOPS:
                 j = self.last.index(min(self.last))
-                for held in (self.poses, self.mean, self.pose_mean, self.n, self.walk_t, self.last, self.ids):
+                for held in (self.poses, self.mean, self.mean_w, self.pose_mean, self.n, self.walk_t, self.last,
+                             self.ids):
                     del held[j]
             i = len(self.poses)
             self.poses.append(s.pose)
             self.mean.append((0.0, 0.0, 0.0))
+            self.mean_w.append((0.0,) * 6)
             self.pose_mean.append(s.pose)
             self.n.append(0.0)
             self.walk_t.append(0.0)
@@ -124,6 +130,7 @@ class Stops:
         n = self.n[i] = min(self.n[i] + 1.0, BASELINE_VISITS)
         (m0, m1, m2), (p0, p1, p2) = self.mean[i], s.point
         self.mean[i] = (m0 + (p0 - m0) / n, m1 + (p1 - m1) / n, m2 + (p2 - m2) / n)
+        self.mean_w[i] = tuple(a + (b - a) / n for a, b in zip(self.mean_w[i], s.w))
         if self.pose_mean[i] != s.pose:      # a stop repeated only roughly (exact repeats leave it as it is)
             self.pose_mean[i] = [a + (b - a) / n for a, b in zip(self.pose_mean[i], s.pose)]
         self.walk_t[i] += (s.walk_t - self.walk_t[i]) / n
@@ -131,7 +138,8 @@ class Stops:
         self.last[i] = self._visits
 
     def clear(self) -> None:
-        self.poses, self.mean, self.pose_mean, self.n, self.walk_t, self.last, self.ids = [], [], [], [], [], [], []
+        self.poses, self.mean, self.mean_w, self.pose_mean, self.n, self.walk_t, self.last, self.ids = (
+            [], [], [], [], [], [], [], [])
         self.generation += 1
 
 
