@@ -284,3 +284,16 @@ def random_rotations(n: int, max_angle: float, rng: np.random.Generator) -> np.n
     axes /= np.linalg.norm(axes, axis=1, keepdims=True)
     angles = rng.uniform(0.0, max_angle, size=n)
     return Rotation.from_rotvec(axes * angles[:, None]).as_matrix()
+
+
+def register_points(p, q) -> np.ndarray:
+    """The rigid transform (4, 4) ``T`` that best maps points ``p`` onto ``q`` (N, 3) in least squares,
+    ``q_i ~ R p_i + t`` (Kabsch, by scipy's ``Rotation.align_vectors``); N >= 3, not all on one line."""
+    p = check_points(p, "p")
+    q = check_points(q, "q")
+    if p.shape != q.shape or len(p) < 3:
+        raise CalibrationError(f"register_points needs two point sets of one shape (N >= 3, 3), got {p.shape} and "
+                               f"{q.shape}")
+    pc, qc = p.mean(axis=0), q.mean(axis=0)
+    R = Rotation.align_vectors(q - qc, p - pc)[0].as_matrix()
+    return make_transform(R, qc - R @ pc)

@@ -418,6 +418,18 @@ class ComposedOutcome:
     update_us: float = 0.0
     alarms: list = field(default_factory=list)
 
+    def score(self, i: int, unexplained: list) -> None:
+        """Count a *moved* alarm at sample ``i``: the oldest bump of ``unexplained`` ((sample, watched), taken off
+        the list) before it is its cause, flagged in time or late; with none, the alarm is false."""
+        if not unexplained or unexplained[0][0] > i:
+            self.false_moved += 1
+            return
+        bump, _ = unexplained.pop(0)
+        if i - bump <= DETECT_WITHIN:
+            self.flagged += 1
+        else:
+            self.late += 1
+
 
 def composed_run(comp: Composition, *, sample_s: float = 30.0, bump_mm: float = 5.0, bump_deg: float = 0.3,
                  drift_mm_h: float = 0.5) -> ComposedOutcome:
@@ -455,14 +467,7 @@ def composed_run(comp: Composition, *, sample_s: float = 30.0, bump_mm: float = 
             upd = d.visit(stop, sample_s)
             if upd is not None and upd.alarm == AlarmLevel.MOVED:
                 out.alarms.append(i)
-                if not unexplained:
-                    out.false_moved += 1
-                    continue
-                bump, _ = unexplained.pop(0)
-                if i - bump <= DETECT_WITHIN:
-                    out.flagged += 1
-                else:
-                    out.late += 1
+                out.score(i, unexplained)
         out.update_us = (time.perf_counter() - t0) / max(n, 1) * 1e6
         out.samples = d.updates
         out.missed = len(d.missed) + (d.watch is not None and d.watch.samples >= DETECT_WITHIN)
@@ -580,14 +585,7 @@ def replay_run(comp: Composition, reference: str, root) -> ComposedOutcome:
         out.samples = n
         unexplained = list(bumped)
         for i in moved:
-            if not unexplained or unexplained[0][0] > i:
-                out.false_moved += 1
-                continue
-            bump, _ = unexplained.pop(0)
-            if i - bump <= DETECT_WITHIN:
-                out.flagged += 1
-            else:
-                out.late += 1
+            out.score(i, unexplained)
         out.bumps, out.watched = len(bumped), sum(w for _, w in bumped)
         out.missed = sum(w and b + DETECT_WITHIN < n and not any(0 <= i - b <= DETECT_WITHIN for i in moved)
                          for b, w in bumped)

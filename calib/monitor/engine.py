@@ -9,7 +9,6 @@ import math
 from typing import NamedTuple
 
 import numpy as np
-from scipy.spatial.transform import Rotation
 from scipy.stats import chi2
 
 from calib import model
@@ -263,13 +262,13 @@ class MonitorEngine:
         self.state = self._next_state()
         return self._figures(s, alarm, message, np.array(inn.r), inn.nis, verify, statistic)
 
-    def _against_stop(self, i: int, s: Stop, ref: FilterState, r, Hc) -> tuple:
+    def _against_stop(self, i: int, s: Stop, ref: FilterState, Hc, r=None) -> tuple:
         """Sample ``s``'s marker point against its stop ``i``'s earlier visits (3 floats): its change from their
         mean, less the change the camera's walk since them explains.
 
-        ``ref`` is the state the sample is judged at, ``r`` its innovation
-        there and ``Hc`` (3, 6) the point's Jacobian w.r.t. the camera
-        transform. What the visits share (the systematic errors at that
+        ``ref`` is the state the sample is judged at, ``Hc`` (3, 6) the
+        point's Jacobian w.r.t. the camera transform and ``r`` the sample's
+        innovation at ``ref`` (None: not computed yet). What the visits share (the systematic errors at that
         place) cancels. The walk the filter followed between those visits
         and ``ref`` (its walk states' change: the drift, not what the filter
         has since learnt about the calibration) is taken off, so that a
@@ -285,11 +284,13 @@ class MonitorEngine:
         stops = self.stops
         m0, m1, m2 = stops.mean[i]
         pose = stops.pose_mean[i]
-        dw = np.subtract(ref.u[-6:], stops.mean_w[i])
-        d0, d1, d2 = Hc.dot(dw).tolist() if dw.any() else (0.0, 0.0, 0.0)
+        d0, d1, d2 = Hc.dot(np.subtract(ref.u[-6:], stops.mean_w[i])).tolist()
+        p0, p1, p2 = s.point
         if max(abs(a - b) for a, b in zip(pose, s.pose)) <= SAME_POSE_TOL:
-            p0, p1, p2 = s.point
             return p0 - m0 - d0, p1 - m1 - d1, p2 - m2 - d2
+        if r is None:
+            (h0, h1, h2), _, _ = prediction(ref, s.pose, s.factor, self.model)
+            r = p0 - h0, p1 - h1, p2 - h2
         (h0, h1, h2), _, _ = prediction(ref, pose, s.factor, self.model)
         r0, r1, r2 = r
         return r0 - (m0 - h0) - d0, r1 - (m1 - h1) - d1, r2 - (m2 - h2) - d2
@@ -307,12 +308,7 @@ class MonitorEngine:
             # Against the stop's own earlier visits: what they share (unmodelled errors of the robot or the
             # camera at that pose, the estimate's own error) is no change; only the camera moving is.
             ref = self._window[0].state if self._window else self.filter
-            r = inn.r
-            if ref is not self.filter and max(abs(a - b) for a, b in zip(stops.pose_mean[i], s.pose)) > SAME_POSE_TOL:
-                (h0, h1, h2), _, _ = prediction(ref, s.pose, s.factor, self.model)
-                p0, p1, p2 = s.point
-                r = p0 - h0, p1 - h1, p2 - h2
-            r_test = self._against_stop(i, s, ref, r, Hc)
+            r_test = self._against_stop(i, s, ref, Hc, inn.r if ref is self.filter else None)
             # The camera may have walked since the reference state by the same for every stop, and the filter
             # followed the walk since the stop's visits only to within its own lag: the long window's test is for
             # a move beyond the random walk over the window.
@@ -540,7 +536,7 @@ class MonitorEngine:
         for k, i in measured:
             s = samples[k]
             r, H, R = linearize(self.filter, s, self.model)
-            rows.append((k, np.array(self._against_stop(i, s, self.filter, r, H[:, :6])), H[:, :6],
+            rows.append((k, np.array(self._against_stop(i, s, self.filter, H[:, :6], r)), H[:, :6],
                          np.linalg.inv(R * (1.0 + visits[i] / stops.n[i]))))
         return rows, short
 
@@ -593,9 +589,7 @@ class MonitorEngine:
         """Rigid registration of the corrected camera points to the held marker mount's points (Kabsch)."""
         corr = model.CameraCorrection(*self.in_use.theta)
         c = corr.correct(np.array([s.p for s in samples]))
-        y = np.array([self._parent_point(s) for s in samples])
-        R = Rotation.align_vectors(y - y.mean(axis=0), c - c.mean(axis=0))[0].as_matrix()
-        return tf.make_transform(R, y.mean(axis=0) - R @ c.mean(axis=0))
+        return tf.register_points(c, np.array([self._parent_point(s) for s in samples]))
 
     def _refit(self, C, samples) -> Fit:
         """The filter over ``samples`` from a registration ``C``.

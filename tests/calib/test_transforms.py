@@ -112,3 +112,14 @@ def test_so3_exp_and_log_agree_with_scipy_at_every_angle(rng, angle):
     np.testing.assert_allclose(Rotation.from_rotvec(tf.so3_log(R)).as_matrix(), R, atol=2e-15)
     if angle < 3.0:
         np.testing.assert_allclose(tf.so3_log(R), v, atol=1e-15)
+
+
+def test_register_points_recovers_a_rigid_transform():
+    rng = np.random.default_rng(7)
+    T = tf.from_rotvec_translation(rng.normal(size=3), rng.normal(size=3))
+    p = rng.normal(size=(6, 3))
+    assert np.allclose(tf.register_points(p, tf.transform_points(T, p)), T, atol=1e-9)
+    with pytest.raises(CalibrationError, match="N >= 3"):
+        tf.register_points(p[:2], p[:2])
+    with pytest.raises(CalibrationError, match="one shape"):
+        tf.register_points(p, p[:4])
