@@ -14,7 +14,7 @@ h1{font-size:1.45em;margin:.8em 0 .2em}h2{font-size:1.15em;margin-top:1.8em;bord
 table{border-collapse:collapse;margin:.5em 0}td,th{border:1px solid #ccc;padding:.25em .6em;text-align:right;
 vertical-align:top}th{background:#f3f3f3}td:first-child,th:first-child{text-align:left}
 table.kv td:nth-child(2),table.kv th{text-align:left}table:not(.kv) td:not(:first-child){white-space:nowrap}
-table.log td{white-space:normal;text-align:left}
+table.log{width:100%}table.log td,table.log td:not(:first-child),table.log th{white-space:normal;text-align:left}
 pre,code{font-family:ui-monospace,Menlo,Consolas,monospace;font-size:.88em}
 pre{margin:0;white-space:pre-wrap;overflow-wrap:anywhere}
 .verdict{border-radius:6px;padding:.7em 1em;margin:0 0 .5em;border-left:10px solid}

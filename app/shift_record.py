@@ -152,7 +152,8 @@ class ShiftRecord:
         parts = [f'<div class="verdict {css}" id="verdict"><span class="level">{level.upper()}</span>'
                  f"{html.escape(sentence)}</div>",
                  "<h1>handeye monitoring report</h1>",
-                 f'<p class="sub">{html.escape(str(self.setup).replace("_", "-"))} · {self.n_samples} samples from '
+                 f'<p class="sub">{html.escape(str(self.setup).replace("_", "-"))} · {self.n_samples} samples '
+                 "monitored (after arming) from "
                  f"{html.escape(local_time(t[0]))} to {html.escape(local_time(t[-1]))}"
                  + (f" · {html.escape(self.source)}" if self.source else "") + "</p>",
                  "<h2>Timeline</h2>", f'<figure class="plot">{svg_of(self._figure(figsize=(10, 4.2)))}'
