@@ -223,7 +223,7 @@ def test_the_next_run_carries_the_relearnt_camera_over(sim_config, loopback):
     cfg = sim_config(loopback(31))
     data = cfg.model_dump()
     data["monitor"]["carry_over"] = True
-    first = demo_monitor(Config.model_validate(data), bump=Bump(18), max_samples=42, progress=False)
+    first = demo_monitor(Config.model_validate(data), bump=Bump(18), max_samples=30, progress=False)
     assert [a.kind for a in first.alarms if a.kind == "moved"] == ["moved"] and first.reestimate is not None
     kept = calibration_in_use.find(first.session)
     assert kept is not None and calibration_in_use.latest(first.session.parent, cfg.setup) == kept
