@@ -1,4 +1,5 @@
-"""Reading the files a user points handeye at: configs, sessions, import files.
+"""Reading the files a user points handeye at: configs, sessions, import files; and writing the files a plant
+reads whole (`uninterrupted`).
 
 One rule for all of them: open regular files only (a FIFO or a device named
 like a data file must never block a run, a directory must not give a
@@ -9,9 +10,12 @@ Errors are raised as the caller's own `HandeyeError` subclass, naming the file.
 
 from __future__ import annotations
 
+import contextlib
 import errno
 import os
+import signal
 import stat
+import threading
 from pathlib import Path
 
 from calib.errors import HandeyeError
@@ -94,3 +98,30 @@ def inside(directory, name, error: type[HandeyeError], *, what: str) -> Path:
     if target != base and base not in target.parents:
         raise error(f"{what}: {name!r} points outside {base}; files must be inside the data directory")
     return target
+
+
+@contextlib.contextmanager
+def uninterrupted(signals=(signal.SIGINT, signal.SIGTERM)):
+    """Hold Ctrl-C (SIGINT) and SIGTERM back while the block writes, and deliver them when it ends.
+
+    A terminal's Ctrl-C landing inside a write (or inside the first import of
+    a library the write needs, which it leaves half-initialised for the
+    run's final write) would lose the file a plant reads, or give the run's
+    end a traceback. The signal's handler is swapped for one that notes it,
+    whichever thread the kernel hands the signal to; the block ends, the old
+    handlers come back, and each noted signal is raised again at once (a
+    KeyboardInterrupt right after the block). In another thread than the
+    main one (where handlers cannot be set) the block runs as it is.
+    """
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    held = []
+    previous = {s: signal.signal(s, lambda signum, frame: held.append(signum)) for s in signals}
+    try:
+        yield
+    finally:
+        for s, handler in previous.items():
+            signal.signal(s, handler)
+        for signum in dict.fromkeys(held):
+            signal.raise_signal(signum)

@@ -25,6 +25,7 @@ import numpy as np
 import yaml
 
 from app.calibration_in_use import local_time
+from app.files import uninterrupted
 from app.page import REPORT_STYLE, svg_of, table
 from calib.monitor import AlarmLevel, EngineState, MonitorEngine, MonitorUpdate
 from calib.setup import Setup
@@ -99,19 +100,22 @@ class ShiftRecord:
     # -------------------------------------------------------------- files
 
     def write(self, directory: Path, *, plot: bool = True, report: bool = True) -> None:
-        """``alarms.yaml``, and (when there are samples) the plot and the shift report, into ``directory``."""
+        """``alarms.yaml``, and (when there are samples) the plot and the shift report, into ``directory``; a
+        Ctrl-C meanwhile waits for the files (`app.files.uninterrupted`)."""
         directory = Path(directory)
-        (directory / ALARMS_FILE).write_text(yaml.safe_dump(self.alarms_document(), sort_keys=False, width=1000))
-        if not self.rows:
-            return
-        if plot:
-            fig = self._figure(figsize=(10, 4))
-            fig.savefig(directory / PLOT_FILE, dpi=100)
-            import matplotlib.pyplot as plt
+        with uninterrupted():
+            (directory / ALARMS_FILE).write_text(yaml.safe_dump(self.alarms_document(), sort_keys=False,
+                                                                width=1000))
+            if not self.rows:
+                return
+            if plot:
+                fig = self._figure(figsize=(10, 4))
+                fig.savefig(directory / PLOT_FILE, dpi=100)
+                import matplotlib.pyplot as plt
 
-            plt.close(fig)
-        if report:
-            (directory / REPORT_FILE).write_text(self._report(), encoding="utf-8")
+                plt.close(fig)
+            if report:
+                (directory / REPORT_FILE).write_text(self._report(), encoding="utf-8")
 
     def _figure(self, figsize):
         import matplotlib

@@ -1,0 +1,40 @@
+"""The shift record's files survive a Ctrl-C that lands while they are written (app.files.uninterrupted)."""
+
+import os
+import signal
+
+import pytest
+
+from app.files import uninterrupted
+from app.shift_record import ShiftRecord
+from calib.setup import Setup
+
+
+def test_a_signal_inside_the_block_waits_for_its_end():
+    done = []
+    with pytest.raises(KeyboardInterrupt):
+        with uninterrupted():
+            os.kill(os.getpid(), signal.SIGINT)
+            done.append("after the signal")
+    assert done == ["after the signal"]
+    assert signal.getsignal(signal.SIGINT) is signal.default_int_handler
+
+
+def test_ctrl_c_while_the_report_is_drawn_keeps_every_file(tmp_path, monkeypatch):
+    """The first shift report of a run imports matplotlib; a Ctrl-C inside that import left it half-initialised,
+    and the run's final write ended in a traceback (KeyError 'PolyCollection:kwdoc'). Now the files are
+    written whole, then the interrupt comes."""
+    rec = ShiftRecord(Setup.EYE_TO_HAND, "session", "reference")
+    for k in range(5):
+        rec.rows.append((1.8e9 + 30.0 * k, 0.1 * k, 0.5, 0.4, 0.2, ""))
+    drawn = rec._figure
+
+    def interrupted_figure(figsize):
+        os.kill(os.getpid(), signal.SIGINT)
+        return drawn(figsize)
+
+    monkeypatch.setattr(rec, "_figure", interrupted_figure)
+    with pytest.raises(KeyboardInterrupt):
+        rec.write(tmp_path)
+    assert {p.name for p in tmp_path.iterdir()} == {"alarms.yaml", "monitor_trace.png", "report.html"}
+    assert "handeye monitoring report" in (tmp_path / "report.html").read_text()
