@@ -268,14 +268,15 @@ class MonitorEngine:
 
         ``ref`` is the state the sample is judged at, ``Hc`` (3, 6) the
         point's Jacobian w.r.t. the camera transform and ``r`` the sample's
-        innovation at ``ref`` (None: not computed yet). What the visits share (the systematic errors at that
-        place) cancels. The walk the filter followed between those visits
-        and ``ref`` (its walk states' change: the drift, not what the filter
-        has since learnt about the calibration) is taken off, so that a
-        stop's baseline does not lag a drifting camera. ``ref`` is the state
-        from before the detector's window (`_test`) or from before the move
-        (`_rows`): the filter has fused the window's samples, which takes part
-        of a move away from its live walk.
+        innovation at ``ref`` (None: not computed yet). What the visits share
+        (the systematic errors at that place) cancels. The walk the filter
+        followed between those visits and ``ref`` (its walk states' change:
+        the drift, not what the filter has since learnt about the
+        calibration) is taken off, so that a stop's baseline does not lag a
+        drifting camera. ``ref`` is the state from before the detector's
+        window (`_test`) or from before the move (`_rows`): the filter has
+        fused the window's samples, which takes part of a move away into its
+        live walk.
 
         A stop repeated only roughly (vision-guided picks, a pallet's
         pattern: each visit a few mm or cm off the last) has its mean point
