@@ -32,6 +32,18 @@ figure.plot,tr,.verdict,.use{break-inside:avoid}figure.plot svg{max-height:120mm
 """
 
 
+def figure(*args, **kwargs):
+    """``matplotlib.pyplot.subplots(*args, **kwargs)`` on the Agg backend, text kept as text in SVG."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    # Text as paths would triple the size; the page names no fonts it lacks.
+    plt.rcParams["svg.fonttype"] = "none"
+    return plt.subplots(*args, **kwargs)
+
+
 def svg_of(fig) -> str:
     """A matplotlib figure as inline SVG (no XML header), closed afterwards."""
     import matplotlib.pyplot as plt

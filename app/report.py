@@ -29,7 +29,7 @@ import numpy as np
 
 from calib.observation import Observation
 from calib.setup import Setup
-from app.page import REPORT_STYLE, Raw, svg_of, table
+from app.page import REPORT_STYLE, Raw, figure, svg_of, table
 from calib.verdict import bounded
 
 REPORT_NAME = "report.html"
@@ -37,17 +37,6 @@ REPORT_NAME = "report.html"
 PLOT_CLASS = "plot"
 #: Id of the verdict block, the first thing on the page.
 VERDICT_ID = "verdict"
-
-def _figure(*args, **kwargs):
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    # Text as paths would triple the size; the page names no fonts it lacks.
-    plt.rcParams["svg.fonttype"] = "none"
-    return plt.subplots(*args, **kwargs)
-
 
 def _plot(title: str, svg: str, caption: str = "") -> str:
     """A figure: the SVG and one caption under it (the section's heading names it; no second heading)."""
@@ -75,7 +64,7 @@ def frames_plot(model, observations: list[Observation], verify_obs: list[Observa
     The axes are scaled alike (a metre is as long on each), the frames' names stand above their origins
     (one label per frame, the samples in the legend), so that they do not overlap the points.
     """
-    fig = _figure(figsize=(9, 7.5), subplot_kw={"projection": "3d"})[0]
+    fig = figure(figsize=(9, 7.5), subplot_kw={"projection": "3d"})[0]
     ax = fig.axes[0]
     A = np.array([o.T_base_flange for o in observations]) if observations else np.zeros((0, 4, 4))
     frames = [(np.eye(4), "base")]
@@ -114,7 +103,7 @@ def frames_plot(model, observations: list[Observation], verify_obs: list[Observa
 
 def coverage_plot(observations: list[Observation], verify_obs: list[Observation]) -> str:
     """Flange positions in the base frame, three projections: how the samples cover the workspace."""
-    fig, axs = _figure(1, 3, figsize=(11, 3.6))
+    fig, axs = figure(1, 3, figsize=(11, 3.6))
     sets = [("calibration", observations, "tab:blue", "o"), ("verification", verify_obs, "tab:green", "^")]
     for ax, (i, j) in zip(axs, ((0, 1), (0, 2), (1, 2))):
         for label, obs, color, mark in sets:
@@ -132,7 +121,7 @@ def coverage_plot(observations: list[Observation], verify_obs: list[Observation]
 
 def residual_plot(errors_mm: np.ndarray, ylabel: str, xlabel: str, tolerance_mm: float | None = None) -> str:
     """Bar per sample or pose: the length of the marker point measured minus predicted, mm (and the tolerance)."""
-    fig, ax = _figure(figsize=(9, 3.2))
+    fig, ax = figure(figsize=(9, 3.2))
     ax.bar(np.arange(len(errors_mm)), errors_mm, color="tab:blue")
     if tolerance_mm is not None:
         ax.axhline(tolerance_mm, color="tab:red", ls="--", label=f"tolerance {tolerance_mm:g} mm")
@@ -145,7 +134,7 @@ def residual_plot(errors_mm: np.ndarray, ylabel: str, xlabel: str, tolerance_mm:
 
 def ellipsoid_plot(cov_t_m: np.ndarray, parent: str) -> str:
     """1-sigma error ellipse of the camera translation in the xy, xz and yz planes of its parent frame, mm."""
-    fig, axs = _figure(1, 3, figsize=(10, 3.4))
+    fig, axs = figure(1, 3, figsize=(10, 3.4))
     C = np.asarray(cov_t_m, dtype=float) * 1e6
     s = np.linspace(0, 2 * np.pi, 100)
     for ax, (i, j) in zip(axs, ((0, 1), (0, 2), (1, 2))):
@@ -167,7 +156,7 @@ def ellipsoid_plot(cov_t_m: np.ndarray, parent: str) -> str:
 
 def correction_plot(cc: dict) -> str:
     """The camera correction's parameters with their 1-sigma error bars (% and mm, as labelled)."""
-    fig, ax = _figure(figsize=(6, 2.8))
+    fig, ax = figure(figsize=(6, 2.8))
     names = list(cc)
     vals = [cc[n]["value"] for n in names]
     sig = [cc[n]["sigma"] for n in names]

@@ -26,7 +26,7 @@ import yaml
 
 from app.calibration_in_use import local_time
 from app.files import uninterrupted
-from app.page import REPORT_STYLE, svg_of, table
+from app.page import REPORT_STYLE, figure, svg_of, table
 from calib.monitor import AlarmLevel, EngineState, MonitorEngine, MonitorUpdate
 from calib.setup import Setup
 
@@ -99,7 +99,7 @@ class ShiftRecord:
 
     # -------------------------------------------------------------- files
 
-    def write(self, directory: Path, *, plot: bool = True, report: bool = True) -> None:
+    def write(self, directory: Path) -> None:
         """``alarms.yaml``, and (when there are samples) the plot and the shift report, into ``directory``; a
         Ctrl-C meanwhile waits for the files (`app.files.uninterrupted`)."""
         directory = Path(directory)
@@ -108,25 +108,16 @@ class ShiftRecord:
                                                                 width=1000))
             if not self.rows:
                 return
-            if plot:
-                fig = self._figure(figsize=(10, 4))
-                fig.savefig(directory / PLOT_FILE, dpi=100)
-                import matplotlib.pyplot as plt
+            fig = self._figure()
+            fig.savefig(directory / PLOT_FILE, dpi=100)
+            (directory / REPORT_FILE).write_text(self._report(svg_of(fig)), encoding="utf-8")
 
-                plt.close(fig)
-            if report:
-                (directory / REPORT_FILE).write_text(self._report(), encoding="utf-8")
-
-    def _figure(self, figsize):
-        import matplotlib
-
-        matplotlib.use("Agg")
-        import matplotlib.pyplot as plt
-
+    def _figure(self):
+        """The timeline, drawn once per write: the PNG beside the report and the report's SVG."""
         t, drift, verify, sigma, total, alarm = zip(*self.rows)
         t_h = (np.array(t) - t[0]) / 3600.0
         cam = Setup(self.setup).camera_name
-        fig, ax = plt.subplots(figsize=figsize)
+        fig, ax = figure(figsize=(10, 4.2))
         ax.plot(t_h, verify, ".", ms=2, color="0.6", label="verification: prediction error before fusing [mm]")
         ax.plot(t_h, total, lw=1.4, color="C3", label=f"{cam}: move since the cell's first calibration [mm]")
         ax.plot(t_h, drift, lw=1.2, color="C0", label="drift since the calibration in use [mm]")
@@ -145,7 +136,7 @@ class ShiftRecord:
         fig.tight_layout()
         return fig
 
-    def _report(self) -> str:
+    def _report(self, timeline_svg: str) -> str:
         """The shift report: the state now, the timeline, the alarms with their outcome, the outages, the live
         camera transform; self-contained, prints on A4 or Letter."""
 
@@ -160,7 +151,7 @@ class ShiftRecord:
                  "monitored (after arming) from "
                  f"{html.escape(local_time(t[0]))} to {html.escape(local_time(t[-1]))}"
                  + (f" · {html.escape(self.source)}" if self.source else "") + "</p>",
-                 "<h2>Timeline</h2>", f'<figure class="plot">{svg_of(self._figure(figsize=(10, 4.2)))}'
+                 "<h2>Timeline</h2>", f'<figure class="plot">{timeline_svg}'
                  "<figcaption>the move since the cell's first calibration steps at a bump and stays; the drift "
                  "is the camera's walk since the calibration in use (back to zero at a re-learn)</figcaption>"
                  "</figure>"]

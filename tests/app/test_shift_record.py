@@ -29,9 +29,9 @@ def test_ctrl_c_while_the_report_is_drawn_keeps_every_file(tmp_path, monkeypatch
         rec.rows.append((1.8e9 + 30.0 * k, 0.1 * k, 0.5, 0.4, 0.2, ""))
     drawn = rec._figure
 
-    def interrupted_figure(figsize):
+    def interrupted_figure():
         os.kill(os.getpid(), signal.SIGINT)
-        return drawn(figsize)
+        return drawn()
 
     monkeypatch.setattr(rec, "_figure", interrupted_figure)
     with pytest.raises(KeyboardInterrupt):
