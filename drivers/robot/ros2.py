@@ -126,6 +126,11 @@ class Ros2RobotConfig(Params):
     def joint_names(self) -> tuple[str, ...]:
         return tuple(self.joint_prefix + n for n in UR_JOINTS)
 
+    @property
+    def topics(self) -> list[str]:
+        """The topics read: the joint states, and the TCP pose with ``source = "pose"``."""
+        return [self.joint_states_topic] + ([self.pose_topic] if self.source == "pose" else [])
+
 
 @ROBOTS.register("ros2", Ros2RobotConfig)
 class Ros2Robot(NodeDevice, Robot):
@@ -178,8 +183,7 @@ class Ros2Robot(NodeDevice, Robot):
         node = self.open_node()
         try:
             (JointState,) = messages("sensor_msgs", "JointState")
-            topics = [c.joint_states_topic] + ([c.pose_topic] if c.source == "pose" else [])
-            missing = node.wait_for_publishers(topics, c.connect_timeout)
+            missing = node.wait_for_publishers(c.topics, c.connect_timeout)
             if missing:
                 raise DeviceError(f"ROS 2 robot: no publisher on {missing[0]} (is ur_robot_driver running, in this "
                                   "ROS_DOMAIN_ID?)")
@@ -202,8 +206,7 @@ class Ros2Robot(NodeDevice, Robot):
     def _silent(self) -> str:
         """The first topic without a message: no publisher, or a publisher that sends nothing."""
         c = self.config
-        topics = [c.joint_states_topic] + ([c.pose_topic] if c.source == "pose" else [])
-        for topic in topics:
+        for topic in c.topics:
             if self._received[topic]:
                 continue
             n = self._node.publishers(topic) if self._node is not None else 0
