@@ -74,7 +74,6 @@ class Stops:
         self.mean_w: list[tuple] = []                    # per stop: the mean walk states, 6 floats
         self.pose_mean: list[list] = []                  # per stop: the mean flange pose of those visits, likewise
         self.n: list[float] = []
-        self.walk_t: list[float] = []                   # per stop: the mean walk clock of the visits in its mean
         self.last: list[int] = []
         self.ids: list[int] = []                        # per stop: a key no other stop of this set has had
         self._next_id = 0
@@ -113,8 +112,7 @@ class Stops:
         if i is None:
             if len(self.poses) == MAX_STOPS:
                 j = self.last.index(min(self.last))
-                for held in (self.poses, self.mean, self.mean_w, self.pose_mean, self.n, self.walk_t, self.last,
-                             self.ids):
+                for held in (self.poses, self.mean, self.mean_w, self.pose_mean, self.n, self.last, self.ids):
                     del held[j]
             i = len(self.poses)
             self.poses.append(s.pose)
@@ -122,7 +120,6 @@ class Stops:
             self.mean_w.append((0.0,) * 6)
             self.pose_mean.append(s.pose)
             self.n.append(0.0)
-            self.walk_t.append(0.0)
             self.last.append(0)
             self.ids.append(self._next_id)
             self._next_id += 1
@@ -133,13 +130,11 @@ class Stops:
         self.mean_w[i] = tuple(a + (b - a) / n for a, b in zip(self.mean_w[i], s.w))
         if self.pose_mean[i] != s.pose:      # a stop repeated only roughly (exact repeats leave it as it is)
             self.pose_mean[i] = [a + (b - a) / n for a, b in zip(self.pose_mean[i], s.pose)]
-        self.walk_t[i] += (s.walk_t - self.walk_t[i]) / n
         self._visits += 1
         self.last[i] = self._visits
 
     def clear(self) -> None:
-        self.poses, self.mean, self.mean_w, self.pose_mean, self.n, self.walk_t, self.last, self.ids = (
-            [], [], [], [], [], [], [], [])
+        self.poses, self.mean, self.mean_w, self.pose_mean, self.n, self.last, self.ids = [], [], [], [], [], [], []
         self.generation += 1
 
 
