@@ -176,7 +176,7 @@ def summary(rep: MonitorReplay) -> str:
     cam = Setup(rep.setup).camera_name
     level, sentence = rep.record.status()
     lines = [f"{level.upper()}: {sentence}"]
-    lines += alarm_lines(rep.record)
+    lines += rep.record.alarm_lines()
     if rep.last is not None:
         u = rep.last
         xyz, quat = tf.to_xyz_quat(u.camera_transform)
@@ -191,17 +191,3 @@ def summary(rep: MonitorReplay) -> str:
                  f"{rep.out / 'monitor_trace.csv'}  the calibration in use: {rep.out / 'calibration_in_use.yaml'}")
     return "\n".join(lines)
 
-
-def alarm_lines(record: ShiftRecord) -> list[str]:
-    """One line per alarm: kind, local time, sample, what, and for a move what became of it."""
-    lines = []
-    for a in record.alarms:
-        if a["alarm"] == "moved":
-            then = a.get("relearnt")
-            outcome = (f"; {then['message']} ({then['time']}, sample {then['sample']})" if then
-                       else "; not re-learnt yet")
-            lines.append(f"  ALARM camera moved at {a['time']} (sample {a['sample']}): "
-                         f"{a['message'].split('; re-learn')[0]}{outcome}")
-        else:
-            lines.append(f"  ALARM {a['message']} ({a['time']}, sample {a['sample']})")
-    return lines

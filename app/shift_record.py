@@ -92,6 +92,19 @@ class ShiftRecord:
         return "ok", (f"calibrated and quiet: predicted error {u.error_mm:.2f} mm over the workspace, last "
                       f"verification {u.verify_mm:.2f} mm; {since}{relearnt}")
 
+    def alarm_lines(self) -> list[str]:
+        """One console line per alarm: kind, local time, sample, what, and for a move what became of it."""
+        lines = []
+        for a in self.alarms:
+            if a["alarm"] == AlarmLevel.MOVED:
+                then = a.get("relearnt")
+                outcome = (f"; {then['message']} ({then['time']}, sample {then['sample']})" if then
+                           else "; not re-learnt yet")
+                lines.append(f"  ALARM camera moved at {a['time']} (sample {a['sample']}): {_what(a)}{outcome}")
+            else:
+                lines.append(f"  ALARM {a['message']} ({a['time']}, sample {a['sample']})")
+        return lines
+
     def alarms_document(self) -> dict:
         return {"setup": str(self.setup), "camera_transform": Setup(self.setup).camera_name,
                 "session": self.source, "reference": self.reference, "alarms": list(self.alarms),
@@ -160,7 +173,7 @@ class ShiftRecord:
             outcome = a.get("relearnt", {}).get("message", "") if a["alarm"] == AlarmLevel.MOVED else ""
             if a["alarm"] == AlarmLevel.MOVED and not outcome:
                 outcome = "not re-learnt yet"
-            rows.append([a["time"], a["sample"], a["alarm"], a["message"].split("; re-learn")[0], outcome])
+            rows.append([a["time"], a["sample"], a["alarm"], _what(a), outcome])
         parts += ["<h2>Alarms</h2>", table(["time", "sample", "alarm", "what", "then"], rows, "log") if rows
                   else "<p>none</p>"]
         outages = [[o["time"], o["device"], o["event"].replace("_", " "), o["message"]] for o in self.outages]
@@ -187,3 +200,8 @@ class ShiftRecord:
         return ("<!DOCTYPE html><html lang=\"en\"><head><meta charset=\"utf-8\">"
                 f"<title>{title}</title><style>{REPORT_STYLE}</style></head><body>" + "".join(parts)
                 + "</body></html>\n")
+
+
+def _what(alarm: dict) -> str:
+    """An alarm's message without the re-learn's progress it was raised with (its outcome is told apart)."""
+    return alarm["message"].split("; re-learn")[0]

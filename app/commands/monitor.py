@@ -41,8 +41,6 @@ def print_monitor_summary(report: MonitorReport, setup: Setup = Setup.EYE_TO_HAN
     """The state of the cell in plain words first (`app.shift_record.ShiftRecord.status`), every alarm with its
     local time and what became of it, the live estimate, the move since the cell's first calibration and the
     drift since the calibration in use, then the counts and the files."""
-    from app.monitor_replay import alarm_lines
-
     cam = Setup(setup).camera_name
     record = report.record
     if report.estimate is None or record is None or record.last is None:
@@ -51,7 +49,7 @@ def print_monitor_summary(report: MonitorReport, setup: Setup = Setup.EYE_TO_HAN
     else:
         level, sentence = record.status()
         print(f"\n{level.upper()}: {sentence}")
-        for line in alarm_lines(record):
+        for line in record.alarm_lines():
             print(line)
         line = f"  live {cam}: {pose_line(report.estimate)}"
         if report.estimate_sigma is not None:
