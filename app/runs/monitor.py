@@ -544,16 +544,19 @@ def _update(engine: MonitorEngine, obs: Observation, shared_error, report: Monit
     viz.drift(obs.t, upd.drift_mm, upd.drift_deg)
     if upd.alarm:
         _raise_alarm(report, obs, upd, writer, viz, cfg)
-        report.record.write(writer.path)        # a plant reads alarms.yaml and the report as the alarm happens
     if upd.state == EngineState.RELEARNING and upd.message and not upd.alarm:
         log.info("sample %d: %s", obs.index, upd.message)
-    if upd.message.startswith("re-learnt") or "; re-learnt" in upd.message:
+    relearnt = upd.message.startswith("re-learnt") or "; re-learnt" in upd.message
+    if relearnt:
         report.reestimate = engine.result()
         writer.add_event(obs.t, "relearnt", sample_index=obs.index, T_camera=upd.camera_transform.tolist(),
                          message=upd.message)
-        report.record.write(writer.path)        # the alarm's outcome, true when read
         viz.event(obs.t, upd.message, "WARN")
         say(upd.message.split("; ")[-1])
+    if upd.alarm or relearnt:
+        # A plant reads alarms.yaml and the report as the alarm happens, and the alarm's outcome true when read:
+        # once per sample, after both.
+        report.record.write(writer.path)
     return upd
 
 
