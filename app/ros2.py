@@ -38,6 +38,7 @@ import time
 
 import numpy as np
 
+from app.calibration_in_use import local_time
 from app.outage import OutageEvent
 from calib import transforms as tf
 from calib.params import Bool, Params, PositiveFloat, Str
@@ -180,8 +181,7 @@ class DiagnosticsPublisher:
         alarm = "none"
         if report is not None and report.alarms:
             a = report.alarms[-1]
-            when = time.strftime("%Y-%m-%dT%H:%M:%S%z", time.localtime(a.t))
-            alarm = f"{a.kind} at sample {a.sample_index}, {when}" + (f": {self._moved}" if a.kind == "moved" else
+            alarm = f"{a.kind} at sample {a.sample_index}, {local_time(a.t)}" + (f": {self._moved}" if a.kind == "moved" else
                                                                        f": {a.info.get('message', '')}")
         return {
             "state": "" if upd is None else upd.state,
