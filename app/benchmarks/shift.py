@@ -97,21 +97,43 @@ def armed_cell(seed: int, settings: MonitorSettings | None = None, profile: simu
     return real, res, engine
 
 
+@dataclass
+class SeedCell:
+    """One seed's cell, its armed engine, its shift's samples and the held-out workspace points ``P``."""
+
+    real: simulate.RealisticData
+    result: object
+    engine: MonitorEngine
+    stream: simulate.ShiftData
+    P: np.ndarray
+    profile: simulate.RealisticProfile
+
+
+def seed_cell(seed: int, shift: simulate.Shift, settings: MonitorSettings,
+              profile: simulate.RealisticProfile | None = None, distance: float = 0.8) -> SeedCell:
+    """Calibrate a realistic cell from 30 poses, arm the engine, draw the shift (module docstring)."""
+    prof = profile or simulate.RealisticProfile()
+    real, res, engine = armed_cell(seed, settings, prof, distance)
+    stream = simulate.shift_stream(real, shift, np.random.default_rng([seed, 1]), prof)
+    P = simulate.workspace_points(real, WORKSPACE_POINTS, np.random.default_rng([seed, 2]))
+    return SeedCell(real, res, engine, stream, P, prof)
+
+
 def run_seed(seed: int, shift: simulate.Shift, settings: MonitorSettings,
              profile: simulate.RealisticProfile | None = None, *, split_h: float | None = None,
              distance: float = 0.8) -> SeedRun:
-    """Calibrate a realistic cell from 30 poses, arm the engine, run the shift (module docstring).
+    """`seed_cell`, then the shift through its engine (`run_cell`)."""
+    return run_cell(seed, seed_cell(seed, shift, settings, profile, distance), split_h=split_h)
+
+
+def run_cell(seed: int, cell: SeedCell, *, split_h: float | None = None) -> SeedRun:
+    """Run ``cell``'s shift through its engine, scoring every update against the truth.
 
     ``split_h``: the shift is two runs, the second started at that hour from the first's snapshot through its
     file form (`calib.monitor.snapshot`), as a restarted service or the next shift's run would."""
-    prof = profile or simulate.RealisticProfile()
-    real, res, engine = armed_cell(seed, settings, prof, distance)
-    d = real.data
-    correction = res.camera_correction
-    stream = simulate.shift_stream(real, shift, np.random.default_rng([seed, 1]), prof)
-    F_stream = prof.dh_error_factor(stream.q)
-    P = simulate.workspace_points(real, WORKSPACE_POINTS, np.random.default_rng([seed, 2]))
-    arming = workspace_error(res.Y, correction, real.camera, d.Y, P) * 1e3
+    real, res, engine, stream, P = cell.real, cell.result, cell.engine, cell.stream, cell.P
+    F_stream = cell.profile.dh_error_factor(stream.q)
+    arming = workspace_error(res.Y, res.camera_correction, real.camera, real.data.Y, P) * 1e3
     n = len(stream.t)
     err, sig, nees = np.empty(n), np.empty(n), np.empty(n)
     alarms = []
@@ -167,13 +189,11 @@ def section_oracle(seeds: list[int], shift: simulate.Shift, settings: MonitorSet
     (`calib.transforms.register_points`) from the samples since the bump, the bump's time known, the arming
     calibration's marker mount and camera correction held (what issue 32 names as the information in the
     stream). Both judged at the same sample, ``k`` samples after the bump, like `run_seed`."""
-    prof = simulate.RealisticProfile()
     rows, ratio = [], {k: [] for k in after}
     for seed in seeds:
-        run = run_seed(seed, shift, settings, prof)
-        real, res, _ = armed_cell(seed, settings, prof)
-        stream = simulate.shift_stream(real, shift, np.random.default_rng([seed, 1]), prof)
-        P = simulate.workspace_points(real, WORKSPACE_POINTS, np.random.default_rng([seed, 2]))
+        cell = seed_cell(seed, shift, settings)
+        real, res, stream, P = cell.real, cell.result, cell.stream, cell.P
+        run = run_cell(seed, cell)
         seen = res.camera_correction.correct(stream.points)
         mount = tf.transform_points(stream.A, res.X[:3, 3])
         ends = list(stream.bumped[1:]) + [len(stream.t)]
