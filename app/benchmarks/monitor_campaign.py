@@ -39,10 +39,12 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from calib import simulate, solve
+from calib import transforms as tf
 from calib.errors import HandeyeError
 from calib.monitor import AlarmLevel, EngineState, MonitorEngine, MonitorSettings
 from calib.monitor.filter import is_sound
 from calib.problem import CalibrationProblem
+from calib.robot_error import UR10_DH, ur_forward
 from calib.setup import Setup
 
 #: A bump must be flagged within this many samples (issue 20's figure).
@@ -179,29 +181,20 @@ class ProgramDriver:
         """The stop's flange pose as reported (nominal kinematics eye-to-hand)."""
         c = self.cell
         if c.setup == Setup.EYE_TO_HAND:
-            from calib.robot_error import UR10_DH, ur_forward
-
             dh = UR10_DH
             return ur_forward(c.stops[stop][None], dh["d"], dh["a"], dh["alpha"], np.zeros(6))[0]
         return c.stops[stop]
 
     def same_stop(self, a: int, b: int) -> bool:
         """The engine takes the two stops for one (`MonitorSettings.stop_translation_m`, ``stop_rotation_deg``)."""
-        from calib import transforms as tf
-
         cfg = self.engine.settings
         rot, trans = tf.pose_error(self.flange_pose(a), self.flange_pose(b))
         return bool(trans < cfg.stop_translation_m and rot < np.deg2rad(cfg.stop_rotation_deg))
 
     def marker_in_parent(self, stop: int) -> np.ndarray:
-        c = self.cell
-        if c.setup == Setup.EYE_TO_HAND:
-            from calib.robot_error import UR10_DH, ur_forward
-
-            dh = UR10_DH
-            A = ur_forward(c.stops[stop][None], dh["d"], dh["a"], dh["alpha"], np.zeros(6))[0]
-            return (A @ c.marker)[:3, 3]
-        return (np.linalg.inv(c.stops[stop]) @ c.marker)[:3, 3]
+        A = self.flange_pose(stop)
+        M = A if self.cell.setup == Setup.EYE_TO_HAND else np.linalg.inv(A)
+        return (M @ self.cell.marker)[:3, 3]
 
     def bump(self, mm: float, deg: float) -> None:
         """The camera is knocked: ``mm`` shift, ``deg`` turn, random directions. Watched when the engine is
