@@ -89,9 +89,18 @@ def outside_reads() -> OutsideReads:
     return OutsideReads()
 
 
-#: The ROS 2 graph of the tests: this machine only, and a domain of this run's own (50..99 from the pid:
-#: never a developer's default domain 0, and seldom the same for two runs of the suite on one machine).
-ROS2_ENV = {"ROS_AUTOMATIC_DISCOVERY_RANGE": "LOCALHOST", "ROS_DOMAIN_ID": str(50 + os.getpid() % 50)}
+def ros2_domain() -> int:
+    """This test process's ROS 2 domain, 50..99: never a developer's default domain 0, seldom the same for two
+    runs of the suite on one machine (from the pid), and never the same for two workers of one run (``make
+    test`` runs two pytest-xdist workers, children of one pytest: its pid and the worker's number)."""
+    worker = os.environ.get("PYTEST_XDIST_WORKER", "")
+    if worker.startswith("gw") and worker[2:].isdigit():
+        return 50 + (os.getppid() % 10) * 5 + int(worker[2:]) % 5
+    return 50 + os.getpid() % 50
+
+
+#: The ROS 2 graph of the tests: this machine only, and a domain of this run's own (`ros2_domain`).
+ROS2_ENV = {"ROS_AUTOMATIC_DISCOVERY_RANGE": "LOCALHOST", "ROS_DOMAIN_ID": str(ros2_domain())}
 
 
 @pytest.fixture(scope="session")
