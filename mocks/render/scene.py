@@ -18,17 +18,19 @@ rendered (the intrinsics must have zero ``dist``).
 
 from __future__ import annotations
 
-from typing import Annotated
+from typing import TYPE_CHECKING, Annotated
 
 import cv2
 import numpy as np
-import open3d as o3d
 from pydantic import AfterValidator, Field, field_validator
 
 from calib import transforms as tf
 from calib.errors import ParameterError
 from calib.params import Float, NonNegativeFloat, Params, PositiveFloat
 from calib.vision.markers import get_dictionary
+
+if TYPE_CHECKING:
+    import open3d as o3d
 
 _FLOOR, _FLANGE, _PLATE = 0, 1, 2
 
@@ -101,6 +103,13 @@ class RenderNoise(Params):
         return v
 
 
+def open3d():
+    """The open3d module, imported on the first render: a command that never renders (every one on a real
+    cell, which loads this backend's config model by name) does without its second of import."""
+    import open3d as o3d
+    return o3d
+
+
 def _mesh_arrays(mesh: o3d.geometry.TriangleMesh) -> tuple[np.ndarray, np.ndarray]:
     return np.asarray(mesh.vertices, dtype=float), np.asarray(mesh.triangles, dtype=np.uint32)
 
@@ -143,6 +152,7 @@ class MarkerSceneRenderer:
         self._ray_z = (1.0 / np.linalg.norm(d, axis=-1)).astype(np.float32)  # z of a unit ray
         rays = np.zeros((h, w, 6), np.float32)
         rays[..., 3:] = d / np.linalg.norm(d, axis=-1, keepdims=True)
+        o3d = open3d()
         self._rays = o3d.core.Tensor(rays)
         # Plate: marker face at z = 0 of the marker frame, 4 mm thick behind it.
         plate = o3d.geometry.TriangleMesh.create_box(plate_size, plate_size, 0.004)
@@ -194,6 +204,7 @@ class MarkerSceneRenderer:
             ``depth_bias_eps`` (this frame's systematic error coefficient, 1/m).
         """
         T_cam_marker = tf.check_transform(T_cam_marker, "T_cam_marker")
+        o3d = open3d()
         scene = o3d.t.geometry.RaycastingScene()
         poses = {_PLATE: T_cam_marker}
         if T_cam_flange is not None:
