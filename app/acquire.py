@@ -20,7 +20,7 @@ from calib.errors import ExtractionError
 from calib.observation import Observation
 from calib.vision.extract import MarkerMeasurement
 from drivers.camera.base import Camera, RGBDFrame
-from drivers.errors import ConnectionLostError, DeviceError, RobotStoppedError
+from drivers.errors import PoseTimeError
 from drivers.robot.base import Robot
 
 log = logging.getLogger(__name__)
@@ -42,15 +42,19 @@ def pose_at_frame(robot: Robot, t: float, timeout: float = 1.0) -> np.ndarray:
 
     A frame stamped at ``t`` often reaches us before the robot state that
     follows it (a controller tick is 2-8 ms); interpolation needs both sides.
+
+    Raises
+    ------
+    PoseTimeError
+        ``t`` is older than the robot states buffered, or still ahead of them
+        after ``timeout``.
     """
     deadline = time.monotonic() + timeout
     while True:
         try:
             return robot.pose_at(t)
-        except (ConnectionLostError, RobotStoppedError):
-            raise
-        except DeviceError:
-            if time.monotonic() > deadline:
+        except PoseTimeError as e:
+            if not e.ahead or time.monotonic() > deadline:
                 raise
             time.sleep(0.005)
 
@@ -64,7 +68,7 @@ def take_sample(
     *,
     not_before: float,
     save_frames: bool = True,
-    check: Callable[[], str | None] | None = None,
+    check: Callable[[float], str | None] | None = None,
     pose_kind: str | None = None,
 ) -> Observation | None:
     """Capture one time-synchronised sample and record it (or its skip reason).
@@ -72,8 +76,9 @@ def take_sample(
     The robot pose is interpolated at the frame's exposure time
     (``robot.pose_at(frame.t)``), not read after the fact.
 
-    ``check``, if given, is called after the measurement; a returned string is
-    a reason to skip the sample (e.g. the robot moved during the exposure).
+    ``check``, if given, is called with the frame's time after the measurement;
+    a returned string is a reason to skip the sample (e.g. the robot moved
+    during the exposure).
     ``pose_kind`` (e.g. ``"optimal"``, ``"bootstrap"``) is kept in the sample's meta.
 
     Returns
@@ -82,12 +87,22 @@ def take_sample(
         None when the frame gave no measurement (recorded as a skip).
     """
     frame = capture_after(camera, not_before)
-    T_base_flange = pose_at_frame(robot, frame.t)
+    try:
+        T_base_flange = pose_at_frame(robot, frame.t)
+    except PoseTimeError as e:
+        # The frame is older than the robot states kept (a device came back meanwhile) or the robot's stream
+        # lags it by more than the wait: no pose belongs with it.
+        reason = "no robot pose at the frame's time"
+        log.info("frame %d skipped: %s (%s)", frame.index, reason, e)
+        viz.event(frame.t, f"skip: {reason}", "WARN")
+        writer.add_skip(frame.t, reason, color=frame.color if save_frames else None,
+                        depth=frame.depth if save_frames else None, detail=str(e))
+        return None
     viz.robot(frame.t, T_base_flange)
     color, depth = (frame.color, frame.depth) if save_frames else (None, None)
     try:
         m = measure(frame)
-        reason = check() if check is not None else None
+        reason = check(frame.t) if check is not None else None
     except ExtractionError as e:
         reason = str(e)
     if reason is not None:

@@ -38,7 +38,7 @@ from pydantic import Field
 
 from app.errors import OutageError
 from calib.params import Float, NonNegativeFloat, Params, PositiveFloat
-from drivers.errors import DeviceError
+from drivers.errors import DeviceError, PoseTimeError
 
 log = logging.getLogger(__name__)
 
@@ -139,7 +139,9 @@ class Reconnecting(Generic[T]):
         Monotonic clock and ``wait(seconds) -> stopped`` (tests); default
         ``time.monotonic`` and ``stop.wait``.
     retry_on : tuple of exception types
-        What counts as an outage (default every `DeviceError`).
+        What counts as an outage (default every `DeviceError` but `PoseTimeError`: a robot pose asked for
+        at a time its buffer does not hold is a question about the data; retried after a reconnect, whose
+        buffer starts afresh, it could never be answered).
 
     Attributes
     ----------
@@ -188,6 +190,8 @@ class Reconnecting(Generic[T]):
         ------
         OutageError
             ``stop`` was set, or the outage outlasted ``max_outage_s``.
+        PoseTimeError
+            As the device raised it (the device answered: an outage it ends is over).
         """
         cfg = self.reconnect_config
         t0 = attempt = 0
@@ -195,6 +199,9 @@ class Reconnecting(Generic[T]):
         while True:
             try:
                 result = fn(self.device)
+            except PoseTimeError:
+                self._end(delays, attempt, t0)
+                raise
             except self.retry_on as e:
                 if delays is None:
                     t0, delays, self.in_outage = self.monotonic(), cfg.delays(), True
@@ -203,11 +210,15 @@ class Reconnecting(Generic[T]):
                     self._emit("reconnect_failed", str(e), attempt, t0)
                 attempt = self._reopen(e, delays, attempt, t0)
                 continue
-            if delays is not None:
-                self.in_outage = False
-                self.outages += 1
-                self._emit("outage_end", "", attempt, t0)
+            self._end(delays, attempt, t0)
             return result
+
+    def _end(self, delays, attempt: int, t0: float) -> None:
+        """The device answered: end the outage in progress, if any."""
+        if delays is not None:
+            self.in_outage = False
+            self.outages += 1
+            self._emit("outage_end", "", attempt, t0)
 
     def _reopen(self, error: BaseException, delays, attempt: int, t0: float) -> int:
         """Wait the next backoff step and reopen the device until that works; returns the attempt count."""

@@ -11,6 +11,17 @@ class ConnectionLostError(DeviceError):
     """The connection to a device dropped or its data stream froze."""
 
 
+class PoseTimeError(DeviceError):
+    """No robot pose at the time asked for: it lies outside the robot states buffered (a frame stamped ahead of
+    the newest state, or older than the buffer). A question about the data, not a device fault: a stream that
+    dropped or froze raises `ConnectionLostError` instead. ``ahead``: the time is after the newest state (a
+    wait may bring it)."""
+
+    def __init__(self, message: str, *, ahead: bool):
+        super().__init__(message)
+        self.ahead = ahead
+
+
 class RobotStoppedError(DeviceError):
     """The robot entered a protective or emergency stop."""
 

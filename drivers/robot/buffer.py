@@ -14,7 +14,7 @@ import threading
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from drivers.errors import DeviceError
+from drivers.errors import DeviceError, PoseTimeError
 from drivers.robot.base import RobotState
 
 
@@ -128,9 +128,11 @@ class StateBuffer:
 
         Raises
         ------
+        PoseTimeError
+            If ``t_host`` lies outside the buffered interval (the message says
+            by how much).
         DeviceError
-            If ``t_host`` is not finite or lies outside the buffered interval
-            (the message says by how much), or the buffer is empty.
+            If ``t_host`` is not finite, or the buffer is empty.
         """
         if not np.isfinite(t_host):
             raise DeviceError(f"pose_at: t_host must be finite, got {t_host}")
@@ -140,9 +142,9 @@ class StateBuffer:
             t0, t1 = self._times[0], self._times[-1]
             if t_host < t0 or t_host > t1:
                 where = f"{(t0 - t_host) * 1e3:.1f} ms before" if t_host < t0 else f"{(t_host - t1) * 1e3:.1f} ms after"
-                raise DeviceError(
+                raise PoseTimeError(
                     f"pose_at: t_host={t_host:.6f} is {where} the robot state buffer "
-                    f"[{t0:.6f}, {t1:.6f}] (host clock, s)"
+                    f"[{t0:.6f}, {t1:.6f}] (host clock, s)", ahead=t_host > t1
                 )
             i = bisect.bisect_left(self._times, t_host)
             if self._times[i] == t_host:

@@ -7,10 +7,11 @@ import numpy as np
 import pytest
 
 from app.errors import OutageError
+from app.acquire import pose_at_frame
 from app.outage import ReconnectConfig, Reconnecting
 from calib import transforms as tf
 from drivers.camera.registry import CAMERAS
-from drivers.errors import ConnectionLostError
+from drivers.errors import ConnectionLostError, PoseTimeError
 from drivers.robot import ur_kinematics as kin
 from drivers.robot.ur import URRobot, URRobotConfig
 from mocks.ur_sim import launch
@@ -143,6 +144,32 @@ def test_a_dropped_and_a_frozen_robot_stream_reconnect_to_the_simulated_controll
     # The immediate first attempt met a controller that refused connections; the frozen one may come back
     # during the first attempt's wait for data (connect_timeout).
     assert ends[0].attempt >= 2, ends[0]
+
+
+def test_a_pose_asked_for_outside_the_buffer_is_not_an_outage_and_ends_one(loopback):
+    """`PoseTimeError` (a time the robot's buffer does not hold) is the data's answer, not a device fault: raised
+    at once, no outage. Asked during a drop, it ends the outage once the robot is back and is raised: before,
+    the wrapper retried that time for ever (a monitor on a ROS 2 robot, whose buffer starts afresh at a
+    reconnect, never sampled again)."""
+    events = []
+    with launch(loopback(50), "ur10", "5.11", initial_q=START_Q) as sim:
+        cfg = URRobotConfig(host=sim.host, read_only=True, tcp_offset=(0, 0, 0.1, 0, 0, 0), connect_timeout=1.0,
+                            frozen_timeout=0.3)
+        with Reconnecting("robot", URRobot(cfg), FAST, on_event=events.append) as rc:
+            rc.read()
+            with pytest.raises(PoseTimeError) as old:
+                rc.pose_at(time.time() - 3600.0)
+            assert not old.value.ahead and events == []
+            # A frame stamped ahead of the newest state: pose_at_frame waits for the states after it.
+            t_ahead = time.time() + 0.05
+            np.testing.assert_allclose(pose_at_frame(rc, t_ahead), rc.read().T_base_flange, atol=1e-9)
+            sim.drop(refuse_s=0.5)
+            time.sleep(0.2)
+            t0 = time.monotonic()
+            with pytest.raises(PoseTimeError):
+                rc.pose_at(time.time() - 3600.0)     # the drop first, then, reconnected, the answer
+            assert time.monotonic() - t0 < 5.0 and not rc.in_outage
+    assert [e.event for e in events][0] == "outage_start" and events[-1].event == "outage_end", events
 
 
 def test_a_camera_following_a_wrapped_robot_rides_out_the_robots_outage(loopback):
