@@ -1,12 +1,14 @@
 """The read-only ROS 2 robot through real DDS on loopback: a publisher in another process (tests.ros2_publisher)."""
 
 import threading
+import time
 
 import numpy as np
 import pytest
 
 from calib import transforms as tf
-from drivers.errors import ConnectionLostError, DeviceError, LimitViolationError
+from app.outage import ReconnectConfig, Reconnecting
+from drivers.errors import ConnectionLostError, DeviceError, LimitViolationError, PoseTimeError
 from drivers.robot import ur_kinematics as kin
 from drivers.robot.ros2 import UR_JOINTS, Ros2Robot, Ros2RobotConfig
 
@@ -92,6 +94,27 @@ def test_a_stopped_publisher_is_a_connection_lost_and_the_robot_is_read_only(pub
             for _ in range(100):
                 r.read()
                 threading.Event().wait(0.02)
+
+
+def test_a_restarted_publisher_ends_the_outage_of_a_pose_asked_for_before_it(publisher):
+    """ur_robot_driver restarted while a monitor asked for the pose at a frame's stamp: the outage ends when the
+    driver is back, with `PoseTimeError` (the stamp is older than the buffer, which starts afresh). Before, the
+    reconnect wrapper retried that stamp for ever: the monitor never sampled again."""
+    events, restarted = [], []
+    thread = publish(publisher, n=400)                  # 4 s: time for a new node's discovery
+    with Reconnecting("robot", robot(), ReconnectConfig(initial_s=0.1, max_s=0.2), on_event=events.append) as r:
+        r.read()
+        thread.join()                                   # the driver stops publishing
+        threading.Event().wait(0.5)                     # ... long enough to be frozen
+        timer = threading.Timer(0.5, lambda: restarted.append(publish(publisher, n=150)))
+        timer.start()
+        with pytest.raises(PoseTimeError, match="before the robot state buffer"):
+            r.pose_at(time.time())                      # a frame stamped while the driver was away
+        timer.join()
+        restarted[0].join()
+    kinds = [e.event for e in events]
+    assert kinds[0] == "outage_start" and kinds[-1] == "outage_end" and not r.in_outage, kinds
+    assert "no new message" in events[0].error
 
 
 def test_no_publisher_is_a_typed_error(ros2_graph):
