@@ -87,6 +87,7 @@ def take_sample(
         None when the frame gave no measurement (recorded as a skip).
     """
     frame = capture_after(camera, not_before)
+    color, depth = (frame.color, frame.depth) if save_frames else (None, None)
     try:
         T_base_flange = pose_at_frame(robot, frame.t)
     except PoseTimeError as e:
@@ -95,11 +96,9 @@ def take_sample(
         reason = "no robot pose at the frame's time"
         log.info("frame %d skipped: %s (%s)", frame.index, reason, e)
         viz.event(frame.t, f"skip: {reason}", "WARN")
-        writer.add_skip(frame.t, reason, color=frame.color if save_frames else None,
-                        depth=frame.depth if save_frames else None, detail=str(e))
+        writer.add_skip(frame.t, reason, color=color, depth=depth, detail=str(e))
         return None
     viz.robot(frame.t, T_base_flange)
-    color, depth = (frame.color, frame.depth) if save_frames else (None, None)
     try:
         m = measure(frame)
         reason = check(frame.t) if check is not None else None

@@ -139,9 +139,9 @@ class Reconnecting(Generic[T]):
         Monotonic clock and ``wait(seconds) -> stopped`` (tests); default
         ``time.monotonic`` and ``stop.wait``.
     retry_on : tuple of exception types
-        What counts as an outage (default every `DeviceError` but `PoseTimeError`: a robot pose asked for
-        at a time its buffer does not hold is a question about the data; retried after a reconnect, whose
-        buffer starts afresh, it could never be answered).
+        What counts as an outage (default every `DeviceError`). A `PoseTimeError` never does: a robot pose
+        asked for at a time its buffer does not hold is a question about the data; retried after a
+        reconnect, whose buffer starts afresh, it could never be answered.
 
     Attributes
     ----------

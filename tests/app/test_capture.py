@@ -10,8 +10,7 @@ from app.runs.monitor import CAPTURE_GUARD_S, left_standstill
 from calib import transforms as tf
 from drivers.robot.ur import URRobot, URRobotConfig
 from mocks.ur_sim import launch
-
-START_Q = (0.0, -1.2, 1.6, -1.97, -1.5708, 0.0)
+from tests.simulated_ur import START_Q
 
 
 def leave_time(robot, T, t0: float, t1: float) -> float:

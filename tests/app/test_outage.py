@@ -6,8 +6,8 @@ import time
 import numpy as np
 import pytest
 
-from app.errors import OutageError
 from app.acquire import pose_at_frame
+from app.errors import OutageError
 from app.outage import ReconnectConfig, Reconnecting
 from calib import transforms as tf
 from drivers.camera.registry import CAMERAS
@@ -15,8 +15,7 @@ from drivers.errors import ConnectionLostError, PoseTimeError
 from drivers.robot import ur_kinematics as kin
 from drivers.robot.ur import URRobot, URRobotConfig
 from mocks.ur_sim import launch
-
-START_Q = (0.0, -1.2, 1.6, -1.97, -1.5708, 0.0)
+from tests.simulated_ur import START_Q
 FAST = ReconnectConfig(initial_s=0.1, factor=2.0, max_s=0.4)
 
 

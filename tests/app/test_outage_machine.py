@@ -26,7 +26,6 @@ class Device:
     def __init__(self):
         self.failures = self.refusals = 0
         self.pose_time = False
-        self.reconnects = 0
 
     def op(self) -> str:
         if self.failures:
@@ -38,7 +37,6 @@ class Device:
         return "answer"
 
     def reconnect(self) -> None:
-        self.reconnects += 1
         if self.refusals:
             self.refusals -= 1
             raise ConnectionLostError("connection refused")
