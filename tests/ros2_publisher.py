@@ -11,6 +11,10 @@ prints ``ready`` and then runs one JSON command per stdin line, answering a JSON
 - ``{"cmd": "robot", "n": N, "rate": HZ, "q": [6], "qd": [6], "tcp_pose": [6 (UR pose)]}``: joint
   states and the TCP pose; ``names`` overrides the joint names;
 - ``{"cmd": "quit"}``.
+
+A command's stream starts once its topics have a subscriber (at most `MATCH_WAIT_S` later): a stream shorter
+than a new node's discovery (seconds on a loaded machine) would otherwise be gone before the node under test
+sees its first message.
 """
 
 import json
@@ -26,6 +30,7 @@ from drivers.ros2 import Ros2Node, messages
 from mocks.ros2_cell import camera_info_message, image_message, joint_state_message, pose_message
 
 INTR = CameraIntrinsics(160, 120, 140.0, 140.0, 79.5, 59.5)
+MATCH_WAIT_S = 10.0
 
 
 def main(prefix: str) -> int:
@@ -44,6 +49,13 @@ def main(prefix: str) -> int:
             if cmd["cmd"] == "quit":
                 break
             n, period = int(cmd["n"]), 1.0 / float(cmd["rate"])
+            # The camera reads all three topics; the robot one of its two (the pose or the joint states).
+            topics = [pub[k] for k in (("color", "depth", "info") if cmd["cmd"] == "camera" else
+                                       ("joint_states", "pose"))]
+            matched = all if cmd["cmd"] == "camera" else any
+            deadline = time.monotonic() + MATCH_WAIT_S
+            while not matched(p.get_subscription_count() for p in topics) and time.monotonic() < deadline:
+                time.sleep(0.01)
             stamps = []
             for k in range(n):
                 t = time.time() + cmd.get("stamp_offset_s", 0.0)

@@ -101,7 +101,7 @@ def test_a_restarted_publisher_ends_the_outage_of_a_pose_asked_for_before_it(pub
     driver is back, with `PoseTimeError` (the stamp is older than the buffer, which starts afresh). Before, the
     reconnect wrapper retried that stamp for ever: the monitor never sampled again."""
     events, restarted = [], []
-    thread = publish(publisher, n=400)                  # 4 s: time for a new node's discovery
+    thread = publish(publisher, n=60)
     with Reconnecting("robot", robot(), ReconnectConfig(initial_s=0.1, max_s=0.2), on_event=events.append) as r:
         r.read()
         thread.join()                                   # the driver stops publishing
