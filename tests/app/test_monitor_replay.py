@@ -174,3 +174,23 @@ def test_the_shared_error_the_moved_test_allows_for_is_said():
     engine.arm(solve("auto", problem), problem)
     assert shared_error_note(engine) is None
     assert shared_error_note(MonitorEngine()) is None
+
+
+def test_replay_monitor_of_a_recorded_shift_gives_the_benchmarked_engines_estimate(tmp_path):
+    # `bench --shift --replay`'s path: a shift and its calibration written as sessions with their joints, replayed
+    # with the cell's kinematic-error config. Every row of the trace is the in-process engine's live estimate (to
+    # the trace's precision) and the moved alarm is the same sample: what the benchmark measures is what a user
+    # who replays a recording gets.
+    from app.benchmarks import shift as bench
+
+    shift = dataclasses.replace(simulate.Shift(), hours=1.5, bumps=((0.75, 5.0, 0.3),))
+    cell = bench.seed_cell(3, shift, bench.MonitorSettings())
+    C, corrections, moved = bench.replay_trace(cell, tmp_path)
+    run = bench.run_cell(3, cell)
+    real, s = cell.real, cell.stream
+    replayed = np.array([bench.workspace_error(c, k, real.camera, s.Y[i], cell.P) * 1e3
+                         for i, (c, k) in enumerate(zip(C, corrections))])
+    assert len(replayed) == len(run.error_mm) == len(s.t)
+    np.testing.assert_allclose(replayed, run.error_mm, atol=0.01)
+    assert moved == [i for i, kind in run.alarms if kind == "moved"]
+    assert len(moved) == 1 and 0 <= moved[0] - s.bumped[0] <= bench.DETECT_WITHIN
