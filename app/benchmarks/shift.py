@@ -17,7 +17,8 @@ bump), samples from each bump to its alarm, the live estimate's workspace
 error (p95 outside the 40 samples after each bump) against the bound
 ``max(1 mm, 1.5 x the arming calibration's own)``, samples until it is back
 within that bound after each bump, NEES of the live covariance, and the
-time per update. Run: ``handeye bench --shift [--seeds 10] [--hours 8]``;
+time per update. Run: ``handeye bench --shift [--seeds 10] [--hours 8]``
+(``--replay``: also through ``handeye replay --monitor``);
 tables on stdout and out/bench/shift.md, a plot in out/bench/shift.png.
 """
 
@@ -218,8 +219,8 @@ def section_oracle(seeds: list[int], shift: simulate.Shift, settings: MonitorSet
 def replay_config(profile: simulate.RealisticProfile) -> str:
     """The config ``replay --monitor`` runs with in `section_replay`: the cell's UR10 with the kinematic error
     ``calibrate`` and the engine model (the magnitudes the simulator draws from), the engine on the real clock."""
-    return (f'setup = "eye_to_hand"\n[robot]\ntype = "ur_sim"\nhost = "127.0.0.2"\nmodel = "ur10"\nread_only = true\n'
-            f"kinematic_error = {{ joint_offset_deg = {profile.joint_offset_deg}, link_length_m = "
+    return ('setup = "eye_to_hand"\n[robot]\ntype = "ur_sim"\nhost = "127.0.0.2"\nmodel = "ur10"\n'
+            f"read_only = true\nkinematic_error = {{ joint_offset_deg = {profile.joint_offset_deg}, link_length_m = "
             f"{profile.link_length_m}, twist_deg = {profile.twist_deg} }}\n")
 
 
@@ -256,7 +257,9 @@ def replay_trace(cell: SeedCell, root: Path) -> tuple[list, list, list]:
     if rc not in (0, 3):
         raise RuntimeError(f"replay --monitor exit {rc}: {err.getvalue().strip() or text.getvalue().strip()}")
     C, corrections = [], []
-    for row in csv.DictReader(open(out / "monitor_trace.csv")):
+    with open(out / "monitor_trace.csv", newline="") as fh:
+        rows = list(csv.DictReader(fh))
+    for row in rows:
         xyz = [float(row[k]) * 1e-3 for k in ("x_mm", "y_mm", "z_mm")]
         C.append(tf.from_xyz_quat(xyz, [float(row[k]) for k in ("qx", "qy", "qz", "qw")]))
         corrections.append(CameraCorrection(float(row["depth_scale"]), float(row["depth_offset_mm"]) * 1e-3,
