@@ -307,8 +307,13 @@ def _transform_section(result_doc: dict, verified: bool) -> list[str]:
         summary.append([f"1-sigma per axis of {cam['name']}: translation [mm] (x y z, {parent} frame)",
                         " ".join(f"{v:.2f}" for v in cam["sigma_1"]["translation_mm"])])
         summary.append(["1-sigma per axis: rotation [deg]", " ".join(f"{v:.3f}" for v in cam["sigma_1"]["rotation_deg"])])
-    summary.append(["residual RMS [mm] (marker point measured minus predicted, over the calibration samples)",
-                    f"{result_doc['residuals']['rms_translation_mm']:.2f}"])
+    residuals = result_doc.get("residuals") or {}
+    if "rms_translation_mm" in residuals:
+        summary.append(["residual RMS [mm] (marker point measured minus predicted, over the calibration samples)",
+                        f"{residuals['rms_translation_mm']:.2f}"])
+    elif residuals.get("note"):
+        # A monitoring run's calibration in use: a live estimate, fitted to no fixed set of samples.
+        summary.append(["residuals", residuals["note"]])
     parts.append(table(["accuracy", "value"], summary))
     if not verified:
         parts.append('<p class="note">A verification on fresh poses (handeye verify) measures the error instead of '
