@@ -28,11 +28,14 @@ from app.runs.verify import verify
 from app.session import read_session
 from calib.errors import HandeyeError
 from calib.verdict import per_pose_phrase
+from calib.verify import MIN_POSES
 
 NAME = "verify"
 HELP = "judge a result on fresh poses (or another session): error in mm/deg, pass/fail, verify.yaml + report"
 #: Exit status of a verification that fails its tolerance.
 EXIT_FAIL = 4
+#: Ctrl-C before a verification could be judged (a shell's status for SIGINT).
+EXIT_INTERRUPTED = 130
 
 
 def expect_xyz(text: str) -> np.ndarray:
@@ -95,6 +98,10 @@ def run(args) -> int:
         print(f"note: {resumable}")
     out = verify(_config(args), args.result, session=args.session, setup=args.setup, passive=args.passive,
                  expect_xyz=args.expect_xyz, confirm=lambda: confirm_motion(args.yes_move))
+    if out.interrupted and out.doc is None:
+        print(f"interrupted: robot stopped with {out.n_poses} poses measured, fewer than the {MIN_POSES} a "
+              f"verification needs: nothing judged (session {out.session})")
+        return EXIT_INTERRUPTED
     if out.interrupted:
         print(f"interrupted: robot stopped; {out.n_poses} poses measured (session {out.session})")
     print_verify_summary(out.doc, out.path, out.report, verbose=args.verbose > 0, verification=out.verification)

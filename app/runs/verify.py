@@ -40,12 +40,13 @@ class VerifyOutput:
     ``doc``: the verify.yaml document (`app.verify.verify_document`); ``path``: verify.yaml;
     ``report``: report.html; ``passed``: within the tolerance; ``interrupted``: Ctrl-C stopped the
     robot after ``n_poses`` poses (``session`` holds them); ``verification``: the judged
-    `calib.verify.Verification`.
+    `calib.verify.Verification`. ``doc``, ``path`` and ``report`` are None when Ctrl-C came before
+    `calib.verify.MIN_POSES` poses were measured: nothing was judged.
     """
 
-    doc: dict
-    path: Path
-    report: Path
+    doc: dict | None
+    path: Path | None
+    report: Path | None
     passed: bool
     n_poses: int
     session: Path
@@ -76,9 +77,12 @@ def verify(cfg: Config, result: Path, *, session: Path | None = None, setup: str
             confirm()
             run_, mode = av.verify_active(cfg, loaded, rng=rng), "active"
         observations, source, out_dir = run_.observations, run_.session, run_.session
+        interrupted = run_.interrupted
+        if interrupted and len(observations) < cv.MIN_POSES:
+            # Stopped before there was anything to judge: the poses measured stay in the session.
+            return VerifyOutput(None, None, None, False, len(observations), out_dir, True)
         if run_.truth:
             truth_mm = av.true_error_mm(loaded, observations, run_.truth, run_.camera_bias)
-        interrupted = run_.interrupted
     tol = dict(tolerance_mm=cfg.verify.tolerance_mm, tolerance_deg=cfg.verify.tolerance_deg)
     verification = cv.verify(av.pose_errors(loaded.model, observations), rng=rng, **tol)
     rigid = None if loaded.rigid is None else cv.verify(av.pose_errors(loaded.rigid, observations), rng=rng, **tol)

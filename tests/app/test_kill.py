@@ -14,6 +14,7 @@ import pytest
 
 from app.cli import main
 from app.runs.calibrate import calibrate
+from app.runs.demo import demo
 from app.session import read_session
 
 pytestmark = pytest.mark.slow
@@ -241,3 +242,32 @@ def test_ctrl_c_at_the_worst_moments_keeps_what_the_session_holds(sim_config, lo
     assert len(session.observations) == 3 and session.interrupted
     assert [(e["event"], e["n_samples"], e.get("stage")) for e in session.events] == [
         ("interrupted", 3, None), ("interrupted", 3, "final solve")]
+
+
+def test_ctrl_c_to_the_process_group_stops_verify_before_it_has_poses_to_judge(sim_config, loopback, tmp_path):
+    """Ctrl-C while verify moves to its first pose: the robot stopped, one line saying nothing was judged and
+    where the session is, exit 130 (it was a ValueError traceback from the simulator's truth of no poses)."""
+    out = demo(sim_config(loopback(14), samples=12), progress=False)
+    cfg = _sim_cell(tmp_path, loopback(15))
+    root = tmp_path / "verify"
+    proc = subprocess.Popen(_cli("verify", "-c", str(cfg), "--result", str(out.report.session / "result.yaml"),
+                                 "--yes-move", "--no-viz", "--no-frames", "--session-root", str(root)),
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, start_new_session=True)
+    try:
+        deadline = time.monotonic() + 60
+        while not list(root.glob("*/samples.jsonl")):      # the poses are planned, the robot starts moving
+            assert proc.poll() is None and time.monotonic() < deadline, proc.communicate()
+            time.sleep(0.02)
+        os.killpg(proc.pid, signal.SIGINT)
+        printed, err = proc.communicate(timeout=60)
+    finally:
+        if proc.poll() is None:
+            os.killpg(proc.pid, signal.SIGKILL)
+            proc.wait()
+    session_dir = next(root.iterdir())
+    n = len(read_session(session_dir).observations)
+    assert proc.returncode == 130 and "Traceback" not in err, err
+    assert n < 3 and printed.strip() == (f"interrupted: robot stopped with {n} poses measured, fewer than the 3 a "
+                                         f"verification needs: nothing judged (session {session_dir})")
+    assert read_session(session_dir).events[-1]["event"] == "interrupted"
+    assert not (session_dir / "verify.yaml").exists()
