@@ -352,7 +352,10 @@ def verify_passive(cfg: Config, loaded: LoadedResult, *, progress: bool = False)
     noise = getattr(cfg.camera, "noise", None)
     if session.truth and noise is not None:
         bias = CameraCorrection(depth_scale=noise.depth_scale, depth_offset=noise.depth_offset_m)
-    return VerifyRun(report.session, session.observations, cfg.verify.poses, report.n_skipped, session.truth, bias)
+    # A monitor's Ctrl-C is its normal end (Session.interrupted is False for it): the event says it.
+    interrupted = any(e.get("event") == "interrupted" for e in session.events)
+    return VerifyRun(report.session, session.observations, cfg.verify.poses, report.n_skipped, session.truth, bias,
+                     interrupted)
 
 
 def verify_document(loaded: LoadedResult, mode: str, source: Path, verification: cv.Verification,

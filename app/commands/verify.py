@@ -99,8 +99,9 @@ def run(args) -> int:
     out = verify(_config(args), args.result, session=args.session, setup=args.setup, passive=args.passive,
                  expect_xyz=args.expect_xyz, confirm=lambda: confirm_motion(args.yes_move))
     if out.interrupted and out.doc is None:
-        print(f"interrupted: robot stopped with {out.n_poses} poses measured, fewer than the {MIN_POSES} a "
-              f"verification needs: nothing judged (session {out.session})")
+        stopped = "" if args.passive else "robot stopped; "
+        print(f"interrupted: {stopped}{out.n_poses} poses measured, fewer than the {MIN_POSES} a verification needs: "
+              f"nothing judged (session {out.session})")
         return EXIT_INTERRUPTED
     if out.interrupted:
         print(f"interrupted: robot stopped; {out.n_poses} poses measured (session {out.session})")

@@ -29,7 +29,7 @@ from app.errors import SessionError
 from app.report import write_report
 from app.session import read_session
 from calib import verify as cv
-from calib.errors import HandeyeError
+from calib.errors import HandeyeError, InsufficientDataError
 from calib.verdict import judge_verification
 
 
@@ -69,6 +69,7 @@ def verify(cfg: Config, result: Path, *, session: Path | None = None, setup: str
     interrupted = False
     if session is not None:
         observations, source, mode = _offline_samples(session, setup, loaded), session, "offline"
+        _check_enough(observations, source)
         out_dir = _new_dir(cfg.session.root, loaded.model.setup)
     else:
         if passive:
@@ -81,6 +82,7 @@ def verify(cfg: Config, result: Path, *, session: Path | None = None, setup: str
         if interrupted and len(observations) < cv.MIN_POSES:
             # Stopped before there was anything to judge: the poses measured stay in the session.
             return VerifyOutput(None, None, None, False, len(observations), out_dir, True)
+        _check_enough(observations, source)
         if run_.truth:
             truth_mm = av.true_error_mm(loaded, observations, run_.truth, run_.camera_bias)
     tol = dict(tolerance_mm=cfg.verify.tolerance_mm, tolerance_deg=cfg.verify.tolerance_deg)
@@ -102,6 +104,12 @@ def verify(cfg: Config, result: Path, *, session: Path | None = None, setup: str
                           verify_observations=observations, title="handeye verification report", cell=cell)
     return VerifyOutput(doc, path, report, verification.passed, len(observations), out_dir, interrupted,
                         verification)
+
+
+def _check_enough(observations, source) -> None:
+    if len(observations) < cv.MIN_POSES:
+        raise InsufficientDataError(f"verification needs at least {cv.MIN_POSES} poses with a measurement, "
+                                    f"{source} has {len(observations)}")
 
 
 def _offline_samples(source: Path, setup, loaded):

@@ -109,7 +109,7 @@ def test_frame_safety_warns_about_an_inverted_result(two_sessions, tmp_path, cap
 
 
 def test_verify_refuses_its_own_session_and_bad_input(two_sessions, tmp_path, capsys):
-    (s0, s1), _ = two_sessions
+    (s0, s1), d = two_sessions
     assert main(["replay", str(s0), "--out", str(s0)]) == 0
     capsys.readouterr()
     rc, _, err = _verify(capsys, "--result", s0 / "result.yaml", "--session", s0, "--session-root", tmp_path)
@@ -117,6 +117,15 @@ def test_verify_refuses_its_own_session_and_bad_input(two_sessions, tmp_path, ca
     (tmp_path / "junk.yaml").write_text("format: handeye-result\nsetup: eye_to_hand\n")
     rc, _, err = _verify(capsys, "--result", tmp_path / "junk.yaml", "--session", s1, "--session-root", tmp_path)
     assert rc == 1 and "camera_transform.matrix missing" in err
+    # A recording of two samples: one line naming it, and no empty verify directory left behind.
+    few = tmp_path / "few"
+    with SessionWriter.create(tmp_path, "eye_to_hand", name="few", source="test") as w:
+        for i in range(2):
+            w.add_sample(Observation(i, float(i), d.A[i], d.points[i], d.point_cov[i], d.B[i], None))
+    rc, _, err = _verify(capsys, "--result", s0 / "result.yaml", "--session", few, "--session-root",
+                         tmp_path / "verify")
+    assert rc == 1 and err.strip() == (f"handeye verify: error: verification needs at least 3 poses with a "
+                                       f"measurement, {few} has 2") and not list((tmp_path / "verify").glob("*"))
     with pytest.raises(SystemExit):
         main(["verify", "--result", str(s0), "--tolerance", "2"])
     with pytest.raises(SystemExit):
