@@ -14,7 +14,6 @@ import sys
 import time
 
 from app.commands import command_modules
-from calib.errors import HandeyeError
 
 log = logging.getLogger("handeye")
 
@@ -45,7 +44,15 @@ def main(argv: list[str] | None = None) -> int:
     # stop (the robot stopped, every sample kept, exit 130), so `handeye ... & kill -INT -- -PGID` must reach it.
     if signal.getsignal(signal.SIGINT) is signal.SIG_IGN:
         signal.signal(signal.SIGINT, signal.default_int_handler)
-    parser, commands = build_parser()
+    try:
+        # The first import of calib and the commands loads numpy, scipy and OpenCV (a second or two): a Ctrl-C
+        # then is a stop too, not a traceback.
+        from calib.errors import HandeyeError
+
+        parser, commands = build_parser()
+    except KeyboardInterrupt:
+        print("handeye: interrupted", file=sys.stderr)
+        return 130
     args, extra = parser.parse_known_args(argv)
     command = commands[args.command]
     if extra and not getattr(command, "PASSTHROUGH", False):
@@ -63,6 +70,16 @@ def main(argv: list[str] | None = None) -> int:
     except KeyboardInterrupt:
         print(f"handeye {args.command}: interrupted", file=sys.stderr)
         return 130
+    except ImportError as e:
+        # A Ctrl-C inside a C extension's first import (open3d at the simulator's first render, a vendor SDK at
+        # connect) comes out as "initialization failed" from that import: it was the stop.
+        if not isinstance(e.__cause__ or e.__context__, KeyboardInterrupt):
+            raise
+        print(f"handeye {args.command}: interrupted", file=sys.stderr)
+        if argv is None:
+            # The half-initialised extension's C++ exit handlers would end the process with status 1.
+            end_now(130)
+        return 130
     log.info("%s finished in %.1f s", args.command, time.monotonic() - t0)
     if argv is None:
         leave_cleanly_past_two_dds(rc)
@@ -74,8 +91,13 @@ def leave_cleanly_past_two_dds(rc: int) -> None:
     its own Fast DDS) and ROS 2 (rclpy, over Fast DDS) were loaded, pyrealsense2 first: the two copies crash in
     the C++ exit handlers (a segmentation fault after the run, exit status 139 instead of ``rc``, which a
     service would take for a failure). Else return (the normal exit)."""
-    if not {"pyrealsense2", "rclpy"} <= sys.modules.keys():
-        return
+    if {"pyrealsense2", "rclpy"} <= sys.modules.keys():
+        end_now(rc)
+
+
+def end_now(rc: int) -> None:
+    """End the program with status ``rc`` now, its output flushed and its log closed, without the exit handlers
+    of loaded C++ libraries (`leave_cleanly_past_two_dds`; an extension whose first import a Ctrl-C cut short)."""
     sys.stdout.flush()
     sys.stderr.flush()
     logging.shutdown()

@@ -115,3 +115,32 @@ def test_demo_resume_refusals(tmp_path, capsys):
         pass
     line = _one_line_error(capsys, main(["demo", "--resume", str(w.path), "--session-root", str(tmp_path)]))
     assert "recorded on a real cell" in line and f"handeye calibrate -c <its config> --resume {w.path}" in line
+
+
+def test_ctrl_c_while_the_program_starts_or_inside_a_c_extensions_import_is_a_stop(capsys, monkeypatch):
+    # Ctrl-C in the first second (numpy, scipy, OpenCV loading) was a KeyboardInterrupt traceback; during
+    # open3d's first import at the simulator's first render it came out as "ImportError: initialization
+    # failed" (exit 1, traceback). Both are the terminal's stop: one line, exit 130. Another ImportError is a bug.
+    import app.cli as cli
+    from app.commands import replay
+
+    def interrupted():
+        raise KeyboardInterrupt
+
+    with monkeypatch.context() as m:
+        m.setattr(cli, "build_parser", interrupted)
+        assert main(["replay", "x"]) == 130
+    assert capsys.readouterr().err == "handeye: interrupted\n"
+
+    def import_stopped(args):
+        try:
+            raise KeyboardInterrupt
+        except KeyboardInterrupt as e:
+            raise ImportError("initialization failed") from e
+
+    monkeypatch.setattr(replay, "run", import_stopped)
+    assert main(["replay", "x"]) == 130
+    assert capsys.readouterr().err == "handeye replay: interrupted\n"
+    monkeypatch.setattr(replay, "run", lambda args: __import__("no_such_module_here"))
+    with pytest.raises(ImportError):
+        main(["replay", "x"])
