@@ -99,12 +99,13 @@ def run(args) -> int:
     out = verify(_config(args), args.result, session=args.session, setup=args.setup, passive=args.passive,
                  expect_xyz=args.expect_xyz, confirm=lambda: confirm_motion(args.yes_move))
     stopped = "" if args.passive else "robot stopped; "      # (passive never moves it)
+    measured = f"{out.n_poses} pose{'' if out.n_poses == 1 else 's'} measured"
     if out.interrupted and out.doc is None:
-        print(f"interrupted: {stopped}{out.n_poses} poses measured, fewer than the {MIN_POSES} a verification needs: "
-              f"nothing judged (session {out.session})")
+        print(f"interrupted: {stopped}{measured}, fewer than the {MIN_POSES} a verification needs: nothing judged "
+              f"(session {out.session})")
         return EXIT_INTERRUPTED
     if out.interrupted:
-        print(f"interrupted: {stopped}{out.n_poses} poses measured (session {out.session})")
+        print(f"interrupted: {stopped}{measured} (session {out.session})")
     print_verify_summary(out.doc, out.path, out.report, verbose=args.verbose > 0, verification=out.verification)
     return 0 if out.passed else EXIT_FAIL
 

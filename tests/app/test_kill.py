@@ -267,7 +267,8 @@ def test_ctrl_c_to_the_process_group_stops_verify_before_it_has_poses_to_judge(s
     session_dir = next(root.iterdir())
     n = len(read_session(session_dir).observations)
     assert proc.returncode == 130 and "Traceback" not in err, err
-    assert n < 3 and printed.strip() == (f"interrupted: robot stopped; {n} poses measured, fewer than the 3 a "
-                                         f"verification needs: nothing judged (session {session_dir})")
+    measured = f"{n} pose{'' if n == 1 else 's'} measured"
+    assert n < 3 and printed.strip() == (f"interrupted: robot stopped; {measured}, fewer than the 3 a verification "
+                                         f"needs: nothing judged (session {session_dir})")
     assert read_session(session_dir).events[-1]["event"] == "interrupted"
     assert not (session_dir / "verify.yaml").exists()
