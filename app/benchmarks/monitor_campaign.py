@@ -507,12 +507,12 @@ def composed_table(outcomes: list[ComposedOutcome]) -> str:
 REFERENCES = ("session", "result.yaml", "previous run")
 
 
-def write_session(root, name: str, setup: Setup, samples, times) -> object:
-    """A handeye session of ``samples`` (`calib.simulate.CellSample`) at ``times`` (s)."""
+def write_session(root, name: str, setup: Setup, samples, times, source: str = "monitor campaign") -> object:
+    """A handeye session of ``samples`` (`calib.simulate.CellSample`) at ``times`` (s), written by ``source``."""
     from app.session import SessionWriter
     from calib.observation import Observation
 
-    with SessionWriter.create(root, setup, name=name, source="monitor campaign") as w:
+    with SessionWriter.create(root, setup, name=name, source=source) as w:
         for i, (s, t) in enumerate(zip(samples, times)):
             w.add_sample(Observation(i, float(t), s.A, s.point, s.point_cov, joints=s.joints))
     return w.path

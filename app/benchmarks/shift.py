@@ -44,6 +44,7 @@ from calib.model import CameraCorrection  # noqa: E402
 from calib.monitor import MonitorEngine, MonitorSettings  # noqa: E402
 from calib.monitor.snapshot import snapshot_from_dict, snapshot_to_dict  # noqa: E402
 from calib.problem import CalibrationProblem  # noqa: E402
+from calib.setup import Setup  # noqa: E402
 
 #: Held-out workspace poses per cell.
 WORKSPACE_POINTS = 200
@@ -235,15 +236,12 @@ def replay_trace(cell: SeedCell, root: Path) -> tuple[list, list, list]:
 
     import yaml
 
+    from app.benchmarks.monitor_campaign import write_session
     from app.cli import main
-    from app.session import SessionWriter
-    from calib.observation import Observation
 
     def write(name, A, points, cov, q, t):
-        with SessionWriter.create(root, "eye_to_hand", name=name, source="bench --shift --replay") as w:
-            for i in range(len(A)):
-                w.add_sample(Observation(i, float(t[i]), A[i], points[i], cov[i], joints=q[i]))
-        return w.path
+        samples = [simulate.CellSample(*sample, None, joints) for *sample, joints in zip(A, points, cov, q)]
+        return write_session(root, name, Setup.EYE_TO_HAND, samples, t, source="bench --shift --replay")
 
     start = 2.0e9    # a clock of this decade: the report's local times
     d, s = cell.real.data, cell.stream
