@@ -10,8 +10,8 @@ from pathlib import Path
 
 import numpy as np
 
-from app.commands.common import (add_motion_options, add_report_options, add_run_options, confirm_motion,
-                                 load_config_args, next_steps, program, resume_command, transform_lines,
+from app.commands.common import (add_motion_options, add_report_options, add_run_options, command_with,
+                                 confirm_motion, load_config_args, next_steps, program, transform_lines,
                                  verdict_lines)
 from app.runs.calibrate import CalibrationOutput, calibrate
 from app.formats.export import model_report
@@ -43,9 +43,9 @@ def run(args) -> int:
 
 
 def print_continue(out: CalibrationOutput, args) -> None:
-    """After Ctrl-C: the command that continues the run (`app.commands.common.resume_command`)."""
+    """After Ctrl-C: the command that continues the run (`app.commands.common.command_with` its session)."""
     if out.report.stopped_by == "interrupted":
-        print(f"continue this run:   {resume_command(args, out.report.session)}")
+        print(f"continue this run:   {command_with(args, '--resume', out.report.session)}")
 
 
 def exit_code(out: CalibrationOutput) -> int:

@@ -158,19 +158,19 @@ def confirm_motion(yes_move: bool, *, stdin=None) -> None:
         raise HandeyeError("robot motion not confirmed; nothing moved")
 
 
-def resume_command(args, session: Path) -> str:
-    """The command line that continues ``session``: this run's as typed (``args.argv``, set by `app.cli.main`),
-    its own ``--resume`` (or an abbreviation argparse accepted) replaced by ``--resume session``."""
-    argv, resume_value_next = [], False
+def command_with(args, option: str, value) -> str:
+    """This run's command as typed (``args.argv``, set by `app.cli.main`), ``option`` (also abbreviated, or with
+    ``=``) replaced by ``option value`` at the end, quoted for a shell: the line that continues the run."""
+    argv, value_next = [], False
     for arg in args.argv:
         name = arg.split("=", 1)[0]
-        if resume_value_next:
-            resume_value_next = False
-        elif len(name) > 2 and "--resume".startswith(name):
-            resume_value_next = "=" not in arg
+        if value_next:
+            value_next = False
+        elif len(name) > 2 and option.startswith(name):
+            value_next = "=" not in arg
         else:
             argv.append(arg)
-    return shlex.join([program(), *argv, "--resume", str(session)])
+    return shlex.join([program(), *argv, option, str(value)])
 
 
 def pose_line(T: np.ndarray, *, rpy: bool = False) -> str:

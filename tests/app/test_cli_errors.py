@@ -100,9 +100,9 @@ def test_resume_command_is_the_runs_own_with_its_session(argv, expected):
     import argparse
     from pathlib import Path
 
-    from app.commands.common import resume_command
+    from app.commands.common import command_with
 
-    assert resume_command(argparse.Namespace(argv=argv), Path("my sessions/s1")) == expected
+    assert command_with(argparse.Namespace(argv=argv), "--resume", Path("my sessions/s1")) == expected
 
 
 def test_demo_resume_refusals(tmp_path, capsys):
