@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import collections
 import html
+import shlex
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -104,6 +105,44 @@ class ShiftRecord:
             else:
                 lines.append(f"  ALARM {a['message']} ({a['time']}, sample {a['sample']})")
         return lines
+
+    def next_steps(self, in_use: Path, *, continue_with: str | None, verify_with: str | None = None,
+                   calibrate: str | None = None) -> list[str]:
+        """What to do after the run, as lines to paste (empty before any sample).
+
+        After a move, the robot program, a ROS tf or anything else given the camera transform before still
+        holds the old one: it is told to take the calibration in use (``in_use``, the run's
+        ``calibration_in_use.yaml``), or, while the move is not re-learnt yet, to let the monitor go on or
+        recalibrate; likewise for a drift the estimate followed. ``continue_with``: the command that continues
+        monitoring from this run; ``verify_with``: ``handeye verify`` with the cell's config, to check the
+        calibration in use on fresh poses; ``calibrate``: the command that recalibrates (None: not offered).
+        """
+        u = self.last
+        if u is None:
+            return []
+        mm, deg = self.moved_total
+        moved = [a for a in self.alarms if a["alarm"] == AlarmLevel.MOVED]
+        lines = []
+        if u.state == EngineState.RELEARNING:
+            lines.append("  the camera moved and the production stops have not re-learnt it yet: what uses the camera "
+                         "transform (the robot program, a ROS tf) is off by about the move; let the monitor run on"
+                         + (" (below)" if continue_with else "") + " to re-learn it from the stops"
+                         + (f", or recalibrate when the cell is free: {calibrate}" if calibrate else ""))
+        elif moved and in_use.exists():
+            times = "once" if len(moved) == 1 else f"{len(moved)} times"
+            lines.append(f"  the camera moved {times} and was re-learnt ({mm:.1f} mm / {deg:.2f} deg since the cell's "
+                         f"first calibration): what still holds the camera transform from before (the robot program, a "
+                         f"ROS tf) is off by that; give it the calibration in use: {in_use} (its "
+                         f"ros2_static_transform_publisher line publishes it)")
+            if verify_with:
+                lines.append(f"  check it on fresh poses when the cell is free: {verify_with} --result "
+                             f"{shlex.quote(str(in_use))} --yes-move")
+        elif u.level == AlarmLevel.DRIFTING and in_use.exists():
+            lines.append(f"  the camera is drifting: {in_use} holds where it is now; give it to what uses the camera "
+                         f"transform, and find out what moves the mount")
+        if continue_with:
+            lines.append(f"  continue monitoring from where this run left off: {continue_with}")
+        return ["next:", *lines] if lines else []
 
     def alarms_document(self) -> dict:
         return {"setup": str(self.setup), "camera_transform": Setup(self.setup).camera_name,

@@ -15,7 +15,7 @@ from app.calibration_in_use import FILE_NAME as IN_USE_FILE
 from app.commands.common import add_run_options, command_with, load_config_args, pose_line, program
 from app.runs.monitor import MonitorReport, monitor
 from calib import transforms as tf
-from calib.monitor import AlarmLevel, EngineState
+from calib.monitor import EngineState
 from calib.setup import Setup
 
 NAME = "monitor"
@@ -39,55 +39,18 @@ def run(args) -> int:
     # A simulated camera starts unmoved in every process: a verification there would judge the re-learnt camera
     # against the one from before the bump.
     verify = None if report.truth is not None else shlex.join([program(), "verify", *config])
-    print_monitor_summary(report, cfg.setup, monitor_next_steps(
-        report, continue_with=command_with(args, "--reference", report.session), verify_with=verify,
-        calibrate=shlex.join([program(), "calibrate", *config, "--yes-move"])))
+    armed = report.estimate is not None and report.record is not None and report.session is not None
+    print_monitor_summary(report, cfg.setup, [] if not armed else report.record.next_steps(
+        report.session / IN_USE_FILE, continue_with=command_with(args, "--reference", report.session),
+        verify_with=verify, calibrate=shlex.join([program(), "calibrate", *config, "--yes-move"])))
     return EXIT_ALARM if report.moved_alarms else 0
-
-
-def monitor_next_steps(report: MonitorReport, *, continue_with: str, verify_with: str | None = None,
-                       calibrate: str | None = None) -> list[str]:
-    """What to do after a monitoring run, as lines to paste (empty when the engine was never armed).
-
-    After a move the robot program, a ROS tf or anything else given the camera transform before still holds the
-    old one: it is told to take the calibration in use (the session's ``calibration_in_use.yaml``), or, while
-    the move is not re-learnt yet, to let the monitor go on or recalibrate; a drift it has followed likewise.
-    ``continue_with``: the command that continues from this run; ``verify_with``: ``handeye verify`` with the
-    cell's config, to check the calibration in use on fresh poses (None: not offered); ``calibrate``: the
-    command that recalibrates (None: not offered).
-    """
-    record = report.record
-    if report.estimate is None or record is None or record.last is None or report.session is None:
-        return []
-    in_use = report.session / IN_USE_FILE
-    mm, deg = record.moved_total
-    moved = [a for a in record.alarms if a["alarm"] == AlarmLevel.MOVED]
-    lines = ["next:"]
-    if record.last.state == EngineState.RELEARNING:
-        lines.append(f"  the camera moved and the production stops have not re-learnt it yet: what uses the camera "
-                     f"transform (the robot program, a ROS tf) is off by about the move; let the monitor run on "
-                     f"(below) to re-learn it from the stops"
-                     + (f", or recalibrate when the cell is free: {calibrate}" if calibrate else ""))
-    elif moved and in_use.exists():
-        times = "once" if len(moved) == 1 else f"{len(moved)} times"
-        lines.append(f"  the camera moved {times} this run and was re-learnt ({mm:.1f} mm / {deg:.2f} deg since the "
-                     f"cell's first calibration): what still holds the camera transform from before (the robot "
-                     f"program, a ROS tf) is off by that; give it the calibration in use: {in_use} (its "
-                     f"ros2_static_transform_publisher line publishes it)")
-        if verify_with:
-            lines.append(f"  check it on fresh poses when the cell is free: {verify_with} --result "
-                         f"{shlex.quote(str(in_use))} --yes-move")
-    elif record.last.level == AlarmLevel.DRIFTING and in_use.exists():
-        lines.append(f"  the camera is drifting: {in_use} holds where it is now; give it to what uses the camera "
-                     f"transform, and find out what moves the mount")
-    lines.append(f"  continue monitoring from where this run left off: {continue_with}")
-    return lines
 
 
 def print_monitor_summary(report: MonitorReport, setup: Setup = Setup.EYE_TO_HAND, next_lines=()) -> None:
     """The state of the cell in plain words first (`app.shift_record.ShiftRecord.status`), every alarm with its
     local time and what became of it, the live estimate, the move since the cell's first calibration and the
-    drift since the calibration in use, then the counts, the files and ``next_lines`` (`monitor_next_steps`)
+    drift since the calibration in use, then the counts, the files and ``next_lines``
+    (`app.shift_record.ShiftRecord.next_steps`)
     with the recording to open."""
     cam = Setup(setup).camera_name
     record = report.record

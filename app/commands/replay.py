@@ -13,6 +13,7 @@ from pathlib import Path
 import numpy as np
 
 from app import devices
+from app.calibration_in_use import FILE_NAME as IN_USE_FILE
 from app.commands.calibrate import print_statistics
 from app.commands.common import (add_report_options, marker_offset, next_steps, program, report_overrides, tolerance,
                                  transform_lines, verdict_lines)
@@ -62,6 +63,25 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    "continue from")
 
 
+def monitor_next_steps(rep, config: Path | None) -> list[str]:
+    """`app.shift_record.ShiftRecord.next_steps` of a replayed monitoring run: the commands that go on with the
+    cell (monitor live from the replay's calibration in use, verify it, recalibrate) only when its config is
+    given."""
+    if config is None:
+        return rep.record.next_steps(rep.out / IN_USE_FILE, continue_with=None)
+
+    def command(name, *extra):
+        return shlex.join([program(), name, "-c", str(config), *extra])
+
+    return rep.record.next_steps(rep.out / IN_USE_FILE, continue_with=command("monitor", "--reference", str(rep.out)),
+                                 verify_with=command("verify"), calibrate=command("calibrate", "--yes-move"))
+
+
+def print_lines(lines: list[str]) -> None:
+    if lines:
+        print("\n" + "\n".join(lines))
+
+
 def run(args) -> int:
     methods = args.methods or ["auto"]
     settings = replay_settings(args.config, marker_offset=args.marker_offset,
@@ -77,6 +97,7 @@ def run(args) -> int:
                              shared_error=settings.shared_error, rng=np.random.default_rng(args.seed),
                              frames=settings.frames)
         print(summary(rep))
+        print_lines(monitor_next_steps(rep, args.config))
         return 3 if any(a["alarm"] == "moved" for a in rep.alarms) else 0
     outcome = replay_source(args.source, methods, refine=args.refine, robust=args.robust, setup=args.setup,
                             rng=np.random.default_rng(args.seed), tolerance=args.tolerance or settings.tolerance,

@@ -1,15 +1,19 @@
-"""What `monitor`'s summary tells the plant to do next: after a move, before and after its re-learn, a drift."""
+"""What `monitor`'s summary tells the plant to do next (`ShiftRecord.next_steps`): after a move, before and after its
+re-learn, a drift."""
 
 import argparse
 import dataclasses
 import shlex
+import types
+from pathlib import Path
 
 import numpy as np
 
 from app.benchmarks.shift import armed_cell
 from app.calibration_in_use import FILE_NAME
 from app.commands.common import command_with
-from app.commands.monitor import monitor_next_steps, print_monitor_summary
+from app.commands.monitor import print_monitor_summary
+from app.commands.replay import monitor_next_steps as replay_next_steps
 from app.runs.monitor import MonitorReport
 from app.shift_record import ShiftRecord
 from calib import simulate
@@ -37,7 +41,8 @@ def _shift(tmp_path, shift, seed=0):
 
 def _next(report, **kw):
     args = argparse.Namespace(argv=["monitor", "-c", "my cell.toml", "--reference", "old run", "--hook", "beep"])
-    return monitor_next_steps(report, continue_with=command_with(args, "--reference", report.session), **kw)
+    return report.record.next_steps(report.session / FILE_NAME,
+                                    continue_with=command_with(args, "--reference", report.session), **kw)
 
 
 def test_after_a_move_the_summary_says_what_holds_the_old_camera_and_how_to_go_on(tmp_path, capsys):
@@ -62,12 +67,18 @@ def test_after_a_move_the_summary_says_what_holds_the_old_camera_and_how_to_go_o
     lines = seen["relearnt last"]
     assert len(lines) == 4 and lines[-1] == go_on
     mm = report.record.moved_total[0]
-    assert f"moved once this run and was re-learnt ({mm:.1f} mm" in lines[1] and str(session / FILE_NAME) in lines[1]
+    assert f"moved once and was re-learnt ({mm:.1f} mm" in lines[1] and str(session / FILE_NAME) in lines[1]
     assert 4.0 < mm < 12.0, mm  # 5 mm and 0.3 deg (about 4 mm at the workspace)
     assert lines[2] == f"  check it on fresh poses when the cell is free: {VERIFY} --result " \
                        f"{shlex.quote(str(session / FILE_NAME))} --yes-move"
     # The verification is not offered where it cannot be run (a simulated camera is unmoved in a new process).
     assert _next(report, calibrate=CALIBRATE) == [lines[0], lines[1], lines[3]]
+    # replay --monitor, of a recording of that run, says the same, its commands with the cell's config.
+    replayed = replay_next_steps(types.SimpleNamespace(record=report.record, out=session), Path("my cell.toml"))
+    assert replayed[1] == lines[1] and replayed[2].endswith(f"--result {shlex.quote(str(session / FILE_NAME))} "
+                                                            "--yes-move") and VERIFY in replayed[2]
+    assert replayed[3] == "  continue monitoring from where this run left off: " + shlex.join(
+        ["handeye", "monitor", "-c", "my cell.toml", "--reference", str(session)])
     # The summary prints them after the files, with the recording to open.
     (session / "recording.rrd").write_bytes(b"")
     print_monitor_summary(report, Setup.EYE_TO_HAND, lines)
@@ -87,5 +98,5 @@ def test_a_drifting_camera_is_said_with_the_calibration_in_use_that_followed_it(
     assert len(lines) == 3 and lines[1].startswith("  the camera is drifting: ") and FILE_NAME in lines[1]
 
 
-def test_an_engine_never_armed_has_no_next_steps(tmp_path):
-    assert _next(MonitorReport(tmp_path, 0, 0)) == []
+def test_a_run_without_a_sample_has_no_next_steps(tmp_path):
+    assert ShiftRecord(Setup.EYE_TO_HAND).next_steps(tmp_path / FILE_NAME, continue_with="handeye monitor") == []

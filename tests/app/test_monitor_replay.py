@@ -73,6 +73,10 @@ def test_replay_monitor_finds_the_bump_and_writes_the_trace_into_out(tmp_path, c
     moved_line = next(line for line in lines if line.startswith("  ALARM camera moved at "))
     assert re.search(r"at \d{4}-\d\d-\d\dT\d\d:\d\d:\d\d[+-]\d\d:\d\d \(sample \d+\)", moved_line), moved_line
     assert "; re-learnt the camera" in moved_line and str(out / "monitor_trace.csv") in text
+    # What to do: what holds the camera from before takes the replay's calibration in use; without the cell's
+    # config there is no command to go on with.
+    steps = lines[lines.index("next:") + 1:]
+    assert len(steps) == 1 and "was re-learnt" in steps[0] and str(out / "calibration_in_use.yaml") in steps[0]
     assert (out / "report.html").exists() and (out / "monitor_trace.png").exists()
     rows = _trace(out)
     assert tuple(rows[0].keys()) == TRACE_COLUMNS and set(ISSUE_COLUMNS) <= set(TRACE_COLUMNS)
