@@ -141,7 +141,7 @@ class ShiftRecord:
             lines.append(f"  the camera is drifting: {in_use} holds where it is now; give it to what uses the camera "
                          f"transform, and find out what moves the mount")
         if continue_with:
-            lines.append(f"  continue monitoring from where this run left off: {continue_with}")
+            lines.append(f"  go on monitoring from this calibration in use: {continue_with}")
         return ["next:", *lines] if lines else []
 
     def alarms_document(self) -> dict:

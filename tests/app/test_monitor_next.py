@@ -56,7 +56,7 @@ def test_after_a_move_the_summary_says_what_holds_the_old_camera_and_how_to_go_o
         seen[key + " last"] = _next(report, verify_with=VERIFY, calibrate=CALIBRATE)
     assert set(seen) == {"quiet", "quiet last", "relearning", "relearning last", "relearnt", "relearnt last"}
     session = tmp_path / "run one"
-    go_on = f"  continue monitoring from where this run left off: {shlex.join(['handeye', 'monitor', '-c', 'my cell.toml', '--hook', 'beep', '--reference', str(session)])}"
+    go_on = f"  go on monitoring from this calibration in use: {shlex.join(['handeye', 'monitor', '-c', 'my cell.toml', '--hook', 'beep', '--reference', str(session)])}"
     # A still camera: only how to go on, from this run's calibration in use instead of the old reference.
     assert seen["quiet"] == ["next:", go_on]
     # Moved, not re-learnt yet: the robot program is off, the stops (or a recalibration) will fix it.
@@ -77,7 +77,7 @@ def test_after_a_move_the_summary_says_what_holds_the_old_camera_and_how_to_go_o
     replayed = replay_next_steps(types.SimpleNamespace(record=report.record, out=session), Path("my cell.toml"))
     assert replayed[1] == lines[1] and replayed[2].endswith(f"--result {shlex.quote(str(session / FILE_NAME))} "
                                                             "--yes-move") and VERIFY in replayed[2]
-    assert replayed[3] == "  continue monitoring from where this run left off: " + shlex.join(
+    assert replayed[3] == "  go on monitoring from this calibration in use: " + shlex.join(
         ["handeye", "monitor", "-c", "my cell.toml", "--reference", str(session)])
     # The summary prints them after the files, with the recording to open.
     (session / "recording.rrd").write_bytes(b"")
