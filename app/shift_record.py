@@ -130,10 +130,11 @@ class ShiftRecord:
                          + (f", or recalibrate when the cell is free: {calibrate}" if calibrate else ""))
         elif moved and in_use.exists():
             times = "once" if len(moved) == 1 else f"{len(moved)} times"
-            lines.append(f"  the camera moved {times} and was re-learnt ({mm:.1f} mm / {deg:.2f} deg since the cell's "
-                         f"first calibration): what still holds the camera transform from before (the robot program, a "
-                         f"ROS tf) is off by that; give it the calibration in use: {in_use} (its "
-                         f"ros2_static_transform_publisher line publishes it)")
+            lines.append(f"  the camera moved {times} and was re-learnt (the alarm lines above say how far; it is "
+                         f"{mm:.1f} mm / {deg:.2f} deg from the cell's first calibration): whatever still holds a "
+                         f"camera transform from before the move (the robot program, a ROS tf) is off by the move; "
+                         f"give it the calibration in use: {in_use} (its ros2_static_transform_publisher line "
+                         f"publishes it)")
             if verify_with:
                 lines.append(f"  check it on fresh poses when the cell is free: {verify_with} --result "
                              f"{shlex.quote(str(in_use))} --yes-move")

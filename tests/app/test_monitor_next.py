@@ -67,7 +67,8 @@ def test_after_a_move_the_summary_says_what_holds_the_old_camera_and_how_to_go_o
     lines = seen["relearnt last"]
     assert len(lines) == 4 and lines[-1] == go_on
     mm = report.record.moved_total[0]
-    assert f"moved once and was re-learnt ({mm:.1f} mm" in lines[1] and str(session / FILE_NAME) in lines[1]
+    assert "moved once and was re-learnt" in lines[1] and f"it is {mm:.1f} mm" in lines[1]
+    assert "is off by the move" in lines[1] and str(session / FILE_NAME) in lines[1]
     assert 4.0 < mm < 12.0, mm  # 5 mm and 0.3 deg (about 4 mm at the workspace)
     assert lines[2] == f"  check it on fresh poses when the cell is free: {VERIFY} --result " \
                        f"{shlex.quote(str(session / FILE_NAME))} --yes-move"
