@@ -25,6 +25,7 @@ import logging
 import os
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Callable
 
 import yaml
 
@@ -132,22 +133,32 @@ def latest(root: Path, setup: Setup) -> Path | None:
     return max(found, key=lambda p: p.stat().st_mtime, default=None)
 
 
+#: Why a calibration in use is written when it is a new one (`InUseFile.on_new` is told); the end of a run and
+#: an error only record the live estimate.
+NEW_CALIBRATION = ("armed", "re-learnt", "settled after a re-learn")
+
+
 @dataclass
 class InUseFile:
     """Keeps ``calibration_in_use.yaml`` in a directory (`app.calibration_in_use`): written when the engine is
-    armed, at every re-learn, when a re-learnt camera has settled, and at the end."""
+    armed, at every re-learn, when a re-learnt camera has settled, and at the end. ``on_new(path, why, t)`` is
+    called after each write of a new calibration in use (`NEW_CALIBRATION`), once the file is in place."""
 
     directory: Path
     frames: dict | None = None
     written: object = None           # the calibration in use last written (`calib.monitor.InUse`)
+    on_new: Callable[[Path, str, float], None] | None = None
 
     def write(self, engine: MonitorEngine, t: float, why: str) -> None:
         try:
-            write(self.directory, engine, self.frames, why=why, t=t)
+            path = write(self.directory, engine, self.frames, why=why, t=t)
         except OSError as e:
             log.error("%s not written (%s); the next run cannot continue from this one",
                       FILE_NAME, e.strerror or e)
+            path = None
         self.written = engine.in_use
+        if path is not None and why in NEW_CALIBRATION and self.on_new is not None:
+            self.on_new(path, why, t)
 
     def armed(self, engine: MonitorEngine, t: float) -> None:
         if engine.armed:

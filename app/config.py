@@ -75,33 +75,33 @@ def _method(name: str) -> str:
         raise ValueError(str(e)) from None
 
 
-def hook_argv(command: str) -> list[str]:
-    """The alarm hook's argument list (split like a shell, run without one); [] for no hook.
+def hook_argv(command: str, field: str = "monitor.alarm_hook") -> list[str]:
+    """A hook command's argument list (split like a shell, run without one); [] for no hook.
 
     Raises
     ------
     ConfigError
-        Naming ``monitor.alarm_hook``: unbalanced quotes, or a program that is
-        neither on ``PATH`` nor an executable file.
+        Naming ``field``: unbalanced quotes, or a program that is neither on
+        ``PATH`` nor an executable file.
     """
     if not command.strip():
         return []
     try:
         argv = shlex.split(command)
     except ValueError as e:
-        raise ConfigError(f"monitor.alarm_hook: cannot split {command!r} into arguments ({e})") from None
+        raise ConfigError(f"{field}: cannot split {command!r} into arguments ({e})") from None
     if not argv:
         return []
     if shutil.which(argv[0]) is None:
-        raise ConfigError(f"monitor.alarm_hook: program {argv[0]!r} not found on PATH or not executable")
+        raise ConfigError(f"{field}: program {argv[0]!r} not found on PATH or not executable")
     return argv
 
 
 def _hook(command: str) -> str:
     try:
-        hook_argv(command)
+        hook_argv(command, "")
     except ConfigError as e:
-        raise ValueError(str(e).removeprefix("monitor.alarm_hook: ")) from None
+        raise ValueError(str(e).removeprefix(": ")) from None
     return command
 
 
@@ -199,8 +199,10 @@ class MonitorConfig(Params):
     the calibration in use at the end of the newest earlier run of the same
     setup under ``session.root`` (its ``calibration_in_use.yaml``), a
     restarted service and the next shift alike; ``--reference`` then serves
-    only the first run. ``alarm_hook`` is split like a shell
-    line and must name a program on ``PATH``. ``[monitor.engine]`` configures
+    only the first run. ``alarm_hook`` (run on an alarm) and
+    ``calibration_hook`` (run when the calibration in use changes: armed,
+    re-learnt, settled after a re-learn) are split like a shell line and
+    must name a program on ``PATH``. ``[monitor.engine]`` configures
     the engine (`calib.monitor.MonitorSettings`: random-walk rates,
     ``tolerance_mm``, the drifting horizon, the detector).
 
@@ -218,6 +220,7 @@ class MonitorConfig(Params):
     max_samples: NonNegativeInt = 0
     duration_s: NonNegativeFloat = 0.0
     alarm_hook: Annotated[Str, AfterValidator(_hook)] = ""
+    calibration_hook: Annotated[Str, AfterValidator(_hook)] = ""
     reestimate_samples: Annotated[Int, Field(ge=1)] = 8
     keep_samples: NonNegativeInt = 300
     keep_recent: NonNegativeInt = 50

@@ -103,6 +103,8 @@ def apply_overrides(cfg, args):
         mon["max_samples"] = args.max_samples
     if getattr(args, "hook", None) is not None:
         mon["alarm_hook"] = args.hook
+    if getattr(args, "calibration_hook", None) is not None:
+        mon["calibration_hook"] = args.calibration_hook
     viz = {}
     if getattr(args, "no_viz", False):
         viz["enabled"] = False

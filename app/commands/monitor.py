@@ -30,6 +30,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--duration", type=float, help="seconds to run (overrides monitor.duration_s)")
     p.add_argument("--max-samples", type=int, help="stop after this many samples")
     p.add_argument("--hook", help="command to run on an alarm (overrides monitor.alarm_hook)")
+    p.add_argument("--calibration-hook", help="command to run when the calibration in use changes (armed, re-learnt, "
+                   "settled after a re-learn), its file in HANDEYE_CALIBRATION (overrides monitor.calibration_hook)")
 
 
 def run(args) -> int:

@@ -295,24 +295,25 @@ def left_standstill(robot: Robot, T_still: np.ndarray, frame_t: float) -> str | 
     return None if still else "robot moved during the capture"
 
 
-def run_hook(command: str, env: dict) -> None:
-    """Run the alarm hook (no shell; arguments split like a shell would). Failures are logged, not raised.
+def run_hook(command: str, env: dict, field: str = "monitor.alarm_hook") -> None:
+    """Run a hook command (no shell; arguments split like a shell would). Failures are logged, not raised.
 
     The command was checked at config load (`app.config.hook_argv`); a failure
     here (the program removed since) is logged so the alarm itself still counts.
+    ``field``: the config field that names it, for the log.
     """
     try:
-        argv = hook_argv(command)
+        argv = hook_argv(command, field)
         if not argv:
             return
         # Its own session: a terminal's Ctrl-C is for the monitor, not for the hook and the programs it starts.
         done = subprocess.run(argv, env={**os.environ, **env}, timeout=30, capture_output=True, text=True,
                               start_new_session=True)
     except (OSError, subprocess.TimeoutExpired, ConfigError) as e:
-        log.error("alarm hook %r failed: %s", command, e)
+        log.error("%s %r failed: %s", field, command, e)
         return
     if done.returncode != 0:
-        log.error("alarm hook %r exited %d: %s", command, done.returncode, done.stderr.strip()[:200])
+        log.error("%s %r exited %d: %s", field, command, done.returncode, done.stderr.strip()[:200])
 
 
 @dataclass
@@ -394,8 +395,14 @@ def run_monitor(
     t0 = time.monotonic()
     report = MonitorReport(writer.path, 0, 0, record=record or ShiftRecord(engine.reference.setup if engine.armed
                                                                          else writer.header["setup"], str(writer.path)))
+    def new_calibration(path: Path, why: str, t: float) -> None:
+        run_hook(cfg.calibration_hook, {"HANDEYE_EVENT": "calibration_in_use", "HANDEYE_REASON": why,
+                                        "HANDEYE_CALIBRATION": str(path), "HANDEYE_SESSION": str(writer.path),
+                                        "HANDEYE_TIME": calibration_in_use.local_time(t)}, "monitor.calibration_hook")
+
+    in_use = calibration_in_use.InUseFile(writer.path, frames, on_new=new_calibration)
     run = _PassiveRun(robot, camera, measure, engine, solve, writer, cfg, viz, save_frames, on_sample, on_update,
-                      say, shared_error, report, calibration_in_use.InUseFile(writer.path, frames), on_error)
+                      say, shared_error, report, in_use, on_error)
     run.in_use.armed(engine, time.time())
     report = run.report
     report.samples_until_armed = _until_armed(engine, run.kept, cfg)

@@ -42,6 +42,7 @@ def _edit(tmp_path, old, new, name="c.toml"):
 @pytest.mark.parametrize("old,new,field", [
     ('alarm_hook = ""', 'alarm_hook = "echo \\"unbalanced"', "monitor.alarm_hook"),
     ('alarm_hook = ""', 'alarm_hook = "no-such-program-xyz --now"', "monitor.alarm_hook"),
+    ('calibration_hook = ""', 'calibration_hook = "no-such-program-xyz"', "monitor.calibration_hook"),
     ("engine = {}", "engine = {detector = 5}", "monitor.engine"),
     ("engine = {}", "engine = {tolerance_mm = \"fast\"}", "monitor.engine"),
     ("engine = {}", "engine = {relearn_samples = 1.5}", "monitor.engine"),

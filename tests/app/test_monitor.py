@@ -4,6 +4,7 @@ import threading
 
 import numpy as np
 import pytest
+import yaml
 
 from app import devices
 from app.planning import random_pose
@@ -32,7 +33,9 @@ def test_monitor_flags_camera_bump(sim_config, tmp_path, loopback):
     cfg = sim_config(loopback(5))
     data = cfg.model_dump()
     data["monitor"].update(still_s=0.05, poll_s=0.01, max_samples=BUMP_AT + 14, duration_s=90.0, reestimate_samples=2,
-                           arm_samples=8, keep_samples=10, keep_recent=4, alarm_hook=f"touch {tmp_path / 'hook-ran'}")
+                           arm_samples=8, keep_samples=10, keep_recent=4, alarm_hook=f"touch {tmp_path / 'hook-ran'}",
+                           # A copy of the file as the hook found it, by why it was written.
+                           calibration_hook=f"sh -c 'cp \"$HANDEYE_CALIBRATION\" \"{tmp_path}/$HANDEYE_REASON.yaml\"'")
     cfg = Config.model_validate(data)
     rng = np.random.default_rng(5)
     stop = threading.Event()
@@ -83,6 +86,18 @@ def test_monitor_flags_camera_bump(sim_config, tmp_path, loopback):
     assert "relearnt" in events
     assert len(session.observations) == report.n_samples
     assert (report.session / "recording.rrd").exists()
+    # The calibration hook ran once the engine armed itself and once the move was re-learnt, each time with
+    # the file already holding that calibration: the re-learnt one is the bumped camera.
+    handed = {p.stem: yaml.safe_load(p.read_text()) for p in tmp_path.glob("*.yaml")}
+    assert {"armed", "re-learnt"} <= set(handed) <= {"armed", "re-learnt", "settled after a re-learn"}, set(handed)
+    relearnt = np.array(handed["re-learnt"]["camera_transform"]["matrix"])
+    np.testing.assert_allclose(relearnt, report.reestimate.T_base_cam, atol=1e-9)
+    assert tf.pose_error(np.array(handed["armed"]["camera_transform"]["matrix"]), T_true)[1] < 4e-3
+    # What the hook in docs/formats.md starts: the publisher of the re-learnt camera (its raw-points transform).
+    line = handed["re-learnt"]["ros2_static_transform_publisher"].split()
+    assert line[:4] == ["ros2", "run", "tf2_ros", "static_transform_publisher"]
+    xyz = [float(line[line.index(k) + 1]) for k in ("--x", "--y", "--z")]
+    np.testing.assert_allclose(xyz, report.reestimate.camera_transform_raw_points[:3, 3], atol=1e-6)
 
 
 class _StillRobot:
