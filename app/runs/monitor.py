@@ -395,9 +395,11 @@ def run_monitor(
     t0 = time.monotonic()
     report = MonitorReport(writer.path, 0, 0, record=record or ShiftRecord(engine.reference.setup if engine.armed
                                                                          else writer.header["setup"], str(writer.path)))
+
     def new_calibration(path: Path, why: str, t: float) -> None:
         run_hook(cfg.calibration_hook, {"HANDEYE_EVENT": "calibration_in_use", "HANDEYE_REASON": why,
-                                        "HANDEYE_CALIBRATION": str(path), "HANDEYE_SESSION": str(writer.path),
+                                        "HANDEYE_CALIBRATION": str(path.absolute()),
+                                        "HANDEYE_SESSION": str(writer.path.absolute()),
                                         "HANDEYE_TIME": calibration_in_use.local_time(t)}, "monitor.calibration_hook")
 
     in_use = calibration_in_use.InUseFile(writer.path, frames, on_new=new_calibration)
@@ -642,5 +644,5 @@ def _raise_alarm(report: MonitorReport, obs: Observation, upd: MonitorUpdate, wr
     writer.add_event(obs.t, "alarm", sample_index=obs.index, **info)
     viz.event(obs.t, text, "ERROR" if upd.alarm == AlarmLevel.MOVED else "WARN")
     run_hook(cfg.alarm_hook, {"HANDEYE_EVENT": "camera_moved" if upd.alarm == AlarmLevel.MOVED else "camera_drifting",
-                              "HANDEYE_SESSION": str(writer.path), "HANDEYE_SAMPLE": str(obs.index)})
+                              "HANDEYE_SESSION": str(writer.path.absolute()), "HANDEYE_SAMPLE": str(obs.index)})
 
