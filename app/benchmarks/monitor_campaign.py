@@ -12,9 +12,15 @@ setups:
   duplicate and back-stepping timestamps, hour- to day-long gaps, covariances
   that are not one); disarming and arming again. After every step: only
   `calib.errors.HandeyeError` escapes, the state is finite with a symmetric
-  positive semi-definite covariance, the memory is bounded, and a bump that
+  positive semi-definite covariance, the memory is bounded, a bump that
   moves the marker by 5 mm or more at the stops is flagged within
-  `DETECT_WITHIN` samples once three stops not on one line have been seen.
+  `DETECT_WITHIN` samples once three stops not on one line have been seen,
+  and ``calibration_in_use.yaml`` (`app.calibration_in_use.InUseFile`, as the
+  monitor keeps it) is written for each new calibration in use, so that it
+  holds the current one whenever the engine is not re-learning or settling;
+  when the calibration hook is told, the file holds the engine's live
+  camera, and a run resumed from it continues from that camera and
+  calibration in use.
 - `composed_run`: whole shifts of programs composed as users compose them:
   3-8 stops visited in turn or at random, 1-3 hours, a sample every 30 s,
   0.5 mm/h of drift, bumps of 5 mm / 0.3 deg (the first as early as the 5th
@@ -32,12 +38,16 @@ import collections
 import dataclasses
 import functools
 import math
+import tempfile
 import time
 import traceback
 from dataclasses import dataclass, field
+from pathlib import Path
 
 import numpy as np
+import yaml
 
+from app import calibration_in_use
 from calib import simulate, solve
 from calib import transforms as tf
 from calib.errors import HandeyeError
@@ -109,6 +119,8 @@ class ProgramDriver:
         self.flagged_after: list[int] = []
         self.moved_alarms = 0
         self.updates = 0
+        #: Told of each update (the machine's calibration_in_use.yaml follows the engine).
+        self.on_update = None
         #: The last steps, for a failure's message.
         self.history: collections.deque[str] = collections.deque(maxlen=80)
 
@@ -121,6 +133,8 @@ class ProgramDriver:
         self.updates += 1
         if upd.alarm == AlarmLevel.MOVED:
             self.moved_alarms += 1
+        if self.on_update is not None:
+            self.on_update(upd)
         return upd
 
     def visit(self, stop: int, dt: float, jitter_deg: float = 0.0):
@@ -239,6 +253,11 @@ def engine_machine():
             self.driver = ProgramDriver(c, MonitorEngine(cfg), np.random.default_rng([seed, 7]))
             self.arming = arming
             self.next_stop = 0
+            self.directory = tempfile.TemporaryDirectory(prefix="handeye-campaign-")
+            self.in_use = calibration_in_use.InUseFile(Path(self.directory.name), on_new=self.handed)
+            self.handed_over: list[str] = []
+            self.mishandled: list[str] = []
+            self.driver.on_update = lambda upd: self.in_use.update(self.driver.engine, upd, self.driver.t)
             self.arm()
             self.driver.history.append(f"start: {self.key}, {arming}, {settings}: "
                                        f"{'armed' if self.driver.engine.armed else 'not armed'}")
@@ -268,6 +287,23 @@ def engine_machine():
             except HandeyeError:
                 return
             d.watch = None
+            self.in_use.armed(engine, d.t)
+
+        def handed(self, path: Path, why: str, t: float) -> None:
+            """The calibration hook's moment: the file holds the engine's live camera, and a run resumed from it
+            starts from that camera and the same calibration in use."""
+            e = self.driver.engine
+            self.handed_over.append(why)
+            doc = yaml.safe_load(path.read_text())
+            resumed = MonitorEngine(e.settings)
+            resumed.resume(calibration_in_use.read(path, e.reference.setup))
+            for what, T, ref in (("the file's camera", np.array(doc["camera_transform"]["matrix"]),
+                                  e.camera_transform),
+                                 ("a resumed run's camera", resumed.camera_transform, e.camera_transform),
+                                 ("a resumed run's calibration in use", resumed.in_use.C, e.in_use.C)):
+                if not np.allclose(T, ref, atol=1e-9):
+                    self.mishandled.append(f"{why}: {what} is {tf.pose_error(T, ref)} (rad, m) off the engine's; "
+                                           "the last steps:\n" + "\n".join(self.driver.history))
 
         @rule(visits=st.integers(1, 40), order=st.sampled_from(["cycle", "random"]),
               jitter_deg=st.sampled_from([0.0, 0.0, 0.5]), dt=st.sampled_from([1.0, 30.0, 120.0]))
@@ -350,6 +386,7 @@ def engine_machine():
             engine.resume(snapshot)
             d.engine = engine
             d.history.append("carry on: a new run from the snapshot")
+            self.in_use.armed(engine, d.t)
 
         @invariant()
         def sound(self):
@@ -365,6 +402,17 @@ def engine_machine():
         @invariant()
         def relearns_done(self):
             assert not self.driver.stuck, self.driver.stuck
+
+        @invariant()
+        def calibration_in_use_kept(self):
+            e = self.driver.engine
+            assert not self.mishandled, self.mishandled[0]
+            if e.armed and e.state in (EngineState.ARMED, EngineState.WARMING):
+                assert self.in_use.written is e.in_use, ("calibration_in_use.yaml does not hold the calibration in "
+                                                         "use; the last steps:\n" + "\n".join(self.driver.history))
+
+        def teardown(self):
+            self.directory.cleanup()
 
     return EngineMachine
 
