@@ -51,9 +51,8 @@ def run(args) -> int:
 def print_monitor_summary(report: MonitorReport, setup: Setup = Setup.EYE_TO_HAND, next_lines=()) -> None:
     """The state of the cell in plain words first (`app.shift_record.ShiftRecord.status`), every alarm with its
     local time and what became of it, the live estimate, the move since the cell's first calibration and the
-    drift since the calibration in use, then the counts, the files and ``next_lines``
-    (`app.shift_record.ShiftRecord.next_steps`)
-    with the recording to open."""
+    drift since the calibration in use, then the counts, the files, and ``next_lines``
+    (`app.shift_record.ShiftRecord.next_steps`) with the recording to open."""
     cam = Setup(setup).camera_name
     record = report.record
     if report.estimate is None or record is None or record.last is None:
