@@ -139,3 +139,17 @@ def test_byte_damage_is_loaded_or_a_config_error(tmp_path, pos, junk, cut):
         devices.check_session_root(cfg)
     except HandeyeError:
         pass
+
+
+def test_the_monitors_hook_options_override_the_config(tmp_path):
+    """--hook and --calibration-hook replace [monitor] alarm_hook and calibration_hook; a program that is not
+    there is the same one-line error naming the field as in the file."""
+    from app.cli import build_parser
+    from app.commands.common import load_config_args
+
+    parser, _ = build_parser()
+    args = parser.parse_args(["monitor", "--hook", "touch a", "--calibration-hook", "touch 'b c'"])
+    cfg = load_config_args(args)
+    assert (cfg.monitor.alarm_hook, cfg.monitor.calibration_hook) == ("touch a", "touch 'b c'")
+    with pytest.raises(ConfigError, match="monitor.calibration_hook"):
+        load_config_args(parser.parse_args(["monitor", "--calibration-hook", "no-such-program-xyz"]))
