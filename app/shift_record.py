@@ -108,7 +108,7 @@ class ShiftRecord:
 
     def next_steps(self, in_use: Path, *, continue_with: str | None, verify_with: str | None = None,
                    calibrate: str | None = None) -> list[str]:
-        """What to do after the run, as lines to paste (empty before any sample).
+        """What to do after the run, as lines to paste (before any sample: only how to go on, if it was armed).
 
         After a move, the robot program, a ROS tf or anything else given the camera transform before still
         holds the old one: it is told to take the calibration in use (``in_use``, the run's
@@ -119,7 +119,9 @@ class ShiftRecord:
         """
         u = self.last
         if u is None:
-            return []
+            # Armed, no sample yet: the calibration in use is the one it was armed with.
+            go_on = continue_with and in_use.exists()
+            return ["next:", f"  go on monitoring from this calibration in use: {continue_with}"] if go_on else []
         mm, deg = self.moved_total
         moved = [a for a in self.alarms if a["alarm"] == AlarmLevel.MOVED]
         lines = []

@@ -55,9 +55,14 @@ def print_monitor_summary(report: MonitorReport, setup: Setup = Setup.EYE_TO_HAN
     (`app.shift_record.ShiftRecord.next_steps`) with the recording to open."""
     cam = Setup(setup).camera_name
     record = report.record
-    if report.estimate is None or record is None or record.last is None:
+    if report.estimate is None or record is None:
         print("\nNOT WATCHING: the monitoring engine was never armed: give --reference (a calibration session, or a "
               "previous monitoring run), or let it see enough distinct poses to calibrate itself")
+    elif record.last is None:
+        level, sentence = record.status()
+        print(f"\n{level.upper()}: {sentence} (the engine was armed; the run ended before the robot held a pose "
+              f"with the marker in view)")
+        print(f"  {cam} in use: {pose_line(report.estimate)}")
     else:
         level, sentence = record.status()
         print(f"\n{level.upper()}: {sentence}")

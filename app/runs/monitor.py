@@ -405,11 +405,15 @@ def run_monitor(
     in_use = calibration_in_use.InUseFile(writer.path, frames, on_new=new_calibration)
     run = _PassiveRun(robot, camera, measure, engine, solve, writer, cfg, viz, save_frames, on_sample, on_update,
                       say, shared_error, report, in_use, on_error)
-    run.in_use.armed(engine, time.time())
     report = run.report
     report.samples_until_armed = _until_armed(engine, run.kept, cfg)
     say(f"monitoring engine: {_engine_state(engine, run.kept, cfg)}")
     try:
+        if engine.armed:      # the camera it watches, also if the run ends before its first sample
+            report.estimate, report.estimate_cov = engine.camera_transform, engine.cov
+            report.estimate_sigma = worst_axis_sigma(engine.cov)
+        # Its calibration hook may take a while: a Ctrl-C meanwhile is the run's normal end as any other.
+        run.in_use.armed(engine, time.time())
         while not _should_stop(report, cfg, stop, t0):
             run.step()
     except DeviceError as e:

@@ -10,6 +10,7 @@ import sys
 import time
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from app.cli import main
@@ -267,3 +268,24 @@ def test_ctrl_c_to_the_process_group_stops_verify_before_it_has_poses_to_judge(s
                                          f"needs: nothing judged (session {session_dir})")
     assert read_session(session_dir).events[-1]["event"] == "interrupted"
     assert not (session_dir / "verify.yaml").exists()
+
+
+def test_ctrl_c_while_the_calibration_hook_runs_at_the_start_ends_monitor_normally(tmp_path, loopback):
+    """Armed from a reference, monitor hands the calibration in use to its calibration hook before the first
+    sample; a Ctrl-C while that hook still runs is the run's normal end (summary, exit 0, the session's end
+    events), not 'interrupted' with exit 130 and the session left without its end; the hook is stopped."""
+    from tests.app.test_production import _reference_session
+
+    ref = _reference_session(tmp_path / "ref", 12, np.random.default_rng(3))
+    started = tmp_path / "hook started"
+    hook = f"sh -c 'touch \"{started}\"; exec sleep 60'"
+    root = tmp_path / "sessions"
+    rc, out, err = _ctrl_c(_cli("monitor", "-c", str(_sim_cell(tmp_path, loopback(13))), "--reference", ref,
+                                "--calibration-hook", hook, "--session-root", str(root), "--no-viz", "--no-frames"),
+                           started.exists)
+    assert rc == 0, (out, err)
+    assert "0 samples, 0 skipped" in out and "go on monitoring from this calibration in use: " in out, out
+    session = read_session(next(root.iterdir()))
+    assert [e["event"] for e in session.events][-2:] == ["interrupted", "sample_set"]
+    assert (session.path / "calibration_in_use.yaml").exists()
+    assert not _processes_naming("exec sleep 60") and not _processes_naming("sleep 60")

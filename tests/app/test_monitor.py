@@ -157,7 +157,8 @@ def test_a_sample_the_engine_refuses_is_a_recorded_skip_and_the_run_goes_on(tmp_
         report = run_monitor(robot, camera, devices.make_measure(cfg), _refusing_engine(), None, writer, mon, viz,
                              on_update=lambda obs, update, rep: updates.append(update), say=lambda s: None)
     assert report.n_samples == 3 and updates == [None, None, None]
-    assert report.alarms == [] and report.estimate is None
+    # Nothing fused: the estimate is still the camera the engine was armed with.
+    assert report.alarms == [] and report.last is None and report.estimate is not None
     skips = [s for s in read_session(tmp_path / "s").skipped if s["reason"] == "monitoring engine: malformed sample"]
     assert len(skips) == 3
 
