@@ -228,6 +228,53 @@ def test_an_unexpected_error_ends_the_run_with_its_sample_and_alarm_kept(tmp_pat
         assert calibration_in_use.find(tmp_path / name) is not None
 
 
+def test_a_ctrl_c_in_the_alarm_hook_ends_the_run_with_the_alarm_published(tmp_path, monkeypatch):
+    """Ctrl-C while the moved alarm's hook runs: the run's normal end (the session's interrupted and sample_set
+    events), and the alarm reaches what publishes it (MQTT) before it ends: it is not only in the session."""
+    import app.runs.monitor as runs_monitor
+    from app.config import load_config
+    from app.viz import Viz
+    from drivers.camera.registry import CAMERAS
+
+    cfg = load_config(None)
+    c = cfg.camera
+    T_cam_marker = tf.make_transform(np.diag([1.0, -1.0, -1.0]), [0.0, 0.0, 0.6])
+    T0 = np.asarray(c.T_base_cam) @ T_cam_marker @ tf.invert(np.asarray(c.T_flange_marker))
+    rng = np.random.default_rng(3)
+    poses = [tf.from_rotvec_translation(rng.normal(scale=0.15, size=3), rng.normal(scale=0.06, size=3)) @ T0
+             for _ in range(40)]
+    robot = _StillRobot(poses, reads=8)
+    mon = cfg.monitor.model_copy(update={"still_s": 0.0, "poll_s": 0.001, "max_samples": 40, "duration_s": 60.0,
+                                         "arm_samples": 8, "reestimate_samples": 2, "alarm_hook": "true"})
+    camera = CAMERAS.create(cfg.camera)
+    camera.follow(robot.pose)
+    engine = devices.make_engine(cfg)
+    real_update, told, seen = engine.update, [], []
+
+    def update(*args):
+        upd = real_update(*args)
+        seen.append(upd)
+        if engine.armed and len(seen) == 14:
+            camera.config.T_base_cam = (tf.from_rotvec_translation([0.0, 0.02, 0.0], [0.02, 0.0, 0.0])
+                                        @ np.asarray(c.T_base_cam)).tolist()
+        return upd
+
+    def hook(command, env, *field):
+        if env.get("HANDEYE_EVENT") == "camera_moved":
+            raise KeyboardInterrupt
+
+    engine.update = update
+    monkeypatch.setattr(runs_monitor, "run_hook", hook)
+    with camera, SessionWriter.create(tmp_path, cfg.setup, name="s") as writer, Viz(cfg.setup, None) as viz:
+        report = run_monitor(robot, camera, devices.make_measure(cfg), engine,
+                             devices.make_solve(cfg.calibrate, cfg.setup, rng), writer, mon, viz,
+                             on_update=lambda obs, upd, rep: told.append(upd), say=lambda s: None)
+    assert [a.kind for a in report.alarms] == ["moved"]
+    assert told and told[-1].alarm == "moved"                       # published
+    events = [e["event"] for e in read_session(tmp_path / "s").events]
+    assert "alarm" in events and events[-2:] == ["interrupted", "sample_set"], events
+
+
 def test_the_next_run_carries_the_relearnt_camera_over(sim_config, loopback):
     """``[monitor] carry_over``: a run bumped and re-learnt, then the next run on the same (bumped) camera
     continues from the first's calibration_in_use.yaml: it says so, raises no moved alarm, and its estimate is
