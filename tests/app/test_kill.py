@@ -274,9 +274,9 @@ def test_ctrl_c_while_the_calibration_hook_runs_at_the_start_ends_monitor_normal
     """Armed from a reference, monitor hands the calibration in use to its calibration hook before the first
     sample; a Ctrl-C while that hook still runs is the run's normal end (summary, exit 0, the session's end
     events), not 'interrupted' with exit 130 and the session left without its end; the hook is stopped."""
-    from tests.app.test_production import _reference_session
+    from tests.app.test_production import reference_session
 
-    ref = _reference_session(tmp_path / "ref", 12, np.random.default_rng(3))
+    ref = reference_session(tmp_path / "ref", 12, np.random.default_rng(3))
     started = tmp_path / "hook started"
     hook = f"sh -c 'touch \"{started}\"; exec sleep 60'"
     root = tmp_path / "sessions"

@@ -26,7 +26,7 @@ def _sim_toml(tmp_path, host: str, extra: str = "") -> str:
     return str(path)
 
 
-def _reference_session(root, n: int, rng) -> str:
+def reference_session(root, n: int, rng) -> str:
     """A 12-sample calibration session of the simulated cell (marker centers with 0.5 mm noise)."""
     cfg = load_config(None)
     truth = RenderedCameraConfig(setup=cfg.setup)
@@ -68,7 +68,7 @@ def test_demo_monitor_bump_alarms_and_exits_3(tmp_path, loopback, capsys, mosqui
     """Reference-armed: a 12-sample session arms the detector at once; the 10 mm bump after
     3 samples is flagged within a few samples; the re-estimate finds the moved camera; the
     alarm reaches an MQTT subscriber through a real broker."""
-    ref = _reference_session(tmp_path / "ref", 12, np.random.default_rng(3))
+    ref = reference_session(tmp_path / "ref", 12, np.random.default_rng(3))
     port = mosquitto()
     inbox = mqtt_inbox(port, "cell7/#")
     mqtt = f"\n[mqtt]\nenabled = true\nport = {port}\ntopic_prefix = \"cell7\"\n"
