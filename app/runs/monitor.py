@@ -295,6 +295,11 @@ def left_standstill(robot: Robot, T_still: np.ndarray, frame_t: float) -> str | 
     return None if still else "robot moved during the capture"
 
 
+#: A hook runs in line with the sampling (so its alarm or calibration is in place when it starts): one slower
+#: than this is told to background its work; one slower than the timeout is stopped.
+HOOK_SLOW_S, HOOK_TIMEOUT_S = 1.0, 30.0
+
+
 def run_hook(command: str, env: dict, field: str = "monitor.alarm_hook") -> None:
     """Run a hook command (no shell; arguments split like a shell would). Failures are logged, not raised.
 
@@ -302,18 +307,23 @@ def run_hook(command: str, env: dict, field: str = "monitor.alarm_hook") -> None
     here (the program removed since) is logged so the alarm itself still counts.
     ``field``: the config field that names it, for the log.
     """
+    t0 = time.monotonic()
     try:
         argv = hook_argv(command, field)
         if not argv:
             return
         # Its own session: a terminal's Ctrl-C is for the monitor, not for the hook and the programs it starts.
-        done = subprocess.run(argv, env={**os.environ, **env}, timeout=30, capture_output=True, text=True,
-                              start_new_session=True)
+        done = subprocess.run(argv, env={**os.environ, **env}, timeout=HOOK_TIMEOUT_S, capture_output=True,
+                              text=True, start_new_session=True)
     except (OSError, subprocess.TimeoutExpired, ConfigError) as e:
         log.error("%s %r failed: %s", field, command, e)
         return
     if done.returncode != 0:
         log.error("%s %r exited %d: %s", field, command, done.returncode, done.stderr.strip()[:200])
+    took = time.monotonic() - t0
+    if took > HOOK_SLOW_S:
+        log.warning("%s %r took %.1f s: no sample is taken while a hook runs; start long work in the background "
+                    "(setsid ... &)", field, command, took)
 
 
 @dataclass

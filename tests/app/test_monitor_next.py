@@ -101,3 +101,18 @@ def test_a_drifting_camera_is_said_with_the_calibration_in_use_that_followed_it(
 
 def test_a_run_without_a_sample_has_no_next_steps(tmp_path):
     assert ShiftRecord(Setup.EYE_TO_HAND).next_steps(tmp_path / FILE_NAME, continue_with="handeye monitor") == []
+
+
+def test_a_slow_hook_is_told_to_background_its_work(caplog):
+    """Hooks run in line with the sampling: one that takes more than a second is named in a warning that says
+    no sample is taken meanwhile; a quick one is not."""
+    import logging
+
+    from app.runs.monitor import HOOK_SLOW_S, run_hook
+
+    with caplog.at_level(logging.WARNING, logger="app.runs.monitor"):
+        run_hook("true", {}, "monitor.calibration_hook")
+        assert not caplog.records
+        run_hook(f"sleep {HOOK_SLOW_S + 0.2}", {}, "monitor.calibration_hook")
+    (record,) = caplog.records
+    assert "monitor.calibration_hook 'sleep 1.2' took 1.2 s: no sample is taken while a hook runs" in record.message
