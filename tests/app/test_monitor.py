@@ -137,7 +137,7 @@ def _refusing_engine():
 
 
 def test_a_sample_the_engine_refuses_is_a_recorded_skip_and_the_run_goes_on(tmp_path):
-    """`run_monitor` records the engine's refusal as a skip and keeps sampling (no alarm, no estimate)."""
+    """`run_monitor` records the engine's refusal as a skip and keeps sampling (no alarm, nothing fused)."""
     from app.config import load_config
     from app.viz import Viz
     from drivers.camera.registry import CAMERAS
@@ -163,6 +163,29 @@ def test_a_sample_the_engine_refuses_is_a_recorded_skip_and_the_run_goes_on(tmp_
     assert len(skips) == 3
 
 
+def _poses_in_view(cfg, n: int = 40) -> list:
+    """``n`` flange poses around one that puts the marker 0.6 m in front of the simulated camera."""
+    c = cfg.camera
+    T_cam_marker = tf.make_transform(np.diag([1.0, -1.0, -1.0]), [0.0, 0.0, 0.6])
+    T0 = np.asarray(c.T_base_cam) @ T_cam_marker @ tf.invert(np.asarray(c.T_flange_marker))
+    rng = np.random.default_rng(3)
+    return [tf.from_rotvec_translation(rng.normal(scale=0.15, size=3), rng.normal(scale=0.06, size=3)) @ T0
+            for _ in range(n)]
+
+
+def _knock_at(camera, engine, seen: list, update, n: int = 14):
+    """``update`` (the engine's own) that records each update in ``seen`` and knocks the simulated camera by
+    2 cm and about a degree once the armed engine has taken ``n``."""
+    def knocking(*args):
+        upd = update(*args)
+        seen.append(upd)
+        if engine.armed and len(seen) == n:
+            camera.config.T_base_cam = (tf.from_rotvec_translation([0.0, 0.02, 0.0], [0.02, 0.0, 0.0])
+                                        @ np.asarray(camera.config.T_base_cam)).tolist()
+        return upd
+    return knocking
+
+
 def test_an_unexpected_error_ends_the_run_with_its_sample_and_alarm_kept(tmp_path, monkeypatch):
     """An error that is not a refused sample, at the sample after an alarm and at the alarm's own sample after it
     was raised: the run ends with `MonitorError` (one line, exit 1: a service restarts it), the sample, the alarm
@@ -175,12 +198,7 @@ def test_an_unexpected_error_ends_the_run_with_its_sample_and_alarm_kept(tmp_pat
     from drivers.camera.registry import CAMERAS
 
     cfg = load_config(None)
-    c = cfg.camera
-    T_cam_marker = tf.make_transform(np.diag([1.0, -1.0, -1.0]), [0.0, 0.0, 0.6])
-    T0 = np.asarray(c.T_base_cam) @ T_cam_marker @ tf.invert(np.asarray(c.T_flange_marker))
-    rng = np.random.default_rng(3)
-    poses = [tf.from_rotvec_translation(rng.normal(scale=0.15, size=3), rng.normal(scale=0.06, size=3)) @ T0
-             for _ in range(40)]
+    poses, rng = _poses_in_view(cfg), np.random.default_rng(3)
     for where in ("next sample", "alarm sample"):
         robot = _StillRobot(poses, reads=8)
         mon = cfg.monitor.model_copy(update={"still_s": 0.0, "poll_s": 0.001, "max_samples": 40, "duration_s": 60.0,
@@ -189,17 +207,13 @@ def test_an_unexpected_error_ends_the_run_with_its_sample_and_alarm_kept(tmp_pat
         camera = CAMERAS.create(cfg.camera)
         camera.follow(robot.pose)
         engine = devices.make_engine(cfg)
-        real_update, seen, told, errors = engine.update, [], [], []
+        seen, told, errors = [], [], []
+        knocking = _knock_at(camera, engine, seen, engine.update)
 
-        def update(*args, real_update=real_update, seen=seen):
+        def update(*args, knocking=knocking, seen=seen):
             if where == "next sample" and any(u.alarm for u in seen):
                 raise RuntimeError("a bug in the engine")
-            upd = real_update(*args)
-            seen.append(upd)
-            if engine.armed and len(seen) == 14:
-                camera.config.T_base_cam = (tf.from_rotvec_translation([0.0, 0.02, 0.0], [0.02, 0.0, 0.0])
-                                            @ np.asarray(c.T_base_cam)).tolist()
-            return upd
+            return knocking(*args)
 
         engine.update = update
         if where == "alarm sample":
@@ -237,33 +251,20 @@ def test_a_ctrl_c_in_the_alarm_hook_ends_the_run_with_the_alarm_published(tmp_pa
     from drivers.camera.registry import CAMERAS
 
     cfg = load_config(None)
-    c = cfg.camera
-    T_cam_marker = tf.make_transform(np.diag([1.0, -1.0, -1.0]), [0.0, 0.0, 0.6])
-    T0 = np.asarray(c.T_base_cam) @ T_cam_marker @ tf.invert(np.asarray(c.T_flange_marker))
     rng = np.random.default_rng(3)
-    poses = [tf.from_rotvec_translation(rng.normal(scale=0.15, size=3), rng.normal(scale=0.06, size=3)) @ T0
-             for _ in range(40)]
-    robot = _StillRobot(poses, reads=8)
+    robot = _StillRobot(_poses_in_view(cfg), reads=8)
     mon = cfg.monitor.model_copy(update={"still_s": 0.0, "poll_s": 0.001, "max_samples": 40, "duration_s": 60.0,
                                          "arm_samples": 8, "reestimate_samples": 2, "alarm_hook": "true"})
     camera = CAMERAS.create(cfg.camera)
     camera.follow(robot.pose)
     engine = devices.make_engine(cfg)
-    real_update, told, seen = engine.update, [], []
-
-    def update(*args):
-        upd = real_update(*args)
-        seen.append(upd)
-        if engine.armed and len(seen) == 14:
-            camera.config.T_base_cam = (tf.from_rotvec_translation([0.0, 0.02, 0.0], [0.02, 0.0, 0.0])
-                                        @ np.asarray(c.T_base_cam)).tolist()
-        return upd
+    told = []
+    engine.update = _knock_at(camera, engine, [], engine.update)
 
     def hook(command, env, *field):
         if env.get("HANDEYE_EVENT") == "camera_moved":
             raise KeyboardInterrupt
 
-    engine.update = update
     monkeypatch.setattr(runs_monitor, "run_hook", hook)
     with camera, SessionWriter.create(tmp_path, cfg.setup, name="s") as writer, Viz(cfg.setup, None) as viz:
         report = run_monitor(robot, camera, devices.make_measure(cfg), engine,
