@@ -175,6 +175,11 @@ def command_with(args, option: str, value) -> str:
     return shlex.join([program(), *argv, option, str(value)])
 
 
+def cell_command(name: str, config: Path | None, *extra) -> str:
+    """``handeye <name> [-c config] extra...`` quoted for a shell: a command to paste for the same cell."""
+    return shlex.join([program(), name, *([] if config is None else ["-c", str(config)]), *map(str, extra)])
+
+
 def pose_line(T: np.ndarray, *, rpy: bool = False) -> str:
     """``xyz [mm] = [...]  quat (x,y,z,w) = [...]`` of a transform (and URDF's ``rpy [deg]``), for printing."""
     from app.formats.export import rpy_deg

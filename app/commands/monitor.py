@@ -6,13 +6,12 @@ The run is `app.runs.monitor` (read-only: it never commands a motion); this modu
 from __future__ import annotations
 
 import argparse
-import shlex
 from pathlib import Path
 
 import numpy as np
 
 from app.calibration_in_use import FILE_NAME as IN_USE_FILE
-from app.commands.common import add_run_options, command_with, load_config_args, pose_line, program
+from app.commands.common import add_run_options, cell_command, command_with, load_config_args, pose_line
 from app.runs.monitor import MonitorReport, monitor
 from calib import transforms as tf
 from calib.monitor import EngineState
@@ -37,14 +36,12 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 def run(args) -> int:
     cfg = load_config_args(args)
     report = monitor(cfg, reference=args.reference)
-    config = [] if args.config is None else ["-c", str(args.config)]
     # A simulated camera starts unmoved in every process: a verification there would judge the re-learnt camera
     # against the one from before the bump.
-    verify = None if report.truth is not None else shlex.join([program(), "verify", *config])
-    armed = report.estimate is not None and report.record is not None and report.session is not None
-    print_monitor_summary(report, cfg.setup, [] if not armed else report.record.next_steps(
+    verify = None if report.truth is not None else cell_command("verify", args.config)
+    print_monitor_summary(report, cfg.setup, report.record.next_steps(
         report.session / IN_USE_FILE, continue_with=command_with(args, "--reference", report.session),
-        verify_with=verify, calibrate=shlex.join([program(), "calibrate", *config, "--yes-move"])))
+        verify_with=verify, calibrate=cell_command("calibrate", args.config, "--yes-move")))
     return EXIT_ALARM if report.moved_alarms else 0
 
 

@@ -15,8 +15,8 @@ import numpy as np
 from app import devices
 from app.calibration_in_use import FILE_NAME as IN_USE_FILE
 from app.commands.calibrate import print_statistics
-from app.commands.common import (add_report_options, marker_offset, next_steps, program, report_overrides, tolerance,
-                                 transform_lines, verdict_lines)
+from app.commands.common import (add_report_options, cell_command, marker_offset, next_steps, program,
+                                 report_overrides, tolerance, transform_lines, verdict_lines)
 from app.errors import SessionError
 from app.runs.replay import replay_settings, replay_source, write_outputs
 from calib.setup import Setup
@@ -69,12 +69,10 @@ def monitor_next_steps(rep, config: Path | None) -> list[str]:
     given."""
     if config is None:
         return rep.record.next_steps(rep.out / IN_USE_FILE, continue_with=None)
-
-    def command(name, *extra):
-        return shlex.join([program(), name, "-c", str(config), *extra])
-
-    return rep.record.next_steps(rep.out / IN_USE_FILE, continue_with=command("monitor", "--reference", str(rep.out)),
-                                 verify_with=command("verify"), calibrate=command("calibrate", "--yes-move"))
+    return rep.record.next_steps(rep.out / IN_USE_FILE,
+                                 continue_with=cell_command("monitor", config, "--reference", rep.out),
+                                 verify_with=cell_command("verify", config),
+                                 calibrate=cell_command("calibrate", config, "--yes-move"))
 
 
 def print_lines(lines: list[str]) -> None:
