@@ -225,12 +225,15 @@ class MqttPublisher:
         if reason_code.is_failure:
             self._last_error = str(reason_code)
             return
-        lost, self._broker_lost = self._broker_lost, None
-        if lost is not None:
-            away = time.monotonic() - lost
-            self._broker_outage(OutageEvent("mqtt", "outage_end", time.time(), "", 0, away),
-                                f"MQTT broker back after {away:.1f} s")
+        back = None
+        # Under the lock with the state change, so that a message published meanwhile goes after the outage's end
+        # and never between the held ones and it.
         with self._lock:
+            lost, self._broker_lost = self._broker_lost, None
+            if lost is not None:
+                away = time.monotonic() - lost
+                back = self._broker_outage(OutageEvent("mqtt", "outage_end", time.time(), "", 0, away),
+                                           f"MQTT broker back after {away:.1f} s")
             self.connected.set()
             kept, held = list(self._held_kept), dict(self._held)
             self._held_kept.clear()
@@ -245,27 +248,40 @@ class MqttPublisher:
             for kind, (payload, retain) in held.items():
                 if not retain:
                     self._send(kind, payload, False)
+        if back is not None:
+            self._log_broker_outage(*back)
         if kept:
             log.info("MQTT broker back: published %d alarm(s) and %d outage message(s) held while it was away",
                      n_alarms, len(kept) - n_alarms)
 
     def _on_disconnect(self, client, userdata, flags, reason_code, properties):
-        was_connected = self.connected.is_set()
-        self.connected.clear()
-        if reason_code.is_failure:
-            self._last_error = str(reason_code)
-            if was_connected and self._broker_lost is None:
-                # The broker went away (not our own disconnect at the end): an outage, published once it is back.
-                self._broker_lost = time.monotonic()
-                self._broker_outage(OutageEvent("mqtt", "outage_start", time.time(), str(reason_code), 0, 0.0),
-                                    f"MQTT broker lost: {reason_code}; holding alarms until it is back")
+        lost = None
+        # Under the lock with the state change, so that an alarm published as the broker goes is held after the
+        # outage's start (the order a plant reads them in), however the threads are scheduled.
+        with self._lock:
+            was_connected = self.connected.is_set()
+            self.connected.clear()
+            if reason_code.is_failure:
+                self._last_error = str(reason_code)
+                if was_connected and self._broker_lost is None:
+                    # The broker went away (not our own disconnect at the end): an outage, published once it is back.
+                    self._broker_lost = time.monotonic()
+                    lost = self._broker_outage(
+                        OutageEvent("mqtt", "outage_start", time.time(), str(reason_code), 0, 0.0),
+                        f"MQTT broker lost: {reason_code}; holding alarms until it is back")
+        if lost is not None:
+            self._log_broker_outage(*lost)
 
-    def _broker_outage(self, event: OutageEvent, message: str) -> None:
-        """The broker's own outage: logged, held for publishing once it is back, and kept for the caller."""
+    def _broker_outage(self, event: OutageEvent, message: str) -> tuple[OutageEvent, str]:
+        """Hold the broker's own outage step for publishing once it is back (under the lock); returns it for
+        `_log_broker_outage`, outside the lock."""
+        self._hold_kept("outage", self._outage_payload(event, message))
+        return event, message
+
+    def _log_broker_outage(self, event: OutageEvent, message: str) -> None:
+        """Log the broker's outage step and keep it for the caller's session."""
         log.warning("%s (%s:%d)", message, self.config.host, self.config.port)
         self.broker_outages.append(event)
-        with self._lock:
-            self._hold_kept("outage", self._outage_payload(event, message))
 
     def close(self) -> None:
         """Publish ``offline`` (retained), wait briefly for the queue to drain, disconnect.

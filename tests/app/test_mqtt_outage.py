@@ -154,3 +154,38 @@ def test_alarms_and_outages_raised_while_the_broker_restarts_are_all_delivered_a
     assert {31, 32} <= estimates and not estimates & outage, estimates
     # The restarted broker learns the retained status again.
     assert any(t == "cell/status" and m["state"] == "online" for t, m in after)
+
+
+def test_an_alarm_raised_as_the_broker_goes_is_published_after_the_outages_start(broker, tmp_path, engine_update):
+    """The monitor's thread may publish at the very moment paho's thread notices the broker gone: the alarm goes
+    after the broker's ``outage_start``, as it happened, however the two threads are scheduled."""
+    import logging
+
+    inbox = []
+    sub = subscriber(broker.port, inbox)
+    cfg = MqttConfig(enabled=True, port=broker.port, topic_prefix="cell", qos=1, reconnect_min_s=1,
+                     reconnect_max_s=1, connect_timeout_s=5.0)
+
+    class AlarmAtTheLoss(logging.Handler):
+        def emit(self, record):
+            if record.getMessage().startswith("MQTT broker lost"):
+                _sample(pub, tmp_path, 2, alarm=True, engine_update=engine_update)
+
+    handler = AlarmAtTheLoss()
+    logging.getLogger("app.mqtt").addHandler(handler)
+    try:
+        with MqttPublisher(cfg, "eye_to_hand", FRAMES, environ={}) as pub:
+            _sample(pub, tmp_path, 1, alarm=True, engine_update=engine_update)
+            assert _wait(lambda: any(t == "cell/alarm" for t, _, _ in inbox))
+            broker.stop()
+            assert _wait(lambda: pub.held == 1 + 1 + 2)   # the outage's start, the alarm, the estimate, the drift
+            broker.start()
+            assert _wait(lambda: any(t == "cell/outage" and m["event"] == "outage_end" for t, m, _ in inbox))
+    finally:
+        logging.getLogger("app.mqtt").removeHandler(handler)
+        sub.disconnect()
+        sub.loop_stop()
+    order = [(m["device"], m["event"]) if t == "cell/outage" else m["sample"] for t, m, _ in inbox
+             if t in ("cell/alarm", "cell/outage")]
+    order = list(dict.fromkeys(order[order.index(("mqtt", "outage_start")):]))
+    assert order == [("mqtt", "outage_start"), 2, ("mqtt", "outage_end")], order
