@@ -27,6 +27,11 @@ from calib.params import Float, Int, Params
 
 #: The detector's long window is tested every this many samples.
 LONG_STRIDE = 4
+#: Per-sample false-alarm rate of the *moved* test. A production program gives a sample at every standstill,
+#: thousands a day: at 1e-5 a still camera raised a false *moved* alarm every 2-4 weeks per cell (17 in 300
+#: simulated cell-days, a sample every 30 s); at 1e-6, 1 in 300, for 0-10 points less of the 1-2 mm bumps
+#: flagged within 20 samples (docs/benchmarks.md, "The false-alarm rate a plant lives with").
+FALSE_ALARM_RATE = 1e-6
 
 _EYE3 = np.eye(3)
 
@@ -44,12 +49,12 @@ class DetectorConfig(Params):
         cannot resolve (e.g. a rotation about the optical axis); None disables it.
     false_alarm_rate : float
         Per-sample probability of a false alarm on an unchanged cell, in
-        (0, 0.1), split evenly between the two windows.
+        (0, 0.1), split evenly between the two windows (`FALSE_ALARM_RATE`).
     """
 
     window: Annotated[Int, Field(ge=3)] = 20
     long_window: Int | None = 100
-    false_alarm_rate: Annotated[Float, Field(gt=0, lt=0.1)] = 1e-7
+    false_alarm_rate: Annotated[Float, Field(gt=0, lt=0.1)] = FALSE_ALARM_RATE
 
     @model_validator(mode="after")
     def _windows(self):

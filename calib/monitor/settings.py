@@ -13,11 +13,6 @@ from calib.change import DetectorConfig
 from calib.params import NonNegativeFloat, Params, PositiveFloat
 
 
-#: Per-sample false-alarm rate of the *moved* test: against each stop's earlier visits, the
-#: statistic of a still camera stays far below its threshold over whole shifts (bench --shift).
-DETECTOR_FALSE_ALARM_RATE = 1e-5
-
-
 class EngineState(StrEnum):
     """Where the engine is: ``warming`` (the detector's first samples after arming), ``armed`` (every sample
     tested), ``relearning`` (after a move, until the production stops determine the camera) or ``settling``
@@ -90,7 +85,7 @@ class MonitorSettings(Params):
     stop_rotation_deg: NonNegativeFloat = 5.0
     relearn_samples: Annotated[int, Field(strict=True, ge=3)] = 40
     min_spread_m: PositiveFloat = 0.02
-    detector: DetectorConfig = Field(default_factory=lambda: DetectorConfig(false_alarm_rate=DETECTOR_FALSE_ALARM_RATE))
+    detector: DetectorConfig = Field(default_factory=DetectorConfig)
     walk_max_gap_h: PositiveFloat = 2.0
     time_scale: PositiveFloat = 1.0
 

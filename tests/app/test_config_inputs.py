@@ -73,6 +73,18 @@ def test_method_aliases_are_normalised(tmp_path):
     assert cfg.calibrate.method == "YQuatT'"
 
 
+def test_a_partial_detector_table_keeps_the_default_false_alarm_rate(tmp_path):
+    """``detector = { window = 30 }`` changes the window only: the *moved* test's rate stays the engine's
+    (it once fell to another default, ten times stricter)."""
+    from calib.change import FALSE_ALARM_RATE
+
+    assert load_config(_edit(tmp_path, "engine = {}", "engine = { detector = { window = 30 } }")) \
+        .monitor.engine.detector.false_alarm_rate == FALSE_ALARM_RATE == load_config(None).monitor.engine \
+        .detector.false_alarm_rate
+    cfg = load_config(_edit(tmp_path, "engine = {}", "engine = { detector = { false_alarm_rate = 1e-5 } }"))
+    assert cfg.monitor.engine.detector.false_alarm_rate == 1e-5 and cfg.monitor.engine.detector.window == 20
+
+
 @pytest.mark.parametrize("make,match", [
     (lambda p: p.write_bytes(b'setup = "eye_to_hand"\n# caf\xe9 \xff\n'), "not UTF-8"),
     (lambda p: p.write_text("a = " + "[" * 5000 + "]" * 5000 + "\n"), "nested deeper"),
