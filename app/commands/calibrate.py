@@ -10,8 +10,8 @@ from pathlib import Path
 
 import numpy as np
 
-from app.commands.common import (add_motion_options, add_report_options, add_run_options, command_with,
-                                 confirm_motion, load_config_args, next_steps, program, transform_lines,
+from app.commands.common import (add_motion_options, add_report_options, add_run_options, cell_command,
+                                 command_with, confirm_motion, load_config_args, next_steps, transform_lines,
                                  verdict_lines)
 from app.runs.calibrate import CalibrationOutput, calibrate
 from app.formats.export import model_report
@@ -138,11 +138,10 @@ def print_next_steps(out: CalibrationOutput, config: Path | None = None) -> None
     from app.viz import open_command
 
     res = out.report.result
-    cfg = f" -c {config}" if config is not None else ""
     print()
     for line in next_steps(res.verdict.level if res.verdict is not None else "warn", report=out.files.get("report"),
                            ros2=ros2_command(res, out.frames),
-                           verify=f"{program()} verify{cfg} --result {out.files['yaml']} --yes-move"
+                           verify=cell_command("verify", config, "--result", out.files["yaml"], "--yes-move")
                            if "yaml" in out.files else None):
         print(line)
     if out.recording is not None and out.recording.exists():

@@ -136,10 +136,11 @@ def print_replay(outcome, files: dict, frames: dict | None = None, *, verbose: b
         print(f"next: write the result files and report.html: {program()} replay "
               f"{shlex.quote(str(outcome.source))}{method} --out DIR")
         return
-    cfg = f" -c {config}" if config is not None else " -c <cell.toml>"
-    for line in next_steps(res.verdict.level, report=files["report"], ros2=ros2_command(res, frames),
-                           verify=f"{program()} verify{cfg} --result {files['yaml']} --yes-move"
-                           if "yaml" in files else None):
+    # Without -c the cell is not known here: a placeholder to fill in, the rest quoted for a shell.
+    verify = None if "yaml" not in files else (
+        cell_command("verify", config, "--result", files["yaml"], "--yes-move") if config is not None else
+        f"{shlex.join([program(), 'verify'])} -c <cell.toml> {shlex.join(['--result', str(files['yaml']), '--yes-move'])}")
+    for line in next_steps(res.verdict.level, report=files["report"], ros2=ros2_command(res, frames), verify=verify):
         print(line)
     if not verbose:
         print(f"  files: {', '.join(str(p) for p in files.values())}")

@@ -76,3 +76,18 @@ def test_replay_out_into_a_file_is_one_line_error(tmp_path, capsys):
     assert main(["replay", str(DATA / "circle_grid" / "cal_data.yaml"), "--out", str(tmp_path / "file")]) == 1
     err = capsys.readouterr().err
     assert "--out" in err and len(err.strip().splitlines()) == 1
+
+
+def test_the_verify_line_pastes_into_a_shell_with_spaces_in_the_paths(tmp_path, capsys):
+    """The printed ``verify`` command is quoted: pasted, it names the cell and the result, spaces and all."""
+    import shlex
+
+    cell = tmp_path / "my cell.toml"
+    cell.write_text((Path(__file__).parents[2] / "config" / "sim.toml").read_text())
+    out = tmp_path / "my out"
+    for config in (["-c", str(cell)], []):
+        assert main(["replay", str(DATA / "ethz" / "robot_arm"), "--out", str(out), *config]) == 0   # a PASS
+        line = next(line for line in capsys.readouterr().out.splitlines() if line.startswith("  verify on fresh"))
+        argv = shlex.split(line.split(":", 1)[1])
+        assert argv[1:] == ["verify", "-c", str(cell) if config else "<cell.toml>", "--result",
+                            str(out / "result.yaml"), "--yes-move"], line
