@@ -137,9 +137,9 @@ def print_replay(outcome, files: dict, frames: dict | None = None, *, verbose: b
               f"{shlex.quote(str(outcome.source))}{method} --out DIR")
         return
     # Without -c the cell is not known here: a placeholder to fill in, the rest quoted for a shell.
-    verify = None if "yaml" not in files else (
-        cell_command("verify", config, "--result", files["yaml"], "--yes-move") if config is not None else
-        f"{shlex.join([program(), 'verify'])} -c <cell.toml> {shlex.join(['--result', str(files['yaml']), '--yes-move'])}")
+    tail = ["--result", str(files.get("yaml")), "--yes-move"]
+    verify = None if "yaml" not in files else cell_command("verify", config, *tail) if config is not None else \
+        f"{shlex.join([program(), 'verify'])} -c <cell.toml> {shlex.join(tail)}"
     for line in next_steps(res.verdict.level, report=files["report"], ros2=ros2_command(res, frames), verify=verify):
         print(line)
     if not verbose:
