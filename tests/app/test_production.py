@@ -87,6 +87,9 @@ def test_demo_monitor_bump_alarms_and_exits_3(tmp_path, loopback, capsys, mosqui
     assert 0 < alarm["sample_index"] - bump["sample_index"] <= 20
     assert "ALARM camera moved at " in out and "; re-learnt the camera" in out
     assert "moved since the cell's first calibration" in out and "drift since the calibration in use" in out
+    # It ends as `monitor` does: what to give the re-learnt camera to, and the line that goes on from this run.
+    assert f"give it the calibration in use: {session / 'calibration_in_use.yaml'}" in out
+    assert "go on monitoring from this calibration in use: " in out and f"--reference {session}" in out
     deadline = time.monotonic() + 5
     while not any(t == "cell7/status" and m["state"] == "offline" for t, m, _ in inbox) and time.monotonic() < deadline:
         time.sleep(0.05)
