@@ -200,9 +200,9 @@ class MonitorEngine:
 
     @property
     def samples_until_tested(self) -> int:
-        """Samples before the *moved* test runs again (0: it runs): the re-learn's settling, then the
-        detector's first three innovations (two points cannot separate a 6-dof move)."""
-        return self._settle + max(3 - self.detector.count, 0) if self.armed else 0
+        """Samples before the *moved* test runs again (0: it runs): the detector's first three innovations after
+        arming or a re-learn (two points cannot separate a 6-dof move)."""
+        return max(3 - self.detector.count, 0) if self.armed else 0
 
     @property
     def n_factor(self) -> int:
@@ -323,9 +323,10 @@ class MonitorEngine:
             test_inv = inv_sym3_floats(a + k * R[0], b + k * R[1], c + k * R[2], d + k * R[3], e + k * R[4],
                                        f + k * R[5])
             S_test_inv = sym3(test_inv)
-        # While a re-learnt camera settles the stops still refine it: that is not a move.
-        fired = not self._settle and self.detector.update(r_test, S_test_inv, Hc, offset_var,
-                                                          shared=not baseline)
+        # While a re-learnt camera settles, its stops have no baselines yet: the test is against the model, whose
+        # innovation covariance holds the re-learnt camera's, so the stops refining it are no move; a second
+        # knock is.
+        fired = self.detector.update(r_test, S_test_inv, Hc, offset_var, shared=not baseline)
         statistic = self.detector.statistic
         (r0, r1, r2), (i0, i1, i2, i3, i4, i5) = r_test, test_inv
         nis = ((r0 * i0 + r1 * i1 + r2 * i2) * r0 + (r0 * i1 + r1 * i3 + r2 * i4) * r1

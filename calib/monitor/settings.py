@@ -17,7 +17,7 @@ class EngineState(StrEnum):
     """Where the engine is: ``warming`` (the detector's first samples after arming), ``armed`` (every sample
     tested), ``relearning`` (after a move, until the production stops determine the camera) or ``settling``
     (the detector's window after a re-learn: the calibration in use follows the estimate as the stops refine
-    it, the *moved* test waits)."""
+    it; the *moved* test runs against the model while the stops' baselines are learnt again)."""
 
     WARMING = "warming"
     ARMED = "armed"

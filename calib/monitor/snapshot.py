@@ -53,7 +53,8 @@ class Snapshot:
     relearns : int
         Re-learns since the first calibration.
     settle : int
-        Samples left of a re-learnt camera's settling (the *moved* test waits while the stops refine it).
+        Samples left of a re-learnt camera's settling (the calibration in use follows the estimate while the
+        stops refine it).
     """
 
     reference: Reference

@@ -200,6 +200,26 @@ def test_a_bump_is_flagged_and_relearnt_from_the_production_stops_alone():
     assert np.percentile(run.error_mm[after:], 95) <= run.bound_mm
 
 
+@pytest.mark.parametrize("seed", [2, 4])
+def test_a_second_knock_while_the_relearnt_camera_settles_is_flagged(seed):
+    """Two 5 mm / 0.3 deg knocks 10 samples apart: the second comes while the first's re-learnt camera settles (its
+    stops have no baselines yet), and is flagged as a move of its own within 20 samples, not taken in silently."""
+    shift = dataclasses.replace(simulate.Shift(), hours=2.5, bumps=((2.0, 5.0, 0.3), (2.0 + 10 * 30 / 3600 + 1e-6,
+                                                                                      5.0, 0.3)))
+    cell = bench_shift.seed_cell(seed, shift, MonitorSettings())
+    engine, stream = cell.engine, cell.stream
+    F = cell.profile.dh_error_factor(stream.q)
+    second = stream.bumped[1]
+    moved, state = [], None
+    for i in range(len(stream.t)):
+        if i == second:
+            state = engine.state
+        if engine.update(stream.t[i], stream.A[i], stream.points[i], stream.point_cov[i], F[i]).alarm == "moved":
+            moved.append(i)
+    assert state == "settling"
+    assert len(moved) == 2 and 0 <= moved[1] - second <= bench_shift.DETECT_WITHIN, (moved, second)
+
+
 def test_slow_drift_is_followed_and_its_rate_reported():
     shift = dataclasses.replace(simulate.Shift(), hours=3.0, bumps=(), drift_mm_h=2.0)
     real, res, engine = _armed(3, MonitorSettings(walk_mm_per_sqrt_h=2.0))
