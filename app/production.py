@@ -11,7 +11,8 @@ the camera's scheduled mount bumps (``[camera.mount]``): eye-to-hand the camera
 center shifts along base x and the camera turns about base y about its own
 center; eye-in-hand the same in the camera frame (``T_flange_cam <-
 T_flange_cam @ bump``, the camera slips on its mount). Either way the camera
-moves by exactly the bump's mm and deg.
+moves by exactly the bump's mm and deg. `carried_knocks` gives a run that
+continues from a monitoring run the knocks that run's camera took.
 
 This module knows the simulator only through what a robot declares
 (`drivers.robot.base.Robot`: ``simulated``, ``kinematics``, ``start_program``)
@@ -23,12 +24,15 @@ from __future__ import annotations
 
 import logging
 from dataclasses import dataclass
+from pathlib import Path
 
 import numpy as np
 
+from app import calibration_in_use
 from app.config import CalibrateConfig, ProductionConfig
 from app.errors import ConfigError
 from app.planning import random_pose
+from app.session import read_session
 from calib import transforms as tf
 from calib.setup import Setup
 from drivers.robot.base import KinematicModel
@@ -152,3 +156,20 @@ class Bump:
             raise ConfigError(f"setup is {Setup(setup).value} but the bumped camera is {camera.config.setup.value}")
         camera.add_bump(self.translation_mm, self.rotation_deg, direction=(1.0, 0.0, 0.0), axis=(0.0, 1.0, 0.0))
         return camera.camera_transform()
+
+
+def carried_knocks(reference: Path | None) -> list[Bump]:
+    """The simulated camera's knocks in the monitoring run ``reference`` names (its session's ``simulated_bump``
+    events, the ones it carried over included), to knock a new run's simulated camera by at its start: a run that
+    goes on from that one finds the camera where it left it, as on a real cell. None from a calibration session.
+
+    Raises
+    ------
+    SessionError
+        That run's session cannot be read (named).
+    """
+    found = calibration_in_use.find(reference) if reference is not None else None
+    if found is None:
+        return []
+    events = read_session(found.parent).events
+    return [Bump(0, e["translation_mm"], e["rotation_deg"]) for e in events if e.get("event") == "simulated_bump"]

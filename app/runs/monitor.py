@@ -38,7 +38,7 @@ from app.config import Config, MonitorConfig, hook_argv
 from app.errors import ConfigError, MonitorError, OutageError
 from app.monitoring import arm_from, arm_from_path, sample_factor
 from app.outage import OutageEvent, Reconnecting
-from app.production import Bump, start_production
+from app.production import Bump, carried_knocks, start_production
 from app.progress import progress_bar, say, show_monitor
 from app.session import SessionWriter
 from app.shift_record import ShiftRecord
@@ -179,6 +179,14 @@ def monitor(cfg: Config, *, reference: Path | None = None, stop=None, progress: 
         reference = carried_over(cfg) or reference
         if reference is not None:
             say(arm_from_path(engine, reference, cfg.setup, robot.shared_error_factor, rng=rng, t=time.time()))
+        # A simulated camera starts unmoved in every process: knocked as the run continued from left it, it is not
+        # a move the engine has re-learnt, reported again.
+        carried = carried_knocks(reference) if hasattr(camera, "add_bump") else []
+        for knock in carried:
+            knock.apply(camera, cfg.setup)
+        if carried:
+            say(f"simulated camera: knocked as the run continued from left it ({len(carried)} knock"
+                f"{'s' if len(carried) != 1 else ''})")
         if production:
             start_production(robot, cfg, rng, say=say)
         writer = SessionWriter.create(cfg.session.root, cfg.setup, config=cfg.to_dict(),
@@ -191,6 +199,9 @@ def monitor(cfg: Config, *, reference: Path | None = None, stop=None, progress: 
         with writer, devices.make_viz(cfg, writer.path) as viz, progress_bar(enabled=progress) as bar:
             outages.writer, outages.viz = writer, viz
             outages.shift = ShiftRecord(cfg.setup, str(writer.path), str(reference or ""))
+            for knock in carried:
+                writer.add_event(time.time(), "simulated_bump", sample_index=0, translation_mm=knock.translation_mm,
+                                 rotation_deg=knock.rotation_deg, carried=True)
             seen = []
 
             def on_sample(obs):

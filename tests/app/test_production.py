@@ -99,6 +99,29 @@ def test_demo_monitor_bump_alarms_and_exits_3(tmp_path, loopback, capsys, mosqui
     assert len(estimates) >= 10 and estimates[0]["samples_until_armed"] <= 2
 
 
+def test_a_demo_run_continued_from_a_bumped_one_finds_the_camera_where_it_was_left(tmp_path, loopback, capsys):
+    """The simulated camera starts unmoved in every process: a run that goes on from a monitoring run (the demo's
+    own next: line) knocks it as that run left it, so the re-learnt move is not reported again."""
+    ref = reference_session(tmp_path / "ref", 12, np.random.default_rng(3))
+    toml = _sim_toml(tmp_path, loopback(44))
+    common = ["--no-frames", "--no-viz", "--session-root", str(tmp_path / "s")]
+    assert main(["demo", "--monitor", "-c", toml, "--reference", ref, "--bump-after", "3", "--bump-mm", "10",
+                 "--bump-deg", "0", "--max-samples", "14", *common]) == 3
+    (first,) = (tmp_path / "s").iterdir()
+    capsys.readouterr()
+    rc = main(["demo", "--monitor", "-c", toml, "--reference", str(first), "--bump-mm", "0", "--bump-deg", "0",
+               "--max-samples", "10", *common])
+    out = capsys.readouterr().out
+    assert rc == 0, out
+    assert "simulated camera: knocked as the run continued from left it (1 knock)" in out
+    (second,) = [p for p in (tmp_path / "s").iterdir() if p != first]
+    s1, s2 = read_session(first), read_session(second)
+    assert [e["translation_mm"] for e in s2.events if e["event"] == "simulated_bump" and e["carried"]] == [10.0]
+    assert not [e for e in s2.events if e["event"] == "alarm"]
+    np.testing.assert_allclose(s2.truth["T_base_cam"][:3, 3] - s1.truth["T_base_cam"][:3, 3], [0.010, 0, 0],
+                               atol=1e-9)
+
+
 def test_monitor_with_the_shipped_config_samples(tmp_path, loopback, capsys):
     rc = main(["monitor", "-c", _sim_toml(tmp_path, loopback(43)), "--max-samples", "3", "--no-frames", "--no-viz",
                "--session-root", str(tmp_path / "s")])
