@@ -23,6 +23,7 @@ does nothing.
 from __future__ import annotations
 
 import logging
+import math
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -30,7 +31,7 @@ import numpy as np
 
 from app import calibration_in_use
 from app.config import CalibrateConfig, ProductionConfig
-from app.errors import ConfigError
+from app.errors import ConfigError, SessionError
 from app.planning import random_pose
 from app.session import read_session
 from calib import transforms as tf
@@ -171,5 +172,13 @@ def carried_knocks(reference: Path | None) -> list[Bump]:
     found = calibration_in_use.find(reference) if reference is not None else None
     if found is None:
         return []
-    events = read_session(found.parent).events
-    return [Bump(0, e["translation_mm"], e["rotation_deg"]) for e in events if e.get("event") == "simulated_bump"]
+    knocks = []
+    for e in read_session(found.parent).events:
+        if e.get("event") != "simulated_bump":
+            continue
+        mm, deg = e.get("translation_mm"), e.get("rotation_deg")
+        if not all(isinstance(v, (int, float)) and math.isfinite(v) for v in (mm, deg)):
+            raise SessionError(f"{found.parent}: a simulated_bump event needs numbers translation_mm and "
+                               f"rotation_deg, got {mm!r} and {deg!r}")
+        knocks.append(Bump(0, float(mm), float(deg)))
+    return knocks

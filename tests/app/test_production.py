@@ -2,6 +2,7 @@
 
 import json
 import time
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -9,6 +10,8 @@ import pytest
 from app.planning import random_pose
 from app.cli import main
 from app.config import load_config
+from app.errors import SessionError
+from app.production import carried_knocks
 from app.session import SessionWriter, read_session
 from calib import transforms as tf
 from calib.observation import Observation
@@ -120,6 +123,21 @@ def test_a_demo_run_continued_from_a_bumped_one_finds_the_camera_where_it_was_le
     assert not [e for e in s2.events if e["event"] == "alarm"]
     np.testing.assert_allclose(s2.truth["T_base_cam"][:3, 3] - s1.truth["T_base_cam"][:3, 3], [0.010, 0, 0],
                                atol=1e-9)
+
+
+def test_carried_knocks_come_from_a_monitoring_run_only_and_a_malformed_one_is_named(tmp_path):
+    ref = reference_session(tmp_path / "ref", 3, np.random.default_rng(3))
+    assert carried_knocks(Path(ref)) == [] and carried_knocks(None) == []
+    with SessionWriter.create(tmp_path / "runs", "eye_to_hand") as w:
+        w.add_event(0.0, "simulated_bump", sample_index=0, translation_mm=10.0, rotation_deg=0.5, carried=True)
+        w.add_event(1.0, "simulated_bump", sample_index=3, translation_mm=5, rotation_deg=0)
+    (w.path / "calibration_in_use.yaml").write_text("monitor_state: {}\n")
+    assert [(k.translation_mm, k.rotation_deg) for k in carried_knocks(w.path)] == [(10.0, 0.5), (5.0, 0.0)]
+    with SessionWriter.create(tmp_path / "bad", "eye_to_hand") as w:
+        w.add_event(0.0, "simulated_bump", sample_index=0, translation_mm="ten", rotation_deg=0.5)
+    (w.path / "calibration_in_use.yaml").write_text("monitor_state: {}\n")
+    with pytest.raises(SessionError, match="translation_mm and rotation_deg, got 'ten' and 0.5"):
+        carried_knocks(w.path / "calibration_in_use.yaml")
 
 
 def test_monitor_with_the_shipped_config_samples(tmp_path, loopback, capsys):
