@@ -18,7 +18,8 @@ error (p95 outside the 40 samples after each bump) against the bound
 ``max(1 mm, 1.5 x the arming calibration's own)``, samples until it is back
 within that bound after each bump, NEES of the live covariance, and the
 time per update. Run: ``handeye bench --shift [--seeds 10] [--hours 8]``
-(``--replay``: also through ``handeye replay --monitor``);
+(``--replay``: also through ``handeye replay --monitor``; ``--second-knock``: two knocks
+10-20 samples apart);
 tables on stdout and out/bench/shift.md, a plot in out/bench/shift.png.
 """
 
@@ -183,6 +184,43 @@ def section_split(seeds: list[int], settings: MonitorSettings, hours: float = 4.
                      "yes" if np.percentile(run.error_mm[second], 95) <= run.bound_mm else "no"])
     return markdown(["seed", "moved alarms, first run", "moved alarms, second run", "bound [mm]",
                 "second run live p95 [mm]", "within"], rows)
+
+
+def section_second_knock(seeds: list[int], shift: simulate.Shift, settings: MonitorSettings, distance: float = 0.8,
+                         gaps=(10, 15, 20), first_h: float = 2.0) -> str:
+    """Two knocks (``shift.bumps``' first size) ``gap`` samples apart on a shift of ``first_h`` + 1 hours: whether
+    the engine was settling a re-learnt camera at the second, whether that one was flagged within
+    `DETECT_WITHIN` samples, moved alarms outside both knocks' windows, and the live workspace error
+    `RECOVER_WITHIN` samples after the second."""
+    _, mm, deg = shift.bumps[0]
+    rows = []
+    for gap in gaps:
+        second_h = first_h + (gap - 0.5) * shift.sample_s / 3600.0
+        knocks = dataclasses.replace(shift, hours=first_h + 1.0, bumps=((first_h, mm, deg), (second_h, mm, deg)))
+        settling = flagged = other = 0
+        after = []
+        for seed in seeds:
+            cell = seed_cell(seed, knocks, settings, distance=distance)
+            engine, stream = cell.engine, cell.stream
+            F = cell.profile.dh_error_factor(stream.q)
+            b1, b2 = stream.bumped
+            moved = []
+            for i in range(len(stream.t)):
+                settling += i == b2 and engine.state == "settling"
+                upd = engine.update(stream.t[i], stream.A[i], stream.points[i], stream.point_cov[i], F[i])
+                if upd.alarm == "moved":
+                    moved.append(i)
+                if i == b2 + RECOVER_WITHIN:
+                    after.append(workspace_error(upd.camera_transform, engine.camera_correction, cell.real.camera,
+                                                 stream.Y[i], cell.P) * 1e3)
+            flagged += any(0 <= i - b2 <= DETECT_WITHIN for i in moved)
+            other += sum(not (0 <= i - b1 <= DETECT_WITHIN or 0 <= i - b2 <= DETECT_WITHIN) for i in moved)
+        n = len(seeds)
+        rows.append([gap, f"{settling}/{n}", f"{flagged}/{n}", other, f"{np.median(after):.2f}",
+                     f"{np.max(after):.2f}"])
+    return markdown(["samples between the knocks", "settling a re-learnt camera at the second", "second flagged "
+                     f"within {DETECT_WITHIN} samples", "other moved alarms", f"live error {RECOVER_WITHIN} samples "
+                     "after the second, median [mm]", "max [mm]"], rows)
 
 
 def section_oracle(seeds: list[int], shift: simulate.Shift, settings: MonitorSettings,
@@ -452,6 +490,8 @@ def main(argv=None) -> int:
                     "correction held)")
     ap.add_argument("--replay", action="store_true", help="also each shift written as sessions and replayed through "
                     "handeye replay --monitor, the live estimate read from its trace")
+    ap.add_argument("--second-knock", action="store_true", help="also two knocks 10, 15 and 20 samples apart "
+                    "(the second while the first's re-learnt camera settles), on 3-hour shifts")
     ap.add_argument("--out", type=Path, default=Path("out/bench"))
     args = ap.parse_args(argv)
     shift = dataclasses.replace(simulate.Shift(), hours=args.hours, stops=args.stops, max_tilt_deg=args.tilt,
@@ -474,6 +514,9 @@ def main(argv=None) -> int:
     if args.replay:
         text += ("\n\n#### Through `handeye replay --monitor`: each shift written as a calibration and a production "
                  "session\n\n" + section_replay(seeds, shift, settings, args.distance))
+    if args.second_knock:
+        text += ("\n\n#### A second knock soon after the first (10-20 samples: the first's re-learnt camera "
+                 "settling)\n\n" + section_second_knock(seeds, shift, settings, args.distance))
     if args.split:
         text += ("\n\n#### A shift in two runs: bumped at 1 h, the second run (from 2 h) armed from the first's "
                  "snapshot\n\n" + section_split(seeds, settings))
