@@ -279,7 +279,8 @@ def test_a_ctrl_c_in_the_alarm_hook_ends_the_run_with_the_alarm_published(tmp_pa
 def test_the_next_run_carries_the_relearnt_camera_over(sim_config, loopback):
     """``[monitor] carry_over``: a run bumped and re-learnt, then the next run on the same (bumped) camera
     continues from the first's calibration_in_use.yaml: it says so, raises no moved alarm, and its estimate is
-    the moved camera; the first run armed itself from its own samples."""
+    the moved camera; the first run armed itself from its own samples, the second's simulated camera starts
+    knocked as the first left it."""
     from app import calibration_in_use
     from app.production import Bump
     from app.runs.demo import demo_monitor
@@ -291,7 +292,6 @@ def test_the_next_run_carries_the_relearnt_camera_over(sim_config, loopback):
     assert [a.kind for a in first.alarms if a.kind == "moved"] == ["moved"] and first.reestimate is not None
     kept = calibration_in_use.find(first.session)
     assert kept is not None and calibration_in_use.latest(first.session.parent, cfg.setup) == kept
-    data["camera"]["T_base_cam"] = first.truth.tolist()      # the camera stays where the bump left it
     told = []
     import app.runs.monitor as runs_monitor
 
@@ -302,6 +302,9 @@ def test_the_next_run_carries_the_relearnt_camera_over(sim_config, loopback):
     finally:
         runs_monitor.say = real_say
     assert any(text.startswith(f"continuing from {kept}") for text in told), told
+    # The simulated camera stays where the bump left it (`app.production.carried_knocks`).
+    assert "simulated camera: knocked as the run continued from left it (1 knock)" in told, told
+    np.testing.assert_allclose(second.truth, first.truth, atol=1e-12)
     assert not second.moved_alarms, [a.info["message"] for a in second.alarms]
     rot, trans = tf.pose_error(second.estimate, first.truth)
     assert trans < 3e-3 and np.rad2deg(rot) < 0.2, (trans, np.rad2deg(rot))
