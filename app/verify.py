@@ -39,6 +39,7 @@ from app.acquire import take_sample
 from app.config import Config
 from app.errors import SessionError
 from app.files import read_text_file
+from app.production import carried_knocks
 from app.session import SessionWriter, read_session
 from calib import planner as pl
 from calib import transforms as tf
@@ -286,6 +287,10 @@ def verify_active(cfg: Config, loaded: LoadedResult, *, rng: np.random.Generator
     measure = devices.make_measure(cfg)
     observations, groups, n_skipped, interrupted = [], [], 0, False
     with devices.open_robot(cfg, read_only=False) as robot, devices.open_camera(cfg, robot) as camera:
+        # A monitoring run's calibration in use, on a simulated cell: its camera as that run left it.
+        carried = carried_knocks(loaded.path) if hasattr(camera, "add_bump") else []
+        for knock in carried:
+            knock.apply(camera, cfg.setup)
         truth = devices.truth(camera)
         start = robot.read()
         poses = verify_poses(cfg, loaded.model, start.T_base_flange, start.q, robot, camera.intrinsics,
@@ -298,6 +303,9 @@ def verify_active(cfg: Config, loaded: LoadedResult, *, rng: np.random.Generator
                                       source="handeye verify",
                                       devices=provenance.device_identity(cfg, robot, camera))
         with writer, devices.make_viz(cfg, writer.path) as viz:
+            for knock in carried:
+                writer.add_event(time.time(), "simulated_bump", sample_index=0, translation_mm=knock.translation_mm,
+                                 rotation_deg=knock.rotation_deg, carried=True)
             try:
                 for k, T in enumerate(poses):
                     try:
@@ -346,7 +354,7 @@ def verify_passive(cfg: Config, loaded: LoadedResult, *, progress: bool = False)
     data = cfg.model_dump()
     data["monitor"]["max_samples"] = cfg.verify.poses
     cfg = config_from_dict(data, "verify --passive")
-    report = monitor(cfg, progress=progress, publish=lambda *_: None)
+    report = monitor(cfg, progress=progress, publish=lambda *_: None, knocks_from=loaded.path)
     session = read_session(report.session)
     bias = None
     noise = getattr(cfg.camera, "noise", None)

@@ -36,12 +36,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 def run(args) -> int:
     cfg = load_config_args(args)
     report = monitor(cfg, reference=args.reference)
-    # A simulated camera starts unmoved in every process: a verification there would judge the re-learnt camera
-    # against the one from before the bump.
-    verify = None if report.truth is not None else cell_command("verify", args.config)
     print_monitor_summary(report, cfg.setup, report.record.next_steps(
         report.session / IN_USE_FILE, continue_with=command_with(args, "--reference", report.session),
-        verify_with=verify, calibrate=cell_command("calibrate", args.config, "--yes-move")))
+        verify_with=cell_command("verify", args.config), calibrate=cell_command("calibrate", args.config,
+                                                                                  "--yes-move")))
     return EXIT_ALARM if report.moved_alarms else 0
 
 

@@ -141,7 +141,8 @@ def detector_state(n: int) -> str:
 
 
 def monitor(cfg: Config, *, reference: Path | None = None, stop=None, progress: bool = True,
-            bump: Bump | None = None, production: bool = True, publish=None) -> MonitorReport:
+            bump: Bump | None = None, production: bool = True, publish=None,
+            knocks_from: Path | None = None) -> MonitorReport:
     """Passive monitoring with a read-only robot connection (never moves the robot).
 
     ``reference``: a calibration session (or its ``result.yaml``), solved
@@ -155,7 +156,10 @@ def monitor(cfg: Config, *, reference: Path | None = None, stop=None, progress: 
     runs a looping production program (``production``, `app.production`) so
     that the robot moves, and ``bump`` knocks the rendered camera partway.
     ``publish``: optional ``(obs, update, report)`` callback; by default the
-    ``[mqtt]`` publisher when enabled (`app.mqtt`).
+    ``[mqtt]`` publisher when enabled (`app.mqtt`). A simulated camera starts
+    knocked as the monitoring run ``reference`` (else ``knocks_from``: a
+    calibration in use, for ``verify --passive``) left it
+    (`app.production.carried_knocks`).
     """
     from app.mqtt import make_publisher
     from app.ros2 import make_diagnostics
@@ -181,7 +185,8 @@ def monitor(cfg: Config, *, reference: Path | None = None, stop=None, progress: 
             say(arm_from_path(engine, reference, cfg.setup, robot.shared_error_factor, rng=rng, t=time.time()))
         # A simulated camera starts unmoved in every process: knocked as the run continued from left it, it is not
         # a move the engine has re-learnt, reported again.
-        carried = carried_knocks(reference) if hasattr(camera, "add_bump") else []
+        carried = carried_knocks(reference if reference is not None else knocks_from) \
+            if hasattr(camera, "add_bump") else []
         for knock in carried:
             knock.apply(camera, cfg.setup)
         if carried:

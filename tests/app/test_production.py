@@ -125,6 +125,28 @@ def test_a_demo_run_continued_from_a_bumped_one_finds_the_camera_where_it_was_le
                                atol=1e-9)
 
 
+def test_the_relearnt_camera_verifies_on_the_simulated_cell_as_the_monitor_left_it(tmp_path, loopback, capsys):
+    """monitor's next: line 'check it on fresh poses' on the simulated cell: verify of the bumped run's
+    calibration_in_use.yaml moves to fresh poses with the camera knocked as that run left it, and passes (the
+    simulated camera started unmoved, so the re-learnt camera failed by the 10 mm knock)."""
+    ref = reference_session(tmp_path / "ref", 12, np.random.default_rng(3))
+    toml = _sim_toml(tmp_path, loopback(45))
+    assert main(["demo", "--monitor", "-c", toml, "--reference", ref, "--bump-after", "3", "--bump-mm", "10",
+                 "--bump-deg", "0", "--max-samples", "14", "--no-frames", "--no-viz", "--session-root",
+                 str(tmp_path / "s")]) == 3
+    (run,) = (tmp_path / "s").iterdir()
+    out = capsys.readouterr().out
+    in_use = run / "calibration_in_use.yaml"
+    line = next(t for t in out.splitlines() if "check it on fresh poses" in t)
+    assert f"verify -c {toml} --result {in_use} --yes-move" in line, line
+    rc = main(["verify", "-c", toml, "--result", str(in_use), "--yes-move", "--no-viz", "--no-frames",
+               "--session-root", str(tmp_path / "v")])
+    out = capsys.readouterr().out
+    assert rc == 0 and "\nPASS: " in out, out
+    (checked,) = (tmp_path / "v").iterdir()
+    assert [e["translation_mm"] for e in read_session(checked).events if e["event"] == "simulated_bump"] == [10.0]
+
+
 def test_carried_knocks_come_from_a_monitoring_run_only_and_a_malformed_one_is_named(tmp_path):
     ref = reference_session(tmp_path / "ref", 3, np.random.default_rng(3))
     assert carried_knocks(Path(ref)) == [] and carried_knocks(None) == []
