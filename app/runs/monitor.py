@@ -183,14 +183,14 @@ def monitor(cfg: Config, *, reference: Path | None = None, stop=None, progress: 
         reference = carried_over(cfg) or reference
         if reference is not None:
             say(arm_from_path(engine, reference, cfg.setup, robot.shared_error_factor, rng=rng, t=time.time()))
-        # A simulated camera starts unmoved in every process: knocked as the run continued from left it, it is not
+        # A simulated camera starts unmoved in every process: knocked as the monitoring run left it, it is not
         # a move the engine has re-learnt, reported again.
-        carried = carried_knocks(reference if reference is not None else knocks_from) \
-            if hasattr(camera, "add_bump") else []
+        knocked = reference if reference is not None else knocks_from
+        carried = carried_knocks(knocked) if hasattr(camera, "add_bump") else []
         for knock in carried:
             knock.apply(camera, cfg.setup)
         if carried:
-            say(f"simulated camera: knocked as the run continued from left it ({len(carried)} knock"
+            say(f"simulated camera: knocked as {knocked} left it ({len(carried)} knock"
                 f"{'s' if len(carried) != 1 else ''})")
         if production:
             start_production(robot, cfg, rng, say=say)

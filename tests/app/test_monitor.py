@@ -303,7 +303,7 @@ def test_the_next_run_carries_the_relearnt_camera_over(sim_config, loopback):
         runs_monitor.say = real_say
     assert any(text.startswith(f"continuing from {kept}") for text in told), told
     # The simulated camera stays where the bump left it (`app.production.carried_knocks`).
-    assert "simulated camera: knocked as the run continued from left it (1 knock)" in told, told
+    assert f"simulated camera: knocked as {kept} left it (1 knock)" in told, told
     np.testing.assert_allclose(second.truth, first.truth, atol=1e-12)
     assert not second.moved_alarms, [a.info["message"] for a in second.alarms]
     rot, trans = tf.pose_error(second.estimate, first.truth)

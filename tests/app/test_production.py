@@ -116,7 +116,7 @@ def test_a_demo_run_continued_from_a_bumped_one_finds_the_camera_where_it_was_le
                "--max-samples", "10", *common])
     out = capsys.readouterr().out
     assert rc == 0, out
-    assert "simulated camera: knocked as the run continued from left it (1 knock)" in out
+    assert f"simulated camera: knocked as {first} left it (1 knock)" in out
     (second,) = [p for p in (tmp_path / "s").iterdir() if p != first]
     s1, s2 = read_session(first), read_session(second)
     assert [e["translation_mm"] for e in s2.events if e["event"] == "simulated_bump" and e["carried"]] == [10.0]
