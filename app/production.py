@@ -12,7 +12,9 @@ center shifts along base x and the camera turns about base y about its own
 center; eye-in-hand the same in the camera frame (``T_flange_cam <-
 T_flange_cam @ bump``, the camera slips on its mount). Either way the camera
 moves by exactly the bump's mm and deg. `carried_knocks` gives a run that
-continues from a monitoring run the knocks that run's camera took.
+continues from a monitoring run (or verifies its calibration in use) the
+knocks that run's camera took; `knock_as_left` applies them and
+`record_knocks` writes them to the new session.
 
 This module knows the simulator only through what a robot declares
 (`drivers.robot.base.Robot`: ``simulated``, ``kinematics``, ``start_program``)
@@ -182,3 +184,19 @@ def carried_knocks(reference: Path | None) -> list[Bump]:
                                f"rotation_deg, got {mm!r} and {deg!r}")
         knocks.append(Bump(0, float(mm), float(deg)))
     return knocks
+
+
+def knock_as_left(camera, setup: Setup, run: Path | None) -> list[Bump]:
+    """Knock a simulated ``camera`` (one with ``add_bump``) by `carried_knocks` of ``run``; returns them (none for
+    another camera)."""
+    knocks = carried_knocks(run) if hasattr(camera, "add_bump") else []
+    for knock in knocks:
+        knock.apply(camera, setup)
+    return knocks
+
+
+def record_knocks(writer, knocks: list[Bump], t: float) -> None:
+    """The knocks `knock_as_left` applied, as the new session's ``simulated_bump`` events (``carried``)."""
+    for knock in knocks:
+        writer.add_event(t, "simulated_bump", sample_index=0, translation_mm=knock.translation_mm,
+                         rotation_deg=knock.rotation_deg, carried=True)

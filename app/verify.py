@@ -39,7 +39,7 @@ from app.acquire import take_sample
 from app.config import Config
 from app.errors import SessionError
 from app.files import read_text_file
-from app.production import carried_knocks
+from app.production import knock_as_left, record_knocks
 from app.session import SessionWriter, read_session
 from calib import planner as pl
 from calib import transforms as tf
@@ -288,9 +288,7 @@ def verify_active(cfg: Config, loaded: LoadedResult, *, rng: np.random.Generator
     observations, groups, n_skipped, interrupted = [], [], 0, False
     with devices.open_robot(cfg, read_only=False) as robot, devices.open_camera(cfg, robot) as camera:
         # A monitoring run's calibration in use, on a simulated cell: its camera as that run left it.
-        carried = carried_knocks(loaded.path) if hasattr(camera, "add_bump") else []
-        for knock in carried:
-            knock.apply(camera, cfg.setup)
+        carried = knock_as_left(camera, cfg.setup, loaded.path)
         truth = devices.truth(camera)
         start = robot.read()
         poses = verify_poses(cfg, loaded.model, start.T_base_flange, start.q, robot, camera.intrinsics,
@@ -303,9 +301,7 @@ def verify_active(cfg: Config, loaded: LoadedResult, *, rng: np.random.Generator
                                       source="handeye verify",
                                       devices=provenance.device_identity(cfg, robot, camera))
         with writer, devices.make_viz(cfg, writer.path) as viz:
-            for knock in carried:
-                writer.add_event(time.time(), "simulated_bump", sample_index=0, translation_mm=knock.translation_mm,
-                                 rotation_deg=knock.rotation_deg, carried=True)
+            record_knocks(writer, carried, time.time())
             try:
                 for k, T in enumerate(poses):
                     try:

@@ -38,7 +38,7 @@ from app.config import Config, MonitorConfig, hook_argv
 from app.errors import ConfigError, MonitorError, OutageError
 from app.monitoring import arm_from, arm_from_path, sample_factor
 from app.outage import OutageEvent, Reconnecting
-from app.production import Bump, carried_knocks, start_production
+from app.production import Bump, knock_as_left, record_knocks, start_production
 from app.progress import progress_bar, say, show_monitor
 from app.session import SessionWriter
 from app.shift_record import ShiftRecord
@@ -186,9 +186,7 @@ def monitor(cfg: Config, *, reference: Path | None = None, stop=None, progress: 
         # A simulated camera starts unmoved in every process: knocked as the monitoring run left it, it is not
         # a move the engine has re-learnt, reported again.
         knocked = reference if reference is not None else knocks_from
-        carried = carried_knocks(knocked) if hasattr(camera, "add_bump") else []
-        for knock in carried:
-            knock.apply(camera, cfg.setup)
+        carried = knock_as_left(camera, cfg.setup, knocked)
         if carried:
             say(f"simulated camera: knocked as {knocked} left it ({len(carried)} knock"
                 f"{'s' if len(carried) != 1 else ''})")
@@ -204,9 +202,7 @@ def monitor(cfg: Config, *, reference: Path | None = None, stop=None, progress: 
         with writer, devices.make_viz(cfg, writer.path) as viz, progress_bar(enabled=progress) as bar:
             outages.writer, outages.viz = writer, viz
             outages.shift = ShiftRecord(cfg.setup, str(writer.path), str(reference or ""))
-            for knock in carried:
-                writer.add_event(time.time(), "simulated_bump", sample_index=0, translation_mm=knock.translation_mm,
-                                 rotation_deg=knock.rotation_deg, carried=True)
+            record_knocks(writer, carried, time.time())
             seen = []
 
             def on_sample(obs):
