@@ -102,16 +102,29 @@ def test_demo_monitor_bump_alarms_and_exits_3(tmp_path, loopback, capsys, mosqui
     assert len(estimates) >= 10 and estimates[0]["samples_until_armed"] <= 2
 
 
-def test_a_demo_run_continued_from_a_bumped_one_finds_the_camera_where_it_was_left(tmp_path, loopback, capsys):
-    """The simulated camera starts unmoved in every process: a run that goes on from a monitoring run (the demo's
-    own next: line) knocks it as that run left it, so the re-learnt move is not reported again."""
+def test_after_a_bumped_demo_run_verify_and_the_next_run_find_the_camera_where_it_was_left(tmp_path, loopback,
+                                                                                            capsys):
+    """The simulated camera starts unmoved in every process. After a bumped demo run, its next: lines on the
+    simulated cell: verify of its calibration_in_use.yaml moves to fresh poses with the camera knocked as the run
+    left it, and passes (the re-learnt camera failed by the 10 mm knock); the run that goes on from it knocks the
+    camera likewise, so the re-learnt move is not reported again."""
     ref = reference_session(tmp_path / "ref", 12, np.random.default_rng(3))
-    toml = _sim_toml(tmp_path, loopback(44))
+    toml = _sim_toml(tmp_path, loopback(45))
     common = ["--no-frames", "--no-viz", "--session-root", str(tmp_path / "s")]
     assert main(["demo", "--monitor", "-c", toml, "--reference", ref, "--bump-after", "3", "--bump-mm", "10",
                  "--bump-deg", "0", "--max-samples", "14", *common]) == 3
     (first,) = (tmp_path / "s").iterdir()
-    capsys.readouterr()
+    out = capsys.readouterr().out
+    in_use = first / "calibration_in_use.yaml"
+    line = next(t for t in out.splitlines() if "check it on fresh poses" in t)
+    assert f"verify -c {toml} --result {in_use} --yes-move" in line, line
+    rc = main(["verify", "-c", toml, "--result", str(in_use), "--yes-move", "--no-viz", "--no-frames",
+               "--session-root", str(tmp_path / "v")])
+    out = capsys.readouterr().out
+    assert rc == 0 and "\nPASS: " in out, out
+    (checked,) = (tmp_path / "v").iterdir()
+    assert [e["translation_mm"] for e in read_session(checked).events if e["event"] == "simulated_bump"] == [10.0]
+
     rc = main(["demo", "--monitor", "-c", toml, "--reference", str(first), "--bump-mm", "0", "--bump-deg", "0",
                "--max-samples", "10", *common])
     out = capsys.readouterr().out
@@ -123,28 +136,6 @@ def test_a_demo_run_continued_from_a_bumped_one_finds_the_camera_where_it_was_le
     assert not [e for e in s2.events if e["event"] == "alarm"]
     np.testing.assert_allclose(s2.truth["T_base_cam"][:3, 3] - s1.truth["T_base_cam"][:3, 3], [0.010, 0, 0],
                                atol=1e-9)
-
-
-def test_the_relearnt_camera_verifies_on_the_simulated_cell_as_the_monitor_left_it(tmp_path, loopback, capsys):
-    """monitor's next: line 'check it on fresh poses' on the simulated cell: verify of the bumped run's
-    calibration_in_use.yaml moves to fresh poses with the camera knocked as that run left it, and passes (the
-    simulated camera started unmoved, so the re-learnt camera failed by the 10 mm knock)."""
-    ref = reference_session(tmp_path / "ref", 12, np.random.default_rng(3))
-    toml = _sim_toml(tmp_path, loopback(45))
-    assert main(["demo", "--monitor", "-c", toml, "--reference", ref, "--bump-after", "3", "--bump-mm", "10",
-                 "--bump-deg", "0", "--max-samples", "14", "--no-frames", "--no-viz", "--session-root",
-                 str(tmp_path / "s")]) == 3
-    (run,) = (tmp_path / "s").iterdir()
-    out = capsys.readouterr().out
-    in_use = run / "calibration_in_use.yaml"
-    line = next(t for t in out.splitlines() if "check it on fresh poses" in t)
-    assert f"verify -c {toml} --result {in_use} --yes-move" in line, line
-    rc = main(["verify", "-c", toml, "--result", str(in_use), "--yes-move", "--no-viz", "--no-frames",
-               "--session-root", str(tmp_path / "v")])
-    out = capsys.readouterr().out
-    assert rc == 0 and "\nPASS: " in out, out
-    (checked,) = (tmp_path / "v").iterdir()
-    assert [e["translation_mm"] for e in read_session(checked).events if e["event"] == "simulated_bump"] == [10.0]
 
 
 def test_carried_knocks_come_from_a_monitoring_run_only_and_a_malformed_one_is_named(tmp_path):
