@@ -6,10 +6,8 @@ import argparse
 from pathlib import Path
 
 from app.commands.calibrate import exit_code, print_calibration_summary, print_continue
-from app.calibration_in_use import FILE_NAME as IN_USE_FILE
-from app.commands.common import (add_motion_options, add_report_options, add_run_options, cell_command,
-                                 command_with, load_config_args)
-from app.commands.monitor import EXIT_ALARM, print_monitor_summary
+from app.commands.common import add_motion_options, add_report_options, add_run_options, load_config_args
+from app.commands.monitor import EXIT_ALARM, next_lines, print_monitor_summary
 from app.production import Bump
 from app.runs.demo import demo, demo_monitor
 from calib.errors import HandeyeError
@@ -56,8 +54,5 @@ def _run_monitor(args) -> int:
     bump = Bump(args.bump_after, args.bump_mm, args.bump_deg) if (args.bump_mm or args.bump_deg) else None
     report = demo_monitor(cfg, bump=bump, reference=args.reference, max_samples=args.max_samples)
     # As `monitor` ends: what to hand the re-learnt camera to, how to check it and go on.
-    lines = [] if report.record is None else report.record.next_steps(
-        report.session / IN_USE_FILE, continue_with=command_with(args, "--reference", report.session),
-        verify_with=cell_command("verify", args.config))
-    print_monitor_summary(report, cfg.setup, lines)
+    print_monitor_summary(report, cfg.setup, next_lines(report, args))
     return EXIT_ALARM if report.alarms else 0

@@ -36,11 +36,17 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 def run(args) -> int:
     cfg = load_config_args(args)
     report = monitor(cfg, reference=args.reference)
-    print_monitor_summary(report, cfg.setup, report.record.next_steps(
-        report.session / IN_USE_FILE, continue_with=command_with(args, "--reference", report.session),
-        verify_with=cell_command("verify", args.config), calibrate=cell_command("calibrate", args.config,
-                                                                                  "--yes-move")))
+    print_monitor_summary(report, cfg.setup, next_lines(report, args, calibrate=cell_command(
+        "calibrate", args.config, "--yes-move")))
     return EXIT_ALARM if report.moved_alarms else 0
+
+
+def next_lines(report: MonitorReport, args, *, calibrate: str | None = None) -> list[str]:
+    """`app.shift_record.ShiftRecord.next_steps` of a run typed as ``args``: the calibration in use to hand on,
+    the verify command for it, the command that continues from this run and ``calibrate`` (None: not offered)."""
+    return report.record.next_steps(report.session / IN_USE_FILE,
+                                    continue_with=command_with(args, "--reference", report.session),
+                                    verify_with=cell_command("verify", args.config), calibrate=calibrate)
 
 
 def print_monitor_summary(report: MonitorReport, setup: Setup = Setup.EYE_TO_HAND, next_lines=()) -> None:
