@@ -1,4 +1,5 @@
-"""bench --shift's second-knock section (`app.benchmarks.shift.section_second_knock`)."""
+"""bench --shift: how it counts alarms (`app.benchmarks.shift.classify_alarms`) and its second-knock section
+(`app.benchmarks.shift.section_second_knock`)."""
 
 from app.benchmarks import shift as bench_shift
 from calib import simulate
@@ -13,3 +14,16 @@ def test_the_second_knock_section_counts_a_knock_while_the_relearnt_camera_settl
     # Seed 2: the first knock re-learnt within 10 samples, the second flagged in its own window, nothing else.
     assert cells[:4] == ["10", "1/1", "1/1", "0"], row
     assert 0.0 < float(cells[4]) < 5.0
+
+
+def test_a_bump_flagged_after_its_window_is_late_not_a_false_alarm():
+    """Bumps at samples 100, 200 and 300: the first flagged after 5 samples (and once more within its window), the
+    second first at 23 (late), the third never; an alarm before any bump and one well after the first bump's
+    alarm are the false ones."""
+    moved = [50, 105, 110, 150, 223]
+    delays, late, false = bench_shift.classify_alarms(moved, [100, 200, 300])
+    assert delays == [5, None, None]
+    assert late == [None, 23, None]
+    assert false == 2
+    s = {"delays": delays, "late": late}
+    assert bench_shift.delays_text(s) == "5, late 23, -"
