@@ -339,17 +339,19 @@ def classify_alarms(moved, bumped) -> tuple[list, list, int]:
     to its alarm when within `DETECT_WITHIN` (else None), per bump the samples to a later first alarm before the
     next bump (a bump flagged late; else None), and the count of false alarms (any other: before the first
     bump, or after a bump already flagged and its window)."""
-    delays, late, false = [], [], 0
+    delays, late, first = [], [], set()
     for k, b in enumerate(bumped):
         end = bumped[k + 1] if k + 1 < len(bumped) else float("inf")
-        first = next((i for i in moved if b <= i < end), None)
-        delays.append(first - b if first is not None and first - b <= DETECT_WITHIN else None)
-        late.append(first - b if first is not None and first - b > DETECT_WITHIN else None)
+        hit = next((i for i in moved if b <= i < end), None)
+        if hit is not None:
+            first.add(hit)
+        delays.append(hit - b if hit is not None and hit - b <= DETECT_WITHIN else None)
+        late.append(hit - b if hit is not None and hit - b > DETECT_WITHIN else None)
+    false = 0
     for i in moved:
         before = [b for b in bumped if b <= i]
-        if before and (i - before[-1] <= DETECT_WITHIN or late[len(before) - 1] == i - before[-1]):
-            continue
-        false += 1
+        if i not in first and not (before and i - before[-1] <= DETECT_WITHIN):
+            false += 1
     return delays, late, false
 
 
@@ -459,8 +461,9 @@ def table(summaries: list[dict], seeds: list[int]) -> str:
     late = [n for s in summaries for n in s["late"] if n is not None]
     summary = (f"\n\n{len(summaries)} seeds: {sum(s['false'] for s in summaries)} false moved alarms; "
                f"{len(all_delays) - missed}/{len(all_delays)} bumps flagged within {DETECT_WITHIN} samples "
-               f"(max {max((d for d in all_delays if d is not None), default='-')}), {len(late)} later "
-               f"({', '.join(map(str, late)) or '-'} samples), {missed - len(late)} not at all; "
+               f"(max {max((d for d in all_delays if d is not None), default='-')})"
+               + (f", {len(late)} later (after {', '.join(map(str, late))} samples)" if late else "")
+               + f", {missed - len(late)} not at all; "
                f"live p95 above the bound on {over} seeds; back within the bound after "
                f"{max((r for r in rec if r is not None), default='-')} samples at most "
                f"({sum(r is None or r > RECOVER_WITHIN for r in rec)} over {RECOVER_WITHIN}); "

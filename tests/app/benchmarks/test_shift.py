@@ -1,6 +1,9 @@
 """bench --shift: how it counts alarms (`app.benchmarks.shift.classify_alarms`) and its second-knock section
 (`app.benchmarks.shift.section_second_knock`)."""
 
+from hypothesis import given
+from hypothesis import strategies as st
+
 from app.benchmarks import shift as bench_shift
 from calib import simulate
 from calib.monitor import MonitorSettings
@@ -27,3 +30,22 @@ def test_a_bump_flagged_after_its_window_is_late_not_a_false_alarm():
     assert false == 2
     s = {"delays": delays, "late": late}
     assert bench_shift.delays_text(s) == "5, late 23, -"
+
+
+
+@given(st.lists(st.integers(0, 400), max_size=12, unique=True).map(sorted),
+       st.lists(st.integers(1, 400), max_size=4, unique=True).map(sorted))
+def test_every_alarm_is_in_a_bumps_window_a_bumps_late_alarm_or_false(moved, bumped):
+    """Each bump has at most one first alarm, within its window or late (never both); every alarm is within the
+    window of the bump before it, a bump's late alarm, or false."""
+    delays, late, false = bench_shift.classify_alarms(moved, bumped)
+    assert len(delays) == len(late) == len(bumped)
+    assert all(d is None or n is None for d, n in zip(delays, late))
+
+    def since_bump(i):
+        before = [b for b in bumped if b <= i]
+        return i - before[-1] if before else None
+
+    in_window = [i for i in moved if since_bump(i) is not None and since_bump(i) <= bench_shift.DETECT_WITHIN]
+    flagged_late = [n for n in late if n is not None]
+    assert false == len(moved) - len(in_window) - len(flagged_late)
