@@ -15,10 +15,10 @@ workspace seen by the drifted camera (the workspace error of
 Figures per seed: false *moved* alarms (any but a bump's first alarm, and
 those within the 20 samples after a bump), samples from each bump to its
 alarm (``late N``: flagged N > 20 samples after it, before the next bump),
-the live estimate's workspace error (p95 outside the 40 samples after each bump) against the bound
-``max(1 mm, 1.5 x the arming calibration's own)``, samples until it is back
-within that bound after each bump, NEES of the live covariance, and the
-time per update. Run: ``handeye bench --shift [--seeds 10] [--hours 8]``
+the live estimate's workspace error (p95 outside the 40 samples after each
+bump) against the bound ``max(1 mm, 1.5 x the arming calibration's own)``,
+samples until it is back within that bound after each bump, NEES of the
+live covariance, and the time per update. Run: ``handeye bench --shift [--seeds 10] [--hours 8]``
 (``--replay``: also through ``handeye replay --monitor``; ``--second-knock``: two knocks
 10-20 samples apart);
 tables on stdout and out/bench/shift.md, a plot in out/bench/shift.png.

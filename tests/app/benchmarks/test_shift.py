@@ -32,7 +32,6 @@ def test_a_bump_flagged_after_its_window_is_late_not_a_false_alarm():
     assert bench_shift.delays_text(s) == "5, late 23, -"
 
 
-
 @given(st.lists(st.integers(0, 400), max_size=12, unique=True).map(sorted),
        st.lists(st.integers(1, 400), max_size=4, unique=True).map(sorted))
 def test_every_alarm_is_in_a_bumps_window_a_bumps_late_alarm_or_false(moved, bumped):
