@@ -63,13 +63,14 @@ class SimulatedData:
     setup: Setup = Setup.EYE_TO_HAND
 
 
-def _random_direction(n: int, rng: np.random.Generator) -> np.ndarray:
+def random_directions(n: int, rng: np.random.Generator) -> np.ndarray:
+    """``n`` unit vectors (n, 3) in random directions."""
     v = rng.normal(size=(n, 3))
     return v / np.linalg.norm(v, axis=1, keepdims=True)
 
 
 def _random_translation(n: int, center: float, half_width: float, rng) -> np.ndarray:
-    return _random_direction(n, rng) * rng.uniform(center - half_width, center + half_width, size=(n, 1))
+    return random_directions(n, rng) * rng.uniform(center - half_width, center + half_width, size=(n, 1))
 
 
 def noise_transforms(n: int, max_angle: float, max_translation: float, rng) -> np.ndarray:
@@ -79,7 +80,7 @@ def noise_transforms(n: int, max_angle: float, max_translation: float, rng) -> n
     on the sphere (the paper's "|N_alpha| < ..., |N_t| < ...").
     """
     R = tf.random_rotations(n, max_angle, rng)
-    t = _random_direction(n, rng) * rng.uniform(0.0, max_translation, size=(n, 1))
+    t = random_directions(n, rng) * rng.uniform(0.0, max_translation, size=(n, 1))
     return tf.make_transform(R, t)
 
 
@@ -254,6 +255,10 @@ class RealisticProfile:
     error of 1%, a colour/depth misregistration of 2 px, the marker point noise
     of `calib.noise` (1 mm lateral, 3 mm along the ray at 0.7 m), marker
     orientation noise, and a share of half-turn flips of a symmetric board.
+    ``pose_error_m``: the robot's error beyond what its DH parameters capture
+    (thermal growth of the arm, deflection under load), 1-sigma per axis of
+    the flange position, drawn once per pose: every visit of a pose repeats
+    it (`calib.simulate_month`).
     """
 
     joint_offset_deg: float = 0.03
@@ -268,6 +273,7 @@ class RealisticProfile:
     orientation_noise_rad: float = np.deg2rad(0.5)
     flip_fraction: float = 0.0
     board_center: tuple = (0.09, 0.06, 0.0)
+    pose_error_m: float = 0.0
 
     def dh_error_factor(self, q: np.ndarray) -> np.ndarray:
         """`calib.robot_error.ur_dh_error_factor` of joints ``q`` (N, 6) at this profile's DH magnitudes."""
@@ -285,15 +291,30 @@ _WORKING_JOINTS = np.deg2rad([10.0, -110.0, 100.0, -80.0, -90.0, 0.0])
 _JOINT_SPAN = np.deg2rad([8.0, 8.0, 8.0, 25.0, 25.0, 25.0])
 
 
-def _visible_joints(n: int, rng: np.random.Generator, X, Y) -> np.ndarray:
+#: Half the field of view an eye-in-hand camera keeps the static marker within (tangent, x and y): the camera
+#: turns with the wrist, so a pose may look away from the marker.
+_FIELD_OF_VIEW_TAN = (0.5, 0.4)
+
+
+def _camera_marker(A, X, Y, setup: Setup) -> np.ndarray:
+    """``T_cam_marker`` (N, 4, 4) at flange poses ``A`` (N, 4, 4): ``Y^-1 A X`` eye-to-hand, ``(A X)^-1 Y``
+    eye-in-hand (paper eq. 1)."""
+    return tf.invert(Y) @ A @ X if setup == Setup.EYE_TO_HAND else tf.invert(A @ X) @ Y
+
+
+def _visible_joints(n: int, rng: np.random.Generator, X, Y, setup: Setup = Setup.EYE_TO_HAND) -> np.ndarray:
     """``n`` joint configurations (n, 6) of the realistic cell's span that show the marker to the camera."""
     dh = UR10_DH
     q = np.empty((0, 6))
     while len(q) < n:
         cand = _WORKING_JOINTS + rng.uniform(-_JOINT_SPAN, _JOINT_SPAN, size=(4 * n, 6))
-        Bc = tf.invert(Y) @ ur_forward(cand, dh["d"], dh["a"], dh["alpha"], np.zeros(6)) @ X
+        Bc = _camera_marker(ur_forward(cand, dh["d"], dh["a"], dh["alpha"], np.zeros(6)), X, Y, setup)
         facing = -Bc[:, 2, 2] > np.cos(np.deg2rad(60.0))          # marker normal towards the camera
-        q = np.vstack([q, cand[facing & (Bc[:, 2, 3] > 0.3)]])
+        seen = facing & (Bc[:, 2, 3] > 0.3)
+        if setup == Setup.EYE_IN_HAND:
+            ratio = np.abs(Bc[:, :2, 3] / Bc[:, 2:3, 3])
+            seen &= (ratio[:, 0] < _FIELD_OF_VIEW_TAN[0]) & (ratio[:, 1] < _FIELD_OF_VIEW_TAN[1])
+        q = np.vstack([q, cand[seen]])
     return q[:n]
 
 
@@ -339,9 +360,22 @@ def seen_points(B_true, prof: RealisticProfile, camera, rng: np.random.Generator
     return camera.measure(p), cov
 
 
+def _cell_frames(rng: np.random.Generator, setup: Setup, distance: float) -> tuple[np.ndarray, np.ndarray]:
+    """``X`` and ``Y`` of a realistic cell: a marker (eye-to-hand) or camera (eye-in-hand) mounted on the flange a
+    few cm and tenths of a rad off, and the camera (``T_base_cam``) or marker (``T_base_marker``) ``distance`` m
+    in front of it at the working pose, facing it."""
+    dh = UR10_DH
+    X = tf.make_transform(Rotation.from_euler("xyz", rng.uniform(-0.3, 0.3, size=3)).as_matrix(),
+                          rng.uniform(-0.05, 0.05, size=3) + [0.0, 0.0, 0.03])
+    A0 = ur_forward(_WORKING_JOINTS[None], dh["d"], dh["a"], dh["alpha"], np.zeros(6))[0] @ X
+    if setup == Setup.EYE_IN_HAND:
+        return X, A0 @ tf.make_transform(Rotation.from_euler("y", np.pi).as_matrix(), [0.0, 0.0, distance])
+    return X, _look_at(A0[:3, 3] + distance * A0[:3, 2], A0[:3, 3])
+
+
 def realistic_profile(n: int, rng: np.random.Generator, profile: RealisticProfile | None = None, *,
-                      distance: float = 0.8) -> RealisticData:
-    """An eye-to-hand UR10 cell with the systematic errors of a real one (`RealisticProfile`), and the truth.
+                      distance: float = 0.8, setup: Setup = Setup.EYE_TO_HAND) -> RealisticData:
+    """A UR10 cell with the systematic errors of a real one (`RealisticProfile`), and the truth.
 
     Joint configurations are drawn around a working pose (+-8 deg on the
     shoulder/elbow joints, +-25 deg on the wrist); the actual flange pose is the
@@ -354,6 +388,11 @@ def realistic_profile(n: int, rng: np.random.Generator, profile: RealisticProfil
     (`calib.model.CameraCorrection`). Marker poses get orientation noise and,
     for ``flip_fraction`` of the samples, a half turn about the board normal
     through ``board_center``.
+
+    Eye-in-hand (``setup``) the same camera rides on the flange
+    (``X = T_flange_cam``) and sees a static marker (``Y = T_base_marker``)
+    ``distance`` m in front of it at the working pose; the poses keep the
+    marker within the camera's field of view.
     """
     from calib.model import CameraCorrection
 
@@ -363,18 +402,16 @@ def realistic_profile(n: int, rng: np.random.Generator, profile: RealisticProfil
     d_true = dh["d"] + rng.normal(scale=prof.link_length_m, size=6)
     a_true = dh["a"] + rng.normal(scale=prof.link_length_m, size=6)
     al_true = dh["alpha"] + rng.normal(scale=np.deg2rad(prof.twist_deg), size=6)
-    X = tf.make_transform(Rotation.from_euler("xyz", rng.uniform(-0.3, 0.3, size=3)).as_matrix(),
-                          rng.uniform(-0.05, 0.05, size=3) + [0.0, 0.0, 0.03])
-    A0 = ur_forward(_WORKING_JOINTS[None], dh["d"], dh["a"], dh["alpha"], np.zeros(6))[0] @ X
-    normal = A0[:3, 2]
-    eye = A0[:3, 3] + distance * normal
-    Y = _look_at(eye, A0[:3, 3])
-    q = _visible_joints(n, rng, X, Y)
+    setup = check_setup(setup)
+    X, Y = _cell_frames(rng, setup, distance)
+    q = _visible_joints(n, rng, X, Y, setup)
     A = ur_forward(q, dh["d"], dh["a"], dh["alpha"], np.zeros(6))
     A_true = ur_forward(q, d_true, a_true, al_true, off_true)
     A_true = A_true @ tf.from_rotvec_translation(rng.normal(scale=prof.repeatability_rad, size=(n, 3)),
                                                  rng.normal(scale=prof.repeatability_m, size=(n, 3)))
-    B_true = tf.invert(Y) @ A_true @ X
+    if prof.pose_error_m:
+        A_true[:, :3, 3] += rng.normal(scale=prof.pose_error_m, size=(n, 3))
+    B_true = _camera_marker(A_true, X, Y, setup)
     camera = CameraCorrection(prof.depth_scale, prof.depth_offset, prof.focal_scale)
     points, cov = seen_points(B_true, prof, camera, rng)
     B = B_true @ tf.from_rotvec_translation(rng.normal(scale=prof.orientation_noise_rad, size=(n, 3)), np.zeros((n, 3)))
@@ -385,21 +422,23 @@ def realistic_profile(n: int, rng: np.random.Generator, profile: RealisticProfil
         F = tf.make_transform(tf.so3_exp(np.array([0.0, 0.0, np.pi])), 2 * np.asarray(prof.board_center))
         B[flipped] = B[flipped] @ F
     robot_rms = float(np.sqrt(np.mean(np.sum((A[:, :3, 3] - A_true[:, :3, 3]) ** 2, axis=1) / 3)))
-    data = SimulatedData(A, B, points, cov, X, Y, A_true, B_true)
+    data = SimulatedData(A, B, points, cov, X, Y, A_true, B_true, setup)
     kinematics = {"d": d_true, "a": a_true, "alpha": al_true, "offsets": off_true}
     return RealisticData(data, camera, flipped, robot_rms, q, kinematics)
 
 
 def workspace_points(real: RealisticData, m: int, rng: np.random.Generator) -> np.ndarray:
-    """True marker centres (m, 3) in the base frame at ``m`` fresh visible poses of ``real``'s cell, m.
+    """True marker centres (m, 3) in the camera transform's parent frame at ``m`` fresh visible poses of ``real``'s
+    cell, m: the base frame eye-to-hand, the flange frame eye-in-hand (``A^-1 T_base_marker``).
 
     Drawn like the calibration samples (same joint span, marker in view), with
     the cell's actual kinematics: the points a camera calibrated on that cell
     is then used on (held out from the calibration).
     """
     d, kin = real.data, real.kinematics
-    q = _visible_joints(m, rng, d.X, d.Y)
-    return (ur_forward(q, kin["d"], kin["a"], kin["alpha"], kin["offsets"]) @ d.X)[:, :3, 3]
+    q = _visible_joints(m, rng, d.X, d.Y, d.setup)
+    A = ur_forward(q, kin["d"], kin["a"], kin["alpha"], kin["offsets"])
+    return (A @ d.X if d.setup == Setup.EYE_TO_HAND else tf.invert(A) @ d.Y)[:, :3, 3]
 
 
 # --------------------------------------------------------------------------- production shift
@@ -464,7 +503,7 @@ def production_stops(real: RealisticData, n: int, max_tilt_deg: float, rng: np.r
     z0 = ur_forward(_WORKING_JOINTS[None], dh["d"], dh["a"], dh["alpha"], np.zeros(6))[0][:3, 2]
     cand = np.empty((0, 6))
     while len(cand) < 20 * n:
-        q = _visible_joints(200, rng, real.data.X, real.data.Y)
+        q = _visible_joints(200, rng, real.data.X, real.data.Y, real.data.setup)
         A = ur_forward(q, dh["d"], dh["a"], dh["alpha"], np.zeros(6))
         tilt = np.rad2deg(np.arccos(np.clip(A[:, :3, 2] @ z0, -1.0, 1.0)))
         cand = np.vstack([cand, q[tilt <= max_tilt_deg]])
@@ -498,7 +537,7 @@ def shift_stream(real: RealisticData, shift: Shift, rng: np.random.Generator,
     A_true = ur_forward(q, kin["d"], kin["a"], kin["alpha"], kin["offsets"])
     A_true = A_true @ tf.from_rotvec_translation(rng.normal(scale=prof.repeatability_rad, size=(n, 3)),
                                                  rng.normal(scale=prof.repeatability_m, size=(n, 3)))
-    direction = _random_direction(1, rng)[0]
+    direction = random_directions(1, rng)[0]
     offset = np.outer(t / 3600.0 * shift.drift_mm_h * 1e-3, direction)
     R = np.broadcast_to(d.Y[:3, :3], (n, 3, 3)).copy()
     bumped = []
@@ -507,8 +546,8 @@ def shift_stream(real: RealisticData, shift: Shift, rng: np.random.Generator,
         if not after.any():
             continue
         bumped.append(int(np.argmax(after)))
-        offset[after] += mm * 1e-3 * _random_direction(1, rng)[0]
-        R[after] = tf.so3_exp(np.deg2rad(deg) * _random_direction(1, rng)[0]) @ R[after]
+        offset[after] += mm * 1e-3 * random_directions(1, rng)[0]
+        R[after] = tf.so3_exp(np.deg2rad(deg) * random_directions(1, rng)[0]) @ R[after]
     Y = tf.make_transform(R, d.Y[:3, 3] + offset)
     points, cov = seen_points(tf.invert(Y) @ A_true @ d.X, prof, real.camera, rng)
     return ShiftData(t, A, points, cov, q, stop, Y, np.array(bumped, dtype=int))
@@ -532,7 +571,7 @@ def eye_in_hand_shift(cell: SimulatedData, stops: np.ndarray, shift: Shift, rng:
         jitter = np.deg2rad(shift.stop_jitter_deg)
         A = A @ tf.from_rotvec_translation(rng.normal(scale=jitter, size=(n, 3)),
                                            rng.normal(scale=jitter * JITTER_REACH_M, size=(n, 3)))
-    direction = _random_direction(1, rng)[0]
+    direction = random_directions(1, rng)[0]
     slip = np.broadcast_to(np.eye(4), (n, 4, 4)).copy()
     slip[:, :3, 3] = np.outer(t / 3600.0 * shift.drift_mm_h * 1e-3, direction)
     bumped = []
@@ -541,8 +580,8 @@ def eye_in_hand_shift(cell: SimulatedData, stops: np.ndarray, shift: Shift, rng:
         if not after.any():
             continue
         bumped.append(int(np.argmax(after)))
-        bump = tf.from_rotvec_translation(np.deg2rad(deg) * _random_direction(1, rng)[0],
-                                          mm * 1e-3 * _random_direction(1, rng)[0])
+        bump = tf.from_rotvec_translation(np.deg2rad(deg) * random_directions(1, rng)[0],
+                                          mm * 1e-3 * random_directions(1, rng)[0])
         slip[after] = slip[after] @ bump
     X = cell.X @ slip
     p_true = (tf.invert(A @ X) @ cell.Y)[:, :3, 3]

@@ -20,6 +20,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    "other arguments go to it)")
     p.add_argument("--shift", action="store_true",
                    help="only the production-shift benchmark of the monitoring engine (app.benchmarks.shift; --seeds, --hours)")
+    p.add_argument("--month", action="store_true",
+                   help="only the month-long benchmark of the monitoring engine: live error against its stated "
+                   "1-sigma day by day (app.benchmarks.month; --seeds, --days, --jobs; minutes)")
     p.add_argument("--detection", action="store_true",
                    help="only the smallest bump flagged beside the derived detection limit (app.benchmarks.detection; "
                    "--seeds, --programs; minutes)")
@@ -58,6 +61,10 @@ def run(args) -> int:
         from app.benchmarks import shift
 
         return int(shift.main(args.extra) or 0)
+    if args.month:
+        from app.benchmarks import month
+
+        return int(month.main(args.extra) or 0)
     if args.detection:
         from app.benchmarks import detection
 
