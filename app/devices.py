@@ -91,11 +91,12 @@ def make_measure(cfg: Config):
 
 
 def make_solve(cal: CalibrateConfig, setup: Setup, rng: np.random.Generator, shared_error=None, marker=None):
-    """``solve(observations, *, final)``: the configured solver, refined while running too if configured, so
-    that the stop on the predicted 1-sigma and the pose planner see the covariance of the result that will
-    be reported (with "auto": the camera-correction uncertainty too, until the samples determine it);
-    outlier rejection only at the end, where the result also gets its verdict against
-    ``[calibrate] tolerance_mm / tolerance_deg`` (`judge`).
+    """``solve(observations, *, final, stopped_early=None)``: the configured solver, refined while running too
+    if configured, so that the stop on the predicted 1-sigma and the pose planner see the covariance of the
+    result that will be reported (with "auto": the camera-correction uncertainty too, until the samples
+    determine it); outlier rejection only at the end, where the result also gets its verdict against
+    ``[calibrate] tolerance_mm / tolerance_deg`` (`judge`; ``stopped_early``: why the run ended before its
+    target, a reason of the verdict).
 
     ``shared_error``: the robot's `Robot.shared_error_factor`; with ``auto`` and the joints of every sample
     (``Observation.joints``), the error it models joins the covariance as shared by all samples.
@@ -107,7 +108,7 @@ def make_solve(cal: CalibrateConfig, setup: Setup, rng: np.random.Generator, sha
     if marker is not None and marker.offset_m is not None and is_auto(cal.method):
         offset = {"marker_offset": marker.offset_m, "marker_offset_sigma": marker.offset_sigma_m}
 
-    def solve(observations, *, final: bool):
+    def solve(observations, *, final: bool, stopped_early: str | None = None):
         result = solve_observations(cal.method, observations, setup, refine=cal.refine, robust=cal.robust and final,
                                     rng=rng,
                                     robot_shared_error=robot_shared_error(cal.method, observations, shared_error),
@@ -115,23 +116,25 @@ def make_solve(cal: CalibrateConfig, setup: Setup, rng: np.random.Generator, sha
         if not final:
             return result
         return judge(result, cal.method, observations, setup, (cal.tolerance_mm, cal.tolerance_deg), shared_error,
-                     **offset)
+                     stopped_early=stopped_early, **offset)
 
     return solve
 
 
 def judge(result, method: str, observations, setup: Setup, tolerance: tuple[float, float], shared_error=None,
-          marker_offset=None, marker_offset_sigma=0.0):
+          marker_offset=None, marker_offset_sigma=0.0, stopped_early: str | None = None):
     """``result`` of ``method`` on ``observations`` with its predicted accuracy and verdict
     (`calib.verdict.judge`) against ``tolerance`` (mm, deg); ``shared_error``: as `make_solve`'s; the marker
-    offset the result was solved with (`calib.api.observations_problem`)."""
+    offset the result was solved with (`calib.api.observations_problem`); ``stopped_early``: why the run ended
+    before its target (`calib.verdict.judge`)."""
     from calib.api import observations_problem
     from calib.verdict import judge as judge_result
 
     problem = observations_problem(method, observations, setup,
                                    robot_shared_error=robot_shared_error(method, observations, shared_error),
                                    marker_offset=marker_offset, marker_offset_sigma=marker_offset_sigma)
-    return judge_result(result, problem, tolerance_mm=tolerance[0], tolerance_deg=tolerance[1])
+    return judge_result(result, problem, tolerance_mm=tolerance[0], tolerance_deg=tolerance[1],
+                        stopped_early=stopped_early)
 
 
 def robot_shared_error(method: str, observations, shared_error) -> np.ndarray | None:

@@ -118,7 +118,7 @@ def accuracy_phrase(acc: Accuracy) -> str:
 
 
 def judge(result: CalibrationResult, problem: CalibrationProblem, *, tolerance_mm: float,
-          tolerance_deg: float) -> CalibrationResult:
+          tolerance_deg: float, stopped_early: str | None = None) -> CalibrationResult:
     """``result`` with its `Accuracy` and `Verdict` against the tolerance (module docstring).
 
     Parameters
@@ -128,6 +128,9 @@ def judge(result: CalibrationResult, problem: CalibrationProblem, *, tolerance_m
         The samples it was solved from.
     tolerance_mm, tolerance_deg : float
         The error the cell accepts (``[calibrate] tolerance_mm / tolerance_deg``), > 0.
+    stopped_early : str, optional
+        Why the samples end before the run that took them reached its target (a sentence with what to do):
+        the first reason, a warning whatever the samples show.
 
     Returns
     -------
@@ -140,7 +143,8 @@ def judge(result: CalibrationResult, problem: CalibrationProblem, *, tolerance_m
     # With part of the answer open (held at a guess), no error over the workspace can be stated: the reason
     # that names the open part says what to do instead.
     acc = None if result.undetermined else workspace_accuracy(result, problem)
-    reasons = [] if result.undetermined else _accuracy_reasons(acc, tolerance_mm, tolerance_deg, result.method)
+    reasons = [("warn", stopped_early)] if stopped_early else []
+    reasons += [] if result.undetermined else _accuracy_reasons(acc, tolerance_mm, tolerance_deg, result.method)
     reasons += _consistency_reasons(result, problem)
     reasons += _coverage_reasons(result, problem)
     level = worst(lv for lv, _ in reasons)

@@ -358,7 +358,10 @@ class _ActiveRun:
         result = None
         if len(self.observations) >= 3:
             try:
-                result = self.solve(self.observations, final=True)
+                if self.stopped_by == "interrupted":
+                    result = self.solve(self.observations, final=True, stopped_early=self.stopped_early())
+                else:
+                    result = self.solve(self.observations, final=True)
                 self.viz.estimate(self.observations[-1].t, result, self.observations)
                 self.viz.result(self.observations[-1].t, result)
             except CalibrationError as e:
@@ -373,6 +376,22 @@ class _ActiveRun:
                 self.writer.add_event(time.time(), "interrupted", n_samples=len(self.observations),
                                       stage="final solve")
         return result
+
+    def stopped_early(self) -> str:
+        """The verdict's reason for a run stopped by Ctrl-C: the samples taken, the target not reached, and why
+        the progress line's 1-sigma (the camera's position) is larger than the error over the workspace."""
+        cfg, n = self.cfg, len(self.observations)
+        target = f"{cfg.samples} samples"
+        if cfg.target_sigma_mm > 0 and cfg.target_sigma_deg > 0:
+            target = (f"the camera transform's 1-sigma below {cfg.target_sigma_mm:g} mm / {cfg.target_sigma_deg:g} "
+                      f"deg, at most {cfg.samples} samples")
+            if self.estimate is not None and self.estimate.sigma is not None:
+                s_rot, s_t = self.estimate.sigma
+                target += (f"; it was {s_t * 1e3:.2f} mm / {np.rad2deg(s_rot):.3f} deg, the progress line's 1-sigma: "
+                           "the camera's own position, worst axis, which the samples fix less well than the "
+                           "workspace where they saw the marker")
+        return (f"the run was stopped early (Ctrl-C) after {n} samples, before its target ({target}): continue it "
+                "with --resume to reach the target")
 
 
 def _what_the_camera_saw(skip_reasons: dict) -> str:

@@ -1,5 +1,6 @@
 """A session killed mid-run (SIGKILL, no cleanup) keeps every sample taken and replays."""
 
+import html
 import os
 import re
 import shlex
@@ -12,6 +13,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+import yaml
 
 from app.cli import main
 from app.runs.calibrate import calibrate
@@ -229,7 +231,7 @@ def test_ctrl_c_at_the_worst_moments_keeps_what_the_session_holds(sim_config, lo
     def solve_with_ctrl_c(*args, **kw):
         solve = make_solve(*args, **kw)
 
-        def run(observations, *, final):
+        def run(observations, *, final, **kw):
             if final:
                 solved.append(len(observations))
                 raise KeyboardInterrupt
@@ -289,3 +291,33 @@ def test_ctrl_c_while_the_calibration_hook_runs_at_the_start_ends_monitor_normal
     assert [e["event"] for e in session.events][-2:] == ["interrupted", "sample_set"]
     assert (session.path / "calibration_in_use.yaml").exists()
     assert not _processes_naming("exec sleep 60") and not _processes_naming("sleep 60")
+
+
+def test_an_interrupted_calibration_is_not_handed_over_as_complete(tmp_path, capsys, loopback, monkeypatch):
+    """Ctrl-C after 6 of up to 12 samples, short of the 1-sigma target: the verdict warns that the run stopped
+    early, with the samples taken, the target and the 1-sigma the progress line showed (and why it is larger
+    than the error over the workspace), in the console, result.yaml and report.html (it was a PASS that said
+    nothing of the interruption)."""
+    from app.session import SessionWriter
+
+    add_sample = SessionWriter.add_sample
+
+    def add_sample_then_ctrl_c(self, obs, **kw):
+        kept = add_sample(self, obs, **kw)
+        if self.n_samples == 6:
+            raise KeyboardInterrupt
+        return kept
+
+    monkeypatch.setattr(SessionWriter, "add_sample", add_sample_then_ctrl_c)
+    root = tmp_path / "sessions"
+    assert main(["demo", "-c", str(_sim_cell(tmp_path, loopback(16))), "--samples", "12", "--session-root",
+                 str(root), "--no-viz", "--no-frames"]) == 130
+    out = capsys.readouterr().out
+    session_dir = next(root.iterdir())
+    reason = ("the run was stopped early (Ctrl-C) after 6 samples, before its target (the camera transform's 1-sigma "
+              "below 1 mm / 0.1 deg, at most 12 samples; it was ")
+    assert "\nWARN: " in out and f"\n  - {reason}" in out, out
+    assert "the progress line's 1-sigma: the camera's own position" in out and "continue it with --resume" in out
+    verdict = yaml.safe_load((session_dir / "result.yaml").read_text())["verdict"]
+    assert verdict["level"] == "warn" and verdict["reasons"][0].startswith(reason)
+    assert html.escape(reason) in (session_dir / "report.html").read_text()
