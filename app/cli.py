@@ -13,6 +13,7 @@ import signal
 import sys
 import time
 
+from app import stopping
 from app.commands import command_modules
 
 log = logging.getLogger("handeye")
@@ -63,7 +64,8 @@ def main(argv: list[str] | None = None) -> int:
                         format="%(asctime)s %(levelname)s %(name)s: %(message)s")
     t0 = time.monotonic()
     try:
-        rc = command.run(args)
+        with stopping.command():   # a second Ctrl-C hurries a stopped run's end, it does not lose its summary
+            rc = command.run(args)
     except HandeyeError as e:
         print(f"handeye {args.command}: error: {e}", file=sys.stderr)
         return 1

@@ -34,7 +34,7 @@ from pathlib import Path
 import numpy as np
 import yaml
 
-from app import devices, planning, provenance
+from app import devices, planning, provenance, stopping
 from app.acquire import take_sample
 from app.config import Config
 from app.errors import SessionError
@@ -327,6 +327,7 @@ def verify_active(cfg: Config, loaded: LoadedResult, *, rng: np.random.Generator
                 writer.add_event(time.time(), "device_error", error=str(e), n_samples=len(observations))
                 raise
             except KeyboardInterrupt:
+                stopping.winding_down()
                 robot.stop()
                 interrupted = True
                 writer.add_event(time.time(), "interrupted", n_samples=len(observations))

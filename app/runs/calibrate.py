@@ -19,7 +19,7 @@ from typing import Callable
 
 import numpy as np
 
-from app import devices, planning, provenance
+from app import devices, planning, provenance, stopping
 from app.acquire import take_sample
 from app.config import CalibrateConfig, Config
 from app.errors import SessionError
@@ -260,6 +260,7 @@ class _ActiveRun:
             self.writer.add_event(time.time(), "device_error", error=str(e), n_samples=len(self.observations))
             raise
         except KeyboardInterrupt:
+            stopping.winding_down()
             self.robot.stop()
             # The session is what was kept: a Ctrl-C while a sample's line was being synced to disk leaves
             # the sample in the session but not yet in this run's list.
@@ -359,7 +360,8 @@ class _ActiveRun:
         if len(self.observations) >= 3:
             try:
                 if self.stopped_by == "interrupted":
-                    result = self.solve(self.observations, final=True, stopped_early=self.stopped_early())
+                    with stopping.skippable():
+                        result = self.solve(self.observations, final=True, stopped_early=self.stopped_early())
                 else:
                     result = self.solve(self.observations, final=True)
                 self.viz.estimate(self.observations[-1].t, result, self.observations)

@@ -32,7 +32,7 @@ from typing import Callable
 
 import numpy as np
 
-from app import calibration_in_use, devices
+from app import calibration_in_use, devices, stopping
 from app.acquire import pose_at_frame, take_sample
 from app.config import Config, MonitorConfig, hook_argv
 from app.errors import ConfigError, MonitorError, OutageError
@@ -444,6 +444,7 @@ def run_monitor(
         viz.event(time.time(), f"device error: {e}", "ERROR")
         raise
     except KeyboardInterrupt:
+        stopping.winding_down()
         log.warning("monitor interrupted; %d samples kept in %s", report.n_samples, writer.path)
         writer.add_event(time.time(), "interrupted", n_samples=report.n_samples)
     except OutageError as e:

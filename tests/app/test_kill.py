@@ -321,3 +321,100 @@ def test_an_interrupted_calibration_is_not_handed_over_as_complete(tmp_path, cap
     verdict = yaml.safe_load((session_dir / "result.yaml").read_text())["verdict"]
     assert verdict["level"] == "warn" and verdict["reasons"][0].startswith(reason)
     assert html.escape(reason) in (session_dir / "report.html").read_text()
+
+
+def _ctrl_c_at_sample(monkeypatch, n: int) -> None:
+    """The run's first Ctrl-C, once its ``n``-th sample is in the session."""
+    from app.session import SessionWriter
+
+    add_sample = SessionWriter.add_sample
+
+    def add_sample_then_ctrl_c(self, obs, **kw):
+        kept = add_sample(self, obs, **kw)
+        if self.n_samples == n:
+            raise KeyboardInterrupt
+        return kept
+
+    monkeypatch.setattr(SessionWriter, "add_sample", add_sample_then_ctrl_c)
+
+
+
+def _ctrl_c_in(monkeypatch, owner, name: str, presses: int = 1) -> None:
+    """``presses`` real SIGINTs to this process as ``owner.name`` starts (as a terminal's Ctrl-C would land)."""
+    original = getattr(owner, name)
+
+    def pressed(*args, **kw):
+        for _ in range(presses):
+            signal.raise_signal(signal.SIGINT)
+        return original(*args, **kw)
+
+    monkeypatch.setattr(owner, name, pressed)
+
+
+def test_a_second_ctrl_c_while_the_demo_writes_its_result_keeps_the_summary(tmp_path, capsys, loopback, monkeypatch):
+    """Ctrl-C, then Ctrl-C again while the report is written: the report is still written and the summary
+    printed, exit 130 (it was 'handeye demo: interrupted' and nothing else); a third press quits at once."""
+    import app.runs.calibrate
+
+    _ctrl_c_at_sample(monkeypatch, 5)
+    _ctrl_c_in(monkeypatch, app.runs.calibrate, "write_run_report")
+    root = tmp_path / "sessions"
+    argv = ["demo", "-c", str(_sim_cell(tmp_path, loopback(17))), "--samples", "12", "--no-viz", "--no-frames"]
+    rc = main([*argv, "--session-root", str(root / "second")])
+    out, err = capsys.readouterr()
+    session_dir = next((root / "second").iterdir())
+    assert rc == 130 and "stopped by: interrupted" in out and "\nWARN: " in out and "continue this run:" in out, out
+    assert "handeye demo: interrupted" not in err and (session_dir / "report.html").stat().st_size > 0
+    assert signal.getsignal(signal.SIGINT) is signal.default_int_handler     # the command's end restored it
+
+    # two more presses there: the third quits without the summary, as every press did before
+    monkeypatch.undo()
+    _ctrl_c_at_sample(monkeypatch, 5)
+    _ctrl_c_in(monkeypatch, app.runs.calibrate, "write_run_report", presses=2)
+    assert main([*argv, "--session-root", str(root / "third")]) == 130
+    out, err = capsys.readouterr()
+    assert "handeye demo: interrupted" in err and "session:" not in out
+
+
+def test_a_second_ctrl_c_cuts_the_final_solve_short_and_the_samples_are_summarised(tmp_path, capsys, loopback,
+                                                                                   monkeypatch):
+    """Ctrl-C, then Ctrl-C during the final solve: the solve is cut short, and the samples are still
+    summarised (no calibration, the command that continues the run), exit 130."""
+    from app import devices
+
+    make_solve = devices.make_solve
+
+    def solve_pressed(*args, **kw):
+        solve = make_solve(*args, **kw)
+
+        def run(observations, *, final, **more):
+            if final:
+                signal.raise_signal(signal.SIGINT)
+            return solve(observations, final=final, **more)
+        return run
+
+    _ctrl_c_at_sample(monkeypatch, 5)
+    monkeypatch.setattr(devices, "make_solve", solve_pressed)
+    root = tmp_path / "sessions"
+    assert main(["demo", "-c", str(_sim_cell(tmp_path, loopback(18))), "--samples", "12", "--no-viz", "--no-frames",
+                 "--session-root", str(root)]) == 130
+    out, err = capsys.readouterr()
+    assert "no calibration: interrupted with 5 samples" in out and "continue this run:" in out, out
+    assert "handeye demo: interrupted" not in err
+    events = read_session(next(root.iterdir())).events
+    assert [(e["event"], e.get("stage")) for e in events] == [("interrupted", None), ("interrupted", "final solve")]
+
+
+def test_a_second_ctrl_c_while_demo_monitor_ends_keeps_its_summary(tmp_path, capsys, loopback, monkeypatch):
+    """demo --monitor: Ctrl-C (its normal end), then Ctrl-C while it writes its calibration in use: the summary
+    is printed and the session ends with its events, exit 0 (it was exit 130 and one line)."""
+    from app import calibration_in_use
+
+    _ctrl_c_at_sample(monkeypatch, 3)
+    _ctrl_c_in(monkeypatch, calibration_in_use.InUseFile, "end")
+    root = tmp_path / "sessions"
+    rc = main(["demo", "--monitor", "-c", str(_sim_cell(tmp_path, loopback(19))), "--no-viz", "--no-frames",
+               "--session-root", str(root)])
+    out, err = capsys.readouterr()
+    assert rc == 0 and " samples, 0 skipped" in out and "NOT WATCHING" in out and "interrupted" not in err, (out, err)
+    assert [e["event"] for e in read_session(next(root.iterdir())).events][-2:] == ["interrupted", "sample_set"]
