@@ -1,7 +1,7 @@
 """``handeye`` command line: builds the parser from the command modules of `app.commands` and runs one.
 
-Known errors (``calib.errors.HandeyeError``) print one line and exit 1; usage
-errors exit 2; ``monitor`` exits 3 when it raised a camera-moved alarm.
+Known errors (``calib.errors.HandeyeError``) print one line and exit 1; every
+exit status is `app.exit_status`'s.
 """
 
 from __future__ import annotations
@@ -13,7 +13,7 @@ import signal
 import sys
 import time
 
-from app import stopping
+from app import exit_status, stopping
 from app.commands import command_modules
 
 log = logging.getLogger("handeye")
@@ -22,14 +22,16 @@ log = logging.getLogger("handeye")
 def build_parser() -> tuple[argparse.ArgumentParser, dict]:
     """The parser and ``{command name: module}``."""
     parser = argparse.ArgumentParser(prog="handeye", description="Hand-eye calibration from 3D marker points "
-                                     "(Grossmann & Krueger: YKronT', YQuatT').")
+                                     "(Grossmann & Krueger: YKronT', YQuatT').", epilog=exit_status.help_text(),
+                                     formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("-v", "--verbose", action="count", default=0,
                         help="more detail: the statistics behind a verdict (chi-square, noise levels, ...), "
                         "info log lines")
     sub = parser.add_subparsers(dest="command", required=True)
     commands = {}
     for module in command_modules():
-        command = sub.add_parser(module.NAME, help=module.HELP)
+        command = sub.add_parser(module.NAME, help=module.HELP, description=module.HELP,
+                                 epilog=exit_status.help_text(), formatter_class=argparse.RawDescriptionHelpFormatter)
         module.add_arguments(command)
         if not getattr(module, "PASSTHROUGH", False):   # (a passthrough command's -v is its program's)
             # Also after the command (`handeye demo -v`); SUPPRESS keeps a -v given before it.
@@ -53,7 +55,7 @@ def main(argv: list[str] | None = None) -> int:
         parser, commands = build_parser()
     except KeyboardInterrupt:
         print("handeye: interrupted", file=sys.stderr)
-        return 130
+        return exit_status.INTERRUPTED
     args, extra = parser.parse_known_args(argv)
     command = commands[args.command]
     if extra and not getattr(command, "PASSTHROUGH", False):
@@ -68,10 +70,10 @@ def main(argv: list[str] | None = None) -> int:
             rc = command.run(args)
     except HandeyeError as e:
         print(f"handeye {args.command}: error: {e}", file=sys.stderr)
-        return 1
+        return exit_status.ERROR
     except KeyboardInterrupt:
         print(f"handeye {args.command}: interrupted", file=sys.stderr)
-        return 130
+        return exit_status.INTERRUPTED
     except ImportError as e:
         # A Ctrl-C inside a C extension's first import (open3d at the simulator's first render, a vendor SDK at
         # connect) comes out as "initialization failed" from that import: it was the stop.
@@ -80,8 +82,8 @@ def main(argv: list[str] | None = None) -> int:
         print(f"handeye {args.command}: interrupted", file=sys.stderr)
         if argv is None:
             # The half-initialised extension's C++ exit handlers would end the process with status 1.
-            end_now(130)
-        return 130
+            end_now(exit_status.INTERRUPTED)
+        return exit_status.INTERRUPTED
     log.info("%s finished in %.1f s", args.command, time.monotonic() - t0)
     if argv is None:
         leave_cleanly_past_two_dds(rc)

@@ -114,3 +114,20 @@ def check_demo_printout(printed: str) -> None:
 def test_the_readme_printout_has_the_shape_the_check_expects():
     shape = printout_shape(readme_demo_printout())
     assert shape[:3] == ["session", "setup", "<verdict>"] and "next" in shape and "  publish in ROS 2" in shape
+
+
+def test_the_exit_status_table_of_the_docs_and_the_help_is_the_one_the_commands_return(capsys):
+    """docs/usage.md's exit-status table and every command's --help show `app.exit_status.TABLE`, row by row."""
+    from app import exit_status
+
+    text = (ROOT / "docs/usage.md").read_text(encoding="utf-8")
+    section = text[text.index("### Exit status"):]
+    rows = re.findall(r"(?m)^\| (\d+) \| (\w+) \| (.+) \|$", section[:section.index("\n\n", section.index("|---"))])
+    assert [(int(s), o, m) for s, o, m in rows] == list(exit_status.TABLE)
+    parser, commands = build_parser()
+    for argv in (["--help"], *([name, "--help"] for name in commands)):
+        with pytest.raises(SystemExit):
+            parser.parse_args(argv)
+        page, name = capsys.readouterr().out, argv[0]
+        assert page.endswith(exit_status.help_text() + "\n"), name
+        assert all(f"  {status:>3}  {outcome} " in page for status, outcome, _ in exit_status.TABLE), name

@@ -10,6 +10,7 @@ from pathlib import Path
 
 import numpy as np
 
+from app import exit_status
 from app.commands.common import (add_motion_options, add_report_options, add_run_options, cell_command,
                                  command_with, confirm_motion, load_config_args, next_steps, transform_lines,
                                  verdict_lines)
@@ -49,10 +50,14 @@ def print_continue(out: CalibrationOutput, args) -> None:
 
 
 def exit_code(out: CalibrationOutput) -> int:
-    """130 after Ctrl-C (samples kept), 1 without a calibration, else 0."""
+    """`app.exit_status`: interrupted after Ctrl-C (samples kept), error without a calibration, else the
+    verdict's."""
     if out.report.stopped_by == "interrupted":
-        return 130
-    return 0 if out.report.result is not None else 1
+        return exit_status.INTERRUPTED
+    result = out.report.result
+    if result is None:
+        return exit_status.ERROR
+    return exit_status.of_verdict(None if result.verdict is None else result.verdict.level)
 
 
 def print_calibration_summary(out: CalibrationOutput, *, verbose: bool = False, config: Path | None = None) -> None:

@@ -5,9 +5,10 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
+from app import exit_status
 from app.commands.calibrate import exit_code, print_calibration_summary, print_continue
 from app.commands.common import add_motion_options, add_report_options, add_run_options, load_config_args
-from app.commands.monitor import EXIT_ALARM, next_lines, print_monitor_summary
+from app.commands.monitor import next_lines, print_monitor_summary
 from app.production import Bump
 from app.runs.demo import demo, demo_monitor
 from calib.errors import HandeyeError
@@ -55,4 +56,4 @@ def _run_monitor(args) -> int:
     report = demo_monitor(cfg, bump=bump, reference=args.reference, max_samples=args.max_samples)
     # As `monitor` ends: what to hand the re-learnt camera to, how to check it and go on.
     print_monitor_summary(report, cfg.setup, next_lines(report, args))
-    return EXIT_ALARM if report.alarms else 0
+    return exit_status.ALARM if report.moved_alarms else exit_status.PASS

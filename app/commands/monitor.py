@@ -10,6 +10,7 @@ from pathlib import Path
 
 import numpy as np
 
+from app import exit_status
 from app.calibration_in_use import FILE_NAME as IN_USE_FILE
 from app.commands.common import add_run_options, cell_command, command_with, load_config_args, pose_line
 from app.runs.monitor import MonitorReport, monitor
@@ -19,7 +20,6 @@ from calib.setup import Setup
 
 NAME = "monitor"
 HELP = "passive: sample while the robot works, alarm when the camera moved"
-EXIT_ALARM = 3
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -38,7 +38,7 @@ def run(args) -> int:
     report = monitor(cfg, reference=args.reference)
     print_monitor_summary(report, cfg.setup, next_lines(report, args, calibrate=cell_command(
         "calibrate", args.config, "--yes-move")))
-    return EXIT_ALARM if report.moved_alarms else 0
+    return exit_status.ALARM if report.moved_alarms else exit_status.PASS
 
 
 def next_lines(report: MonitorReport, args, *, calibrate: str | None = None) -> list[str]:

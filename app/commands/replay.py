@@ -12,7 +12,7 @@ from pathlib import Path
 
 import numpy as np
 
-from app import devices
+from app import devices, exit_status
 from app.calibration_in_use import FILE_NAME as IN_USE_FILE
 from app.commands.calibrate import print_statistics
 from app.commands.common import (add_report_options, cell_command, marker_offset, next_steps, program,
@@ -96,7 +96,7 @@ def run(args) -> int:
                              frames=settings.frames)
         print(summary(rep))
         print_lines(monitor_next_steps(rep, args.config))
-        return 3 if any(a["alarm"] == "moved" for a in rep.alarms) else 0
+        return exit_status.ALARM if any(a["alarm"] == "moved" for a in rep.alarms) else exit_status.PASS
     outcome = replay_source(args.source, methods, refine=args.refine, robust=args.robust, setup=args.setup,
                             rng=np.random.default_rng(args.seed), tolerance=args.tolerance or settings.tolerance,
                             shared_error=settings.shared_error, marker_offset=settings.marker_offset,
@@ -106,7 +106,7 @@ def run(args) -> int:
     report = {**(settings.config.report.model_dump() if settings.config is not None else {}), **report_overrides(args)}
     files = {} if args.out is None else write_outputs(outcome, args.out, settings.exports, settings.frames, report)
     print_replay(outcome, files, settings.frames, verbose=args.verbose > 0, config=args.config)
-    return 0
+    return exit_status.of_verdict(outcome.best.result.verdict.level)
 
 
 def print_replay(outcome, files: dict, frames: dict | None = None, *, verbose: bool = False,

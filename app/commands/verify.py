@@ -6,8 +6,8 @@ never the calibration's, measure the marker there and compare it with the one
 the result predicts. Passive (``--passive``): the same on samples taken
 read-only while production moves the robot (the monitor's sampling). Offline (``--session S``): the same against another
 recorded session or an imported file (the cross-session check). Either way:
-pass/fail against ``[verify] tolerance_mm / tolerance_deg`` (``--tolerance``),
-exit status 0 (pass) or 4 (fail), ``verify.yaml`` and ``report.html`` in the
+pass/warn/fail against ``[verify] tolerance_mm / tolerance_deg`` (``--tolerance``),
+exit status `app.exit_status.of_verdict`, ``verify.yaml`` and ``report.html`` in the
 verify session (offline: a new directory under ``session.root``).
 
 Eye-to-hand: ``X = T_flange_marker``, ``Y = T_base_cam``; eye-in-hand:
@@ -21,6 +21,7 @@ from pathlib import Path
 
 import numpy as np
 
+from app import exit_status
 from app.commands.common import (add_report_options, add_run_options, confirm_motion, load_config_args, program,
                                  tolerance, verdict_lines)
 from app.errors import SessionError
@@ -32,10 +33,6 @@ from calib.verify import MIN_POSES
 
 NAME = "verify"
 HELP = "judge a result on fresh poses (or another session): error in mm/deg, pass/fail, verify.yaml + report"
-#: Exit status of a verification that fails its tolerance.
-EXIT_FAIL = 4
-#: Ctrl-C before a verification could be judged (a shell's status for SIGINT).
-EXIT_INTERRUPTED = 130
 
 
 def expect_xyz(text: str) -> np.ndarray:
@@ -103,11 +100,13 @@ def run(args) -> int:
     if out.interrupted and out.doc is None:
         print(f"interrupted: {stopped}{measured}, fewer than the {MIN_POSES} a verification needs: nothing judged "
               f"(session {out.session})")
-        return EXIT_INTERRUPTED
+        return exit_status.INTERRUPTED
     if out.interrupted:
         print(f"interrupted: {stopped}{measured} (session {out.session})")
     print_verify_summary(out.doc, out.path, out.report, verbose=args.verbose > 0, verification=out.verification)
-    return 0 if out.passed else EXIT_FAIL
+    if out.interrupted:
+        return exit_status.INTERRUPTED
+    return exit_status.of_verdict((out.doc.get("verdict") or {}).get("level", "pass" if out.passed else "fail"))
 
 
 def continue_note(result: Path) -> str | None:

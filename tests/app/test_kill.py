@@ -19,6 +19,7 @@ from app.cli import main
 from app.runs.calibrate import calibrate
 from app.runs.demo import demo
 from app.session import read_session
+from tests.app.verdict_status import printed_status
 
 pytestmark = pytest.mark.slow
 
@@ -55,8 +56,9 @@ def test_sigkill_mid_run_then_replay_and_resume(tmp_path, capsys, sim_config, lo
     assert n >= 7
     for obs in session.observations:  # every sample line names frames that exist
         assert (session_dir / obs.meta["color"]).exists() and (session_dir / obs.meta["depth"]).exists()
-    assert main(["replay", str(session_dir), "-m", "YKronT'", "-m", "YQuatT'"]) == 0
+    rc = main(["replay", str(session_dir), "-m", "YKronT'", "-m", "YQuatT'"])
     out = capsys.readouterr().out
+    assert rc == printed_status(out), out
     assert f"eye_to_hand, {n} samples" in out and "| YKronT' |" in out and "err [mm]" in out
 
     # ... and the killed session can be resumed: two more samples, appended with fresh indices.
@@ -167,8 +169,9 @@ def test_ctrl_c_to_the_process_group_keeps_the_demo_result_and_resumes(tmp_path,
            f"{copy}" in out and "was calibrated on" in err
 
     # ... and the printed command continues the session (same address: the simulator has gone with its run)
-    assert main(shlex.split(resume[0])[1:]) == 0
+    rc = main(shlex.split(resume[0])[1:])
     out = capsys.readouterr().out
+    assert rc == printed_status(out), out
     assert "samples: 7" in out and "stopped by: samples" in out
     session = read_session(session_dir)
     assert [o.index for o in session.observations] == list(range(7)) and not session.interrupted

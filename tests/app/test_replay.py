@@ -3,11 +3,13 @@
 import numpy as np
 import pytest
 
+from app import exit_status
 from app.cli import main
 from app.runs.replay import format_table, replay
 from app.session import SessionWriter, read_session
 from calib.observation import Observation
 from calib.simulate import realistic_cell
+from tests.app.verdict_status import printed_status
 
 
 def _write_sim_session(root, setup="eye_to_hand", n=25, seed=0):
@@ -23,8 +25,9 @@ def _write_sim_session(root, setup="eye_to_hand", n=25, seed=0):
 
 def test_replay_table_all_solvers(tmp_path, capsys):
     path, _ = _write_sim_session(tmp_path)
-    assert main(["replay", str(path), "-m", "all", "--refine"]) == 0
+    rc = main(["replay", str(path), "-m", "all", "--refine"])
     out = capsys.readouterr().out
+    assert rc == printed_status(out), out
     for m in ("YKronT'", "YQuatT'", "XKronRT", "YAxisR"):
         assert f"| {m} |" in out
     assert "err [mm]" in out and "eye_to_hand, 25 samples" in out
@@ -69,15 +72,15 @@ def test_replay_of_a_grid_gives_what_it_determines(tmp_path, capsys, setup):
     """A grid recording (the tool never turns) is answered, with a warning naming what is open and how to close
     it, instead of the closed forms' refusal; --marker-offset (mm) completes it: no warning, the truth found."""
     path, d = _write_grid_session(tmp_path, setup)
-    assert main(["replay", str(path), "--verbose"]) == 0
+    assert main(["replay", str(path), "--verbose"]) == exit_status.WARN
     out = capsys.readouterr().out
     assert out.splitlines()[2].startswith("WARN") and "are not separated (the tool never turned)" in out
     assert "its error over the workspace is unknown while part of the answer is open" in out
     assert "| auto | 40 |" in out and "give --marker-offset X,Y,Z" in out
     offset = (d.X if setup == "eye_to_hand" else d.Y)[:3, 3] * 1e3
-    assert main(["replay", str(path), "--verbose", "--marker-offset",
-                 ",".join(f"{v:.3f}" for v in offset)]) == 0
+    rc = main(["replay", str(path), "--verbose", "--marker-offset", ",".join(f"{v:.3f}" for v in offset)])
     out = capsys.readouterr().out
+    assert rc == printed_status(out), out
     assert "not separated" not in out
     row = next(line for line in out.splitlines() if line.startswith("| auto |"))
     err_mm, err_deg = (float(c) for c in row.split("|")[-5:-3])
@@ -89,8 +92,9 @@ def test_replay_takes_the_marker_offset_from_the_config(tmp_path, capsys):
     path, d = _write_grid_session(tmp_path, "eye_to_hand")
     config = tmp_path / "cell.toml"
     config.write_text("[marker]\noffset_m = [" + ", ".join(f"{v:.6f}" for v in d.X[:3, 3]) + "]\n")
-    assert main(["replay", str(path), "-c", str(config)]) == 0
-    assert "not separated" not in capsys.readouterr().out
+    rc = main(["replay", str(path), "-c", str(config)])
+    out = capsys.readouterr().out
+    assert rc == printed_status(out) and "not separated" not in out
     with pytest.raises(SystemExit) as e:
         main(["replay", str(path), "--marker-offset", "1,2"])
     assert e.value.code == 2 and "expected X,Y,Z in mm" in capsys.readouterr().err

@@ -9,6 +9,7 @@ import yaml
 from app.cli import main
 from calib import simulate
 from calib import transforms as tf
+from tests.app.verdict_status import printed_status
 
 DATA = Path(__file__).parents[1] / "data"
 
@@ -26,7 +27,7 @@ def cell():
 def _replay(capsys, *argv):
     rc = main(["replay", *map(str, argv)])
     out, err = capsys.readouterr()
-    assert rc == 0, err
+    assert rc == printed_status(out), err
     return out
 
 

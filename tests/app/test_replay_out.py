@@ -6,10 +6,12 @@ import numpy as np
 import pytest
 import yaml
 
+from app import exit_status
 from app.benchmarks.fuzz import IMPORT_MAIN, write_import_seed
 from app.cli import main
 from app.devices import RESULT_FILES
 from calib import transforms as tf
+from tests.app.verdict_status import printed_status
 
 DATA = Path(__file__).parents[1] / "data"
 
@@ -40,17 +42,18 @@ def check_outputs(out: Path, capsys) -> dict:
 def test_replay_out_on_each_seeded_importer(kind, tmp_path, capsys):
     folder = write_import_seed(kind, tmp_path / "seeds", np.random.default_rng(3))
     source = folder / IMPORT_MAIN[kind] if kind in IMPORT_MAIN else folder
-    assert main(["replay", str(source), "--out", str(tmp_path / "out")]) == 0
+    rc = main(["replay", str(source), "--out", str(tmp_path / "out")])
     doc = check_outputs(tmp_path / "out", capsys)
-    assert doc["n_samples"] == 8
+    assert doc["n_samples"] == 8 and rc == exit_status.of_verdict(doc["verdict"]["level"])
 
 
 @pytest.mark.parametrize("source, setup, n", [(DATA / "circle_grid" / "cal_data.yaml", "eye_in_hand", 15),
                                               (DATA / "ethz" / "robot_arm_sim", "eye_in_hand", None)])
 def test_replay_out_on_the_real_recordings(source, setup, n, tmp_path, capsys):
-    assert main(["replay", str(source), "--out", str(tmp_path / "out")]) == 0
+    rc = main(["replay", str(source), "--out", str(tmp_path / "out")])
     doc = check_outputs(tmp_path / "out", capsys)
     assert doc["setup"] == setup and (n is None or doc["n_samples"] == n)
+    assert rc == exit_status.of_verdict(doc["verdict"]["level"])
     if n == 15:
         # The 10x10-circle recording: residuals 17x what the camera's noise explains, 8 mm over the workspace.
         assert doc["verdict"]["level"] in ("warn", "fail") and doc["accuracy"]["rms_mm"] > 2
@@ -64,8 +67,9 @@ def test_replay_out_on_the_real_recordings(source, setup, n, tmp_path, capsys):
 def test_replay_out_writes_the_recommended_of_several(tmp_path, capsys):
     """With -m all the comparison stays and the recommended solver's result is the one written."""
     source = DATA / "circle_grid" / "cal_data.yaml"
-    assert main(["replay", str(source), "-m", "YKronT'", "-m", "YQuatT'", "--out", str(tmp_path)]) == 0
+    rc = main(["replay", str(source), "-m", "YKronT'", "-m", "YQuatT'", "--out", str(tmp_path)])
     printed = capsys.readouterr().out
+    assert rc == printed_status(printed), printed
     best = next(line.split(":")[1].strip() for line in printed.splitlines() if line.startswith("recommended:"))
     doc = yaml.safe_load((tmp_path / "result.yaml").read_text())
     assert doc["solver"] == best and "| YKronT' |" in printed and "| YQuatT' |" in printed

