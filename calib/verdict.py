@@ -250,6 +250,24 @@ def per_pose_phrase(v: Verification) -> str:
             "the noise is removed")
 
 
+def _unresolved(v: Verification) -> list[tuple[str, str]]:
+    """``(tolerance, sentence)`` per quantity (mm, deg) whose tolerance is below the noise floor of the poses
+    (`calib.verify.Verification.noise_floor_mm`): whatever the estimate, they cannot show it within."""
+    out = []
+    for what, unit, digits, floor, noise, tol in (
+            ("position", "mm", 2, v.noise_floor_mm, v.noise_rms_mm, v.tolerance_mm),
+            ("rotation", "deg", 3, v.noise_floor_deg, v.noise_rms_deg, v.tolerance_deg)):
+        if floor is None or noise is None or floor <= tol:
+            continue
+        # The floor falls as the fourth root of the number of poses.
+        needed = int(np.ceil(8.0 / 3.0 * (noise / tol) ** 4))
+        out.append((f"{what} tolerance {tol:g} {unit}",
+                    f"the {what} error cannot be shown within {tol:g} {unit}: the measurement noise of these "
+                    f"{v.n_poses} poses ({noise:.{digits}f} {unit} per pose) hides any error below "
+                    f"{floor:.{digits}f} {unit}; verify on about {needed} poses to resolve {tol:g} {unit}"))
+    return out
+
+
 def judge_verification(v: Verification, *, rigid: Verification | None = None, repeated: int = 0,
                        warnings=()) -> Verdict:
     """The verdict of a verification (`calib.verify.verify`) on ``v.n_poses`` poses.
@@ -275,8 +293,13 @@ def judge_verification(v: Verification, *, rigid: Verification | None = None, re
                                 "a few mm and tenths of a degree): there the result was fitted, not tested; verify "
                                 "on fresh poses (the active mode picks them)"))
     reasons += [("warn", w) for w in warnings]
+    unresolved = _unresolved(v) if v.passed else []
+    reasons += [("warn", text) for _, text in unresolved]
     level = worst(lv for lv, _ in reasons)
     lead = {"pass": f"within the tolerance {tolerance}", "warn": f"within the tolerance {tolerance}, but check the "
             "reasons below", "fail": f"outside the tolerance {tolerance}"}[level]
+    if unresolved:
+        lead = (f"the {' and '.join(t for t, _ in unresolved)} {'is' if len(unresolved) == 1 else 'are'} finer than "
+                "these poses can resolve")
     summary = f"{lead}: calibration error on {v.n_poses} poses {verified_error_phrase(v)}"
     return Verdict(level, summary, tuple(text for _, text in reasons))

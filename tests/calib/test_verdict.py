@@ -88,13 +88,13 @@ def test_outliers_few_samples_little_rotation_and_open_unknowns_are_reasons():
     assert v.level == "warn" and v.reasons == open_
 
 
-def _verification(errors_mm, noise_mm, tolerance_mm=2.0, rotation=None, rotation_noise_deg=None):
+def _verification(errors_mm, noise_mm, tolerance_mm=2.0, rotation=None, rotation_noise_deg=None, tolerance_deg=1.0):
     n = len(errors_mm)
     e = np.zeros((n, 3))
     e[:, 0] = np.asarray(errors_mm) * 1e-3
     errors = cv.PoseErrors(e, None if rotation is None else np.deg2rad(rotation), np.full(n, (noise_mm * 1e-3) ** 2),
                            None if rotation_noise_deg is None else np.deg2rad(rotation_noise_deg) ** 2)
-    return cv.verify(errors, tolerance_mm=tolerance_mm, tolerance_deg=1.0, rng=np.random.default_rng(0))
+    return cv.verify(errors, tolerance_mm=tolerance_mm, tolerance_deg=tolerance_deg, rng=np.random.default_rng(0))
 
 
 def test_a_verification_verdict_says_the_noise_floor_and_repeated_poses():
@@ -116,6 +116,24 @@ def test_a_verification_verdict_says_the_noise_floor_and_repeated_poses():
     verdict = judge_verification(bad, warnings=("the inverse fits better",))
     assert verdict.level == "fail" and verdict.summary.startswith("outside the tolerance")
     assert "recalibrate" in verdict.reasons[0] and verdict.reasons[-1] == "the inverse fits better"
+
+
+def test_a_tolerance_below_the_noise_floor_is_not_claimed():
+    """The rotation is below a noise floor of 0.82 deg, the tolerance 0.5 deg: the verdict does not say "within
+    the tolerance" (it did, with "at most 0.82 deg at 95 %" on the same line), it warns and says how many poses
+    would resolve it; the position, resolved, stays as it was."""
+    rotation = dict(rotation=[0.9, 1.2, 0.4, 1.5, 0.8, 0.7], rotation_noise_deg=1.0)
+    v = _verification([0.3, 0.2, 0.4, 0.1, 0.3, 0.2], noise_mm=0.4, tolerance_deg=0.5, **rotation)
+    assert v.passed and v.noise_floor_deg == pytest.approx(0.816, abs=1e-3)
+    verdict = judge_verification(v)
+    assert verdict.level == "warn" and "within" not in verdict.summary
+    assert verdict.summary.startswith("the rotation tolerance 0.5 deg is finer than these poses can resolve: ")
+    assert verdict.reasons == ("the rotation error cannot be shown within 0.5 deg: the measurement noise of these 6 "
+                               "poses (1.000 deg per pose) hides any error below 0.816 deg; verify on about 43 poses "
+                               "to resolve 0.5 deg",)
+    # 43 poses of the same noise resolve it
+    many = _verification([0.3] * 43, noise_mm=0.4, tolerance_deg=0.5, rotation=[1.0] * 43, rotation_noise_deg=1.0)
+    assert many.noise_floor_deg <= 0.5 and judge_verification(many).level == "pass"
 
 
 def test_repeated_poses_are_found_within_millimetres_and_tenths_of_a_degree():
