@@ -210,11 +210,22 @@ def monitor(cfg: Config, *, reference: Path | None = None, stop=None, progress: 
                 seen.append(obs.index)
                 if bump is not None and len(seen) == bump.after:
                     bump.apply(camera, cfg.setup)
+                    # Before the moved test runs the bump is not a move to detect: arming takes it in, or the
+                    # detector's first samples do, and what is reported of it is a part of it.
+                    early = not engine.armed or engine.samples_until_tested > 0
                     text = (f"simulated camera bumped by {bump.translation_mm:g} mm and {bump.rotation_deg:g} deg "
                             f"after sample {obs.index}")
+                    if early:
+                        when, least = (("while the monitor was still arming", cfg.monitor.arm_samples + 3)
+                                       if not engine.armed else
+                                       ("before the moved test ran", len(seen) + engine.samples_until_tested))
+                        text += (f", {when}: part of the bump goes into the calibration it watches from, so what it "
+                                 f"reports of the move is less than the bump; bump once the moved test runs "
+                                 f"(--bump-after {least} or more, or --reference to arm at once)")
                     say(text)
                     writer.add_event(obs.t, "simulated_bump", sample_index=obs.index,
-                                     translation_mm=bump.translation_mm, rotation_deg=bump.rotation_deg)
+                                     translation_mm=bump.translation_mm, rotation_deg=bump.rotation_deg,
+                                     before_test=early)
                     viz.event(obs.t, text, "WARN")
 
             def on_update(obs, update, report):

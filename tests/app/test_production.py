@@ -161,3 +161,20 @@ def test_monitor_with_the_shipped_config_samples(tmp_path, loopback, capsys):
     assert "running a looping production program" in out
     assert "monitoring engine: not armed: collecting samples of distinct poses" in out
     assert "  3 samples, " in out and "NOT WATCHING: the monitoring engine was never armed" in out
+
+
+def test_a_bump_before_the_moved_test_runs_is_said_to_be_one(tmp_path, loopback, capsys):
+    """demo --monitor with the bump after sample 3 of the 12 it arms from: the run says that the bump came while
+    the monitor was still arming, so that it reports less of it, and from which --bump-after it would not; the
+    session's event records it (the docs' example bumped during arming, and nothing said so)."""
+    rc = main(["demo", "--monitor", "-c", _sim_toml(tmp_path, loopback(24)), "--bump-after", "3", "--bump-mm", "5",
+               "--bump-deg", "0", "--max-samples", "5", "--no-viz", "--no-frames", "--session-root",
+               str(tmp_path / "s")])
+    out = capsys.readouterr().out
+    assert rc == 0 and ("simulated camera bumped by 5 mm and 0 deg after sample 2, while the monitor was still "
+                        "arming: part of the bump goes into the calibration it watches from, so what it reports of "
+                        "the move is less than the bump; bump once the moved test runs (--bump-after 15 or more, "
+                        "or --reference to arm at once)") in out, out
+    (session,) = (tmp_path / "s").iterdir()
+    (bump,) = [e for e in read_session(session).events if e["event"] == "simulated_bump"]
+    assert bump["before_test"] is True and bump["sample_index"] == 2
