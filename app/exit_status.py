@@ -39,6 +39,6 @@ def help_text() -> str:
     """The table for ``--help`` (an argparse epilog, printed as it is)."""
     width = max(len(outcome) for _, outcome, _ in TABLE)
     indent = " " * (width + 9)
-    return "exit status:\n" + "\n".join(textwrap.fill(meaning, 100, initial_indent=f"  {status:>3}  {outcome:<{width}}  ",
-                                                      subsequent_indent=indent)
-                                        for status, outcome, meaning in TABLE)
+    return "exit status:\n" + "\n".join(
+        textwrap.fill(meaning, 100, initial_indent=f"  {status:>3}  {outcome:<{width}}  ", subsequent_indent=indent)
+        for status, outcome, meaning in TABLE)
