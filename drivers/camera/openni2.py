@@ -117,6 +117,28 @@ def loadable_dir(d: Path) -> str | None:
     return None
 
 
+#: What to check when no OpenNI2 device answers.
+PLUG_HINT = ("plug the camera (Xtion, Astra) into a USB port, check that lsusb lists it and that this user may open "
+             "it (the OpenNI2 package's udev rules, then replug)")
+
+
+def open_device(openni2, uri: str):
+    """The OpenNI2 device at ``uri`` (the first one attached when empty); `DeviceError` in one line naming what
+    was tried, what is attached and what to do, instead of the bindings' ``(OniStatus..., b'...', None)``."""
+    attached = [u.decode(errors="replace") if isinstance(u, bytes) else str(u) for u in openni2.Device.enumerate_uris()]
+    if not attached and not uri:    # (a uri may name what is never listed: the dummy device, a recording)
+        raise DeviceError(f"OpenNI2 camera: no device found (tried the first one attached); {PLUG_HINT}")
+    try:
+        return openni2.Device.open_any() if not uri else openni2.Device(uri.encode())
+    except Exception as e:  # the bindings' OpenNIError: (status, message bytes, log file)
+        why = e.args[1] if len(e.args) > 1 else e
+        why = why.decode(errors="replace") if isinstance(why, bytes) else str(why)
+        tried = f"camera.uri {uri}" if uri else f"the first one attached, {attached[0]}"
+        fix = (f"attached: {', '.join(attached)}; set camera.uri to one of them, or close the program that holds it"
+               if attached else PLUG_HINT)
+        raise DeviceError(f"OpenNI2 camera: cannot open {tried} ({why}); {fix}") from None
+
+
 @CAMERAS.register("openni2", OpenNI2CameraConfig)
 class OpenNI2Camera(Camera):
     """Registered, synchronised depth + color from an OpenNI2 device."""
@@ -145,10 +167,7 @@ class OpenNI2Camera(Camera):
             except Exception as e:  # the bindings raise their own InitializationError
                 raise DeviceError(f"OpenNI2 camera: cannot load OpenNI2 ({e}); {INSTALL_HINT}") from None
         self._openni2 = openni2
-        try:
-            self._device = openni2.Device.open_any() if not c.uri else openni2.Device(c.uri.encode())
-        except Exception as e:
-            raise DeviceError(f"OpenNI2 camera: cannot open device {c.uri or '(first)'}: {e}") from None
+        self._device = open_device(openni2, c.uri)
         try:
             self._setup_streams()
         except Exception:

@@ -98,7 +98,9 @@ def serve(conn: Connection, host: str, frequency: float, read_only: bool, variab
     try:
         rtde_r = rtde_receive.RTDEReceiveInterface(host, frequency, variables)
     except RuntimeError as exc:
-        send(("fatal", f"cannot open RTDE receive on UR controller {host}: {exc}"))
+        send(("fatal", f"cannot open RTDE receive on UR controller {host} (robot.host): {exc}; check that the "
+                       f"controller is on and reachable (ping {host}), on port 30004, and that robot.host is its "
+                       "address"))
         return 1
     try:
         if not read_only:
@@ -107,7 +109,9 @@ def serve(conn: Connection, host: str, frequency: float, read_only: bool, variab
             rtde_c = rtde_control.RTDEControlInterface(host, frequency)
     except RuntimeError as exc:
         rtde_r.disconnect()
-        send(("fatal", f"cannot open RTDE control on UR controller {host}: {exc}"))
+        send(("fatal", f"cannot open RTDE control on UR controller {host} (robot.host): {exc}; check that the "
+                       "robot is in remote control (e-Series: the pendant's Remote Control mode), powered on with "
+                       "its brakes released, and not in a protective stop"))
         return 1
     stop = threading.Event()
     period = 0.25 / (500.0 if frequency <= 0 else frequency)

@@ -144,3 +144,18 @@ def test_ctrl_c_while_the_program_starts_or_inside_a_c_extensions_import_is_a_st
     monkeypatch.setattr(replay, "run", lambda args: __import__("no_such_module_here"))
     with pytest.raises(ImportError):
         main(["replay", "x"])
+
+
+def test_no_ur_controller_at_the_address_is_one_line_naming_it_and_what_to_check(tmp_path, capsys, loopback):
+    """The shipped Xtion config with robot.host where no controller listens: one line that names the UR controller,
+    the address tried and what to check (it said 'read: End of file' and stopped there)."""
+    from pathlib import Path
+
+    host = loopback(67)
+    p = tmp_path / "c.toml"
+    p.write_text(Path("config/ur10_xtion_eye_to_hand.toml").read_text().replace('"192.168.1.10"', f'"{host}"'))
+    line = _one_line_error(capsys, main(["calibrate", "--yes-move", "-c", str(p), "--session-root", str(tmp_path),
+                                         "--no-viz"]))
+    assert f"cannot open RTDE receive on UR controller {host} (robot.host): " in line
+    assert line.endswith(f"; check that the controller is on and reachable (ping {host}), on port 30004, and that "
+                         "robot.host is its address"), line

@@ -209,6 +209,44 @@ def test_openni2_dummy_device(tmp_path):
     assert "not connected" in out["read_closed"]
 
 
+# In a child process, as the dummy device above: OpenNI2 initialised in the test process would stay so.
+_NO_DEVICE_SCRIPT = r"""
+import os, sys
+from app.cli import main
+from openni import openni2
+from drivers.camera.openni2 import OpenNI2CameraConfig, library_dirs, loadable_dir
+
+openni2.initialize([d for d in (loadable_dir(x) for x in library_dirs(OpenNI2CameraConfig())) if d])
+if openni2.Device.enumerate_uris():
+    print("attached", flush=True)
+    os._exit(0)
+sys.stdout.flush()
+os._exit(main(sys.argv[1:]))
+"""
+
+
+@pytest.mark.skipif(not _openni2_available(), reason="openni bindings or libopenni2-0 not installed")
+def test_no_openni2_device_attached_is_one_line_naming_the_device_and_the_fix(tmp_path, loopback):
+    """The shipped Xtion config on a (simulated) robot with no camera plugged in: one line that names the OpenNI2
+    camera, what was tried and what to check (it was the bindings' raw tuple, (OniStatus.ONI_STATUS_ERROR,
+    b'DeviceOpen using default: no devices found', None))."""
+    text = Path("config/ur10_xtion_eye_to_hand.toml").read_text()
+    sim = Path("config/sim.toml").read_text().replace('host = "127.0.0.2"', f'host = "{loopback(66)}"')
+    start, end = text.index("[robot]"), text.index("# drivers.camera.openni2")
+    config = tmp_path / "c.toml"
+    config.write_text(text[:start] + sim[sim.index("[robot]"):sim.index("[camera]")] + text[end:])
+    proc = subprocess.run([sys.executable, "-c", _NO_DEVICE_SCRIPT, "calibrate", "--yes-move", "-c", str(config),
+                           "--session-root", str(tmp_path), "--no-viz"], capture_output=True, text=True, timeout=120,
+                          cwd=Path(__file__).parents[3])
+    if proc.stdout.strip() == "attached":
+        pytest.skip("an OpenNI2 camera is attached")
+    err = proc.stderr.strip().splitlines()
+    assert proc.returncode == 1 and len(err) == 1, proc.stderr
+    assert err[0] == ("handeye calibrate: error: OpenNI2 camera: no device found (tried the first one attached); "
+                      "plug the camera (Xtion, Astra) into a USB port, check that lsusb lists it and that this user "
+                      "may open it (the OpenNI2 package's udev rules, then replug)")
+
+
 @pytest.mark.hardware
 @pytest.mark.skipif(os.environ.get("HANDEYE_HARDWARE") != "1", reason="needs an Xtion/PrimeSense (HANDEYE_HARDWARE=1)")
 def test_openni2_real_device_registered_frames():
