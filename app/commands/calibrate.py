@@ -36,8 +36,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 def run(args) -> int:
     cfg = load_config_args(args)
-    confirm_motion(args.yes_move)
-    out = calibrate(cfg, resume=args.resume)
+    out = calibrate(cfg, resume=args.resume, confirm=lambda: confirm_motion(args.yes_move))
     print_calibration_summary(out, verbose=args.verbose > 0, config=args.config)
     print_continue(out, args)
     return exit_code(out)

@@ -90,11 +90,15 @@ class CalibrationOutput:
     frames: dict | None = None
 
 
-def calibrate(cfg: Config, *, resume: Path | None = None, progress: bool = True) -> CalibrationOutput:
-    """Active calibration with the configured robot and camera (the caller confirmed motion).
+def calibrate(cfg: Config, *, resume: Path | None = None, progress: bool = True,
+              confirm: Callable[[], None] = lambda: None) -> CalibrationOutput:
+    """Active calibration with the configured robot and camera.
 
     ``resume``: a session (same setup) to continue; its samples count towards
-    ``calibrate.samples`` and new ones are appended to it.
+    ``calibrate.samples`` and new ones are appended to it. ``confirm``: called
+    once the robot and the camera are connected, before anything moves or a
+    session is written (raises to refuse): a question asked before a
+    connection that then fails would be asked for nothing.
 
     Returns
     -------
@@ -111,6 +115,7 @@ def calibrate(cfg: Config, *, resume: Path | None = None, progress: bool = True)
     rng = np.random.default_rng([cfg.calibrate.seed, len(initial)])
     devices.check_session_root(cfg)
     with devices.open_robot(cfg, read_only=False) as robot, devices.open_camera(cfg, robot) as camera:
+        confirm()
         truth = devices.truth(camera)
         if resume is not None:
             writer = SessionWriter.resume(resume)

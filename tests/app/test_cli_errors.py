@@ -40,11 +40,31 @@ def test_replay_missing_source(tmp_path, capsys):
     _one_line_error(capsys, main(["replay", str(tmp_path / "nothing")]))
 
 
-def test_calibrate_refuses_without_tty_or_flag(capsys, monkeypatch, tmp_path):
-    monkeypatch.chdir(tmp_path)  # the default session root ("sessions") is checked for writability here
+def test_calibrate_refuses_without_tty_or_flag(capsys, monkeypatch, tmp_path, loopback):
+    """Connected to the (simulated) robot and camera, it refuses to move without a terminal to ask on or
+    --yes-move: nothing moved, no session written."""
+    from pathlib import Path
+
+    p = tmp_path / "c.toml"
+    p.write_text(Path("config/sim.toml").read_text().replace('host = "127.0.0.2"', f'host = "{loopback(68)}"'))
     monkeypatch.setattr("sys.stdin", io.StringIO(""))
-    line = _one_line_error(capsys, main(["calibrate"]))
-    assert "--yes-move" in line
+    line = _one_line_error(capsys, main(["calibrate", "-c", str(p), "--session-root", str(tmp_path / "s"),
+                                         "--no-viz"]))
+    assert "--yes-move" in line and not list((tmp_path / "s").glob("*"))
+
+
+def test_calibrate_connects_before_it_asks(capsys, monkeypatch, tmp_path, loopback):
+    """No controller at robot.host and no --yes-move: the one line is the connection's, not a question about
+    motion asked before the robot was even reached (it asked 'Continue? [y/N]' first)."""
+    from pathlib import Path
+
+    asked = []
+    monkeypatch.setattr("app.commands.calibrate.confirm_motion", lambda yes_move: asked.append(yes_move))
+    p = tmp_path / "c.toml"
+    p.write_text(Path("config/ur10_xtion_eye_to_hand.toml").read_text().replace('"192.168.1.10"',
+                                                                                f'"{loopback(69)}"'))
+    line = _one_line_error(capsys, main(["calibrate", "-c", str(p), "--session-root", str(tmp_path), "--no-viz"]))
+    assert "cannot open RTDE receive on UR controller" in line and asked == []
 
 
 def test_confirmation_prompt(monkeypatch):
