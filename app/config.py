@@ -487,7 +487,7 @@ def config_from_dict(data: dict, where: str = "") -> Config:
     try:
         return Config.model_validate(data)
     except ValidationError as e:
-        raise ConfigError(f"{where + ': ' if where else ''}{describe(e, skip=_TAGS)}") from None
+        raise ConfigError(f"{where + ': ' if where else ''}{describe(e, skip=_TAGS, model=Config)}") from None
 
 
 #: A config is a few kB; this bounds what a wrong path (a log, a disk image) can cost.

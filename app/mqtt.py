@@ -145,7 +145,7 @@ class MqttConfig(Params):
         try:
             return cls.model_validate(data)
         except ValidationError as e:
-            raise ConfigError(describe(e, "mqtt")) from None
+            raise ConfigError(describe(e, "mqtt", model=cls)) from None
 
     def topic(self, kind: str) -> str:
         return self.topics.get(kind) or f"{self.topic_prefix}/{kind}"

@@ -165,3 +165,22 @@ def test_the_monitors_hook_options_override_the_config(tmp_path):
     assert (cfg.monitor.alarm_hook, cfg.monitor.calibration_hook) == ("touch a", "touch 'b c'")
     with pytest.raises(ConfigError, match="monitor.calibration_hook"):
         load_config_args(parser.parse_args(["monitor", "--calibration-hook", "no-such-program-xyz"]))
+
+
+def test_every_bad_field_reads_the_same_and_an_unknown_key_names_the_close_one(tmp_path):
+    """One wording for every wrong type and bound, whatever the field (it was pydantic's 'Input should be a valid
+    integer' beside handeye's "must be a number, got 'fast'"); an unknown key names the key it is close to,
+    in the backend's own table too."""
+    p = tmp_path / "c.toml"
+    p.write_text('[robot]\ntype = "ur_sim"\nhost = "127.0.0.2"\nhots = "x"\nspeed = "fast"\n'
+                 '[camera]\nbackend = "openni2"\nfps = "30"\nwidht = 640\nregistration = 1\n'
+                 '[calibrate]\nsampels = 3\ntilt_deg = 120\n[frames]\nbsae = "base"\n[mqtt]\nenabeld = true\n')
+    with pytest.raises(ConfigError) as e:
+        load_config(p)
+    parts = str(e.value).removeprefix(f"{p}: ").split("; ")
+    assert sorted(parts) == sorted([
+        "robot.hots: unknown key (did you mean host?)", "robot.speed: must be a number, got 'fast'",
+        "camera.fps: must be an integer, got '30'", "camera.widht: unknown key (did you mean width?)",
+        "camera.registration: must be true or false, got 1", "calibrate.sampels: unknown key (did you mean samples?)",
+        "calibrate.tilt_deg: must be at most 90, got 120", "frames.bsae: unknown key (did you mean base?)",
+        "mqtt.enabeld: unknown key (did you mean enabled?)"]), parts

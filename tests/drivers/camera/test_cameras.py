@@ -125,10 +125,10 @@ def test_intrinsics_file_ros_format(tmp_path):
     intr = load_intrinsics(p)
     assert (intr.fx, intr.fy, intr.cx, intr.cy, intr.dist[0]) == (570, 571, 320, 240, 0.01)
     p.write_text("width: 640\nheight: 480\nfx: 570\n")
-    with pytest.raises(ParameterError, match=r"ci.yaml\.fy: Field required; .*cy: Field required"):
+    with pytest.raises(ParameterError, match=r"ci.yaml\.fy: required, not given; .*cy: required, not given"):
         load_intrinsics(p)
     p.write_text("width: 640\nheight: 480.0\nfx: 570\nfy: 570\ncx: 320\ncy: 240\ndist: [0, 0, 0]\n")
-    with pytest.raises(ParameterError, match=r"height: Input should be a valid integer.*dist: must be 4, 5, 8"):
+    with pytest.raises(ParameterError, match=r"height: must be an integer, got 480.0.*dist: must be 4, 5, 8"):
         load_intrinsics(p)
     p.write_text("image_width: 640\nimage_height: 480\ncamera_matrix: {data: [570, 0, 320]}\n")
     with pytest.raises(ParameterError, match=r"camera_matrix: data must hold the 9 entries of K, got 3"):
