@@ -237,6 +237,15 @@ class URRobotConfig(Params):
         return np.stack([self.joint_min, self.joint_max], axis=1)
 
 
+
+#: How far (m) the controller's flange pose may be from the nominal kinematics before `URRobot` says why.
+MODEL_CHECK_M = 0.01
+
+
+def _ur_pose_text(pose) -> str:
+    """A UR pose (x y z m, rx ry rz rad) for a log line: ``[0.0000 0.0000 0.1000 0.0000 0.0000 0.0000]``."""
+    return "[" + " ".join(f"{0.0 if abs(v) < 5e-5 else v:.4f}" for v in pose) + "]"   # (no "-0.0000")
+
 @dataclass(frozen=True)
 class URKinematics(KinematicModel):
     """A UR model's nominal kinematics (`drivers.robot.ur_kinematics`) and the 1-sigma of its DH parameters.
@@ -386,13 +395,29 @@ class URRobot(Robot):
         return info
 
     def _check_model(self) -> None:
-        # Nominal FK against the controller's pose: catches a wrong `model` (decimetres),
-        # tolerates the robot's factory calibration (millimetres).
-        st = self.read()
-        _, dt = pose_error(kin.forward(st.q, self.config.model), st.T_base_flange)
-        if dt > 0.01:
-            log.warning("UR at %s: nominal %s kinematics miss the measured flange pose by %.1f mm; wrong model?",
-                        self.config.host, self.config.model, dt * 1e3)
+        # Nominal FK against the controller's pose: catches a wrong `model` or, read-only, a configured
+        # `tcp_offset` that is not the controller's (decimetres); tolerates the factory calibration (millimetres).
+        cfg, st = self.config, self.read()
+        flange = kin.forward(st.q, cfg.model)
+        _, dt = pose_error(flange, st.T_base_flange)
+        if dt <= MODEL_CHECK_M:
+            return
+        fits = [m for m in kin.UR_MODELS if m != cfg.model
+                and pose_error(kin.forward(st.q, m), st.T_base_flange)[1] <= MODEL_CHECK_M]
+        if fits:
+            log.warning("UR at %s: the measured flange pose is %.1f mm from the nominal %s kinematics and fits %s: "
+                        "set robot.model", cfg.host, dt * 1e3, cfg.model, " or ".join(fits))
+        elif cfg.read_only:
+            # The controller's TCP pose with the configured offset taken off: what is left is the offset it uses.
+            used = to_ur_pose(invert(flange) @ st.T_base_flange @ self._T_flange_tcp)
+            log.warning("UR at %s: the flange pose (the controller's TCP pose less robot.tcp_offset) is %.1f mm from "
+                        "the nominal %s kinematics: the controller's active TCP offset looks like %s (x y z m, rx ry "
+                        "rz rad), robot.tcp_offset says %s; set robot.tcp_offset to the controller's (the pendant's "
+                        "Installation > General > TCP, the one the program sets)", cfg.host, dt * 1e3, cfg.model,
+                        _ur_pose_text(used), _ur_pose_text(cfg.tcp_offset))
+        else:
+            log.warning("UR at %s: the measured flange pose is %.1f mm from the nominal %s kinematics and no other UR "
+                        "model fits it: check robot.model and the arm's calibration", cfg.host, dt * 1e3, cfg.model)
 
     def disconnect(self) -> None:
         """Stop the control script and close both interfaces (idempotent).

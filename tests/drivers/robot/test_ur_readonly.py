@@ -47,3 +47,16 @@ def test_passive_monitoring_follows_motion_commanded_elsewhere(robot, sim):
     time.sleep(0.1)
     np.testing.assert_allclose(robot.read().q, q, atol=1e-12)
     np.testing.assert_allclose(robot.read().T_base_flange, truth_flange(sim), atol=1e-9)
+
+
+def test_a_configured_tcp_offset_that_is_not_the_controllers_is_named_as_such(sim, caplog):
+    """Read-only with tcp_offset 0 while the controller uses SIM_TCP (15 cm out, turned): the warning names the
+    TCP offset, the one the controller uses and the one configured (it asked 'wrong model?')."""
+    with caplog.at_level("WARNING", logger="drivers.robot.ur"):
+        r = connect_robot(robot_config(sim.host, read_only=True, tcp_offset=[0.0] * 6))
+        r.disconnect()
+    (line,) = [rec.getMessage() for rec in caplog.records if "kinematics" in rec.getMessage()]
+    used = "[" + " ".join(f"{v:.4f}" for v in SIM_TCP) + "]"
+    assert "wrong model" not in line and " mm from the nominal ur10 kinematics" in line, line
+    assert (f"the controller's active TCP offset looks like {used} (x y z m, rx ry rz rad), robot.tcp_offset says "
+            "[0.0000 0.0000 0.0000 0.0000 0.0000 0.0000]; set robot.tcp_offset to the controller's") in line, line
