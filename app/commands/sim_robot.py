@@ -4,17 +4,16 @@ from __future__ import annotations
 
 import argparse
 
+from mocks import ur_sim
+
 NAME = "sim-robot"
-HELP = ("run the simulated UR controller (RTDE) in the foreground; "
-        "other arguments go to mocks.ur_sim (--host 127.0.0.x, --model ur10, --controller 5.11)")
-PASSTHROUGH = True
+HELP = "run the simulated UR controller (RTDE, dashboard and script ports) in the foreground until Ctrl-C"
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    """No options of its own: everything goes to ``mocks.ur_sim``."""
+    """The simulator's own options (`mocks.ur_sim.add_arguments`), listed in ``--help``."""
+    ur_sim.add_arguments(p)
 
 
 def run(args) -> int:
-    from mocks import ur_sim
-
-    return int(ur_sim.main(args.extra) or 0)
+    return ur_sim.run(args)

@@ -37,7 +37,7 @@ import numpy as np
 
 from drivers.errors import DeviceError
 
-__all__ = ["main", "launch", "SimProcess", "PortsTakenError", "dashboard"]
+__all__ = ["main", "add_arguments", "run", "launch", "SimProcess", "PortsTakenError", "dashboard"]
 
 
 class PortsTakenError(DeviceError):
@@ -46,10 +46,14 @@ class PortsTakenError(DeviceError):
 
 def main(argv: list[str] | None = None) -> int:
     """Command line entry: run one simulated controller in the foreground; returns the exit code."""
-    from mocks.ur_sim.controller import SimController
-    from mocks.ur_sim.server import SimServer
-
     ap = argparse.ArgumentParser(prog="python -m mocks.ur_sim", description=__doc__.splitlines()[0])
+    add_arguments(ap)
+    ap.add_argument("-v", "--verbose", action="store_true")
+    return run(ap.parse_args(argv))
+
+
+def add_arguments(ap: argparse.ArgumentParser) -> None:
+    """The simulator's options (``handeye sim-robot`` lists them in its --help too)."""
     ap.add_argument("--host", default="127.0.0.1", help="address to bind (ports 29999, 30003, 30004)")
     ap.add_argument("--model", default="ur10", help="ur3, ur5, ur10, ur3e, ur5e, ur10e, ur16e")
     ap.add_argument("--controller", default="5.11", help="PolyScope version: 3.x = CB3 (125 Hz), 5.x = e-Series (500 Hz)")
@@ -63,8 +67,14 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--parent-pid", type=int, metavar="PID",
                     help="stop as soon as this process is no longer our parent (it died); SIGINT is then "
                     "ignored (the parent stops the simulator with SIGTERM)")
-    ap.add_argument("-v", "--verbose", action="store_true")
-    args = ap.parse_args(argv)
+
+
+def run(args: argparse.Namespace) -> int:
+    """Run one simulated controller in the foreground with the options of `add_arguments` (and ``verbose``)
+    until SIGINT or SIGTERM; returns the exit code."""
+    from mocks.ur_sim.controller import SimController
+    from mocks.ur_sim.server import SimServer
+
     logging.basicConfig(level=logging.INFO if args.verbose else logging.WARNING, format="ur_sim: %(message)s")
     try:
         robot_error = None

@@ -179,3 +179,15 @@ def test_no_ur_controller_at_the_address_is_one_line_naming_it_and_what_to_check
     assert f"cannot open RTDE receive on UR controller {host} (robot.host): " in line
     assert line.endswith(f"; check that the controller is on and reachable (ping {host}), on port 30004, and that "
                          "robot.host is its address"), line
+
+
+def test_sim_robot_help_lists_the_simulators_options(capsys):
+    """``sim-robot --help`` lists the options it takes (it listed none, and handed them on unseen); a wrong one is
+    a usage error."""
+    with pytest.raises(SystemExit) as e:
+        main(["sim-robot", "--help"])
+    out = capsys.readouterr().out
+    assert e.value.code == 0 and all(f"  {o} " in out for o in ("--host HOST", "--model MODEL", "--controller"))
+    with pytest.raises(SystemExit) as e:
+        main(["sim-robot", "--hots", "127.0.0.5"])
+    assert e.value.code == 2
