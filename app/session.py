@@ -317,6 +317,18 @@ class SessionWriter:
         return False
 
 
+def new_output_dir(root, setup, kind: str) -> Path:
+    """A new directory ``<root>/<UTC time>_<setup>_<kind>`` beside the sessions, for a run that writes files
+    but records no samples (a plan, an offline verification); `SessionError` naming ``session.root``."""
+    now = _dt.datetime.now(_dt.timezone.utc)
+    path = Path(root) / f"{now:%Y%m%d-%H%M%S-%f}_{setup}_{kind}"
+    try:
+        path.mkdir(parents=True)
+    except OSError as e:
+        raise SessionError(f"session.root: cannot create {path} ({e.strerror})") from None
+    return path
+
+
 def check_writable_root(root) -> Path:
     """Make sure sessions can be written below ``root`` (created if missing), before any device opens.
 

@@ -10,7 +10,7 @@ from pathlib import Path
 
 import numpy as np
 
-from app.commands.common import add_run_options, load_config_args, until_sigma
+from app.commands.common import add_run_options, cell_command, load_config_args, until_sigma
 from app.runs.plan import PlanOutput, plan
 
 NAME = "plan"
@@ -21,7 +21,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     add_run_options(p)
     p.add_argument("--prior", type=Path, help="result.json or session of an earlier calibration of this cell "
                    "(default on a simulated cell: the simulator's true mounting)")
-    p.add_argument("-o", "--out", type=Path, default=Path("plan.json"), help="plan file to write (default plan.json)")
+    p.add_argument("-o", "--out", type=Path, help="plan file to write (default: plan.json in a new directory under "
+                   "session.root, a recording beside it)")
     p.add_argument("--samples", type=int, help="poses at most (overrides calibrate.samples)")
     p.add_argument("--seed", type=int, help="seed of the pose candidates")
     p.add_argument("--until-sigma", type=until_sigma, metavar="MM,DEG",
@@ -29,11 +30,12 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def run(args) -> int:
-    print_plan_summary(plan(load_config_args(args), args.out, prior=args.prior))
+    print_plan_summary(plan(load_config_args(args), args.out, prior=args.prior), config=args.config)
     return 0
 
 
-def print_plan_summary(out: PlanOutput) -> None:
+def print_plan_summary(out: PlanOutput, config: Path | None = None) -> None:
+    """The plan's poses, the recording to look at and the command that runs them on the cell of ``config``."""
     d = out.document
     print(f"\nplan: {out.path}   setup: {d['setup']}   prior: {d['prior']}")
     print(f"poses: {len(d['poses'])}   expected robot time: {d['expected_robot_time_s']:.1f} s")
@@ -46,4 +48,4 @@ def print_plan_summary(out: PlanOutput) -> None:
         from app.viz import open_command
 
         print(f"\nopen the recording:  {open_command(out.recording)}")
-    print(f"replay on the robot: handeye calibrate -c <config> --poses {out.path}")
+    print(f"replay on the robot: {cell_command('calibrate', config, '--poses', out.path)}")

@@ -19,7 +19,7 @@ import numpy as np
 from app import devices, planning
 from app.config import Config
 from app.errors import ConfigError, SessionError
-from app.session import read_session
+from app.session import new_output_dir, read_session
 from app.viz import Viz
 from calib import transforms as tf
 from calib.api import solve_observations
@@ -96,9 +96,10 @@ def measure_start(cfg: Config, camera) -> tuple | None:
     return m.point_cam, m.point_cov
 
 
-def plan(cfg: Config, out: Path, *, prior: Path | None = None) -> PlanOutput:
+def plan(cfg: Config, out: Path | None = None, *, prior: Path | None = None) -> PlanOutput:
     """Plan the poses of an active run without moving (read-only robot connection): write ``out``
-    (plan.json, see `app.planning`) and a rerun recording beside it."""
+    (plan.json, see `app.planning`; by default ``plan.json`` in a new directory under ``session.root``, not
+    the working directory) and a rerun recording beside it."""
     rng = np.random.default_rng(cfg.calibrate.seed)
     with devices.open_robot(cfg, read_only=True) as robot, devices.open_camera(cfg, robot) as camera:
         state = robot.read()
@@ -106,6 +107,8 @@ def plan(cfg: Config, out: Path, *, prior: Path | None = None) -> PlanOutput:
         doc, poses, _ = planning.make_plan(cfg, X, Y, state.T_base_flange, state.q, camera.intrinsics, robot, rng,
                                            prior=prior_name, start_measurement=measure_start(cfg, camera))
         intrinsics = camera.intrinsics
+    if out is None:
+        out = new_output_dir(cfg.session.root, cfg.setup, "plan") / "plan.json"
     path = planning.write_plan(doc, out)
     rrd = None
     if cfg.viz.enabled:

@@ -15,7 +15,6 @@ Eye-to-hand: ``X = T_flange_marker``, ``Y = T_base_cam``; eye-in-hand:
 
 from __future__ import annotations
 
-import datetime as _dt
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Callable
@@ -27,7 +26,7 @@ from app import verify as av
 from app.config import Config
 from app.errors import SessionError
 from app.report import write_report
-from app.session import read_session
+from app.session import new_output_dir, read_session
 from calib import verify as cv
 from calib.errors import HandeyeError, InsufficientDataError
 from calib.verdict import judge_verification
@@ -70,7 +69,7 @@ def verify(cfg: Config, result: Path, *, session: Path | None = None, setup: str
     if session is not None:
         observations, source, mode = _offline_samples(session, setup, loaded), session, "offline"
         _check_enough(observations, source)
-        out_dir = _new_dir(cfg.session.root, loaded.model.setup)
+        out_dir = new_output_dir(cfg.session.root, loaded.model.setup, "verify")
     else:
         if passive:
             run_, mode = av.verify_passive(cfg, loaded), "passive"
@@ -126,13 +125,3 @@ def _offline_samples(source: Path, setup, loaded):
         raise HandeyeError(f"{source} is the session {loaded.path} was calibrated on: verify it on samples it did "
                            "not see (another session, or the active mode)")
     return observations
-
-
-def _new_dir(root, setup) -> Path:
-    now = _dt.datetime.now(_dt.timezone.utc)
-    path = Path(root) / f"{now:%Y%m%d-%H%M%S-%f}_{setup}_verify"
-    try:
-        path.mkdir(parents=True)
-    except OSError as e:
-        raise SessionError(f"session.root: cannot create {path} ({e.strerror})") from None
-    return path

@@ -54,6 +54,25 @@ def test_planned_poses_pass_the_robots_own_check_and_keep_the_marker_in_view(con
     assert np.all(A[:, :3, 3] >= lo) and np.all(A[:, :3, 3] <= hi)
 
 
+def test_plan_writes_beside_the_sessions_and_names_the_config_used(tmp_path, loopback, capsys, monkeypatch):
+    """Without -o the plan and its recording go into a new directory under session.root, not the working
+    directory, and the command printed to run it names the config used (it printed '-c <config>')."""
+    cfg_file = tmp_path / "my cell.toml"
+    cfg_file.write_text(Path("config/sim.toml").read_text().replace('host = "127.0.0.2"', f'host = "{loopback(23)}"'))
+    (tmp_path / "cwd").mkdir()
+    monkeypatch.chdir(tmp_path / "cwd")
+    root = tmp_path / "s"
+    assert main(["plan", "-c", str(cfg_file), "--samples", "3", "--until-sigma", "off", "--session-root",
+                 str(root)]) == 0
+    printed = capsys.readouterr().out
+    assert not list((tmp_path / "cwd").iterdir())
+    (plan_dir,) = root.iterdir()
+    assert plan_dir.name.endswith("_eye_to_hand_plan") and sorted(p.name for p in plan_dir.iterdir()) == [
+        "plan.json", "plan.rrd"]
+    assert printed.rstrip().endswith(f"replay on the robot: handeye calibrate -c '{cfg_file}' --poses "
+                                     f"{plan_dir / 'plan.json'}"), printed
+
+
 def test_plan_writes_a_plan_that_calibrate_replays(tmp_path, loopback, capsys):
     cfg_file = tmp_path / "sim.toml"
     cfg_file.write_text(Path("config/sim.toml").read_text().replace('host = "127.0.0.2"', f'host = "{loopback(22)}"'))
