@@ -131,3 +131,57 @@ def test_the_exit_status_table_of_the_docs_and_the_help_is_the_one_the_commands_
         page, name = capsys.readouterr().out, argv[0]
         assert page.endswith(exit_status.help_text() + "\n"), name
         assert all(f"  {status:>3}  {outcome} " in page for status, outcome, _ in exit_status.TABLE), name
+
+
+def _quoted(doc: str, pattern: str) -> list[str]:
+    """The inline code spans of ``doc`` that match ``pattern`` (a regex, from the span's start)."""
+    return [code for _, code in inline_spans((ROOT / doc).read_text(encoding="utf-8")) if re.match(pattern, code)]
+
+
+def test_the_bench_progress_the_docs_quote_counts_the_experiments_the_run_has(tmp_path):
+    """docs/usage.md's ``bench.solvers [i/n] ...`` has the n the benchmark's first progress line shows (it said
+    [3/8] where the run shows [1/7])."""
+    import os
+    import subprocess
+    import sys
+
+    (quote,) = _quoted("docs/usage.md", r"bench\.solvers \[")
+    proc = subprocess.Popen([sys.executable, "-m", "bench.solvers", "--quick", "--out", str(tmp_path)],
+                            stderr=subprocess.PIPE, stdout=subprocess.DEVNULL, text=True, cwd=tmp_path,
+                            env={**os.environ, "PYTHONPATH": str(ROOT)})
+    try:
+        first = proc.stderr.readline()
+    finally:
+        proc.kill()
+        proc.wait()
+    total = re.match(r"bench\.solvers \[1/(\d+)\] ", first)
+    assert total, first
+    assert re.match(rf"bench\.solvers \[\d+/{total.group(1)}\] ", quote), (quote, first)
+
+
+def test_the_second_ctrl_c_line_the_docs_quote_is_the_one_printed(caplog):
+    """docs/usage.md quotes what a second Ctrl-C prints while a stopped run ends (`app.stopping`)."""
+    import signal
+
+    from app import stopping
+
+    quote = next(q for q in _quoted("docs/usage.md", r"stopping: "))
+    with caplog.at_level("WARNING", logger="app.stopping"), stopping.command():
+        stopping.winding_down()
+        signal.raise_signal(signal.SIGINT)
+    assert [r.getMessage() for r in caplog.records] == [quote]
+
+
+def test_the_verdict_of_an_unresolved_tolerance_the_docs_quote_is_the_one_printed():
+    """docs/usage.md's example of a verification whose poses cannot resolve the tolerance."""
+    import numpy as np
+
+    from calib import verify as cv
+    from calib.verdict import judge_verification
+
+    (quote,) = _quoted("docs/usage.md", r"the rotation tolerance ")
+    n = 12
+    errors = cv.PoseErrors(np.full((n, 3), 1e-4), np.full(n, np.deg2rad(0.8)), np.full(n, 1e-8),
+                           np.deg2rad(0.88) ** 2)
+    v = cv.verify(errors, tolerance_mm=2.0, tolerance_deg=0.5, rng=np.random.default_rng(0))
+    assert judge_verification(v).summary.startswith(quote + ": ")
