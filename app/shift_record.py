@@ -17,6 +17,7 @@ from the cell's first calibration (it steps at a bump and stays).
 from __future__ import annotations
 
 import collections
+import datetime as _dt
 import html
 import shlex
 from dataclasses import dataclass, field
@@ -169,10 +170,17 @@ class ShiftRecord:
 
     def _figure(self):
         """The timeline, drawn once per write: the PNG beside the report and the report's SVG."""
+        from matplotlib import dates
+
         t, drift, verify, sigma, total, alarm = zip(*self.rows)
-        t_h = (np.array(t) - t[0]) / 3600.0
+        # The clock a plant's logbook uses, not hours since the first sample (0-0.012 h says nothing).
+        t_h = [_dt.datetime.fromtimestamp(x).astimezone() for x in t]
+        tz = t_h[0].tzinfo
         cam = Setup(self.setup).camera_name
         fig, ax = figure(figsize=(10, 4.2))
+        locator = dates.AutoDateLocator(tz=tz)
+        ax.xaxis.set_major_locator(locator)
+        ax.xaxis.set_major_formatter(dates.ConciseDateFormatter(locator, tz=tz, show_offset=False))
         ax.plot(t_h, verify, ".", ms=2, color="0.6", label="verification: prediction error before fusing [mm]")
         ax.plot(t_h, total, lw=1.4, color="C3", label=f"{cam}: move since the cell's first calibration [mm]")
         ax.plot(t_h, drift, lw=1.2, color="C0", label="drift since the calibration in use [mm]")
@@ -180,11 +188,10 @@ class ShiftRecord:
         for x, a in zip(t_h, alarm):
             if a:
                 ax.axvline(x, color="r" if a == AlarmLevel.MOVED else "orange", ls="--", lw=0.8)
-        t0 = t[0]
         for o in self.outages:
             if o["event"] == "outage_start":
-                ax.axvline((o["t"] - t0) / 3600.0, color="0.3", ls=":", lw=0.8)
-        ax.set_xlabel(f"hours since {local_time(t0)}")
+                ax.axvline(_dt.datetime.fromtimestamp(o["t"]).astimezone(), color="0.3", ls=":", lw=0.8)
+        ax.set_xlabel(f"local time ({time_axis_label(t[0], t[-1])})")
         ax.set_ylabel("mm")
         ax.set_title("monitoring (red: moved, orange: drifting, dotted: device outage)")
         ax.legend(fontsize=7)
@@ -242,6 +249,15 @@ class ShiftRecord:
         return ("<!DOCTYPE html><html lang=\"en\"><head><meta charset=\"utf-8\">"
                 f"<title>{title}</title><style>{REPORT_STYLE}</style></head><body>" + "".join(parts)
                 + "</body></html>\n")
+
+
+def time_axis_label(t0: float, t1: float) -> str:
+    """The day(s) and UTC offset of a local-time axis from ``t0`` to ``t1`` (s since the epoch):
+    ``2026-12-06, UTC+01:00`` or ``2026-12-06 to 2026-12-07, UTC+01:00``."""
+    a, b = (_dt.datetime.fromtimestamp(x).astimezone() for x in (t0, t1))
+    offset = a.strftime("%z")
+    days = f"{a:%Y-%m-%d}" + ("" if b.date() == a.date() else f" to {b:%Y-%m-%d}")
+    return f"{days}, UTC{offset[:3]}:{offset[3:]}"
 
 
 def _what(alarm: dict) -> str:

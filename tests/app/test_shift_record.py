@@ -1,6 +1,7 @@
 """The shift record's files survive a Ctrl-C that lands while they are written (app.files.uninterrupted)."""
 
 import os
+import re
 import signal
 
 import pytest
@@ -38,3 +39,20 @@ def test_ctrl_c_while_the_report_is_drawn_keeps_every_file(tmp_path, monkeypatch
         rec.write(tmp_path)
     assert {p.name for p in tmp_path.iterdir()} == {"alarms.yaml", "monitor_trace.png", "report.html"}
     assert "handeye monitoring report" in (tmp_path / "report.html").read_text()
+
+
+def test_the_timeline_runs_on_the_local_clock(tmp_path):
+    """The monitoring report's time axis is the local clock, with its day and UTC offset (it read 'hours since'
+    from 0 to 0.012)."""
+    import datetime as dt
+
+    rec = ShiftRecord(Setup.EYE_TO_HAND, "session", "reference")
+    for k in range(5):
+        rec.rows.append((1.8e9 + 10.0 * k, 0.1 * k, 0.5, 0.4, 0.2, ""))
+    rec.write(tmp_path)
+    page = (tmp_path / "report.html").read_text()
+    local = dt.datetime.fromtimestamp(1.8e9).astimezone()
+    offset = local.strftime("%z")
+    assert f"local time ({local:%Y-%m-%d}, UTC{offset[:3]}:{offset[3:]})" in page and "hours since" not in page
+    svg = page[page.index("<svg"):page.index("</svg>")]
+    assert re.findall(r"<text[^>]*>([^<]*)</text>", svg)[0] == f"{local:%H:%M}"   # the first tick: a clock time
