@@ -25,6 +25,7 @@ pre{margin:0;white-space:pre-wrap;overflow-wrap:anywhere}
 .use{background:#eef3fb;border-left:4px solid #4a78c2;padding:.4em .8em}
 figure.plot{margin:.5em 0}figure.plot svg{max-width:100%;height:auto}
 figcaption,.note{color:#555;font-size:.9em}
+table.signoff td{height:2.4em;min-width:14em}table.signoff td:first-child{min-width:0}
 @page{margin:14mm}
 @media print{body{max-width:none;margin:0;padding:0;font-size:10pt}h2{break-after:avoid}
 figure.plot,tr,.verdict,.use{break-inside:avoid}figure.plot svg{max-height:120mm;width:auto}

@@ -5,6 +5,7 @@
     site, cell, operator          [report] of the config (or --site, --cell, --operator)
     robot: {type, host, model, serial, software}      what the robot driver read (`Device.identity`)
     camera: {backend, resolution, model, serial, ...} the camera driver's, and the image size
+    marker: {kind, description}   the [marker] target in words (type, dictionary, id, size)
     software: {handeye, commit}   handeye's version and git commit
     written                       local date and time with its offset from UTC (ISO 8601)
 
@@ -51,7 +52,19 @@ def device_identity(cfg, robot, camera) -> dict:
         camera_id["serial"] = cfg.camera.serial
     camera_id.update(camera.identity())
     return {"robot": {k: str(v) for k, v in robot_id.items() if v},
-            "camera": {k: str(v) for k, v in camera_id.items() if v}}
+            "camera": {k: str(v) for k, v in camera_id.items() if v},
+            "marker": {"kind": cfg.marker.kind, "description": marker_description(cfg.marker)}}
+
+
+def marker_description(marker) -> str:
+    """The ``[marker]`` target in words: ``ArUco DICT_4X4_50, id 7, 50 mm square``, ``ChArUco DICT_4X4_50,
+    5x7 squares of 30 mm (markers 22 mm)``, ``chessboard, 9x6 squares of 25 mm``."""
+    if marker.kind == "aruco":
+        return f"ArUco {marker.dictionary}, id {marker.marker_id}, {marker.marker_size * 1e3:g} mm square"
+    squares = f"{marker.squares[0]}x{marker.squares[1]} squares of {marker.square_size * 1e3:g} mm"
+    if marker.kind == "charuco":
+        return f"ChArUco {marker.dictionary}, {squares} (markers {marker.marker_size * 1e3:g} mm)"
+    return f"{marker.kind}, {squares}"
 
 
 def cell(report, devices: dict | None = None) -> dict:
@@ -59,7 +72,7 @@ def cell(report, devices: dict | None = None) -> dict:
     ``devices`` what `device_identity` read (None: not known, e.g. an imported file)."""
     fields = report if isinstance(report, dict) else report.model_dump()
     out = {k: fields.get(k, "") for k in ("site", "cell", "operator")}
-    for kind in ("robot", "camera"):
+    for kind in ("robot", "camera", "marker"):
         if devices and devices.get(kind):
             out[kind] = dict(devices[kind])
     out["software"] = dict(software())

@@ -9,12 +9,15 @@ In this order, so that it reads from the answer down to the evidence:
 - the cell: site, cell, operator, robot and camera as their drivers named them, handeye's
   version and commit, the date and time (`app.provenance`);
 - the camera transform in every form people paste (4x4, xyz + quaternion, xyz + rpy,
-  URDF ``<origin>``, ``static_transform_publisher``), its frames, which transform goes with
-  which points, and its predicted accuracy;
+  URDF ``<origin>``, ``static_transform_publisher``), its frames, and its predicted accuracy;
+- the marker as configured and the marker-side transform;
 - the verification (verify): its errors, per pose, and what they are made of;
-- setup and frames in 3D, pose coverage, residuals per sample, the error ellipses, held-out
-  prediction, the camera correction;
-- an appendix with the statistics (chi-square, noise levels, the solver's decisions).
+- setup and frames in 3D, pose coverage, residuals per sample, the error ellipses, the camera
+  correction;
+- a sign-off block (prepared by, checked by, date);
+- an appendix with the statistics in their own terms (which transform goes with which points,
+  chi-square, noise levels, the solver's decisions, held-out prediction): the pages before it
+  are for a customer and say these things in plain words.
 
 It prints on A4 or Letter (print CSS). Eye-to-hand: ``X = T_flange_marker``, ``Y = T_base_cam``;
 eye-in-hand: ``X = T_flange_cam``, ``Y = T_base_marker`` (paper eq. 1).
@@ -194,12 +197,14 @@ def write_report(directory: Path, *, result_doc: dict, observations: list[Observ
     parts = [_verdict_block(verdict), f"<h1>{html.escape(title)}</h1>", _subtitle(result_doc, cell, verify_doc)]
     parts += _cell_section(cell, result_doc)
     parts += _transform_section(result_doc, verify_doc is not None)
+    parts += _marker_section(cell, result_doc)
     if verify_doc is not None:
         parts += _verification_section(verify_doc)
     parts += _plots_section(model, result_doc, observations, verify_observations)
-    parts += _heldout_section(mdl, verify_doc)
     parts += _correction_section(mdl)
+    parts += _sign_off(cell)
     parts += _appendix(result_doc, mdl, verify_doc)
+    parts += _heldout_section(mdl, verify_doc)
     page = ("<!DOCTYPE html><html lang=\"en\"><head><meta charset=\"utf-8\">"
             f"<title>{html.escape(title)}</title><style>{REPORT_STYLE}</style></head><body>"
             + "".join(parts) + "</body></html>\n")
@@ -258,7 +263,7 @@ def _cell_section(cell: dict, result_doc: dict) -> list[str]:
             ["camera resolution [px]", camera.get("resolution") or unknown],
             ["handeye", f"{sw.get('handeye', unknown)} (commit {sw.get('commit', unknown)})"],
             ["written (local time)", cell.get("written") or unknown],
-            ["samples from", result_doc.get("samples_from") or unknown]]
+            ["samples from", shown_path(result_doc["samples_from"]) if result_doc.get("samples_from") else unknown]]
     return ["<h2>Cell</h2>", table(None, rows, "kv")]
 
 
@@ -292,9 +297,13 @@ def _transform_section(result_doc: dict, verified: bool) -> list[str]:
              f"<p><b>{html.escape(setup.camera_name)}</b>: the pose of the camera's optical frame "
              f"(<code>{html.escape(child)}</code>: z forward, x right, y down in the image) in the {where} frame "
              f"(<code>{html.escape(parent)}</code>); {html.escape(setup.equation)}.</p>"]
-    if result_doc.get("which_transform"):
-        parts.append(f'<p class="use">{html.escape(result_doc["which_transform"])}. The forms below are the one '
-                     "to paste.</p>")
+    if "camera_transform_raw_points" in result_doc:
+        parts.append('<p class="use">Paste these forms into ROS, a URDF or a robot program: they hold for the '
+                     "points the camera's driver publishes. handeye's own verification and monitoring also correct "
+                     "the camera's depth and use a transform for corrected points (appendix).</p>")
+    elif result_doc.get("which_transform"):
+        parts.append('<p class="use">One transform: it holds for the points the camera\'s driver publishes; paste '
+                     "these forms into ROS, a URDF or a robot program.</p>")
     parts.append(table(["form", "value"], rows, "kv"))
     acc = result_doc.get("accuracy")
     summary = []
@@ -321,12 +330,41 @@ def _transform_section(result_doc: dict, verified: bool) -> list[str]:
     return parts
 
 
+def shown_path(path) -> str:
+    """``path`` as the report shows it: relative to where the run was started when it lies below it (a
+    customer's copy names the session, not the machine's directories), else as given."""
+    p = Path(path)
+    try:
+        return str(p.resolve().relative_to(Path.cwd().resolve()))
+    except (ValueError, OSError):
+        return str(path)
+
+
+def _marker_section(cell: dict, result_doc: dict) -> list[str]:
+    """The marker as configured (type, size, id) and where the calibration puts it (the marker-side transform)."""
+    marker = cell.get("marker") or {}
+    rows = [["marker", marker.get("description") or "not recorded"]]
+    mt = result_doc.get("marker_transform")
+    if mt:
+        where = f"{mt['name']}: the marker in the {mt['parent_frame']} frame"
+        rows.append([f"{where}, xyz [mm]", " ".join(f"{v * 1e3:.2f}" for v in mt["translation_m"])])
+        rows.append(["quaternion (x, y, z, w)", " ".join(f"{v:.5f}" for v in mt["quaternion_xyzw"])
+                     if mt.get("rotation_known", True) else "not determined: the solver used the marker's centre only"])
+    return ["<h2>Marker</h2>", table(None, rows, "kv")]
+
+
+def _sign_off(cell: dict) -> list[str]:
+    """Lines to sign when the page is handed over: who prepared it, who checked it, the date."""
+    rows = [["prepared by", cell.get("operator") or "", ""], ["checked by", "", ""], ["date", "", ""]]
+    return ["<h2>Sign-off</h2>", table(["", "name", "signature"], rows, "kv signoff")]
+
+
 def _verification_section(doc: dict) -> list[str]:
     """The verification: its table, what the per-pose errors are made of, each pose, and their plot."""
     v = doc["verification"]
     parts = ["<h2>Verification</h2>",
-             f'<p>{html.escape(doc["mode"])} verification of {html.escape(doc["result"]["path"])} against '
-             f'{html.escape(doc["source"])}. Each error is the length of the marker point measured minus the one '
+             f'<p>{html.escape(doc["mode"])} verification of {html.escape(shown_path(doc["result"]["path"]))} '
+             f'against {html.escape(shown_path(doc["source"]))}. Each error is the length of the marker point measured minus the one '
              "the result predicts, in the base frame.</p>"]
     if doc.get("per_pose_note"):
         parts.append(f'<p class="use">{html.escape(doc["per_pose_note"])}.</p>')
@@ -373,7 +411,7 @@ def _plots_section(model, result_doc: dict, observations: list[Observation],
 def _heldout_section(mdl: dict, verify_doc: dict | None) -> list[str]:
     """Held-out prediction: leave-one-out, blocked folds, the verification poses."""
     check = mdl.get("self_check") or {}
-    parts = ["<h2>Held-out prediction</h2>"]
+    parts = ["<h2>Appendix: held-out prediction</h2>"]
     rows = []
     if check:
         rows.append(["leave-one-out over the calibration samples", f"{check['heldout_observed_mm']:.2f}",
@@ -429,6 +467,8 @@ def _appendix(result_doc: dict, mdl: dict, verify_doc: dict | None) -> list[str]
     if mdl.get("raw_points_misfit_mm") is not None:
         rows.append(["camera_transform_raw_points: RMS misfit of the rigid stand-in for the correction [mm]",
                      f"{mdl['raw_points_misfit_mm']:.3f}"])
+    if result_doc.get("which_transform"):
+        rows.append(["which transform goes with which points", result_doc["which_transform"]])
     if "camera_transform_raw_points" in result_doc:
         cam = result_doc["camera_transform"]
         rows.append([f"camera_transform ({cam['name']} for corrected points): xyz [m] + quaternion (x, y, z, w)",
@@ -468,7 +508,7 @@ def _verification_table(doc: dict) -> str:
                              v.get("noise_floor_deg"))])
     rows.append(["tolerance", f"{v['tolerance_mm']:g} mm / {v['tolerance_deg']:g} deg"])
     if "rigid_export" in doc:
-        rows.append(["ROS/URDF transform (camera_transform_raw_points, uncorrected points): calibration error [mm]",
+        rows.append(["the transform to paste (ROS, URDF; for the driver's uncorrected points): calibration error [mm]",
                      f"{doc['rigid_export']['calibration_error_mm']:.2f}"])
     repeated = set(doc.get("repeated_calibration_poses") or [])
     per = table(["pose", "error [mm]", "error [deg]"],

@@ -19,6 +19,7 @@ from __future__ import annotations
 import collections
 import datetime as _dt
 import html
+import re
 import shlex
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -225,6 +226,7 @@ class ShiftRecord:
             rows.append([a["time"], a["sample"], a["alarm"], _what(a), outcome])
         parts += ["<h2>Alarms</h2>", table(["time", "sample", "alarm", "what", "then"], rows, "log") if rows
                   else "<p>none</p>"]
+        stats = [[a["time"], a["sample"], a["message"]] for a in self.alarms]
         outages = [[o["time"], o["device"], o["event"].replace("_", " "), o["message"]] for o in self.outages]
         parts += ["<h2>Device outages</h2>", table(["time", "device", "event", "message"], outages, "log") if outages
                   else "<p>none</p>"]
@@ -245,6 +247,10 @@ class ShiftRecord:
             parts += ["<h2>The camera now</h2>", table(None, kv, "kv"),
                       "<p class=\"note\">the whole result with every export: calibration_in_use.yaml beside this "
                       "report</p>"]
+        if stats:
+            parts += ["<h2>Appendix: the change detector's statistics</h2>",
+                      table(["time", "sample", "message (GLR: the test statistic of a move, against its threshold)"],
+                            stats, "log")]
         title = "handeye monitoring report"
         return ("<!DOCTYPE html><html lang=\"en\"><head><meta charset=\"utf-8\">"
                 f"<title>{title}</title><style>{REPORT_STYLE}</style></head><body>" + "".join(parts)
@@ -261,5 +267,6 @@ def time_axis_label(t0: float, t1: float) -> str:
 
 
 def _what(alarm: dict) -> str:
-    """An alarm's message without the re-learn's progress it was raised with (its outcome is told apart)."""
-    return alarm["message"].split("; re-learn")[0]
+    """An alarm's message in plain words: without the re-learn's progress it was raised with (its outcome is
+    told apart) and the detector's statistic (the appendix has it)."""
+    return re.sub(r" \(GLR statistic [^)]*\)", "", alarm["message"].split("; re-learn")[0])

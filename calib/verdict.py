@@ -187,7 +187,7 @@ def _consistency_reasons(result: CalibrationResult, problem: CalibrationProblem)
                                 f"and camera, a camera or marker that moved during the recording{outliers}"))
     check = result.self_check
     if check is not None and check.loo_ratio > LOO_TOLERANCE:
-        reasons.append(("warn", f"samples held out are predicted to {check.loo_observed_m * 1e3:.2f} mm, "
+        reasons.append(("warn", f"samples left out of the fit are predicted to {check.loo_observed_m * 1e3:.2f} mm, "
                                 f"{check.loo_ratio:.1f}x the {check.loo_predicted_m * 1e3:.2f} mm the model expects: "
                                 "the stated accuracy is optimistic; take more samples, or check for a loose marker or "
                                 "camera mount"))
@@ -284,7 +284,7 @@ def judge_verification(v: Verification, *, rigid: Verification | None = None, re
                                 "samples, more rotation between them), or check that the camera and the marker did "
                                 "not move since the calibration"))
     if rigid is not None and not rigid.passed:
-        reasons.append(("warn", f"the ROS/URDF transform (camera_transform_raw_points, for uncorrected points) is off "
+        reasons.append(("warn", f"the ROS/URDF transform (for the camera driver's uncorrected points) is off "
                                 f"by {rigid.calibration_mm:.2f} mm, above the tolerance: a consumer without the camera "
                                 "correction sees larger errors; correct the points as result.yaml's model says, or "
                                 "recalibrate with more of the image and depth range covered"))

@@ -56,3 +56,18 @@ def test_the_timeline_runs_on_the_local_clock(tmp_path):
     assert f"local time ({local:%Y-%m-%d}, UTC{offset[:3]}:{offset[3:]})" in page and "hours since" not in page
     svg = page[page.index("<svg"):page.index("</svg>")]
     assert re.findall(r"<text[^>]*>([^<]*)</text>", svg)[0] == f"{local:%H:%M}"   # the first tick: a clock time
+
+
+def test_the_alarms_read_plainly_and_the_statistic_is_in_the_appendix(tmp_path):
+    """An alarm's line in the monitoring report says what happened; the detector's statistic (GLR) is in the
+    appendix only (it was in the alarms table a customer reads)."""
+    rec = ShiftRecord(Setup.EYE_TO_HAND, "session", "reference")
+    for k in range(5):
+        rec.rows.append((1.8e9 + 10.0 * k, 0.1 * k, 0.5, 0.4, 0.2, "moved" if k == 3 else ""))
+    rec.alarms.append({"sample": 3, "time": "2027-01-15T08:00:30+00:00", "t": 1.8e9 + 30, "alarm": "moved",
+                       "message": "camera moved (GLR statistic 52.3 > 39.8); re-learning it from the production stops"})
+    rec.write(tmp_path)
+    page = re.sub(r"<svg.*?</svg>", "", (tmp_path / "report.html").read_text(), flags=re.S)
+    front, appendix = page.split("<h2>Appendix")
+    assert "GLR" not in front and "<td>camera moved</td>" in front
+    assert "camera moved (GLR statistic 52.3 &gt; 39.8)" in appendix

@@ -152,9 +152,9 @@ def test_report_renders_in_headless_chromium(two_sessions, tmp_path, capsys, ren
         plots = re.findall(rf'<figure class="{PLOT_CLASS}" data-title="([^"]+)"><svg', dom)
         assert len(plots) == n_plots, plots
         headings = re.findall(r"<h2>([^<]+)</h2>", dom)
-        for heading in ("Cell", "Camera transform", "Setup and frames", "Pose coverage", "Residuals per sample",
-                        "Error ellipses of the camera position", "Held-out prediction", "Camera correction",
-                        "Appendix: statistics"):
+        for heading in ("Cell", "Camera transform", "Marker", "Setup and frames", "Pose coverage",
+                        "Residuals per sample", "Error ellipses of the camera position", "Camera correction",
+                        "Sign-off", "Appendix: statistics", "Appendix: held-out prediction"):
             assert heading in headings, heading
         assert len(headings) == len(set(headings)) and not re.search(r"<h3>", dom)   # no heading twice
         verdict = yaml.safe_load(open(Path(page).parent / ("verify.yaml" if page == verify_report
