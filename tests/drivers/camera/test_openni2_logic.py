@@ -88,6 +88,10 @@ def _fake_openni(depth_ts, color_ts, registration=True):
         def open_any():
             return Device(None)
 
+        @staticmethod
+        def enumerate_uris():     # one device attached, as the bindings list it
+            return [b"1d27/0601@1/2"]
+
         def is_image_registration_mode_supported(self, mode):
             return registration
 
