@@ -30,6 +30,7 @@ import logging
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Callable
 
 import numpy as np
 import yaml
@@ -277,9 +278,11 @@ class VerifyRun:
     interrupted: bool = False
 
 
-def verify_active(cfg: Config, loaded: LoadedResult, *, rng: np.random.Generator) -> VerifyRun:
-    """Move to fresh planned poses (the caller confirmed motion), measure the marker ``frames_per_pose`` times
-    at each, record everything in a new session under ``session.root``; returns the per-pose observations."""
+def verify_active(cfg: Config, loaded: LoadedResult, *, rng: np.random.Generator,
+                  confirm: Callable[[], None] = lambda: None) -> VerifyRun:
+    """Move to fresh planned poses, measure the marker ``frames_per_pose`` times at each, record everything in
+    a new session under ``session.root``; returns the per-pose observations. ``confirm`` is called once the
+    devices are connected and the poses planned, before the first motion (raises to refuse)."""
     if loaded.model.setup != cfg.setup:
         raise SessionError(f"{loaded.path} is an {loaded.model.setup} result, the config is {cfg.setup}")
     calibration = loaded.calibration_samples()
@@ -296,6 +299,7 @@ def verify_active(cfg: Config, loaded: LoadedResult, *, rng: np.random.Generator
         if not poses:
             raise SessionError("no valid verification pose in the [calibrate] region at this result (is the "
                                "marker in view from the start pose?)")
+        confirm()
         writer = SessionWriter.create(cfg.session.root, cfg.setup, config=cfg.to_dict(),
                                       intrinsics=dataclasses.asdict(camera.intrinsics), truth=truth,
                                       source="handeye verify",

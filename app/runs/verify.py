@@ -60,7 +60,7 @@ def verify(cfg: Config, result: Path, *, session: Path | None = None, setup: str
 
     ``setup``: of an imported ``session`` file; ``passive``: sample read-only while production moves
     the robot; ``expect_xyz``: rough camera position (m) for the frame-safety check; ``confirm``: called
-    before an active run moves the robot (raises to refuse).
+    once an active run has connected and planned its poses, before it moves the robot (raises to refuse).
     """
     loaded = av.load_result(result)
     rng = np.random.default_rng(cfg.verify.seed)
@@ -74,8 +74,7 @@ def verify(cfg: Config, result: Path, *, session: Path | None = None, setup: str
         if passive:
             run_, mode = av.verify_passive(cfg, loaded), "passive"
         else:
-            confirm()
-            run_, mode = av.verify_active(cfg, loaded, rng=rng), "active"
+            run_, mode = av.verify_active(cfg, loaded, rng=rng, confirm=confirm), "active"
         observations, source, out_dir = run_.observations, run_.session, run_.session
         interrupted = run_.interrupted
         if interrupted and len(observations) < cv.MIN_POSES:

@@ -235,3 +235,18 @@ def test_every_result_field_damaged_is_a_session_error_or_loads(result_doc, tmp_
     (tmp_path / "r.yaml").write_text(yaml.safe_dump(doc))
     with pytest.raises(SessionError, match="correction"):
         av.load_result(tmp_path / "r.yaml")
+
+
+def test_verify_connects_before_it_asks(two_sessions, tmp_path, capsys, monkeypatch, loopback):
+    """Active verify with no controller at robot.host and no --yes-move: the one line is the connection's, not
+    the question about motion, which comes once the devices answer and the poses are planned (it came first)."""
+    (s0, _), _ = two_sessions
+    main(["replay", str(s0), "--out", str(s0)])
+    capsys.readouterr()
+    asked = []
+    monkeypatch.setattr("app.commands.verify.confirm_motion", lambda yes_move: asked.append(yes_move))
+    p = tmp_path / "c.toml"
+    p.write_text(Path("config/ur10_xtion_eye_to_hand.toml").read_text().replace('"192.168.1.10"',
+                                                                                f'"{loopback(70)}"'))
+    rc, _, err = _verify(capsys, "-c", p, "--result", s0 / "result.yaml", "--session-root", tmp_path / "v", "--no-viz")
+    assert rc == 1 and "cannot open RTDE receive on UR controller" in err and asked == [], err
