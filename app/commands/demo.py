@@ -31,7 +31,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--bump-mm", type=float, default=10.0, help="--monitor: camera shift, mm (default 10; 0 and "
                    "--bump-deg 0 for no bump)")
     p.add_argument("--bump-deg", type=float, default=0.5, help="--monitor: camera rotation, deg (default 0.5)")
-    p.add_argument("--bump-after", type=int, default=16, help="--monitor: samples before the bump (default 16)")
+    p.add_argument("--bump-after", type=int, default=16, help="--monitor: samples before the bump (default 16; the "
+                   "moved test runs from the 15th without --reference, the 3rd with it: a bump before is partly taken "
+                   "in as the camera watched)")
     p.add_argument("--reference", type=Path, help="--monitor: calibration session that arms the change detector at "
                    "once, or a previous monitoring run to continue from")
     p.add_argument("--max-samples", type=int, help="--monitor: stop after this many samples")
