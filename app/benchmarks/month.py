@@ -97,7 +97,7 @@ class CellRun:
 def month_of(spec: CellSpec, rng: np.random.Generator) -> Month:
     """The cell's month: its stops' error (0.1-0.5 mm), its mount's daily cycle (0.5-2 mm), a bump in each week."""
     week = spec.days / 4.0
-    bumps = tuple((k * week + rng.uniform(0.3, week - 0.3), 5.0, 0.3) for k in range(4))
+    bumps = tuple(((k + rng.uniform(0.1, 0.9)) * week, 5.0, 0.3) for k in range(4))
     return Month(days=spec.days, stops=spec.stops, stop_error_m=rng.uniform(0.1e-3, 0.5e-3),
                  thermal_mm=rng.uniform(0.5, 2.0), bumps=bumps)
 

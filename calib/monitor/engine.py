@@ -19,8 +19,9 @@ from calib.change import ChangeDetector
 from calib.problem import CalibrationProblem
 from calib.result import CalibrationResult, CameraParameter, Residuals
 from calib.setup import Setup
-from calib.monitor.filter import (FilterState, NoiseTrack, SampleModel, Walk, filter_state, follow_noise, fuse,
-                                  fuse_linear, innovate, linearize, predict, prediction, restart_walk)
+from calib.monitor.filter import (STOP_SLOTS, FilterState, Layout, NoiseTrack, SampleModel, Walk, clear_slots,
+                                  filter_state, find_slot, follow_noise, fuse, fuse_linear, innovate, linearize, noise,
+                                  observed_walk, open_slot, predict, prediction, restart_walk, visit_slot)
 from calib.monitor.settings import AlarmLevel, EngineState, MonitorSettings, MonitorUpdate
 from calib.monitor.kernels import (inv_sym3_floats, is_plain, is_positive_definite3, parts, plain_cov,
                                    plain_point, plain_transform, sym3)
@@ -129,9 +130,10 @@ class MonitorEngine:
         layout = SampleModel.of(ref.setup == Setup.EYE_TO_HAND, len(cov) - 12, ref.noise).layout
         P = np.zeros((layout.size, layout.size))
         P[:layout.model, :layout.model] = cov
-        # After the camera transform: marker translation, camera correction, kinematic error, and the camera's
-        # random walk since the calibration in use (the drift, told apart from what the samples refine).
-        u = np.r_[ref.K[:3, 3], ref.theta, np.zeros(layout.n_factor + 6)]
+        # After the camera transform: marker translation, camera correction, kinematic error, the stops' own
+        # errors (none held yet), and the camera's random walk since the calibration in use (the drift, told apart
+        # from what the samples refine).
+        u = np.r_[ref.K[:3, 3], ref.theta, np.zeros(layout.n_factor + 3 * STOP_SLOTS + 6)]
         in_use = InUse(ref.C.copy(), ref.theta.copy(), ref.sigma_mm)
         self._start(Snapshot(ref, in_use, in_use, filter_state(ref.C.copy(), u, P, t), NoiseTrack()))
         return ref
@@ -148,6 +150,8 @@ class MonitorEngine:
         """
         if t is not None and t < snapshot.filter.t:
             snapshot = dataclasses.replace(snapshot, filter=snapshot.filter._replace(t=float(t)))
+        # The stops' own errors are learnt again, with their baselines.
+        snapshot = dataclasses.replace(snapshot, filter=clear_slots(snapshot.filter, Layout(snapshot.n_factor)))
         self._start(snapshot)
         return snapshot.reference
 
@@ -167,13 +171,16 @@ class MonitorEngine:
     def _start(self, snap: Snapshot) -> None:
         cfg, ref = self.settings, snap.reference
         self.reference, self.origin, self.in_use, self.filter = ref, snap.origin, snap.in_use, snap.filter
-        self.model = SampleModel.of(ref.setup == Setup.EYE_TO_HAND, len(snap.filter.P) - 18, ref.noise)
+        self.model = SampleModel.of(ref.setup == Setup.EYE_TO_HAND, len(snap.filter.P) - Layout(0).size, ref.noise)
         self.noise_track = snap.noise_track
         self.relearns = snap.relearns
         # An hour of the camera's world on the samples' clock.
         self.hour_s = HOUR_S / cfg.time_scale
-        self.walk = Walk.of(self.model.layout, np.deg2rad(cfg.walk_deg_per_sqrt_h), cfg.walk_mm_per_sqrt_h * 1e-3,
-                            self.hour_s, cfg.walk_max_gap_h)
+        sr, st = np.deg2rad(cfg.walk_deg_per_sqrt_h), cfg.walk_mm_per_sqrt_h * 1e-3
+        self._q = np.array([sr * sr] * 3 + [st * st] * 3) / self.hour_s
+        self._info: dict[tuple, np.ndarray] = {}     # per held stop's pose: what one visit tells of the camera
+        self._walk_slots: tuple | None = None         # the slots `walk` was made for
+        self._walk_for(snap.filter.slots)
         self.workspace = WorkspaceMoments(ref.workspace)
         self.stops = Stops(cfg.stop_translation_m, np.deg2rad(cfg.stop_rotation_deg))
         self.rate = Rate(cfg.rate_window_h * self.hour_s, self.hour_s)
@@ -243,13 +250,15 @@ class MonitorEngine:
         """
         s = self._sample(t, T_base_flange, point_cam, point_cov, robot_factor)
         self._count += 1
-        f = predict(self.filter, s.t, self.walk)
+        f, slot = self._slot(predict(self.filter, s.t, self.walk), s)
+        if f.slots is not self._walk_slots:
+            self._walk_for(f.slots)
         s.walk_t = f.walk_t
-        inn = innovate(f, s.pose, s.point, s.shape_upper, s.factor, self.model)
+        inn = innovate(f, s.pose, s.point, s.shape_upper, s.factor, self.model, slot)
         s.w = tuple(f.u[-6:].tolist())
         relearning = self.state == EngineState.RELEARNING
         if not relearning and inn.nis < NIS_GATE:
-            f, self.noise_track = follow_noise(f, self.noise_track, inn.nis)
+            f, self.noise_track = follow_noise(f, self.noise_track, inn.nis, inn.share)
         self.filter = f
         r0, r1, r2 = inn.r
         verify = math.sqrt(r0 * r0 + r1 * r1 + r2 * r2) * 1e3   # |R_C r|: the prediction error in C's parent frame
@@ -309,7 +318,9 @@ class MonitorEngine:
             # Against the stop's own earlier visits: what they share (unmodelled errors of the robot or the
             # camera at that pose, the estimate's own error) is no change; only the camera moving is.
             ref = self._window[0].state if self._window else self.filter
-            r_test = self._against_stop(i, s, ref, Hc, inn.r if ref is self.filter else None)
+            # (the model's innovation: the stop's own error cancels in the comparison)
+            model_r = tuple(a + b for a, b in zip(inn.r, inn.bias))
+            r_test = self._against_stop(i, s, ref, Hc, model_r if ref is self.filter else None)
             # The camera may have walked since the reference state by the same for every stop, and the filter
             # followed the walk since the stop's visits only to within its own lag: the long window's test is for
             # a move beyond the random walk over the window.
@@ -318,7 +329,7 @@ class MonitorEngine:
             # has the variance of m samples each of (1 + m / n) times the noise, not (1 + 1 / n).
             stop_id = stops.ids[i]
             k = 1.0 + (self._window_visits[stop_id] + 1) / stops.n[i]
-            R = inn.R
+            R = inn.R_compare
             (a, b, c), (_, d, e), (_, _, f) = (Hc * offset_var).dot(Hc.T).tolist()
             test_inv = inv_sym3_floats(a + k * R[0], b + k * R[1], c + k * R[2], d + k * R[3], e + k * R[4],
                                        f + k * R[5])
@@ -355,8 +366,7 @@ class MonitorEngine:
         before += next((k for k, x in enumerate(tail) if x > ONSET_GATE), 0)
         if before < len(window):
             now = self.filter
-            self.filter = window[before].state._replace(t=now.t, walk_t=now.walk_t, scale=now.scale,
-                                                                pending=now.pending)
+            self.filter = window[before].state._replace(t=now.t, walk_t=now.walk_t, scale=now.scale)
         for v in window[:before]:
             stops.add(v.sample)
         self._relearn_set = [v.sample for v in window[before:]] + [s]
@@ -382,7 +392,7 @@ class MonitorEngine:
         f = self.filter
         theta = f.u[3:6].copy()
         self.in_use = InUse(f.C.copy(), theta, self.workspace.sigma(f.C, theta, f.P) * 1e3)
-        self.filter = restart_walk(f, self.model.layout)
+        self.filter = restart_walk(f)
 
     def _sample(self, t, T_base_flange, point_cam, point_cov, robot_factor) -> Stop:
         if not self.armed:
@@ -432,6 +442,40 @@ class MonitorEngine:
         rot, trans = tf.pose_error(A1, A2)
         return bool(trans < self.settings.stop_translation_m and rot < np.deg2rad(self.settings.stop_rotation_deg))
 
+    def _held(self, f: FilterState, s: Stop) -> int | None:
+        """The slot holding ``s``'s stop's own error in ``f``, or None."""
+        return find_slot(f, lambda pose: self.stops.same(pose, s.pose))
+
+    def _slot(self, f: FilterState, s: Stop) -> tuple[FilterState, int]:
+        """The state with ``s``'s stop's own error held (`calib.monitor.filter.open_slot`: a new stop's at its prior,
+        `stop_prior`), and its slot; what a visit tells of the camera noted for the walk (`_walk_for`)."""
+        k = self._held(f, s)
+        if k is not None and f.slots[k] in self._info:
+            return visit_slot(f, k), k
+        _, H, cof = prediction(f, s.pose, s.factor, self.model)
+        Hc = H[:, :6]
+        if k is None:
+            f, k = open_slot(f, s.pose, self.stop_prior(cof), self.model.layout)
+        else:
+            f = visit_slot(f, k)
+        self._info[f.slots[k]] = Hc.T.dot(np.linalg.solve(sym3(noise(f, s.shape_upper, cof, self.model)[0]), Hc))
+        return f, k
+
+    def _walk_for(self, slots: tuple) -> None:
+        """The camera's walk in the directions one visit of each held stop observes (`observed_walk`)."""
+        self._info = {pose: self._info[pose] for pose in slots if pose in self._info}
+        info = sum(self._info.values(), np.zeros((6, 6)))
+        self.walk = Walk.of(self.model.layout, self._q, observed_walk(self._q, info, self.hour_s),
+                            self.settings.walk_max_gap_h * self.hour_s)
+        self._walk_slots = slots
+
+    def stop_prior(self, cofactor) -> np.ndarray:
+        """Covariance (3, 3) of a stop's own error, camera frame, m^2, from the robot cofactor at the stop (upper
+        triangle): the robot's noise level of the arming (all of its error a pose repeats) and
+        `MonitorSettings.stop_error_mm` on each axis."""
+        floor = (self.settings.stop_error_mm * 1e-3) ** 2
+        return self.model.robot_var * sym3(cofactor) + floor * np.eye(3)
+
     def _distinct(self, samples) -> list[Stop]:
         out = []
         for s in samples:
@@ -468,7 +512,7 @@ class MonitorEngine:
         # or what the arming calibration itself was good for when that is less (its marker mount and camera
         # correction are held, so the re-learnt camera cannot be better than they allow).
         enough = max(self.settings.tolerance_mm, 1.5 * self.reference.sigma_mm)
-        if fit.how == "registered" and sigma_mm > enough:
+        if fit.how == "registered" and sigma_mm > enough and not self._saturated(samples):
             return (f"re-learning: registered from {len(samples)} samples, but its 1-sigma over the workspace is "
                     f"{sigma_mm:.1f} mm (it must be within {enough:.1f} mm): waiting for more stops, spread across "
                     "the workspace")
@@ -484,8 +528,10 @@ class MonitorEngine:
         self.state = EngineState.SETTLING
         self._relearn_set = []
         self.detector.reset()
+        short = (f"; its 1-sigma over the workspace is {sigma_mm:.1f} mm, more than the {enough:.1f} mm the cell needs, "
+                 "and the program's stops cannot determine it better: calibrate again" if sigma_mm > enough else "")
         return (f"re-learnt the camera ({fit.how} {len(self._distinct(samples))} production stops, {len(samples)} "
-                f"samples): it moved {moved_mm:.1f} mm over the workspace and {moved_deg:.2f} deg")
+                f"samples): it moved {moved_mm:.1f} mm over the workspace and {moved_deg:.2f} deg" + short)
 
     def _fit(self, samples) -> Fit | Waiting:
         """The camera from ``samples``: the move measured at stops with a baseline (`_jump`), else registered
@@ -537,7 +583,7 @@ class MonitorEngine:
         rows = []
         for k, i in measured:
             s = samples[k]
-            r, H, R = linearize(self.filter, s, self.model)
+            r, H, _, R = linearize(self.filter, s, self.model, None)
             rows.append((k, np.array(self._against_stop(i, s, self.filter, H[:, :6], r)), H[:, :6],
                          np.linalg.inv(R * (1.0 + visits[i] / stops.n[i]))))
         return rows, short
@@ -583,6 +629,17 @@ class MonitorEngine:
         P[:6, :6] += 0.5 * (cov + cov.T)
         return Fit(f._replace(C=C, P=P, parts=parts(C)), "measured at", consistent)
 
+    def _saturated(self, samples) -> bool:
+        """Every stop among ``samples`` is visited `MIN_BASELINE` times or more: further visits of the same stops
+        would not determine the camera better (each stop's own error bounds what they tell), only new stops
+        would."""
+        visits = collections.Counter(id(self._distinct_of(s, samples)) for s in samples)
+        return min(visits.values()) >= MIN_BASELINE
+
+    def _distinct_of(self, s: Stop, samples) -> Stop:
+        """The first of ``samples`` at ``s``'s stop."""
+        return next(o for o in samples if self._same_stop(o.A, s.A))
+
     def _parent_point(self, s: Stop) -> np.ndarray:
         M = s.A if self.reference.setup == Setup.EYE_TO_HAND else tf.invert(s.A)
         return M[:3, :3] @ self.reference.K[:3, 3] + M[:3, 3]
@@ -598,9 +655,11 @@ class MonitorEngine:
 
         The camera transform starts at `RELEARN_PRIOR`, independent of the rest
         of the state, which keeps its covariance (and its estimate: only the
-        camera transform and the covariance are taken from the fit).
+        camera transform and the covariance are taken from the fit), but for
+        the stops' own errors, which start again at their priors.
         """
         st, sr = RELEARN_PRIOR
+        layout = self.model.layout
         saved = self.filter
         f = saved._replace(C=C, parts=parts(C))
         for _ in range(2):            # once more from the first pass's estimate: the registration is unweighted
@@ -608,12 +667,13 @@ class MonitorEngine:
             P[:6] = 0.0
             P[:, :6] = 0.0
             P[:6, :6] = np.diag([sr * sr] * 3 + [st * st] * 3)
-            f = f._replace(P=P)
+            f = clear_slots(f._replace(P=P), layout)
             for s in samples:
-                f = fuse_linear(f, *linearize(f, s, self.model))
+                f, k = self._slot(f, s)
+                f = fuse_linear(f, *linearize(f, s, self.model, k)[:3])
         chi = 0.0
         for s in samples:
-            r, H, R = linearize(f, s, self.model)
+            r, H, R, _ = linearize(f, s, self.model, self._held(f, s))
             chi += float(r @ np.linalg.solve(R + H[:, 6:] @ f.P[6:, 6:] @ H[:, 6:].T, r))
         dof = 3 * len(samples) - 6
         consistent = dof <= 0 or chi <= chi2.ppf(RELEARN_QUANTILE, dof)

@@ -4,12 +4,23 @@ functions of it, over the one measurement model (`calib.model`; on floats, `cali
 The state (`Layout`) is the camera transform ``C`` (4, 4): ``T_base_cam``
 eye-to-hand (``Y`` of ``A_i X = Y B_i``), ``T_flange_cam`` eye-in-hand
 (``X``), perturbed on the left by ``[rotation vector, translation]`` as in
-`calib.result`, and ``u = [t_K, theta, z, w]``: the marker-side translation
+`calib.result`, and ``u = [t_K, theta, z, b, w]``: the marker-side translation
 (``T_flange_marker`` / ``T_base_marker``), the camera parameters
 (`calib.model.CAMERA_PARAMS`), the robot's kinematic error shared by all
-samples (P parameters, unit variance) and the camera's walk since the
-calibration in use (6, measured by no sample: the drift). ``P`` is the joint
-covariance of ``[dC, u]``.
+samples (P parameters, unit variance), each stop's own error (``b``: 3 per
+slot of `STOP_SLOTS`, the marker point's offset in the camera frame) and the
+camera's walk since the calibration in use (6, measured by no sample: the
+drift). ``P`` is the joint covariance of ``[dC, u]``.
+
+A stop's own error is what every visit of it repeats and no parameter of the
+model explains: the arm's error beyond its kinematic model (thermal growth,
+deflection under load; all of the kinematic error for a source without
+joints) and the camera's at that view. Its prior is the robot's noise level of
+the arming at that pose plus `calib.monitor.MonitorSettings.stop_error_mm`.
+As a state it saturates what repeated visits tell: a thousand visits of four
+stops determine the camera no better than four measurements with that error
+allow, and the parameters they cannot separate stay at the arming's values.
+Each visit adds only the point noise.
 
 The fast path runs on tuples of floats (numpy's per-call cost would be most
 of a sample's cost on 3-vectors); `calib.monitor.kernels.sample_floats` is
@@ -25,29 +36,46 @@ from typing import NamedTuple
 import numpy as np
 
 from calib.model import NoiseLevels
-from calib.monitor.kernels import inv_sym3, inv_sym3_floats, matmul3, parts, sample_floats, so3_exp_scalar
+from calib.monitor.kernels import inv_sym3, inv_sym3_floats, matmul3, parts, sample_floats, so3_exp_scalar, sym3
 
+#: Stops whose own error the state holds (the most recently visited): a new stop beyond them takes the slot of the
+#: least recently visited one, whose error is marginalised.
+STOP_SLOTS = 16
+#: The camera's walk is followed in a direction where an hour of it is at least this times the noise of one visit
+#: of each stop (`observed_walk`).
+WALK_SNR = 0.01
 #: The noise levels' scale follows the innovations with this memory (samples), the arming's level counting
 #: as this many samples, within this range.
 NOISE_SCALE_SAMPLES = 200
 NOISE_SCALE_PRIOR = 10.0
 NOISE_SCALE_RANGE = (0.25, 16.0)
+#: The smallest share of the innovation covariance the noise scale is estimated from (`follow_noise`).
+NOISE_SHARE_MIN = 0.2
 
 
 class Layout(NamedTuple):
     """Where each part of the state lies in ``P``'s rows: camera ``0:6``, marker-side translation ``6:9``, camera
-    parameters ``9:12``, kinematic error ``12:model``, walk ``model:size``."""
+    parameters ``9:12``, kinematic error ``12:model``, the stops' own errors ``model:walk`` (3 per slot), walk
+    ``walk:size``."""
 
     n_factor: int
 
     @property
     def model(self) -> int:
-        """Columns of the measurement model (the walk states do not enter it)."""
+        """Columns of the model's parameters (the stops' errors and the walk states follow)."""
         return 12 + self.n_factor
+
+    def slot(self, k: int) -> int:
+        """The first row of slot ``k``'s stop error."""
+        return self.model + 3 * k
+
+    @property
+    def walk(self) -> int:
+        return self.model + 3 * STOP_SLOTS
 
     @property
     def size(self) -> int:
-        return self.model + 6
+        return self.walk + 6
 
 
 class SampleModel(NamedTuple):
@@ -65,35 +93,45 @@ class SampleModel(NamedTuple):
 
 
 class Walk(NamedTuple):
-    """The random walk of the camera transform: the variances it adds per second of the samples' clock, over
-    at most ``max_gap_s`` between two samples.
+    """The random walk of the camera transform: the covariance it adds per second of the samples' clock, over at
+    most ``max_gap_s`` between two samples.
 
     It moves the camera transform and the walk states alike, so their
-    covariance grows by ``q dt [[I, I], [I, I]]`` over (camera, walk):
-    ``rows`` and ``cols`` are those 24 entries of ``P`` (``flat``: the same
-    as indices into a contiguous ``P``'s flat view), ``per_s`` their
-    increments (4 copies of the diagonal ``q``: rotation rad^2, translation
-    m^2 per second).
+    covariance grows by ``Q dt [[I, I], [I, I]]`` over (camera, walk):
+    ``flat`` are those 144 entries as indices into a contiguous ``P``'s flat
+    view, ``per_s`` their increments (4 copies of ``Q``, rotation rad^2,
+    translation m^2 per second). ``Q`` is the walk's rate ``q`` (6,) in the
+    directions the program's stops observe (`observed_walk`): where they are
+    silent the camera holds its value and its uncertainty, as the stops could
+    not follow it there.
     """
 
-    rows: np.ndarray
-    cols: np.ndarray
     flat: np.ndarray
     per_s: np.ndarray
+    q: np.ndarray
     max_gap_s: float
 
     @classmethod
-    def of(cls, layout: Layout, rotation_rad_per_sqrt_h: float, translation_m_per_sqrt_h: float,
-           hour_s: float, max_gap_h: float) -> Walk:
-        sr, st = rotation_rad_per_sqrt_h, translation_m_per_sqrt_h
-        q = np.array([sr * sr] * 3 + [st * st] * 3) / hour_s
-        camera, walk = np.arange(6), layout.model + np.arange(6)
-        rows, cols = np.r_[camera, walk, camera, walk], np.r_[camera, walk, walk, camera]
-        return cls(rows, cols, rows * layout.size + cols, np.tile(q, 4), max_gap_h * hour_s)
+    def of(cls, layout: Layout, q: np.ndarray, Q: np.ndarray, max_gap_s: float) -> Walk:
+        """The walk of rate ``q`` (6,) per second, followed as ``Q`` (6, 6) per second."""
+        idx = np.r_[np.arange(6), layout.walk + np.arange(6)]
+        rows, cols = np.meshgrid(idx, idx, indexing="ij")
+        return cls((rows * layout.size + cols).ravel(), np.tile(Q, (2, 2)).ravel(), q, max_gap_s)
 
     def variance(self, dt: float) -> np.ndarray:
-        """The walk's variance (6,) of the camera transform over ``dt`` seconds (rotation, translation)."""
-        return self.per_s[:6] * dt
+        """The walk's variance (6,) of the camera transform over ``dt`` seconds (rotation, translation), in every
+        direction."""
+        return self.q * dt
+
+
+def observed_walk(q: np.ndarray, info: np.ndarray, hour_s: float) -> np.ndarray:
+    """The walk of rate ``q`` (6,) per second in the directions where the stops would follow it (6, 6): those in
+    which an hour of it is at least `WALK_SNR` times the noise of one visit of each stop (``info`` (6, 6), the
+    information one visit of each stop gives about the camera transform)."""
+    s = np.sqrt(q * hour_s)
+    w, V = np.linalg.eigh(s[:, None] * info * s[None, :])
+    keep = V[:, w >= WALK_SNR]
+    return (s[:, None] * keep.dot(keep.T) * s[None, :]) / hour_s
 
 
 class FilterState(NamedTuple):
@@ -104,7 +142,7 @@ class FilterState(NamedTuple):
     C : ndarray (4, 4)
         The camera transform.
     u : ndarray (layout.size - 6,)
-        ``[t_K, theta, z, w]``.
+        ``[t_K, theta, z, b, w]``.
     P : ndarray (layout.size, layout.size)
         Covariance of ``[dC, u]``.
     t : float
@@ -113,11 +151,13 @@ class FilterState(NamedTuple):
         How long the random walk has run, s: the clock with each gap counted at most `Walk.max_gap_s`.
     scale : float
         The noise levels' scale: the arming's levels times this are the samples' noise.
-    pending : float
-        The change of ``scale`` not yet applied to ``P`` (`predict` applies it): the covariance is the
-        inverse information at the noise level of its data, and follows that level from the next sample on.
     parts : tuple
         ``C`` as floats (`calib.monitor.kernels.parts`), for the fast path.
+    slots : tuple
+        Per slot of `STOP_SLOTS`: the flange pose of the stop whose own error it holds (``T_base_flange[:3]``
+        flat, 12 floats), or None (free).
+    last : tuple
+        Per slot: ``walk_t`` at its stop's last visit (the least recent is reused first).
     """
 
     C: np.ndarray
@@ -126,29 +166,32 @@ class FilterState(NamedTuple):
     t: float
     walk_t: float
     scale: float
-    pending: float
     parts: tuple
+    slots: tuple
+    last: tuple
 
 
-def filter_state(C, u, P, t: float, walk_t: float = 0.0, scale: float = 1.0, pending: float = 1.0) -> FilterState:
+FREE_SLOTS = (None,) * STOP_SLOTS
+
+
+def filter_state(C, u, P, t: float, walk_t: float = 0.0, scale: float = 1.0, slots: tuple = FREE_SLOTS,
+                 last: tuple = (0.0,) * STOP_SLOTS) -> FilterState:
     """A `FilterState` (``parts`` from ``C``)."""
-    return FilterState(C, u, P, float(t), float(walk_t), scale, pending, parts(C))
+    return FilterState(C, u, P, float(t), float(walk_t), scale, parts(C), tuple(slots), tuple(last))
 
 
 def predict(state: FilterState, t: float, walk: Walk) -> FilterState:
-    """The state at ``t``: the noise scale's pending change applied to ``P``, then the random walk since ``state.t``
-    (none for a ``t`` not after it; over at most `Walk.max_gap_s`)."""
+    """The state at ``t``: the random walk since ``state.t`` (none for a ``t`` not after it; over at most
+    `Walk.max_gap_s`)."""
     P, walk_t = state.P, state.walk_t
-    if state.pending != 1.0:
-        P = P * state.pending
     if t > state.t:
-        if P is state.P:
-            P = P.copy()
+        P = P.copy()
         dt = min(t - state.t, walk.max_gap_s)
         # P[rows, cols] += ..., on the fresh contiguous array's flat view (a third of the indexing's cost)
         P.reshape(-1)[walk.flat] += walk.per_s * dt
         walk_t += dt
-    return FilterState(state.C, state.u, P, max(float(t), state.t), walk_t, state.scale, 1.0, state.parts)
+    return FilterState(state.C, state.u, P, max(float(t), state.t), walk_t, state.scale, state.parts,
+                       state.slots, state.last)
 
 
 class Innovation(NamedTuple):
@@ -157,25 +200,34 @@ class Innovation(NamedTuple):
     Attributes
     ----------
     r : tuple of 3 floats
-        Measured minus predicted marker point, camera frame, m.
+        Measured minus predicted marker point, camera frame, m (the prediction with its stop's own error).
+    bias : tuple of 3 floats
+        That error as the state has it, camera frame, m.
     H : ndarray (3, layout.model)
-        Jacobian of the prediction w.r.t. the model's states.
+        Jacobian of the prediction w.r.t. the model's parameters (w.r.t. its stop's error: the identity).
     R : tuple of 6 floats
-        Upper triangle ``(xx, xy, xz, yy, yz, zz)`` of the sample's noise covariance, m^2.
+        Upper triangle ``(xx, xy, xz, yy, yz, zz)`` of the sample's noise covariance, m^2: what each visit adds.
+    R_compare : tuple of 6 floats
+        Likewise, what a comparison of two visits of the stop allows (`noise`).
     PHt : ndarray (layout.size, 3)
-        ``P H^T`` (the walk states' rows included).
+        ``P H^T`` (the stops' errors' and the walk states' rows included).
     S_inv : tuple of 6 floats
         Upper triangle of the inverse innovation covariance ``(H P H^T + R)^-1``.
     nis : float
         ``r^T S^-1 r`` (chi-square, 3 dof, when the filter is consistent).
+    share : float
+        The noise's share of the innovation covariance, ``tr R / tr S``.
     """
 
     r: tuple
+    bias: tuple
     H: np.ndarray
     R: tuple
+    R_compare: tuple
     PHt: np.ndarray
     S_inv: tuple
     nis: float
+    share: float
 
 
 def prediction(state: FilterState, pose, factor, model: SampleModel):
@@ -187,31 +239,39 @@ def prediction(state: FilterState, pose, factor, model: SampleModel):
                          u[6:model.layout.model - 6])
 
 
-def noise(state: FilterState, shape_upper, cofactor, model: SampleModel) -> tuple:
-    """Upper triangle of a sample's noise covariance: its point covariance shape and robot cofactor (upper
-    triangles) at the arming's levels times the state's scale."""
+def noise(state: FilterState, shape_upper, cofactor, model: SampleModel) -> tuple[tuple, tuple]:
+    """Upper triangles of a sample's noise covariance, from its point covariance shape and robot cofactor (upper
+    triangles), at the arming's levels times the state's scale: what each visit adds (the point noise: the robot's
+    error at the stop is the stop's own, a state), and what a comparison of two visits of a stop allows (the
+    robot's error too: it may differ between visits, as the arm warms or the load changes)."""
     k, m = state.scale * model.point_scale, state.scale * model.robot_var
     a0, a1, a2, a3, a4, a5 = shape_upper
     b0, b1, b2, b3, b4, b5 = cofactor
-    return k * a0 + m * b0, k * a1 + m * b1, k * a2 + m * b2, k * a3 + m * b3, k * a4 + m * b4, k * a5 + m * b5
+    return ((k * a0, k * a1, k * a2, k * a3, k * a4, k * a5),
+            (k * a0 + m * b0, k * a1 + m * b1, k * a2 + m * b2, k * a3 + m * b3, k * a4 + m * b4, k * a5 + m * b5))
 
 
-def innovate(state: FilterState, pose, point, shape_upper, factor, model: SampleModel) -> Innovation:
+def innovate(state: FilterState, pose, point, shape_upper, factor, model: SampleModel, slot: int) -> Innovation:
     """The `Innovation` of a sample: flange pose (``T_base_flange[:3]`` flat), measured marker point (3 floats,
-    camera frame, m, uncorrected), its covariance shape's upper triangle and kinematic-error factor (6, P) or
-    None."""
+    camera frame, m, uncorrected), its covariance shape's upper triangle, kinematic-error factor (6, P) or None,
+    and the slot of its stop's own error (`open_slot`)."""
     h, H, cof = prediction(state, pose, factor, model)
-    R = noise(state, shape_upper, cof, model)
-    m = model.layout.model
+    R, R_compare = noise(state, shape_upper, cof, model)
+    m, b = model.layout.model, model.layout.slot(slot)
+    # H over the whole state is [H, I] on (model, the stop's error): P H^T and H P H^T from those columns.
     PHt = state.P[:, :m].dot(H.T)
-    (a, b, c), (_, d, e), (_, _, f) = H.dot(PHt[:m]).tolist()
-    S_inv = inv_sym3_floats(a + R[0], b + R[1], c + R[2], d + R[3], e + R[4], f + R[5])
+    PHt += state.P[:, b:b + 3]
+    (a, b_, c), (_, d, e), (_, _, f) = (H.dot(PHt[:m]) + PHt[b:b + 3]).tolist()
+    S_inv = inv_sym3_floats(a + R[0], b_ + R[1], c + R[2], d + R[3], e + R[4], f + R[5])
+    trace_R = R[0] + R[3] + R[5]
     (p0, p1, p2), (h0, h1, h2) = point, h
-    r0, r1, r2 = p0 - h0, p1 - h1, p2 - h2
+    bias = g0, g1, g2 = state.u[b - 6:b - 3].tolist()
+    r0, r1, r2 = p0 - h0 - g0, p1 - h1 - g1, p2 - h2 - g2
     i0, i1, i2, i3, i4, i5 = S_inv
     nis = ((r0 * i0 + r1 * i1 + r2 * i2) * r0 + (r0 * i1 + r1 * i3 + r2 * i4) * r1
            + (r0 * i2 + r1 * i4 + r2 * i5) * r2)
-    return Innovation((r0, r1, r2), H, R, PHt, S_inv, nis)
+    return Innovation((r0, r1, r2), tuple(bias), H, R, R_compare, PHt, S_inv, nis,
+                      trace_R / (a + d + f + trace_R))
 
 
 def fuse(state: FilterState, PHt: np.ndarray, S_inv: np.ndarray, r) -> FilterState:
@@ -228,35 +288,83 @@ def fuse(state: FilterState, PHt: np.ndarray, S_inv: np.ndarray, r) -> FilterSta
     r0, r1, r2 = matmul3(so3_exp_scalar(d0, d1, d2), R)
     t = (x + d3, y + d4, z + d5)
     C = np.array(r0 + t[:1] + r1 + t[1:2] + r2 + t[2:] + (0.0, 0.0, 0.0, 1.0)).reshape(4, 4)
-    return FilterState(C, state.u + d[6:], P, state.t, state.walk_t, state.scale, state.pending, ((r0, r1, r2), t))
+    return FilterState(C, state.u + d[6:], P, state.t, state.walk_t, state.scale, ((r0, r1, r2), t),
+                       state.slots, state.last)
 
 
 def fuse_linear(state: FilterState, r, H: np.ndarray, R: np.ndarray) -> FilterState:
-    """`fuse` from an innovation ``r`` (3,), its Jacobian over the whole state ``H`` (3, n) and noise ``R`` (3, 3)."""
+    """`fuse` from an innovation ``r`` (3,), its Jacobian over the whole state ``H`` (3, n) and noise ``R`` (3, 3)
+    (`linearize`)."""
     PHt = state.P.dot(H.T)
     return fuse(state, PHt, inv_sym3(H.dot(PHt) + R), r)
 
 
-def linearize(state: FilterState, sample, model: SampleModel):
-    """Innovation ``r`` (3,), Jacobian ``H`` (3, n) over the whole state (zero on the walk states) and noise ``R``
-    (3, 3) of a sample (`calib.monitor.stops.Stop`) at ``state``, as arrays."""
+def linearize(state: FilterState, sample, model: SampleModel, slot: int | None):
+    """Innovation ``r`` (3,), Jacobian ``H`` (3, n) over the whole state (the identity on the stop's error in
+    ``slot``, zero on the other slots and the walk states; ``slot`` None: zero on every slot) and the noises
+    (3, 3) of a sample (`calib.monitor.stops.Stop`) at ``state``, as arrays: what each visit adds and what a
+    comparison of two visits allows (`noise`)."""
     h, H_model, cof = prediction(state, sample.pose, sample.factor, model)
     H = np.zeros((3, model.layout.size))
     H[:, :model.layout.model] = H_model
-    a, b, c, d, e, f = noise(state, sample.shape_upper, cof, model)
-    return sample.p - np.array(h), H, np.array([[a, b, c], [b, d, e], [c, e, f]])
+    r = sample.p - np.array(h)
+    if slot is not None:
+        b = model.layout.slot(slot)
+        H[:, b:b + 3] = np.eye(3)
+        r -= state.u[b - 6:b - 3]
+    R, R_compare = noise(state, sample.shape_upper, cof, model)
+    return r, H, sym3(R), sym3(R_compare)
 
 
-def restart_walk(state: FilterState, layout: Layout) -> FilterState:
+def find_slot(state: FilterState, same) -> int | None:
+    """The slot holding the stop for which ``same(pose)`` is true (the most recently visited match), or None."""
+    hits = [k for k, pose in enumerate(state.slots) if pose is not None and same(pose)]
+    return max(hits, key=state.last.__getitem__) if hits else None
+
+
+def visit_slot(state: FilterState, slot: int) -> FilterState:
+    """The stop in ``slot`` visited now (at ``state.walk_t``)."""
+    last = list(state.last)
+    last[slot] = state.walk_t
+    return state._replace(last=tuple(last))
+
+
+def open_slot(state: FilterState, pose, prior: np.ndarray, layout: Layout) -> tuple[FilterState, int]:
+    """A slot for a new stop at flange ``pose`` (12 floats) whose own error has covariance ``prior`` (3, 3),
+    independent of the rest: a free slot, else the least recently visited one (its stop's error marginalised: its
+    rows and columns dropped). Returns the state and the slot."""
+    free = [k for k, held in enumerate(state.slots) if held is None]
+    k = free[0] if free else min(range(STOP_SLOTS), key=state.last.__getitem__)
+    b = layout.slot(k)
+    u, P = state.u.copy(), state.P.copy()
+    u[b - 6:b - 3] = 0.0
+    P[b:b + 3] = 0.0
+    P[:, b:b + 3] = 0.0
+    P[b:b + 3, b:b + 3] = prior
+    slots = list(state.slots)
+    slots[k] = tuple(pose)
+    return visit_slot(state._replace(u=u, P=P, slots=tuple(slots)), k), k
+
+
+def clear_slots(state: FilterState, layout: Layout) -> FilterState:
+    """No stop's error held (every slot free, its state and covariance zero): after the camera transform is
+    started afresh, the stops' errors learnt against the old one would carry its error over as knowledge."""
+    u, P = state.u.copy(), state.P.copy()
+    u[layout.model - 6:layout.walk - 6] = 0.0
+    P[layout.model:layout.walk] = 0.0
+    P[:, layout.model:layout.walk] = 0.0
+    return state._replace(u=u, P=P, slots=FREE_SLOTS, last=(0.0,) * STOP_SLOTS)
+
+
+def restart_walk(state: FilterState) -> FilterState:
     """The calibration in use is the estimate again: no walk since it (the walk states and their covariance
     zero)."""
-    m = layout.model
-    if not state.u[m - 6:].any() and not state.P[m:].any():
+    if not state.u[-6:].any() and not state.P[-6:].any():
         return state
     u, P = state.u.copy(), state.P.copy()
-    u[m - 6:] = 0.0
-    P[m:] = 0.0
-    P[:, m:] = 0.0
+    u[-6:] = 0.0
+    P[-6:] = 0.0
+    P[:, -6:] = 0.0
     return state._replace(u=u, P=P)
 
 
@@ -268,16 +376,24 @@ class NoiseTrack(NamedTuple):
     n: float = 0.0
 
 
-def follow_noise(state: FilterState, track: NoiseTrack, nis: float) -> tuple[FilterState, NoiseTrack]:
-    """The noise scale after a sample of normalised innovation square ``nis`` (at the state's scale): the arming
-    levels come from a few dozen samples, so their scale follows the innovations. The covariance follows from
-    the next sample on (``pending``)."""
+def follow_noise(state: FilterState, track: NoiseTrack, nis: float, share: float) -> tuple[FilterState, NoiseTrack]:
+    """The noise scale after a sample of normalised innovation square ``nis`` whose noise was ``share`` of its
+    innovation covariance (`Innovation`): the arming levels come from a few dozen samples, so their scale follows
+    the innovations.
+
+    Only the noise scales: with ``S = A + s R`` and ``E[nis] = 3`` at the true
+    scale, one sample's estimate of it is ``s (1 + (nis / 3 - 1) / share)``
+    (moments of the trace; ``share`` at least `NOISE_SHARE_MIN`, against the
+    noise of a sample the state's covariance dominates). The covariance stays
+    what the data and the arming gave: scaling it with the noise would let any
+    excess of the innovations feed back on itself.
+    """
     keep = 1.0 - 1.0 / NOISE_SCALE_SAMPLES
-    track = NoiseTrack(keep * track.total + nis * state.scale / 3.0, keep * track.n + 1.0)
+    level = state.scale * (1.0 + (nis / 3.0 - 1.0) / max(share, NOISE_SHARE_MIN))
+    track = NoiseTrack(keep * track.total + level, keep * track.n + 1.0)
     scale = min(max((NOISE_SCALE_PRIOR + track.total) / (NOISE_SCALE_PRIOR + track.n), NOISE_SCALE_RANGE[0]),
                 NOISE_SCALE_RANGE[1])
-    return FilterState(state.C, state.u, state.P, state.t, state.walk_t, scale, state.pending * scale / state.scale,
-                       state.parts), track
+    return state._replace(scale=scale), track
 
 
 def is_sound(state: FilterState, tol: float = 1e-9) -> bool:

@@ -57,6 +57,14 @@ class MonitorSettings(Params):
         Two samples closer than both are the same stop: only distinct stops
         widen the set a re-learn registers (repeated stops are fused, and
         tested, like any other).
+    stop_error_mm : float
+        1-sigma per axis, mm, of the error a production stop repeats at
+        every visit beyond the robot noise the arming calibration measured:
+        the camera's own at that view (colour/depth misregistration, the
+        marker's tilt) and the arm's that its kinematic model leaves
+        (thermal growth, deflection under load). It bounds what repeated
+        visits of the same stops can teach the live estimate
+        (`calib.monitor.filter`).
     relearn_samples : int
         Samples held for a re-learn (the newest).
     min_spread_m : float
@@ -83,6 +91,7 @@ class MonitorSettings(Params):
     rate_window_h: PositiveFloat = 1.0
     stop_translation_m: NonNegativeFloat = 0.03
     stop_rotation_deg: NonNegativeFloat = 5.0
+    stop_error_mm: NonNegativeFloat = 0.3
     relearn_samples: Annotated[int, Field(strict=True, ge=3)] = 40
     min_spread_m: PositiveFloat = 0.02
     detector: DetectorConfig = Field(default_factory=DetectorConfig)

@@ -26,7 +26,7 @@ import numpy as np
 from calib import model
 from calib import transforms as tf
 from calib.errors import CalibrationError
-from calib.monitor.filter import FilterState, NoiseTrack, filter_state
+from calib.monitor.filter import STOP_SLOTS, FilterState, Layout, NoiseTrack, filter_state
 from calib.monitor.reference import InUse, Reference
 from calib.result import AutoDetails, CalibrationResult, CameraParameter, Residuals
 from calib.setup import Setup
@@ -68,7 +68,7 @@ class Snapshot:
     @property
     def n_factor(self) -> int:
         """Robot kinematic-error parameters in the state."""
-        return len(self.filter.u) - 12
+        return len(self.filter.P) - Layout(0).size
 
     def without_factor(self) -> Snapshot:
         """The same without the robot's kinematic error in the state (marginalised: its rows and columns
@@ -93,6 +93,10 @@ def _in_use_dict(u: InUse) -> dict:
 def snapshot_to_dict(snapshot: Snapshot) -> dict:
     """Plain data (lists, floats, strings) of a snapshot, for YAML or JSON; `snapshot_from_dict` reads it back."""
     ref, f = snapshot.reference, snapshot.filter
+    # The stops' own errors are not carried (marginalised), as their baselines are not: the next run learns them.
+    layout = Layout(snapshot.n_factor)
+    held = np.arange(layout.model, layout.walk)
+    kept = np.setdiff1d(np.arange(layout.size), held)
     auto = ref.result.auto
     correction = auto.camera_correction if auto is not None else {}
     points = auto.correction_points if auto is not None else None
@@ -112,8 +116,9 @@ def snapshot_to_dict(snapshot: Snapshot) -> dict:
         },
         "origin": _in_use_dict(snapshot.origin),
         "in_use": _in_use_dict(snapshot.in_use),
-        "filter": {"camera_transform": _matrix(f.C), "state": _matrix(f.u), "covariance": _matrix(f.P), "t": f.t,
-                   "walk_t": f.walk_t, "noise_scale": f.scale, "pending_scale": f.pending},
+        "filter": {"camera_transform": _matrix(f.C), "state": _matrix(np.delete(f.u, held - 6)),
+                   "covariance": _matrix(f.P[np.ix_(kept, kept)]), "t": f.t, "walk_t": f.walk_t,
+                   "noise_scale": f.scale, "pending_scale": 1.0},
         "noise_track": {"total": snapshot.noise_track.total, "n": snapshot.noise_track.n},
         "relearns": int(snapshot.relearns),
         "settle": int(snapshot.settle),
@@ -196,10 +201,11 @@ def snapshot_from_dict(doc) -> Snapshot:
     if np.abs(P - P.T).max() > 1e-9 * max(np.abs(P).max(), 1e-300) or np.linalg.eigvalsh(
             0.5 * (P + P.T)).min() < -1e-9 * max(np.abs(P).max(), 1e-300):
         raise CalibrationError("monitor state: filter.covariance is not symmetric positive semi-definite")
+    # Engines before the stops' own errors scaled the covariance with the noise level, with a change still to apply.
+    u, P = with_free_slots(u, P * _float(doc, "filter.pending_scale", positive=True))
     C = _transform(doc, "filter.camera_transform")
     f = filter_state(C, u, 0.5 * (P + P.T), _float(doc, "filter.t"), _float(doc, "filter.walk_t"),
-                     _float(doc, "filter.noise_scale", positive=True), _float(doc, "filter.pending_scale",
-                                                                              positive=True))
+                     _float(doc, "filter.noise_scale", positive=True))
     points = _get(doc, "reference.correction_points_m")
     points = None if points is None else np.array(points, dtype=float)
     if points is not None and (points.ndim != 2 or points.shape[1:] != (3,) or not np.isfinite(points).all()):
@@ -219,6 +225,13 @@ def snapshot_from_dict(doc) -> Snapshot:
     track = NoiseTrack(_float(doc, "noise_track.total"), _float(doc, "noise_track.n"))
     relearns, settle = _count(doc, "relearns"), _count(doc, "settle")
     return Snapshot(ref, _in_use(doc, "origin"), _in_use(doc, "in_use"), f, track, relearns, settle)
+
+
+def with_free_slots(u: np.ndarray, P: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """A state and covariance without the stops' own errors, with every slot free: zeros before the walk states."""
+    at = len(P) - 6
+    where = np.full(3 * STOP_SLOTS, at)
+    return np.insert(u, where - 6, 0.0), np.insert(np.insert(P, where, 0.0, axis=0), where, 0.0, axis=1)
 
 
 def _count(doc, path: str) -> int:

@@ -87,18 +87,20 @@ class Stops:
     def count(self) -> int:
         return len(self.poses)
 
+    def same(self, a, b) -> bool:
+        """Two flange poses (``A[:3]`` flat, 12 floats) are the same stop."""
+        a0, a1, a2, x, a3, a4, a5, y, a6, a7, a8, z = a
+        b0, b1, b2, bx, b3, b4, b5, by, b6, b7, b8, bz = b
+        dx, dy, dz = bx - x, by - y, bz - z
+        return (dx * dx + dy * dy + dz * dz < self._t2
+                and a0 * b0 + a1 * b1 + a2 * b2 + a3 * b3 + a4 * b4 + a5 * b5 + a6 * b6 + a7 * b7 + a8 * b8
+                > self._trace)
+
     def lookup(self, s: Stop) -> int | None:
         """The index of ``s``'s stop, or None."""
         if s.stop is not None and s.stop[0] == self.generation:
             return s.stop[1]
-        a0, a1, a2, x, a3, a4, a5, y, a6, a7, a8, z = s.pose
-        hits = []
-        for i, (b0, b1, b2, bx, b3, b4, b5, by, b6, b7, b8, bz) in enumerate(self.poses):
-            dx, dy, dz = bx - x, by - y, bz - z
-            if (dx * dx + dy * dy + dz * dz < self._t2
-                    and a0 * b0 + a1 * b1 + a2 * b2 + a3 * b3 + a4 * b4 + a5 * b5 + a6 * b6 + a7 * b7 + a8 * b8
-                    > self._trace):
-                hits.append(i)
+        hits = [i for i, pose in enumerate(self.poses) if self.same(s.pose, pose)]
         if len(hits) > 1:
             return min(hits, key=self.last.__getitem__)
         i = hits[0] if hits else None
