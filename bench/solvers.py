@@ -1,7 +1,7 @@
 """Solver benchmark: the paper's sec. V in simulation, next to OpenCV, plus refinement, robustness, timings.
 
-Run ``python -m bench.solvers [--quick | --tiny] [--out out/bench] [--seed S]``
-(also ``handeye bench``). Writes ``<out>/solvers.md`` and PNG plots, prints the
+Run ``handeye bench [--quick | --tiny] [--out out/bench] [--seed S]``
+(or ``python -m bench.solvers`` with the same options). Writes ``<out>/solvers.md`` and PNG plots, prints the
 markdown. All data are eye-to-hand (static camera, marker on the flange:
 ``X = T_flange_marker``, ``Y = T_base_cam``) unless a table says eye-in-hand
 (``X = T_flange_cam``, ``Y = T_base_marker``).
@@ -411,7 +411,7 @@ def _format_report(cfg, exp1=None, exp2=None, real=None, eff=None, nees_m=None, 
     out = [
         "# Solver benchmark (simulation, eye-to-hand unless noted)",
         "",
-        f"`python -m bench.solvers{' --quick' if cfg['quick'] else ''}` — seed {cfg['seed']}, "
+        f"`{_command(cfg)}` — seed {cfg['seed']}, "
         "single-threaded BLAS (run time at the end). Errors of `Y = T_base_cam`: "
         "rotation (deg), translation (mm), mean ± sd over rounds; reprojection = mean squared distance (mm²) "
         "between the marker point mapped through `A_i X` and through `Y B_i` (noise-free poses). "
@@ -491,6 +491,13 @@ def _format_report(cfg, exp1=None, exp2=None, real=None, eff=None, nees_m=None, 
     return "\n".join(out)
 
 
+def _command(cfg) -> str:
+    """The command line that prints this report, as a user types it."""
+    size = " --tiny" if cfg["tiny"] else " --quick" if cfg["quick"] else ""
+    seed = f" --seed {cfg['seed']}" if cfg["seed"] else ""
+    return f"handeye bench{size}{seed}"
+
+
 def _config(quick: bool, tiny: bool, seed: int) -> dict:
     if quick:
         cfg = dict(counts=[5, 10, 30, 70], rounds1=5, levels=list(np.linspace(0, 1, 4)), rounds2=5, n_noise=30,
@@ -507,14 +514,14 @@ def _config(quick: bool, tiny: bool, seed: int) -> dict:
         cfg.update(counts=[5, 10], levels=[0.0, 0.5, 1.0], n_real=30, n_nees=10, time_counts=(10, 50),
                    time_repeats=(1, 1))
     n_lev = len(cfg["levels"])
-    cfg.update(quick=quick, seed=seed, show_counts=(10, 30, 70),
+    cfg.update(quick=quick, tiny=tiny, seed=seed, show_counts=(10, 30, 70),
                show_levels=sorted({n_lev // 3, (2 * n_lev) // 3, n_lev - 1}))
     return cfg
 
 
 def main(argv=None) -> int:
     """Run the benchmark; returns 0. See the module docstring."""
-    ap = argparse.ArgumentParser(prog="python -m bench.solvers", description=__doc__.split("\n")[0])
+    ap = argparse.ArgumentParser(prog="handeye bench", description=__doc__.split("\n")[0])
     ap.add_argument("--quick", action="store_true", help="small smoke run (< 1 min)")
     ap.add_argument("--out", default="out/bench", help="output folder for solvers.md and the PNG plots")
     ap.add_argument("--tiny", action="store_true", help="one round of everything at tiny sizes (smoke test)")
