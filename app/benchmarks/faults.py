@@ -58,6 +58,7 @@ from pathlib import Path
 
 import numpy as np
 
+from app import exit_status
 from calib.errors import HandeyeError
 from drivers.errors import ConnectionLostError, LimitViolationError, RobotStoppedError
 
@@ -76,6 +77,9 @@ QUICK = dict(freeze=2, faults=1, app_freezes=1, parent_deaths=3, kills=1, target
 FULL = dict(freeze=25, faults=10, app_freezes=10, parent_deaths=50, kills=100, targets=10000)
 #: --resume runs per killed session while each ends with a clean one-line error.
 RESUME_ATTEMPTS = 3
+#: The exit statuses of a calibration that ran to its verdict (`app.exit_status`): whatever the verdict, the
+#: resume completed (8 samples often judge WARN, exit 5).
+COMPLETED = (exit_status.PASS, exit_status.WARN, exit_status.FAIL)
 
 
 def _net() -> str:
@@ -359,7 +363,7 @@ def run_kills(runs: int, slots, seed: int, samples: int = 8) -> dict:
                 continue
             lost = len(before - after) + missing
             row["lost"] += lost
-            ok = res.returncode == 0 and len(after) >= samples and (session / "result.yaml").exists()
+            ok = res.returncode in COMPLETED and len(after) >= samples and (session / "result.yaml").exists()
             row["resumable"] += int(ok)
             row["resumed_first"] += int(ok and attempt == 1)
             row["clean"] += int(ok and lost == 0)

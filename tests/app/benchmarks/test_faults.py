@@ -4,7 +4,7 @@ import math
 
 import numpy as np
 
-from app.benchmarks.faults import format_row, random_valid_start, run_targets, sim_path_violation
+from app.benchmarks.faults import format_row, random_valid_start, run_kills, run_targets, sim_path_violation
 from drivers.robot import ur_kinematics as kin
 from drivers.robot.ur import URRobot
 from mocks.ur_sim.motion import JointMotion, LinearMotion
@@ -43,3 +43,11 @@ def test_campaign_starts_are_states_the_driver_allows():
         for p in (T[:3, 3], (T @ robot.T_flange_tcp)[:3, 3]):
             assert np.all(p > cfg.workspace_min) and np.all(p < cfg.workspace_max)
         assert math.degrees(math.acos(T[:3, 2] @ np.asarray(cfg.tilt_reference))) < cfg.max_tilt_deg
+
+
+def test_a_killed_calibration_resumed_to_any_verdict_counts_as_resumed():
+    # The resume's exit status is its verdict's (0 pass, 5 warn, 4 fail); the check took only 0 as completed,
+    # so a resumed run judged WARN counted as not resumed.
+    row = run_kills(1, iter(range(10, 20)), seed=0)
+    assert row["runs"] == row["resumable"] == row["clean"] == 1, row["errors"]
+    assert row["lost"] == row["crashes"] == row["hangs"] == 0
