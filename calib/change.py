@@ -30,7 +30,7 @@ LONG_STRIDE = 4
 #: Per-sample false-alarm rate of the *moved* test. A production program gives a sample at every standstill,
 #: thousands a day: at 1e-5 a still camera raised a false *moved* alarm every 2-4 weeks per cell (17 in 300
 #: simulated cell-days, a sample every 30 s); at 1e-6, 1 in 300, for 0-10 points less of the 1-2 mm bumps
-#: flagged within 20 samples (docs/benchmarks.md, "The false-alarm rate a plant lives with").
+#: flagged within 20 samples (docs/benchmarks.md, "False alarms on a still camera").
 FALSE_ALARM_RATE = 1e-6
 
 _EYE3 = np.eye(3)

@@ -1,7 +1,9 @@
-"""The first pages of the docs run as written: every ``handeye`` command line of README.md and docs/usage.md
-parses against the CLI's own argparse (nothing is executed), and the ones to paste from the clone call
-``.venv/bin/handeye`` (which ``make demo`` builds); the demo's printout in the README is what a demo prints."""
+"""The first pages of the docs run as written: every ``handeye`` command line of README.md, docs/usage.md and
+docs/benchmarks.md parses against the CLI's own argparse (nothing is executed; a ``bench`` line also against
+the benchmark's own), and the ones to paste from the clone call ``.venv/bin/handeye`` (which ``make demo``
+builds); the demo's printout in the README is what a demo prints; every link to a heading finds it."""
 
+import argparse
 import re
 import shlex
 from pathlib import Path
@@ -11,7 +13,7 @@ import pytest
 from app.cli import build_parser
 
 ROOT = Path(__file__).resolve().parents[1]
-DOCS = ("README.md", "docs/usage.md")
+DOCS = ("README.md", "docs/usage.md", "docs/benchmarks.md")
 PROGRAMS = ("handeye", ".venv/bin/handeye")
 
 
@@ -71,6 +73,49 @@ def test_every_command_line_parses(where, command, fenced):
         pytest.fail(f"{where}: does not parse: {command}")
     passthrough = getattr(commands[args.command], "PASSTHROUGH", False)
     assert passthrough or not extra, f"{where}: unknown arguments {extra}: {command}"
+
+
+class _Parsed(Exception):
+    """Raised in place of running a benchmark once its own parser has taken the arguments."""
+
+
+def bench_refuses(command: str, monkeypatch) -> bool:
+    """Whether the benchmark a ``handeye bench`` line runs (bench.solvers, app.benchmarks.shift, ...) refuses
+    the arguments handeye hands on to it. The benchmark stops once its parser has them."""
+    parse_args = argparse.ArgumentParser.parse_args
+
+    def parse_only(self, args=None, namespace=None):
+        parse_args(self, args, namespace)       # SystemExit on an option the benchmark does not have
+        raise _Parsed
+
+    parser, commands = build_parser()
+    args, args.extra = parser.parse_known_args(shlex.split(command, comments=True)[1:])
+    with monkeypatch.context() as patch:
+        patch.setattr(argparse.ArgumentParser, "parse_args", parse_only)
+        try:
+            commands["bench"].run(args)
+        except SystemExit:
+            return True
+        except _Parsed:
+            return False
+    raise AssertionError(f"ran without parsing its arguments: {command}")
+
+
+BENCH_COMMANDS = [(where, command) for where, command, _ in COMMANDS
+                  if shlex.split(command, comments=True)[1:2] == ["bench"]]
+
+
+@pytest.mark.parametrize("where, command", BENCH_COMMANDS, ids=[w for w, _ in BENCH_COMMANDS])
+def test_every_bench_command_line_parses_in_its_benchmark(where, command, monkeypatch):
+    """``handeye bench`` takes any argument on to the benchmark it runs: each one the docs show is the
+    benchmark's own."""
+    assert not bench_refuses(command, monkeypatch), f"{where}: the benchmark refuses its arguments: {command}"
+
+
+def test_the_bench_check_catches_an_option_the_benchmark_lacks(monkeypatch):
+    assert bench_refuses(".venv/bin/handeye bench --month --hours 8", monkeypatch)    # the shift's option
+    assert bench_refuses(".venv/bin/handeye bench --quik", monkeypatch)
+    assert not bench_refuses(".venv/bin/handeye bench --shift --hours 8", monkeypatch)
 
 
 def test_the_check_catches_a_bad_command():
@@ -185,3 +230,31 @@ def test_the_verdict_of_an_unresolved_tolerance_the_docs_quote_is_the_one_printe
                            np.deg2rad(0.88) ** 2)
     v = cv.verify(errors, tolerance_mm=2.0, tolerance_deg=0.5, rng=np.random.default_rng(0))
     assert judge_verification(v).summary.startswith(quote + ": ")
+
+
+def heading_anchors(path: Path) -> set[str]:
+    """The anchors GitHub gives the headings of a markdown file: lower case, punctuation dropped, spaces as
+    hyphens, a repeated one numbered (-1, -2, ...)."""
+    text = path.read_text(encoding="utf-8")
+    fenced = {n for n, _ in fenced_lines(text)}
+    anchors, count = set(), {}
+    for n, line in enumerate(text.splitlines(), 1):
+        heading = re.match(r"#{1,6} (.+)", line)
+        if heading and n not in fenced:
+            slug = re.sub(r"[^\w\- ]", "", heading.group(1).strip().lower()).replace(" ", "-")
+            anchors.add(f"{slug}-{count[slug]}" if slug in count else slug)
+            count[slug] = count.get(slug, 0) + 1
+    return anchors
+
+
+def test_every_link_to_a_heading_finds_it():
+    """A link into a page (``benchmarks.md#an-8-hour-shift``) lands on its heading: the benchmarks' results
+    moved to a page of their own and their history to another, and three links pointed at nothing."""
+    broken = []
+    for doc in (ROOT / "README.md", *sorted((ROOT / "docs").glob("*.md"))):
+        for n, line in enumerate(doc.read_text(encoding="utf-8").splitlines(), 1):
+            for page, anchor in re.findall(r"\]\(([^)\s#]*)#([^)\s]+)\)", line):
+                target = (doc.parent / page) if page else doc
+                if not target.exists() or anchor not in heading_anchors(target):
+                    broken.append(f"{doc.relative_to(ROOT)}:{n}: {page}#{anchor}")
+    assert not broken, broken

@@ -184,7 +184,7 @@ class URRobotConfig(Params):
     connect_timeout: PositiveFloat = 5.0
     move_timeout: PositiveFloat = 60.0
     buffer_seconds: PositiveFloat = 5.0
-    # Finer than 1 mm (1 mrad) only costs time (docs/benchmarks.md, drivers.robot.ur); coarser
+    # Finer than 1 mm (1 mrad) only costs time (docs/benchmarks-history.md, drivers.robot.ur); coarser
     # than 5 cm could step over a limit or a singular region between two checks.
     path_step: Annotated[Float, Field(ge=1e-3, le=0.05)] = 0.01
     kinematic_error: URKinematicError | None = None
