@@ -528,8 +528,9 @@ class MonitorEngine:
         self.state = EngineState.SETTLING
         self._relearn_set = []
         self.detector.reset()
-        short = (f"; its 1-sigma over the workspace is {sigma_mm:.1f} mm, more than the {enough:.1f} mm the cell needs, "
-                 "and the program's stops cannot determine it better: calibrate again" if sigma_mm > enough else "")
+        short = (f"; its 1-sigma over the workspace is {sigma_mm:.1f} mm, more than the {enough:.1f} mm the cell "
+                 "needs, and the program's stops cannot determine it better: calibrate again"
+                 if sigma_mm > enough else "")
         return (f"re-learnt the camera ({fit.how} {len(self._distinct(samples))} production stops, {len(samples)} "
                 f"samples): it moved {moved_mm:.1f} mm over the workspace and {moved_deg:.2f} deg" + short)
 

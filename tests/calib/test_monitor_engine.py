@@ -495,3 +495,74 @@ def test_a_calibration_that_leaves_the_camera_open_does_not_arm():
     assert res.undetermined
     with pytest.raises(CalibrationError, match="leaves part of the camera open.*marker-offset"):
         MonitorEngine().arm(res, problem)
+
+
+def test_more_stops_than_slots_reuse_the_least_recently_visited_and_the_state_stays_sound():
+    """A program of 24 stops (more than `STOP_SLOTS`) visited in turn: each new stop takes the slot of the least
+    recently visited one, whose error is marginalised; the state stays sound, the stops' errors in the free slots
+    are zero, and no moved alarm is raised on a still camera."""
+    from calib.monitor.filter import STOP_SLOTS, is_sound
+
+    real, res, engine = _armed(2)
+    stream = simulate.shift_stream(real, dataclasses.replace(simulate.Shift(), hours=1.0, bumps=(), stops=24,
+                                                             drift_mm_h=0.0), np.random.default_rng([2, 1]), PROFILE)
+    F = PROFILE.dh_error_factor(stream.q)
+    alarms = []
+    for i in range(len(stream.t)):
+        alarms.append(engine.update(stream.t[i], stream.A[i], stream.points[i], stream.point_cov[i], F[i]).alarm)
+        f = engine.filter
+        held = [k for k, pose in enumerate(f.slots) if pose is not None]
+        assert len(held) == min(i + 1, STOP_SLOTS)
+        # the slot of this sample's stop was visited now, and is the most recent
+        assert max(f.last) == f.last[max(held, key=f.last.__getitem__)]
+    assert is_sound(engine.filter)
+    assert "moved" not in alarms
+    # the 16 held stops are the last 16 visited
+    recent = {tuple(stream.A[i][:3].ravel().tolist()) for i in range(len(stream.t) - STOP_SLOTS, len(stream.t))}
+    assert {pose for pose in engine.filter.slots} == recent
+
+
+def test_a_snapshot_carries_no_stop_errors_and_the_next_run_learns_them_again():
+    """The stops' own errors are marginalised in the snapshot (its file form keeps its layout), and a run resumed
+    from it holds none until it visits the stops again."""
+    from calib.monitor.filter import Layout
+    from calib.monitor.snapshot import snapshot_from_dict, snapshot_to_dict
+
+    real, res, engine = _armed(1)
+    stream = simulate.shift_stream(real, dataclasses.replace(simulate.Shift(), hours=0.5, bumps=()),
+                                   np.random.default_rng([1, 1]), PROFILE)
+    F = PROFILE.dh_error_factor(stream.q)
+    for i in range(len(stream.t)):
+        engine.update(stream.t[i], stream.A[i], stream.points[i], stream.point_cov[i], F[i])
+    doc = snapshot_to_dict(engine.snapshot())
+    n_factor = engine.n_factor
+    assert len(doc["filter"]["state"]) == 12 + n_factor
+    back = snapshot_from_dict(doc)
+    layout = Layout(n_factor)
+    assert back.filter.P.shape == (layout.size, layout.size)
+    assert not back.filter.P[layout.model:layout.walk].any()
+    assert not back.filter.u[layout.model - 6:layout.walk - 6].any()
+    kept = np.r_[0:layout.model, layout.walk:layout.size]
+    np.testing.assert_allclose(back.filter.P[np.ix_(kept, kept)], engine.filter.P[np.ix_(kept, kept)])
+    again = MonitorEngine()
+    again.resume(back, t=stream.t[-1] + 30.0)
+    assert all(pose is None for pose in again.filter.slots)
+    upd = again.update(stream.t[-1] + 30.0, stream.A[0], stream.points[0], stream.point_cov[0], F[0])
+    assert sum(pose is not None for pose in again.filter.slots) == 1 and upd.alarm != "moved"
+
+
+def test_the_walk_is_followed_only_where_the_stops_observe_it():
+    """`observed_walk`: with stops that observe every direction well the walk is the whole random walk; where one
+    visit of each stop tells nothing of a direction (here: a turn about the line of sight traded against a shift),
+    the walk has no variance along it."""
+    from calib.monitor.filter import observed_walk
+
+    q = np.array([1e-10] * 3 + [1e-10] * 3)
+    strong = np.eye(6) * 1e12
+    np.testing.assert_allclose(observed_walk(q, strong, 3600.0), np.diag(q), rtol=1e-9, atol=1e-25)
+    blind = np.r_[1.0, 0.0, 0.0, 0.0, -0.8, 0.0] / np.hypot(1.0, 0.8)
+    info = 1e12 * (np.eye(6) - np.outer(blind, blind))
+    Q = observed_walk(q, info, 3600.0)
+    assert abs(blind @ Q @ blind) < 1e-6 * q[0]
+    assert np.linalg.matrix_rank(Q, tol=1e-6 * q[0]) == 5
+    assert not observed_walk(q, np.zeros((6, 6)), 3600.0).any()
