@@ -29,6 +29,7 @@ os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 import argparse  # noqa: E402
 import dataclasses  # noqa: E402
 import multiprocessing  # noqa: E402
+import signal  # noqa: E402
 import sys  # noqa: E402
 import time  # noqa: E402
 from dataclasses import dataclass  # noqa: E402
@@ -247,7 +248,9 @@ def main(argv=None) -> int:
     cells = specs(seeds, args.days, args.stops, args.distance)
     t0 = time.monotonic()
     if args.jobs > 1:
-        with multiprocessing.get_context("spawn").Pool(args.jobs) as pool:
+        # The workers leave Ctrl-C to this process, which ends them (leaving the pool terminates it).
+        with multiprocessing.get_context("spawn").Pool(args.jobs, signal.signal, (signal.SIGINT, signal.SIG_IGN)) \
+                as pool:
             runs = pool.map(run_cell, cells)
     else:
         runs = [run_cell(c) for c in cells]
