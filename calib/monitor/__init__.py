@@ -16,7 +16,9 @@ Per sample (fixed work and memory, independent of the shift's length):
 
 1. **Predict.** The camera transform is a random walk (rates
    `MonitorSettings.walk_mm_per_sqrt_h`, ``walk_deg_per_sqrt_h``), so the
-   estimate follows a slowly drifting mount instead of alarming on it.
+   estimate follows a slowly drifting mount instead of alarming on it; in the
+   directions the program's stops do not observe it holds its value
+   (`calib.monitor.filter.observed_walk`).
 2. **Verify.** The marker point is predicted before it is fused; the error of
    that prediction in C's parent frame is the running verification (``verify_mm``).
 3. **Detect.** A windowed GLR test of "the camera jumped by some 6-dof delta"
@@ -29,12 +31,13 @@ Per sample (fixed work and memory, independent of the shift's length):
    test marginalises it, so that a real recording of a still camera is no
    move.
 4. **Update.** A Kalman update of the state ``[camera transform, marker-side
-   translation, camera parameters, kinematic error]`` from the arming
-   calibration's joint covariance (`arm_reference`). What repeated stops
-   share (the robot's error at those poses, the camera model) is state, not
+   translation, camera parameters, kinematic error, each stop's own error]``
+   from the arming calibration's joint covariance (`arm_reference`). What
+   repeated stops share (the robot's kinematic error, the camera model, and
+   the error each stop repeats at every visit beyond them) is state, not
    white noise, so a program that returns to the same few stops cannot make
-   the estimate over-confident. The noise levels' scale follows the
-   innovations.
+   the estimate over-confident (`calib.monitor.filter`). The noise levels'
+   scale follows the innovations; it weighs what each visit adds.
 5. **Drift.** How far the camera has walked since the calibration in use
    (the arming one, or the last re-learnt one): six states that the random
    walk moves with the camera transform, so that what the samples refine of
