@@ -27,7 +27,6 @@ os.environ.setdefault("OMP_NUM_THREADS", "1")
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
 import argparse  # noqa: E402
-import dataclasses  # noqa: E402
 import multiprocessing  # noqa: E402
 import signal  # noqa: E402
 import sys  # noqa: E402
@@ -198,8 +197,9 @@ def summary(runs: list[CellRun]) -> str:
     ratios = np.array([np.mean((r.error_mm[r.settled] / r.sigma_mm[r.settled]) ** 2) for r in runs])
     within = sum(all(np.percentile(r.error_mm[(r.day == d) & r.settled], 95) <= r.bound_mm for d in np.unique(r.day))
                  for r in runs)
-    false = sum(classify_alarms(r.moved, r.bumped)[2] for r in runs)
-    flagged = sum(sum(d is not None for d in classify_alarms(r.moved, r.bumped)[0]) for r in runs)
+    classified = [classify_alarms(r.moved, r.bumped) for r in runs]
+    false = sum(c[2] for c in classified)
+    flagged = sum(sum(d is not None for d in c[0]) for c in classified)
     bumps = sum(len(r.bumped) for r in runs)
     wander = max(float(r.wander_sigma.max()) for r in runs)
     return (f"{len(runs)} cells: {within} within their bound every day; mean (error/sigma)^2 {ratios.mean():.2f} over "

@@ -634,12 +634,10 @@ class MonitorEngine:
         """Every stop among ``samples`` is visited `MIN_BASELINE` times or more: further visits of the same stops
         would not determine the camera better (each stop's own error bounds what they tell), only new stops
         would."""
-        visits = collections.Counter(id(self._distinct_of(s, samples)) for s in samples)
+        distinct = self._distinct(samples)
+        visits = collections.Counter(next(k for k, d in enumerate(distinct) if self._same_stop(d.A, s.A))
+                                     for s in samples)
         return min(visits.values()) >= MIN_BASELINE
-
-    def _distinct_of(self, s: Stop, samples) -> Stop:
-        """The first of ``samples`` at ``s``'s stop."""
-        return next(o for o in samples if self._same_stop(o.A, s.A))
 
     def _parent_point(self, s: Stop) -> np.ndarray:
         M = s.A if self.reference.setup == Setup.EYE_TO_HAND else tf.invert(s.A)

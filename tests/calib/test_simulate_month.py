@@ -8,7 +8,7 @@ import pytest
 
 from calib import simulate
 from calib import transforms as tf
-from calib.robot_error import UR10_DH, ur_forward
+from calib.robot_error import ur_forward
 from calib.setup import Setup
 from calib.simulate_month import DAY_S, Month, month_stream
 
