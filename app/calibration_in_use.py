@@ -23,17 +23,21 @@ from __future__ import annotations
 import datetime as _dt
 import logging
 import os
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Callable
 
+import numpy as np
 import yaml
 
 from app.errors import SessionError
 from app.files import read_text_file
 from app.formats.export import result_to_dict
+from app.calibration_versions import History
+from app.consumers import CalibrationLoop
+from calib import transforms as tf
 from calib.errors import CalibrationError
-from calib.monitor import EngineState, MonitorEngine, MonitorUpdate
+from calib.monitor import AlarmLevel, EngineState, MonitorEngine, MonitorUpdate, workspace_distance
 from calib.monitor.snapshot import Snapshot, snapshot_from_dict, snapshot_to_dict
 from calib.setup import Setup
 
@@ -49,30 +53,58 @@ def local_time(t: float) -> str:
     return _dt.datetime.fromtimestamp(t).astimezone().isoformat(timespec="seconds")
 
 
-def document(engine: MonitorEngine, frames: dict | None, *, why: str, t: float) -> dict:
-    """The file's content: the live calibration as a result, when and why, and the engine's snapshot."""
-    doc = result_to_dict(engine.result(), frames)
+#: The keys of the file besides the result of the version in use.
+OWN_KEYS = ("status", "calibration_version", "in_use_by", "calibration_in_use", "pending", "calibration_history",
+            "monitor_state")
+
+
+def document(engine: MonitorEngine, frames: dict | None, *, why: str, t: float, loop=None,
+             result: dict | None = None, pending: dict | None = None, status: tuple | None = None) -> dict:
+    """The file's content: the calibration in use as a result (``result``, the version in use's; default the
+    live estimate), its version and who uses which (``loop``: `app.consumers.CalibrationLoop`), the cell's
+    status (``(level, sentence)``), when and why, the version pending, the history, and the engine's
+    snapshot."""
+    doc = dict(result) if result is not None else result_to_dict(engine.result(), frames)
+    if status is not None:
+        doc["status"] = {"level": status[0], "message": status[1]}
     mm, deg = engine.moved_since(engine.origin)
+    history = None if loop is None else loop.history
+    in_use = None if history is None else history.in_use
+    if in_use is not None:
+        doc["calibration_version"] = in_use.number
+        doc["in_use_by"] = loop.in_use_by()
     doc["calibration_in_use"] = {
         "written": local_time(t),
         "why": why,
+        **({} if in_use is None else {"version": in_use.number, "since": local_time(in_use.applied),
+                                      "applied_by": in_use.applied_by, "predicted_error_mm": round(in_use.error_mm, 3)}),
         "relearns": int(engine.relearns),
         "moved_since_first_calibration": {"mm": round(mm, 3), "deg": round(deg, 4),
                                           "note": "RMS over the workspace of the live camera transform against the "
                                                   "cell's first calibration, each with its camera correction"},
         "continue_with": "handeye monitor --reference <this directory> (or [monitor] carry_over = true)",
     }
+    waiting = None if history is None else history.pending
+    if waiting is not None:
+        doc["pending"] = {"version": waiting.number, "state": waiting.state,
+                          "predicted_error_mm": round(waiting.error_mm, 3), "evidence": waiting.evidence,
+                          **({"approve_with": f"handeye approve {loop.run}"} if waiting.state == "settled"
+                             and history.policy == "approve" and loop.run is not None else {}),
+                          "result": pending}
+    if history is not None:
+        doc["calibration_history"] = history.to_dict()
     doc["monitor_state"] = snapshot_to_dict(engine.snapshot())
     return doc
 
 
-def write(directory: Path, engine: MonitorEngine, frames: dict | None, *, why: str, t: float) -> Path:
-    """Write (atomically) ``directory/calibration_in_use.yaml`` for ``engine``'s calibration in use."""
+def write(directory: Path, engine: MonitorEngine, frames: dict | None, *, why: str, t: float, **kw) -> Path:
+    """Write (atomically) ``directory/calibration_in_use.yaml`` for ``engine``'s calibration in use (``kw``: as
+    `document`)."""
     path = Path(directory) / FILE_NAME
     text = (f"# handeye: the calibration in use of a monitoring run ({engine.reference.setup}); camera_transform = "
-            f"{Setup(engine.reference.setup).camera_name}, the live estimate.\n"
+            f"{Setup(engine.reference.setup).camera_name}, its version calibration_version.\n"
             "# The next run continues from monitor_state: handeye monitor --reference <this directory>.\n"
-            + yaml.safe_dump(document(engine, frames, why=why, t=t), sort_keys=False, width=1000))
+            + yaml.safe_dump(document(engine, frames, why=why, t=t, **kw), sort_keys=False, width=1000))
     tmp = path.with_name(f".{FILE_NAME}.tmp")
     with open(tmp, "w") as fh:
         fh.write(text)
@@ -99,6 +131,18 @@ def find(path: Path) -> Path | None:
     return candidate if path.is_dir() and candidate.is_file() else None
 
 
+def load(path: Path) -> dict:
+    """The document of a ``calibration_in_use.yaml`` (`SessionError`: unreadable, not YAML, no ``monitor_state``)."""
+    text = read_text_file(path, SessionError, max_bytes=MAX_BYTES)
+    try:
+        doc = yaml.safe_load(text)
+    except yaml.YAMLError as e:
+        raise SessionError(f"{path}: not YAML ({str(e).splitlines()[0]})") from None
+    if not isinstance(doc, dict) or "monitor_state" not in doc:
+        raise SessionError(f"{path}: no monitor_state (written by an older handeye, or not a monitor's file)")
+    return doc
+
+
 def read(path: Path, setup: Setup) -> Snapshot:
     """The snapshot of a ``calibration_in_use.yaml`` for a run of ``setup``.
 
@@ -107,13 +151,7 @@ def read(path: Path, setup: Setup) -> Snapshot:
     SessionError
         Unreadable, not YAML, without a valid ``monitor_state`` (the field named), or of another setup.
     """
-    text = read_text_file(path, SessionError, max_bytes=MAX_BYTES)
-    try:
-        doc = yaml.safe_load(text)
-    except yaml.YAMLError as e:
-        raise SessionError(f"{path}: not YAML ({str(e).splitlines()[0]})") from None
-    if not isinstance(doc, dict) or "monitor_state" not in doc:
-        raise SessionError(f"{path}: no monitor_state (written by an older handeye, or not a monitor's file)")
+    doc = load(path)
     try:
         snapshot = snapshot_from_dict(doc["monitor_state"])
     except CalibrationError as e:
@@ -121,6 +159,18 @@ def read(path: Path, setup: Setup) -> Snapshot:
     if snapshot.reference.setup != Setup(setup):
         raise SessionError(f"{path} is {snapshot.reference.setup}, the config is {Setup(setup)}")
     return snapshot
+
+
+def read_versions(path: Path, policy: str) -> tuple[History | None, dict, dict | None]:
+    """``(history, result of the version in use, result of the version pending)`` of a
+    ``calibration_in_use.yaml``; the history is None in a file written before versions (`SessionError` as
+    `load`)."""
+    doc = load(path)
+    if "calibration_history" not in doc:
+        return None, {k: v for k, v in doc.items() if k not in OWN_KEYS}, None
+    history = History.from_dict(doc["calibration_history"], policy)
+    pending = (doc.get("pending") or {}).get("result")
+    return history, {k: v for k, v in doc.items() if k not in OWN_KEYS}, pending
 
 
 def latest(root: Path, setup: Setup) -> Path | None:
@@ -133,45 +183,123 @@ def latest(root: Path, setup: Setup) -> Path | None:
     return max(found, key=lambda p: p.stat().st_mtime, default=None)
 
 
-#: Why a calibration in use is written when it is a new one (`InUseFile.on_new` is told); the end of a run and
-#: an error only record the live estimate.
-NEW_CALIBRATION = ("armed", "re-learnt", "settled after a re-learn")
+#: Why a calibration in use is written when a version is put in use (`InUseFile.on_new` is told); the other
+#: writes record a proposed version, an acknowledgement, the end of a run or an error.
+NEW_CALIBRATION = ("armed", "version in use")
 
 
 @dataclass
 class InUseFile:
-    """Keeps ``calibration_in_use.yaml`` in a directory (`app.calibration_in_use`): written when the engine is
-    armed, at every re-learn, when a re-learnt camera has settled, and at the end. ``on_new(path, why, t)`` is
-    called after each write of a new calibration in use (`NEW_CALIBRATION`), once the file is in place."""
+    """Keeps ``calibration_in_use.yaml`` in a directory (`app.calibration_in_use`) and the versions of the
+    calibration in use (``loop``: `app.consumers.CalibrationLoop`; default: ``apply = "auto"`` and no
+    consumer, as ``replay --monitor`` runs): written when the engine is armed, when a re-learn proposes a
+    version, when a version is put in use (settled with ``auto``, or approved), when a consumer reports a
+    version, and at the end. ``on_new(path, why, t)`` is called after each write of a version put in use
+    (`NEW_CALIBRATION`), once the file is in place."""
 
     directory: Path
     frames: dict | None = None
-    written: object = None           # the calibration in use last written (`calib.monitor.InUse`)
+    written: object = None           # the engine's calibration in use last seen (`calib.monitor.InUse`)
     on_new: Callable[[Path, str, float], None] | None = None
+    loop: CalibrationLoop = field(default_factory=lambda: CalibrationLoop(History("auto")))
+    result: dict | None = None       # the version in use as a result (`app.formats.export.result_to_dict`)
+    pending: dict | None = None      # the version pending, likewise
+    changes: int = 0                 # the loop's events already written
+    status: Callable[[], tuple] | None = None   # the cell's (level, sentence) now (`app.shift_record`)
 
     def write(self, engine: MonitorEngine, t: float, why: str) -> None:
         try:
-            path = write(self.directory, engine, self.frames, why=why, t=t)
+            path = write(self.directory, engine, self.frames, why=why, t=t, loop=self.loop, result=self.result,
+                         pending=self.pending, status=None if self.status is None else self.status())
         except OSError as e:
             log.error("%s not written (%s); the next run cannot continue from this one",
                       FILE_NAME, e.strerror or e)
             path = None
-        self.written = engine.in_use
+        self.written, self.changes = engine.in_use, self.loop.changes
         if path is not None and why in NEW_CALIBRATION and self.on_new is not None:
             self.on_new(path, why, t)
 
+    def resume(self, path: Path) -> None:
+        """Continue the versions of the run that wrote ``path`` (its history; the approvals of its directory
+        are read too). A file without versions starts at version 1 (`armed`)."""
+        history, result, pending = read_versions(path, self.loop.history.policy)
+        if history is not None and history.in_use is not None:
+            self.loop.history, self.result, self.pending = history, result, pending
+        if self.loop.approvals is not None:
+            self.loop.approvals.directories.append(Path(path).parent)
+
     def armed(self, engine: MonitorEngine, t: float) -> None:
-        if engine.armed:
-            self.write(engine, t, "armed")
+        if not engine.armed:
+            return
+        history = self.loop.history
+        if history.in_use is None:
+            self.result = result_to_dict(engine.result(), self.frames)
+            self.loop.applied(history.first(engine.camera_transform, engine.in_use.sigma_mm, t, "armed"), t)
+        self.write(engine, t, "armed")
 
     def update(self, engine: MonitorEngine, update: MonitorUpdate | None, t: float) -> None:
-        """After a sample: a re-learn, or the end of its settling, is a new calibration in use."""
+        """After a sample: a re-learn proposes a version, the end of its settling settles it (in use with
+        ``auto``); while it settles it follows the estimate."""
+        relearnt = update is not None and (update.message.startswith("re-learnt") or "; re-learnt" in update.message)
+        if update is not None and update.alarm == AlarmLevel.MOVED and not relearnt:
+            self.write(engine, t, "camera moved: re-learning it")     # the status it holds says so
+            return
         if update is None or engine.in_use is self.written:
             return
-        if update.message.startswith("re-learnt") or "; re-learnt" in update.message:
-            self.write(engine, t, "re-learnt")
+        if relearnt:
+            self._propose(engine, update, t)
+            self.write(engine, t, "re-learnt: version proposed")
         elif update.state in (EngineState.ARMED, EngineState.WARMING):
-            self.write(engine, t, "settled after a re-learn")
+            settling = self.loop.history.pending
+            if settling is None or settling.state != "settling":
+                self.write(engine, t, "settled after a re-learn")
+                return
+            self.pending = result_to_dict(engine.result(), self.frames)
+            version = self.loop.history.settle(engine.camera_transform, engine.in_use.sigma_mm, t)
+            self.loop.event(t, "calibration_version_settled", version=settling.number)
+            self._in_use(engine, version, t, "settled after a re-learn")
+        else:      # settling: the version follows the estimate (the file is written when it has settled)
+            self.loop.history.follow(engine.camera_transform, engine.in_use.sigma_mm)
+
+    def _propose(self, engine: MonitorEngine, update: MonitorUpdate, t: float) -> None:
+        history = self.loop.history
+        old = history.in_use
+        C, move = engine.camera_transform, self.loop.last_move or {}
+        mm = deg = None
+        if old is not None:
+            T_old = np.array(old.camera_transform)
+            mm = workspace_distance(C, T_old, engine.reference.workspace) * 1e3
+            deg = float(np.rad2deg(tf.rotation_angle(C[:3, :3] @ T_old[:3, :3].T)))
+            move["mm"] = mm
+        evidence = {"alarm_sample": move.get("sample"), "alarm_time": move.get("time"),
+                    "moved_from_version": None if old is None else old.number,
+                    "moved_mm": None if mm is None else round(mm, 3), "moved_deg": None if deg is None else round(deg, 4),
+                    "relearnt": update.message.split("; ")[-1]}
+        v = history.propose(C, engine.in_use.sigma_mm, t, f"re-learnt after the move at sample {move.get('sample')}",
+                            evidence)
+        self.pending = result_to_dict(engine.result(), self.frames)
+        self.loop.event(t, "calibration_version_proposed", version=v.number, **evidence)
+
+    def _in_use(self, engine: MonitorEngine, version, t: float, why: str) -> None:
+        """``version`` (None: nothing new) is in use: the file holds it, the consumers are given it."""
+        if version is None:
+            self.write(engine, t, why)
+            return
+        self.result = self.pending if self.pending is not None else result_to_dict(engine.result(), self.frames)
+        self.pending = None
+        self.loop.applied(version, t)
+        self.write(engine, t, "version in use")
+
+    def poll(self, engine: MonitorEngine, t: float) -> None:
+        """Approvals and acknowledgements (`app.consumers.CalibrationLoop.poll`); the file follows them."""
+        in_use = self.loop.history.in_use
+        self.loop.poll(t)
+        if not engine.armed or self.loop.changes == self.changes:
+            return
+        if self.loop.history.in_use is not in_use:
+            self._in_use(engine, self.loop.history.in_use, t, "approved")
+        else:
+            self.write(engine, t, "a consumer reported its version")
 
     def end(self, engine: MonitorEngine, t: float) -> None:
         if engine.armed:

@@ -202,7 +202,11 @@ class MonitorConfig(Params):
     only the first run. ``alarm_hook`` (run on an alarm) and
     ``calibration_hook`` (run when the calibration in use changes: armed,
     re-learnt, settled after a re-learn) are split like a shell line and
-    must name a program on ``PATH``. ``[monitor.engine]`` configures
+    must name a program on ``PATH``. ``apply``: what happens to a re-learnt
+    calibration once it has settled (`app.calibration_versions`):
+    ``"approve"`` (the default) keeps the version in use until a person
+    approves the new one (``handeye approve <run>``), ``"auto"`` puts it in
+    use at once; docs/monitor-service.md says why approve is the default. ``[monitor.engine]`` configures
     the engine (`calib.monitor.MonitorSettings`: random-walk rates,
     ``tolerance_mm``, the drifting horizon, the detector).
 
@@ -229,6 +233,7 @@ class MonitorConfig(Params):
     keep_frames: NonNegativeInt = 100
     max_recording_mb: PositiveFloat = 200.0
     carry_over: Bool = False
+    apply: Literal["approve", "auto"] = "approve"
     engine: MonitorSettings = Field(default_factory=MonitorSettings)
 
     @model_validator(mode="after")
@@ -297,6 +302,16 @@ class ProductionConfig(Params):
             if len(self.waypoints) < 2:
                 raise ValueError("waypoints: a program needs at least 2 stops to move between")
         return self
+
+
+class ConsumersConfig(Params):
+    """``[consumers]``: what is given the calibration in use and reports the version it has taken
+    (`app.consumers`). ``robot_program``: the UR program over RTDE registers (a ``ur`` or ``ur_sim`` robot;
+    the URScript snippet in docs/monitor-service.md). A consumer that has not reported the version in use
+    ``ack_timeout_s`` after it was given is a warning with its name."""
+
+    robot_program: Bool = False
+    ack_timeout_s: PositiveFloat = 60.0
 
 
 class ConsoleConfig(Params):
@@ -457,6 +472,7 @@ class Config(Params):
     ros2: Ros2Config = Field(default_factory=Ros2Config)
     production: ProductionConfig = Field(default_factory=ProductionConfig)
     console: ConsoleConfig = Field(default_factory=ConsoleConfig)
+    consumers: ConsumersConfig = Field(default_factory=ConsumersConfig)
     reconnect: ReconnectConfig = Field(default_factory=ReconnectConfig)
 
     @model_validator(mode="after")

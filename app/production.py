@@ -134,10 +134,14 @@ def start_production(robot, cfg, rng: np.random.Generator, *, say=log.info) -> b
     state = robot.read()
     program = program_from_config(cfg.production, state.T_base_flange, state.q, robot.kinematics, cfg.calibrate,
                                   rng)
+    # The program takes the calibration in use from the RTDE registers when the cell gives it there.
+    program["takes_calibration"] = cfg.consumers.robot_program
     robot.start_program(program)
     kind = "explicit" if cfg.production.waypoints else cfg.production.preset.replace("_", "-")
     say(f"simulated robot: running a looping production program ({len(program['waypoints'])} waypoints, {kind}, "
-        f"{program['waypoints'][0]['pause_s']} s tool stops) so that there is something to monitor")
+        f"{program['waypoints'][0]['pause_s']} s tool stops) so that there is something to monitor"
+        + ("; it takes the calibration in use from the RTDE registers at every stop" if cfg.consumers.robot_program
+           else ""))
     return True
 
 

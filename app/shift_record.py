@@ -21,6 +21,7 @@ import datetime as _dt
 import html
 import re
 import shlex
+import time
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -55,6 +56,8 @@ class ShiftRecord:
     n_samples: int = 0
     last: MonitorUpdate | None = None
     moved_total: tuple[float, float] = (0.0, 0.0)
+    #: The versions of the calibration in use and its consumers (`app.consumers.CalibrationLoop`), if any.
+    loop: object = None
 
     def add(self, sample: int, upd: MonitorUpdate, engine: MonitorEngine) -> None:
         """One engine update of session sample ``sample``."""
@@ -77,14 +80,25 @@ class ShiftRecord:
 
     # -------------------------------------------------------------- what it says
 
-    def status(self) -> tuple[str, str]:
-        """``(level, sentence)``: the cell's state now, for the report's first line: ``ok``, ``drifting``,
-        ``moved`` (re-learning) or ``unknown`` (no sample)."""
+    def status(self, t: float | None = None) -> tuple[str, str]:
+        """``(level, sentence)``: the cell's state now (``t``: default the last sample's time), for the report's
+        first line: ``ok``, ``drifting``, ``moved`` (re-learning, or its re-learnt version not approved yet or
+        not in use by every consumer: `app.consumers.CalibrationLoop.status`), ``warn`` (a consumer silent) or
+        ``unknown`` (no sample)."""
         u = self.last
+        loop = self.loop
         if u is None:
+            if loop is not None and loop.history.in_use is not None:
+                said = loop.status(time.time() if t is None else t)
+                if said is not None:
+                    return said
             return "unknown", "no sample reached the monitoring engine"
         mm, deg = self.moved_total
         since = f"the camera has moved {mm:.1f} mm / {deg:.2f} deg since the cell's first calibration"
+        if loop is not None:
+            said = loop.status(u.t if t is None else t, relearning=u.state == EngineState.RELEARNING)
+            if said is not None:
+                return said[0], said[1] + f" ({since})"
         if u.state == EngineState.RELEARNING:
             return "moved", f"the camera moved and is being re-learnt from the production stops: {u.message}"
         if u.level == AlarmLevel.DRIFTING:
@@ -92,8 +106,20 @@ class ShiftRecord:
                                 f"calibration in use (predicted error {u.error_mm:.2f} mm); {since}")
         moved = [a for a in self.alarms if a["alarm"] == AlarmLevel.MOVED]
         relearnt = f"; re-learnt after {len(moved)} move{'s' if len(moved) != 1 else ''} this run" if moved else ""
-        return "ok", (f"calibrated and quiet: predicted error {u.error_mm:.2f} mm over the workspace, last "
-                      f"verification {u.verify_mm:.2f} mm; {since}{relearnt}")
+        return "ok", (f"calibrated and quiet: {self.in_use_words()}predicted error {u.error_mm:.2f} mm over the "
+                      f"workspace, last verification {u.verify_mm:.2f} mm; {since}{relearnt}")
+
+    def in_use_words(self) -> str:
+        """``version 2 in use by the robot program; `` (or that no consumer is configured), or ``""`` without
+        versions."""
+        loop = self.loop
+        in_use = None if loop is None else loop.history.in_use
+        if in_use is None:
+            return ""
+        if not loop.links:
+            return (f"version {in_use.number} in use (no consumer is configured in [consumers]: hand "
+                    "calibration_in_use.yaml on); ")
+        return f"version {in_use.number} in use by {', '.join('the ' + link.name for link in loop.links)}; "
 
     def alarm_lines(self) -> list[str]:
         """One console line per alarm: kind, local time, sample, what, and for a move what became of it."""
@@ -150,9 +176,15 @@ class ShiftRecord:
         return ["next:", *lines] if lines else []
 
     def alarms_document(self) -> dict:
-        return {"setup": str(self.setup), "camera_transform": Setup(self.setup).camera_name,
-                "session": self.source, "reference": self.reference, "alarms": list(self.alarms),
-                "outages": list(self.outages)}
+        level, sentence = self.status()
+        doc = {"setup": str(self.setup), "camera_transform": Setup(self.setup).camera_name,
+               "session": self.source, "reference": self.reference, "status": {"level": level, "message": sentence}}
+        loop = self.loop
+        if loop is not None and loop.history.in_use is not None:
+            pending = loop.history.pending
+            doc.update(calibration_version=loop.history.in_use.number, in_use_by=loop.in_use_by(),
+                       pending=None if pending is None else {"version": pending.number, "state": pending.state})
+        return {**doc, "alarms": list(self.alarms), "outages": list(self.outages)}
 
     # -------------------------------------------------------------- files
 

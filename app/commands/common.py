@@ -25,6 +25,12 @@ def add_run_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("--no-frames", action="store_true", help="do not store color/depth PNGs in the session")
 
 
+def add_apply_option(p: argparse.ArgumentParser, default: str = "monitor.apply") -> None:
+    """``--apply``: what happens to a re-learnt calibration once settled (overrides ``[monitor] apply``)."""
+    p.add_argument("--apply", choices=("approve", "auto"), help="a re-learnt calibration, once settled: 'approve' "
+                   "waits for 'handeye approve <run>', 'auto' puts it in use at once (default: " + default + ")")
+
+
 def add_report_options(p: argparse.ArgumentParser) -> None:
     """Who and where, as report.html and result.yaml name them (override ``[report]``)."""
     p.add_argument("--site", help="plant, as the report names it (overrides report.site)")
@@ -105,6 +111,8 @@ def apply_overrides(cfg, args):
         mon["alarm_hook"] = args.hook
     if getattr(args, "calibration_hook", None) is not None:
         mon["calibration_hook"] = args.calibration_hook
+    if getattr(args, "apply", None) is not None:
+        mon["apply"] = args.apply
     viz = {}
     if getattr(args, "no_viz", False):
         viz["enabled"] = False

@@ -5,9 +5,10 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from app import exit_status
 from app.commands.calibrate import exit_code, print_calibration_summary, print_continue
-from app.commands.common import add_motion_options, add_report_options, add_run_options, load_config_args
+from app.commands.common import (add_apply_option, add_motion_options, add_report_options, add_run_options,
+                                 load_config_args)
+from app.commands.monitor import exit_code as monitor_exit_code
 from app.commands.monitor import next_lines, print_monitor_summary
 from app.production import Bump
 from app.runs.demo import demo, demo_monitor
@@ -37,6 +38,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--reference", type=Path, help="--monitor: calibration session that arms the change detector at "
                    "once, or a previous monitoring run to continue from")
     p.add_argument("--max-samples", type=int, help="--monitor: stop after this many samples")
+    add_apply_option(p, "'auto' for the embedded cell, else monitor.apply of -c")
 
 
 def run(args) -> int:
@@ -53,9 +55,11 @@ def _run_monitor(args) -> int:
         raise HandeyeError("--resume continues a calibration; demo --monitor records a new session each run")
     if args.bump_after < 1:
         raise HandeyeError(f"--bump-after must be >= 1, got {args.bump_after}")
+    if args.config is None and args.apply is None:
+        args.apply = "auto"     # the embedded cell closes the loop by itself; --apply approve shows the approval
     cfg = load_config_args(args)
     bump = Bump(args.bump_after, args.bump_mm, args.bump_deg) if (args.bump_mm or args.bump_deg) else None
     report = demo_monitor(cfg, bump=bump, reference=args.reference, max_samples=args.max_samples)
     # As `monitor` ends: what to hand the re-learnt camera to, how to check it and go on.
     print_monitor_summary(report, cfg.setup, next_lines(report, args))
-    return exit_status.ALARM if report.moved_alarms else exit_status.PASS
+    return monitor_exit_code(report)

@@ -12,7 +12,10 @@ import numpy as np
 
 from app import exit_status
 from app.calibration_in_use import FILE_NAME as IN_USE_FILE
-from app.commands.common import add_run_options, cell_command, command_with, load_config_args, pose_line
+from app.commands.common import (add_apply_option, add_run_options, cell_command, command_with, load_config_args,
+                                 pose_line)
+from app.calibration_in_use import local_time
+from app.consumers import approve_command
 from app.runs.monitor import MonitorReport, monitor
 from calib import transforms as tf
 from calib.monitor import EngineState
@@ -31,6 +34,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--hook", help="command to run on an alarm (overrides monitor.alarm_hook)")
     p.add_argument("--calibration-hook", help="command to run when the calibration in use changes (armed, re-learnt, "
                    "settled after a re-learn), its file in HANDEYE_CALIBRATION (overrides monitor.calibration_hook)")
+    add_apply_option(p)
 
 
 def run(args) -> int:
@@ -38,7 +42,17 @@ def run(args) -> int:
     report = monitor(cfg, reference=args.reference)
     print_monitor_summary(report, cfg.setup, next_lines(report, args, calibrate=cell_command(
         "calibrate", args.config, "--yes-move")))
-    return exit_status.ALARM if report.moved_alarms else exit_status.PASS
+    return exit_code(report)
+
+
+def exit_code(report: MonitorReport) -> int:
+    """The status of how the run ended (`app.shift_record.ShiftRecord.status`): 3 while a move is open (being
+    re-learnt, its version waiting for approval or not in use by every consumer), 5 when a consumer has not
+    reported the version in use, else 0 (a move closed included: the summary tells it)."""
+    level = report.record.status()[0] if report.record is not None else "unknown"
+    if level == "moved" or (report.moved_alarms and report.record is not None and report.record.loop is None):
+        return exit_status.ALARM
+    return exit_status.WARN if level == "warn" else exit_status.PASS
 
 
 def next_lines(report: MonitorReport, args, *, calibrate: str | None = None) -> list[str]:
@@ -47,6 +61,28 @@ def next_lines(report: MonitorReport, args, *, calibrate: str | None = None) -> 
     return report.record.next_steps(report.session / IN_USE_FILE,
                                     continue_with=command_with(args, "--reference", report.session),
                                     verify_with=cell_command("verify", args.config), calibrate=calibrate)
+
+
+def version_lines(loop) -> list[str]:
+    """The calibration in use, who uses which version, and the version pending (`app.consumers.CalibrationLoop`)."""
+    in_use = None if loop is None else loop.history.in_use
+    if in_use is None:
+        return []
+    lines = [f"  calibration in use: version {in_use.number} (predicted error {in_use.error_mm:.2f} mm, "
+             f"{in_use.why}, in use since {local_time(in_use.applied)}, {in_use.applied_by})"]
+    if loop.links:
+        lines.append("  in use by: " + ", ".join(f"{link.name}: " + (f"version {link.taken}" if link.taken else
+                                                                    "no version reported")
+                                                 + (f" (out of reach: {link.error})" if link.error else "")
+                                                 for link in loop.links))
+    else:
+        lines.append("  in use by: no consumer configured ([consumers]); hand calibration_in_use.yaml on")
+    pending = loop.history.pending
+    if pending is not None:
+        wait = (f"waiting for approval: {approve_command(loop.run)}" if pending.state == "settled"
+                else "settling (the re-learnt camera is refined by the next stops)")
+        lines.append(f"  pending: version {pending.number} (predicted error {pending.error_mm:.2f} mm), {wait}")
+    return lines
 
 
 def print_monitor_summary(report: MonitorReport, setup: Setup = Setup.EYE_TO_HAND, next_lines=()) -> None:
@@ -89,6 +125,8 @@ def print_monitor_summary(report: MonitorReport, setup: Setup = Setup.EYE_TO_HAN
     else:
         watching = f"the moved test runs from {report.samples_until_armed} more samples"
     print(f"  {report.n_samples} samples, {report.n_skipped} skipped, {report.elapsed_s:.0f} s; {watching}")
+    for line in version_lines(report.loop):
+        print(line)
     print(f"\nsession: {report.session}")
     for name in ("report.html", "alarms.yaml", "calibration_in_use.yaml"):
         if report.session is not None and (report.session / name).exists():

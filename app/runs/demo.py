@@ -67,5 +67,7 @@ def demo_monitor(cfg: Config, *, bump: Bump | None, reference: Path | None = Non
     after = bump.after if bump is not None else 0
     mon["max_samples"] = max_samples or (after + 32 if bump else 30)
     mon["duration_s"] = cfg.monitor.duration_s or max(300.0, DEMO_SECONDS_PER_SAMPLE * mon["max_samples"])
+    # The simulated controller's production program takes the calibration in use over RTDE: the loop closes.
+    data["consumers"]["robot_program"] = data["consumers"]["robot_program"] or data["robot"].get("type") == "ur_sim"
     cfg = config_from_dict(data, "demo --monitor")
     return monitor(cfg, reference=reference, progress=progress, bump=bump, publish=publish)

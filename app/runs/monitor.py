@@ -34,7 +34,9 @@ import numpy as np
 
 from app import calibration_in_use, devices, stopping
 from app.acquire import pose_at_frame, take_sample
+from app.calibration_versions import Approvals, History
 from app.config import Config, MonitorConfig, hook_argv
+from app.consumers import CalibrationLoop, RobotProgram
 from app.errors import ConfigError, MonitorError, OutageError
 from app.monitoring import arm_from, arm_from_path, sample_factor
 from app.outage import OutageEvent, Reconnecting
@@ -103,6 +105,8 @@ class MonitorReport:
         Indices of the bounded estimation set at the end.
     last : MonitorUpdate or None
         The engine's latest figures (drift rate, running verification, level).
+    loop : CalibrationLoop or None
+        The versions of the calibration in use and who uses which (`app.consumers`).
     record : ShiftRecord or None
         The timeline, every alarm with what became of it, the outages (`app.shift_record`: the session's
         ``alarms.yaml``, ``monitor_trace.png`` and ``report.html``, written at every alarm and at the end).
@@ -125,6 +129,7 @@ class MonitorReport:
     last: MonitorUpdate | None = None
     truth: np.ndarray | None = None
     record: ShiftRecord | None = None
+    loop: CalibrationLoop | None = None
 
     @property
     def last_alarm(self) -> Alarm | None:
@@ -164,8 +169,6 @@ def monitor(cfg: Config, *, reference: Path | None = None, stop=None, progress: 
     from app.mqtt import make_publisher
     from app.ros2 import make_diagnostics
 
-    rng = np.random.default_rng(cfg.calibrate.seed)
-    engine = devices.make_engine(cfg)
     devices.check_session_root(cfg)
     publisher = make_publisher(cfg.mqtt, cfg.setup, cfg.frames.model_dump()) if publish is None else None
     # ROS 2 (/diagnostics, ~/camera_transform; [ros2] diagnostics): beside MQTT or a given publish, gets the same.
@@ -173,80 +176,141 @@ def monitor(cfg: Config, *, reference: Path | None = None, stop=None, progress: 
     outage_sinks = [p.outage for p in (publisher, diagnostics) if p is not None]
     stop = stop or threading.Event()
     outages = _OutageLog(publish=(lambda e: [sink(e) for sink in outage_sinks]) if outage_sinks else None)
+    loop = make_loop(cfg)
     # A device that goes away mid-shift is an outage and a reconnect with backoff (`app.outage`), not an exit.
     with Reconnecting("robot", devices.open_robot(cfg, read_only=True), cfg.reconnect, on_event=outages,
                       stop=stop) as robot, \
             Reconnecting("camera", devices.open_camera(cfg, robot), cfg.reconnect, on_event=outages,
                          stop=stop) as camera, \
-            (publisher or contextlib.nullcontext()), (diagnostics or contextlib.nullcontext()):
-        publish = publish or publisher
-        reference = carried_over(cfg) or reference
+            (publisher or contextlib.nullcontext()), (diagnostics or contextlib.nullcontext()), \
+            contextlib.closing(loop):
+        cell = _Cell(cfg, robot, camera, devices.make_engine(cfg), np.random.default_rng(cfg.calibrate.seed),
+                     publisher, diagnostics, publish or publisher, outages, loop)
+        cell.start(carried_over(cfg) or reference, knocks_from, production)
+        return cell.watch(stop, bump, progress)
+
+
+def make_loop(cfg: Config) -> CalibrationLoop:
+    """The versions (``[monitor] apply``) and the consumers of ``[consumers]`` (`app.consumers`)."""
+    consumers = []
+    if cfg.consumers.robot_program:
+        host = getattr(cfg.robot, "host", None)
+        if host is None:
+            raise ConfigError(f"consumers.robot_program: the robot program is reached over RTDE, and robot.type "
+                              f"{cfg.robot.type!r} has no host: use a ur robot, or set robot_program = false")
+        consumers.append(RobotProgram(host))
+    return CalibrationLoop.of(History(cfg.monitor.apply), consumers, ack_timeout_s=cfg.consumers.ack_timeout_s)
+
+
+@dataclass
+class _Cell:
+    """The parts of one `monitor` run, once its devices are open."""
+
+    cfg: Config
+    robot: Robot
+    camera: Camera
+    engine: MonitorEngine
+    rng: np.random.Generator
+    publisher: object
+    diagnostics: object
+    publish: Callable | None
+    outages: _OutageLog
+    loop: CalibrationLoop
+    reference: Path | None = None
+    carried: list = field(default_factory=list)
+
+    def start(self, reference: Path | None, knocks_from: Path | None, production: bool) -> None:
+        """Arm from ``reference``; knock a simulated camera as the run it continues left it; start production."""
+        cfg, camera = self.cfg, self.camera
+        self.reference = reference
         if reference is not None:
-            say(arm_from_path(engine, reference, cfg.setup, robot.shared_error_factor, rng=rng, t=time.time()))
+            say(arm_from_path(self.engine, reference, cfg.setup, self.robot.shared_error_factor, rng=self.rng,
+                              t=time.time()))
         # A simulated camera starts unmoved in every process: knocked as the monitoring run left it, it is not
         # a move the engine has re-learnt, reported again.
         knocked = reference if reference is not None else knocks_from
-        carried = knock_as_left(camera, cfg.setup, knocked)
-        if carried:
-            say(f"simulated camera: knocked as {knocked} left it ({len(carried)} knock"
-                f"{'s' if len(carried) != 1 else ''})")
+        self.carried = knock_as_left(camera, cfg.setup, knocked)
+        if self.carried:
+            say(f"simulated camera: knocked as {knocked} left it ({len(self.carried)} knock"
+                f"{'s' if len(self.carried) != 1 else ''})")
         if production:
-            start_production(robot, cfg, rng, say=say)
+            start_production(self.robot, cfg, self.rng, say=say)
+
+    def watch(self, stop, bump: Bump | None, progress: bool) -> MonitorReport:
+        """The session, the callbacks, and `run_monitor` until the run ends."""
+        cfg, camera, engine, outages = self.cfg, self.camera, self.engine, self.outages
         writer = SessionWriter.create(cfg.session.root, cfg.setup, config=cfg.to_dict(),
                                       intrinsics=dataclasses.asdict(camera.intrinsics), truth=devices.truth(camera),
                                       source="handeye monitor", keep_frames=cfg.monitor.keep_frames)
-        solve = devices.make_solve(cfg.calibrate.model_copy(update={"method": "auto"}), cfg.setup, rng,
-                                   robot.shared_error_factor)
-        if publisher is not None:
-            publisher.session = str(writer.path)
+        solve = devices.make_solve(cfg.calibrate.model_copy(update={"method": "auto"}), cfg.setup, self.rng,
+                                   self.robot.shared_error_factor)
+        if self.publisher is not None:
+            self.publisher.session = str(writer.path)
         with writer, devices.make_viz(cfg, writer.path) as viz, progress_bar(enabled=progress) as bar:
             outages.writer, outages.viz = writer, viz
-            outages.shift = ShiftRecord(cfg.setup, str(writer.path), str(reference or ""))
-            record_knocks(writer, carried, time.time())
-            seen = []
-
-            def on_sample(obs):
-                bar.update(1)
-                seen.append(obs.index)
-                if bump is not None and len(seen) == bump.after:
-                    bump.apply(camera, cfg.setup)
-                    # Before the moved test runs the bump is not a move to detect: arming takes it in, or the
-                    # detector's first samples do, and what is reported of it is a part of it.
-                    early = not engine.armed or engine.samples_until_tested > 0
-                    text = (f"simulated camera bumped by {bump.translation_mm:g} mm and {bump.rotation_deg:g} deg "
-                            f"after sample {obs.index}")
-                    if early:
-                        when, least = (("while the monitor was still arming", cfg.monitor.arm_samples + 3)
-                                       if not engine.armed else
-                                       ("before the moved test ran", len(seen) + engine.samples_until_tested))
-                        text += (f", {when}: part of the bump goes into the calibration it watches from, so what it "
-                                 f"reports of the move is less than the bump; bump once the moved test runs "
-                                 f"(--bump-after {least} or more, or --reference to arm at once)")
-                    say(text)
-                    writer.add_event(obs.t, "simulated_bump", sample_index=obs.index,
-                                     translation_mm=bump.translation_mm, rotation_deg=bump.rotation_deg,
-                                     before_test=early)
-                    viz.event(obs.t, text, "WARN")
-
-            def on_update(obs, update, report):
-                show_monitor(bar, report)
-                if publish is not None:
-                    publish(obs, update, report)
-                if diagnostics is not None:
-                    diagnostics(obs, update, report)
-                outages.record_broker(publisher)
-
-            def on_error(obs, message):
-                if publisher is not None:
-                    publisher.error(obs.index, message)
-
-            report = run_monitor(robot, camera, devices.make_measure(cfg), engine, solve, writer, cfg.monitor,
+            outages.shift = ShiftRecord(cfg.setup, str(writer.path), str(self.reference or ""))
+            record_knocks(writer, self.carried, time.time())
+            on_sample = _Bumper(bump, camera, cfg, engine, writer, viz, bar)
+            report = run_monitor(self.robot, camera, devices.make_measure(cfg), engine, solve, writer, cfg.monitor,
                                  viz, stop=stop, save_frames=cfg.session.save_frames, on_sample=on_sample,
-                                 on_update=on_update, say=say, shared_error=robot.shared_error_factor,
-                                 frames=cfg.frames.model_dump(), on_error=on_error, record=outages.shift)
-            outages.record_broker(publisher)
+                                 on_update=self.on_update(bar), say=say, shared_error=self.robot.shared_error_factor,
+                                 frames=cfg.frames.model_dump(), on_error=self.on_error, record=outages.shift,
+                                 loop=self.loop, continues=self.reference)
+            outages.record_broker(self.publisher)
             report.truth = devices.camera_truth(cfg.setup, devices.truth(camera))
             return report
+
+    def on_update(self, bar):
+        def on_update(obs, update, report):
+            show_monitor(bar, report)
+            if self.publish is not None:
+                self.publish(obs, update, report)
+            if self.diagnostics is not None:
+                self.diagnostics(obs, update, report)
+            self.outages.record_broker(self.publisher)
+        return on_update
+
+    def on_error(self, obs, message):
+        if self.publisher is not None:
+            self.publisher.error(obs.index, message)
+
+
+@dataclass
+class _Bumper:
+    """``on_sample`` of a simulated cell: counts the samples (the progress bar) and knocks the camera after
+    ``bump.after`` of them."""
+
+    bump: Bump | None
+    camera: Camera
+    cfg: Config
+    engine: MonitorEngine
+    writer: SessionWriter
+    viz: Viz
+    bar: object
+    seen: int = 0
+
+    def __call__(self, obs) -> None:
+        self.bar.update(1)
+        self.seen += 1
+        bump, engine, cfg = self.bump, self.engine, self.cfg
+        if bump is None or self.seen != bump.after:
+            return
+        bump.apply(self.camera, cfg.setup)
+        # Before the moved test runs the bump is not a move to detect: arming takes it in, or the detector's first
+        # samples do, and what is reported of it is a part of it.
+        early = not engine.armed or engine.samples_until_tested > 0
+        text = (f"simulated camera bumped by {bump.translation_mm:g} mm and {bump.rotation_deg:g} deg after sample "
+                f"{obs.index}")
+        if early:
+            when, least = (("while the monitor was still arming", cfg.monitor.arm_samples + 3) if not engine.armed
+                           else ("before the moved test ran", self.seen + engine.samples_until_tested))
+            text += (f", {when}: part of the bump goes into the calibration it watches from, so what it reports of "
+                     f"the move is less than the bump; bump once the moved test runs (--bump-after {least} or more, "
+                     f"or --reference to arm at once)")
+        say(text)
+        self.writer.add_event(obs.t, "simulated_bump", sample_index=obs.index, translation_mm=bump.translation_mm,
+                              rotation_deg=bump.rotation_deg, before_test=early)
+        self.viz.event(obs.t, text, "WARN")
 
 
 def carried_over(cfg: Config) -> Path | None:
@@ -388,6 +452,8 @@ def run_monitor(
     frames: dict | None = None,
     on_error: Callable[[Observation, str], None] | None = None,
     record: ShiftRecord | None = None,
+    loop: CalibrationLoop | None = None,
+    continues: Path | None = None,
 ) -> MonitorReport:
     """Passive run until ``cfg.max_samples``, ``cfg.duration_s``, ``stop`` or Ctrl-C.
 
@@ -419,6 +485,11 @@ def run_monitor(
     record : ShiftRecord, optional
         Where the timeline, the alarms and the outages go (a new one by default); written into the session
         (``alarms.yaml``, ``monitor_trace.png``, ``report.html``) at every alarm and at the end.
+    loop : CalibrationLoop, optional
+        The versions of the calibration in use and its consumers (`app.consumers`; default: ``apply = "auto"``,
+        no consumer); polled at every step, its events go into the session.
+    continues : Path, optional
+        What the engine was armed from: a monitoring run's versions go on from it (`app.calibration_in_use`).
 
     Raises
     ------
@@ -428,17 +499,11 @@ def run_monitor(
     t0 = time.monotonic()
     report = MonitorReport(writer.path, 0, 0, record=record or ShiftRecord(engine.reference.setup if engine.armed
                                                                          else writer.header["setup"], str(writer.path)))
-
-    def new_calibration(path: Path, why: str, t: float) -> None:
-        run_hook(cfg.calibration_hook, {"HANDEYE_EVENT": "calibration_in_use", "HANDEYE_REASON": why,
-                                        "HANDEYE_CALIBRATION": str(path.absolute()),
-                                        "HANDEYE_SESSION": str(writer.path.absolute()),
-                                        "HANDEYE_TIME": calibration_in_use.local_time(t)}, "monitor.calibration_hook")
-
-    in_use = calibration_in_use.InUseFile(writer.path, frames, on_new=new_calibration)
+    in_use = _in_use_file(writer, cfg, frames, loop, continues)
+    report.loop = report.record.loop = in_use.loop
+    in_use.status = report.record.status
     run = _PassiveRun(robot, camera, measure, engine, solve, writer, cfg, viz, save_frames, on_sample, on_update,
                       say, shared_error, report, in_use, on_error)
-    report = run.report
     report.samples_until_armed = _until_armed(engine, run.kept, cfg)
     say(f"monitoring engine: {_engine_state(engine, run.kept, cfg)}")
     try:
@@ -463,7 +528,35 @@ def run_monitor(
             writer.add_event(time.time(), "gave_up", error=str(e), n_samples=report.n_samples)
             raise
         # Stopped while waiting for a device: a normal end, every sample kept.
+    return _end_run(run, t0)
+
+
+def _in_use_file(writer: SessionWriter, cfg: MonitorConfig, frames: dict | None, loop: CalibrationLoop | None,
+                 continues: Path | None) -> calibration_in_use.InUseFile:
+    """The run's ``calibration_in_use.yaml`` and its versions: the calibration hook told of each version put in
+    use, the loop's events into the session, approvals read from the run's directory (and the one it continues)."""
+
+    def new_calibration(path: Path, why: str, t: float) -> None:
+        run_hook(cfg.calibration_hook, {"HANDEYE_EVENT": "calibration_in_use", "HANDEYE_REASON": why,
+                                        "HANDEYE_CALIBRATION": str(path.absolute()),
+                                        "HANDEYE_SESSION": str(writer.path.absolute()),
+                                        "HANDEYE_TIME": calibration_in_use.local_time(t)}, "monitor.calibration_hook")
+
+    loop = loop or CalibrationLoop(History("auto"))
+    loop.run, loop.approvals = writer.path, Approvals([writer.path])
+    loop.on_event = lambda t, kind, fields: writer.add_event(t, kind, **fields)
+    in_use = calibration_in_use.InUseFile(writer.path, frames, on_new=new_calibration, loop=loop)
+    found = calibration_in_use.find(continues) if continues is not None else None
+    if found is not None:
+        in_use.resume(found)
+    return in_use
+
+
+def _end_run(run: "_PassiveRun", t0: float) -> MonitorReport:
+    """The end of a run: the calibration in use, the shift record and the sample set written."""
+    report, writer, engine, cfg = run.report, run.writer, run.engine, run.cfg
     report.elapsed_s = time.monotonic() - t0
+    run.in_use.poll(engine, time.time())
     run.in_use.end(engine, time.time())
     report.record.write(writer.path)
     report.kept = [o.index for o in run.kept]
@@ -506,7 +599,9 @@ class _PassiveRun:
     still: _Standstill = field(default_factory=_Standstill)
 
     def step(self) -> None:
-        """Sample once the robot stands still at a new pose, then feed the engine (or arm it)."""
+        """Sample once the robot stands still at a new pose, then feed the engine (or arm it); the approvals and
+        the consumers' acknowledgements are polled meanwhile."""
+        self.in_use.poll(self.engine, time.time())
         state = self.robot.read()
         if not self.still.ready(state, self.cfg):
             time.sleep(self.cfg.poll_s)
@@ -679,6 +774,8 @@ def _raise_alarm(report: MonitorReport, obs: Observation, upd: MonitorUpdate, wr
             "drift_mm": upd.drift_mm, "drift_rate_mm_h": upd.drift_rate_mm_h,
             "hours_to_tolerance": upd.hours_to_tolerance, "message": upd.message}
     report.alarms.append(Alarm(obs.t, obs.index, info))
+    if upd.alarm == AlarmLevel.MOVED and report.loop is not None:
+        report.loop.last_move = {"time": calibration_in_use.local_time(obs.t), "sample": obs.index, "mm": None}
     if upd.alarm == AlarmLevel.MOVED:
         text = f"ALARM: camera moved (detected at sample {obs.index}, GLR statistic {upd.statistic:.1f})"
     else:

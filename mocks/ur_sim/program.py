@@ -12,7 +12,13 @@ Started over the dashboard port (``sim program <json>``, see
 or at start-up (``python -m mocks.ur_sim --program FILE.json``). JSON::
 
     {"waypoints": [{"q": [6 joint angles, rad], "pause_s": 0.8, "tool": "glue"}, ...],
-     "speed": 1.0, "acceleration": 4.0}
+     "speed": 1.0, "acceleration": 4.0, "takes_calibration": false}
+
+With ``takes_calibration`` the program is a consumer of the calibration in
+use, as docs/monitor-service.md's URScript snippet is: at every stop it reads
+the version in ``input_int_register_18``; a new one it takes (the camera
+transform from the registers of `drivers.robot.ur_registers`, read again if
+the version changed meanwhile) and reports in ``output_int_register_18``.
 
 ``speed`` (rad/s) and ``acceleration`` (rad/s^2) are of the leading joint.
 A client's control script (ur_rtde's RTDEControl) or a safety stop takes
@@ -27,7 +33,9 @@ import numpy as np
 from pydantic import Field, ValidationError
 
 from calib.errors import ParameterError
-from calib.params import NonNegativeFloat, Params, PositiveFloat, Str, Vector6, describe
+from calib.params import Bool, NonNegativeFloat, Params, PositiveFloat, Str, Vector6, describe
+from drivers.robot.ur_registers import (ROTATION_REGISTERS, TAKEN_REGISTER, TRANSLATION_REGISTERS, VERSION_REGISTER,
+                                        decode)
 from mocks.ur_sim.motion import JointMotion
 
 
@@ -45,6 +53,7 @@ class ProgramSpec(Params):
     waypoints: Annotated[list[Waypoint], Field(min_length=2)]
     speed: PositiveFloat = 1.0
     acceleration: PositiveFloat = 4.0
+    takes_calibration: Bool = False
 
 
 class Program:
@@ -70,6 +79,8 @@ class Program:
         self.moving = False
         self.cycles = 0
         self.stops = 0
+        self.calibration_version = 0
+        self.calibration: list[float] | None = None
 
     @classmethod
     def from_dict(cls, data) -> "Program":
@@ -95,6 +106,8 @@ class Program:
             self.hold_until = now + wp.pause_s
             ctl.log.append({"t": now, "cmd": None, "name": f"program:stop {self.index}"
                             + (f" tool {wp.tool}" if wp.tool else ""), "args": []})
+            if self.spec.takes_calibration:
+                self.take_calibration(ctl)
             return
         if ctl.motion is not None or (self.hold_until is not None and now < self.hold_until):
             return
@@ -106,6 +119,21 @@ class Program:
         ctl.motion_t0, ctl.motion_async = now, False
         self.moving = True
 
+    def take_calibration(self, ctl) -> None:
+        """The URScript snippet of docs/monitor-service.md: a new version in the input registers is taken and
+        reported back in the output register."""
+        version = int(ctl.in_int[VERSION_REGISTER])
+        if version <= 0 or version == self.calibration_version:
+            return
+        pose = decode([ctl.in_int[r] for r in TRANSLATION_REGISTERS], [ctl.in_double[r] for r in ROTATION_REGISTERS])
+        if int(ctl.in_int[VERSION_REGISTER]) != version:
+            return          # written meanwhile: the next stop takes the newer one
+        self.calibration_version, self.calibration = version, pose
+        ctl.out_int[TAKEN_REGISTER] = version
+        ctl.log.append({"t": ctl.timestamp, "cmd": None, "name": f"program:calibration version {version}",
+                        "args": pose})
+
     def state(self) -> dict:
         return {"waypoints": len(self.targets), "index": self.index, "moving": self.moving,
-                "cycles": self.cycles, "stops": self.stops}
+                "cycles": self.cycles, "stops": self.stops, "calibration_version": self.calibration_version,
+                "calibration": self.calibration}
