@@ -215,8 +215,9 @@ class CalibrationLoop:
     def silent(self, t: float) -> list[Link]:
         """The consumers behind for more than ``ack_timeout_s`` since the version in use was given, or out of
         reach."""
-        return [link for link in self.behind() if link.error is not None or link.given_t is None
-                or t - link.given_t > self.ack_timeout_s]
+        behind = self.behind()
+        return [link for link in self.links if link.error is not None
+                or (link in behind and (link.given_t is None or t - link.given_t > self.ack_timeout_s))]
 
     def uses(self) -> str:
         """Who uses which version, in words: ``the robot program uses version 2, mqtt has not reported one``."""
@@ -246,9 +247,8 @@ class CalibrationLoop:
             return "moved", f"{move}; re-learnt as version {in_use.number} ({in_use.error_mm:.1f} mm){self._still(in_use)}"
         silent = self.silent(t)
         if silent:
-            names = ", ".join(link.name for link in silent)
-            return "warn", (f"version {in_use.number} is in use, but {names} has not reported taking it: "
-                            + self.uses())
+            names = ", ".join(f"the {link.name}" for link in silent)
+            return "warn", f"version {in_use.number} is in use, but {names} has not confirmed it: {self.uses()}"
         return None
 
     def _move_words(self) -> str:
