@@ -204,7 +204,7 @@ class InUseFile:
     loop: CalibrationLoop = field(default_factory=lambda: CalibrationLoop(History("auto")))
     result: dict | None = None       # the version in use as a result (`app.formats.export.result_to_dict`)
     pending: dict | None = None      # the version pending, likewise
-    changes: int = 0                 # the loop's events already written
+    said: tuple = ()                 # the versions and acknowledgements the file holds (`_said`)
     status: Callable[[], tuple] | None = None   # the cell's (level, sentence) now (`app.shift_record`)
 
     def write(self, engine: MonitorEngine, t: float, why: str) -> None:
@@ -215,7 +215,7 @@ class InUseFile:
             log.error("%s not written (%s); the next run cannot continue from this one",
                       FILE_NAME, e.strerror or e)
             path = None
-        self.written, self.changes = engine.in_use, self.loop.changes
+        self.written, self.said = engine.in_use, self._said()
         if path is not None and why in NEW_CALIBRATION and self.on_new is not None:
             self.on_new(path, why, t)
 
@@ -294,7 +294,7 @@ class InUseFile:
         """Approvals and acknowledgements (`app.consumers.CalibrationLoop.poll`); the file follows them."""
         in_use = self.loop.history.in_use
         self.loop.poll(t)
-        if not engine.armed or self.loop.changes == self.changes:
+        if not engine.armed or self._said() == self.said:
             return
         if self.loop.history.in_use is not in_use:
             self._in_use(engine, self.loop.history.in_use, t, "approved")
@@ -304,3 +304,9 @@ class InUseFile:
     def end(self, engine: MonitorEngine, t: float) -> None:
         if engine.armed:
             self.write(engine, t, "end of the run")
+
+    def _said(self) -> tuple:
+        h = self.loop.history
+        pending = h.pending
+        return (h.in_use and h.in_use.number, pending and (pending.number, pending.state),
+                tuple(self.loop.in_use_by().items()))

@@ -116,8 +116,6 @@ class CalibrationLoop:
     ack_timeout_s: float = 60.0
     on_event: object = None
     polled_t: float = -math.inf
-    #: Events so far (what `app.calibration_in_use.InUseFile` has written is compared with it).
-    changes: int = 0
     #: The newest *moved* alarm: (local time, sample, mm) for the status sentence.
     last_move: dict | None = None
 
@@ -128,7 +126,6 @@ class CalibrationLoop:
     # -------------------------------------------------------------- changes
 
     def event(self, t: float, kind: str, **fields) -> None:
-        self.changes += 1
         log.info("%s: %s", kind.replace("_", " "), fields)
         if self.on_event is not None:
             self.on_event(t, kind, fields)

@@ -18,9 +18,18 @@ setups:
   and ``calibration_in_use.yaml`` (`app.calibration_in_use.InUseFile`, as the
   monitor keeps it) is written for each new calibration in use, so that it
   holds the current one whenever the engine is not re-learning or settling;
-  when the calibration hook is told, the file holds the engine's live
-  camera, and a run resumed from it continues from that camera and
-  calibration in use.
+  when the calibration hook is told, the file holds the version put in use,
+  and a run resumed from it continues from the engine's camera and
+  calibration in use. The versions of the calibration in use follow
+  (`app.calibration_versions`, `app.consumers`): a policy drawn (``auto``,
+  ``approve``), approvals at any time, a consumer that takes each version
+  at once, late, never past its first, or is unreachable at times, and
+  restarts of the run in the middle of anything (an approval included).
+  After every step: the versions are numbered 1, 2, ... with none lost and
+  one in use, an approval of a settled version has put it in use, the file
+  holds the version in use and the history, the status is *moved* while a
+  version is pending, and a consumer that takes each version promptly uses
+  the one in use.
 - `composed_run`: whole shifts of programs composed as users compose them:
   3-8 stops visited in turn or at random, 1-3 hours, a sample every 30 s,
   0.5 mm/h of drift, bumps of 5 mm / 0.3 deg (the first as early as the 5th
@@ -38,6 +47,7 @@ import collections
 import dataclasses
 import functools
 import math
+import re
 import tempfile
 import time
 import traceback
@@ -48,9 +58,12 @@ import numpy as np
 import yaml
 
 from app import calibration_in_use
+from app.calibration_versions import Approvals, History, write_approval
+from app.consumers import CalibrationLoop, Consumer
 from calib import simulate, solve
 from calib import transforms as tf
 from calib.errors import HandeyeError
+from drivers.errors import ConnectionLostError
 from calib.monitor import AlarmLevel, EngineState, MonitorEngine, MonitorSettings
 from calib.monitor.filter import is_sound
 from calib.problem import CalibrationProblem
@@ -228,6 +241,38 @@ class ProgramDriver:
         self.C = self.cell.moved(self.C, np.zeros(3), mm * 1e-3 * random_direction(self.rng))
 
 
+class ScriptedConsumer(Consumer):
+    """A consumer of the calibration in use as the state machine draws it: ``prompt`` takes each version given,
+    ``late`` takes it at the third question after, ``stuck`` keeps the first it was given, ``flaky`` is
+    unreachable at every other call."""
+
+    def __init__(self, behaviour: str):
+        self.name = f"{behaviour} consumer"
+        self.behaviour = behaviour
+        self.given: int | None = None
+        self.has: int | None = None
+        self.asked = 0
+        self.calls = 0
+
+    def _reach(self) -> None:
+        self.calls += 1
+        if self.behaviour == "flaky" and self.calls % 2:
+            raise ConnectionLostError(f"{self.name}: not reachable")
+
+    def give(self, version) -> None:
+        self._reach()
+        self.given, self.asked = version.number, 0
+
+    def taken(self) -> int | None:
+        self._reach()
+        self.asked += 1
+        if self.given is not None and (self.behaviour in ("prompt", "flaky") or (self.behaviour == "late"
+                                                                                and self.asked >= 3)
+                                       or (self.behaviour == "stuck" and self.has is None)):
+            self.has = self.given
+        return self.has
+
+
 # ------------------------------------------------------------------ the state machine
 
 def engine_machine():
@@ -245,8 +290,9 @@ def engine_machine():
         @initialize(setup=st.sampled_from([Setup.EYE_TO_HAND, Setup.EYE_IN_HAND]), seed=st.sampled_from(CELL_SEEDS),
                     n_calibration=st.sampled_from([3, 4, 6, 12, 30]), n_stops=st.sampled_from([1, 2, 3, 4, 8, 20]),
                     joints=st.booleans(), arming=st.sampled_from(["calibration", "self"]),
-                    settings=st.sampled_from(["default", "compressed"]))
-        def start(self, setup, seed, n_calibration, n_stops, joints, arming, settings):
+                    settings=st.sampled_from(["default", "compressed"]), policy=st.sampled_from(["auto", "approve"]),
+                    consumer=st.sampled_from(["prompt", "late", "stuck", "flaky"]))
+        def start(self, setup, seed, n_calibration, n_stops, joints, arming, settings, policy, consumer):
             self.key = (Setup(setup), seed, n_calibration, n_stops, joints and setup == Setup.EYE_TO_HAND)
             c = cell(*self.key)
             cfg = MonitorSettings() if settings == "default" else MonitorSettings(time_scale=30.0)
@@ -254,13 +300,35 @@ def engine_machine():
             self.arming = arming
             self.next_stop = 0
             self.directory = tempfile.TemporaryDirectory(prefix="handeye-campaign-")
-            self.in_use = calibration_in_use.InUseFile(Path(self.directory.name), on_new=self.handed)
+            self.runs = 0
+            self.consumer = ScriptedConsumer(consumer)
+            self.policy = policy
+            self.approved: list[int] = []          # versions approved while settled: in use from then on
+            self.in_use = self.new_run()
             self.handed_over: list[str] = []
             self.mishandled: list[str] = []
-            self.driver.on_update = lambda upd: self.in_use.update(self.driver.engine, upd, self.driver.t)
+            self.driver.on_update = self.updated
             self.arm()
             self.driver.history.append(f"start: {self.key}, {arming}, {settings}: "
                                        f"{'armed' if self.driver.engine.armed else 'not armed'}")
+
+        def new_run(self, continues: bool = True) -> calibration_in_use.InUseFile:
+            """A run's calibration_in_use.yaml in a directory of its own, with its loop; ``continues``: from the
+            previous run's file (its versions and approvals)."""
+            self.runs += 1
+            run = Path(self.directory.name) / f"run{self.runs}"
+            run.mkdir()
+            loop = CalibrationLoop.of(History(self.policy), [self.consumer], run=run, approvals=Approvals([run]))
+            in_use = calibration_in_use.InUseFile(run, on_new=self.handed, loop=loop)
+            previous = Path(self.directory.name) / f"run{self.runs - 1}" / calibration_in_use.FILE_NAME
+            if continues and self.runs > 1 and previous.exists():
+                in_use.resume(previous)
+            return in_use
+
+        def updated(self, upd) -> None:
+            d = self.driver
+            self.in_use.update(d.engine, upd, d.t)
+            self.in_use.poll(d.engine, d.t)
 
         def arm(self) -> None:
             """Arm from the cell's calibration, or from the program's own samples (self-arming): a typed error
@@ -290,20 +358,53 @@ def engine_machine():
             self.in_use.armed(engine, d.t)
 
         def handed(self, path: Path, why: str, t: float) -> None:
-            """The calibration hook's moment: the file holds the engine's live camera, and a run resumed from it
-            starts from that camera and the same calibration in use."""
+            """The calibration hook's moment: the file holds the version put in use, and a run resumed from it
+            starts from the engine's camera and calibration in use."""
             e = self.driver.engine
             self.handed_over.append(why)
             doc = yaml.safe_load(path.read_text())
             resumed = MonitorEngine(e.settings)
             resumed.resume(calibration_in_use.read(path, e.reference.setup))
+            in_use = self.in_use.loop.history.in_use
+            if doc.get("calibration_version") != in_use.number:
+                self.mishandled.append(f"{why}: the file holds version {doc.get('calibration_version')}, version "
+                                       f"{in_use.number} is in use")
             for what, T, ref in (("the file's camera", np.array(doc["camera_transform"]["matrix"]),
-                                  e.camera_transform),
+                                  np.array(in_use.camera_transform)),
                                  ("a resumed run's camera", resumed.camera_transform, e.camera_transform),
                                  ("a resumed run's calibration in use", resumed.in_use.C, e.in_use.C)):
                 if not np.allclose(T, ref, atol=1e-9):
-                    self.mishandled.append(f"{why}: {what} is {tf.pose_error(T, ref)} (rad, m) off the engine's; "
+                    self.mishandled.append(f"{why}: {what} is {tf.pose_error(T, ref)} (rad, m) off; "
                                            "the last steps:\n" + "\n".join(self.driver.history))
+
+        @rule()
+        def approve(self):
+            """A person approves the version pending (``handeye approve``): in use at the next poll if settled."""
+            loop = self.in_use.loop
+            pending = loop.history.pending
+            if pending is None:
+                return
+            if pending.state == "settled":
+                self.approved.append(pending.number)
+            write_approval(loop.run, pending.number, "tester", self.driver.t)
+            loop.polled_t = -math.inf
+            self.in_use.poll(self.driver.engine, self.driver.t)
+            self.driver.history.append(f"approve version {pending.number} ({pending.state})")
+
+        @precondition(lambda self: self.driver.engine.armed)
+        @rule()
+        def restart(self):
+            """The run ends and a new one continues from its file (a restart, a reboot), mid-approval or not."""
+            d = self.driver
+            self.in_use.end(d.engine, d.t)
+            engine = MonitorEngine(d.engine.settings)
+            engine.resume(calibration_in_use.read(self.in_use.directory / calibration_in_use.FILE_NAME,
+                                                  d.engine.reference.setup))
+            d.engine = engine
+            self.in_use = self.new_run()
+            self.in_use.armed(engine, d.t)
+            self.in_use.poll(engine, d.t)
+            d.history.append(f"restart: run {self.runs} continues")
 
         @rule(visits=st.integers(1, 40), order=st.sampled_from(["cycle", "random"]),
               jitter_deg=st.sampled_from([0.0, 0.0, 0.5]), dt=st.sampled_from([1.0, 30.0, 120.0]))
@@ -371,8 +472,10 @@ def engine_machine():
 
         @rule()
         def rearm(self):
-            """Disarm and arm again: the engine starts over from the calibration, as a restarted run would."""
+            """Disarm and arm again: the engine starts over from the calibration, as a new run from it would."""
             self.driver.engine.disarm()
+            self.in_use = self.new_run(continues=False)
+            self.approved = []
             self.arm()
             self.driver.history.append(f"disarm and arm again: {'armed' if self.driver.engine.armed else 'not armed'}")
 
@@ -402,6 +505,26 @@ def engine_machine():
         @invariant()
         def relearns_done(self):
             assert not self.driver.stuck, self.driver.stuck
+
+        @invariant()
+        def versions_kept(self):
+            loop = self.in_use.loop
+            h = loop.history
+            if not h.versions:
+                return
+            numbers = [v.number for v in h.versions]
+            assert numbers == list(range(1, len(numbers) + 1)), f"a version lost: {numbers}"
+            assert sum(v.state == "in_use" for v in h.versions) == 1, [v.state for v in h.versions]
+            for n in self.approved:
+                assert h.in_use.number >= n, f"version {n} approved while settled is not in use ({h.to_dict()})"
+            if h.pending is not None:
+                assert loop.status(self.driver.t)[0] == "moved", loop.status(self.driver.t)
+            text = (self.in_use.directory / calibration_in_use.FILE_NAME).read_text()
+            written = int(re.search(r"^calibration_version: (\d+)$", text, re.M).group(1))
+            assert written == h.in_use.number, (written, h.in_use.number)
+            assert f"  in_use: {h.in_use.number}\n" in text, "the file's history does not hold the version in use"
+            if self.consumer.behaviour == "prompt" and loop.polled_t == self.driver.t:
+                assert loop.in_use_by()[self.consumer.name] == h.in_use.number, loop.in_use_by()
 
         @invariant()
         def calibration_in_use_kept(self):
