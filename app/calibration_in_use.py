@@ -6,7 +6,7 @@
 eye-to-hand, ``T_flange_cam`` eye-in-hand, with the engine's covariance and
 camera correction, and every line to paste), plus ``calibration_in_use``
 (when and why it was written, re-learns, the camera's move since the cell's
-first calibration) and ``monitor_state`` (`calib.monitor.snapshot`: what the
+first calibration) and ``monitor_state`` (`handeye.calib.monitor.snapshot`: what the
 next run arms from). It is rewritten atomically (a temporary file renamed
 over it) when the engine is armed, at every re-learn, when a re-learnt camera
 has settled, and at the end of the run, so that a run killed at any moment
@@ -30,16 +30,16 @@ from typing import Callable
 import numpy as np
 import yaml
 
-from app.errors import SessionError
-from app.files import read_text_file
-from app.formats.export import result_to_dict
-from app.calibration_versions import History
-from app.consumers import CalibrationLoop
-from calib import transforms as tf
-from calib.errors import CalibrationError
-from calib.monitor import AlarmLevel, EngineState, MonitorEngine, MonitorUpdate, workspace_distance
-from calib.monitor.snapshot import Snapshot, snapshot_from_dict, snapshot_to_dict
-from calib.setup import Setup
+from handeye.app.errors import SessionError
+from handeye.app.files import read_text_file
+from handeye.app.formats.export import result_to_dict
+from handeye.app.calibration_versions import History
+from handeye.app.consumers import CalibrationLoop
+from handeye.calib import transforms as tf
+from handeye.calib.errors import CalibrationError
+from handeye.calib.monitor import AlarmLevel, EngineState, MonitorEngine, MonitorUpdate, workspace_distance
+from handeye.calib.monitor.snapshot import Snapshot, snapshot_from_dict, snapshot_to_dict
+from handeye.calib.setup import Setup
 
 log = logging.getLogger(__name__)
 
@@ -61,7 +61,7 @@ OWN_KEYS = ("status", "calibration_version", "in_use_by", "calibration_in_use", 
 def document(engine: MonitorEngine, frames: dict | None, *, why: str, t: float, loop=None,
              result: dict | None = None, pending: dict | None = None, status: tuple | None = None) -> dict:
     """The file's content: the calibration in use as a result (``result``, the version in use's; default the
-    live estimate), its version and who uses which (``loop``: `app.consumers.CalibrationLoop`), the cell's
+    live estimate), its version and who uses which (``loop``: `handeye.app.consumers.CalibrationLoop`), the cell's
     status (``(level, sentence)``), when and why, the version pending, the history, and the engine's
     snapshot."""
     doc = dict(result) if result is not None else result_to_dict(engine.result(), frames)
@@ -190,8 +190,8 @@ NEW_CALIBRATION = ("armed", "version in use")
 
 @dataclass
 class InUseFile:
-    """Keeps ``calibration_in_use.yaml`` in a directory (`app.calibration_in_use`) and the versions of the
-    calibration in use (``loop``: `app.consumers.CalibrationLoop`; default: ``apply = "auto"`` and no
+    """Keeps ``calibration_in_use.yaml`` in a directory (`handeye.app.calibration_in_use`) and the versions of the
+    calibration in use (``loop``: `handeye.app.consumers.CalibrationLoop`; default: ``apply = "auto"`` and no
     consumer, as ``replay --monitor`` runs): written when the engine is armed, when a re-learn proposes a
     version, when a version is put in use (settled with ``auto``, or approved), when a consumer reports a
     version, and at the end. ``on_new(path, why, t)`` is called after each write of a version put in use
@@ -199,13 +199,13 @@ class InUseFile:
 
     directory: Path
     frames: dict | None = None
-    written: object = None           # the engine's calibration in use last seen (`calib.monitor.InUse`)
+    written: object = None           # the engine's calibration in use last seen (`handeye.calib.monitor.InUse`)
     on_new: Callable[[Path, str, float], None] | None = None
     loop: CalibrationLoop = field(default_factory=lambda: CalibrationLoop(History("auto")))
-    result: dict | None = None       # the version in use as a result (`app.formats.export.result_to_dict`)
+    result: dict | None = None       # the version in use as a result (`handeye.app.formats.export.result_to_dict`)
     pending: dict | None = None      # the version pending, likewise
     said: tuple = ()                 # the versions and acknowledgements the file holds (`_said`)
-    status: Callable[[], tuple] | None = None   # the cell's (level, sentence) now (`app.shift_record`)
+    status: Callable[[], tuple] | None = None   # the cell's (level, sentence) now (`handeye.app.shift_record`)
 
     def write(self, engine: MonitorEngine, t: float, why: str) -> None:
         try:
@@ -291,7 +291,7 @@ class InUseFile:
         self.write(engine, t, "version in use")
 
     def poll(self, engine: MonitorEngine, t: float) -> None:
-        """Approvals and acknowledgements (`app.consumers.CalibrationLoop.poll`); the file follows them."""
+        """Approvals and acknowledgements (`handeye.app.consumers.CalibrationLoop.poll`); the file follows them."""
         in_use = self.loop.history.in_use
         self.loop.poll(t)
         if not engine.armed or self._said() == self.said:

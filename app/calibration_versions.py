@@ -10,7 +10,7 @@ version in use at once, ``"approve"`` holds it until a person approves it
 (`approve`; ``handeye approve <run>`` writes the approval into the run's
 ``approvals.jsonl``, which the run reads at every sample). A version that a
 newer one replaces before it was in use is *superseded*. Only a version in
-use is given to the consumers (`app.consumers`).
+use is given to the consumers (`handeye.app.consumers`).
 
 `History` is plain data: it goes into ``calibration_in_use.yaml``
 (``calibration_history``), so that a run continued from it (a restart, the
@@ -28,7 +28,7 @@ from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Literal
 
-from app.errors import SessionError
+from handeye.app.errors import SessionError
 
 log = logging.getLogger(__name__)
 

@@ -2,8 +2,8 @@
 
 A run (a monitor session, or a ``replay --monitor --out`` directory) keeps
 ``calibration_in_use.yaml`` (rewritten at every version change, approval,
-acknowledgement, *moved* alarm and at its end: `app.calibration_in_use`),
-``alarms.yaml`` and ``approvals.jsonl`` (`app.calibration_versions`). What to
+acknowledgement, *moved* alarm and at its end: `handeye.app.calibration_in_use`),
+``alarms.yaml`` and ``approvals.jsonl`` (`handeye.app.calibration_versions`). What to
 look at is named by the run's directory, its ``calibration_in_use.yaml``, or
 a cell config (its newest run of the setup under ``session.root``;
 none: the embedded simulated cell's).
@@ -16,11 +16,11 @@ from pathlib import Path
 
 import yaml
 
-from app import calibration_in_use
-from app.calibration_versions import Approvals, History, Version, write_approval
-from app.errors import SessionError
-from app.files import read_text_file
-from app.shift_record import ALARMS_FILE
+from handeye.app import calibration_in_use
+from handeye.app.calibration_versions import Approvals, History, Version, write_approval
+from handeye.app.errors import SessionError
+from handeye.app.files import read_text_file
+from handeye.app.shift_record import ALARMS_FILE
 
 
 def resolve_run(target: Path | None) -> Path:
@@ -37,7 +37,7 @@ def resolve_run(target: Path | None) -> Path:
             raise SessionError(f"{target}: no {calibration_in_use.FILE_NAME} (not a monitoring run, or one that was "
                                "never armed)")
         return found.parent
-    from app.config import load_config
+    from handeye.app.config import load_config
 
     cfg = load_config(target)
     found = calibration_in_use.latest(Path(cfg.session.root), cfg.setup)

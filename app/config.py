@@ -1,14 +1,14 @@
 """Application configuration: a TOML file in ``config/`` -> one typed `Config`, parsed and validated once.
 
-Every table is a pydantic model (`calib.params.Params`: unknown keys rejected,
+Every table is a pydantic model (`handeye.calib.params.Params`: unknown keys rejected,
 numbers finite and never booleans): ``[calibrate]``, ``[monitor]`` (with
-``[monitor.engine]`` = `calib.monitor.MonitorSettings`), ``[session]``, ``[viz]``,
-``[frames]``, ``[mqtt]`` (`app.mqtt.MqttConfig`), ``[ros2]`` (`app.ros2.Ros2Config`), ``[production]`` (the simulated robot's program), ``[console]``,
-``[reconnect]`` (`app.outage.ReconnectConfig`),
-``[marker]`` = `calib.vision.extract.TargetConfig`, and ``[robot]`` /
+``[monitor.engine]`` = `handeye.calib.monitor.MonitorSettings`), ``[session]``, ``[viz]``,
+``[frames]``, ``[mqtt]`` (`handeye.app.mqtt.MqttConfig`), ``[ros2]`` (`handeye.app.ros2.Ros2Config`), ``[production]`` (the simulated robot's program), ``[console]``,
+``[reconnect]`` (`handeye.app.outage.ReconnectConfig`),
+``[marker]`` = `handeye.calib.vision.extract.TargetConfig`, and ``[robot]`` /
 ``[camera]``, a union over the registered backends selected by ``type`` /
-``backend`` (`drivers.robot.registry.ROBOTS`, `drivers.camera.registry.CAMERAS`;
-every backend is registered by `app.backends`). A bad field is a `ConfigError`
+``backend`` (`handeye.drivers.robot.registry.ROBOTS`, `handeye.drivers.camera.registry.CAMERAS`;
+every backend is registered by `handeye.app.backends`). A bad field is a `ConfigError`
 naming the file and ``section.field``.
 
 The models are the one source of defaults: ``Config()`` is the simulated cell
@@ -27,14 +27,14 @@ from typing import Annotated, Any, Literal, Union
 
 from pydantic import AfterValidator, Discriminator, Field, Tag, ValidationError, model_validator
 
-from app import backends  # noqa: F401  every backend registers itself before the unions are built
-from app.errors import ConfigError
-from app.mqtt import MqttConfig
-from app.outage import ReconnectConfig
-from app.ros2 import Ros2Config
-from app.files import read_text_file
-from calib.monitor import MonitorSettings
-from calib.params import (
+from handeye.app import backends  # noqa: F401  every backend registers itself before the unions are built
+from handeye.app.errors import ConfigError
+from handeye.app.mqtt import MqttConfig
+from handeye.app.outage import ReconnectConfig
+from handeye.app.ros2 import Ros2Config
+from handeye.app.files import read_text_file
+from handeye.calib.monitor import MonitorSettings
+from handeye.calib.params import (
     Bool,
     Int,
     NonEmptyStr,
@@ -48,24 +48,24 @@ from calib.params import (
     Vector6,
     describe,
 )
-from calib.setup import Setup
-from calib.vision.extract import TargetConfig
-from drivers.camera.registry import CAMERAS
-from drivers.registry import Registry
-from drivers.robot.registry import ROBOTS
-from mocks.render.camera import RenderedCameraConfig
-from mocks.ur_sim.robot import URSimRobotConfig
+from handeye.calib.setup import Setup
+from handeye.calib.vision.extract import TargetConfig
+from handeye.drivers.camera.registry import CAMERAS
+from handeye.drivers.registry import Registry
+from handeye.drivers.robot.registry import ROBOTS
+from handeye.mocks.render.camera import RenderedCameraConfig
+from handeye.mocks.ur_sim.robot import URSimRobotConfig
 
-# Solver names as in the paper (or "auto", calib.auto), checked against calib.api at load.
+# Solver names as in the paper (or "auto", handeye.calib.auto), checked against handeye.calib.api at load.
 DEFAULT_METHOD = "auto"
-# Result formats of app.formats.write_result (kept literal: config must load without the exporters).
+# Result formats of handeye.app.formats.write_result (kept literal: config must load without the exporters).
 EXPORTS = ("yaml", "json", "easy_handeye", "easy_handeye2", "urdf", "ros2_launch")
 
 
 def _method(name: str) -> str:
-    """A solver name `calib.api.solve` knows (its canonical spelling), so a typo fails at load, before any motion."""
-    from calib.api import AUTO, resolve_method
-    from calib.errors import CalibrationError
+    """A solver name `handeye.calib.api.solve` knows (its canonical spelling), so a typo fails at load, before any motion."""
+    from handeye.calib.api import AUTO, resolve_method
+    from handeye.calib.errors import CalibrationError
 
     if name.strip().lower() == AUTO:
         return AUTO
@@ -125,7 +125,7 @@ class CalibrateConfig(Params):
 
     Poses lie around the start pose: each axis offset within
     ``+-translation_range_m``, a rotation about an axis through the flange by
-    up to ``tilt_deg``. ``poses``: ``"optimal"`` (`calib.planner`: a small
+    up to ``tilt_deg``. ``poses``: ``"optimal"`` (`handeye.calib.planner`: a small
     model-free bootstrap, then the pose that teaches the estimator most about
     the camera per second of motion), ``"random"`` (uniform), or a file
     (``plan.json`` from ``handeye plan``). The run stops at ``samples`` or as
@@ -146,7 +146,7 @@ class CalibrateConfig(Params):
     consecutive frames without a marker measurement, saying what the camera saw.
 
     ``tolerance_mm`` / ``tolerance_deg``: the error the cell accepts; the result's verdict
-    (`calib.verdict.judge`) compares its predicted error over the workspace with them, as
+    (`handeye.calib.verdict.judge`) compares its predicted error over the workspace with them, as
     ``[verify]``'s judge a verification.
     """
 
@@ -191,7 +191,7 @@ class MonitorConfig(Params):
     estimation set (since the start or the last move), which holds at most
     ``keep_samples`` (0 = unbounded): beyond it, the sample whose loss costs
     the estimate the least information goes, never one of the
-    ``keep_recent`` newest (`calib.planner.least_informative`,
+    ``keep_recent`` newest (`handeye.calib.planner.least_informative`,
     docs/planning.md). Without ``--reference`` the monitoring engine is armed
     from that set once it holds ``arm_samples`` and ``auto`` gives a 1-sigma
     over the workspace within ``arm_sigma_mm`` (tried every
@@ -203,11 +203,11 @@ class MonitorConfig(Params):
     ``calibration_hook`` (run when the calibration in use changes: armed,
     re-learnt, settled after a re-learn) are split like a shell line and
     must name a program on ``PATH``. ``apply``: what happens to a re-learnt
-    calibration once it has settled (`app.calibration_versions`):
+    calibration once it has settled (`handeye.app.calibration_versions`):
     ``"approve"`` (the default) keeps the version in use until a person
     approves the new one (``handeye approve <run>``), ``"auto"`` puts it in
     use at once; docs/monitor-service.md says why approve is the default. ``[monitor.engine]`` configures
-    the engine (`calib.monitor.MonitorSettings`: random-walk rates,
+    the engine (`handeye.calib.monitor.MonitorSettings`: random-walk rates,
     ``tolerance_mm``, the drifting horizon, the detector).
 
     Disk budget: frames (PNG) are kept only for samples the bounded set
@@ -267,7 +267,7 @@ class ProductionWaypoint(Params):
 
 class ProductionConfig(Params):
     """``[production]``: the looping program a *simulated* robot runs while ``monitor`` watches (a real
-    robot runs its own; `app.production.start_production` then does nothing).
+    robot runs its own; `handeye.app.production.start_production` then does nothing).
 
     Either explicit ``waypoints`` (2 or more), or a ``preset``:
 
@@ -306,7 +306,7 @@ class ProductionConfig(Params):
 
 class ConsumersConfig(Params):
     """``[consumers]``: what is given the calibration in use and reports the version it has taken
-    (`app.consumers`). ``robot_program``: the UR program over RTDE registers (a ``ur`` or ``ur_sim`` robot;
+    (`handeye.app.consumers`). ``robot_program``: the UR program over RTDE registers (a ``ur`` or ``ur_sim`` robot;
     the URScript snippet in docs/monitor-service.md). A consumer that has not reported the version in use
     ``ack_timeout_s`` after it was given is a warning with its name."""
 
@@ -315,7 +315,7 @@ class ConsumersConfig(Params):
 
 
 class ConsoleConfig(Params):
-    """``[console]``: how a run shows its progress (`app.progress`).
+    """``[console]``: how a run shows its progress (`handeye.app.progress`).
 
     ``progress``: ``"auto"`` draws a progress bar on a terminal and prints plain lines off one (a
     service's journal, CI, a pipe); ``"bar"`` or ``"lines"`` force one. ``status_every``: in line mode, a
@@ -326,10 +326,10 @@ class ConsoleConfig(Params):
     progress: Literal["auto", "bar", "lines"] = "auto"
     status_every: PositiveInt = 20
 class VerifyConfig(Params):
-    """``[verify]``: ``handeye verify`` (`app.verify`).
+    """``[verify]``: ``handeye verify`` (`handeye.app.verify`).
 
     A result passes when its error in the base frame, the measurement noise
-    removed (`calib.verify`), is within ``tolerance_mm`` and, where the marker
+    removed (`handeye.calib.verify`), is within ``tolerance_mm`` and, where the marker
     orientation is measured, ``tolerance_deg``. The active mode moves to
     ``poses`` fresh planned poses spread over the ``[calibrate]`` region, each at
     least ``min_separation_m`` from every calibration pose, each measured as the
@@ -345,7 +345,7 @@ class VerifyConfig(Params):
 
 
 class ReportConfig(Params):
-    """``[report]``: who and where, as ``report.html`` names them (`app.report`): the ``site`` (plant),
+    """``[report]``: who and where, as ``report.html`` names them (`handeye.app.report`): the ``site`` (plant),
     the robot ``cell`` and the ``operator`` who ran the calibration (CLI: ``--site``, ``--cell``,
     ``--operator``)."""
 
@@ -358,7 +358,7 @@ class SessionConfig(Params):
     """``[session]``: where sessions (samples, frames, result, .rrd) are written.
 
     ``exports`` lists the result files written into the session at the end of
-    a run (formats of `app.formats.write_result`).
+    a run (formats of `handeye.app.formats.write_result`).
     """
 
     root: NonEmptyStr = "sessions"
@@ -422,10 +422,10 @@ CameraConfig = backend_union(CAMERAS)
 #: Location parts pydantic adds for a union member (the backend names); left out of messages.
 _TAGS = frozenset(ROBOTS.names()) | frozenset(CAMERAS.names())
 
-# The simulated cell (config/sim.toml): a UR10 simulator (mocks.ur_sim, started by the
+# The simulated cell (config/sim.toml): a UR10 simulator (handeye.mocks.ur_sim, started by the
 # robot driver itself and driven through the real ur_rtde client) holding the
 # flange 0.9 m in front of the base with the marker facing the rendered camera,
-# whose true pose is the rendered camera's default (calib.simulate.realistic_cell).
+# whose true pose is the rendered camera's default (handeye.calib.simulate.realistic_cell).
 SIM_START_Q = (0.367792, -3.559685, 1.448735, -1.704477, -0.767569, 0.521542)
 
 

@@ -1,14 +1,14 @@
 """The consumers of the calibration in use: each is given the version in use and reports the version it has taken.
 
-``[consumers]`` (`app.config.ConsumersConfig`) names them:
+``[consumers]`` (`handeye.app.config.ConsumersConfig`) names them:
 
-- ``robot_program``: the UR program over RTDE registers (`drivers.robot.ur_registers`; the URScript snippet in
+- ``robot_program``: the UR program over RTDE registers (`handeye.drivers.robot.ur_registers`; the URScript snippet in
   docs/monitor-service.md);
-- ``mqtt``: ``<prefix>/calibration`` (retained), acknowledged on ``<prefix>/calibration/ack`` (`app.mqtt`);
+- ``mqtt``: ``<prefix>/calibration`` (retained), acknowledged on ``<prefix>/calibration/ack`` (`handeye.app.mqtt`);
 - ``ros2``: ``/handeye/calibration`` (TransformStamped, its version in ``header.frame_id``'s companion topic),
-  acknowledged on ``/handeye/calibration/ack`` (`app.ros2`).
+  acknowledged on ``/handeye/calibration/ack`` (`handeye.app.ros2`).
 
-`CalibrationLoop` keeps the versions (`app.calibration_versions.History`) and
+`CalibrationLoop` keeps the versions (`handeye.app.calibration_versions.History`) and
 the consumers together and says what the cell's state is (`status`): a camera
 that moved is ``moved`` until its re-learnt version is approved where the
 policy asks for it and taken by every consumer; a consumer that has not taken
@@ -27,10 +27,10 @@ from pathlib import Path
 
 import numpy as np
 
-from app.calibration_versions import Approvals, History, Version
-from calib import transforms as tf
-from calib.errors import HandeyeError
-from drivers.robot.ur_registers import URCalibrationRegisters
+from handeye.app.calibration_versions import Approvals, History, Version
+from handeye.calib import transforms as tf
+from handeye.calib.errors import HandeyeError
+from handeye.drivers.robot.ur_registers import URCalibrationRegisters
 
 log = logging.getLogger(__name__)
 
@@ -60,7 +60,7 @@ class Consumer(abc.ABC):
 
 class RobotProgram(Consumer):
     """The UR robot program: the transform and its version in RTDE input registers, its acknowledgement in an
-    output register (`drivers.robot.ur_registers`)."""
+    output register (`handeye.drivers.robot.ur_registers`)."""
 
     name = "robot program"
 

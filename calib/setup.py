@@ -18,7 +18,7 @@ from __future__ import annotations
 
 from enum import StrEnum
 
-from calib.errors import CalibrationError, HandeyeError
+from handeye.calib.errors import CalibrationError, HandeyeError
 
 
 class Setup(StrEnum):

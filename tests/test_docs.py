@@ -10,7 +10,7 @@ from pathlib import Path
 
 import pytest
 
-from app.cli import build_parser
+from handeye.app.cli import build_parser
 
 ROOT = Path(__file__).resolve().parents[1]
 DOCS = ("README.md", "docs/usage.md", "docs/benchmarks.md")
@@ -80,7 +80,7 @@ class _Parsed(Exception):
 
 
 def bench_refuses(command: str, monkeypatch) -> bool:
-    """Whether the benchmark a ``handeye bench`` line runs (bench.solvers, app.benchmarks.shift, ...) refuses
+    """Whether the benchmark a ``handeye bench`` line runs (bench.solvers, bench.shift, ...) refuses
     the arguments handeye hands on to it. The benchmark stops once its parser has them."""
     parse_args = argparse.ArgumentParser.parse_args
 
@@ -162,8 +162,8 @@ def test_the_readme_printout_has_the_shape_the_check_expects():
 
 
 def test_the_exit_status_table_of_the_docs_and_the_help_is_the_one_the_commands_return(capsys):
-    """docs/usage.md's exit-status table and every command's --help show `app.exit_status.TABLE`, row by row."""
-    from app import exit_status
+    """docs/usage.md's exit-status table and every command's --help show `handeye.app.exit_status.TABLE`, row by row."""
+    from handeye.app import exit_status
 
     text = (ROOT / "docs/usage.md").read_text(encoding="utf-8")
     section = text[text.index("### Exit status"):]
@@ -205,13 +205,13 @@ def test_the_bench_progress_the_docs_quote_counts_the_experiments_the_run_has(tm
 
 
 def test_the_second_ctrl_c_line_the_docs_quote_is_the_one_printed(caplog):
-    """docs/usage.md quotes what a second Ctrl-C prints while a stopped run ends (`app.stopping`)."""
+    """docs/usage.md quotes what a second Ctrl-C prints while a stopped run ends (`handeye.app.stopping`)."""
     import signal
 
-    from app import stopping
+    from handeye.app import stopping
 
     quote = next(q for q in _quoted("docs/usage.md", r"stopping: "))
-    with caplog.at_level("WARNING", logger="app.stopping"), stopping.command():
+    with caplog.at_level("WARNING", logger="handeye.app.stopping"), stopping.command():
         stopping.winding_down()
         signal.raise_signal(signal.SIGINT)
     assert [r.getMessage() for r in caplog.records] == [quote]
@@ -221,8 +221,8 @@ def test_the_verdict_of_an_unresolved_tolerance_the_docs_quote_is_the_one_printe
     """docs/usage.md's example of a verification whose poses cannot resolve the tolerance."""
     import numpy as np
 
-    from calib import verify as cv
-    from calib.verdict import judge_verification
+    from handeye.calib import verify as cv
+    from handeye.calib.verdict import judge_verification
 
     (quote,) = _quoted("docs/usage.md", r"the rotation tolerance ")
     n = 12

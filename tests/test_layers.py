@@ -57,7 +57,7 @@ def test_no_module_imports_a_layer_above_its_own(layer):
 
 def test_the_check_sees_a_wrong_way_import(tmp_path):
     bad = tmp_path / "bad.py"
-    bad.write_text("def f():\n    from mocks.render import camera\n    import app.cli as cli\n")
+    bad.write_text("def f():\n    from handeye.mocks.render import camera\n    import handeye.app.cli as cli\n")
     assert imported_packages(bad) == {("mocks", 2), ("app", 3)}
 
 

@@ -16,8 +16,8 @@ import shutil
 from collections.abc import Iterator
 from pathlib import Path
 
-from app.formats import load
-from app.formats.common import ImportedSamples
+from handeye.app.formats import load
+from handeye.app.formats.common import ImportedSamples
 
 
 def datasets_dir() -> Path:

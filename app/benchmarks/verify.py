@@ -3,7 +3,7 @@
 1. The demo calibrates the simulated cell (rendered camera, UR10 simulator);
    ``verify`` then moves to fresh planned poses and measures the marker there.
 2. On those same verification samples, results off by a known amount are
-   judged (`calib.verify.perturbed`: 3 mm, 0.3 deg across the view, both, both
+   judged (`handeye.calib.verify.perturbed`: 3 mm, 0.3 deg across the view, both, both
    in random directions): the reported calibration error (noise removed)
    against the true error of each result over the same poses (the simulator
    knows the truth), and the verdict at the 2 mm tolerance.
@@ -21,12 +21,12 @@ from pathlib import Path
 
 import numpy as np
 
-from app import verify as av
-from app.runs.demo import demo
-from app.config import load_config
-from calib import transforms as tf
-from calib import verify as cv
-from app.session import read_session
+from handeye.app import verify as av
+from handeye.app.runs.demo import demo
+from handeye.app.config import load_config
+from handeye.calib import transforms as tf
+from handeye.calib import verify as cv
+from handeye.app.session import read_session
 from bench.tables import markdown_table
 
 
@@ -92,7 +92,7 @@ def main(argv=None) -> int:
                 (f.warnings[0][:60] + "...") if f.warnings else "none"] for n, f in fs]))
     sizes = [["demo (calibrate)", f"{(out.report.session / 'report.html').stat().st_size / 1e3:.0f}"]]
     calib = read_session(out.report.session).observations
-    from app.report import write_report
+    from handeye.app.report import write_report
 
     doc = av.verify_document(loaded, "active", run.session,
                              cv.verify(av.pose_errors(loaded.model, obs), rng=np.random.default_rng(0), **tol),

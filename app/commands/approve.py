@@ -1,5 +1,5 @@
 """``handeye approve``: put a re-learnt calibration in use on a cell with ``[monitor] apply = "approve"``
-(`app.cell_state.approve`)."""
+(`handeye.app.cell_state.approve`)."""
 
 from __future__ import annotations
 
@@ -21,9 +21,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def run(args) -> int:
-    from app.calibration_in_use import local_time
-    from app.calibration_versions import who
-    from app.cell_state import CellState, approve, resolve_run
+    from handeye.app.calibration_in_use import local_time
+    from handeye.app.calibration_versions import who
+    from handeye.app.cell_state import CellState, approve, resolve_run
 
     run_dir = resolve_run(args.run)
     t = time.time()

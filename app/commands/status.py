@@ -1,12 +1,12 @@
 """``handeye status``: the calibration in use of a monitored cell, who uses which version, what is pending, the last
-alarm (`app.cell_state`)."""
+alarm (`handeye.app.cell_state`)."""
 
 from __future__ import annotations
 
 import argparse
 from pathlib import Path
 
-from app import exit_status
+from handeye.app import exit_status
 
 NAME = "status"
 HELP = "the calibration in use of a monitored cell: its version, who uses which, pending approvals, the last alarm"
@@ -19,7 +19,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def run(args) -> int:
-    from app.cell_state import CellState, resolve_run
+    from handeye.app.cell_state import CellState, resolve_run
 
     state = CellState.read(resolve_run(args.target))
     print("\n".join(state.lines()))

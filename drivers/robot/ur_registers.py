@@ -25,7 +25,7 @@ import select
 import subprocess
 import sys
 
-from drivers.errors import ConnectionLostError, DeviceError
+from handeye.drivers.errors import ConnectionLostError, DeviceError
 
 VERSION_REGISTER = 18
 TRANSLATION_REGISTERS = (19, 20, 21)
@@ -55,7 +55,7 @@ class URCalibrationRegisters:
     the program has taken (module docstring). Errors are `DeviceError` (cannot connect) or
     `ConnectionLostError` (a write or read failed: connect again).
 
-    ur_rtde runs in a child process (as `drivers.robot.ur_client` does, for the same reason): after a dropped
+    ur_rtde runs in a child process (as `handeye.drivers.robot.ur_client` does, for the same reason): after a dropped
     connection its teardown can abort the process that runs it. The child never tears down; it exits."""
 
     def __init__(self, host: str, frequency: float = 10.0):
@@ -69,7 +69,7 @@ class URCalibrationRegisters:
     def connect(self) -> None:
         self.close()
         # Its own session: a terminal's Ctrl-C is for the monitor, which closes this.
-        self._proc = subprocess.Popen([sys.executable, "-m", "drivers.robot.ur_registers", self.host,
+        self._proc = subprocess.Popen([sys.executable, "-m", "handeye.drivers.robot.ur_registers", self.host,
                                        str(self.frequency)], stdin=subprocess.PIPE, stdout=subprocess.PIPE,
                                       stderr=subprocess.DEVNULL, text=True, start_new_session=True)
         try:

@@ -8,8 +8,8 @@ next, around the loop until stopped. The passive monitor samples during the
 stops.
 
 Started over the dashboard port (``sim program <json>``, see
-`mocks.ur_sim.server`), from Python (`mocks.ur_sim.SimProcess.start_program`)
-or at start-up (``python -m mocks.ur_sim --program FILE.json``). JSON::
+`handeye.mocks.ur_sim.server`), from Python (`handeye.mocks.ur_sim.SimProcess.start_program`)
+or at start-up (``python -m handeye.mocks.ur_sim --program FILE.json``). JSON::
 
     {"waypoints": [{"q": [6 joint angles, rad], "pause_s": 0.8, "tool": "glue"}, ...],
      "speed": 1.0, "acceleration": 4.0, "takes_calibration": false}
@@ -17,7 +17,7 @@ or at start-up (``python -m mocks.ur_sim --program FILE.json``). JSON::
 With ``takes_calibration`` the program is a consumer of the calibration in
 use, as docs/monitor-service.md's URScript snippet is: at every stop it reads
 the version in ``input_int_register_18``; a new one it takes (the camera
-transform from the registers of `drivers.robot.ur_registers`, read again if
+transform from the registers of `handeye.drivers.robot.ur_registers`, read again if
 the version changed meanwhile) and reports in ``output_int_register_18``.
 
 ``speed`` (rad/s) and ``acceleration`` (rad/s^2) are of the leading joint.
@@ -32,11 +32,11 @@ from typing import Annotated
 import numpy as np
 from pydantic import Field, ValidationError
 
-from calib.errors import ParameterError
-from calib.params import Bool, NonNegativeFloat, Params, PositiveFloat, Str, Vector6, describe
-from drivers.robot.ur_registers import (ROTATION_REGISTERS, TAKEN_REGISTER, TRANSLATION_REGISTERS, VERSION_REGISTER,
+from handeye.calib.errors import ParameterError
+from handeye.calib.params import Bool, NonNegativeFloat, Params, PositiveFloat, Str, Vector6, describe
+from handeye.drivers.robot.ur_registers import (ROTATION_REGISTERS, TAKEN_REGISTER, TRANSLATION_REGISTERS, VERSION_REGISTER,
                                         decode)
-from mocks.ur_sim.motion import JointMotion
+from handeye.mocks.ur_sim.motion import JointMotion
 
 
 class Waypoint(Params):
@@ -84,7 +84,7 @@ class Program:
 
     @classmethod
     def from_dict(cls, data) -> "Program":
-        """From the JSON form of the module docstring (`calib.errors.ParameterError`, a ValueError, names the field)."""
+        """From the JSON form of the module docstring (`handeye.calib.errors.ParameterError`, a ValueError, names the field)."""
         try:
             return cls(ProgramSpec.model_validate(data))
         except ValidationError as e:

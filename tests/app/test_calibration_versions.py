@@ -5,8 +5,8 @@ import json
 import numpy as np
 import pytest
 
-from app.calibration_versions import Approvals, History, write_approval
-from app.errors import SessionError
+from handeye.app.calibration_versions import Approvals, History, write_approval
+from handeye.app.errors import SessionError
 
 I = np.eye(4)
 

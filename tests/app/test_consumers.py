@@ -8,9 +8,9 @@ import time
 import numpy as np
 import pytest
 
-from app.calibration_versions import Approvals, History, write_approval
-from app.consumers import CalibrationLoop, RobotProgram
-from calib import transforms as tf
+from handeye.app.calibration_versions import Approvals, History, write_approval
+from handeye.app.consumers import CalibrationLoop, RobotProgram
+from handeye.calib import transforms as tf
 from tests.simulated_ur import START_Q
 
 pytestmark = pytest.mark.slow

@@ -1,4 +1,4 @@
-"""The full loop on the simulated cell: real ur_rtde client -> mocks.ur_sim, rendered frames, solve("auto")."""
+"""The full loop on the simulated cell: real ur_rtde client -> handeye.mocks.ur_sim, rendered frames, solve("auto")."""
 
 import json
 
@@ -6,18 +6,18 @@ import numpy as np
 import pytest
 import yaml
 
-from app.commands.calibrate import print_calibration_summary
-from app.config import Config, load_config
-from app.runs.calibrate import calibrate
-from app.runs import demo as demo_runs
-from app.runs.demo import demo
-from app.runs.replay import replay
-from app import devices
-from app.session import read_session
-from drivers.robot import ur_kinematics as kin
-from drivers.robot.ur import URKinematicError, URRobot
-from calib import transforms as tf
-from app.errors import ConfigError
+from handeye.app.commands.calibrate import print_calibration_summary
+from handeye.app.config import Config, load_config
+from handeye.app.runs.calibrate import calibrate
+from handeye.app.runs import demo as demo_runs
+from handeye.app.runs.demo import demo
+from handeye.app.runs.replay import replay
+from handeye.app import devices
+from handeye.app.session import read_session
+from handeye.drivers.robot import ur_kinematics as kin
+from handeye.drivers.robot.ur import URKinematicError, URRobot
+from handeye.calib import transforms as tf
+from handeye.app.errors import ConfigError
 from tests.test_docs import check_demo_printout
 
 pytestmark = pytest.mark.slow

@@ -1,6 +1,6 @@
 """bench.grids runs end to end (two cells) through ``handeye bench --grids`` and writes its table."""
 
-from app.cli import main
+from handeye.app.cli import main
 
 
 def test_bench_grids_table(tmp_path, capsys):

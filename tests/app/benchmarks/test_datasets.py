@@ -1,9 +1,9 @@
-"""app.benchmarks.datasets: the real sets are read from the upstream layout, missing ones left out."""
+"""bench.datasets: the real sets are read from the upstream layout, missing ones left out."""
 
 import gzip
 from pathlib import Path
 
-from app.benchmarks.datasets import real_sets
+from bench.datasets import real_sets
 
 DATA = Path(__file__).resolve().parents[2] / "data" / "ethz" / "robot_arm_sim"
 

@@ -6,11 +6,11 @@ import time
 import numpy as np
 import pytest
 
-from calib import transforms as tf
-from app.outage import ReconnectConfig, Reconnecting
-from drivers.errors import ConnectionLostError, DeviceError, LimitViolationError, PoseTimeError
-from drivers.robot import ur_kinematics as kin
-from drivers.robot.ros2 import UR_JOINTS, Ros2Robot, Ros2RobotConfig
+from handeye.calib import transforms as tf
+from handeye.app.outage import ReconnectConfig, Reconnecting
+from handeye.drivers.errors import ConnectionLostError, DeviceError, LimitViolationError, PoseTimeError
+from handeye.drivers.robot import ur_kinematics as kin
+from handeye.drivers.robot.ros2 import UR_JOINTS, Ros2Robot, Ros2RobotConfig
 
 pytestmark = pytest.mark.slow
 PREFIX = "/robot_test"
