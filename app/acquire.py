@@ -1,7 +1,7 @@
 """Taking one sample: a fresh frame, the robot pose at its exposure time, the marker measurement.
 
-Shared by the active run (`app.runs.calibrate`) and passive monitoring
-(`app.runs.monitor`). The measurement is the same in both setups: the
+Shared by the active run (`handeye.app.runs.calibrate`) and passive monitoring
+(`handeye.app.runs.monitor`). The measurement is the same in both setups: the
 marker seen from the camera, ``B_i = T_cam_marker`` (or its center) in the
 paper's ``A_i X = Y B_i`` with ``A_i = T_base_flange``.
 """
@@ -14,14 +14,14 @@ from typing import Callable
 
 import numpy as np
 
-from app.session import SessionWriter
-from app.viz import Viz
-from calib.errors import ExtractionError
-from calib.observation import Observation
-from calib.vision.extract import MarkerMeasurement
-from drivers.camera.base import Camera, RGBDFrame
-from drivers.errors import PoseTimeError
-from drivers.robot.base import Robot
+from handeye.app.session import SessionWriter
+from handeye.app.viz import Viz
+from handeye.calib.errors import ExtractionError
+from handeye.calib.observation import Observation
+from handeye.calib.vision.extract import MarkerMeasurement
+from handeye.drivers.camera.base import Camera, RGBDFrame
+from handeye.drivers.errors import PoseTimeError
+from handeye.drivers.robot.base import Robot
 
 log = logging.getLogger(__name__)
 

@@ -6,7 +6,7 @@
 eye-to-hand, ``T_flange_cam`` eye-in-hand, with the engine's covariance and
 camera correction, and every line to paste), plus ``calibration_in_use``
 (when and why it was written, re-learns, the camera's move since the cell's
-first calibration) and ``monitor_state`` (`calib.monitor.snapshot`: what the
+first calibration) and ``monitor_state`` (`handeye.calib.monitor.snapshot`: what the
 next run arms from). It is rewritten atomically (a temporary file renamed
 over it) when the engine is armed, at every re-learn, when a re-learnt camera
 has settled, and at the end of the run, so that a run killed at any moment
@@ -29,13 +29,13 @@ from typing import Callable
 
 import yaml
 
-from app.errors import SessionError
-from app.files import read_text_file
-from app.formats.export import result_to_dict
-from calib.errors import CalibrationError
-from calib.monitor import EngineState, MonitorEngine, MonitorUpdate
-from calib.monitor.snapshot import Snapshot, snapshot_from_dict, snapshot_to_dict
-from calib.setup import Setup
+from handeye.app.errors import SessionError
+from handeye.app.files import read_text_file
+from handeye.app.formats.export import result_to_dict
+from handeye.calib.errors import CalibrationError
+from handeye.calib.monitor import EngineState, MonitorEngine, MonitorUpdate
+from handeye.calib.monitor.snapshot import Snapshot, snapshot_from_dict, snapshot_to_dict
+from handeye.calib.setup import Setup
 
 log = logging.getLogger(__name__)
 
@@ -140,13 +140,13 @@ NEW_CALIBRATION = ("armed", "re-learnt", "settled after a re-learn")
 
 @dataclass
 class InUseFile:
-    """Keeps ``calibration_in_use.yaml`` in a directory (`app.calibration_in_use`): written when the engine is
+    """Keeps ``calibration_in_use.yaml`` in a directory (`handeye.app.calibration_in_use`): written when the engine is
     armed, at every re-learn, when a re-learnt camera has settled, and at the end. ``on_new(path, why, t)`` is
     called after each write of a new calibration in use (`NEW_CALIBRATION`), once the file is in place."""
 
     directory: Path
     frames: dict | None = None
-    written: object = None           # the calibration in use last written (`calib.monitor.InUse`)
+    written: object = None           # the calibration in use last written (`handeye.calib.monitor.InUse`)
     on_new: Callable[[Path, str, float], None] | None = None
 
     def write(self, engine: MonitorEngine, t: float, why: str) -> None:

@@ -1,7 +1,7 @@
-"""``handeye`` command line: builds the parser from the command modules of `app.commands` and runs one.
+"""``handeye`` command line: builds the parser from the command modules of `handeye.app.commands` and runs one.
 
-Known errors (``calib.errors.HandeyeError``) print one line and exit 1; every
-exit status is `app.exit_status`'s.
+Known errors (``handeye.calib.errors.HandeyeError``) print one line and exit 1; every
+exit status is `handeye.app.exit_status`'s.
 """
 
 from __future__ import annotations
@@ -13,8 +13,8 @@ import signal
 import sys
 import time
 
-from app import exit_status, stopping
-from app.commands import command_modules
+from handeye.app import exit_status, stopping
+from handeye.app.commands import command_modules
 
 log = logging.getLogger("handeye")
 
@@ -50,7 +50,7 @@ def main(argv: list[str] | None = None) -> int:
     try:
         # The first import of calib and the commands loads numpy, scipy and OpenCV (a second or two): a Ctrl-C
         # then is a stop too, not a traceback.
-        from calib.errors import HandeyeError
+        from handeye.calib.errors import HandeyeError
 
         parser, commands = build_parser()
     except KeyboardInterrupt:

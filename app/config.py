@@ -1,14 +1,14 @@
 """Application configuration: a TOML file in ``config/`` -> one typed `Config`, parsed and validated once.
 
-Every table is a pydantic model (`calib.params.Params`: unknown keys rejected,
+Every table is a pydantic model (`handeye.calib.params.Params`: unknown keys rejected,
 numbers finite and never booleans): ``[calibrate]``, ``[monitor]`` (with
-``[monitor.engine]`` = `calib.monitor.MonitorSettings`), ``[session]``, ``[viz]``,
-``[frames]``, ``[mqtt]`` (`app.mqtt.MqttConfig`), ``[ros2]`` (`app.ros2.Ros2Config`), ``[production]`` (the simulated robot's program), ``[console]``,
-``[reconnect]`` (`app.outage.ReconnectConfig`),
-``[marker]`` = `calib.vision.extract.TargetConfig`, and ``[robot]`` /
+``[monitor.engine]`` = `handeye.calib.monitor.MonitorSettings`), ``[session]``, ``[viz]``,
+``[frames]``, ``[mqtt]`` (`handeye.app.mqtt.MqttConfig`), ``[ros2]`` (`handeye.app.ros2.Ros2Config`), ``[production]`` (the simulated robot's program), ``[console]``,
+``[reconnect]`` (`handeye.app.outage.ReconnectConfig`),
+``[marker]`` = `handeye.calib.vision.extract.TargetConfig`, and ``[robot]`` /
 ``[camera]``, a union over the registered backends selected by ``type`` /
-``backend`` (`drivers.robot.registry.ROBOTS`, `drivers.camera.registry.CAMERAS`;
-every backend is registered by `app.backends`). A bad field is a `ConfigError`
+``backend`` (`handeye.drivers.robot.registry.ROBOTS`, `handeye.drivers.camera.registry.CAMERAS`;
+every backend is registered by `handeye.app.backends`). A bad field is a `ConfigError`
 naming the file and ``section.field``.
 
 The models are the one source of defaults: ``Config()`` is the simulated cell
@@ -21,20 +21,25 @@ from __future__ import annotations
 
 import shlex
 import shutil
-import tomllib
+import sys
 from pathlib import Path
 from typing import Annotated, Any, Literal, Union
 
+if sys.version_info >= (3, 11):
+    import tomllib
+else:       # Python 3.10 (ROS 2 Humble): the same parser, before it joined the standard library
+    import tomli as tomllib
+
 from pydantic import AfterValidator, Discriminator, Field, Tag, ValidationError, model_validator
 
-from app import backends  # noqa: F401  every backend registers itself before the unions are built
-from app.errors import ConfigError
-from app.mqtt import MqttConfig
-from app.outage import ReconnectConfig
-from app.ros2 import Ros2Config
-from app.files import read_text_file
-from calib.monitor import MonitorSettings
-from calib.params import (
+from handeye.app import backends  # noqa: F401  every backend registers itself before the unions are built
+from handeye.app.errors import ConfigError
+from handeye.app.mqtt import MqttConfig
+from handeye.app.outage import ReconnectConfig
+from handeye.app.ros2 import Ros2Config
+from handeye.app.files import read_text_file
+from handeye.calib.monitor import MonitorSettings
+from handeye.calib.params import (
     Bool,
     Int,
     NonEmptyStr,
@@ -48,24 +53,24 @@ from calib.params import (
     Vector6,
     describe,
 )
-from calib.setup import Setup
-from calib.vision.extract import TargetConfig
-from drivers.camera.registry import CAMERAS
-from drivers.registry import Registry
-from drivers.robot.registry import ROBOTS
-from mocks.render.camera import RenderedCameraConfig
-from mocks.ur_sim.robot import URSimRobotConfig
+from handeye.calib.setup import Setup
+from handeye.calib.vision.extract import TargetConfig
+from handeye.drivers.camera.registry import CAMERAS
+from handeye.drivers.registry import Registry
+from handeye.drivers.robot.registry import ROBOTS
+from handeye.mocks.render.camera import RenderedCameraConfig
+from handeye.mocks.ur_sim.robot import URSimRobotConfig
 
-# Solver names as in the paper (or "auto", calib.auto), checked against calib.api at load.
+# Solver names as in the paper (or "auto", handeye.calib.auto), checked against handeye.calib.api at load.
 DEFAULT_METHOD = "auto"
-# Result formats of app.formats.write_result (kept literal: config must load without the exporters).
+# Result formats of handeye.app.formats.write_result (kept literal: config must load without the exporters).
 EXPORTS = ("yaml", "json", "easy_handeye", "easy_handeye2", "urdf", "ros2_launch")
 
 
 def _method(name: str) -> str:
-    """A solver name `calib.api.solve` knows (its canonical spelling), so a typo fails at load, before any motion."""
-    from calib.api import AUTO, resolve_method
-    from calib.errors import CalibrationError
+    """A solver name `handeye.calib.api.solve` knows (its canonical spelling), so a typo fails at load, before any motion."""
+    from handeye.calib.api import AUTO, resolve_method
+    from handeye.calib.errors import CalibrationError
 
     if name.strip().lower() == AUTO:
         return AUTO
@@ -125,7 +130,7 @@ class CalibrateConfig(Params):
 
     Poses lie around the start pose: each axis offset within
     ``+-translation_range_m``, a rotation about an axis through the flange by
-    up to ``tilt_deg``. ``poses``: ``"optimal"`` (`calib.planner`: a small
+    up to ``tilt_deg``. ``poses``: ``"optimal"`` (`handeye.calib.planner`: a small
     model-free bootstrap, then the pose that teaches the estimator most about
     the camera per second of motion), ``"random"`` (uniform), or a file
     (``plan.json`` from ``handeye plan``). The run stops at ``samples`` or as
@@ -146,7 +151,7 @@ class CalibrateConfig(Params):
     consecutive frames without a marker measurement, saying what the camera saw.
 
     ``tolerance_mm`` / ``tolerance_deg``: the error the cell accepts; the result's verdict
-    (`calib.verdict.judge`) compares its predicted error over the workspace with them, as
+    (`handeye.calib.verdict.judge`) compares its predicted error over the workspace with them, as
     ``[verify]``'s judge a verification.
     """
 
@@ -191,7 +196,7 @@ class MonitorConfig(Params):
     estimation set (since the start or the last move), which holds at most
     ``keep_samples`` (0 = unbounded): beyond it, the sample whose loss costs
     the estimate the least information goes, never one of the
-    ``keep_recent`` newest (`calib.planner.least_informative`,
+    ``keep_recent`` newest (`handeye.calib.planner.least_informative`,
     docs/planning.md). Without ``--reference`` the monitoring engine is armed
     from that set once it holds ``arm_samples`` and ``auto`` gives a 1-sigma
     over the workspace within ``arm_sigma_mm`` (tried every
@@ -203,7 +208,7 @@ class MonitorConfig(Params):
     ``calibration_hook`` (run when the calibration in use changes: armed,
     re-learnt, settled after a re-learn) are split like a shell line and
     must name a program on ``PATH``. ``[monitor.engine]`` configures
-    the engine (`calib.monitor.MonitorSettings`: random-walk rates,
+    the engine (`handeye.calib.monitor.MonitorSettings`: random-walk rates,
     ``tolerance_mm``, the drifting horizon, the detector).
 
     Disk budget: frames (PNG) are kept only for samples the bounded set
@@ -262,7 +267,7 @@ class ProductionWaypoint(Params):
 
 class ProductionConfig(Params):
     """``[production]``: the looping program a *simulated* robot runs while ``monitor`` watches (a real
-    robot runs its own; `app.production.start_production` then does nothing).
+    robot runs its own; `handeye.app.production.start_production` then does nothing).
 
     Either explicit ``waypoints`` (2 or more), or a ``preset``:
 
@@ -300,7 +305,7 @@ class ProductionConfig(Params):
 
 
 class ConsoleConfig(Params):
-    """``[console]``: how a run shows its progress (`app.progress`).
+    """``[console]``: how a run shows its progress (`handeye.app.progress`).
 
     ``progress``: ``"auto"`` draws a progress bar on a terminal and prints plain lines off one (a
     service's journal, CI, a pipe); ``"bar"`` or ``"lines"`` force one. ``status_every``: in line mode, a
@@ -311,10 +316,10 @@ class ConsoleConfig(Params):
     progress: Literal["auto", "bar", "lines"] = "auto"
     status_every: PositiveInt = 20
 class VerifyConfig(Params):
-    """``[verify]``: ``handeye verify`` (`app.verify`).
+    """``[verify]``: ``handeye verify`` (`handeye.app.verify`).
 
     A result passes when its error in the base frame, the measurement noise
-    removed (`calib.verify`), is within ``tolerance_mm`` and, where the marker
+    removed (`handeye.calib.verify`), is within ``tolerance_mm`` and, where the marker
     orientation is measured, ``tolerance_deg``. The active mode moves to
     ``poses`` fresh planned poses spread over the ``[calibrate]`` region, each at
     least ``min_separation_m`` from every calibration pose, each measured as the
@@ -330,7 +335,7 @@ class VerifyConfig(Params):
 
 
 class ReportConfig(Params):
-    """``[report]``: who and where, as ``report.html`` names them (`app.report`): the ``site`` (plant),
+    """``[report]``: who and where, as ``report.html`` names them (`handeye.app.report`): the ``site`` (plant),
     the robot ``cell`` and the ``operator`` who ran the calibration (CLI: ``--site``, ``--cell``,
     ``--operator``)."""
 
@@ -343,7 +348,7 @@ class SessionConfig(Params):
     """``[session]``: where sessions (samples, frames, result, .rrd) are written.
 
     ``exports`` lists the result files written into the session at the end of
-    a run (formats of `app.formats.write_result`).
+    a run (formats of `handeye.app.formats.write_result`).
     """
 
     root: NonEmptyStr = "sessions"
@@ -407,10 +412,10 @@ CameraConfig = backend_union(CAMERAS)
 #: Location parts pydantic adds for a union member (the backend names); left out of messages.
 _TAGS = frozenset(ROBOTS.names()) | frozenset(CAMERAS.names())
 
-# The simulated cell (config/sim.toml): a UR10 simulator (mocks.ur_sim, started by the
+# The simulated cell (config/sim.toml): a UR10 simulator (handeye.mocks.ur_sim, started by the
 # robot driver itself and driven through the real ur_rtde client) holding the
 # flange 0.9 m in front of the base with the marker facing the rendered camera,
-# whose true pose is the rendered camera's default (calib.simulate.realistic_cell).
+# whose true pose is the rendered camera's default (handeye.calib.simulate.realistic_cell).
 SIM_START_Q = (0.367792, -3.559685, 1.448735, -1.704477, -0.767569, 0.521542)
 
 
@@ -507,6 +512,19 @@ def _depth(value, limit: int, level: int = 0) -> int:
     return level
 
 
+#: The configs the package ships (``config/`` of the repository, ``handeye/config/`` of an installed wheel).
+SHIPPED_CONFIGS = Path(__file__).resolve().parents[1] / "config"
+
+
+def shipped_config(path: Path) -> Path:
+    """``path`` as given; a shipped config named the way the docs do (``config/sim.toml``) or by its file name
+    that is not found from the current directory comes from the installed package."""
+    if path.exists() or path.parent not in (Path("config"), Path(".")):
+        return path
+    shipped = SHIPPED_CONFIGS / path.name
+    return shipped if shipped.is_file() else path
+
+
 def load_config(path: str | Path | None = None) -> Config:
     """Load and validate a TOML config; ``None`` gives the embedded simulated cell.
 
@@ -519,7 +537,7 @@ def load_config(path: str | Path | None = None) -> Config:
     """
     if path is None:
         return Config()
-    path = Path(path)
+    path = shipped_config(Path(path))
     try:
         text = read_text_file(path, ConfigError, max_bytes=MAX_CONFIG_BYTES)
     except ConfigError as e:

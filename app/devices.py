@@ -1,6 +1,6 @@
 """Build the parts a run needs from a `Config`: robot, camera, extraction, solver, online estimator, outputs.
 
-The config arrives validated (`app.config`); the backends come from the
+The config arrives validated (`handeye.app.config`); the backends come from the
 registries by name, so nothing here knows a particular robot or camera.
 """
 
@@ -10,13 +10,13 @@ from pathlib import Path
 
 import numpy as np
 
-from app.config import CalibrateConfig, Config
-from app.errors import ConfigError, SessionError
-from app.session import check_writable_root
-from app.viz import Viz
-from calib.setup import Setup
-from drivers.camera.registry import CAMERAS
-from drivers.robot.registry import ROBOTS
+from handeye.app.config import CalibrateConfig, Config
+from handeye.app.errors import ConfigError, SessionError
+from handeye.app.session import check_writable_root
+from handeye.app.viz import Viz
+from handeye.calib.setup import Setup
+from handeye.drivers.camera.registry import CAMERAS
+from handeye.drivers.robot.registry import ROBOTS
 
 #: Result files written into the session directory, by export format.
 RESULT_FILES = {
@@ -82,7 +82,7 @@ def make_measure(cfg: Config):
 
     Raises ``ExtractionError`` (marker not found, bad depth) so the caller skips the frame.
     """
-    from calib.vision.extract import extract
+    from handeye.calib.vision.extract import extract
 
     def measure(frame):
         return extract(frame.color, frame.depth, frame.intrinsics, cfg.marker)
@@ -101,8 +101,8 @@ def make_solve(cal: CalibrateConfig, setup: Setup, rng: np.random.Generator, sha
     ``shared_error``: the robot's `Robot.shared_error_factor`; with ``auto`` and the joints of every sample
     (``Observation.joints``), the error it models joins the covariance as shared by all samples.
     ``marker``: the ``[marker]`` config, whose ``offset_m`` (with ``offset_sigma_m``) ``auto`` holds."""
-    from calib.api import solve_observations
-    from calib.methods import is_auto
+    from handeye.calib.api import solve_observations
+    from handeye.calib.methods import is_auto
 
     offset = {}
     if marker is not None and marker.offset_m is not None and is_auto(cal.method):
@@ -124,11 +124,11 @@ def make_solve(cal: CalibrateConfig, setup: Setup, rng: np.random.Generator, sha
 def judge(result, method: str, observations, setup: Setup, tolerance: tuple[float, float], shared_error=None,
           marker_offset=None, marker_offset_sigma=0.0, stopped_early: str | None = None):
     """``result`` of ``method`` on ``observations`` with its predicted accuracy and verdict
-    (`calib.verdict.judge`) against ``tolerance`` (mm, deg); ``shared_error``: as `make_solve`'s; the marker
-    offset the result was solved with (`calib.api.observations_problem`); ``stopped_early``: why the run ended
-    before its target (`calib.verdict.judge`)."""
-    from calib.api import observations_problem
-    from calib.verdict import judge as judge_result
+    (`handeye.calib.verdict.judge`) against ``tolerance`` (mm, deg); ``shared_error``: as `make_solve`'s; the marker
+    offset the result was solved with (`handeye.calib.api.observations_problem`); ``stopped_early``: why the run ended
+    before its target (`handeye.calib.verdict.judge`)."""
+    from handeye.calib.api import observations_problem
+    from handeye.calib.verdict import judge as judge_result
 
     problem = observations_problem(method, observations, setup,
                                    robot_shared_error=robot_shared_error(method, observations, shared_error),
@@ -141,7 +141,7 @@ def robot_shared_error(method: str, observations, shared_error) -> np.ndarray | 
     """``solve``'s ``robot_shared_error`` for ``observations``: ``shared_error`` (a robot's
     `Robot.shared_error_factor`) of their joints (``Observation.joints``, checked where they are read) for
     ``auto``; None for another method, without it, or when a sample lacks its joints (imported files)."""
-    from calib.methods import is_auto
+    from handeye.calib.methods import is_auto
 
     if shared_error is None or not is_auto(method) or any(o.joints is None for o in observations):
         return None
@@ -159,8 +159,8 @@ def make_viz(cfg: Config, session: Path) -> Viz:
 
 
 def make_engine(cfg: Config):
-    """A fresh, unarmed `calib.monitor.MonitorEngine` with the ``[monitor.engine]`` settings."""
-    from calib.monitor import MonitorEngine
+    """A fresh, unarmed `handeye.calib.monitor.MonitorEngine` with the ``[monitor.engine]`` settings."""
+    from handeye.calib.monitor import MonitorEngine
 
     return MonitorEngine(cfg.monitor.engine)
 
@@ -168,19 +168,19 @@ def make_engine(cfg: Config):
 def write_result(result, session: Path, formats, frames: dict | None = None, samples_from=None,
                  cell: dict | None = None) -> dict:
     """Write the result in each export format into the session directory, with the ``[frames]``
-    names, where its samples came from (``samples_from``) and the cell (`app.provenance.cell`);
+    names, where its samples came from (``samples_from``) and the cell (`handeye.app.provenance.cell`);
     returns ``{format: path}``."""
-    from app.formats import write_result as export
+    from handeye.app.formats import write_result as export
 
     return {fmt: export(result, Path(session) / RESULT_FILES[fmt], fmt, frames, samples_from=samples_from,
                         cell=cell) for fmt in formats}
 
 
 def import_options(cfg: Config | None, *, frames: str | None = None, topics: str | None = None) -> dict:
-    """Options for the importers that take them (`app.formats.registry.ImportFormat.options`): the
+    """Options for the importers that take them (`handeye.app.formats.registry.ImportFormat.options`): the
     ``[frames]`` and ``[marker]`` of ``cfg``, overridden by the command line's ``frames``
     (``base=NAME,flange=NAME``) and ``topics`` (``color=TOPIC,...``)."""
-    from app.formats.ros2_bag import parse_pairs
+    from handeye.app.formats.ros2_bag import parse_pairs
 
     names = cfg.frames.model_dump(exclude_unset=True) if cfg is not None else {}  # the bag names the rest
     names.update(parse_pairs(frames, "--frames", ("base", "flange", "camera", "marker")))
@@ -202,7 +202,7 @@ def import_observations(path: Path, setup: str | None, **options):
     meta : dict
         What the importer found out (e.g. ``clock_offset_s`` of pose streams).
     """
-    from app.formats import detect_format, get_format
+    from handeye.app.formats import detect_format, get_format
 
     fmt = get_format(detect_format(path))
     # Only formats whose files may leave the setup open take it; the others state it.

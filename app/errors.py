@@ -1,6 +1,6 @@
-"""Errors of the application layer, under `calib.errors.HandeyeError`."""
+"""Errors of the application layer, under `handeye.calib.errors.HandeyeError`."""
 
-from calib.errors import HandeyeError, ParameterError
+from handeye.calib.errors import HandeyeError, ParameterError
 
 
 class ConfigError(ParameterError):

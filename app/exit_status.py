@@ -31,7 +31,7 @@ TABLE = (
 
 
 def of_verdict(level: str | None) -> int:
-    """The status of a verdict level (`calib.result.Verdict`); a result without a verdict is to be checked."""
+    """The status of a verdict level (`handeye.calib.result.Verdict`); a result without a verdict is to be checked."""
     return {"pass": PASS, "fail": FAIL}.get(level, WARN)
 
 

@@ -18,7 +18,7 @@ import stat
 import threading
 from pathlib import Path
 
-from calib.errors import HandeyeError
+from handeye.calib.errors import HandeyeError
 
 #: Largest data file read whole (bytes). Sessions of a day of monitoring stay far
 #: below (a sample line is ~2 kB); anything larger is not one of our files.

@@ -1,7 +1,7 @@
 """``handeye replay --monitor``: stream a recorded production session through the monitoring engine.
 
 "When did the camera move last night?": the session's samples go through
-`calib.monitor.MonitorEngine` in order, as fast as the CPU allows, armed from
+`handeye.calib.monitor.MonitorEngine` in order, as fast as the CPU allows, armed from
 a reference calibration (``--reference``: a calibration session, solved with
 ``auto`` as ``calibrate`` solves it, or the ``result.yaml`` in one, whose
 session's samples give the engine its covariance). Written into the output
@@ -10,10 +10,10 @@ directory (``replay --out``):
 - ``monitor_trace.csv``: one row per sample (`TRACE_COLUMNS`; the camera
   transform is ``T_base_cam`` eye-to-hand, ``T_flange_cam`` eye-in-hand);
 - ``alarms.yaml``: every alarm with its sample, local time, message and, for a move, its re-learn
-  (`app.shift_record`);
+  (`handeye.app.shift_record`);
 - ``monitor_trace.png`` and ``report.html``: the timeline (the move since the cell's first calibration, the
   drift since the calibration in use, the verification, the 1-sigma, the alarms) and the shift report;
-- ``calibration_in_use.yaml`` (`app.calibration_in_use`): the calibration in use, written at arming, at every
+- ``calibration_in_use.yaml`` (`handeye.app.calibration_in_use`): the calibration in use, written at arming, at every
   re-learn, when a re-learnt camera has settled and at the end; another ``replay --monitor`` or ``monitor``
   continues from it with ``--reference <out>``.
 
@@ -21,7 +21,7 @@ directory (``replay --out``):
 ``--out`` directory): the engine continues from its calibration in use.
 
 Samples without a marker point are skipped and counted; a malformed one is
-skipped with a log line naming it (`calib.errors.CalibrationError`). A
+skipped with a log line naming it (`handeye.calib.errors.CalibrationError`). A
 session whose samples lack their joints (another program's) is monitored
 without the robot's kinematic error in the engine's state, even when the
 config models it and the reference has joints.
@@ -36,17 +36,17 @@ from pathlib import Path
 
 import numpy as np
 
-from app import calibration_in_use, devices
-from app.errors import MonitorError, SessionError
-from app.monitoring import arm_from_path
-from app.session import read_session
-from app.shift_record import ShiftRecord
-from calib import transforms as tf
-from calib.errors import CalibrationError
-from calib.monitor import MonitorEngine, MonitorSettings, MonitorUpdate
-from calib.monitor.filter import is_sound
-from calib.result import worst_axis_sigma
-from calib.setup import Setup
+from handeye.app import calibration_in_use, devices
+from handeye.app.errors import MonitorError, SessionError
+from handeye.app.monitoring import arm_from_path
+from handeye.app.session import read_session
+from handeye.app.shift_record import ShiftRecord
+from handeye.calib import transforms as tf
+from handeye.calib.errors import CalibrationError
+from handeye.calib.monitor import MonitorEngine, MonitorSettings, MonitorUpdate
+from handeye.calib.monitor.filter import is_sound
+from handeye.calib.result import worst_axis_sigma
+from handeye.calib.setup import Setup
 
 log = logging.getLogger(__name__)
 

@@ -1,4 +1,4 @@
-"""Arming the monitoring engine (`calib.monitor.MonitorEngine`) from what the app has: shared by
+"""Arming the monitoring engine (`handeye.calib.monitor.MonitorEngine`) from what the app has: shared by
 ``handeye monitor``, ``demo --monitor`` and ``replay --monitor``.
 
 The engine is armed from a calibration and the samples it was solved from:
@@ -7,7 +7,7 @@ as ``calibrate`` solves it, or, without a reference, the monitor's own first
 samples once ``auto`` determines the camera from them. A previous monitoring
 run (its session, a ``replay --monitor --out`` directory, or its
 ``calibration_in_use.yaml``) is continued from where it left off
-(`app.calibration_in_use`).
+(`handeye.app.calibration_in_use`).
 """
 
 from __future__ import annotations
@@ -17,15 +17,15 @@ from pathlib import Path
 
 import numpy as np
 
-from app import calibration_in_use, devices
-from app.errors import SessionError
-from app.session import read_session
-from calib.api import solve_observations
-from calib.errors import CalibrationError
-from calib.monitor import MonitorEngine
-from calib.problem import CalibrationProblem
-from calib.result import CalibrationResult
-from calib.setup import Setup
+from handeye.app import calibration_in_use, devices
+from handeye.app.errors import SessionError
+from handeye.app.session import read_session
+from handeye.calib.api import solve_observations
+from handeye.calib.errors import CalibrationError
+from handeye.calib.monitor import MonitorEngine
+from handeye.calib.problem import CalibrationProblem
+from handeye.calib.result import CalibrationResult
+from handeye.calib.setup import Setup
 
 
 def reference_observations(path: Path, setup: Setup) -> list:
@@ -51,7 +51,7 @@ def reference_observations(path: Path, setup: Setup) -> list:
 
 def arm_from(engine: MonitorEngine, result: CalibrationResult, observations: list, factor, *, t: float):
     """Arm ``engine`` from ``result`` and the ``observations`` it was solved from (``factor``: their robot
-    kinematic-error factor (N, 6, P) or None); returns `calib.monitor.Reference`. Raises `CalibrationError`
+    kinematic-error factor (N, 6, P) or None); returns `handeye.calib.monitor.Reference`. Raises `CalibrationError`
     as `MonitorEngine.arm`."""
     problem = CalibrationProblem.from_observations(observations, Setup(result.setup), measurements="points",
                                                    robot_shared_error=factor)
@@ -82,7 +82,7 @@ def arm_engine(engine: MonitorEngine, reference: list, setup: Setup, shared_erro
 
 def shared_error_note(engine: MonitorEngine) -> str | None:
     """Plain words for the calibration error that nearby poses share, which the armed engine's *moved* test
-    allows for (`calib.monitor.shared_error_var`), or None when there is none."""
+    allows for (`handeye.calib.monitor.shared_error_var`), or None when there is none."""
     shared = engine.reference.shared_var if engine.reference is not None else 0.0
     if not shared:
         return None

@@ -46,11 +46,11 @@ from typing import Annotated, Literal
 import numpy as np
 from pydantic import AfterValidator, Field, ValidationError, model_validator
 
-from app.errors import ConfigError
-from app.outage import OutageEvent
-from calib.params import Bool, Float, Int, NonEmptyStr, Params, Str, describe
-from calib import transforms as tf
-from calib.setup import Setup
+from handeye.app.errors import ConfigError
+from handeye.app.outage import OutageEvent
+from handeye.calib.params import Bool, Float, Int, NonEmptyStr, Params, Str, describe
+from handeye.calib import transforms as tf
+from handeye.calib.setup import Setup
 
 log = logging.getLogger(__name__)
 
@@ -184,8 +184,8 @@ class MqttPublisher:
         self.outages_delivered_late = 0
         #: Outage messages dropped from the hold (more than `MAX_HELD_OUTAGES`).
         self.outages_dropped = 0
-        #: The broker's own outage steps (`app.outage.OutageEvent`, device ``mqtt``), appended from paho's network
-        #: thread for the caller to record in its own (`app.runs.monitor` drains it into the session).
+        #: The broker's own outage steps (`handeye.app.outage.OutageEvent`, device ``mqtt``), appended from paho's network
+        #: thread for the caller to record in its own (`handeye.app.runs.monitor` drains it into the session).
         self.broker_outages: collections.deque = collections.deque()
 
     # ------------------------------------------------------------ connection
@@ -370,12 +370,12 @@ class MqttPublisher:
             self.publish("outage", self._outage_payload(event, event.message()))
 
     def error(self, sample: int, message: str) -> None:
-        """An unexpected error that ends the run (`app.runs.monitor.run_monitor`'s ``on_error``): on the alarm
+        """An unexpected error that ends the run (`handeye.app.runs.monitor.run_monitor`'s ``on_error``): on the alarm
         topic, ``event`` ``"monitor_error"``, held for an absent broker like an alarm."""
         self.publish("alarm", {**self._base("alarm"), "event": "monitor_error", "sample": sample, "message": message})
 
     def __call__(self, obs, update, report) -> None:
-        """`app.runs.monitor.run_monitor`'s ``on_update``: estimate (retained), drift, and the alarm if one fired."""
+        """`handeye.app.runs.monitor.run_monitor`'s ``on_update``: estimate (retained), drift, and the alarm if one fired."""
         self.session = str(report.session)
         if report.estimate is not None:
             xyz, q = tf.to_xyz_quat(report.estimate)

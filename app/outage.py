@@ -2,9 +2,9 @@
 
 Over a production shift a camera gets unplugged and plugged back, a robot
 controller reboots or a switch drops the connection. `Reconnecting` holds one
-device (a robot or camera of `app.devices.open_robot` / `open_camera`, not yet
+device (a robot or camera of `handeye.app.devices.open_robot` / `open_camera`, not yet
 connected) and runs every call on it through `Reconnecting.call`: a
-`drivers.errors.DeviceError` starts an outage, the device is reopened in place
+`handeye.drivers.errors.DeviceError` starts an outage, the device is reopened in place
 (``reconnect()`` where the driver has one, else ``disconnect()`` then
 ``connect()``) after waits of ``initial_s``, ``initial_s * factor``, ... up to
 ``max_s``, and the call is retried once it is back. The device object stays the
@@ -36,9 +36,9 @@ from typing import Annotated, Generic, Literal, TypeVar
 
 from pydantic import Field
 
-from app.errors import OutageError
-from calib.params import Float, NonNegativeFloat, Params, PositiveFloat
-from drivers.errors import DeviceError, PoseTimeError
+from handeye.app.errors import OutageError
+from handeye.calib.params import Float, NonNegativeFloat, Params, PositiveFloat
+from handeye.drivers.errors import DeviceError, PoseTimeError
 
 log = logging.getLogger(__name__)
 

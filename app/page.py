@@ -1,5 +1,5 @@
-"""The pieces of handeye's self-contained HTML pages (``report.html`` of a calibration, `app.report`; the
-monitor's shift report, `app.shift_record`): the style sheet (screen and print, A4 or Letter), matplotlib
+"""The pieces of handeye's self-contained HTML pages (``report.html`` of a calibration, `handeye.app.report`; the
+monitor's shift report, `handeye.app.shift_record`): the style sheet (screen and print, A4 or Letter), matplotlib
 figures as inline SVG, tables."""
 
 from __future__ import annotations

@@ -1,6 +1,6 @@
-"""Where the active run moves next: optimal (`calib.planner`), random, or a file (``plan.json``).
+"""Where the active run moves next: optimal (`handeye.calib.planner`), random, or a file (``plan.json``).
 
-Each pose source hands `app.calibrate.run_calibration` one `Target` at a
+Each pose source hands `handeye.app.runs.calibrate.run_calibration` one `Target` at a
 time. Validity is checked twice before a motion: by the planner (marker in
 view with a margin, depth range, view angle, keep-out boxes) and by the robot
 driver's own limit check (`reachable`, the same `check_target` that
@@ -32,21 +32,21 @@ from pathlib import Path
 
 import numpy as np
 
-from app.config import CalibrateConfig, Config
-from app.errors import ConfigError, SessionError
-from calib import model
-from calib import planner as pl
-from calib import transforms as tf
-from calib.api import AUTO
-from calib.auto import CONSIDER_SIGMA, MIN_SAMPLES_CAMERA
-from calib.errors import CalibrationError
-from calib.noise import anchored_point_cov, default_point_cov
-from calib.predict import predicted_pixel
-from calib.result import worst_axis_sigma
-from calib.setup import Setup
-from calib.vision.extract import TargetConfig
-from drivers.errors import LimitViolationError
-from drivers.robot.registry import robot_limits
+from handeye.app.config import CalibrateConfig, Config
+from handeye.app.errors import ConfigError, SessionError
+from handeye.calib import model
+from handeye.calib import planner as pl
+from handeye.calib import transforms as tf
+from handeye.calib.api import AUTO
+from handeye.calib.auto import CONSIDER_SIGMA, MIN_SAMPLES_CAMERA
+from handeye.calib.errors import CalibrationError
+from handeye.calib.noise import anchored_point_cov, default_point_cov
+from handeye.calib.predict import predicted_pixel
+from handeye.calib.result import worst_axis_sigma
+from handeye.calib.setup import Setup
+from handeye.calib.vision.extract import TargetConfig
+from handeye.drivers.errors import LimitViolationError
+from handeye.drivers.robot.registry import robot_limits
 
 log = logging.getLogger(__name__)
 
@@ -59,7 +59,7 @@ EARLY_MAX_SIGMA = (20.0, 2.0)
 #: 1-sigma of a measured marker orientation that comes without a covariance, deg (a single-marker PnP pose).
 MARKER_ANGLE_SIGMA_DEG = 2.0
 #: How plan.json names the default noise model.
-NOISE_DEFAULT = "calib.noise.default_point_cov (depth-dependent marker-center covariance)"
+NOISE_DEFAULT = "handeye.calib.noise.default_point_cov (depth-dependent marker-center covariance)"
 #: Poses a plan file may hold at most (a plan is a handful of motions, not a trajectory).
 MAX_PLAN_POSES = 1000
 
@@ -89,7 +89,7 @@ def camera_view(cal: CalibrateConfig, intrinsics, marker: TargetConfig) -> pl.Ca
 
 
 def planner_config(cfg: Config, **overrides) -> pl.PlannerConfig:
-    """`calib.planner.PlannerConfig` from ``[calibrate]`` and the robot's workspace box."""
+    """`handeye.calib.planner.PlannerConfig` from ``[calibrate]`` and the robot's workspace box."""
     cal, limits = cfg.calibrate, robot_limits(cfg.robot)
     kw = dict(translation_range_m=cal.translation_range_m, tilt_deg=cal.tilt_deg,
               workspace_min=limits.workspace_min, workspace_max=limits.workspace_max,
@@ -148,7 +148,7 @@ def camera_correction(method: str, estimate) -> tuple | None:
     (None otherwise), so that it plans for, and predicts the covariance of, what ``auto`` reports.
 
     ``auto`` estimates the depth scale / offset and focal scale the samples
-    determine and widens the covariance by a typical error (`calib.auto.CONSIDER_SIGMA`)
+    determine and widens the covariance by a typical error (`handeye.calib.auto.CONSIDER_SIGMA`)
     for the others: all three are unknowns here, the estimated ones with a
     weak prior at their estimate, the others with that typical error as prior.
     """
@@ -201,9 +201,9 @@ class RandomPoses:
 class OptimalPoses:
     """Sample where the flange is, then a model-free bootstrap, then information-optimal poses.
 
-    The bootstrap (`calib.planner.bootstrap_poses`) is sized from the first
+    The bootstrap (`handeye.calib.planner.bootstrap_poses`) is sized from the first
     measurement so the marker provably stays in view; once a solver gives an
-    estimate, every pose comes from `calib.planner.PosePlanner` at the
+    estimate, every pose comes from `handeye.calib.planner.PosePlanner` at the
     current estimate, with the image margin widened by the predicted pixel
     uncertainty.
     """
@@ -274,13 +274,13 @@ def _early_estimate(setup: str, observations):
 
     From `EARLY_SAMPLES` samples with marker orientations: YQuatT' (paper,
     from poses), then ML refinement on the marker centers
-    (`calib.refine.refine`), so the estimate and the planner's uncertainty
+    (`handeye.calib.refine.refine`), so the estimate and the planner's uncertainty
     come from the same point model; used only when its predicted 1-sigma is
     below `EARLY_MAX_SIGMA` (the bootstrap continues otherwise).
     """
-    from calib.api import solve
-    from calib.problem import CalibrationProblem
-    from calib.refine import refine
+    from handeye.calib.api import solve
+    from handeye.calib.problem import CalibrationProblem
+    from handeye.calib.refine import refine
 
     if len(observations) < EARLY_SAMPLES or any(o.T_cam_marker is None or o.point_cov is None
                                                  for o in observations):
@@ -356,7 +356,7 @@ def make_plan(cfg: Config, X, Y, T_start, q_start, intrinsics, robot, rng: np.ra
     ``[calibrate]`` targets (after ``min_samples``) or ``samples`` poses.
     ``start_measurement``: ``(point_cam, point_cov)`` the camera measured at
     the start pose; the expected 1-sigma then uses this camera's noise level
-    (`calib.noise.anchored_point_cov`), else the default depth model's.
+    (`handeye.calib.noise.anchored_point_cov`), else the default depth model's.
     """
     cal = cfg.calibrate
     n = cal.samples if n is None else n
@@ -367,7 +367,7 @@ def make_plan(cfg: Config, X, Y, T_start, q_start, intrinsics, robot, rng: np.ra
         point_cov = anchored_point_cov(*start_measurement)
         S, p = np.asarray(start_measurement[1]), np.asarray(start_measurement[0])
         r = p / np.linalg.norm(p)
-        noise = (f"calib.noise.anchored_point_cov: the default depth dependence at the levels measured at the start "
+        noise = (f"handeye.calib.noise.anchored_point_cov: the default depth dependence at the levels measured at the start "
                  f"({np.sqrt(r @ S @ r) * 1e3:.2f} mm along the ray at {p[2]:.2f} m)")
     planner = pl.PosePlanner(cfg.setup, X, Y, view, planner_config(cfg, uncertainty_k=0.0), point_cov=point_cov,
                              correction=camera_correction(cal.method, None))

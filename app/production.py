@@ -3,8 +3,8 @@
 On a real cell the robot runs its own program while ``handeye monitor``
 watches. On a simulated cell (the ``ur_sim`` robot) nothing would move
 the robot, so `start_production` gives its simulated controller a looping
-program (`mocks.ur_sim.program`) built from ``[production]``
-(`app.config.ProductionConfig`: explicit waypoints, or random poses around the
+program (`handeye.mocks.ur_sim.program`) built from ``[production]``
+(`handeye.app.config.ProductionConfig`: explicit waypoints, or random poses around the
 start pose, or a pick-and-place of a few stops), a tool stop at each. `Bump`
 knocks the rendered camera partway through a run, as a forklift would, through
 the camera's scheduled mount bumps (``[camera.mount]``): eye-to-hand the camera
@@ -17,7 +17,7 @@ knocks that run's camera took; `knock_as_left` applies them and
 `record_knocks` writes them to the new session.
 
 This module knows the simulator only through what a robot declares
-(`drivers.robot.base.Robot`: ``simulated``, ``kinematics``, ``start_program``)
+(`handeye.drivers.robot.base.Robot`: ``simulated``, ``kinematics``, ``start_program``)
 and the rendered camera's ``add_bump``; on a real robot `start_production`
 does nothing.
 """
@@ -31,14 +31,14 @@ from pathlib import Path
 
 import numpy as np
 
-from app import calibration_in_use
-from app.config import CalibrateConfig, ProductionConfig
-from app.errors import ConfigError, SessionError
-from app.planning import random_pose
-from app.session import read_session
-from calib import transforms as tf
-from calib.setup import Setup
-from drivers.robot.base import KinematicModel
+from handeye.app import calibration_in_use
+from handeye.app.config import CalibrateConfig, ProductionConfig
+from handeye.app.errors import ConfigError, SessionError
+from handeye.app.planning import random_pose
+from handeye.app.session import read_session
+from handeye.calib import transforms as tf
+from handeye.calib.setup import Setup
+from handeye.drivers.robot.base import KinematicModel
 
 log = logging.getLogger(__name__)
 
@@ -50,9 +50,9 @@ def production_program(T_start: np.ndarray, q_start, kinematics: KinematicModel,
                        rng: np.random.Generator,
                        *, n_waypoints: int = 14, pause_s: float = 0.6, speed: float = 2.0,
                        acceleration: float = 8.0) -> dict:
-    """A looping program (JSON form of `mocks.ur_sim.program`) through random poses around ``T_start``.
+    """A looping program (JSON form of `handeye.mocks.ur_sim.program`) through random poses around ``T_start``.
 
-    Poses are drawn like the active calibration's (`app.calibrate.random_pose`,
+    Poses are drawn like the active calibration's (`handeye.app.planning.random_pose`,
     ``cal.translation_range_m`` and ``cal.tilt_deg``), so the marker stays in
     view. More waypoints than the monitor's diversity window keeps each
     lap's poses worth sampling again.
@@ -82,7 +82,7 @@ def pick_and_place_poses(T_start: np.ndarray, stops: int, radius_m: float, max_t
 
 def program_from_config(prod: ProductionConfig, T_start: np.ndarray, q_start, kinematics: KinematicModel,
                         cal: CalibrateConfig, rng: np.random.Generator) -> dict:
-    """The simulator's program (JSON form of `mocks.ur_sim.program`) that ``[production]`` describes.
+    """The simulator's program (JSON form of `handeye.mocks.ur_sim.program`) that ``[production]`` describes.
 
     Raises
     ------
@@ -150,7 +150,7 @@ class Bump:
     rotation_deg: float = 0.5
 
     def apply(self, camera, setup: Setup) -> np.ndarray:
-        """Knock the rendered camera's mount now (`mocks.render.camera.RenderedCamera.add_bump`: base x / base y
+        """Knock the rendered camera's mount now (`handeye.mocks.render.camera.RenderedCamera.add_bump`: base x / base y
         eye-to-hand, camera x / y eye-in-hand); returns its new true transform (``T_base_cam`` / ``T_flange_cam``).
 
         ``setup`` is the run's; a camera configured for the other one is a `ConfigError`.

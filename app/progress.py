@@ -7,7 +7,7 @@ warning never lands on the bar's line, and the live 1-sigma sits beside it.
 Off a terminal (a service's journal, CI, a pipe) a bar's carriage-return
 redraws are noise: 150 monitor samples wrote 40 kB of them. There each event
 is one line (`say`, log records) and `LineProgress` prints one status line
-every ``status_every`` samples (``[console]``, `app.config.ConsoleConfig`).
+every ``status_every`` samples (``[console]``, `handeye.app.config.ConsoleConfig`).
 """
 
 from __future__ import annotations
@@ -23,7 +23,7 @@ _settings = {"progress": "auto", "status_every": 20}
 
 
 def configure(console) -> None:
-    """Take the progress mode and status interval of a ``[console]`` table (`app.config.ConsoleConfig`)."""
+    """Take the progress mode and status interval of a ``[console]`` table (`handeye.app.config.ConsoleConfig`)."""
     _settings.update(progress=console.progress, status_every=console.status_every)
 
 
@@ -133,7 +133,7 @@ def say(text: str) -> None:
 
 
 def show_monitor(bar, report) -> None:
-    """Change detector state, live 1-sigma and drift beside the monitor's bar (``MonitorReport`` of `app.runs.monitor`)."""
+    """Change detector state, live 1-sigma and drift beside the monitor's bar (``MonitorReport`` of `handeye.app.runs.monitor`)."""
     if bar is None or not hasattr(bar, "set_postfix_str"):
         return
     n = report.samples_until_armed

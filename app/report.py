@@ -1,13 +1,13 @@
 """``report.html``: one self-contained page per run that a user can hand over (no network, plots inline SVG).
 
 Written by ``calibrate``, ``replay --out`` and ``verify`` (`write_report`) from
-the result document (`app.formats.result_to_dict`, i.e. ``result.yaml``), the
+the result document (`handeye.app.formats.result_to_dict`, i.e. ``result.yaml``), the
 calibration samples, and the verification (``verify.yaml``) when there is one.
 In this order, so that it reads from the answer down to the evidence:
 
-- the verdict (`calib.verdict`: pass, warn or fail, the summary, each reason with its fix);
+- the verdict (`handeye.calib.verdict`: pass, warn or fail, the summary, each reason with its fix);
 - the cell: site, cell, operator, robot and camera as their drivers named them, handeye's
-  version and commit, the date and time (`app.provenance`);
+  version and commit, the date and time (`handeye.app.provenance`);
 - the camera transform in every form people paste (4x4, xyz + quaternion, xyz + rpy,
   URDF ``<origin>``, ``static_transform_publisher``), its frames, and its predicted accuracy;
 - the marker as configured and the marker-side transform;
@@ -30,10 +30,10 @@ from pathlib import Path
 
 import numpy as np
 
-from calib.observation import Observation
-from calib.setup import Setup
-from app.page import REPORT_STYLE, Raw, figure, svg_of, table
-from calib.verdict import bounded
+from handeye.calib.observation import Observation
+from handeye.calib.setup import Setup
+from handeye.app.page import REPORT_STYLE, Raw, figure, svg_of, table
+from handeye.calib.verdict import bounded
 
 REPORT_NAME = "report.html"
 #: Marker (class) of every plot's container: the browser test counts them.
@@ -184,9 +184,9 @@ def write_report(directory: Path, *, result_doc: dict, observations: list[Observ
     ``result_doc``: the result document (``result.yaml``'s content); ``observations``:
     the calibration samples; ``verify_doc`` / ``verify_observations``: a verification
     and the per-pose samples it judged; ``cell``: who made it, where and with what
-    (`app.provenance.cell`; default: the result document's ``cell``).
+    (`handeye.app.provenance.cell`; default: the result document's ``cell``).
     """
-    from app.verify import models_of
+    from handeye.app.verify import models_of
 
     observations = list(observations or [])
     verify_observations = list(verify_observations or [])
@@ -246,7 +246,7 @@ def _subtitle(result_doc: dict, cell: dict, verify_doc: dict | None) -> str:
 
 
 def _cell_section(cell: dict, result_doc: dict) -> list[str]:
-    """Who, where, with what: `app.provenance.cell`'s fields, each on a row (blank where not known)."""
+    """Who, where, with what: `handeye.app.provenance.cell`'s fields, each on a row (blank where not known)."""
     robot, camera, sw = cell.get("robot") or {}, cell.get("camera") or {}, cell.get("software") or {}
     unknown = "not recorded"
 
@@ -378,7 +378,7 @@ def _verification_section(doc: dict) -> list[str]:
 def _plots_section(model, result_doc: dict, observations: list[Observation],
                    verify_observations: list[Observation]) -> list[str]:
     """Frames, pose coverage, residuals per sample and the error ellipses of the camera transform."""
-    from app.verify import pose_errors
+    from handeye.app.verify import pose_errors
 
     cam = result_doc["camera_transform"]
     parent = cam["parent_frame"]

@@ -1,7 +1,7 @@
 """The monitor's health where ROS 2 users look: ``/diagnostics`` and the live camera transform.
 
 Configured by ``[ros2]`` (`Ros2Config`; off by default). While ``monitor``
-runs, a node (``node_name``, `drivers.ros2`: rclpy, imported when it starts)
+runs, a node (``node_name``, `handeye.drivers.ros2`: rclpy, imported when it starts)
 publishes:
 
 - ``diagnostic_msgs/DiagnosticArray`` on ``/diagnostics`` every ``period_s``
@@ -38,12 +38,12 @@ import time
 
 import numpy as np
 
-from app.calibration_in_use import local_time
-from app.outage import OutageEvent
-from calib import transforms as tf
-from calib.params import Bool, Params, PositiveFloat, Str
-from calib.setup import Setup
-from drivers.ros2 import NodeName, Ros2Node, messages, set_stamp
+from handeye.app.calibration_in_use import local_time
+from handeye.app.outage import OutageEvent
+from handeye.calib import transforms as tf
+from handeye.calib.params import Bool, Params, PositiveFloat, Str
+from handeye.calib.setup import Setup
+from handeye.drivers.ros2 import NodeName, Ros2Node, messages, set_stamp
 
 log = logging.getLogger(__name__)
 
@@ -80,7 +80,7 @@ def _number(x, fmt: str = ".3f") -> str:
 
 class DiagnosticsPublisher:
     """Publishes the monitor's health on ``/diagnostics`` and its estimate on ``~/camera_transform``; a
-    context manager, called like `app.mqtt.MqttPublisher` (``(obs, update, report)`` and `outage`).
+    context manager, called like `handeye.app.mqtt.MqttPublisher` (``(obs, update, report)`` and `outage`).
 
     Parameters
     ----------
@@ -132,7 +132,7 @@ class DiagnosticsPublisher:
 
     # -------------------------------------------------------------- inputs
     def __call__(self, obs, update, report) -> None:
-        """`app.runs.monitor`'s ``publish``: keep the figures for the next status, publish the transform."""
+        """`handeye.app.runs.monitor`'s ``publish``: keep the figures for the next status, publish the transform."""
         with self._lock:
             if update is not None:
                 self._update = update

@@ -29,13 +29,13 @@ from pathlib import Path
 
 import numpy as np
 
-from app.errors import SessionError
-from app.files import inside, read_regular_file
-from calib import transforms as tf
-from calib.errors import CalibrationError
-from calib.observation import Observation
-from calib.setup import Setup, check_setup
-from drivers.camera.depth import depth_from_mm, depth_to_mm
+from handeye.app.errors import SessionError
+from handeye.app.files import inside, read_regular_file
+from handeye.calib import transforms as tf
+from handeye.calib.errors import CalibrationError
+from handeye.calib.observation import Observation
+from handeye.calib.setup import Setup, check_setup
+from handeye.drivers.camera.depth import depth_from_mm, depth_to_mm
 
 log = logging.getLogger(__name__)
 
@@ -190,7 +190,7 @@ class SessionWriter:
             (older ones are deleted as new ones are written; their lines stay).
             None keeps every frame.
         devices : dict, optional
-            What identifies the robot and the camera (`app.provenance.device_identity`).
+            What identifies the robot and the camera (`handeye.app.provenance.device_identity`).
         """
         setup = check_setup(setup, error=SessionError)
         now = _dt.datetime.now(_dt.timezone.utc)

@@ -6,7 +6,7 @@ bounded, the per-sample figures the timeline needs, every alarm with what
 became of it (a *moved* alarm's re-learn: when, and how far the camera
 moved), and the device outages.
 
-Times shown to people are local ISO 8601 (`app.calibration_in_use.local_time`).
+Times shown to people are local ISO 8601 (`handeye.app.calibration_in_use.local_time`).
 The camera transform is ``T_base_cam`` eye-to-hand, ``T_flange_cam``
 eye-in-hand. Two distances are kept apart: the *drift* is how far the camera
 has walked since the calibration in use (the arming one, then each re-learnt
@@ -27,11 +27,11 @@ from pathlib import Path
 import numpy as np
 import yaml
 
-from app.calibration_in_use import local_time
-from app.files import uninterrupted
-from app.page import REPORT_STYLE, figure, svg_of, table
-from calib.monitor import AlarmLevel, EngineState, MonitorEngine, MonitorUpdate
-from calib.setup import Setup
+from handeye.app.calibration_in_use import local_time
+from handeye.app.files import uninterrupted
+from handeye.app.page import REPORT_STYLE, figure, svg_of, table
+from handeye.calib.monitor import AlarmLevel, EngineState, MonitorEngine, MonitorUpdate
+from handeye.calib.setup import Setup
 
 #: Samples of the timeline kept (the newest; months of monitoring stay bounded).
 MAX_ROWS = 20_000
@@ -158,7 +158,7 @@ class ShiftRecord:
 
     def write(self, directory: Path) -> None:
         """``alarms.yaml``, and (when there are samples) the plot and the shift report, into ``directory``; a
-        Ctrl-C meanwhile waits for the files (`app.files.uninterrupted`)."""
+        Ctrl-C meanwhile waits for the files (`handeye.app.files.uninterrupted`)."""
         directory = Path(directory)
         with uninterrupted():
             (directory / ALARMS_FILE).write_text(yaml.safe_dump(self.alarms_document(), sort_keys=False,
@@ -232,7 +232,7 @@ class ShiftRecord:
                   else "<p>none</p>"]
         u = self.last
         if u is not None:
-            from calib import transforms as tf
+            from handeye.calib import transforms as tf
 
             xyz, quat = tf.to_xyz_quat(u.camera_transform)
             rate = "not yet measured" if u.drift_rate_mm_h is None else f"{u.drift_rate_mm_h:.2f} mm/h"

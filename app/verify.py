@@ -2,22 +2,22 @@
 
 Eye-to-hand: ``X = T_flange_marker``, ``Y = T_base_cam``; eye-in-hand:
 ``X = T_flange_cam``, ``Y = T_base_marker`` (paper eq. 1). The judging is
-`calib.verify`'s; this module reads ``result.yaml`` (`load_result`), picks and
+`handeye.calib.verify`'s; this module reads ``result.yaml`` (`load_result`), picks and
 visits the poses (`verify_active`) or samples read-only while production moves
 the robot (`verify_passive`), and writes ``verify.yaml`` (`write_verify`).
 
 ``verify.yaml``::
 
     format: handeye-verify, version: 1, setup, equation,
-    verdict: {level: pass | warn | fail, summary, reasons} (calib.verdict.judge_verification)
-    per_pose_note: what the per-pose errors are made of (calib.verdict.per_pose_phrase)
-    cell: who verified, where, with what (app.provenance.cell)
+    verdict: {level: pass | warn | fail, summary, reasons} (handeye.calib.verdict.judge_verification)
+    per_pose_note: what the per-pose errors are made of (handeye.calib.verdict.per_pose_phrase)
+    cell: who verified, where, with what (handeye.app.provenance.cell)
     mode (active | passive | offline),
     result: {path, solver, camera_transform (name), camera_transform_raw_points present}
     source: the session verified against (offline) or recorded (active)
-    verification: calib.verify.Verification.to_dict() (mm, deg; passed)
+    verification: handeye.calib.verify.Verification.to_dict() (mm, deg; passed)
     rigid_export: the same for camera_transform_raw_points on uncorrected points (ROS/URDF), if any
-    frame_safety: calib.verify.FrameSafety.to_dict() (with --expect-xyz)
+    frame_safety: handeye.calib.verify.FrameSafety.to_dict() (with --expect-xyz)
     repeated_calibration_poses: indices of the poses within a few mm / tenths of a degree of a calibration pose
     truth: {calibration_error_mm} of the simulated cell's truth over the same poses (simulators only)
 """
@@ -35,22 +35,22 @@ from typing import Callable
 import numpy as np
 import yaml
 
-from app import devices, planning, provenance, stopping
-from app.acquire import take_sample
-from app.config import Config
-from app.errors import SessionError
-from app.files import read_text_file
-from app.production import knock_as_left, record_knocks
-from app.session import SessionWriter, read_session
-from calib import planner as pl
-from calib import transforms as tf
-from calib import verify as cv
-from calib.errors import CalibrationError, HandeyeError
-from calib.model import CameraCorrection
-from calib.observation import Observation
-from calib.setup import Setup
-from calib.verdict import per_pose_phrase
-from drivers.errors import DeviceError, LimitViolationError
+from handeye.app import devices, planning, provenance, stopping
+from handeye.app.acquire import take_sample
+from handeye.app.config import Config
+from handeye.app.errors import SessionError
+from handeye.app.files import read_text_file
+from handeye.app.production import knock_as_left, record_knocks
+from handeye.app.session import SessionWriter, read_session
+from handeye.calib import planner as pl
+from handeye.calib import transforms as tf
+from handeye.calib import verify as cv
+from handeye.calib.errors import CalibrationError, HandeyeError
+from handeye.calib.model import CameraCorrection
+from handeye.calib.observation import Observation
+from handeye.calib.setup import Setup
+from handeye.calib.verdict import per_pose_phrase
+from handeye.drivers.errors import DeviceError, LimitViolationError
 
 log = logging.getLogger(__name__)
 
@@ -62,7 +62,7 @@ MAX_RESULT_BYTES = 4 * 1024 * 1024
 
 @dataclass(frozen=True)
 class LoadedResult:
-    """A result file read back: the model `calib.verify` judges, and the rigid export's (None without a
+    """A result file read back: the model `handeye.calib.verify` judges, and the rigid export's (None without a
     camera correction: ``camera_transform_raw_points`` is then ``camera_transform``)."""
 
     path: Path
@@ -148,7 +148,7 @@ def load_result(path: Path) -> LoadedResult:
 
 
 def models_of(doc: dict, path) -> tuple[cv.VerifiedModel, cv.VerifiedModel | None]:
-    """The `calib.verify.VerifiedModel` of a result document (`app.formats.result_to_dict`), and its rigid
+    """The `handeye.calib.verify.VerifiedModel` of a result document (`handeye.app.formats.result_to_dict`), and its rigid
     export's (None without ``camera_transform_raw_points``); `SessionError` naming ``path`` and the field."""
     try:
         setup = Setup(_get(doc, "setup", path))
@@ -212,7 +212,7 @@ def average_frames(observations: list[Observation], groups: list[int]) -> list[O
 
 
 def pose_errors(model: cv.VerifiedModel, observations: list[Observation]) -> cv.PoseErrors:
-    """`calib.verify.prediction_errors` of ``model`` on the samples."""
+    """`handeye.calib.verify.prediction_errors` of ``model`` on the samples."""
     covs = [o.point_cov for o in observations]
     # Pose-only samples (some imports) carry their marker center in the pose.
     points = [o.point_cam if o.point_cam is not None else o.T_cam_marker[:3, 3] for o in observations]
@@ -222,7 +222,7 @@ def pose_errors(model: cv.VerifiedModel, observations: list[Observation]) -> cv.
 
 
 def true_error_mm(loaded: LoadedResult, observations: list[Observation], truth: dict, camera_bias=None) -> float:
-    """RMS over the poses of the error `calib.verify` would see without noise: the result's marker against
+    """RMS over the poses of the error `handeye.calib.verify` would see without noise: the result's marker against
     the true marker, the camera's true systematic error (``camera_bias``, a `CameraCorrection`) applied, mm.
 
     ``truth``: the simulated cell's true transforms (``T_base_cam``/``T_flange_marker`` eye-to-hand,
@@ -344,11 +344,11 @@ def verify_active(cfg: Config, loaded: LoadedResult, *, rng: np.random.Generator
 
 
 def verify_passive(cfg: Config, loaded: LoadedResult, *, progress: bool = False) -> VerifyRun:
-    """Sample read-only while something else moves the robot (`app.runs.monitor.monitor`: a still robot,
+    """Sample read-only while something else moves the robot (`handeye.app.runs.monitor.monitor`: a still robot,
     a pose unlike the recent ones), until ``[verify] poses`` samples or ``monitor.duration_s``; on the simulated
     cell its controller runs the production program. The samples are recorded in a new session."""
-    from app.runs.monitor import monitor
-    from app.config import config_from_dict
+    from handeye.app.runs.monitor import monitor
+    from handeye.app.config import config_from_dict
 
     if loaded.model.setup != cfg.setup:
         raise SessionError(f"{loaded.path} is an {loaded.model.setup} result, the config is {cfg.setup}")
@@ -370,9 +370,9 @@ def verify_passive(cfg: Config, loaded: LoadedResult, *, progress: bool = False)
 def verify_document(loaded: LoadedResult, mode: str, source: Path, verification: cv.Verification,
                     rigid: cv.Verification | None, safety: cv.FrameSafety | None,
                     truth_mm: float | None = None, *, verdict=None, repeated=(), cell: dict | None = None) -> dict:
-    """The content of ``verify.yaml`` (module docstring); ``verdict``: `calib.verdict.judge_verification`'s,
-    ``repeated``: the poses that repeat calibration poses (`calib.verify.repeated_poses`); ``cell``: who
-    verified, where, with what (`app.provenance.cell`)."""
+    """The content of ``verify.yaml`` (module docstring); ``verdict``: `handeye.calib.verdict.judge_verification`'s,
+    ``repeated``: the poses that repeat calibration poses (`handeye.calib.verify.repeated_poses`); ``cell``: who
+    verified, where, with what (`handeye.app.provenance.cell`)."""
     setup = loaded.model.setup
     doc = {
         "format": VERIFY_FORMAT, "version": VERIFY_VERSION, "setup": setup.value, "equation": setup.equation,

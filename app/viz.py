@@ -51,9 +51,9 @@ from pathlib import Path
 
 import numpy as np
 
-from calib import transforms as tf
-from calib.result import worst_axis_sigma
-from calib.setup import Setup, check_setup
+from handeye.calib import transforms as tf
+from handeye.calib.result import worst_axis_sigma
+from handeye.calib.setup import Setup, check_setup
 
 log = logging.getLogger(__name__)
 
@@ -433,7 +433,7 @@ class Viz:
         self._log("events", self._rr.TextLog(text, level=level))
 
     def plan(self, poses, X: np.ndarray, Y: np.ndarray, intrinsics, marker_size_m: float) -> None:
-        """Planned poses (`calib.planner.PlannedPose`) of a dry run, one step of the ``plan_pose`` timeline each:
+        """Planned poses (`handeye.calib.planner.PlannedPose`) of a dry run, one step of the ``plan_pose`` timeline each:
         flange axes, the camera frustum and what the camera would see (predicted marker outline and center).
 
         Eye-to-hand: ``X = T_flange_marker``, ``Y = T_base_cam``; eye-in-hand:

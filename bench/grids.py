@@ -1,11 +1,11 @@
 """Recordings that leave part of the answer open: a grid at one tool orientation, rotations about one axis.
 
 Run ``python -m bench.grids [--cells 100] [--n 100] [--seed 0] [--out out/bench]``
-(also ``handeye bench --grids``). Prints markdown, writes ``<out>/grids.md``.
+(also ``python -m bench --grids``). Prints markdown, writes ``<out>/grids.md``.
 
 Per setup (eye-to-hand ``X = T_flange_marker``, ``Y = T_base_cam``; eye-in-hand
 ``X = T_flange_cam``, ``Y = T_base_marker``) and per motion, on ``--cells``
-simulated cells (`calib.simulate.realistic_cell`: camera 0.7 m away, 1 mm
+simulated cells (`handeye.calib.simulate.realistic_cell`: camera 0.7 m away, 1 mm
 lateral / 3 mm depth point noise, a camera with a 1.5 % depth scale and a
 3 mm depth offset), ``--n`` samples each:
 
@@ -34,25 +34,25 @@ from pathlib import Path
 import numpy as np
 
 from bench.tables import markdown_table
-from calib import model, simulate
-from calib.api import solve
-from calib.auto.determined import MotionPrior, held_equivalent, motion_prior
-from calib.problem import CalibrationProblem
-from calib.refine import error_vector
-from calib.setup import Setup
+from handeye.calib import model, simulate
+from handeye.calib.api import solve
+from handeye.calib.auto.determined import MotionPrior, held_equivalent, motion_prior
+from handeye.calib.problem import CalibrationProblem
+from handeye.calib.refine import error_vector
+from handeye.calib.setup import Setup
 
 #: The camera's systematic error in every cell: 1.5 % depth scale, 3 mm depth offset (a structured-light camera
 #: before an infield correction); ``auto`` estimates both.
 CAMERA = model.CameraCorrection(depth_scale=0.015, depth_offset=0.003)
 
-#: (name, keywords of `calib.simulate.realistic_cell`) of the motions that leave part of the answer open: a grid
+#: (name, keywords of `handeye.calib.simulate.realistic_cell`) of the motions that leave part of the answer open: a grid
 #: over the full calibration's +-0.15 m, one over +-0.25 m, and +-40 deg about the flange's z axis only.
 MOTIONS = (("grid", {"angle_range": 0.0}), ("grid +-0.25 m", {"angle_range": 0.0, "translation_range": 0.25}),
            ("one axis", {"rotation_axis": (0.0, 0.0, 1.0)}))
 
 
 def cell(n: int, seed: int, setup: Setup, **motion) -> tuple[simulate.SimulatedData, np.ndarray]:
-    """A simulated cell (`calib.simulate.realistic_cell`) seen through `CAMERA`, and its measured points (n, 3)."""
+    """A simulated cell (`handeye.calib.simulate.realistic_cell`) seen through `CAMERA`, and its measured points (n, 3)."""
     d = simulate.realistic_cell(n, np.random.default_rng(seed), setup=setup, **motion)
     return d, CAMERA.measure(d.points)
 
@@ -63,7 +63,7 @@ def camera_truth(d: simulate.SimulatedData) -> np.ndarray:
 
 
 def marker_offset(d: simulate.SimulatedData) -> np.ndarray:
-    """The true marker-side translation (`calib.problem.CalibrationProblem.marker_offset`), m."""
+    """The true marker-side translation (`handeye.calib.problem.CalibrationProblem.marker_offset`), m."""
     return (d.X if d.setup == Setup.EYE_TO_HAND else d.Y)[:3, 3]
 
 

@@ -2,7 +2,7 @@
 
 Run ``python -m bench.overhead [--repeats R] [--out out/bench]``. Prints the
 markdown tables, writes ``<out>/overhead.md`` and ``<out>/overhead.png``.
-Data: `calib.simulate.realistic_cell`, eye-to-hand (``X = T_flange_marker``,
+Data: `handeye.calib.simulate.realistic_cell`, eye-to-hand (``X = T_flange_marker``,
 ``Y = T_base_cam``), marker poses for the pose methods and marker points for
 YKronT'. Median wall time in ms, single-threaded: this module sets
 OMP/OpenBLAS/MKL threads to 1 before numpy is imported.
@@ -21,10 +21,10 @@ from pathlib import Path  # noqa: E402
 import numpy as np  # noqa: E402
 
 from bench.solvers import median_time_ms  # noqa: E402
-from calib import simulate, solvers  # noqa: E402
-from calib import transforms as tf  # noqa: E402
-from calib.api import METHODS, closed_form, solve  # noqa: E402
-from calib.setup import Setup  # noqa: E402
+from handeye.calib import simulate, solvers  # noqa: E402
+from handeye.calib import transforms as tf  # noqa: E402
+from handeye.calib.api import METHODS, closed_form, solve  # noqa: E402
+from handeye.calib.setup import Setup  # noqa: E402
 
 COUNTS = (10, 100, 1000)
 

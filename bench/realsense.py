@@ -1,13 +1,13 @@
 """Benchmark of the RealSense path: 640x480 at 30 fps through rs.align and the marker extraction.
 
 Run ``python -m bench.realsense [--frames N] [--out DIR]``. Streams rendered frames of the demo cell
-through librealsense's software device (`mocks.realsense.SoftwareRealSense`) and the backend
-(`drivers.camera.realsense.RealSenseCamera`) and prints a markdown table (also
+through librealsense's software device (`handeye.mocks.realsense.SoftwareRealSense`) and the backend
+(`handeye.drivers.camera.realsense.RealSenseCamera`) and prints a markdown table (also
 ``<out>/realsense.md``), for the registered geometry (depth camera = colour camera) and a D435-like
 one (depth camera 15 mm beside colour, fx 385 vs 570):
 
 - per frame (ms, median and 95th percentile, wall clock): ``read`` (the SDK's syncer, ``rs.align``
-  to colour, depth scaling, rgb -> BGR), ``extract`` (`calib.vision.extract.extract`), and both;
+  to colour, depth scaling, rgb -> BGR), ``extract`` (`handeye.calib.vision.extract.extract`), and both;
   rendering and pushing the frame are not counted;
 - agreement (mm) of the marker point through the RealSense path with the rendered camera's own
   frame (depth registered by the renderer), mean and max; noise-free depth for the D435 geometry,
@@ -23,12 +23,12 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from calib import simulate
-from calib.vision.extract import TargetConfig, extract
-from drivers.camera.realsense import RealSenseCamera, RealSenseCameraConfig
-from mocks.realsense import DepthModel, SoftwareRealSense
-from mocks.render.camera import RenderedCameraConfig
-from mocks.render.scene import RenderNoise
+from handeye.calib import simulate
+from handeye.calib.vision.extract import TargetConfig, extract
+from handeye.drivers.camera.realsense import RealSenseCamera, RealSenseCameraConfig
+from handeye.mocks.realsense import DepthModel, SoftwareRealSense
+from handeye.mocks.render.camera import RenderedCameraConfig
+from handeye.mocks.render.scene import RenderNoise
 
 QUIET = RenderNoise(disparity_sigma_px=0, disparity_step_px=0, depth_bias_k=0, dropout=0)
 GEOMETRIES = {

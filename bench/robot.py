@@ -24,10 +24,10 @@ from pathlib import Path
 
 import numpy as np
 
-from drivers.robot import ur_kinematics as kin
-from drivers.robot.ur import URRobot, URRobotConfig
-from mocks.ur_sim import launch
-from mocks.ur_sim.motion import trapezoid_duration
+from handeye.drivers.robot import ur_kinematics as kin
+from handeye.drivers.robot.ur import URRobot, URRobotConfig
+from handeye.mocks.ur_sim import launch
+from handeye.mocks.ur_sim.motion import trapezoid_duration
 
 START_Q = (0.0, -1.2, 1.6, -1.97, -1.5708, 0.0)
 CONTROLLERS = [("CB3 3.15", "3.15", "127.0.77.1", 125.0), ("e-Series 5.11", "5.11", "127.0.77.2", 500.0)]

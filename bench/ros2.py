@@ -1,11 +1,11 @@
 """Latency of the ROS 2 camera path: a frame published -> a sample (the marker measured), 640x480 at 30 Hz.
 
-Run ``python -m bench.ros2 [--frames N] [--out DIR]`` (``handeye bench --ros2``). A publisher process
+Run ``python -m bench.ros2 [--frames N] [--out DIR]`` (``python -m bench --ros2``). A publisher process
 (this module with ``--publish``, as realsense2_camera would be) sends rendered frames of the demo cell
-(`mocks.render.camera`, rendered beforehand) at 30 Hz through real DDS on loopback (ROS_DOMAIN_ID and
+(`handeye.mocks.render.camera`, rendered beforehand) at 30 Hz through real DDS on loopback (ROS_DOMAIN_ID and
 ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST as set here unless given), stamped when published (colour rgb8,
-aligned depth 16UC1, CameraInfo). This process reads them with `drivers.camera.ros2.Ros2Camera` (the newest
-pair) and measures the marker (`calib.vision.extract.extract`), one frame after the other as a run does.
+aligned depth 16UC1, CameraInfo). This process reads them with `handeye.drivers.camera.ros2.Ros2Camera` (the newest
+pair) and measures the marker (`handeye.calib.vision.extract.extract`), one frame after the other as a run does.
 ``--flood SECONDS``: a 100 Hz publisher with every third stamp out of order instead, read as fast as it
 comes: frames read, messages skipped (logged), this process's resident memory over the run.
 
@@ -33,11 +33,11 @@ TOPICS = {"color_topic": "/bench/color/image_raw", "depth_topic": "/bench/aligne
 def publish(n: int, rate: float, shuffle: bool = False) -> int:
     """The publisher process: render ``min(n, 30)`` poses, then publish ``n`` frames at ``rate`` (``shuffle``:
     every third one stamped 0.2 s back, out of order)."""
-    from calib import simulate
-    from drivers.camera.ros2 import Ros2CameraConfig
-    from drivers.ros2 import Ros2Node
-    from mocks.render.camera import RenderedCamera, RenderedCameraConfig
-    from mocks.ros2_cell import FramePublisher
+    from handeye.calib import simulate
+    from handeye.drivers.camera.ros2 import Ros2CameraConfig
+    from handeye.drivers.ros2 import Ros2Node
+    from handeye.mocks.render.camera import RenderedCamera, RenderedCameraConfig
+    from handeye.mocks.ros2_cell import FramePublisher
 
     poses = iter(simulate.realistic_cell(min(n, 30), np.random.default_rng(0)).A_true)
     cam = RenderedCamera(RenderedCameraConfig(), lambda: next(poses))
@@ -74,8 +74,8 @@ def flood(seconds: float, rate: float = 100.0) -> dict:
     come: frames read, skips, and this process's resident memory (MB) over the run."""
     import resource
 
-    from drivers.camera.ros2 import Ros2Camera, Ros2CameraConfig
-    from drivers.errors import ConnectionLostError
+    from handeye.drivers.camera.ros2 import Ros2Camera, Ros2CameraConfig
+    from handeye.drivers.errors import ConnectionLostError
 
     _env()
     n = int(seconds * rate)
@@ -106,10 +106,10 @@ def flood(seconds: float, rate: float = 100.0) -> dict:
 
 
 def run(n: int, rate: float) -> dict:
-    from calib.errors import ExtractionError
-    from calib.vision.extract import TargetConfig, extract
-    from drivers.camera.ros2 import Ros2Camera, Ros2CameraConfig
-    from drivers.errors import ConnectionLostError
+    from handeye.calib.errors import ExtractionError
+    from handeye.calib.vision.extract import TargetConfig, extract
+    from handeye.drivers.camera.ros2 import Ros2Camera, Ros2CameraConfig
+    from handeye.drivers.errors import ConnectionLostError
 
     _env()
     pub = _publisher(n, rate, False)

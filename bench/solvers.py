@@ -1,6 +1,6 @@
 """Solver benchmark: the paper's sec. V in simulation, next to OpenCV, plus refinement, robustness, timings.
 
-Run ``handeye bench [--quick | --tiny] [--out out/bench] [--seed S]``
+Run ``python -m bench [--quick | --tiny] [--out out/bench] [--seed S]``
 (or ``python -m bench.solvers`` with the same options). Writes ``<out>/solvers.md`` and PNG plots, prints the
 markdown. All data are eye-to-hand (static camera, marker on the flange:
 ``X = T_flange_marker``, ``Y = T_base_cam``) unless a table says eye-in-hand
@@ -8,7 +8,7 @@ markdown. All data are eye-to-hand (static camera, marker on the flange:
 
 Experiments
 -----------
-1. Error vs number of samples (5..70), `calib.simulate.paper_setup` with the
+1. Error vs number of samples (5..70), `handeye.calib.simulate.paper_setup` with the
    paper's experiment-1 noise (|N_A| < 15 deg / 0.02 m, |N_B| < 10 deg / 0.01 m),
    30 rounds; every method of Table I plus OpenCV's ``calibrateHandEye``
    (TSAI, PARK, HORAUD, ANDREFF, DANIILIDIS; eye-to-hand gets the inverted
@@ -16,13 +16,13 @@ Experiments
    (SHAH, LI) on the same data.
 2. Error vs noise level at N = 30: rotation noise 0..30 / 20 deg and
    translation noise 0..0.06 / 0.03 m (A / B) rising linearly, 40 rounds.
-3. The realistic cell (`calib.simulate.realistic_cell`, 80 samples, 30 rounds),
+3. The realistic cell (`handeye.calib.simulate.realistic_cell`, 80 samples, 30 rounds),
    with YKronT' + ML refinement and the Cramér-Rao bound.
 4. Efficiency and honesty of the refinement: RMS error / CRLB and NEES.
 4b. Honesty of ``cov`` per method of Table I, closed form and refined: NEES
    on the realistic cell (``cov_kind`` says how each was computed).
 5. Robustness to 0-30% gross outliers; 6. timings (with the monitoring engine's update; its shift
-benchmark is ``handeye bench --shift``).
+benchmark is ``python -m bench --shift``).
 
 Errors are those of ``Y = T_base_cam``: rotation angle (deg) and translation
 (mm). The reprojection error follows the paper: the marker point (origin of
@@ -51,14 +51,14 @@ from pathlib import Path  # noqa: E402
 import cv2  # noqa: E402
 import numpy as np  # noqa: E402
 
-from calib import simulate, solvers  # noqa: E402
-from calib import transforms as tf  # noqa: E402
-from calib.api import METHODS, closed_form, solve  # noqa: E402
-from calib.errors import CalibrationError  # noqa: E402
-from calib.problem import CalibrationProblem  # noqa: E402
-from calib.monitor import MonitorEngine  # noqa: E402
-from calib.setup import Setup  # noqa: E402
-from calib.refine import cramer_rao_bound, error_vector, kron_t_prime_covariance, nees, refine  # noqa: E402
+from handeye.calib import simulate, solvers  # noqa: E402
+from handeye.calib import transforms as tf  # noqa: E402
+from handeye.calib.api import METHODS, closed_form, solve  # noqa: E402
+from handeye.calib.errors import CalibrationError  # noqa: E402
+from handeye.calib.problem import CalibrationProblem  # noqa: E402
+from handeye.calib.monitor import MonitorEngine  # noqa: E402
+from handeye.calib.setup import Setup  # noqa: E402
+from handeye.calib.refine import cramer_rao_bound, error_vector, kron_t_prime_covariance, nees, refine  # noqa: E402
 from bench.tables import markdown_table  # noqa: E402
 
 cv2.setNumThreads(1)
@@ -310,7 +310,7 @@ def experiment_timing(rng, counts, repeats, skip_slow):
 
 
 def monitor_update_median_us(rng, n=480) -> float:
-    """Median wall time (µs) of one `calib.monitor.MonitorEngine.update` over a simulated shift (realistic
+    """Median wall time (µs) of one `handeye.calib.monitor.MonitorEngine.update` over a simulated shift (realistic
     profile, armed from a 30-pose ``auto`` calibration with the robot's kinematic error, 4 stops)."""
     prof = simulate.RealisticProfile()
     real = simulate.realistic_profile(30, rng, prof)
@@ -495,7 +495,7 @@ def _command(cfg) -> str:
     """The command line that prints this report, as a user types it."""
     size = " --tiny" if cfg["tiny"] else " --quick" if cfg["quick"] else ""
     seed = f" --seed {cfg['seed']}" if cfg["seed"] else ""
-    return f"handeye bench{size}{seed}"
+    return f"python -m bench{size}{seed}"
 
 
 def _config(quick: bool, tiny: bool, seed: int) -> dict:
@@ -521,7 +521,7 @@ def _config(quick: bool, tiny: bool, seed: int) -> dict:
 
 def main(argv=None) -> int:
     """Run the benchmark; returns 0. See the module docstring."""
-    ap = argparse.ArgumentParser(prog="handeye bench", description=__doc__.split("\n")[0])
+    ap = argparse.ArgumentParser(prog="python -m bench", description=__doc__.split("\n")[0])
     ap.add_argument("--quick", action="store_true", help="small smoke run (< 1 min)")
     ap.add_argument("--out", default="out/bench", help="output folder for solvers.md and the PNG plots")
     ap.add_argument("--tiny", action="store_true", help="one round of everything at tiny sizes (smoke test)")

@@ -1,4 +1,4 @@
-"""Benchmark of the clock-offset estimate (calib.timesync) and the pose-stream importer.
+"""Benchmark of the clock-offset estimate (handeye.calib.timesync) and the pose-stream importer.
 
 Eye-in-hand streams throughout (X = T_flange_cam, Y = T_base_marker).
 
@@ -23,10 +23,10 @@ from pathlib import Path
 
 import numpy as np
 
-from calib import timesync
-from calib import transforms as tf
-from calib.api import closed_form
-from calib.setup import Setup
+from handeye.calib import timesync
+from handeye.calib import transforms as tf
+from handeye.calib.api import closed_form
+from handeye.calib.setup import Setup
 
 OUT = Path("out/bench")
 
@@ -70,7 +70,7 @@ def bench_synthetic(seeds: int) -> str:
 
 def bench_refined(seeds: int) -> str:
     """The importer's whole offset pipeline at library level on simulated streams: cross-correlation,
-    then refinement on the YKronT' residual (`calib.timesync.calibration_cost`, `refine_clock_offset`)."""
+    then refinement on the YKronT' residual (`handeye.calib.timesync.calibration_cost`, `refine_clock_offset`)."""
     import matplotlib
 
     matplotlib.use("Agg")

@@ -3,14 +3,14 @@
 Run ``python -m bench.vision [--frames N] [--seed S] [--out DIR]``. Prints
 markdown tables and writes ``vision_accuracy.png`` to ``out/bench/``:
 
-- per-frame time of detection + depth lifting (`calib.vision.extract`) on one
+- per-frame time of detection + depth lifting (`handeye.calib.vision.extract`) on one
   core: OpenCV limited to one thread, timed as the thread's CPU time so that
   other processes on a shared machine do not inflate it;
 - accuracy of the 3D marker center vs distance (median / 95 % error, NEES of
   the 3x3 covariance, which should be ~3), of the depth-refined and PnP-only
   rotations, the NEES of the depth-refined 6x6 pose covariance (~6), and the
   skip rate, for a 5 cm DICT_4X4_50 marker on an
-  Xtion-like sensor (`mocks.render.scene.RenderNoise` defaults).
+  Xtion-like sensor (`handeye.mocks.render.scene.RenderNoise` defaults).
 
 The measurement is the same for eye-to-hand and eye-in-hand (the marker seen
 from the camera), so one table serves both setups.
@@ -26,11 +26,11 @@ import cv2
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from calib import transforms as tf
-from calib.vision.extract import TargetConfig, extract, try_extract
-from calib.vision.markers import detect_markers
-from drivers.camera.base import CameraIntrinsics
-from mocks.render.scene import MarkerSceneRenderer, RenderNoise
+from handeye.calib import transforms as tf
+from handeye.calib.vision.extract import TargetConfig, extract, try_extract
+from handeye.calib.vision.markers import detect_markers
+from handeye.drivers.camera.base import CameraIntrinsics
+from handeye.mocks.render.scene import MarkerSceneRenderer, RenderNoise
 
 INTR = CameraIntrinsics(640, 480, 570.0, 570.0, 319.5, 239.5)
 BINS = [(0.4, 0.5), (0.5, 0.6), (0.6, 0.7), (0.7, 0.8), (0.8, 0.9), (0.9, 1.0), (1.0, 1.2), (1.2, 1.5)]

@@ -5,7 +5,7 @@ writes ``<out>/yaxisr.md`` and ``<out>/yaxisr.png`` (rotation error of Y per
 round against ``|y_0|``, the scalar part of the true ``R_Y`` quaternion that
 Zhuang's reduction divides by). "unrotated" is Zhuang's reduction solved
 directly in the given frames (the previous YAxisR):
-`calib.solvers.zhuang_rotations` with ``pre_rotate=False``. Eye-to-hand
+`handeye.calib.solvers.zhuang_rotations` with ``pre_rotate=False``. Eye-to-hand
 (``X = T_flange_marker``, ``Y = T_base_cam``) unless the column says
 eye-in-hand (``X = T_flange_cam``, ``Y = T_base_marker``).
 """
@@ -18,11 +18,11 @@ from pathlib import Path
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from calib import simulate, solvers
-from calib import transforms as tf
-from calib.api import closed_form
-from calib.errors import DegenerateMotionError
-from calib.setup import Setup
+from handeye.calib import simulate, solvers
+from handeye.calib import transforms as tf
+from handeye.calib.api import closed_form
+from handeye.calib.errors import DegenerateMotionError
+from handeye.calib.setup import Setup
 
 
 def unrotated_y_axis_r(A: np.ndarray, B: np.ndarray) -> np.ndarray:

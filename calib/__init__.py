@@ -3,7 +3,7 @@
 Imports nothing from ``drivers``, ``mocks`` or ``app``.
 """
 
-from calib.errors import (
+from handeye.calib.errors import (
     CalibrationError,
     DegenerateMotionError,
     DepthError,
@@ -12,11 +12,11 @@ from calib.errors import (
     InsufficientDataError,
     MarkerNotFoundError,
 )
-from calib.observation import Observation
-from calib.problem import CalibrationProblem
-from calib.setup import Setup, check_setup
-from calib.result import CalibrationResult, Residuals
-from calib.api import METHODS, MethodInfo, observations_to_arrays, solve, solve_observations
+from handeye.calib.observation import Observation
+from handeye.calib.problem import CalibrationProblem
+from handeye.calib.setup import Setup, check_setup
+from handeye.calib.result import CalibrationResult, Residuals
+from handeye.calib.api import METHODS, MethodInfo, observations_to_arrays, solve, solve_observations
 
 __all__ = [
     "CalibrationError",

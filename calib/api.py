@@ -1,5 +1,5 @@
 """The public entry point: ``solve(method, problem)`` (or its array form ``solve(method, A, B, ...)``) and
-``solve_observations``; the table of methods (`calib.methods`) is re-exported here.
+``solve_observations``; the table of methods (`handeye.calib.methods`) is re-exported here.
 
 Setups. Eye-to-hand (static camera, marker on the flange):
 ``T_base_flange @ T_flange_marker = T_base_cam @ T_cam_marker``, the paper's
@@ -25,18 +25,18 @@ from typing import Sequence
 
 import numpy as np
 
-from calib import refine as rf
-from calib import transforms as tf
-from calib.auto import solve_auto
-from calib.diagnostics import self_check
-from calib.errors import CalibrationError, InsufficientDataError
-from calib.methods import AUTO, AUTO_MIN_SAMPLES, METHODS, MethodInfo, check_applicable, closed_form, is_auto, \
+from handeye.calib import refine as rf
+from handeye.calib import transforms as tf
+from handeye.calib.auto import solve_auto
+from handeye.calib.diagnostics import self_check
+from handeye.calib.errors import CalibrationError, InsufficientDataError
+from handeye.calib.methods import AUTO, AUTO_MIN_SAMPLES, METHODS, MethodInfo, check_applicable, closed_form, is_auto, \
     resolve_method
-from calib.observation import Observation
-from calib.problem import CalibrationProblem, as_problem, observations_to_arrays
-from calib.result import CalibrationResult
-from calib.robust import default_subset, robust_solve
-from calib.setup import Setup
+from handeye.calib.observation import Observation
+from handeye.calib.problem import CalibrationProblem, as_problem, observations_to_arrays
+from handeye.calib.result import CalibrationResult
+from handeye.calib.robust import default_subset, robust_solve
+from handeye.calib.setup import Setup
 
 __all__ = ["AUTO", "METHODS", "MethodInfo", "CalibrationProblem", "closed_form", "observations_problem",
            "observations_to_arrays", "resolve_method", "solve", "solve_observations"]
@@ -46,22 +46,22 @@ def solve(method: str, problem, B=None, *, refine: bool = False, robust: bool = 
           rng: np.random.Generator | None = None, camera_correction: str | None = None, **arrays) -> CalibrationResult:
     """Hand-eye calibration ``A_i X = Y B_i`` (paper eq. 1) with a method of Table I, or ``"auto"``.
 
-    Pipeline: closed form (or ``calib.robust.robust_solve`` around it) ->
-    ``calib.refine.refine`` on the inliers if asked -> covariance of the camera
+    Pipeline: closed form (or ``handeye.calib.robust.robust_solve`` around it) ->
+    ``handeye.calib.refine.refine`` on the inliers if asked -> covariance of the camera
     transform, of the estimator actually returned (see Returns).
 
     Parameters
     ----------
     method : str
-        ``"auto"`` (`calib.auto.solve_auto`: every measurement the data
+        ``"auto"`` (`handeye.calib.auto.solve_auto`: every measurement the data
         carry, the best closed-form start, robust, refined with the extended
-        model of `calib.model`: robot error, camera depth/focal correction,
+        model of `handeye.calib.model`: robot error, camera depth/focal correction,
         estimated noise levels; ``refine`` and ``robust`` do not apply), or a
         paper method: ``XAxisRX``, ``XQuatR*``, ``XKronR*``, ``XKronRT``, ``XKronT``,
         ``YAxisR``, ``YQuatR*``, ``YKronRT``, ``YQuatT'``, ``YKronT'``; also
         case-insensitive without ``'``/``*`` (``"ykront"``). See `METHODS`.
     problem : CalibrationProblem
-        The validated samples (`calib.problem`). Array form: ``A`` (N, 4, 4)
+        The validated samples (`handeye.calib.problem`). Array form: ``A`` (N, 4, 4)
         ``T_base_flange`` (m) here, ``B`` (N, 4, 4) ``T_cam_marker`` or (N, 3)
         marker centres in the camera frame (m) next, and the keywords of
         `CalibrationProblem.from_arrays` (``setup``, ``point_cov``,
@@ -69,15 +69,15 @@ def solve(method: str, problem, B=None, *, refine: bool = False, robust: bool = 
         the last three ``"auto"`` only). Eye-to-hand: ``X = T_flange_marker``,
         ``Y = T_base_cam``; eye-in-hand: ``X = T_flange_cam``, ``Y = T_base_marker``.
     refine : bool
-        Maximum-likelihood refinement of the closed form (calib.refine).
+        Maximum-likelihood refinement of the closed form (handeye.calib.refine).
     robust : bool
-        Outlier rejection (calib.robust); ``result.inliers`` is then set.
+        Outlier rejection (handeye.calib.robust); ``result.inliers`` is then set.
     rng : numpy.random.Generator, optional
         For the robust sampler; ``default_rng(0)`` if not given, so results
         are reproducible.
     camera_correction : {"auto", "none", "depth", "depth+focal"}, optional
         Method ``"auto"`` only (default "auto"): which camera parameters to
-        estimate (`calib.auto.solve_auto`). Likewise the problem's
+        estimate (`handeye.calib.auto.solve_auto`). Likewise the problem's
         ``robot_shared_error`` applies to ``"auto"`` only.
 
     Returns
@@ -86,10 +86,10 @@ def solve(method: str, problem, B=None, *, refine: bool = False, robust: bool = 
         ``X``, ``Y`` (4x4), residuals per sample, ``cov`` (6x6, camera
         transform, rotation vector rad then translation m), ``self_check``
         and ``cov_kind``: "fisher" (refined: inverse Fisher information,
-        `calib.refine.covariance`), "delta-analytic" (closed-form YKronT':
-        first-order covariance of the estimator, `calib.refine.kron_t_prime_covariance`),
+        `handeye.calib.refine.covariance`), "delta-analytic" (closed-form YKronT':
+        first-order covariance of the estimator, `handeye.calib.refine.kron_t_prime_covariance`),
         "delta-numerical" (other closed forms up to `DELTA_METHOD_MAX_SAMPLES`
-        samples, `calib.refine.delta_method_covariance`) or
+        samples, `handeye.calib.refine.delta_method_covariance`) or
         "fisher-optimistic" (other closed forms above that: the ML
         covariance, smaller than the closed form's true error).
 
@@ -106,7 +106,7 @@ def solve(method: str, problem, B=None, *, refine: bool = False, robust: bool = 
         answer at all; when they leave just the split between the two
         translations open (a tool that never turns, or turns about one axis),
         it reports what they determine, given the open part held, and names
-        the rest in ``result.undetermined`` (`calib.auto.determined`).
+        the rest in ``result.undetermined`` (`handeye.calib.auto.determined`).
     """
     problem = as_problem(problem, B, **arrays)
     if is_auto(method):

@@ -8,9 +8,9 @@ likelihood ratio of "the camera moved by some 6-dof delta":
 chi-square with 6 dof before a change. It alarms above the
 ``1 - false_alarm_rate / 2`` quantile. The short window flags clear moves
 within a few samples; the long one catches moves the points barely show,
-such as a small rotation about the optical axis. `calib.monitor.MonitorEngine`
+such as a small rotation about the optical axis. `handeye.calib.monitor.MonitorEngine`
 feeds it (eye-to-hand the camera transform is ``Y = T_base_cam``, eye-in-hand
-``X = T_flange_cam``; perturbations as in `calib.result`).
+``X = T_flange_cam``; perturbations as in `handeye.calib.result`).
 """
 
 from __future__ import annotations
@@ -22,8 +22,8 @@ from pydantic import Field, model_validator
 from scipy.linalg.lapack import dposv
 from scipy.stats import chi2, ncx2
 
-from calib.errors import CalibrationError
-from calib.params import Float, Int, Params
+from handeye.calib.errors import CalibrationError
+from handeye.calib.params import Float, Int, Params
 
 #: The detector's long window is tested every this many samples.
 LONG_STRIDE = 4
@@ -69,7 +69,7 @@ class ChangeDetector:
     Feed it the innovation ``r`` (3,) of each new point predicted from the
     current estimate, its inverse covariance ``S^-1`` (3, 3) and the Jacobian ``H`` (3, 6)
     of the predicted point w.r.t. the camera transform perturbation
-    (`calib.result` convention). Over each window the statistic
+    (`handeye.calib.result` convention). Over each window the statistic
     ``g^T F^-1 g`` is chi-square(6) while the camera stays put; a moved camera
     makes the innovations line up with ``H``. ``statistics`` holds the
     (short, long) window values, ``statistic`` the larger; both share one threshold.
@@ -196,7 +196,7 @@ def move_information(H, R, visits, baseline) -> np.ndarray:
     ----------
     H : array_like, shape (S, 3, 6)
         Each stop's marker point Jacobian w.r.t. the camera transform
-        (left perturbation ``[rotation, translation]``, rad and m, as `calib.result`).
+        (left perturbation ``[rotation, translation]``, rad and m, as `handeye.calib.result`).
     R : array_like, shape (S, 3, 3)
         The covariance of one sample's point at each stop, m^2.
     visits : array_like of int, shape (S,)

@@ -5,7 +5,7 @@ are predicted from their robot poses (``p_i = C^-1 M_i t_K``, paper eq. 5 in
 the camera frame, with the camera correction of an ``"auto"`` result applied)
 and compared to the measured ones. The predicted error of a held-out point is
 ``sqrt(trace(Sigma_i + J_i Cov J_i^T))``: its measurement noise (the noise
-levels of `calib.model`, estimated on the training samples) plus the
+levels of `handeye.calib.model`, estimated on the training samples) plus the
 uncertainty of the calibration itself (inverse information of the model at the
 training estimate). Observed and predicted agree for an honest model.
 
@@ -19,12 +19,12 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from calib import model
-from calib.api import solve
-from calib.diagnostics import estimate_noise
-from calib.errors import CalibrationError, InsufficientDataError
-from calib.methods import is_auto, resolve_method
-from calib.problem import CalibrationProblem, as_problem
+from handeye.calib import model
+from handeye.calib.api import solve
+from handeye.calib.diagnostics import estimate_noise
+from handeye.calib.errors import CalibrationError, InsufficientDataError
+from handeye.calib.methods import is_auto, resolve_method
+from handeye.calib.problem import CalibrationProblem, as_problem
 
 
 @dataclass(frozen=True)
@@ -115,7 +115,7 @@ def cross_validate(method: str, problem, B=None, *, folds: int | None = None, rn
     Parameters
     ----------
     method : str
-        ``"auto"`` or a paper method name (`calib.api.METHODS`).
+        ``"auto"`` or a paper method name (`handeye.calib.api.METHODS`).
     problem : CalibrationProblem
         The samples; or the array form of `calib.solve` (``A``, ``B`` and
         ``setup``, ``point_cov``, ``robot_shared_error``).

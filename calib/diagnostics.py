@@ -2,7 +2,7 @@
 
 Works for any estimate ``(X, Y)`` of paper eq. 1 ``A_i X = Y B_i`` (eye-to-hand
 ``X = T_flange_marker``, ``Y = T_base_cam``; eye-in-hand ``X = T_flange_cam``,
-``Y = T_base_marker``) under the extended measurement model of `calib.model`.
+``Y = T_base_marker``) under the extended measurement model of `handeye.calib.model`.
 """
 
 from __future__ import annotations
@@ -10,10 +10,10 @@ from __future__ import annotations
 import numpy as np
 from scipy.special import chdtrc
 
-from calib import model
-from calib import transforms as tf
-from calib.problem import CalibrationProblem
-from calib.result import SelfCheck
+from handeye.calib import model
+from handeye.calib import transforms as tf
+from handeye.calib.problem import CalibrationProblem
+from handeye.calib.result import SelfCheck
 
 #: Held-out prediction error may differ from the predicted one by this factor before we warn.
 LOO_TOLERANCE = 1.5
@@ -27,7 +27,7 @@ CHECK_ROUNDS = 5
 
 def initial_noise(d2, C, K, M, R_B) -> model.NoiseLevels:
     """Starting noise levels: the camera model at the scale of the whitened squared point residuals ``d2``
-    (`calib.model.point_d2`), a small robot error, and the orientation residuals' RMS for pose data ``R_B``."""
+    (`handeye.calib.model.point_d2`), a small robot error, and the orientation residuals' RMS for pose data ``R_B``."""
     rot0 = None
     if R_B is not None:
         e0 = model.rotation_residuals(C, K, M, R_B)[0]
@@ -41,7 +41,7 @@ def noise_at(data: model.WeightedData, C, K, theta, free) -> model.NoiseLevels:
     noise = initial_noise(model.point_d2(C, K, data.M, data.points, data.shape_whitener), C, K, data.M,
                           data.B[:, :3, :3] if data.use_rotation else None)
     for _ in range(CHECK_ROUNDS):
-        # Fixed estimate: the robot cofactor and the Jacobians are computed once (`calib.model.WeightedData`).
+        # Fixed estimate: the robot cofactor and the Jacobians are computed once (`handeye.calib.model.WeightedData`).
         prob, cof = data.linearize(C, K, noise, free)
         new, _ = model.variance_components(prob, C, K, theta, data.shape, cof, noise)
         settled = abs(new.point_scale / noise.point_scale - 1) < 0.03 and abs(new.robot / noise.robot - 1) < 0.03
@@ -62,9 +62,9 @@ def _weighted_at(X, Y, problem: CalibrationProblem, use_rotation: bool, marker_r
 
 
 def estimate_noise(X, Y, problem: CalibrationProblem, *, marker_rotation_known: bool = True) -> model.NoiseLevels:
-    """Noise levels (`calib.model.NoiseLevels`) of the data at a given estimate, e.g. a closed form's.
+    """Noise levels (`handeye.calib.model.NoiseLevels`) of the data at a given estimate, e.g. a closed form's.
 
-    The variance components of `calib.model.variance_components` at ``(X, Y)``
+    The variance components of `handeye.calib.model.variance_components` at ``(X, Y)``
     held fixed, no camera correction. Orientations are used for pose data;
     with ``marker_rotation_known`` False (a point-only estimate) the
     marker-side rotation is first fitted to them.
@@ -80,11 +80,11 @@ def self_check(X, Y, problem: CalibrationProblem, *, noise: model.NoiseLevels | 
 
     - ``chi2``/``dof``/``p_value``: the point residuals whitened by the
       camera's a-priori covariance (the problem's ``point_cov``, else the depth
-      model of `calib.noise`) with no robot error: a small p-value
+      model of `handeye.calib.noise`) with no robot error: a small p-value
       (``prior_model_rejected``) says the camera noise alone does not explain
       the residuals (the robot or a systematic error does).
     - ``loo_observed_m`` / ``loo_predicted_m``: RMS leave-one-out prediction
-      error of the marker point (linearised, `calib.model.leave_one_out`)
+      error of the marker point (linearised, `handeye.calib.model.leave_one_out`)
       and the RMS the model predicts for it with the noise levels ``noise``
       (estimated from the residuals at ``(X, Y)`` when not given);
       ``loo_ratio`` is observed / predicted. Outside ``1 / LOO_TOLERANCE ..
@@ -94,9 +94,9 @@ def self_check(X, Y, problem: CalibrationProblem, *, noise: model.NoiseLevels | 
     ----------
     X, Y : ndarray, shape (4, 4)
     problem : CalibrationProblem
-    noise : calib.model.NoiseLevels, optional
+    noise : handeye.calib.model.NoiseLevels, optional
     theta : array_like, shape (3,), optional
-        Camera correction (`calib.model.CAMERA_PARAMS`), zero by default.
+        Camera correction (`handeye.calib.model.CAMERA_PARAMS`), zero by default.
     free : sequence of 3 bool
         Which camera parameters were estimated (they count as unknowns).
     use_rotation : bool, optional

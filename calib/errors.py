@@ -6,9 +6,9 @@ and let anything else surface as a bug:
 
 - here (``calib``): `ParameterError`, `CalibrationError` (> `InsufficientDataError`,
   `DegenerateMotionError`), `ExtractionError` (> `MarkerNotFoundError`, `DepthError`);
-- ``drivers.errors``: `DeviceError` (> `ConnectionLostError`, `RobotStoppedError`,
+- ``handeye.drivers.errors``: `DeviceError` (> `ConnectionLostError`, `RobotStoppedError`,
   `LimitViolationError`);
-- ``app.errors``: `ConfigError` (a `ParameterError` of a config file), `SessionError`.
+- ``handeye.app.errors``: `ConfigError` (a `ParameterError` of a config file), `SessionError`.
 """
 
 

@@ -10,12 +10,12 @@ import dataclasses
 from dataclasses import dataclass
 from typing import Callable
 
-from calib import solvers
-from calib import transforms as tf
-from calib.errors import CalibrationError, InsufficientDataError
-from calib.problem import CalibrationProblem, as_problem
-from calib.result import CalibrationResult, Residuals
-from calib.setup import Setup
+from handeye.calib import solvers
+from handeye.calib import transforms as tf
+from handeye.calib.errors import CalibrationError, InsufficientDataError
+from handeye.calib.problem import CalibrationProblem, as_problem
+from handeye.calib.result import CalibrationResult, Residuals
+from handeye.calib.setup import Setup
 
 
 @dataclass(frozen=True)
@@ -43,7 +43,7 @@ class MethodInfo:
     min_samples : int
         Fewest samples the method accepts.
     function : callable
-        The solver of `calib.solvers`, ``function(A, B) -> (X, Y)`` (eye-to-hand form).
+        The solver of `handeye.calib.solvers`, ``function(A, B) -> (X, Y)`` (eye-to-hand form).
     """
 
     name: str
@@ -85,7 +85,7 @@ METHODS: dict[str, MethodInfo] = {row.name: row for row in (
          solvers.y_kron_t_prime),
 )}
 
-#: The name of the extended-model estimator (`calib.auto`).
+#: The name of the extended-model estimator (`handeye.calib.auto`).
 AUTO = "auto"
 #: Fewest samples ``"auto"`` accepts (its YKronT' start needs 5).
 AUTO_MIN_SAMPLES = 5

@@ -14,10 +14,10 @@ Kinect v1 / Xtion (PrimeSense) error studies:
   inherits the low-frequency depth distortion ("wiggling", several mm at
   1 m in the same study) that averaging over the marker does not remove, so
   we use 6e-3 /m: 3 mm at 0.7 m, the along-ray figure of
-  `calib.simulate.realistic_cell` (1 mm lateral at 0.7 m matches the lateral
+  `handeye.calib.simulate.realistic_cell` (1 mm lateral at 0.7 m matches the lateral
   term).
 
-The absolute level of a real camera's noise varies, so `calib.refine` treats
+The absolute level of a real camera's noise varies, so `handeye.calib.refine` treats
 the model as the *shape* of the covariance and, when no covariance is given,
 estimates its overall scale from the residuals (a posteriori variance factor).
 """
@@ -26,8 +26,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from calib.errors import CalibrationError
-from calib.transforms import check_points
+from handeye.calib.errors import CalibrationError
+from handeye.calib.transforms import check_points
 
 #: Lateral noise of one pixel measurement, px (Nguyen et al. 2012).
 SIGMA_PX = 0.8

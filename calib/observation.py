@@ -42,7 +42,7 @@ class Observation:
         detector scores). JSON-serialisable values only.
     joints : ndarray, shape (6,), or None
         The robot's joint angles at the sample (rad), when it reports them:
-        what a model of its kinematic error needs (`calib.robot_error`).
+        what a model of its kinematic error needs (`handeye.calib.robot_error`).
     """
 
     index: int
@@ -58,7 +58,7 @@ class Observation:
     @classmethod
     def from_measurement(cls, index: int, t: float, T_base_flange: np.ndarray, m, meta: dict | None = None,
                          joints=None) -> "Observation":
-        """The sample of a flange pose and a marker measurement (`calib.vision.extract.MarkerMeasurement`).
+        """The sample of a flange pose and a marker measurement (`handeye.calib.vision.extract.MarkerMeasurement`).
 
         ``meta`` gets the marker kind and the extraction's numeric diagnostics
         (``extract``) after the caller's own entries; ``joints`` (6,) rad when the robot reports them.

@@ -18,7 +18,7 @@ from typing import Annotated, Literal, get_args, get_origin
 import numpy as np
 from pydantic import AfterValidator, BaseModel, BeforeValidator, ConfigDict, Field, Strict, ValidationError
 
-from calib.errors import ParameterError
+from handeye.calib.errors import ParameterError
 
 
 def _number(value):
@@ -28,8 +28,8 @@ def _number(value):
 
 
 def _rigid(value) -> list[list[float]]:
-    from calib import transforms as tf
-    from calib.errors import CalibrationError
+    from handeye.calib import transforms as tf
+    from handeye.calib.errors import CalibrationError
 
     try:
         return tf.check_transform(np.asarray(value, dtype=float), "transform").tolist()

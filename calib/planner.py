@@ -13,7 +13,7 @@ the robot can reach:
 ``Sigma_C(I)`` is the camera block of ``I^-1`` (the other unknowns
 marginalised), ``J_j`` the Jacobian of the predicted marker point (paper eq. 5)
 at candidate ``j`` and ``S_j`` its covariance from the depth model of
-`calib.noise`. Maximising ``gain`` maximises the volume shrink of the camera's
+`handeye.calib.noise`. Maximising ``gain`` maximises the volume shrink of the camera's
 confidence ellipsoid (D-optimality; invariant to the choice of units, so mm
 and deg need no weighting). ``t_travel`` is a trapezoidal-profile estimate of
 the motion time, so between two equally informative poses the nearer one wins.
@@ -42,12 +42,12 @@ from typing import Annotated
 import numpy as np
 from pydantic import BeforeValidator, ConfigDict, Field, model_validator
 
-from calib import model
-from calib import transforms as tf
-from calib.errors import CalibrationError
-from calib.noise import default_point_cov
-from calib.params import Fraction, NonNegativeFloat, Params, PinholeParams, PositiveFloat, PositiveInt, Vector3
-from calib.setup import Setup, check_setup
+from handeye.calib import model
+from handeye.calib import transforms as tf
+from handeye.calib.errors import CalibrationError
+from handeye.calib.noise import default_point_cov
+from handeye.calib.params import Fraction, NonNegativeFloat, Params, PinholeParams, PositiveFloat, PositiveInt, Vector3
+from handeye.calib.setup import Setup, check_setup
 
 #: ``reachable(T_base_flange (4, 4), q_from (6,) or None) -> q (6,) or None``.
 Reachable = Callable[[np.ndarray, "np.ndarray | None"], "np.ndarray | None"]
@@ -207,7 +207,7 @@ class PlannedPose:
         Predicted marker center in the camera frame, m.
     cov : ndarray, shape (6, 6)
         Predicted covariance of the camera transform once this pose is
-        sampled (`calib.result` convention).
+        sampled (`handeye.calib.result` convention).
     """
 
     T_base_flange: np.ndarray
@@ -303,16 +303,16 @@ class PosePlanner:
     config : PlannerConfig
     point_cov : callable, optional
         ``point_cov(points (N, 3)) -> (N, 3, 3)`` m^2; default the depth model
-        `calib.noise.default_point_cov`.
+        `handeye.calib.noise.default_point_cov`.
     correction : (theta, free) or (theta, free, sigma), optional
-        Camera correction of the measurement model (`calib.model.CAMERA_PARAMS`:
+        Camera correction of the measurement model (`handeye.calib.model.CAMERA_PARAMS`:
         depth scale, depth offset, focal scale): current values ``theta`` (3,)
         and which are unknowns ``free`` (3 bools), with a prior standard
         deviation ``sigma`` (3,) each (default `CORRECTION_PRIOR_SIGMA`). The
         free ones are unknowns of the information matrix and count in the
         D-optimal criterion with the camera transform. A parameter a solver
         keeps at nominal but whose typical error widens its covariance
-        (`calib.auto`'s "consider" covariance) is free with that error as
+        (`handeye.calib.auto`'s "consider" covariance) is free with that error as
         its prior: the predicted covariance then matches it to first order.
     """
 
@@ -344,7 +344,7 @@ class PosePlanner:
     # ------------------------------------------------------------ information
     def predict(self, A) -> tuple[np.ndarray, np.ndarray]:
         """Predicted marker points (N, 3) at flange poses A (N, 4, 4) and their Jacobians (N, 3, P)
-        w.r.t. the unknowns ``[dC, tC, tK, free corrections]`` (`calib.model`)."""
+        w.r.t. the unknowns ``[dC, tC, tK, free corrections]`` (`handeye.calib.model`)."""
         C, K, M = model.split(self.X, self.Y, tf.check_transforms(A, "A"), self.setup)
         p = model.predict_points(C, K[:3, 3], M, self.theta)
         problem = model.Linearization(M, p, np.broadcast_to(np.eye(3), (len(p), 3, 3)), free=self.free)
@@ -366,14 +366,14 @@ class PosePlanner:
         self.information = self.information + self.sample_information(A).sum(axis=0)
 
     def camera_cov(self, information=None) -> np.ndarray:
-        """Predicted covariance (6, 6) of the camera transform (`calib.result` convention)."""
+        """Predicted covariance (6, 6) of the camera transform (`handeye.calib.result` convention)."""
         cov = np.linalg.inv(self.information if information is None else information)[..., :6, :6]
         return 0.5 * (cov + np.swapaxes(cov, -1, -2))
 
     def consider_cov(self) -> np.ndarray:
         """Predicted covariance (6, 6) of the camera transform if the free camera corrections are kept at
         nominal, their prior standard deviations taken as typical errors: ``N_xx^-1 + S diag(sigma^2) S^T``,
-        ``S = N_xx^-1 N_xc`` (`calib.auto`'s "consider" covariance, which ``auto`` reports before it has enough
+        ``S = N_xx^-1 N_xc`` (`handeye.calib.auto`'s "consider" covariance, which ``auto`` reports before it has enough
         samples to estimate camera parameters). Equal to `camera_cov` without free corrections."""
         n = self.information.shape[0]
         if n == N_PARAMS:

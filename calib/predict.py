@@ -8,9 +8,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from calib import transforms as tf
-from calib.result import CalibrationResult
-from calib.setup import Setup
+from handeye.calib import transforms as tf
+from handeye.calib.result import CalibrationResult
+from handeye.calib.setup import Setup
 
 
 def predicted_point(estimate: CalibrationResult, T_base_flange: np.ndarray) -> np.ndarray:

@@ -15,12 +15,12 @@ from typing import Sequence
 
 import numpy as np
 
-from calib import transforms as tf
-from calib.errors import CalibrationError, InsufficientDataError
-from calib.model import check_point_cov
-from calib.observation import Observation
-from calib.setup import Setup, check_setup
-from calib.solvers import check_measurements
+from handeye.calib import transforms as tf
+from handeye.calib.errors import CalibrationError, InsufficientDataError
+from handeye.calib.model import check_point_cov
+from handeye.calib.observation import Observation
+from handeye.calib.setup import Setup, check_setup
+from handeye.calib.solvers import check_measurements
 
 #: Which measurements a problem built from observations takes: every one the samples carry
 #: (``"all"``: the marker centres, and the orientations when every sample has a pose), the
@@ -35,17 +35,17 @@ class CalibrationProblem:
     Attributes
     ----------
     setup : Setup
-        ``eye_to_hand`` or ``eye_in_hand`` (`calib.setup`).
+        ``eye_to_hand`` or ``eye_in_hand`` (`handeye.calib.setup`).
     A : ndarray, shape (N, 4, 4)
         ``T_base_flange``, m.
     B : ndarray, shape (N, 3) or (N, 4, 4)
         Marker centres in the camera frame (m), or ``T_cam_marker`` poses
         (their translation is the point, their rotation the marker rotation).
     point_cov : ndarray, shape (N, 3, 3), or None
-        Covariance of the marker points, m^2; None: the depth model of `calib.noise`.
+        Covariance of the marker points, m^2; None: the depth model of `handeye.calib.noise`.
     robot_shared_error : ndarray, shape (N, 6, P), or None
         The robot error all samples share, as a factor of the flange-pose error
-        (flange-frame twist, rad then m; `calib.robot_error.ur_dh_error_factor`).
+        (flange-frame twist, rad then m; `handeye.calib.robot_error.ur_dh_error_factor`).
         Only ``auto`` uses it (a "consider" covariance).
     kept : ndarray of int, shape (N,)
         Position of each sample in the observations it was built from (``arange(N)`` from arrays).

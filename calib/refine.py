@@ -1,10 +1,10 @@
 """Maximum-likelihood refinement and covariance of a hand-eye calibration (the paper's model).
 
 The measurement model (residuals, Jacobians, whitening, information) is
-`calib.model`, with the camera ``C`` and marker-side ``K`` transforms of
+`handeye.calib.model`, with the camera ``C`` and marker-side ``K`` transforms of
 both setups: eye-to-hand ``C = Y = T_base_cam``, ``K = X = T_flange_marker``;
 eye-in-hand ``C = X = T_flange_cam``, ``K = Y = T_base_marker``. Here it is
-used without camera nuisance parameters or robot error (see `calib.auto` for
+used without camera nuisance parameters or robot error (see `handeye.calib.auto` for
 the extended model).
 
 Point data (``B`` of shape (N, 3), the marker center in the camera frame)
@@ -16,7 +16,7 @@ rotation residual ``e_i = Log(R_Bi^T R_C^T R_Mi R_K)`` (marker frame), so
 ``C`` and ``K`` (6 + 6 dof) are estimated; the rotation noise level and the
 scale of the translation covariance are estimated from the residuals.
 
-Perturbations follow `calib.result`: ``R = Exp(d) R_est``, ``t = t_est + dt``
+Perturbations follow `handeye.calib.result`: ``R = Exp(d) R_est``, ``t = t_est + dt``
 for both ``C`` and ``K``. `covariance` returns the 6x6 block of ``C`` of the
 inverse Fisher information, i.e. with the marker-side unknowns marginalised:
 the covariance of the ML estimate. A closed-form estimate is less efficient;
@@ -32,14 +32,14 @@ import dataclasses
 import numpy as np
 from scipy.stats import chi2
 
-from calib import model
-from calib import transforms as tf
-from calib.errors import CalibrationError, InsufficientDataError
-from calib.model import check_point_cov
-from calib.noise import default_point_cov
-from calib.problem import CalibrationProblem
-from calib.result import CalibrationResult, RefineDetails, Residuals
-from calib.setup import Setup, check_setup
+from handeye.calib import model
+from handeye.calib import transforms as tf
+from handeye.calib.errors import CalibrationError, InsufficientDataError
+from handeye.calib.model import check_point_cov
+from handeye.calib.noise import default_point_cov
+from handeye.calib.problem import CalibrationProblem
+from handeye.calib.result import CalibrationResult, RefineDetails, Residuals
+from handeye.calib.setup import Setup, check_setup
 
 #: A given ``point_cov`` is trusted unless the residuals reject it at this level;
 #: then the covariance is inflated by the a posteriori variance factor.
@@ -98,7 +98,7 @@ def covariance(X, Y, problem: CalibrationProblem) -> np.ndarray:
     The camera transform is ``Y = T_base_cam`` (eye-to-hand) or
     ``X = T_flange_cam`` (eye-in-hand); the 6-vector is
     ``[delta_rotvec (rad), delta_t (m)]`` with ``R_true = Exp(delta) R_est``,
-    ``t_true = t_est + delta_t`` (`calib.result`). Computed as the camera block
+    ``t_true = t_est + delta_t`` (`handeye.calib.result`). Computed as the camera block
     of the inverse Fisher information ``(J^T W J)^-1`` of the measurement model
     (module docstring; the equation of translation, paper eq. 5, plus eq. 4 for
     pose data) linearised at the estimate, which marginalises the marker-side
@@ -114,7 +114,7 @@ def covariance(X, Y, problem: CalibrationProblem) -> np.ndarray:
         The samples. A point covariance is trusted as given unless the
         residuals reject it (chi-square test at `CHI2_REJECT`), in which case
         it is inflated by the a posteriori variance factor. Without it the
-        depth model of `calib.noise` gives the shape and the residuals the
+        depth model of `handeye.calib.noise` gives the shape and the residuals the
         scale. For pose data the rotation noise is always estimated from the
         residuals.
 
@@ -145,7 +145,7 @@ def kron_t_prime_covariance(X, Y, problem: CalibrationProblem) -> np.ndarray:
     and `covariance` (inverse Fisher information) would be over-confident for
     it. Each marker point ``p_i`` is perturbed by ``dp_i`` (covariance
     ``Sigma_i``) and the perturbation is propagated analytically through the
-    three steps of `calib.solvers.y_kron_t_prime`:
+    three steps of `handeye.calib.solvers.y_kron_t_prime`:
 
     1. the 3N x 15 least squares of eq. 20, ``M x = b`` with
        ``x = [vec(Q); t_1; t_2]``:
@@ -162,7 +162,7 @@ def kron_t_prime_covariance(X, Y, problem: CalibrationProblem) -> np.ndarray:
     Then ``cov = sum_i J_i Sigma_i J_i^T``. ``Sigma_i`` is ``point_cov``
     (trusted unless the chi-square test at `CHI2_REJECT` rejects it at the
     estimate, then scaled by the a posteriori variance factor) or the depth
-    model of `calib.noise` scaled from the residuals, as in `covariance`.
+    model of `handeye.calib.noise` scaled from the residuals, as in `covariance`.
     Robot poses are taken as exact.
 
     Parameters
@@ -177,7 +177,7 @@ def kron_t_prime_covariance(X, Y, problem: CalibrationProblem) -> np.ndarray:
     Returns
     -------
     cov : ndarray, shape (6, 6)
-        ``[delta_rotvec (rad), delta_t (m)]`` of the camera transform (`calib.result`).
+        ``[delta_rotvec (rad), delta_t (m)]`` of the camera transform (`handeye.calib.result`).
 
     Raises
     ------
@@ -203,7 +203,7 @@ def _kron_t_prime_jacobian(A, p, setup) -> np.ndarray:
     the three steps of `kron_t_prime_covariance`'s docstring."""
     n = len(A)
     R_A, t_A = A[:, :3, :3], A[:, :3, 3]
-    # Step 1: the system of eq. 20 exactly as `calib.solvers.y_kron_t_prime_unchecked` builds it.
+    # Step 1: the system of eq. 20 exactly as `handeye.calib.solvers.y_kron_t_prime_unchecked` builds it.
     M = np.empty((n, 3, 15))
     T2 = np.empty((n, 3, 6))
     if setup == Setup.EYE_TO_HAND:
@@ -270,7 +270,7 @@ def delta_method_covariance(estimator, X, Y, problem: CalibrationProblem, *, ste
     model is the one of `refine` for pose data: rotation noise
     ``R_B Exp(e)``, ``e ~ N(0, sigma_rot^2 I)``, and translation noise of
     covariance ``s * Sigma_i`` (``point_cov`` or the depth model of
-    `calib.noise`), with ``sigma_rot`` and ``s`` estimated from the residuals
+    `handeye.calib.noise`), with ``sigma_rot`` and ``s`` estimated from the residuals
     of the ML fit started at ``(X, Y)`` (the closed form's own residuals would
     count its estimation error as noise). Robot poses are taken as exact.
 
@@ -292,7 +292,7 @@ def delta_method_covariance(estimator, X, Y, problem: CalibrationProblem, *, ste
     Returns
     -------
     cov : ndarray, shape (6, 6)
-        ``[delta_rotvec (rad), delta_t (m)]`` of the camera transform (`calib.result`).
+        ``[delta_rotvec (rad), delta_t (m)]`` of the camera transform (`handeye.calib.result`).
 
     Raises
     ------
@@ -371,7 +371,7 @@ def cramer_rao_bound(X, Y, A, point_cov, *, setup: str) -> tuple[float, float, n
 
 
 def error_vector(T_est, T_true) -> np.ndarray:
-    """Error ``[delta_rotvec, delta_t]`` (6,) of an estimate in the `calib.result` convention.
+    """Error ``[delta_rotvec, delta_t]`` (6,) of an estimate in the `handeye.calib.result` convention.
 
     ``R_true = Exp(delta_rotvec) R_est``, ``t_true = t_est + delta_t``; rad and m.
     """
@@ -411,7 +411,7 @@ def refine(initial: CalibrationResult, problem: CalibrationProblem, *, max_itera
     equation of translation (paper eq. 5) in the camera frame,
     ``r_i = p_i - (C^-1 M_i K)`` translation (module docstring), over the camera
     transform (6 dof) and the marker translation (3). ``Sigma_i`` is
-    ``point_cov`` or the depth model of `calib.noise`. Pose data
+    ``point_cov`` or the depth model of `handeye.calib.noise`. Pose data
     (``B`` (N, 4, 4) ``T_cam_marker``): adds the rotation residual and
     estimates both transforms (6 + 6 dof); the rotation and translation noise
     levels are re-estimated from the residuals between two LM passes.
@@ -432,7 +432,7 @@ def refine(initial: CalibrationResult, problem: CalibrationProblem, *, max_itera
     -------
     CalibrationResult
         With ``cov`` (see `covariance`), ``converged``, ``iterations`` and
-        ``refinement`` (`calib.result.RefineDetails`: final and initial
+        ``refinement`` (`handeye.calib.result.RefineDetails`: final and initial
         chi-square, the variance factor for point data).
 
     Raises

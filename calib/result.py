@@ -13,9 +13,9 @@ from functools import cached_property
 
 import numpy as np
 
-from calib.errors import DegenerateMotionError
-from calib.model import CameraCorrection, NoiseLevels
-from calib.setup import Setup
+from handeye.calib.errors import DegenerateMotionError
+from handeye.calib.model import CameraCorrection, NoiseLevels
+from handeye.calib.setup import Setup
 
 
 def worst_axis_sigma(cov) -> tuple[float, float]:
@@ -59,14 +59,14 @@ class Residuals:
 
 @dataclass(frozen=True)
 class SelfCheck:
-    """Consistency of a calibration with the measurement model (`calib.diagnostics.self_check`).
+    """Consistency of a calibration with the measurement model (`handeye.calib.diagnostics.self_check`).
 
     Attributes
     ----------
     chi2, dof, p_value : float, int, float
         The point residuals whitened by the camera's a-priori covariance, no robot error.
     prior_model_rejected : bool
-        ``p_value`` below `calib.diagnostics.CHI2_ALPHA`: the camera noise alone does not explain the residuals.
+        ``p_value`` below `handeye.calib.diagnostics.CHI2_ALPHA`: the camera noise alone does not explain the residuals.
     loo_observed_m, loo_predicted_m : float
         RMS linearised leave-one-out prediction error of the marker point, observed and predicted by the model, m.
     loo_ratio : float
@@ -94,7 +94,7 @@ class SelfCheck:
 
 @dataclass(frozen=True)
 class RobustDetails:
-    """What the LMedS search of `calib.robust.robust_solve` did: subsets tried, their size, the robust
+    """What the LMedS search of `handeye.calib.robust.robust_solve` did: subsets tried, their size, the robust
     scale of the squared Mahalanobis residuals and the inlier threshold on them."""
 
     trials: int
@@ -105,7 +105,7 @@ class RobustDetails:
 
 @dataclass(frozen=True)
 class RefineDetails:
-    """The maximum-likelihood refinement of `calib.refine.refine`: chi-square at the start and at the end;
+    """The maximum-likelihood refinement of `handeye.calib.refine.refine`: chi-square at the start and at the end;
     for point data the a posteriori variance factor, for pose data the estimated rotation noise (rad) and
     the scale of the translation covariance."""
 
@@ -118,7 +118,7 @@ class RefineDetails:
 
 @dataclass(frozen=True)
 class CameraParameter:
-    """One camera parameter of ``auto``'s correction (`calib.model.CAMERA_PARAMS`): value, 1-sigma
+    """One camera parameter of ``auto``'s correction (`handeye.calib.model.CAMERA_PARAMS`): value, 1-sigma
     (0 when not estimated) and whether it was estimated (else it stays at nominal, 0). SI units
     (scales as fractions, the depth offset in m)."""
 
@@ -158,17 +158,17 @@ class AutoDetails:
     Attributes
     ----------
     start : str
-        The closed form it started from, or ``"registration"`` (`calib.auto.determined.held_start`) when
+        The closed form it started from, or ``"registration"`` (`handeye.calib.auto.determined.held_start`) when
         the motions leave part of the translations open (``"+LMedS"`` when the outlier search ran).
     start_candidates : dict of str to float
         Each closed form tried and its median point residual, m.
     measurements : tuple of str
         ``("points",)`` or ``("points", "orientations")``.
     camera_correction : dict of str to CameraParameter
-        Per `calib.model.CAMERA_PARAMS`.
+        Per `handeye.calib.model.CAMERA_PARAMS`.
     correction_points : ndarray, shape (M, 3), or None
         The raw points the correction was estimated on (None without a correction).
-    noise : calib.model.NoiseLevels
+    noise : handeye.calib.model.NoiseLevels
         Estimated noise levels.
     robot_shared_error_m : float or None
         The 1-sigma of the camera translation that the robot's shared error adds (m), None without it.
@@ -177,7 +177,7 @@ class AutoDetails:
     notes : tuple of str
         Decisions and warnings, in plain words.
     flips : dict or None
-        `calib.symmetry.resolve_flips`' report for pose data.
+        `handeye.calib.symmetry.resolve_flips`' report for pose data.
     cost : float
         Final whitened chi-square.
     """
@@ -197,7 +197,7 @@ class AutoDetails:
 
 @dataclass(frozen=True)
 class Accuracy:
-    """The predicted error of a camera transform over the workspace (`calib.verdict.workspace_accuracy`).
+    """The predicted error of a camera transform over the workspace (`handeye.calib.verdict.workspace_accuracy`).
 
     The workspace is where the calibration samples put the marker: the error of a
     marker point the camera measures there, mapped into the camera's parent frame
@@ -227,7 +227,7 @@ LEVELS = ("pass", "warn", "fail")
 
 @dataclass(frozen=True)
 class Verdict:
-    """Whether to use a result, in the words of the person who acts on it (`calib.verdict`).
+    """Whether to use a result, in the words of the person who acts on it (`handeye.calib.verdict`).
 
     Attributes
     ----------
@@ -266,11 +266,11 @@ class CalibrationResult:
     ``undetermined`` names, in plain sentences, what the samples leave open
     and the motion (or the known value) that closes it; empty when they
     determine everything. ``auto`` fills it when the tool never turned or
-    turned about one axis only (`calib.auto.determined`): the open part is
+    turned about one axis only (`handeye.calib.auto.determined`): the open part is
     then held at a stated value, and ``X``, ``Y`` and ``cov`` are the
     determined answer given it. ``accuracy`` and
     ``verdict``: the predicted error over the workspace and whether to use the result against a
-    tolerance, set by `calib.verdict.judge` (None until judged).
+    tolerance, set by `handeye.calib.verdict.judge` (None until judged).
     """
 
     method: str
@@ -331,7 +331,7 @@ class CalibrationResult:
 
     @property
     def camera_correction(self) -> CameraCorrection:
-        """The camera's systematic error the solver estimated (`calib.model.CameraCorrection`; all zero if none).
+        """The camera's systematic error the solver estimated (`handeye.calib.model.CameraCorrection`; all zero if none).
 
         ``auto`` estimates it (``auto.camera_correction``); the paper's methods do not.
         """
@@ -342,7 +342,7 @@ class CalibrationResult:
     def raw_points_fit(self) -> dict | None:
         """The rigid stand-in for the estimated camera correction, or None without one.
 
-        ``{"transform": G, "misfit_m": rms}``: `calib.model.CameraCorrection.rigid_stand_in`
+        ``{"transform": G, "misfit_m": rms}``: `handeye.calib.model.CameraCorrection.rigid_stand_in`
         of `camera_correction` over the points it was estimated on
         (``auto.correction_points``, the raw points of the samples in the
         fit). Computed when first asked (the exports ask), not by the solver.

@@ -1,4 +1,4 @@
-"""A robot's systematic error shared by all samples, for `calib.auto.solve_auto`'s ``robot_shared_error``.
+"""A robot's systematic error shared by all samples, for `handeye.calib.auto.solve_auto`'s ``robot_shared_error``.
 
 An arm's kinematic model is never exact (joint zero offsets, link lengths and
 twists off by a little): every flange pose it reports is then off by an error
@@ -10,15 +10,15 @@ calibration as what it is.
 
 UR arms: standard-DH forward kinematics (`ur_forward`) and the factor of
 their DH parameters (`ur_dh_error_factor`). The UR10 table lives here (calib
-does not import drivers); `drivers.robot.ur_kinematics` takes it from `UR10_DH`.
+does not import drivers); `handeye.drivers.robot.ur_kinematics` takes it from `UR10_DH`.
 """
 
 from __future__ import annotations
 
 import numpy as np
 
-from calib import transforms as tf
-from calib.errors import CalibrationError
+from handeye.calib import transforms as tf
+from handeye.calib.errors import CalibrationError
 
 #: Standard-DH twists of every UR model, rad.
 UR_ALPHA = np.array([np.pi / 2, 0.0, 0.0, np.pi / 2, -np.pi / 2, 0.0])

@@ -7,7 +7,7 @@ setup (eye-to-hand ``X = T_flange_marker``, ``Y = T_base_cam``; eye-in-hand
 
 1. Least median of squares (Rousseeuw 1984): fit random subsets of
    ``min_samples`` samples and keep the hypothesis whose median Mahalanobis
-   point residual (paper eq. 5 in the camera frame, as in `calib.model`) is
+   point residual (paper eq. 5 in the camera frame, as in `handeye.calib.model`) is
    smallest. Valid up to 50% outliers; the number of subsets is RANSAC's
    ``log(1 - CONFIDENCE) / log(1 - (1 - eps)^m)`` for a design outlier
    fraction ``eps`` (not adapted to the data: a contaminated hypothesis
@@ -26,10 +26,10 @@ from collections.abc import Callable
 import numpy as np
 from scipy.stats import chi2
 
-from calib import model
-from calib.errors import CalibrationError, InsufficientDataError
-from calib.problem import CalibrationProblem
-from calib.result import CalibrationResult, RobustDetails
+from handeye.calib import model
+from handeye.calib.errors import CalibrationError, InsufficientDataError
+from handeye.calib.problem import CalibrationProblem
+from handeye.calib.result import CalibrationResult, RobustDetails
 
 #: Chi-square quantile below which a sample counts as an inlier.
 INLIER_QUANTILE = 0.999
@@ -79,11 +79,11 @@ def robust_solve(
     solve_fn : callable ``(CalibrationProblem) -> CalibrationResult``
         A closed-form method, e.g. ``lambda sub: closed_form("YKronT'", sub)``,
         applied to subsets of ``problem``. It may raise a
-        `calib.errors.CalibrationError` on a degenerate subset (the subset is
+        `handeye.calib.errors.CalibrationError` on a degenerate subset (the subset is
         skipped).
     problem : CalibrationProblem
         The samples. Without a point covariance the depth model of
-        `calib.noise` gives its shape; the scale is always estimated robustly
+        `handeye.calib.noise` gives its shape; the scale is always estimated robustly
         (and never below a given covariance).
     rng : numpy.random.Generator
         Draws the subsets; required so runs are reproducible.
@@ -104,7 +104,7 @@ def robust_solve(
     CalibrationResult
         ``solve_fn``'s fit on the inliers, with ``method`` suffixed ``"+LMedS"``,
         ``inliers`` (bool (N,)) so that ``result.rejected`` lists the outliers,
-        ``n_samples = N``, and ``robust`` (`calib.result.RobustDetails`).
+        ``n_samples = N``, and ``robust`` (`handeye.calib.result.RobustDetails`).
         ``residuals`` and ``cov`` are those of the inlier fit.
 
     Raises

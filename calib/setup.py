@@ -16,9 +16,9 @@ is written to JSON as that string.
 
 from __future__ import annotations
 
-from enum import StrEnum
+from handeye.calib.compat import StrEnum
 
-from calib.errors import CalibrationError, HandeyeError
+from handeye.calib.errors import CalibrationError, HandeyeError
 
 
 class Setup(StrEnum):

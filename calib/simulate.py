@@ -25,9 +25,9 @@ from typing import NamedTuple
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from calib import transforms as tf
-from calib.robot_error import UR10_DH, ur_dh_error_factor, ur_forward
-from calib.setup import Setup, check_setup
+from handeye.calib import transforms as tf
+from handeye.calib.robot_error import UR10_DH, ur_dh_error_factor, ur_forward
+from handeye.calib.setup import Setup, check_setup
 
 
 @dataclass(frozen=True)
@@ -200,21 +200,27 @@ def realistic_cell(
 
     points_true = B_true[:, :3, 3]
     cov = point_covariance(points_true, sigma_lateral, sigma_depth)
-    # Split white noise into its along-ray and across-ray parts (no Cholesky: sigmas may be zero).
-    ray = points_true / np.linalg.norm(points_true, axis=1, keepdims=True)
-    white = rng.normal(size=(n, 3))
-    along = np.sum(white * ray, axis=1, keepdims=True) * ray
-    points = points_true + sigma_depth * along + sigma_lateral * (white - along)
-
-    def gaussian_noise(sig):
-        rv = rng.normal(scale=sig[0], size=(n, 3)) if sig[0] > 0 else np.zeros((n, 3))
-        t = rng.normal(scale=sig[1], size=(n, 3)) if sig[1] > 0 else np.zeros((n, 3))
-        return tf.from_rotvec_translation(rv, t)
-
-    B = B_true @ gaussian_noise(pose_noise)
+    points = ray_noise(points_true, sigma_lateral, sigma_depth, rng)
+    B = B_true @ pose_noise_transforms(n, pose_noise, rng)
     B[:, :3, 3] = points                              # one translation noise model for poses and points
-    A = A_true @ gaussian_noise(robot_noise)
+    A = A_true @ pose_noise_transforms(n, robot_noise, rng)
     return SimulatedData(A, B, points, cov, X, Y, A_true, B_true, setup)
+
+
+def ray_noise(points: np.ndarray, sigma_lateral: float, sigma_depth: float, rng: np.random.Generator) -> np.ndarray:
+    """``points`` (N, 3) in the camera frame with Gaussian noise of ``sigma_depth`` along each viewing ray and
+    ``sigma_lateral`` across it (m); white noise split into the two parts, no Cholesky: a sigma may be zero."""
+    ray = points / np.linalg.norm(points, axis=1, keepdims=True)
+    white = rng.normal(size=points.shape)
+    along = np.sum(white * ray, axis=1, keepdims=True) * ray
+    return points + sigma_depth * along + sigma_lateral * (white - along)
+
+
+def pose_noise_transforms(n: int, sigma: tuple[float, float], rng: np.random.Generator) -> np.ndarray:
+    """``n`` transforms (n, 4, 4) of Gaussian pose noise, ``sigma`` = (rad, m) standard deviation per axis."""
+    rv = rng.normal(scale=sigma[0], size=(n, 3)) if sigma[0] > 0 else np.zeros((n, 3))
+    t = rng.normal(scale=sigma[1], size=(n, 3)) if sigma[1] > 0 else np.zeros((n, 3))
+    return tf.from_rotvec_translation(rv, t)
 
 
 def with_gross_outliers(points: np.ndarray, fraction: float, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
@@ -253,12 +259,12 @@ class RealisticProfile:
     taken as 3 sigma). Camera: depth scale and offset of a structured-light
     sensor before an infield correction (1-2% of range, a few mm), a focal length
     error of 1%, a colour/depth misregistration of 2 px, the marker point noise
-    of `calib.noise` (1 mm lateral, 3 mm along the ray at 0.7 m), marker
+    of `handeye.calib.noise` (1 mm lateral, 3 mm along the ray at 0.7 m), marker
     orientation noise, and a share of half-turn flips of a symmetric board.
     ``pose_error_m``: the robot's error beyond what its DH parameters capture
     (thermal growth of the arm, deflection under load), 1-sigma per axis of
     the flange position, drawn once per pose: every visit of a pose repeats
-    it (`calib.simulate_month`).
+    it (`handeye.calib.simulate_month`).
     """
 
     joint_offset_deg: float = 0.03
@@ -276,7 +282,7 @@ class RealisticProfile:
     pose_error_m: float = 0.0
 
     def dh_error_factor(self, q: np.ndarray) -> np.ndarray:
-        """`calib.robot_error.ur_dh_error_factor` of joints ``q`` (N, 6) at this profile's DH magnitudes."""
+        """`handeye.calib.robot_error.ur_dh_error_factor` of joints ``q`` (N, 6) at this profile's DH magnitudes."""
         return ur_dh_error_factor(q, np.deg2rad(self.joint_offset_deg), self.link_length_m, np.deg2rad(self.twist_deg))
 
     def bias_free(self) -> "RealisticProfile":
@@ -325,7 +331,7 @@ class RealisticData:
     ``data`` holds measured ``A`` (nominal kinematics at the joint angles),
     ``B``/``points`` (camera errors applied, flipped poses in ``B``), the true
     ``X = T_flange_marker``, ``Y = T_base_cam``, and ``A_true`` (actual flange
-    poses). ``camera`` is the true `calib.model.CameraCorrection`; ``flipped``
+    poses). ``camera`` is the true `handeye.calib.model.CameraCorrection`; ``flipped``
     the indices of half-turned marker poses; ``robot_rms_m`` the RMS flange
     position error of the measured poses (kinematics + repeatability); ``q``
     the joint angles (N, 6), rad; ``kinematics`` the robot's actual standard-DH
@@ -344,11 +350,11 @@ class RealisticData:
 def seen_points(B_true, prof: RealisticProfile, camera, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
     """What the realistic camera reports (N, 3) for true marker poses ``B_true`` (N, 4, 4), and their covariance.
 
-    Point noise of `calib.noise` (the covariance returned, (N, 3, 3)), colour/depth
+    Point noise of `handeye.calib.noise` (the covariance returned, (N, 3, 3)), colour/depth
     misregistration (the depth of the marker plane read ``misregistration_px``
-    off), then the camera's systematic error ``camera`` (`calib.model.CameraCorrection`).
+    off), then the camera's systematic error ``camera`` (`handeye.calib.model.CameraCorrection`).
     """
-    from calib.noise import FOCAL_PX, default_point_cov
+    from handeye.calib.noise import FOCAL_PX, default_point_cov
 
     p_true = B_true[:, :3, 3]
     cov = default_point_cov(p_true)
@@ -382,10 +388,10 @@ def realistic_profile(n: int, rng: np.random.Generator, profile: RealisticProfil
     forward kinematics with the perturbed DH parameters (plus repeatability
     noise), the reported one that of the nominal parameters. A static camera
     ``distance`` m in front of the marker sees it with the point noise of
-    `calib.noise`, then the camera's systematic errors: colour/depth
+    `handeye.calib.noise`, then the camera's systematic errors: colour/depth
     misregistration (the depth of the marker plane is read ``misregistration_px``
     off), depth scale and offset along the ray and the focal scale
-    (`calib.model.CameraCorrection`). Marker poses get orientation noise and,
+    (`handeye.calib.model.CameraCorrection`). Marker poses get orientation noise and,
     for ``flip_fraction`` of the samples, a half turn about the board normal
     through ``board_center``.
 
@@ -394,7 +400,7 @@ def realistic_profile(n: int, rng: np.random.Generator, profile: RealisticProfil
     ``distance`` m in front of it at the working pose; the poses keep the
     marker within the camera's field of view.
     """
-    from calib.model import CameraCorrection
+    from handeye.calib.model import CameraCorrection
 
     prof = profile if profile is not None else RealisticProfile()
     dh = UR10_DH

@@ -1,6 +1,6 @@
 """A month of a realistic production cell, for the monitoring engine's long-run benchmark and tests.
 
-What the shift simulation (`calib.simulate.shift_stream`) does not model, and
+What the shift simulation (`handeye.calib.simulate.shift_stream`) does not model, and
 a real cell has:
 
 - the robot's error beyond its DH parameters (thermal growth of the arm,
@@ -10,7 +10,7 @@ a real cell has:
   reverting daily cycle (``thermal_mm``, ``thermal_deg``) beside a slow random
   walk of the mount (``walk_mm_per_sqrt_h``);
 - bumps at any hour of the month;
-- both setups with a realistic robot and camera (`calib.simulate.realistic_profile`),
+- both setups with a realistic robot and camera (`handeye.calib.simulate.realistic_profile`),
   and sources that report poses without joints (the caller arms the engine
   without the robot's kinematic-error factor).
 
@@ -26,10 +26,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from calib import transforms as tf
-from calib.robot_error import UR10_DH, ur_forward
-from calib.setup import Setup
-from calib.simulate import (RealisticData, RealisticProfile, production_stops, random_directions, seen_points)
+from handeye.calib import transforms as tf
+from handeye.calib.robot_error import UR10_DH, ur_forward
+from handeye.calib.setup import Setup
+from handeye.calib.simulate import (RealisticData, RealisticProfile, production_stops, random_directions, seen_points)
 
 #: Seconds per day.
 DAY_S = 86400.0

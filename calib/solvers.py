@@ -36,9 +36,9 @@ from __future__ import annotations
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from calib import transforms as tf
-from calib.errors import CalibrationError, DegenerateMotionError, InsufficientDataError
-from calib.setup import Setup, check_setup
+from handeye.calib import transforms as tf
+from handeye.calib.errors import CalibrationError, DegenerateMotionError, InsufficientDataError
+from handeye.calib.setup import Setup, check_setup
 
 #: A linear system is called degenerate when the singular value that must be
 #: non-zero for a unique solution is below this fraction of the largest one
@@ -731,7 +731,7 @@ def y_kron_t_prime(A: np.ndarray, p: np.ndarray, setup: Setup = Setup.EYE_TO_HAN
 
 
 def y_kron_t_prime_unchecked(A: np.ndarray, p: np.ndarray, setup: str) -> tuple[np.ndarray, np.ndarray]:
-    """`y_kron_t_prime` for inputs validated already (a `calib.problem.CalibrationProblem`'s)."""
+    """`y_kron_t_prime` for inputs validated already (a `handeye.calib.problem.CalibrationProblem`'s)."""
     n = len(A)
     R_A, t_A = A[:, :3, :3], A[:, :3, 3]
     M = np.empty((n, 3, 15))

@@ -20,10 +20,10 @@ from __future__ import annotations
 
 import numpy as np
 
-from calib import solvers
-from calib import transforms as tf
-from calib.errors import CalibrationError
-from calib.setup import Setup
+from handeye.calib import solvers
+from handeye.calib import transforms as tf
+from handeye.calib.errors import CalibrationError
+from handeye.calib.setup import Setup
 
 #: Tolerance on the flip's angle and on its axis being the board normal, rad.
 ANGLE_TOL = np.deg2rad(15.0)

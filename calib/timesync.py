@@ -28,8 +28,8 @@ import numpy as np
 from scipy.optimize import minimize_scalar
 from scipy.spatial.transform import Rotation, Slerp
 
-from calib import transforms as tf
-from calib.errors import CalibrationError, InsufficientDataError
+from handeye.calib import transforms as tf
+from handeye.calib.errors import CalibrationError, InsufficientDataError
 
 
 def check_stream(t, T, name: str = "stream") -> tuple[np.ndarray, np.ndarray]:

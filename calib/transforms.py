@@ -10,7 +10,7 @@ from __future__ import annotations
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from calib.errors import CalibrationError
+from handeye.calib.errors import CalibrationError
 
 ROTATION_ATOL = 1e-6
 

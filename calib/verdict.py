@@ -24,14 +24,14 @@ import dataclasses
 
 import numpy as np
 
-from calib import model
-from calib import transforms as tf
-from calib.diagnostics import LOO_TOLERANCE
-from calib.errors import CalibrationError
-from calib.monitor.reference import WORKSPACE_POINTS, arm_reference, workspace_sigma
-from calib.problem import CalibrationProblem
-from calib.result import LEVELS, Accuracy, CalibrationResult, Verdict
-from calib.verify import Verification
+from handeye.calib import model
+from handeye.calib import transforms as tf
+from handeye.calib.diagnostics import LOO_TOLERANCE
+from handeye.calib.errors import CalibrationError
+from handeye.calib.monitor.reference import WORKSPACE_POINTS, arm_reference, workspace_sigma
+from handeye.calib.problem import CalibrationProblem
+from handeye.calib.result import LEVELS, Accuracy, CalibrationResult, Verdict
+from handeye.calib.verify import Verification
 
 #: An error stays below this many times its RMS in 95 % of cases, whatever the shape of its Gaussian in 3D.
 P95_FACTOR = 1.96
@@ -58,10 +58,10 @@ def workspace_accuracy(result: CalibrationResult, problem: CalibrationProblem) -
     A marker point ``m`` the camera measures maps to ``C correct(m)`` in the camera's parent
     frame (``C``: ``T_base_cam`` or ``T_flange_cam``). For ``auto`` the error of that point comes
     from the joint covariance of the camera transform and its camera correction
-    (`calib.monitor.arm_reference`, the covariance the monitor is armed with); for the paper's
+    (`handeye.calib.monitor.arm_reference`, the covariance the monitor is armed with); for the paper's
     methods, which estimate no correction, from ``result.cov``. Both are evaluated over up to
-    `calib.monitor.reference.WORKSPACE_POINTS` of the samples' points
-    (`calib.monitor.workspace_sigma`).
+    `handeye.calib.monitor.reference.WORKSPACE_POINTS` of the samples' points
+    (`handeye.calib.monitor.workspace_sigma`).
 
     Parameters
     ----------
@@ -98,7 +98,7 @@ def workspace_accuracy(result: CalibrationResult, problem: CalibrationProblem) -
 
 def noise_ratio(result: CalibrationResult, problem: CalibrationProblem) -> tuple[float, float]:
     """``(ratio, expected_m)``: the residual RMS of ``result`` over the RMS the camera's noise explains
-    (``expected_m``: from the samples' point covariances, else the depth model of `calib.noise`)."""
+    (``expected_m``: from the samples' point covariances, else the depth model of `handeye.calib.noise`)."""
     shape, _ = model.point_shape(problem.B, problem.point_cov)
     expected = float(np.sqrt(np.mean(np.trace(shape, axis1=1, axis2=2))))
     return (result.residuals.rms_translation / expected if expected > 0 else 0.0), expected
@@ -201,7 +201,7 @@ def _coverage_reasons(result: CalibrationResult, problem: CalibrationProblem) ->
         reasons.append(("warn", f"only {n} samples: one bad sample would move the result unnoticed; take at least "
                                 f"{MIN_ADVISED_SAMPLES}"))
     spread = rotation_spread_deg(problem.A)
-    # A known marker offset stands in for the rotation the motions lack (`calib.problem.CalibrationProblem`).
+    # A known marker offset stands in for the rotation the motions lack (`handeye.calib.problem.CalibrationProblem`).
     if not result.undetermined and problem.marker_offset is None and spread < MIN_ROTATION_SPREAD_DEG:
         reasons.append(("warn", f"the flange turned at most {spread:.1f} deg from its mean orientation: the camera's "
                                 "rotation rests on little motion; add poses tilted 20-40 deg about different axes"))
@@ -215,7 +215,7 @@ def _coverage_reasons(result: CalibrationResult, problem: CalibrationProblem) ->
 def bounded(value: float, ci: tuple[float, float], unit: str, digits: int, floor: float | None = None) -> str:
     """A verified error in words: ``0.53 mm (at most 0.90 mm at 95 %)``, or when the noise hides it
     entirely ``below the noise floor: at most 0.62 deg at 95 %``; the bound is never below ``floor``, the
-    smallest error the poses tell from their noise (`calib.verify.Verification.noise_floor_mm`)."""
+    smallest error the poses tell from their noise (`handeye.calib.verify.Verification.noise_floor_mm`)."""
     hi = f"at most {max(ci[1], floor or 0.0):.{digits}f} {unit} at 95 %"
     return f"below the noise floor: {hi}" if value <= 0 else f"{value:.{digits}f} {unit} ({hi})"
 
@@ -252,7 +252,7 @@ def per_pose_phrase(v: Verification) -> str:
 
 def _unresolved(v: Verification) -> list[tuple[str, str]]:
     """``(tolerance, sentence)`` per quantity (mm, deg) whose tolerance is below the noise floor of the poses
-    (`calib.verify.Verification.noise_floor_mm`): whatever the estimate, they cannot show it within."""
+    (`handeye.calib.verify.Verification.noise_floor_mm`): whatever the estimate, they cannot show it within."""
     out = []
     for what, unit, digits, floor, noise, tol in (
             ("position", "mm", 2, v.noise_floor_mm, v.noise_rms_mm, v.tolerance_mm),
@@ -270,12 +270,12 @@ def _unresolved(v: Verification) -> list[tuple[str, str]]:
 
 def judge_verification(v: Verification, *, rigid: Verification | None = None, repeated: int = 0,
                        warnings=()) -> Verdict:
-    """The verdict of a verification (`calib.verify.verify`) on ``v.n_poses`` poses.
+    """The verdict of a verification (`handeye.calib.verify.verify`) on ``v.n_poses`` poses.
 
     ``rigid``: the same for the rigid export (``camera_transform_raw_points`` on uncorrected
     points); ``repeated``: how many of the poses repeat a calibration pose
-    (`calib.verify.repeated_poses`); ``warnings``: other sentences to pass on as ``warn``
-    reasons (e.g. `calib.verify.FrameSafety`'s).
+    (`handeye.calib.verify.repeated_poses`); ``warnings``: other sentences to pass on as ``warn``
+    reasons (e.g. `handeye.calib.verify.FrameSafety`'s).
     """
     reasons = []
     tolerance = f"{v.tolerance_mm:g} mm / {v.tolerance_deg:g} deg"

@@ -5,7 +5,7 @@ Everything is in the robot's base frame. Eye-to-hand (``X = T_flange_marker``,
 predicted ``A_i t_X``; eye-in-hand (``X = T_flange_cam``, ``Y = T_base_marker``):
 measured ``A_i X correct(p_cam)``, predicted ``t_Y`` (paper eq. 1 either way,
 ``A_i = T_base_flange``). ``correct`` undoes the camera correction the result
-estimated (`calib.model.CameraCorrection`; identity for the paper's methods),
+estimated (`handeye.calib.model.CameraCorrection`; identity for the paper's methods),
 so the measured raw points pair with ``camera_transform``; a consumer that
 takes the points uncorrected (ROS, URDF) carries ``camera_transform_raw_points``
 instead, which `VerifiedModel.rigid_export` models.
@@ -13,7 +13,7 @@ instead, which `VerifiedModel.rigid_export` models.
 A measured error holds the calibration's own error and the measurement noise.
 `verify` reports both the observed errors (per pose, mean, p95, max) and the
 calibration's error with the noise removed: ``sqrt(mean |e|^2 - mean E|n|^2)``
-with ``E|n|^2`` from the result's noise model (`calib.model.NoiseLevels`: the
+with ``E|n|^2`` from the result's noise model (`handeye.calib.model.NoiseLevels`: the
 camera point covariance scale times each sample's covariance, the robot
 error), with a bootstrap 95 % interval over the poses. Pass/fail compares that
 estimate with the tolerance.
@@ -25,11 +25,11 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from calib import transforms as tf
-from calib.errors import CalibrationError, InsufficientDataError
-from calib.model import CameraCorrection, NoiseLevels
-from calib.result import CalibrationResult
-from calib.setup import Setup, check_setup
+from handeye.calib import transforms as tf
+from handeye.calib.errors import CalibrationError, InsufficientDataError
+from handeye.calib.model import CameraCorrection, NoiseLevels
+from handeye.calib.result import CalibrationResult
+from handeye.calib.setup import Setup, check_setup
 
 #: Largest camera correction a model may carry (depth and focal scale as fractions, depth offset in m).
 MAX_CORRECTION = 0.5
@@ -394,7 +394,7 @@ def spread_poses(planner, T_start, k: int, rng: np.random.Generator, *, avoid=No
                  reachable=None, q_start=None) -> list[np.ndarray]:
     """``k`` flange poses (4, 4) spread over the planner's candidate region around ``T_start``.
 
-    Candidates are `calib.planner.candidate_poses`; those the planner's
+    Candidates are `handeye.calib.planner.candidate_poses`; those the planner's
     ``screen`` rejects (marker out of view or range, keep-out boxes) and those
     within ``min_separation_m`` of a pose of ``avoid`` (N, 4, 4; the
     calibration's) are dropped; then farthest-point selection (translation
@@ -402,7 +402,7 @@ def spread_poses(planner, T_start, k: int, rng: np.random.Generator, *, avoid=No
     ``avoid``), each pose checked with ``reachable(T, q_from) -> q or None`` (the
     robot's limit check) from the previous one's joints.
     """
-    from calib.planner import candidate_poses
+    from handeye.calib.planner import candidate_poses
 
     A = candidate_poses(T_start, planner.config, rng)
     ok = planner.screen(A)[0]
@@ -440,7 +440,7 @@ def spread_poses(planner, T_start, k: int, rng: np.random.Generator, *, avoid=No
 
 def perturbed(T, rotation_deg: float, translation_mm: float, rng: np.random.Generator, *, axis=None) -> np.ndarray:
     """``T`` moved by ``translation_mm`` and turned by ``rotation_deg`` about its origin, in random directions
-    (the `calib.result` convention: ``R' = Exp(d) R``, ``t' = t + dt``): a result known to be that far off.
+    (the `handeye.calib.result` convention: ``R' = Exp(d) R``, ``t' = t + dt``): a result known to be that far off.
 
     ``axis`` (3,), parent frame: the rotation axis instead of a random one (a turn about the camera's
     viewing axis does not move the marker center it predicts; one across it does)."""

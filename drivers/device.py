@@ -5,7 +5,7 @@ from __future__ import annotations
 import abc
 import logging
 
-from drivers.errors import DeviceError
+from handeye.drivers.errors import DeviceError
 
 log = logging.getLogger(__name__)
 

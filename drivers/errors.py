@@ -1,6 +1,6 @@
-"""Errors of the device layer (robots, cameras), under `calib.errors.HandeyeError`."""
+"""Errors of the device layer (robots, cameras), under `handeye.calib.errors.HandeyeError`."""
 
-from calib.errors import HandeyeError
+from handeye.calib.errors import HandeyeError
 
 
 class DeviceError(HandeyeError):

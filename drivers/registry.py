@@ -8,7 +8,7 @@ them under the name a config file uses::
 
 `drivers` never imports `mocks`: the simulated backends register themselves
 the same way when their module is imported, and the application imports every
-backend module once (`app.backends`).
+backend module once (`handeye.app.backends`).
 """
 
 from __future__ import annotations
@@ -17,13 +17,13 @@ from dataclasses import dataclass
 
 from pydantic import ValidationError
 
-from calib.errors import ParameterError
-from calib.params import describe
+from handeye.calib.errors import ParameterError
+from handeye.calib.params import describe
 
 
 @dataclass(frozen=True)
 class Backend:
-    """One registered backend: its name, config model (a `calib.params.Params` with a ``Literal``
+    """One registered backend: its name, config model (a `handeye.calib.params.Params` with a ``Literal``
     name field) and device class."""
 
     name: str

@@ -1,7 +1,7 @@
 """ROS 2 through rclpy, for the backends that read topics and the monitor's diagnostics publisher.
 
-The ROS 2 backends (`drivers.camera.ros2`, `drivers.robot.ros2`, `app.ros2`,
-the simulated cell's nodes in `mocks.ros2_cell`) import rclpy only through
+The ROS 2 backends (`handeye.drivers.camera.ros2`, `handeye.drivers.robot.ros2`, `handeye.app.ros2`,
+the simulated cell's nodes in `handeye.mocks.ros2_cell`) import rclpy only through
 `import_rclpy`, when they connect, so that the rest of handeye runs without
 it. rclpy comes from the ``ros-rclpy`` wheels with the Fast DDS middleware
 (``pip install 'handeye[ros2]'``): no ROS installation is needed.
@@ -31,8 +31,8 @@ from typing import Annotated
 
 from pydantic import AfterValidator
 
-from calib.params import NonEmptyStr
-from drivers.errors import DeviceError
+from handeye.calib.params import NonEmptyStr
+from handeye.drivers.errors import DeviceError
 
 log = logging.getLogger(__name__)
 

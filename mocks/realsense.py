@@ -11,7 +11,7 @@ device info of a real one; its frames are the ones we push. `SoftwareRealSense` 
 - name, serial number, USB type, product line and firmware version.
 
 `SoftwareRealSense.push` renders one frame at a flange pose: the colour image and, from the depth
-camera's pose, its depth (`mocks.render.scene.MarkerSceneRenderer`), pushes both with a timestamp
+camera's pose, its depth (`handeye.mocks.render.scene.MarkerSceneRenderer`), pushes both with a timestamp
 in the global time domain, and returns the rendered camera's own frame (depth registered to colour
 by the renderer) to compare the RealSense path with. With ``baseline_m = 0`` and the depth
 intrinsics equal to the colour ones, the depth pushed is that frame's depth, pixel for pixel.
@@ -23,12 +23,12 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from calib import transforms as tf
-from calib.setup import Setup
-from drivers.camera.base import CameraIntrinsics, RGBDFrame
-from drivers.camera.depth import depth_to_mm
-from mocks.render.camera import RenderedCamera, RenderedCameraConfig
-from mocks.render.scene import MarkerSceneRenderer
+from handeye.calib import transforms as tf
+from handeye.calib.setup import Setup
+from handeye.drivers.camera.base import CameraIntrinsics, RGBDFrame
+from handeye.drivers.camera.depth import depth_to_mm
+from handeye.mocks.render.camera import RenderedCamera, RenderedCameraConfig
+from handeye.mocks.render.scene import MarkerSceneRenderer
 
 SERIAL = "000011112222"
 
@@ -46,7 +46,7 @@ class DepthModel:
 
 
 class SoftwareRealSense:
-    """An ``rs.software_device`` D435 showing `mocks.render.camera.RenderedCamera`'s cell (eye-to-hand or -in-hand).
+    """An ``rs.software_device`` D435 showing `handeye.mocks.render.camera.RenderedCamera`'s cell (eye-to-hand or -in-hand).
 
     Parameters
     ----------

@@ -3,7 +3,7 @@
 Selected by ``[camera] backend = "recorded"``. Layout (version 1)::
 
     <path>/
-      intrinsics.yaml     width, height, fx, fy, cx, cy, dist (drivers.camera.intrinsics)
+      intrinsics.yaml     width, height, fx, fy, cx, cy, dist (handeye.drivers.camera.intrinsics)
       frames.csv          header "index,t,color,depth"; one row per frame:
                           frame counter, host time of exposure (s, UNIX epoch),
                           color and depth file names relative to <path>
@@ -26,12 +26,12 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from calib.params import Bool, NonEmptyStr, Params
-from drivers.errors import ConnectionLostError, DeviceError
-from drivers.camera.base import Camera, CameraIntrinsics, RGBDFrame
-from drivers.camera.depth import depth_from_mm, depth_to_mm
-from drivers.camera.intrinsics import load_intrinsics, save_intrinsics
-from drivers.camera.registry import CAMERAS
+from handeye.calib.params import Bool, NonEmptyStr, Params
+from handeye.drivers.errors import ConnectionLostError, DeviceError
+from handeye.drivers.camera.base import Camera, CameraIntrinsics, RGBDFrame
+from handeye.drivers.camera.depth import depth_from_mm, depth_to_mm
+from handeye.drivers.camera.intrinsics import load_intrinsics, save_intrinsics
+from handeye.drivers.camera.registry import CAMERAS
 
 FIELDS = ["index", "t", "color", "depth"]
 

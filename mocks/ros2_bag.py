@@ -2,12 +2,12 @@
 
 What a ``ros2 bag record /tf /tf_static /camera/...`` of a stop-and-go
 calibration run holds: the robot moving between flange poses of
-`calib.simulate.realistic_cell` and holding each for ``stop_s``, its tf at
+`handeye.calib.simulate.realistic_cell` and holding each for ``stop_s``, its tf at
 ``tf_hz`` (``robot_state_publisher`` style: ``base_link -> base`` and
 ``wrist_3_link -> flange`` on ``/tf_static``, ``base_link -> wrist_3_link``
 on ``/tf``; the camera driver's ``camera_link -> camera_color_optical_frame``
 on ``/tf_static``, in a tree of its own until calibrated), the rendered
-RGB-D camera (`mocks.render.camera.RenderedCamera`, eye-to-hand) at ``fps``
+RGB-D camera (`handeye.mocks.render.camera.RenderedCamera`, eye-to-hand) at ``fps``
 (colour ``rgb8``, depth registered to it, its ``CameraInfo``), and
 optionally the marker pose a detector would publish.
 
@@ -27,11 +27,11 @@ import cv2
 import numpy as np
 from scipy.spatial.transform import Rotation, Slerp
 
-from calib import simulate
-from calib import transforms as tf
-from calib.setup import Setup
-from mocks.render.camera import RenderedCamera, RenderedCameraConfig
-from mocks.ur_sim.motion import trapezoid_position
+from handeye.calib import simulate
+from handeye.calib import transforms as tf
+from handeye.calib.setup import Setup
+from handeye.mocks.render.camera import RenderedCamera, RenderedCameraConfig
+from handeye.mocks.ur_sim.motion import trapezoid_position
 
 #: UR's ``base_link -> base``: a half turn about z (REP 103 base_link vs the controller's base).
 T_BASE_LINK_BASE = tf.make_transform(Rotation.from_euler("z", np.pi).as_matrix(), [0.0, 0.0, 0.0])
@@ -246,8 +246,8 @@ def write_demo_bag(path, *, storage: str = "mcap", n_poses: int = 12, seed: int 
 
 def session_frames(bag: DemoBag, measure) -> list[tuple[SessionFrame, object]]:
     """The live run's samples: at each stop, the first candidate ``measure(frame)`` measures
-    (``measure`` raises `calib.errors.ExtractionError` where the marker is not found)."""
-    from calib.errors import ExtractionError
+    (``measure`` raises `handeye.calib.errors.ExtractionError` where the marker is not found)."""
+    from handeye.calib.errors import ExtractionError
 
     out, done = [], set()
     for c in bag.candidates:

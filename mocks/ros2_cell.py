@@ -1,19 +1,19 @@
 """The simulated cell behind ROS 2: the driver nodes a production cell runs, and the backends that start them.
 
 A ROS 2 production cell runs a camera driver (realsense2_camera) and
-``ur_robot_driver``; handeye reads their topics (`drivers.camera.ros2`,
-`drivers.robot.ros2`). Here each is a node process of this module, through
-real DDS (rclpy, `drivers.ros2`), on the simulated cell:
+``ur_robot_driver``; handeye reads their topics (`handeye.drivers.camera.ros2`,
+`handeye.drivers.robot.ros2`). Here each is a node process of this module, through
+real DDS (rclpy, `handeye.drivers.ros2`), on the simulated cell:
 
-- ``python -m mocks.ros2_cell camera SPEC``: realsense2_camera's stand-in. It
-  renders the marker (`mocks.render.camera.RenderedCamera`) at the simulated
+- ``python -m handeye.mocks.ros2_cell camera SPEC``: realsense2_camera's stand-in. It
+  renders the marker (`handeye.mocks.render.camera.RenderedCamera`) at the simulated
   controller's true flange pose (its dashboard's ``sim truth``, on
   ``robot_host``) and publishes colour (``rgb8``, or png on a ``.../compressed``
   topic), the depth registered to it (``16UC1`` mm) and the CameraInfo on the
-  `drivers.camera.ros2.Ros2CameraConfig` topics, frame
+  `handeye.drivers.camera.ros2.Ros2CameraConfig` topics, frame
   ``camera_color_optical_frame``, at ``fps`` (rendering takes ~50 ms a frame).
-- ``python -m mocks.ros2_cell robot SPEC``: ur_robot_driver's stand-in. It
-  reads the simulated controller over RTDE (`drivers.robot.ur_client`,
+- ``python -m handeye.mocks.ros2_cell robot SPEC``: ur_robot_driver's stand-in. It
+  reads the simulated controller over RTDE (`handeye.drivers.robot.ur_client`,
   receive only, as the driver does) and publishes every state on
   ``/joint_states`` (positions and velocities) and
   ``/tcp_pose_broadcaster/pose`` (``actual_TCP_pose`` in ``base``), stamped
@@ -24,7 +24,7 @@ one line each (the camera's: ``frame``, ``resume``, ``bump``, ``truth``) and exi
 stdin closes (its parent stopped it, or died); it ignores SIGINT, which a terminal's
 Ctrl-C sends to the whole process group: its parent's clean stop needs it to the end. `NodeProcess` starts one.
 
-Registered like every simulator (``simulated = True``), by `app.backends`:
+Registered like every simulator (``simulated = True``), by `handeye.app.backends`:
 
 - camera ``"ros2_sim"`` (`Ros2SimCamera`): starts the camera node, and reads
   it through the real ``ros2`` backend. Each `Ros2SimCamera.read` asks the
@@ -56,19 +56,19 @@ import cv2
 import numpy as np
 from pydantic import Field
 
-from calib import transforms as tf
-from calib.params import NonEmptyStr, PositiveFloat
-from drivers.camera.base import Camera, CameraIntrinsics, RGBDFrame
-from drivers.camera.depth import depth_to_mm
-from drivers.camera.registry import CAMERAS
-from drivers.camera.ros2 import Ros2Camera, Ros2CameraConfig
-from drivers.errors import ConnectionLostError, DeviceError
-from drivers.robot.base import RobotState
-from drivers.robot.registry import ROBOTS
-from drivers.robot.ros2 import UR_JOINTS, Ros2Robot, Ros2RobotConfig
-from drivers.ros2 import Ros2Node, messages, set_stamp
-from mocks.render.camera import MountBump, RenderedCamera, RenderedCameraConfig
-from mocks.ur_sim.robot import URSimRobot, URSimRobotConfig
+from handeye.calib import transforms as tf
+from handeye.calib.params import NonEmptyStr, PositiveFloat
+from handeye.drivers.camera.base import Camera, CameraIntrinsics, RGBDFrame
+from handeye.drivers.camera.depth import depth_to_mm
+from handeye.drivers.camera.registry import CAMERAS
+from handeye.drivers.camera.ros2 import Ros2Camera, Ros2CameraConfig
+from handeye.drivers.errors import ConnectionLostError, DeviceError
+from handeye.drivers.robot.base import RobotState
+from handeye.drivers.robot.registry import ROBOTS
+from handeye.drivers.robot.ros2 import UR_JOINTS, Ros2Robot, Ros2RobotConfig
+from handeye.drivers.ros2 import Ros2Node, messages, set_stamp
+from handeye.mocks.render.camera import MountBump, RenderedCamera, RenderedCameraConfig
+from handeye.mocks.ur_sim.robot import URSimRobot, URSimRobotConfig
 
 log = logging.getLogger(__name__)
 
@@ -151,7 +151,7 @@ class FramePublisher:
 
     Parameters
     ----------
-    node : drivers.ros2.Ros2Node
+    node : handeye.drivers.ros2.Ros2Node
         An open node.
     topics : Ros2CameraConfig
         The topic names (a colour topic ending in ``/compressed`` gets png CompressedImages).
@@ -203,7 +203,7 @@ def _reply(obj) -> None:
 
 def run_camera_node(spec: dict) -> int:
     """The camera node (see the module docstring) until stdin closes."""
-    from mocks.ur_sim import dashboard
+    from handeye.mocks.ur_sim import dashboard
 
     cfg = RenderedCameraConfig.model_validate(spec["camera"])
     topics = Ros2CameraConfig.model_validate(spec["topics"])
@@ -262,8 +262,8 @@ def _camera_command(cmd: dict, camera: RenderedCamera, out: FramePublisher) -> d
 
 def run_robot_node(spec: dict) -> int:
     """The robot node (see the module docstring) until stdin closes."""
-    from drivers.robot.ur import RTDE_VARIABLES
-    from drivers.robot.ur_client import ClientDied, RTDEClient
+    from handeye.drivers.robot.ur import RTDE_VARIABLES
+    from handeye.drivers.robot.ur_client import ClientDied, RTDEClient
 
     JointState, = messages("sensor_msgs", "JointState")
     PoseStamped, = messages("geometry_msgs", "PoseStamped")
@@ -291,7 +291,7 @@ def run_robot_node(spec: dict) -> int:
 
 
 def main(argv: list[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(prog="python -m mocks.ros2_cell", description=__doc__.splitlines()[0])
+    ap = argparse.ArgumentParser(prog="python -m handeye.mocks.ros2_cell", description=__doc__.splitlines()[0])
     ap.add_argument("role", choices=("camera", "robot"))
     ap.add_argument("spec", help="JSON: the node's settings (NodeProcess writes it)")
     args = ap.parse_args(argv)
@@ -315,7 +315,7 @@ class NodeProcess:
 
     def __init__(self, role: Literal["camera", "robot"], spec: dict, timeout: float = 30.0):
         self.role = role
-        self.proc = subprocess.Popen([sys.executable, "-m", "mocks.ros2_cell", role, json.dumps(spec)],
+        self.proc = subprocess.Popen([sys.executable, "-m", "handeye.mocks.ros2_cell", role, json.dumps(spec)],
                                      stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
                                      text=True, bufsize=1)
         self.stderr: list[str] = []
@@ -476,7 +476,7 @@ class Ros2SimRobotConfig(URSimRobotConfig):
     ----------
     ros2_source : {"pose", "joints"}
         Read-only: the flange pose from the TCP pose topic (``tcp_offset`` removed) or the joint states
-        (`drivers.robot.ros2.Ros2RobotConfig.source`).
+        (`handeye.drivers.robot.ros2.Ros2RobotConfig.source`).
     """
 
     type: Literal["ros2_sim"] = "ros2_sim"

@@ -19,9 +19,9 @@ settings.load_profile("handeye")
 if signal.getsignal(signal.SIGINT) is signal.SIG_IGN:
     signal.signal(signal.SIGINT, signal.default_int_handler)
 
-import app.backends  # noqa: F401  every robot and camera backend registered by name, as in the app
-from drivers.errors import DeviceError
-from mocks.ur_sim import launch
+import handeye.app.backends  # noqa: F401  every robot and camera backend registered by name, as in the app
+from handeye.drivers.errors import DeviceError
+from handeye.mocks.ur_sim import launch
 from tests.simulated_ur import SIM_TCP, START_Q, free_host, process_net
 
 
@@ -149,7 +149,7 @@ class Ros2Publisher:
 def ros2_publisher(ros2_graph):
     """``ros2_publisher(prefix)`` starts a `Ros2Publisher` (killed at module end). A node of this process stays
     open meanwhile: the process's DDS participant, and what it discovered, outlive each test's devices."""
-    from drivers.ros2 import Ros2Node
+    from handeye.drivers.ros2 import Ros2Node
 
     started = []
 
@@ -169,7 +169,7 @@ def pytest_sessionfinish(session, exitstatus):
 
 def pytest_unconfigure(config):
     """pyrealsense2 and rclpy loaded in one process (the RealSense and the ROS 2 tests) crash in the C++ exit
-    handlers after the run (`app.cli.leave_cleanly_past_two_dds`): leave with the tests' status instead."""
-    from app.cli import leave_cleanly_past_two_dds
+    handlers after the run (`handeye.app.cli.leave_cleanly_past_two_dds`): leave with the tests' status instead."""
+    from handeye.app.cli import leave_cleanly_past_two_dds
 
     leave_cleanly_past_two_dds(getattr(config, "handeye_exitstatus", 0))

@@ -23,11 +23,11 @@ import time
 
 import numpy as np
 
-from calib import transforms as tf
-from drivers.camera.base import CameraIntrinsics
-from drivers.robot.ros2 import UR_JOINTS
-from drivers.ros2 import Ros2Node, messages
-from mocks.ros2_cell import camera_info_message, image_message, joint_state_message, pose_message
+from handeye.calib import transforms as tf
+from handeye.drivers.camera.base import CameraIntrinsics
+from handeye.drivers.robot.ros2 import UR_JOINTS
+from handeye.drivers.ros2 import Ros2Node, messages
+from handeye.mocks.ros2_cell import camera_info_message, image_message, joint_state_message, pose_message
 
 INTR = CameraIntrinsics(160, 120, 140.0, 140.0, 79.5, 59.5)
 MATCH_WAIT_S = 10.0

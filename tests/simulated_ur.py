@@ -1,4 +1,4 @@
-"""Helpers for the tests that run the simulated UR controller (mocks.ur_sim) through the real driver.
+"""Helpers for the tests that run the simulated UR controller (handeye.mocks.ur_sim) through the real driver.
 
 Each test module launches its own simulated controller (the ``sim_factory`` fixture of tests/conftest.py,
 module-scoped because every ur_rtde disconnect sleeps 0.5 s) on its own loopback address, derived from
@@ -10,7 +10,7 @@ import time
 
 import numpy as np
 
-from drivers.robot.ur import URRobot, URRobotConfig
+from handeye.drivers.robot.ur import URRobot, URRobotConfig
 
 # An unusual TCP so that forgetting to remove it shows up in every pose check.
 SIM_TCP = (0.01, -0.02, 0.15, 0.1, -0.2, 0.3)

@@ -1,6 +1,6 @@
 """``handeye calibrate``: move the robot through planned (or random, or listed) poses, sample each one, solve.
 
-The run is `app.runs.calibrate`; this module parses, asks before motion and prints.
+The run is `handeye.app.runs.calibrate`; this module parses, asks before motion and prints.
 """
 
 from __future__ import annotations
@@ -10,14 +10,14 @@ from pathlib import Path
 
 import numpy as np
 
-from app import exit_status
-from app.commands.common import (add_motion_options, add_report_options, add_run_options, cell_command,
+from handeye.app import exit_status
+from handeye.app.commands.common import (add_motion_options, add_report_options, add_run_options, cell_command,
                                  command_with, confirm_motion, load_config_args, next_steps, transform_lines,
                                  verdict_lines)
-from app.runs.calibrate import CalibrationOutput, calibrate
-from app.formats.export import model_report
-from calib.result import CalibrationResult
-from calib.setup import Setup
+from handeye.app.runs.calibrate import CalibrationOutput, calibrate
+from handeye.app.formats.export import model_report
+from handeye.calib.result import CalibrationResult
+from handeye.calib.setup import Setup
 
 NAME = "calibrate"
 HELP = "active run: move the robot through planned (or random, or listed) poses and calibrate"
@@ -43,13 +43,13 @@ def run(args) -> int:
 
 
 def print_continue(out: CalibrationOutput, args) -> None:
-    """After Ctrl-C: the command that continues the run (`app.commands.common.command_with` its session)."""
+    """After Ctrl-C: the command that continues the run (`handeye.app.commands.common.command_with` its session)."""
     if out.report.stopped_by == "interrupted":
         print(f"continue this run:   {command_with(args, '--resume', out.report.session)}")
 
 
 def exit_code(out: CalibrationOutput) -> int:
-    """`app.exit_status`: interrupted after Ctrl-C (samples kept), error without a calibration, else the
+    """`handeye.app.exit_status`: interrupted after Ctrl-C (samples kept), error without a calibration, else the
     verdict's."""
     if out.report.stopped_by == "interrupted":
         return exit_status.INTERRUPTED
@@ -109,7 +109,7 @@ def print_statistics(res: CalibrationResult, files: dict) -> None:
 
 
 def print_model_summary(res: CalibrationResult) -> list[str]:
-    """Camera correction, noise levels and the self-check of ``res`` (`app.formats.export.model_report`) as
+    """Camera correction, noise levels and the self-check of ``res`` (`handeye.app.formats.export.model_report`) as
     table rows; returns ``auto``'s notes."""
     rep = model_report(res)
     if rep is None:
@@ -137,9 +137,9 @@ def print_model_summary(res: CalibrationResult) -> list[str]:
 
 
 def print_next_steps(out: CalibrationOutput, config: Path | None = None) -> None:
-    """What to do with the result (`app.commands.common.next_steps`), and the recording to look at."""
-    from app.formats import ros2_command
-    from app.viz import open_command
+    """What to do with the result (`handeye.app.commands.common.next_steps`), and the recording to look at."""
+    from handeye.app.formats import ros2_command
+    from handeye.app.viz import open_command
 
     res = out.report.result
     print()

@@ -9,10 +9,10 @@ from pathlib import Path
 
 import numpy as np
 
-from calib import transforms as tf
-from app import progress
-from app.errors import ConfigError
-from calib.errors import HandeyeError
+from handeye.calib import transforms as tf
+from handeye.app import progress
+from handeye.app.errors import ConfigError
+from handeye.calib.errors import HandeyeError
 
 
 def add_run_options(p: argparse.ArgumentParser) -> None:
@@ -82,7 +82,7 @@ def add_motion_options(p: argparse.ArgumentParser) -> None:
 
 def apply_overrides(cfg, args):
     """The config with the CLI overrides, validated again (`ConfigError` names the field)."""
-    from app.config import config_from_dict
+    from handeye.app.config import config_from_dict
 
     cal = {}
     if getattr(args, "samples", None) is not None:
@@ -126,9 +126,9 @@ def apply_overrides(cfg, args):
 
 def load_config_args(args):
     """Config file (or the embedded simulated cell) + CLI overrides, every section validated."""
-    from app import devices
-    from app.config import load_config
-    from app.planning import check_poses_option
+    from handeye.app import devices
+    from handeye.app.config import load_config
+    from handeye.app.planning import check_poses_option
 
     cfg = apply_overrides(load_config(args.config), args)
     try:
@@ -161,7 +161,7 @@ def confirm_motion(yes_move: bool, *, stdin=None) -> None:
 
 
 def command_with(args, option: str, value) -> str:
-    """This run's command as typed (``args.argv``, set by `app.cli.main`), ``option`` (also abbreviated, or with
+    """This run's command as typed (``args.argv``, set by `handeye.app.cli.main`), ``option`` (also abbreviated, or with
     ``=``) replaced by ``option value`` at the end, quoted for a shell: the line that continues the run."""
     argv, value_next = [], False
     for arg in args.argv:
@@ -182,7 +182,7 @@ def cell_command(name: str, config: Path | None, *extra) -> str:
 
 def pose_line(T: np.ndarray, *, rpy: bool = False) -> str:
     """``xyz [mm] = [...]  quat (x,y,z,w) = [...]`` of a transform (and URDF's ``rpy [deg]``), for printing."""
-    from app.formats.export import rpy_deg
+    from handeye.app.formats.export import rpy_deg
 
     xyz, q = tf.to_xyz_quat(T)
     return (f"xyz [mm] = {np.array2string(xyz * 1e3, precision=2)}  "
@@ -198,8 +198,8 @@ def program() -> str:
 
 
 def verdict_lines(verdict: dict | None) -> list[str]:
-    """``PASS: <summary>`` and one ``  - <reason>`` line per reason (`calib.result.Verdict.to_dict`)."""
-    from calib.verdict import WORDS
+    """``PASS: <summary>`` and one ``  - <reason>`` line per reason (`handeye.calib.result.Verdict.to_dict`)."""
+    from handeye.calib.verdict import WORDS
 
     if verdict is None:
         return []
@@ -228,8 +228,8 @@ def next_steps(level: str, *, report: Path | None, ros2: str | None, verify: str
 def transform_lines(result, *, truth: np.ndarray | None = None) -> list[str]:
     """The camera transform to paste (`CalibrationResult.camera_transform_raw_points`: what the ROS and URDF
     exports carry), the simulator's truth beside it, and which transform goes with which points."""
-    from app.formats.export import which_transform
-    from calib.setup import Setup
+    from handeye.app.formats.export import which_transform
+    from handeye.calib.setup import Setup
 
     setup = Setup(result.setup)
     parent = "base" if setup == Setup.EYE_TO_HAND else "flange"

@@ -1,17 +1,17 @@
-"""``handeye demo``: calibrate the simulated cell and print the result beside the truth (the run: `app.runs.demo`)."""
+"""``handeye demo``: calibrate the simulated cell and print the result beside the truth (the run: `handeye.app.runs.demo`)."""
 
 from __future__ import annotations
 
 import argparse
 from pathlib import Path
 
-from app import exit_status
-from app.commands.calibrate import exit_code, print_calibration_summary, print_continue
-from app.commands.common import add_motion_options, add_report_options, add_run_options, load_config_args
-from app.commands.monitor import next_lines, print_monitor_summary
-from app.production import Bump
-from app.runs.demo import demo, demo_monitor
-from calib.errors import HandeyeError
+from handeye.app import exit_status
+from handeye.app.commands.calibrate import exit_code, print_calibration_summary, print_continue
+from handeye.app.commands.common import add_motion_options, add_report_options, add_run_options, load_config_args
+from handeye.app.commands.monitor import next_lines, print_monitor_summary
+from handeye.app.production import Bump
+from handeye.app.runs.demo import demo, demo_monitor
+from handeye.calib.errors import HandeyeError
 
 NAME = "demo"
 HELP = ("simulated UR10 + rendered camera: calibrate and compare to the truth "

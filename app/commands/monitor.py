@@ -1,6 +1,6 @@
 """``handeye monitor``: sample while something else moves the robot, keep the camera calibrated.
 
-The run is `app.runs.monitor` (read-only: it never commands a motion); this module parses and prints.
+The run is `handeye.app.runs.monitor` (read-only: it never commands a motion); this module parses and prints.
 """
 
 from __future__ import annotations
@@ -10,13 +10,13 @@ from pathlib import Path
 
 import numpy as np
 
-from app import exit_status
-from app.calibration_in_use import FILE_NAME as IN_USE_FILE
-from app.commands.common import add_run_options, cell_command, command_with, load_config_args, pose_line
-from app.runs.monitor import MonitorReport, monitor
-from calib import transforms as tf
-from calib.monitor import EngineState
-from calib.setup import Setup
+from handeye.app import exit_status
+from handeye.app.calibration_in_use import FILE_NAME as IN_USE_FILE
+from handeye.app.commands.common import add_run_options, cell_command, command_with, load_config_args, pose_line
+from handeye.app.runs.monitor import MonitorReport, monitor
+from handeye.calib import transforms as tf
+from handeye.calib.monitor import EngineState
+from handeye.calib.setup import Setup
 
 NAME = "monitor"
 HELP = "passive: sample while the robot works, alarm when the camera moved"
@@ -42,7 +42,7 @@ def run(args) -> int:
 
 
 def next_lines(report: MonitorReport, args, *, calibrate: str | None = None) -> list[str]:
-    """`app.shift_record.ShiftRecord.next_steps` of a run typed as ``args``: the calibration in use to hand on,
+    """`handeye.app.shift_record.ShiftRecord.next_steps` of a run typed as ``args``: the calibration in use to hand on,
     the verify command for it, the command that continues from this run and ``calibrate`` (None: not offered)."""
     return report.record.next_steps(report.session / IN_USE_FILE,
                                     continue_with=command_with(args, "--reference", report.session),
@@ -50,10 +50,10 @@ def next_lines(report: MonitorReport, args, *, calibrate: str | None = None) -> 
 
 
 def print_monitor_summary(report: MonitorReport, setup: Setup = Setup.EYE_TO_HAND, next_lines=()) -> None:
-    """The state of the cell in plain words first (`app.shift_record.ShiftRecord.status`), every alarm with its
+    """The state of the cell in plain words first (`handeye.app.shift_record.ShiftRecord.status`), every alarm with its
     local time and what became of it, the live estimate, the move since the cell's first calibration and the
     drift since the calibration in use, then the counts, the files, and ``next_lines``
-    (`app.shift_record.ShiftRecord.next_steps`) with the recording to open."""
+    (`handeye.app.shift_record.ShiftRecord.next_steps`) with the recording to open."""
     cam = Setup(setup).camera_name
     record = report.record
     if report.estimate is None or record is None:
@@ -95,7 +95,7 @@ def print_monitor_summary(report: MonitorReport, setup: Setup = Setup.EYE_TO_HAN
             print(f"  {name}: {report.session / name}")
     lines = list(next_lines)
     if report.session is not None and (report.session / "recording.rrd").exists():
-        from app.viz import open_command
+        from handeye.app.viz import open_command
 
         lines = (lines or ["next:"]) + [f"  open the recording:  {open_command(report.session / 'recording.rrd')}"]
     if lines:

@@ -1,6 +1,6 @@
 """``handeye plan``: the poses of an active run, planned without moving (dry run), for review.
 
-The planning run is `app.runs.plan` (plan.json and a rerun recording beside it); this module parses and prints.
+The planning run is `handeye.app.runs.plan` (plan.json and a rerun recording beside it); this module parses and prints.
 """
 
 from __future__ import annotations
@@ -10,8 +10,8 @@ from pathlib import Path
 
 import numpy as np
 
-from app.commands.common import add_run_options, cell_command, load_config_args, until_sigma
-from app.runs.plan import PlanOutput, plan
+from handeye.app.commands.common import add_run_options, cell_command, load_config_args, until_sigma
+from handeye.app.runs.plan import PlanOutput, plan
 
 NAME = "plan"
 HELP = "plan the calibration poses without moving: plan.json + a rerun recording (replay: calibrate --poses plan.json)"
@@ -45,7 +45,7 @@ def print_plan_summary(out: PlanOutput, config: Path | None = None) -> None:
         print(f"| {p['index']} | {p['kind']} | {xyz[0]:.0f}, {xyz[1]:.0f}, {xyz[2]:.0f} | "
               f"{p['pixel'][0]:.0f}, {p['pixel'][1]:.0f} | {p['expected_sigma_mm']:.2f} | {p['expected_sigma_deg']:.3f} |")
     if out.recording is not None:
-        from app.viz import open_command
+        from handeye.app.viz import open_command
 
         print(f"\nopen the recording:  {open_command(out.recording)}")
     print(f"replay on the robot: {cell_command('calibrate', config, '--poses', out.path)}")

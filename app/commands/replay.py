@@ -1,6 +1,6 @@
 """``handeye replay``: re-solve a recorded session (or an imported file) with one, several or all solvers, and advise.
 
-The replay is `app.runs.replay` (``--monitor``: `app.monitor_replay`); this module parses and prints.
+The replay is `handeye.app.runs.replay` (``--monitor``: `handeye.app.monitor_replay`); this module parses and prints.
 """
 
 from __future__ import annotations
@@ -12,14 +12,14 @@ from pathlib import Path
 
 import numpy as np
 
-from app import devices, exit_status
-from app.calibration_in_use import FILE_NAME as IN_USE_FILE
-from app.commands.calibrate import print_statistics
-from app.commands.common import (add_report_options, cell_command, marker_offset, next_steps, program,
+from handeye.app import devices, exit_status
+from handeye.app.calibration_in_use import FILE_NAME as IN_USE_FILE
+from handeye.app.commands.calibrate import print_statistics
+from handeye.app.commands.common import (add_report_options, cell_command, marker_offset, next_steps, program,
                                  report_overrides, tolerance, transform_lines, verdict_lines)
-from app.errors import SessionError
-from app.runs.replay import replay_settings, replay_source, write_outputs
-from calib.setup import Setup
+from handeye.app.errors import SessionError
+from handeye.app.runs.replay import replay_settings, replay_source, write_outputs
+from handeye.calib.setup import Setup
 
 
 NAME = "replay"
@@ -64,7 +64,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def monitor_next_steps(rep, config: Path | None) -> list[str]:
-    """`app.shift_record.ShiftRecord.next_steps` of a replayed monitoring run: the commands that go on with the
+    """`handeye.app.shift_record.ShiftRecord.next_steps` of a replayed monitoring run: the commands that go on with the
     cell (monitor live from the replay's calibration in use, verify it, recalibrate) only when its config is
     given."""
     if config is None:
@@ -85,7 +85,7 @@ def run(args) -> int:
     settings = replay_settings(args.config, marker_offset=args.marker_offset,
                                marker_offset_sigma_mm=args.marker_offset_sigma)
     if args.monitor:
-        from app.monitor_replay import replay_monitor, summary
+        from handeye.app.monitor_replay import replay_monitor, summary
 
         if args.reference is None:
             raise SessionError("replay --monitor needs --reference: the calibration session (or its result.yaml) "
@@ -113,7 +113,7 @@ def print_replay(outcome, files: dict, frames: dict | None = None, *, verbose: b
                  config: Path | None = None) -> None:
     """The verdict of the result replay recommends (and ``--out`` writes), its transform, the solvers'
     comparison when several ran (or ``verbose``), the statistics (``verbose``) and what to do next."""
-    from app.formats import ros2_command
+    from handeye.app.formats import ros2_command
 
     res = outcome.best.result
     print(outcome.header.rstrip("\n") + f"; result of {outcome.best.method}:\n")

@@ -7,7 +7,7 @@ the result predicts. Passive (``--passive``): the same on samples taken
 read-only while production moves the robot (the monitor's sampling). Offline (``--session S``): the same against another
 recorded session or an imported file (the cross-session check). Either way:
 pass/warn/fail against ``[verify] tolerance_mm / tolerance_deg`` (``--tolerance``),
-exit status `app.exit_status.of_verdict`, ``verify.yaml`` and ``report.html`` in the
+exit status `handeye.app.exit_status.of_verdict`, ``verify.yaml`` and ``report.html`` in the
 verify session (offline: a new directory under ``session.root``).
 
 Eye-to-hand: ``X = T_flange_marker``, ``Y = T_base_cam``; eye-in-hand:
@@ -21,15 +21,15 @@ from pathlib import Path
 
 import numpy as np
 
-from app import exit_status
-from app.commands.common import (add_report_options, add_run_options, confirm_motion, load_config_args, program,
+from handeye.app import exit_status
+from handeye.app.commands.common import (add_report_options, add_run_options, confirm_motion, load_config_args, program,
                                  tolerance, verdict_lines)
-from app.errors import SessionError
-from app.runs.verify import verify
-from app.session import read_session
-from calib.errors import HandeyeError
-from calib.verdict import per_pose_phrase
-from calib.verify import MIN_POSES
+from handeye.app.errors import SessionError
+from handeye.app.runs.verify import verify
+from handeye.app.session import read_session
+from handeye.calib.errors import HandeyeError
+from handeye.calib.verdict import per_pose_phrase
+from handeye.calib.verify import MIN_POSES
 
 NAME = "verify"
 HELP = "judge a result on fresh poses (or another session): error in mm/deg, pass/fail, verify.yaml + report"
@@ -70,7 +70,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def _config(args):
-    from app.config import config_from_dict
+    from handeye.app.config import config_from_dict
 
     cfg = load_config_args(args)
     ver = {}
@@ -111,7 +111,7 @@ def run(args) -> int:
 
 def continue_note(result: Path) -> str | None:
     """When ``result`` (a result file or its session) comes from a calibration stopped by Ctrl-C and not
-    continued since (`app.session.Session.interrupted`): what it holds and the command that continues it."""
+    continued since (`handeye.app.session.Session.interrupted`): what it holds and the command that continues it."""
     directory = result if result.is_dir() else result.parent
     if not (directory / "session.json").exists():
         return None

@@ -1,7 +1,7 @@
 """Import samples from the tools users already have; export results for them.
 
 Import (both setups; every importer returns handeye's convention, ``A =
-T_base_flange``, ``B = T_cam_marker``, see `app.formats.common`)::
+T_base_flange``, ``B = T_cam_marker``, see `handeye.app.formats.common`)::
 
     load(path, format=None, **options) -> ImportedSamples(observations, setup, meta)
 
@@ -27,10 +27,10 @@ format                     path
 
 ``format=None`` detects it from the file. Options: ``setup=`` for the formats
 whose files may not say (``open_setup``); manifest overrides for ``pose_csv``. Each
-importer registers itself (`app.formats.registry.register_import`); a new
+importer registers itself (`handeye.app.formats.registry.register_import`); a new
 format is one module plus its name in ``IMPORTER_MODULES``.
 
-Export (`app.formats.export`)::
+Export (`handeye.app.formats.export`)::
 
     write_result(result, path, fmt="yaml", frames=None) -> Path
 
@@ -48,9 +48,9 @@ This package imports neither rerun nor drivers.
 
 from __future__ import annotations
 
-from app.formats.common import DEFAULT_FRAMES, ImportedSamples
-from app.formats.export import EXPORT_FORMATS, result_to_dict, ros2_command, urdf_origin, write_result
-from app.formats.registry import detect_format, get_format, import_formats, register_import
+from handeye.app.formats.common import DEFAULT_FRAMES, ImportedSamples
+from handeye.app.formats.export import EXPORT_FORMATS, result_to_dict, ros2_command, urdf_origin, write_result
+from handeye.app.formats.registry import detect_format, get_format, import_formats, register_import
 
 
 def load(path, format: str | None = None, **options) -> ImportedSamples:

@@ -16,12 +16,12 @@ from pathlib import Path
 import numpy as np
 import yaml
 
-from app.files import read_text_file
-from calib import transforms as tf
-from app.errors import SessionError
-from calib.errors import CalibrationError
-from calib.observation import Observation
-from calib.setup import Setup, check_setup
+from handeye.app.files import read_text_file
+from handeye.calib import transforms as tf
+from handeye.app.errors import SessionError
+from handeye.calib.errors import CalibrationError
+from handeye.calib.observation import Observation
+from handeye.calib.setup import Setup, check_setup
 
 DEFAULT_FRAMES = {"base": "base", "flange": "flange", "camera": "camera", "marker": "marker"}
 

@@ -27,12 +27,12 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from calib import transforms as tf
-from app.errors import SessionError
-from calib.setup import Setup, check_setup
+from handeye.calib import transforms as tf
+from handeye.app.errors import SessionError
+from handeye.calib.setup import Setup, check_setup
 
-from app.formats.common import ImportedSamples, observations_from_poses, read_yaml, transform_from_msg
-from app.formats.registry import register_import
+from handeye.app.formats.common import ImportedSamples, observations_from_poses, read_yaml, transform_from_msg
+from handeye.app.formats.registry import register_import
 
 # easy_handeye's names for the two setups (and ours).
 _SETUP_NAMES = {"eye_in_hand": Setup.EYE_IN_HAND, "eye_on_hand": Setup.EYE_IN_HAND,

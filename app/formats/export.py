@@ -1,4 +1,4 @@
-"""Exporters of a `calib.result.CalibrationResult` into the formats other tools read.
+"""Exporters of a `handeye.calib.result.CalibrationResult` into the formats other tools read.
 
 The exported transform is the *camera* transform: ``T_base_cam`` (parent =
 base frame, child = camera frame) for eye-to-hand, ``T_flange_cam`` (parent =
@@ -18,13 +18,13 @@ import numpy as np
 import yaml
 from scipy.spatial.transform import Rotation
 
-from calib import transforms as tf
-from app.errors import ConfigError
-from calib.errors import CalibrationError
-from calib.result import CalibrationResult
-from calib.setup import Setup, check_setup
+from handeye.calib import transforms as tf
+from handeye.app.errors import ConfigError
+from handeye.calib.errors import CalibrationError
+from handeye.calib.result import CalibrationResult
+from handeye.calib.setup import Setup, check_setup
 
-from app.formats.common import DEFAULT_FRAMES
+from handeye.app.formats.common import DEFAULT_FRAMES
 
 EXPORT_FORMATS = ("yaml", "json", "easy_handeye", "easy_handeye2", "urdf", "ros2_launch")
 RESULT_FORMAT = "handeye-result"
@@ -86,7 +86,7 @@ def published_transform(result: CalibrationResult, frames: dict, camera_tf: dict
 
     Without ``camera_tf``: the camera transform for uncorrected points, parent -> the optical frame.
     With ``camera_tf`` (``root``, ``T_root_camera`` (4, 4): the camera driver's own tf from its root,
-    e.g. ``camera_link``, to the optical frame; `app.formats.ros2_bag` reports it): parent -> root,
+    e.g. ``camera_link``, to the optical frame; `handeye.app.formats.ros2_bag` reports it): parent -> root,
     ``camera_transform_raw_points @ inv(T_root_camera)``, since a tf frame has one parent.
     """
     parent, child = _parent_child(result.setup, frames)
@@ -176,7 +176,7 @@ def result_to_dict(result: CalibrationResult, frames: dict | None = None, sample
         The session (or imported file) the result was solved from, as ``samples_from``: verify
         reads its poses back (to avoid and to flag them).
     cell : dict, optional
-        Who made it, where and with what (`app.provenance.cell`), as ``cell``.
+        Who made it, where and with what (`handeye.app.provenance.cell`), as ``cell``.
 
     Returns
     -------
@@ -245,7 +245,7 @@ def result_to_dict(result: CalibrationResult, frames: dict | None = None, sample
 
 
 def accuracy_dict(result: CalibrationResult) -> dict:
-    """``result.accuracy`` (`calib.verdict.workspace_accuracy`) with its units and what it means."""
+    """``result.accuracy`` (`handeye.calib.verdict.workspace_accuracy`) with its units and what it means."""
     acc = result.accuracy
     parent = "base" if Setup(result.setup) == Setup.EYE_TO_HAND else "flange"
     return {"rms_mm": acc.rms_mm, "p95_mm": acc.p95_mm, "rms_deg": acc.rms_deg, "p95_deg": acc.p95_deg,

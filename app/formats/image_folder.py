@@ -19,9 +19,9 @@ seven numbers); a bare list is accepted too.
 optional; 4, 5, 8, 12 or 14 values, OpenCV's models), or a ROS ``camera_info``
 YAML (``camera_matrix: {data: [9]}``, ``distortion_coefficients: {data: [...]}``).
 
-``target.yaml`` (`calib.vision.extract.TargetConfig` fields; default: a 5 cm
+``target.yaml`` (`handeye.calib.vision.extract.TargetConfig` fields; default: a 5 cm
 DICT_4X4_50 ArUco, id 0): each image is measured like a live frame
-(`calib.vision.extract.extract`): with a depth image, the marker center is
+(`handeye.calib.vision.extract.extract`): with a depth image, the marker center is
 lifted from depth; without, it comes from PnP (``use_depth`` off). An image
 whose target is not found is skipped with a log line and listed in
 ``meta["skipped"]``. The setup: ``setup`` in the poses file or the option,
@@ -40,15 +40,15 @@ from types import SimpleNamespace
 import cv2
 import numpy as np
 
-from app.errors import ConfigError, SessionError
-from app.files import inside, read_regular_file, read_text_file
-from calib import transforms as tf
-from calib.errors import ExtractionError, HandeyeError, ParameterError
-from calib.observation import Observation
-from calib.setup import Setup, check_setup
+from handeye.app.errors import ConfigError, SessionError
+from handeye.app.files import inside, read_regular_file, read_text_file
+from handeye.calib import transforms as tf
+from handeye.calib.errors import ExtractionError, HandeyeError, ParameterError
+from handeye.calib.observation import Observation
+from handeye.calib.setup import Setup, check_setup
 
-from app.formats.common import ImportedSamples, read_yaml, transform_from_xyz_quat_fields
-from app.formats.registry import register_import
+from handeye.app.formats.common import ImportedSamples, read_yaml, transform_from_xyz_quat_fields
+from handeye.app.formats.registry import register_import
 
 log = logging.getLogger(__name__)
 
@@ -128,7 +128,7 @@ def read_intrinsics(folder: Path) -> SimpleNamespace:
 
 
 def _target(folder: Path, use_depth: bool):
-    from calib.vision.extract import TargetConfig
+    from handeye.calib.vision.extract import TargetConfig
 
     data = dict(read_yaml(_own_file(folder, ["target.yaml"]))) if (folder / "target.yaml").exists() else {}
     data.setdefault("use_depth", use_depth)
@@ -154,7 +154,7 @@ def _detect(path: Path, document) -> bool:
 @register_import("image_folder", _detect, open_setup=True)
 def load_image_folder(path, setup: str | None = None) -> ImportedSamples:
     """Measure the target in every image of the folder and pair it with that image's robot pose."""
-    from calib.vision.extract import extract
+    from handeye.calib.vision.extract import extract
 
     folder = Path(path)
     if not is_image_folder(folder):

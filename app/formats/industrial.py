@@ -7,11 +7,11 @@ the robot's ``base -> tool`` transform (``x y z qx qy qz qw``, m,
 scalar-last), i.e. ``T_base_flange``. Each image gives ``T_cam_marker`` by
 PnP on the detected target:
 
-- ``CharucoGridTargetFinder``: `calib.vision.markers.detect_charuco`
+- ``CharucoGridTargetFinder``: `handeye.calib.vision.markers.detect_charuco`
   (``rows x cols`` squares, ``chessboard_dim`` / ``aruco_marker_dim`` m,
   ``dictionary`` as OpenCV's integer id); the marker frame is OpenCV's board
   frame.
-- ``ModifiedCircleGridTargetFinder``: `calib.vision.circle_grid.detect_circle_grid`
+- ``ModifiedCircleGridTargetFinder``: `handeye.calib.vision.circle_grid.detect_circle_grid`
   (origin at the large dot).
 
 An image whose target is not found is skipped with a log line and listed in
@@ -26,16 +26,16 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from app.errors import ConfigError, SessionError
-from app.files import inside, read_regular_file
-from calib.errors import ExtractionError
-from calib.setup import Setup
-from calib.vision.circle_grid import CircleGridSpec, detect_circle_grid
-from calib.vision.lift import pnp_covariance, solve_pnp
-from calib.vision.markers import BoardSpec, Detection, detect_charuco
+from handeye.app.errors import ConfigError, SessionError
+from handeye.app.files import inside, read_regular_file
+from handeye.calib.errors import ExtractionError
+from handeye.calib.setup import Setup
+from handeye.calib.vision.circle_grid import CircleGridSpec, detect_circle_grid
+from handeye.calib.vision.lift import pnp_covariance, solve_pnp
+from handeye.calib.vision.markers import BoardSpec, Detection, detect_charuco
 
-from app.formats.common import ImportedSamples, observations_from_poses, read_yaml, transform_from_xyz_quat_fields
-from app.formats.registry import register_import
+from handeye.app.formats.common import ImportedSamples, observations_from_poses, read_yaml, transform_from_xyz_quat_fields
+from handeye.app.formats.registry import register_import
 
 log = logging.getLogger(__name__)
 
@@ -85,7 +85,7 @@ def make_detector(finder: dict, where: str):
 def pose_from_detection(det: Detection, K: np.ndarray) -> tuple[np.ndarray, np.ndarray, float]:
     """``T_cam_marker`` (4, 4) by planar PnP (undistorted pinhole), its 6x6 covariance and the reprojection RMS (px).
 
-    The covariance (`calib.vision.lift.pnp_covariance`, rotation vector rad
+    The covariance (`handeye.calib.vision.lift.pnp_covariance`, rotation vector rad
     then translation m) takes the pixel noise from the reprojection RMS, with
     a floor of ``SIGMA_PX_MIN`` so a perfect fit does not claim zero noise.
     """

@@ -25,12 +25,12 @@ from pathlib import Path
 
 import numpy as np
 
-from app.errors import SessionError
-from app.files import read_text_file
-from calib.setup import Setup, check_setup
+from handeye.app.errors import SessionError
+from handeye.app.files import read_text_file
+from handeye.calib.setup import Setup, check_setup
 
-from app.formats.common import ImportedSamples, observations_from_poses
-from app.formats.registry import register_import
+from handeye.app.formats.common import ImportedSamples, observations_from_poses
+from handeye.app.formats.registry import register_import
 
 
 def looks_like_moveit(data) -> bool:

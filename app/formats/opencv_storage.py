@@ -27,13 +27,13 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from app.errors import SessionError
-from app.files import read_text_file
-from calib import transforms as tf
-from calib.setup import Setup, check_setup
+from handeye.app.errors import SessionError
+from handeye.app.files import read_text_file
+from handeye.calib import transforms as tf
+from handeye.calib.setup import Setup, check_setup
 
-from app.formats.common import ImportedSamples, observations_from_poses
-from app.formats.registry import register_import
+from handeye.app.formats.common import ImportedSamples, observations_from_poses
+from handeye.app.formats.registry import register_import
 
 HEADER = "%YAML:1.0"
 #: A matrix header's sizes: ``rows``/``cols`` in YAML or JSON (``rows: 3``) or XML (``<rows>3</rows>``),
@@ -116,7 +116,7 @@ def load_opencv_storage(path, setup: str | None = None) -> ImportedSamples:
         ``T_base_flange`` from ``gripper2base``, ``T_cam_marker`` from ``target2cam``.
     """
     path = Path(path)
-    # Read through app.files (regular file, bounded, UTF-8), then parsed from memory by OpenCV.
+    # Read through handeye.app.files (regular file, bounded, UTF-8), then parsed from memory by OpenCV.
     text = read_text_file(path, SessionError)
     # OpenCV allocates what a matrix header asks for before reading its data: refuse sizes
     # no pose matrix has (the largest is 4x4) before a header can ask for gigabytes.

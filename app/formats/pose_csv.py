@@ -20,7 +20,7 @@ manifest names the two files and what they contain::
     base = "base_link"
 
 The camera stream is kept as sampled; the robot stream is interpolated at each
-camera time shifted by the clock offset (SLERP + linear, `calib.timesync`).
+camera time shifted by the clock offset (SLERP + linear, `handeye.calib.timesync`).
 The offset is estimated by correlating the two streams' angular speeds and,
 with ``refine``, polished by minimising the RMS residual of a calibration on
 the paired samples (both setups).
@@ -32,32 +32,37 @@ import gzip
 import io
 import logging
 import re
-import tomllib
+import sys
 import zlib
 from pathlib import Path
 from typing import Literal
 
+if sys.version_info >= (3, 11):
+    import tomllib
+else:       # Python 3.10 (ROS 2 Humble): the same parser, before it joined the standard library
+    import tomli as tomllib
+
 import numpy as np
 from pydantic import Field, ValidationError
 
-from app.files import MAX_FILE_BYTES, inside, read_regular_file, read_text_file
-from calib import timesync
-from calib import transforms as tf
-from app.errors import ConfigError, SessionError
-from calib.errors import HandeyeError
-from calib.observation import Observation
-from calib.params import Bool, Float, Params, PositiveFloat, PositiveInt, Str, describe
-from calib.setup import Setup
+from handeye.app.files import MAX_FILE_BYTES, inside, read_regular_file, read_text_file
+from handeye.calib import timesync
+from handeye.calib import transforms as tf
+from handeye.app.errors import ConfigError, SessionError
+from handeye.calib.errors import HandeyeError
+from handeye.calib.observation import Observation
+from handeye.calib.params import Bool, Float, Params, PositiveFloat, PositiveInt, Str, describe
+from handeye.calib.setup import Setup
 
-from app.formats.common import DEFAULT_FRAMES, ImportedSamples
-from app.formats.registry import register_import
+from handeye.app.formats.common import DEFAULT_FRAMES, ImportedSamples
+from handeye.app.formats.registry import register_import
 
 log = logging.getLogger(__name__)
 
 # Commas (ETH), semicolons or whitespace (TUM trajectory files) between fields.
 _SEPARATORS = re.compile(r"\s*[,;]\s*|\s+")
 
-# Below this peak correlation the offset estimate is doubtful (docs/benchmarks-history.md, app.formats.pose_csv).
+# Below this peak correlation the offset estimate is doubtful (docs/benchmarks-history.md, handeye.app.formats.pose_csv).
 LOW_CORRELATION = 0.5
 
 # Pairs used per residual evaluation while refining the offset: enough to
@@ -137,7 +142,7 @@ def read_pose_csv(path) -> tuple[np.ndarray, np.ndarray]:
 
 
 class FramesConfig(Params):
-    """Frame names of the exported result (`app.formats.common.DEFAULT_FRAMES`)."""
+    """Frame names of the exported result (`handeye.app.formats.common.DEFAULT_FRAMES`)."""
 
     base: Str = DEFAULT_FRAMES["base"]
     flange: Str = DEFAULT_FRAMES["flange"]
@@ -180,11 +185,11 @@ def read_manifest(path) -> StreamsConfig:
 def residual_of_solve(method: str, setup: Setup):
     """``f(A, B) -> RMS translation residual (m)`` of the closed-form ``method`` on paired poses.
 
-    Uses `calib.api.closed_form` (no covariance: it is evaluated ~25 times);
+    Uses `handeye.calib.api.closed_form` (no covariance: it is evaluated ~25 times);
     a point method (YKronT') takes the translations of the pose stack itself.
     A solver failure (e.g. too few pairs at an offset) costs infinity.
     """
-    from calib.api import closed_form
+    from handeye.calib.api import closed_form
 
     def f(A, B) -> float:
         if len(A) > REFINE_PAIRS:

@@ -18,11 +18,11 @@ from pathlib import Path
 
 import yaml
 
-from app.errors import SessionError
-from app.files import read_text_file
-from app.formats.common import ImportedSamples
+from handeye.app.errors import SessionError
+from handeye.app.files import read_text_file
+from handeye.app.formats.common import ImportedSamples
 
-#: Importer modules of `app.formats`, in the order their formats are tried on a file.
+#: Importer modules of `handeye.app.formats`, in the order their formats are tried on a file.
 #: opencv_storage comes first: its ``%YAML:1.0`` header is not YAML the others' detectors could parse.
 IMPORTER_MODULES = ("opencv_storage", "pose_csv", "easy_handeye", "industrial", "visp", "image_folder", "moveit",
                     "ros2_bag")
@@ -42,7 +42,7 @@ class ImportFormat:
         The files may leave the setup open: ``load`` then takes ``setup=``.
     options : tuple of str
         Keyword options ``load`` takes from the caller's config and command line
-        (e.g. ``frames``, ``target``); `app.devices.import_observations` passes only these.
+        (e.g. ``frames``, ``target``); `handeye.app.devices.import_observations` passes only these.
     """
 
     name: str
@@ -69,7 +69,7 @@ def register_import(name: str, detect: Callable[[Path, Callable[[], object]], bo
 def import_formats() -> dict[str, ImportFormat]:
     """Every registered import format by name (importing the importer modules on first use)."""
     for module in IMPORTER_MODULES:
-        importlib.import_module(f"app.formats.{module}")
+        importlib.import_module(f"handeye.app.formats.{module}")
     return dict(_FORMATS)
 
 

@@ -9,14 +9,14 @@ needed (``pip install 'handeye[ros]'``). What it reads, by message type:
   the ``flange`` frame (``frames=``: ``--frames base=base_link,flange=tool0``
   or the config's ``[frames]``; default ``base`` / ``flange``, the UR ROS 2
   driver's names); each moving link is interpolated at the query time
-  (`calib.timesync.interpolate_poses`: SLERP, linear translation).
+  (`handeye.calib.timesync.interpolate_poses`: SLERP, linear translation).
 - ``sensor_msgs/msg/Image`` (colour: ``bgr8 rgb8 bgra8 rgba8 mono8``; depth
   registered to it: ``16UC1`` / ``mono16`` in mm or ``32FC1`` in m) with the
   colour camera's ``sensor_msgs/msg/CameraInfo`` (``plumb_bob`` or
   ``rational_polynomial``), or ``sensor_msgs/msg/CompressedImage`` (``jpeg``,
   ``png``; depth as image_transport's ``16UC1; compressedDepth png``).
   The marker is measured in each chosen image as in a live run
-  (`calib.vision.extract.extract` with the ``[marker]`` target): lifted from
+  (`handeye.calib.vision.extract.extract` with the ``[marker]`` target): lifted from
   depth when there is a depth topic, from PnP otherwise.
 - ``geometry_msgs/msg/PoseStamped`` of a marker detector (optional; the
   marker in the camera frame, ``T_cam_marker``): the measurements when the bag
@@ -33,7 +33,7 @@ the marker is not found are logged and listed in ``meta["skipped"]``.
 
 Clock offset (``t_tf = t_camera + offset``): ``clock_offset_s=`` if given;
 else, with a marker pose topic that moves, estimated by
-`calib.timesync.estimate_clock_offset` (angular speeds of the flange and the
+`handeye.calib.timesync.estimate_clock_offset` (angular speeds of the flange and the
 marker streams); else 0 (tf and images stamped by the same ROS clock).
 Reported in ``meta["clock_offset_s"]``.
 
@@ -45,7 +45,7 @@ and only if they resolve inside the bag directory.
 
 Setups: eye-to-hand (default) or eye-in-hand (``setup=``); either way the
 samples carry ``A = T_base_flange`` and ``B = T_cam_marker``
-(`app.formats.common`).
+(`handeye.app.formats.common`).
 """
 
 from __future__ import annotations
@@ -61,15 +61,15 @@ from pathlib import Path
 
 import numpy as np
 
-from app.errors import ConfigError, SessionError
-from app.files import inside
-from app.formats.common import DEFAULT_FRAMES, ImportedSamples, read_yaml
-from app.formats.registry import register_import
-from calib import transforms as tf
-from calib.errors import CalibrationError, ExtractionError, HandeyeError, ParameterError
-from calib.observation import Observation
-from calib.setup import Setup, check_setup
-from drivers.camera.ros_messages import MAX_SKEW_S, camera_intrinsics, color_image, depth_image
+from handeye.app.errors import ConfigError, SessionError
+from handeye.app.files import inside
+from handeye.app.formats.common import DEFAULT_FRAMES, ImportedSamples, read_yaml
+from handeye.app.formats.registry import register_import
+from handeye.calib import transforms as tf
+from handeye.calib.errors import CalibrationError, ExtractionError, HandeyeError, ParameterError
+from handeye.calib.observation import Observation
+from handeye.calib.setup import Setup, check_setup
+from handeye.drivers.camera.ros_messages import MAX_SKEW_S, camera_intrinsics, color_image, depth_image
 
 log = logging.getLogger(__name__)
 
@@ -85,7 +85,7 @@ TF_TOPICS = ("tf", "tf_static")
 MAX_MESSAGE_BYTES = 64 * 1024 * 1024
 #: Flange still: every tf pose in the window within this of the pose at the stamp (encoder noise is ~1e-3 mm).
 STILL_MM, STILL_DEG = 0.1, 0.01
-#: Default still window before a frame (s): `app.config.MonitorConfig.still_s`'s default.
+#: Default still window before a frame (s): `handeye.app.config.MonitorConfig.still_s`'s default.
 STILL_S = 0.3
 #: Frames of one standstill tried for the marker before the standstill is skipped.
 TRIES_PER_STANDSTILL = 3
@@ -300,7 +300,7 @@ class _TfTree:
 
     def compose(self, edges, t_query: np.ndarray, folder: Path) -> tuple[np.ndarray, np.ndarray]:
         """``T_base_flange`` at ``t_query`` (M,): (M, 4, 4) and validity (M,) (every moving link covered)."""
-        from calib.timesync import interpolate_poses
+        from handeye.calib.timesync import interpolate_poses
 
         T = np.broadcast_to(np.eye(4), (len(t_query), 4, 4)).copy()
         valid = np.ones(len(t_query), bool)
@@ -458,8 +458,8 @@ def _nearest(t_sorted: np.ndarray, t: float) -> int | None:
 
 
 def _offset(tree: _TfTree, edges, marker_t: np.ndarray, marker_T: np.ndarray, folder: Path) -> float | None:
-    """`calib.timesync.estimate_clock_offset` of the flange and marker streams, if the data supports one."""
-    from calib.timesync import estimate_clock_offset
+    """`handeye.calib.timesync.estimate_clock_offset` of the flange and marker streams, if the data supports one."""
+    from handeye.calib.timesync import estimate_clock_offset
 
     t_robot = tree.robot_times(edges)
     if len(t_robot) < 10 or len(marker_t) < 10:
@@ -492,7 +492,7 @@ def _marker_pose(msg, where: str) -> np.ndarray:
 
 
 def _target(target, use_depth: bool):
-    from calib.vision.extract import TargetConfig
+    from handeye.calib.vision.extract import TargetConfig
 
     try:
         base = target if isinstance(target, TargetConfig) else TargetConfig(**(target or {}))
@@ -520,7 +520,7 @@ def load_ros2_bag(path, setup: str | None = None, frames: dict | None = None, to
         are only kept as names (the camera's default is the colour image's ``frame_id``).
     topics : dict, optional
         ``color``, ``depth``, ``info``, ``marker`` topics, where the bag has several of a kind.
-    target : calib.vision.extract.TargetConfig or dict, optional
+    target : handeye.calib.vision.extract.TargetConfig or dict, optional
         The marker (the config's ``[marker]``; default a 5 cm DICT_4X4_50 ArUco, id 0).
     clock_offset_s : float, optional
         ``t_tf = t_camera + offset`` (s); estimated from a marker pose topic, or 0, if not given.
@@ -660,7 +660,7 @@ def _image_samples(bag: _Bag, roles: _Topics, streams: dict, infos: list, tries:
 
     Returns ``(observations, skipped, intrinsics)``.
     """
-    from calib.vision.extract import extract
+    from handeye.calib.vision.extract import extract
 
     if not infos:
         raise SessionError(f"{folder}: {roles.names['info']} holds no CameraInfo message")

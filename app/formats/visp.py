@@ -33,13 +33,13 @@ from pathlib import Path
 
 import numpy as np
 
-from app.errors import SessionError
-from app.files import inside
-from calib import transforms as tf
-from calib.setup import Setup, check_setup
+from handeye.app.errors import SessionError
+from handeye.app.files import inside
+from handeye.calib import transforms as tf
+from handeye.calib.setup import Setup, check_setup
 
-from app.formats.common import ImportedSamples, observations_from_poses, read_yaml
-from app.formats.registry import register_import
+from handeye.app.formats.common import ImportedSamples, observations_from_poses, read_yaml
+from handeye.app.formats.registry import register_import
 
 _NAME = re.compile(r"^pose_(fPe|cPo)_(\d+)\.yaml$")
 

@@ -2,6 +2,6 @@
 
 One module per run (`calibrate`, `monitor`, `demo`, `plan`, `replay`,
 `verify`). Each returns a result object the command prints; known errors are
-raised as `calib.errors.HandeyeError` subclasses, which the command line maps
+raised as `handeye.calib.errors.HandeyeError` subclasses, which the command line maps
 to one line and exit status 1.
 """

@@ -19,22 +19,22 @@ from typing import Callable
 
 import numpy as np
 
-from app import devices, planning, provenance, stopping
-from app.acquire import take_sample
-from app.config import CalibrateConfig, Config
-from app.errors import SessionError
-from app.progress import progress_bar, show_sigma
-from app.session import SessionWriter, read_session
-from app.viz import Viz
-from calib import transforms as tf
-from calib.errors import CalibrationError
-from calib.observation import Observation
-from calib.result import CalibrationResult
-from calib.setup import Setup
-from calib.vision.extract import MarkerMeasurement
-from drivers.camera.base import Camera, RGBDFrame
-from drivers.errors import DeviceError, LimitViolationError
-from drivers.robot.base import Robot
+from handeye.app import devices, planning, provenance, stopping
+from handeye.app.acquire import take_sample
+from handeye.app.config import CalibrateConfig, Config
+from handeye.app.errors import SessionError
+from handeye.app.progress import progress_bar, show_sigma
+from handeye.app.session import SessionWriter, read_session
+from handeye.app.viz import Viz
+from handeye.calib import transforms as tf
+from handeye.calib.errors import CalibrationError
+from handeye.calib.observation import Observation
+from handeye.calib.result import CalibrationResult
+from handeye.calib.setup import Setup
+from handeye.calib.vision.extract import MarkerMeasurement
+from handeye.drivers.camera.base import Camera, RGBDFrame
+from handeye.drivers.errors import DeviceError, LimitViolationError
+from handeye.drivers.robot.base import Robot
 
 log = logging.getLogger(__name__)
 
@@ -150,10 +150,10 @@ def calibrate(cfg: Config, *, resume: Path | None = None, progress: bool = True,
 
 def write_run_report(result: CalibrationResult, directory: Path, observations, frames: dict | None = None, *,
                      samples_from=None, cell: dict | None = None) -> Path:
-    """``report.html`` of a calibration (`app.report`) beside its result files (the document of result.yaml:
-    `app.formats.result_to_dict` with the same ``samples_from`` and ``cell``)."""
-    from app.formats import result_to_dict
-    from app.report import write_report
+    """``report.html`` of a calibration (`handeye.app.report`) beside its result files (the document of result.yaml:
+    `handeye.app.formats.result_to_dict` with the same ``samples_from`` and ``cell``)."""
+    from handeye.app.formats import result_to_dict
+    from handeye.app.report import write_report
 
     return write_report(directory, result_doc=result_to_dict(result, frames, samples_from, cell),
                         observations=observations)
@@ -204,7 +204,7 @@ def run_calibration(
         Samples already in a resumed session; they count towards ``cfg.samples``
         and give the first estimate.
     poses : pose source, optional
-        ``next(state, estimate, observations) -> Target | None`` (`app.planning`);
+        ``next(state, estimate, observations) -> Target | None`` (`handeye.app.planning`);
         None draws uniform random poses around the start.
 
     Returns

@@ -4,13 +4,13 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from app import devices
-from app.config import Config
-from app.errors import ConfigError, SessionError
-from app.production import Bump
-from app.runs.calibrate import CalibrationOutput, calibrate
-from app.runs.monitor import MonitorReport, monitor
-from app.session import read_session
+from handeye.app import devices
+from handeye.app.config import Config
+from handeye.app.errors import ConfigError, SessionError
+from handeye.app.production import Bump
+from handeye.app.runs.calibrate import CalibrationOutput, calibrate
+from handeye.app.runs.monitor import MonitorReport, monitor
+from handeye.app.session import read_session
 
 #: Monitor settings of ``handeye demo --monitor``: quick standstills and a first calibration tried every
 #: 4 new poses, so the whole story (arming, bump, alarm, re-learn) fits in about a minute.
@@ -26,7 +26,7 @@ def demo(cfg: Config, *, resume: Path | None = None, progress: bool = True) -> C
     """Calibrate the simulated cell: the UR simulator (started by the robot driver, driven
     through the real ur_rtde client) and the rendered camera, whose true pose is known.
 
-    ``resume``: a session of a simulated cell to continue, as `app.runs.calibrate.calibrate` does.
+    ``resume``: a session of a simulated cell to continue, as `handeye.app.runs.calibrate.calibrate` does.
 
     Raises
     ------
@@ -59,7 +59,7 @@ def demo_monitor(cfg: Config, *, bump: Bump | None, reference: Path | None = Non
     if not devices.simulated(cfg):
         raise ConfigError("demo --monitor runs only a simulated cell (a simulated robot.type and camera.backend); "
                           "use 'handeye monitor' for hardware")
-    from app.config import config_from_dict
+    from handeye.app.config import config_from_dict
 
     data = cfg.model_dump()
     mon = data["monitor"]

@@ -4,12 +4,12 @@ Read-only: this module never commands a motion. Eye-to-hand (static camera,
 ``Y = T_base_cam``) it follows and re-learns a drifting or bumped camera;
 eye-in-hand (``X = T_flange_cam``) a camera that slips on the flange. Every
 standstill with the marker in view is a sample for the monitoring engine
-(`calib.monitor`, armed from a reference calibration or, without one, from
+(`handeye.calib.monitor`, armed from a reference calibration or, without one, from
 the first samples ``auto`` can solve, or continued from a previous run); a
 *moved* or *drifting* alarm is logged, recorded in the session, shown in
 rerun, published (MQTT) and runs the optional hook command. The calibration
 in use is kept in the session (``calibration_in_use.yaml``,
-`app.calibration_in_use`) for the next run. Only samples of distinct poses
+`handeye.app.calibration_in_use`) for the next run. Only samples of distinct poses
 enter the bounded estimation set the first calibration and the final result
 are solved from. An unexpected error at a sample ends the run with one line
 and a non-zero exit (a service restarts it), once the sample, the error and
@@ -32,28 +32,28 @@ from typing import Callable
 
 import numpy as np
 
-from app import calibration_in_use, devices, stopping
-from app.acquire import pose_at_frame, take_sample
-from app.config import Config, MonitorConfig, hook_argv
-from app.errors import ConfigError, MonitorError, OutageError
-from app.monitoring import arm_from, arm_from_path, sample_factor
-from app.outage import OutageEvent, Reconnecting
-from app.production import Bump, knock_as_left, record_knocks, start_production
-from app.progress import progress_bar, say, show_monitor
-from app.session import SessionWriter
-from app.shift_record import ShiftRecord
-from app.viz import Viz
-from calib import transforms as tf
-from calib.errors import CalibrationError
-from calib.monitor import AlarmLevel, EngineState, MonitorEngine, MonitorUpdate
-from calib.monitor.filter import is_sound
-from calib.observation import Observation
-from calib.planner import least_informative
-from calib.result import CalibrationResult, worst_axis_sigma
-from calib.vision.extract import MarkerMeasurement
-from drivers.camera.base import Camera, RGBDFrame
-from drivers.errors import DeviceError, PoseTimeError
-from drivers.robot.base import Robot
+from handeye.app import calibration_in_use, devices, stopping
+from handeye.app.acquire import pose_at_frame, take_sample
+from handeye.app.config import Config, MonitorConfig, hook_argv
+from handeye.app.errors import ConfigError, MonitorError, OutageError
+from handeye.app.monitoring import arm_from, arm_from_path, sample_factor
+from handeye.app.outage import OutageEvent, Reconnecting
+from handeye.app.production import Bump, knock_as_left, record_knocks, start_production
+from handeye.app.progress import progress_bar, say, show_monitor
+from handeye.app.session import SessionWriter
+from handeye.app.shift_record import ShiftRecord
+from handeye.app.viz import Viz
+from handeye.calib import transforms as tf
+from handeye.calib.errors import CalibrationError
+from handeye.calib.monitor import AlarmLevel, EngineState, MonitorEngine, MonitorUpdate
+from handeye.calib.monitor.filter import is_sound
+from handeye.calib.observation import Observation
+from handeye.calib.planner import least_informative
+from handeye.calib.result import CalibrationResult, worst_axis_sigma
+from handeye.calib.vision.extract import MarkerMeasurement
+from handeye.drivers.camera.base import Camera, RGBDFrame
+from handeye.drivers.errors import DeviceError, PoseTimeError
+from handeye.drivers.robot.base import Robot
 
 log = logging.getLogger(__name__)
 
@@ -91,9 +91,9 @@ class MonitorReport:
         The engine's live camera transform (``T_base_cam`` eye-to-hand,
         ``T_flange_cam`` eye-in-hand); None before it is armed.
     estimate_cov : ndarray (6, 6) or None
-        Its covariance (`calib.result` convention).
+        Its covariance (`handeye.calib.result` convention).
     estimate_sigma : (float, float) or None
-        Its worst-axis 1-sigma ``(rad, m)`` (`calib.result.worst_axis_sigma`).
+        Its worst-axis 1-sigma ``(rad, m)`` (`handeye.calib.result.worst_axis_sigma`).
     drift : (float, float) or None
         ``(mm, deg)`` of the live estimate against the calibration in use
         (the reference, then each re-learnt one): mm over the workspace.
@@ -104,7 +104,7 @@ class MonitorReport:
     last : MonitorUpdate or None
         The engine's latest figures (drift rate, running verification, level).
     record : ShiftRecord or None
-        The timeline, every alarm with what became of it, the outages (`app.shift_record`: the session's
+        The timeline, every alarm with what became of it, the outages (`handeye.app.shift_record`: the session's
         ``alarms.yaml``, ``monitor_trace.png`` and ``report.html``, written at every alarm and at the end).
     truth : ndarray (4, 4) or None
         A simulated camera's true camera transform at the end (None for a real one).
@@ -147,22 +147,22 @@ def monitor(cfg: Config, *, reference: Path | None = None, stop=None, progress: 
 
     ``reference``: a calibration session (or its ``result.yaml``), solved
     with ``auto`` to arm the monitoring engine at once, or a previous
-    monitoring run to continue from (`app.monitoring.arm_from_path`); with
+    monitoring run to continue from (`handeye.app.monitoring.arm_from_path`); with
     ``[monitor] carry_over`` the newest earlier run under ``session.root``
     takes its place; without either the engine arms itself from the run's
     first samples that ``auto`` can solve (`MonitorConfig.arm_samples`).
 
     On a simulated cell (the ``ur_sim`` robot) the simulated controller
-    runs a looping production program (``production``, `app.production`) so
+    runs a looping production program (``production``, `handeye.app.production`) so
     that the robot moves, and ``bump`` knocks the rendered camera partway.
     ``publish``: optional ``(obs, update, report)`` callback; by default the
-    ``[mqtt]`` publisher when enabled (`app.mqtt`). A simulated camera starts
+    ``[mqtt]`` publisher when enabled (`handeye.app.mqtt`). A simulated camera starts
     knocked as the monitoring run ``reference`` (else ``knocks_from``: a
     calibration in use, for ``verify --passive``) left it
-    (`app.production.carried_knocks`).
+    (`handeye.app.production.carried_knocks`).
     """
-    from app.mqtt import make_publisher
-    from app.ros2 import make_diagnostics
+    from handeye.app.mqtt import make_publisher
+    from handeye.app.ros2 import make_diagnostics
 
     rng = np.random.default_rng(cfg.calibrate.seed)
     engine = devices.make_engine(cfg)
@@ -173,7 +173,7 @@ def monitor(cfg: Config, *, reference: Path | None = None, stop=None, progress: 
     outage_sinks = [p.outage for p in (publisher, diagnostics) if p is not None]
     stop = stop or threading.Event()
     outages = _OutageLog(publish=(lambda e: [sink(e) for sink in outage_sinks]) if outage_sinks else None)
-    # A device that goes away mid-shift is an outage and a reconnect with backoff (`app.outage`), not an exit.
+    # A device that goes away mid-shift is an outage and a reconnect with backoff (`handeye.app.outage`), not an exit.
     with Reconnecting("robot", devices.open_robot(cfg, read_only=True), cfg.reconnect, on_event=outages,
                       stop=stop) as robot, \
             Reconnecting("camera", devices.open_camera(cfg, robot), cfg.reconnect, on_event=outages,
@@ -251,7 +251,7 @@ def monitor(cfg: Config, *, reference: Path | None = None, stop=None, progress: 
 
 def carried_over(cfg: Config) -> Path | None:
     """With ``[monitor] carry_over``: the newest earlier run's ``calibration_in_use.yaml`` of this setup under
-    ``session.root`` (`app.calibration_in_use.latest`), else None."""
+    ``session.root`` (`handeye.app.calibration_in_use.latest`), else None."""
     if not cfg.monitor.carry_over:
         return None
     return calibration_in_use.latest(Path(cfg.session.root), cfg.setup)
@@ -259,8 +259,8 @@ def carried_over(cfg: Config) -> Path | None:
 
 @dataclass
 class _OutageLog:
-    """`app.outage.OutageEvent` sink: one console line each, the session's events and rerun once they exist,
-    and ``publish`` (the MQTT publisher's `app.mqtt.MqttPublisher.outage`) when there is one."""
+    """`handeye.app.outage.OutageEvent` sink: one console line each, the session's events and rerun once they exist,
+    and ``publish`` (the MQTT publisher's `handeye.app.mqtt.MqttPublisher.outage`) when there is one."""
 
     publish: Callable[[OutageEvent], None] | None = None
     writer: SessionWriter | None = None
@@ -274,7 +274,7 @@ class _OutageLog:
         self.record(event)
 
     def record_broker(self, publisher) -> None:
-        """Record the MQTT broker's own outage steps (`app.mqtt.MqttPublisher.broker_outages`, appended from its
+        """Record the MQTT broker's own outage steps (`handeye.app.mqtt.MqttPublisher.broker_outages`, appended from its
         network thread, which has logged and published them) from this thread, which owns the session."""
         while publisher is not None and publisher.broker_outages:
             self.record(publisher.broker_outages.popleft())
@@ -326,7 +326,7 @@ HOOK_SLOW_S, HOOK_TIMEOUT_S = 1.0, 30.0
 def run_hook(command: str, env: dict, field: str = "monitor.alarm_hook") -> None:
     """Run a hook command (no shell; arguments split like a shell would). Failures are logged, not raised.
 
-    The command was checked at config load (`app.config.hook_argv`); a failure
+    The command was checked at config load (`handeye.app.config.hook_argv`); a failure
     here (the program removed since) is logged so the alarm itself still counts.
     ``field``: the config field that names it, for the log.
     """
@@ -396,10 +396,10 @@ def run_monitor(
     robot : Robot connected read-only (this function only reads it).
     camera : Camera
     measure : callable(RGBDFrame) -> MarkerMeasurement (raises ExtractionError to skip).
-    engine : calib.monitor.MonitorEngine
+    engine : handeye.calib.monitor.MonitorEngine
         Armed (from a reference), or armed here from the first samples ``solve`` determines the camera from.
     solve : callable(observations, *, final) -> CalibrationResult
-        ``auto`` (`app.devices.make_solve`), for arming without a reference.
+        ``auto`` (`handeye.app.devices.make_solve`), for arming without a reference.
     writer : SessionWriter
     cfg : MonitorConfig
     stop : threading.Event, optional
@@ -663,7 +663,7 @@ def _engine_state(engine: MonitorEngine, kept, cfg: MonitorConfig) -> str:
 
 def bound_estimation_set(kept: list[Observation], cfg: MonitorConfig, engine: MonitorEngine) -> Observation | None:
     """Hold at most ``cfg.keep_samples``: drop the least informative at the live estimate
-    (`calib.planner.least_informative`), the oldest while there is no estimate yet; returns the dropped one."""
+    (`handeye.calib.planner.least_informative`), the oldest while there is no estimate yet; returns the dropped one."""
     if not cfg.keep_samples or len(kept) <= cfg.keep_samples:
         return None
     if not engine.armed:

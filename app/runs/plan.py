@@ -1,6 +1,6 @@
 """The dry-run plan: the poses of an active run, planned without moving, for review.
 
-Writes ``plan.json`` (format in `app.planning`: joint and Cartesian targets,
+Writes ``plan.json`` (format in `handeye.app.planning`: joint and Cartesian targets,
 expected 1-sigma after each pose) and a rerun recording beside it (flange
 poses, camera frustum, predicted marker view per pose); ``handeye calibrate
 --poses plan.json`` replays it. The robot connection is read-only. Eye-to-hand
@@ -16,15 +16,15 @@ from pathlib import Path
 
 import numpy as np
 
-from app import devices, planning
-from app.config import Config
-from app.errors import ConfigError, SessionError
-from app.session import new_output_dir, read_session
-from app.viz import Viz
-from calib import transforms as tf
-from calib.api import solve_observations
-from calib.errors import ExtractionError, HandeyeError
-from calib.setup import Setup
+from handeye.app import devices, planning
+from handeye.app.config import Config
+from handeye.app.errors import ConfigError, SessionError
+from handeye.app.session import new_output_dir, read_session
+from handeye.app.viz import Viz
+from handeye.calib import transforms as tf
+from handeye.calib.api import solve_observations
+from handeye.calib.errors import ExtractionError, HandeyeError
+from handeye.calib.setup import Setup
 
 log = logging.getLogger(__name__)
 
@@ -98,7 +98,7 @@ def measure_start(cfg: Config, camera) -> tuple | None:
 
 def plan(cfg: Config, out: Path | None = None, *, prior: Path | None = None) -> PlanOutput:
     """Plan the poses of an active run without moving (read-only robot connection): write ``out``
-    (plan.json, see `app.planning`; by default ``plan.json`` in a new directory under ``session.root``, not
+    (plan.json, see `handeye.app.planning`; by default ``plan.json`` in a new directory under ``session.root``, not
     the working directory) and a rerun recording beside it."""
     rng = np.random.default_rng(cfg.calibrate.seed)
     with devices.open_robot(cfg, read_only=True) as robot, devices.open_camera(cfg, robot) as camera:

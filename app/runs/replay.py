@@ -6,11 +6,11 @@ Works for both setups; the session header says which (eye-to-hand:
 
 The report groups the solvers by what they use (marker points or marker
 poses), sorts each group by the held-out prediction error of the marker
-point (`calib.crossval.cross_validate`: each fold solved without its
+point (`handeye.calib.crossval.cross_validate`: each fold solved without its
 samples, their points predicted from the robot poses), marks the recommended
 result (the lowest held-out error) and explains refined rows that agree
 (refinement takes every start to the same maximum-likelihood optimum)
-(`advice`). Every result is judged against the tolerance (`calib.verdict`):
+(`advice`). Every result is judged against the tolerance (`handeye.calib.verdict`):
 the verdict of the recommended one comes first.
 """
 
@@ -22,18 +22,18 @@ from pathlib import Path
 
 import numpy as np
 
-from app import devices, provenance
-from app.config import CalibrateConfig
-from app.errors import SessionError
-from app.runs.calibrate import write_run_report
-from app.session import read_session
-from calib import transforms as tf
-from calib.api import METHODS, observations_problem, solve_observations
-from calib.errors import HandeyeError, InsufficientDataError
-from calib.observation import Observation
-from calib.result import CalibrationResult
-from calib.setup import Setup
-from drivers.robot.registry import kinematic_model
+from handeye.app import devices, provenance
+from handeye.app.config import CalibrateConfig
+from handeye.app.errors import SessionError
+from handeye.app.runs.calibrate import write_run_report
+from handeye.app.session import read_session
+from handeye.calib import transforms as tf
+from handeye.calib.api import METHODS, observations_problem, solve_observations
+from handeye.calib.errors import HandeyeError, InsufficientDataError
+from handeye.calib.observation import Observation
+from handeye.calib.result import CalibrationResult
+from handeye.calib.setup import Setup
+from handeye.drivers.robot.registry import kinematic_model
 
 
 @dataclass
@@ -44,7 +44,7 @@ class ReplaySettings:
     ``shared_error``: the robot's kinematic error model (`KinematicModel.shared_error_factor`) or
     None; ``exports``, ``frames``: what ``--out`` writes; ``config``: the config itself (None without one);
     ``marker_offset`` (3,), m, or None and ``marker_offset_sigma``, m: the known marker-side translation
-    ``auto`` holds (`calib.problem.CalibrationProblem.marker_offset`; ``--marker-offset`` or ``[marker]
+    ``auto`` holds (`handeye.calib.problem.CalibrationProblem.marker_offset`; ``--marker-offset`` or ``[marker]
     offset_m``).
     """
 
@@ -63,7 +63,7 @@ def replay_settings(config: Path | None, *, marker_offset=None, marker_offset_si
     sigma = None if marker_offset_sigma_mm is None else marker_offset_sigma_mm * 1e-3
     if config is None:
         return ReplaySettings(marker_offset=marker_offset, marker_offset_sigma=sigma or 0.0)
-    from app.config import load_config
+    from handeye.app.config import load_config
 
     cfg = load_config(config)
     model = kinematic_model(cfg.robot)   # (from the config: no driver is built)
@@ -99,7 +99,7 @@ class ReplayOutcome:
 
 def write_outputs(outcome: "ReplayOutcome", out_dir: Path, exports, frames: dict | None = None,
                   report=None) -> dict:
-    """Write ``outcome.best``'s result into ``out_dir`` in each export format (`app.devices.write_result`)
+    """Write ``outcome.best``'s result into ``out_dir`` in each export format (`handeye.app.devices.write_result`)
     and its ``report.html``, as calibrate writes its session's; ``report``: the ``[report]`` fields (site,
     cell, operator; a config's or a dict); returns ``{kind: path}``."""
     out_dir = Path(out_dir)
@@ -123,7 +123,7 @@ def replay_source(source: Path, methods: list[str], *, refine: bool = False, rob
     """Re-solve a session directory or an imported file with each method, each result judged against
     ``tolerance`` (mm, deg); returns the outcome: the tables grouped by what the solvers use and sorted by
     held-out error, the advice (`advice`), the recommended row (``shared_error``, ``marker_offset``,
-    ``marker_offset_sigma``: `replay`; ``import_options``: `app.devices.import_options`)."""
+    ``marker_offset_sigma``: `replay`; ``import_options``: `handeye.app.devices.import_options`)."""
     if not Path(source).exists():
         raise SessionError(f"{source}: no such file or directory")
     if (Path(source) / "session.json").exists():
@@ -177,9 +177,9 @@ class ReplayRow:
     a pose-based method on a point-only session); ``truth_error`` is
     ``(deg, mm)`` of the camera transform against the recorded truth, if any;
     ``uses`` is ``"points"`` or ``"poses"``; ``heldout`` the
-    `calib.crossval.CrossValidation` of the method on these samples (None if
+    `handeye.calib.crossval.CrossValidation` of the method on these samples (None if
     cross-validation was off or failed, with ``heldout_error`` saying why). The result carries its
-    verdict (`calib.verdict.judge`).
+    verdict (`handeye.calib.verdict.judge`).
     """
 
     method: str
@@ -193,13 +193,13 @@ class ReplayRow:
 
 
 def _is_auto(method: str) -> bool:
-    from calib.api import AUTO
+    from handeye.calib.api import AUTO
 
     return isinstance(method, str) and method.strip().lower() == AUTO
 
 
 def _uses(method: str) -> str:
-    from calib.api import resolve_method
+    from handeye.calib.api import resolve_method
 
     if _is_auto(method):
         return "auto"
@@ -211,11 +211,11 @@ def _uses(method: str) -> str:
 
 def heldout_error(method: str, observations, setup: Setup, *, refine: bool, robust: bool,
                   rng: np.random.Generator | None, marker_offset=None, marker_offset_sigma: float = 0.0):
-    """`calib.crossval.cross_validate` of ``method`` on the samples it uses (leave-one-out up to 10
+    """`handeye.calib.crossval.cross_validate` of ``method`` on the samples it uses (leave-one-out up to 10
     samples, else 5 folds: a few solves per method); returns ``(CrossValidation or None, reason or None)``.
     ``marker_offset`` (m) and ``marker_offset_sigma`` (m): ``auto``'s known marker-side translation."""
-    from calib.api import resolve_method
-    from calib.crossval import cross_validate
+    from handeye.calib.api import resolve_method
+    from handeye.calib.crossval import cross_validate
 
     try:
         problem = observations_problem(method, observations, setup,
@@ -258,12 +258,12 @@ def replay(
     shared_error : callable, optional
         A robot's `Robot.shared_error_factor`: ``auto`` adds the error it
         models as shared by the samples, when they carry their joints
-        (`app.devices.robot_shared_error`).
+        (`handeye.app.devices.robot_shared_error`).
     tolerance : (float, float)
-        mm, deg: what each result's verdict judges against (`app.devices.judge`).
+        mm, deg: what each result's verdict judges against (`handeye.app.devices.judge`).
     marker_offset : array_like, shape (3,), optional
         The known marker-side translation, m, and ``marker_offset_sigma`` its
-        1-sigma (m): ``auto`` holds it (`calib.problem.CalibrationProblem`);
+        1-sigma (m): ``auto`` holds it (`handeye.calib.problem.CalibrationProblem`);
         the paper's methods do not take it.
 
     Returns
@@ -336,7 +336,7 @@ def format_table(rows: list[ReplayRow], setup: Setup) -> str:
     head += ["verdict", "advice"]
     out = []
     for uses, title in (("points", "solvers using marker points"), ("poses", "solvers using marker poses"),
-                        ("auto", "the solver 'auto' (calib.auto: camera and robot model)"),
+                        ("auto", "the solver 'auto' (handeye.calib.auto: camera and robot model)"),
                         ("?", "unknown solvers")):
         group = sorted((r for r in rows if r.uses == uses), key=_rank_key)
         if not group:

@@ -21,26 +21,26 @@ from typing import Callable
 
 import numpy as np
 
-from app import devices, provenance
-from app import verify as av
-from app.config import Config
-from app.errors import SessionError
-from app.report import write_report
-from app.session import new_output_dir, read_session
-from calib import verify as cv
-from calib.errors import HandeyeError, InsufficientDataError
-from calib.verdict import judge_verification
+from handeye.app import devices, provenance
+from handeye.app import verify as av
+from handeye.app.config import Config
+from handeye.app.errors import SessionError
+from handeye.app.report import write_report
+from handeye.app.session import new_output_dir, read_session
+from handeye.calib import verify as cv
+from handeye.calib.errors import HandeyeError, InsufficientDataError
+from handeye.calib.verdict import judge_verification
 
 
 @dataclass
 class VerifyOutput:
     """A verification and where it went.
 
-    ``doc``: the verify.yaml document (`app.verify.verify_document`); ``path``: verify.yaml;
+    ``doc``: the verify.yaml document (`handeye.app.verify.verify_document`); ``path``: verify.yaml;
     ``report``: report.html; ``passed``: within the tolerance; ``interrupted``: Ctrl-C stopped the
     robot after ``n_poses`` poses (``session`` holds them); ``verification``: the judged
-    `calib.verify.Verification`. ``doc``, ``path`` and ``report`` are None when Ctrl-C came before
-    `calib.verify.MIN_POSES` poses were measured: nothing was judged.
+    `handeye.calib.verify.Verification`. ``doc``, ``path`` and ``report`` are None when Ctrl-C came before
+    `handeye.calib.verify.MIN_POSES` poses were measured: nothing was judged.
     """
 
     doc: dict | None

@@ -6,13 +6,13 @@ from __future__ import annotations
 
 import numpy as np
 
-from calib import model
-from calib import transforms as tf
-from calib.auto.fit import FIT_TOL, Candidate, fit_components
-from calib.diagnostics import initial_noise
-from calib.errors import CalibrationError
-from calib.problem import CalibrationProblem
-from calib.result import BlockedCandidate, BlockedFolds, CalibrationResult
+from handeye.calib import model
+from handeye.calib import transforms as tf
+from handeye.calib.auto.fit import FIT_TOL, Candidate, fit_components
+from handeye.calib.diagnostics import initial_noise
+from handeye.calib.errors import CalibrationError
+from handeye.calib.problem import CalibrationProblem
+from handeye.calib.result import BlockedCandidate, BlockedFolds, CalibrationResult
 
 #: Contiguous blocks of the recording `blocked_choice` holds out in turn (3 below 30 samples).
 BLOCKED_FOLDS = 5
@@ -119,7 +119,7 @@ def blocked_choice(best: Candidate, free, problem: CalibrationProblem, shape, W_
     """The model choices made by leave-one-out, checked against blocked folds: a simpler model that predicts
     contiguous held-out stretches of the recording at least as well replaces them.
 
-    The leave-one-out choices of `calib.auto.camera.select_camera` and of the
+    The leave-one-out choices of `handeye.calib.auto.camera.select_camera` and of the
     measurement set judge a model on samples like its own; a camera
     correction or a dropped measurement set that only fits one stretch of the
     recording better does not carry to the next session. The candidates
@@ -132,7 +132,7 @@ def blocked_choice(best: Candidate, free, problem: CalibrationProblem, shape, W_
     predicts them better by `START_GAIN`, it is reported (its covariance that
     of the plain model at its estimate), so that ``auto`` does not carry
     worse to another session than where it started (``solve_start(problem)``
-    solves it again: the closed form, or `calib.auto.determined.held_start`).
+    solves it again: the closed form, or `handeye.calib.auto.determined.held_start`).
 
     Returns ``(best, free, note or None, BlockedFolds)``.
     """

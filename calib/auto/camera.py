@@ -1,14 +1,14 @@
 """``auto``'s camera correction: which of the depth scale, depth offset and focal scale the data determine and
-use (`calib.model.CAMERA_PARAMS`), chosen by the information matrix and the held-out point error.
+use (`handeye.calib.model.CAMERA_PARAMS`), chosen by the information matrix and the held-out point error.
 """
 
 from __future__ import annotations
 
 import numpy as np
 
-from calib import model
-from calib.auto.fit import Candidate, MIN_LOO_GAIN, better, fit_components
-from calib.errors import InsufficientDataError
+from handeye.calib import model
+from handeye.calib.auto.fit import Candidate, MIN_LOO_GAIN, better, fit_components
+from handeye.calib.errors import InsufficientDataError
 
 #: Allowed values of ``camera_correction``.
 CAMERA_CORRECTIONS = ("auto", "none", "depth", "depth+focal")
@@ -144,7 +144,7 @@ def step_helps(best: Candidate, trial, fit: model.WeightedData | None = None) ->
     """Whether freeing the camera parameters ``trial`` (or the measurement set of ``fit``) is worth a refit.
 
     The Gauss-Newton step from ``best`` with ``trial`` free, at ``best``'s
-    noise levels (`calib.model.leave_one_out_after_step`): if that does not
+    noise levels (`handeye.calib.model.leave_one_out_after_step`): if that does not
     lower the held-out point error by half of `MIN_LOO_GAIN`, the refit would
     not lower it by `MIN_LOO_GAIN` either. (The refit differs from the step
     by its own noise levels and the model's curvature only; over 162 such

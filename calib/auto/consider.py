@@ -5,9 +5,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from calib import model
-from calib import transforms as tf
-from calib.auto.fit import Candidate
+from handeye.calib import model
+from handeye.calib import transforms as tf
+from handeye.calib.auto.fit import Candidate
 
 #: Systematic camera errors assumed for a parameter left at nominal, 1-sigma: they widen the
 #: covariance of the result ("consider" covariance) instead of being silently taken as zero.

@@ -2,14 +2,14 @@
 
 A tool that never turns (a grid of positions at one orientation), or turns
 about one axis only, leaves the split between the two translations open
-(`calib.model.open_translations`): eye-to-hand the marker's offset on the
+(`handeye.calib.model.open_translations`): eye-to-hand the marker's offset on the
 flange and the camera's position, eye-in-hand the camera's position on the
 flange and the static marker's position. Everything else stays determined:
 the camera's rotation, its correction (depth scale, offset, focal scale),
 and the camera's position given that offset.
 
 ``auto`` then solves for what is determined instead of refusing
-(`motion_prior`): a known marker offset (`calib.problem.CalibrationProblem`
+(`motion_prior`): a known marker offset (`handeye.calib.problem.CalibrationProblem`
 ``marker_offset``) is held, with its stated 1-sigma, and completes the
 answer; without it the flange-side translation's open part is held at zero
 (the marker at the flange origin eye-to-hand, the camera there eye-in-hand),
@@ -29,13 +29,13 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.linalg import null_space
 
-from calib import model
-from calib import transforms as tf
-from calib.errors import DegenerateMotionError
-from calib.problem import CalibrationProblem
-from calib.result import CalibrationResult, Residuals
-from calib.setup import Setup
-from calib.solvers import DEGENERACY_RTOL, diagnose_motion, residuals_unchecked
+from handeye.calib import model
+from handeye.calib import transforms as tf
+from handeye.calib.errors import DegenerateMotionError
+from handeye.calib.problem import CalibrationProblem
+from handeye.calib.result import CalibrationResult, Residuals
+from handeye.calib.setup import Setup
+from handeye.calib.solvers import DEGENERACY_RTOL, diagnose_motion, residuals_unchecked
 
 #: The name of `held_start` in ``AutoDetails.start``.
 HELD_START = "registration"
@@ -57,8 +57,8 @@ class MotionPrior:
     Attributes
     ----------
     open : ndarray, shape (6, k)
-        Open directions of ``[t_C, t_K]`` (`calib.model.open_translations`), k = 0 when none.
-    prior : calib.model.TranslationPrior or None
+        Open directions of ``[t_C, t_K]`` (`handeye.calib.model.open_translations`), k = 0 when none.
+    prior : handeye.calib.model.TranslationPrior or None
         What the fit holds: the known marker offset, else the open part of the flange-side translation at zero.
     undetermined : tuple of str
         Plain sentences: what stays open and the motion (or the value) that closes it; empty when nothing does.
@@ -151,7 +151,7 @@ def held_start(problem: CalibrationProblem, motion: MotionPrior) -> CalibrationR
 
     Rounds of (1) the rigid registration (Kabsch) of the marker points
     ``p_i`` to the marker centres in C's parent frame ``R_Mi t_K + t_Mi``
-    (`calib.model`), which gives ``C``, and (2) the paper's eq. 6 with
+    (`handeye.calib.model`), which gives ``C``, and (2) the paper's eq. 6 with
     ``R_C`` fixed, ``[-I, R_Mi] [t_C; t_K] = R_C p_i - t_Mi``, solved with the
     prior's rows held exactly at their target. Pure translations need one
     round; rotations about one axis converge in a few. The marker-side

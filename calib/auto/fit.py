@@ -8,8 +8,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from calib import model
-from calib.errors import InsufficientDataError
+from handeye.calib import model
+from handeye.calib.errors import InsufficientDataError
 
 #: Smallest held-out improvement that counts, m (below it noise-free data would choose at random).
 MIN_LOO_GAIN_M = 1e-6
@@ -24,7 +24,7 @@ MAX_ROUNDS = 12
 
 
 #: LM step (rad, m) below which the fit counts as converged: 10 nm, ~1e-4 of any 1-sigma here (the
-#: default 1e-10 of `calib.model.minimize` often costs one more iteration for nothing).
+#: default 1e-10 of `handeye.calib.model.minimize` often costs one more iteration for nothing).
 FIT_TOL = 1e-8
 
 
@@ -81,7 +81,7 @@ class Candidate:
 
     @property
     def loo_errors(self):
-        """Held-out errors and their predicted RMS, m (`calib.model.leave_one_out`), or None if undetermined."""
+        """Held-out errors and their predicted RMS, m (`handeye.calib.model.leave_one_out`), or None if undetermined."""
         if self._loo is None:
             cof = self.fit.cofactor(self.C, self.K)
             try:

@@ -8,20 +8,20 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.stats import chi2
 
-from calib import model
-from calib import transforms as tf
-from calib.auto.blocked import MIN_SAMPLES_BLOCKED, blocked_choice
-from calib.auto.camera import CAMERA_CORRECTIONS, MIN_SAMPLES_CAMERA, free_for, select_camera, step_helps
-from calib.auto.consider import camera_consider, shared_robot_consider
-from calib.auto.determined import MotionPrior, determined_note, held_start, motion_prior
-from calib.auto.fit import Candidate, better, fit_components
-from calib.diagnostics import consistency, initial_noise
-from calib.errors import CalibrationError
-from calib.methods import closed_form
-from calib.problem import CalibrationProblem
-from calib.result import AutoDetails, CalibrationResult, CameraParameter, Residuals
-from calib.robust import robust_solve
-from calib.symmetry import resolve_flips
+from handeye.calib import model
+from handeye.calib import transforms as tf
+from handeye.calib.auto.blocked import MIN_SAMPLES_BLOCKED, blocked_choice
+from handeye.calib.auto.camera import CAMERA_CORRECTIONS, MIN_SAMPLES_CAMERA, free_for, select_camera, step_helps
+from handeye.calib.auto.consider import camera_consider, shared_robot_consider
+from handeye.calib.auto.determined import MotionPrior, determined_note, held_start, motion_prior
+from handeye.calib.auto.fit import Candidate, better, fit_components
+from handeye.calib.diagnostics import consistency, initial_noise
+from handeye.calib.errors import CalibrationError
+from handeye.calib.methods import closed_form
+from handeye.calib.problem import CalibrationProblem
+from handeye.calib.result import AutoDetails, CalibrationResult, CameraParameter, Residuals
+from handeye.calib.robust import robust_solve
+from handeye.calib.symmetry import resolve_flips
 
 #: Quantiles of chi-square with 3 dof of the outlier test (`_needs_robust`), computed once.
 _CHI2_3_MEDIAN = float(chi2.ppf(0.5, 3))
@@ -42,7 +42,7 @@ class _Start:
 
 def solve_auto(problem: CalibrationProblem, *, camera_correction: str = "auto",
                rng: np.random.Generator | None = None) -> CalibrationResult:
-    """Calibrate with every measurement and the extended model (`calib.auto`).
+    """Calibrate with every measurement and the extended model (`handeye.calib.auto`).
 
     Parameters
     ----------
@@ -71,8 +71,8 @@ def solve_auto(problem: CalibrationProblem, *, camera_correction: str = "auto",
         "consider" covariance of camera parameters left at nominal
         (`CONSIDER_SIGMA`, unless ``camera_correction="none"``) and of the
         robot's shared error; ``cov_kind`` "fisher-extended"; ``self_check``;
-        ``auto`` (`calib.result.AutoDetails`); ``undetermined``: what the
-        motions leave open (`calib.auto.determined`; ``cov`` is then the one
+        ``auto`` (`handeye.calib.result.AutoDetails`); ``undetermined``: what the
+        motions leave open (`handeye.calib.auto.determined`; ``cov`` is then the one
         given the value held), empty when they determine everything or the
         problem's ``marker_offset`` completes it.
     """
@@ -106,7 +106,7 @@ def _start_solver(name: str, motion: MotionPrior):
 
 
 def _resolve_flips(problem: CalibrationProblem, notes: list) -> tuple[CalibrationProblem, dict | None]:
-    """Pose data: marker poses flipped by a symmetry of the target turned back (`calib.symmetry`)."""
+    """Pose data: marker poses flipped by a symmetry of the target turned back (`handeye.calib.symmetry`)."""
     if not problem.has_poses:
         return problem, None
     B, flips = resolve_flips(problem.A, problem.B, setup=problem.setup)
@@ -170,7 +170,7 @@ def _robust_start(problem: CalibrationProblem, rng, notes: list, motion: MotionP
 
 def _choose_measurements(problem: CalibrationProblem, start: _Start, notes: list, prior) -> Candidate:
     """Stage 3a: marker orientations are used unless they make held-out points worse (pose data); every fit
-    with the translation prior ``prior`` (`calib.auto.determined`, None without one)."""
+    with the translation prior ``prior`` (`handeye.calib.auto.determined`, None without one)."""
     A, B, setup = problem.A, problem.B, problem.setup
     C0, K0, _ = model.split(start.result.X, start.result.Y, A, setup)
     theta = np.zeros(3)

@@ -1,13 +1,13 @@
 """The measurement model of a hand-eye sample: residual, Jacobian, whitening, information.
 
-One model shared by `calib.refine` (ML refinement), `calib.robust` (inlier
-test), `calib.monitor` (the monitoring engine), `calib.auto` (``solve("auto")``)
+One model shared by `handeye.calib.refine` (ML refinement), `handeye.calib.robust` (inlier
+test), `handeye.calib.monitor` (the monitoring engine), `handeye.calib.auto` (``solve("auto")``)
 and the pose planner (information matrix).
 
-Modules: `calib.model.frames`, `calib.model.correction`, `calib.model.residuals`,
-`calib.model.weights`, `calib.model.linearization`, `calib.model.variance`,
-`calib.model.leave_one_out`, `calib.model.prior` (what the motions leave open, a prior that holds it),
-`calib.model.rows` (batched 3x3 algebra).
+Modules: `handeye.calib.model.frames`, `handeye.calib.model.correction`, `handeye.calib.model.residuals`,
+`handeye.calib.model.weights`, `handeye.calib.model.linearization`, `handeye.calib.model.variance`,
+`handeye.calib.model.leave_one_out`, `handeye.calib.model.prior` (what the motions leave open, a prior that holds it),
+`handeye.calib.model.rows` (batched 3x3 algebra).
 
 Unknowns
 --------
@@ -18,7 +18,7 @@ Both setups are one model. The camera measures the marker ``B_i = C^-1 M_i K``
 - eye-in-hand: ``C = X = T_flange_cam``, ``K = Y = T_base_marker``,
   ``M_i = A_i^-1`` (from ``A_i X B_i = Y``).
 
-Parameter vector (left perturbations as in `calib.result`, ``R = Exp(d) R_est``,
+Parameter vector (left perturbations as in `handeye.calib.result`, ``R = Exp(d) R_est``,
 ``t = t_est + dt``): ``[dC, tC, tK]`` for points, ``[dC, tC, dK, tK]`` for
 poses, followed by the free camera nuisance parameters (`CAMERA_PARAMS`).
 
@@ -41,7 +41,7 @@ Noise (errors in variables)
 The point residual's covariance is ``Sigma_i = s_p S_i + sigma_R^2 T_i``:
 
 - ``S_i`` the camera's point covariance shape (given ``point_cov``, else the
-  depth model of `calib.noise`), ``s_p`` its scale;
+  depth model of `handeye.calib.noise`), ``s_p`` its scale;
 - ``T_i`` the robot pose error propagated through the lever arm of the
   marker (`robot_cofactor`): the flange pose is ``A_i Exp(xi)`` with
   ``xi = [a, b]`` in the flange frame, ``b ~ N(0, sigma_R^2 I)`` (m),
@@ -53,9 +53,9 @@ Helmert/REML kind: each component's weighted residual square sum divided by
 its share of the redundancy).
 """
 
-from calib.model.frames import join, marker_rotation, split
-from calib.model.correction import CAMERA_PARAMS, CameraCorrection, measure, measured_points
-from calib.model.residuals import (
+from handeye.calib.model.frames import join, marker_rotation, split
+from handeye.calib.model.correction import CAMERA_PARAMS, CameraCorrection, measure, measured_points
+from handeye.calib.model.residuals import (
     ROBOT_ROTATION_PER_M,
     inv_right_jacobian,
     point_jacobians,
@@ -65,7 +65,7 @@ from calib.model.residuals import (
     robot_cofactor,
     rotation_residuals,
 )
-from calib.model.weights import (
+from handeye.calib.model.weights import (
     MIN_POINT_SCALE,
     MIN_ROBOT_SIGMA,
     MIN_ROTATION_SIGMA,
@@ -77,7 +77,7 @@ from calib.model.weights import (
     whitened_squares,
     whitener,
 )
-from calib.model.linearization import (
+from handeye.calib.model.linearization import (
     MIN_INFORMATION_RATIO,
     camera_block,
     information,
@@ -85,9 +85,9 @@ from calib.model.linearization import (
     minimize,
     WeightedData,
 )
-from calib.model.prior import HELD_SIGMA_M, TranslationPrior, held_prior, open_translations
-from calib.model.variance import variance_components
-from calib.model.leave_one_out import LEVERAGE_MARGIN, leave_one_out, leave_one_out_after_step
+from handeye.calib.model.prior import HELD_SIGMA_M, TranslationPrior, held_prior, open_translations
+from handeye.calib.model.variance import variance_components
+from handeye.calib.model.leave_one_out import LEVERAGE_MARGIN, leave_one_out, leave_one_out_after_step
 
 __all__ = [
     "CAMERA_PARAMS",

@@ -1,5 +1,5 @@
 """The RGB-D camera's systematic error (`CameraCorrection`) and the measurement function ``h(p; theta)``
-of the module docstring of `calib.model`."""
+of the module docstring of `handeye.calib.model`."""
 
 from __future__ import annotations
 
@@ -8,7 +8,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from calib import transforms as tf
+from handeye.calib import transforms as tf
 
 
 #: Names of the camera nuisance parameters, in parameter-vector order.

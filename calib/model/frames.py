@@ -1,12 +1,12 @@
 """The two setups as one model: the camera transform ``C``, the marker-side transform ``K`` and the
-per-sample robot transform ``M_i`` (`calib.model`), and the marker rotation that fits given ``C``."""
+per-sample robot transform ``M_i`` (`handeye.calib.model`), and the marker rotation that fits given ``C``."""
 
 from __future__ import annotations
 
 import numpy as np
 
-from calib import transforms as tf
-from calib.setup import Setup
+from handeye.calib import transforms as tf
+from handeye.calib.setup import Setup
 
 
 def split(X, Y, A, setup: str):

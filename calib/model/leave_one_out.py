@@ -4,9 +4,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from calib.errors import InsufficientDataError
-from calib.model.linearization import Linearization
-from calib.model.rows import inv3, rows, sym3_positive, sym3_positive_rows
+from handeye.calib.errors import InsufficientDataError
+from handeye.calib.model.linearization import Linearization
+from handeye.calib.model.rows import inv3, rows, sym3_positive, sym3_positive_rows
 
 
 #: Leave-one-out: a sample whose residual block has an eigenvalue of ``I - H_ii`` at or below this is one

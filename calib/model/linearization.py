@@ -5,13 +5,13 @@ from __future__ import annotations
 
 import numpy as np
 
-from calib import transforms as tf
-from calib.errors import DegenerateMotionError
-from calib.model.correction import measured_points
-from calib.model.frames import split
-from calib.model.prior import TranslationPrior
-from calib.model.residuals import robot_cofactor, rotation_residuals
-from calib.model.weights import NoiseLevels, whitener
+from handeye.calib import transforms as tf
+from handeye.calib.errors import DegenerateMotionError
+from handeye.calib.model.correction import measured_points
+from handeye.calib.model.frames import split
+from handeye.calib.model.prior import TranslationPrior
+from handeye.calib.model.residuals import robot_cofactor, rotation_residuals
+from handeye.calib.model.weights import NoiseLevels, whitener
 
 
 #: Smallest eigenvalue ratio of the information before the motions are called degenerate.
@@ -59,7 +59,7 @@ class Linearization:
         ``M``'s blocks are made once. The arrays `raw` returns are then
         shared and must not be modified.
     prior : TranslationPrior, optional
-        A prior on the translations (`calib.model.prior`: a known marker
+        A prior on the translations (`handeye.calib.model.prior`: a known marker
         mount, or what the motions leave open held): its rows join the normal
         matrix, gradient and cost (not `whitened`, which holds the
         measurement rows).
@@ -302,7 +302,7 @@ class WeightedData:
     orientations are used, and caches: the robot cofactor at the last estimate
     and the whitener of the last noise levels, so that re-weighting at a fixed
     estimate (variance components, then the next fit) computes neither again.
-    Used by `calib.auto` and `calib.diagnostics`.
+    Used by `handeye.calib.auto` and `handeye.calib.diagnostics`.
 
     Parameters
     ----------
@@ -318,7 +318,7 @@ class WeightedData:
     shape_whitener : ndarray, shape (N, 3, 3), optional
         `whitener` of ``shape`` when the caller has it.
     prior : TranslationPrior, optional
-        A prior on the translations every `linearize` carries (`calib.model.prior`).
+        A prior on the translations every `linearize` carries (`handeye.calib.model.prior`).
     """
 
     def __init__(self, A, B, setup, shape, use_rotation, shape_whitener=None, prior: TranslationPrior | None = None):
@@ -405,7 +405,7 @@ def minimize(problem: Linearization, C, K, theta=None, *, max_iterations: int = 
                 return C, K, theta, cost, it, True
             C2, K2, theta2 = problem.retract(C, K, theta, delta)
             # The whole system at the trial estimate: a step is usually taken, and the next iteration (or the
-            # variance components after it, `calib.auto`) needs it there; a rejected one costs the Jacobian.
+            # variance components after it, `handeye.calib.auto`) needs it there; a rejected one costs the Jacobian.
             cost2 = problem.normal_equations(C2, K2, theta2)[2]
             if cost2 <= cost:
                 break

@@ -1,7 +1,7 @@
 """What the motions leave open of the two translations, and the prior that holds it.
 
 The marker point depends on the translations of the camera transform ``C``
-and the marker-side transform ``K`` (`calib.model`) only through
+and the marker-side transform ``K`` (`handeye.calib.model`) only through
 ``w_i = R_Mi t_K + t_Mi - t_C``. A change ``(dt_C, dt_K)`` with
 ``R_Mi dt_K = dt_C`` for every sample moves no prediction: the samples do not
 determine it. That is the null space of the paper's eq. 6 ``[R_A, -I]``
@@ -14,7 +14,7 @@ translations' determined combination) stays determined.
 `TranslationPrior` is a Gaussian prior on ``[t_C, t_K]`` (6,): whitened rows
 ``L`` and a target ``t0``, residual ``L (t - t0)``. It holds a known marker
 mount (``L = I / sigma`` on ``t_K``) or, at `HELD_SIGMA_M`, the open
-directions at a chosen value; `calib.model.Linearization` adds it to its
+directions at a chosen value; `handeye.calib.model.Linearization` adds it to its
 normal equations, so the fit, the variance components, the held-out errors
 and the covariance all see it. The covariance is then the one given the held
 values: along an open direction the camera's position moves one-for-one
@@ -53,7 +53,7 @@ class TranslationPrior:
         return self.rows @ (t - self.target)
 
     def jacobian(self, n_pose: int, n_params: int) -> np.ndarray:
-        """Jacobian (k, n_params) of `residual` in the parameter order of `calib.model.Linearization`
+        """Jacobian (k, n_params) of `residual` in the parameter order of `handeye.calib.model.Linearization`
         (``[dC, tC, (dK), tK, camera]``: ``tC`` columns 3:6, ``tK`` the last three pose columns)."""
         J = np.zeros((len(self.rows), n_params))
         J[:, 3:6] = self.rows[:, :3]

@@ -5,10 +5,10 @@ from __future__ import annotations
 
 import numpy as np
 
-from calib import transforms as tf
-from calib.model.correction import measure, measured_points
-from calib.model.rows import COL, ROW
-from calib.setup import Setup
+from handeye.calib import transforms as tf
+from handeye.calib.model.correction import measure, measured_points
+from handeye.calib.model.rows import COL, ROW
+from handeye.calib.setup import Setup
 
 
 #: Flange rotation error per unit of flange translation error of the robot
@@ -54,14 +54,14 @@ def residual_norms(C, K, M, B, theta=None, *, rotation: bool = True):
 
 
 def point_jacobians(C, K, M, theta, setup: str):
-    """Predicted measured point and its Jacobians, per sample, for the recursive filter of `calib.monitor`.
+    """Predicted measured point and its Jacobians, per sample, for the recursive filter of `handeye.calib.monitor`.
 
     Returns ``h (N, 3), H_C (N, 3, 6), H_tK (N, 3, 3), H_theta (N, 3, 3), H_xi (N, 3, 6)``:
     the point the camera reports, ``h(R_C^T (R_Mi t_K + t_Mi - t_C); theta)``, and
     its derivatives w.r.t. the camera transform (left perturbation ``[dC, tC]``),
     the marker-side translation, the camera parameters (all of `CAMERA_PARAMS`)
     and a flange-frame twist ``xi = [a, b]`` (rad, m) of the robot pose
-    (``A_i Exp(xi)``, as ``robot_shared_error`` of `calib.auto`). Eye-to-hand
+    (``A_i Exp(xi)``, as ``robot_shared_error`` of `handeye.calib.auto`). Eye-to-hand
     the twist moves the marker by ``R_A (a x t_K + b)``; eye-in-hand it moves the
     camera, so the base marker seen from the flange moves by ``-(a x y + b)``,
     ``y`` its flange-frame position.

@@ -4,9 +4,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from calib.model.linearization import Linearization
-from calib.model.rows import COL, EYE_ROW, ROW
-from calib.model.weights import MIN_POINT_SCALE, MIN_ROBOT_SIGMA, MIN_ROTATION_SIGMA, NoiseLevels
+from handeye.calib.model.linearization import Linearization
+from handeye.calib.model.rows import COL, EYE_ROW, ROW
+from handeye.calib.model.weights import MIN_POINT_SCALE, MIN_ROBOT_SIGMA, MIN_ROTATION_SIGMA, NoiseLevels
 
 
 def variance_components(problem: Linearization, C, K, theta, shape, robot_cof, noise: NoiseLevels,

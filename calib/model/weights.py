@@ -7,10 +7,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from calib import transforms as tf
-from calib.errors import CalibrationError
-from calib.model.residuals import predict_points
-from calib.noise import default_point_cov
+from handeye.calib import transforms as tf
+from handeye.calib.errors import CalibrationError
+from handeye.calib.model.residuals import predict_points
+from handeye.calib.noise import default_point_cov
 
 
 def check_point_cov(point_cov, n: int) -> np.ndarray | None:

@@ -2,7 +2,7 @@
 
 The paper's promise is that a single marker point per robot stop keeps the
 calibration alive while the robot works. `MonitorEngine` does that with the
-measurement model of ``solve("auto")`` (`calib.model`): it starts from the
+measurement model of ``solve("auto")`` (`handeye.calib.model`): it starts from the
 camera correction, the marker mount, the noise levels and the covariance of
 the result it is armed from (and the robot's kinematic error shared by all
 samples, when they carry its factor), and follows the camera transform.
@@ -18,11 +18,11 @@ Per sample (fixed work and memory, independent of the shift's length):
    `MonitorSettings.walk_mm_per_sqrt_h`, ``walk_deg_per_sqrt_h``), so the
    estimate follows a slowly drifting mount instead of alarming on it; in the
    directions the program's stops do not observe it holds its value
-   (`calib.monitor.filter.observed_walk`).
+   (`handeye.calib.monitor.filter.observed_walk`).
 2. **Verify.** The marker point is predicted before it is fused; the error of
    that prediction in C's parent frame is the running verification (``verify_mm``).
 3. **Detect.** A windowed GLR test of "the camera jumped by some 6-dof delta"
-   on the innovations (`calib.change.ChangeDetector`) raises the *moved*
+   on the innovations (`handeye.calib.change.ChangeDetector`) raises the *moved*
    alarm; at a stop visited `MIN_BASELINE` times before it tests the marker
    point's change from the stop's earlier visits instead, allowing for the
    random walk since them. Innovations against the model at nearby poses
@@ -36,7 +36,7 @@ Per sample (fixed work and memory, independent of the shift's length):
    repeated stops share (the robot's kinematic error, the camera model, and
    the error each stop repeats at every visit beyond them) is state, not
    white noise, so a program that returns to the same few stops cannot make
-   the estimate over-confident (`calib.monitor.filter`). The noise levels'
+   the estimate over-confident (`handeye.calib.monitor.filter`). The noise levels'
    scale follows the innovations; it weighs what each visit adds.
 5. **Drift.** How far the camera has walked since the calibration in use
    (the arming one, or the last re-learnt one): six states that the random
@@ -57,11 +57,11 @@ arming covariance. Until the stops determine it, `MonitorUpdate.message`
 says what is missing and which stop would fix it.
 """
 
-from calib.monitor.engine import MonitorEngine
-from calib.monitor.filter import FilterState
-from calib.monitor.reference import (InUse, Reference, WorkspaceMoments, arm_reference, shared_error_var,
+from handeye.calib.monitor.engine import MonitorEngine
+from handeye.calib.monitor.filter import FilterState
+from handeye.calib.monitor.reference import (InUse, Reference, WorkspaceMoments, arm_reference, shared_error_var,
                                      workspace_distance, workspace_sigma)
-from calib.monitor.settings import AlarmLevel, EngineState, MonitorSettings, MonitorUpdate
+from handeye.calib.monitor.settings import AlarmLevel, EngineState, MonitorSettings, MonitorUpdate
 
 __all__ = ["AlarmLevel", "EngineState", "FilterState", "InUse", "MonitorEngine", "MonitorSettings", "MonitorUpdate",
            "Reference", "WorkspaceMoments", "arm_reference", "shared_error_var", "workspace_distance",

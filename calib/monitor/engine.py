@@ -1,4 +1,4 @@
-"""`MonitorEngine`: the filter (`calib.monitor.filter`), the change test, the re-learn after a move, and the figures
+"""`MonitorEngine`: the filter (`handeye.calib.monitor.filter`), the change test, the re-learn after a move, and the figures
 of each update."""
 
 from __future__ import annotations
@@ -11,23 +11,23 @@ from typing import NamedTuple
 import numpy as np
 from scipy.stats import chi2
 
-from calib import model
-from calib import transforms as tf
-from calib.errors import CalibrationError
-from calib.noise import default_point_cov
-from calib.change import ChangeDetector
-from calib.problem import CalibrationProblem
-from calib.result import CalibrationResult, CameraParameter, Residuals
-from calib.setup import Setup
-from calib.monitor.filter import (STOP_SLOTS, FilterState, Layout, NoiseTrack, SampleModel, Walk, clear_slots,
+from handeye.calib import model
+from handeye.calib import transforms as tf
+from handeye.calib.errors import CalibrationError
+from handeye.calib.noise import default_point_cov
+from handeye.calib.change import ChangeDetector
+from handeye.calib.problem import CalibrationProblem
+from handeye.calib.result import CalibrationResult, CameraParameter, Residuals
+from handeye.calib.setup import Setup
+from handeye.calib.monitor.filter import (STOP_SLOTS, FilterState, Layout, NoiseTrack, SampleModel, Walk, clear_slots,
                                   filter_state, find_slot, follow_noise, fuse, fuse_linear, innovate, linearize, noise,
                                   observed_walk, open_slot, predict, prediction, restart_walk, visit_slot)
-from calib.monitor.settings import AlarmLevel, EngineState, MonitorSettings, MonitorUpdate
-from calib.monitor.kernels import (inv_sym3_floats, is_plain, is_positive_definite3, parts, plain_cov,
+from handeye.calib.monitor.settings import AlarmLevel, EngineState, MonitorSettings, MonitorUpdate
+from handeye.calib.monitor.kernels import (inv_sym3_floats, is_plain, is_positive_definite3, parts, plain_cov,
                                    plain_point, plain_transform, sym3)
-from calib.monitor.reference import InUse, Reference, WorkspaceMoments, arm_reference, workspace_distance
-from calib.monitor.snapshot import Snapshot
-from calib.monitor.stops import HOUR_S, Rate, Stop, Stops, Visit
+from handeye.calib.monitor.reference import InUse, Reference, WorkspaceMoments, arm_reference, workspace_distance
+from handeye.calib.monitor.snapshot import Snapshot
+from handeye.calib.monitor.stops import HOUR_S, Rate, Stop, Stops, Visit
 
 
 #: Visits of a stop before the detector compares its marker point with the stop's earlier ones.
@@ -72,7 +72,7 @@ class Fit(NamedTuple):
 
 
 class MonitorEngine:
-    """The monitoring engine (`calib.monitor`'s docstring). ``arm`` it, then ``update`` it with every sample.
+    """The monitoring engine (`handeye.calib.monitor`'s docstring). ``arm`` it, then ``update`` it with every sample.
 
     Eye-to-hand it follows ``C = Y = T_base_cam`` and holds ``X =
     T_flange_marker``; eye-in-hand ``C = X = T_flange_cam`` and ``Y =
@@ -92,7 +92,7 @@ class MonitorEngine:
     in_use : InUse or None
         The calibration in use: the arming one, then each re-learnt one (replaced, never changed).
     filter : FilterState or None
-        The live estimate (`calib.monitor.filter`; replaced at every sample).
+        The live estimate (`handeye.calib.monitor.filter`; replaced at every sample).
     state : EngineState
         After the last sample.
     """
@@ -156,7 +156,7 @@ class MonitorEngine:
         return snapshot.reference
 
     def snapshot(self) -> Snapshot:
-        """What the next run continues from (`resume`; `calib.monitor.snapshot.snapshot_to_dict` for a file).
+        """What the next run continues from (`resume`; `handeye.calib.monitor.snapshot.snapshot_to_dict` for a file).
 
         Raises
         ------
@@ -239,7 +239,7 @@ class MonitorEngine:
         point_cam : array_like, shape (3,)
             The marker center in the camera frame, m, as measured (uncorrected).
         point_cov : array_like, shape (3, 3), optional
-            Its covariance shape, m^2, positive definite (default: `calib.noise`'s depth model).
+            Its covariance shape, m^2, positive definite (default: `handeye.calib.noise`'s depth model).
         robot_factor : array_like, shape (6, P), optional
             The kinematic-error factor at its joints (needed when armed with one).
 
@@ -447,7 +447,7 @@ class MonitorEngine:
         return find_slot(f, lambda pose: self.stops.same(pose, s.pose))
 
     def _slot(self, f: FilterState, s: Stop) -> tuple[FilterState, int]:
-        """The state with ``s``'s stop's own error held (`calib.monitor.filter.open_slot`: a new stop's at its prior,
+        """The state with ``s``'s stop's own error held (`handeye.calib.monitor.filter.open_slot`: a new stop's at its prior,
         `stop_prior`), and its slot; what a visit tells of the camera noted for the walk (`_walk_for`)."""
         k = self._held(f, s)
         if k is not None and f.slots[k] in self._info:
@@ -748,7 +748,7 @@ class MonitorEngine:
 
     @property
     def cov(self) -> np.ndarray:
-        """Its covariance (6, 6), `calib.result` convention."""
+        """Its covariance (6, 6), `handeye.calib.result` convention."""
         return self.filter.P[:6, :6].copy()
 
     @property

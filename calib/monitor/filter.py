@@ -1,12 +1,12 @@
 """The engine's filter: its state as an immutable value (`FilterState`), and `predict`, `innovate` and `fuse` as
-functions of it, over the one measurement model (`calib.model`; on floats, `calib.monitor.kernels.sample_floats`).
+functions of it, over the one measurement model (`handeye.calib.model`; on floats, `handeye.calib.monitor.kernels.sample_floats`).
 
 The state (`Layout`) is the camera transform ``C`` (4, 4): ``T_base_cam``
 eye-to-hand (``Y`` of ``A_i X = Y B_i``), ``T_flange_cam`` eye-in-hand
 (``X``), perturbed on the left by ``[rotation vector, translation]`` as in
-`calib.result`, and ``u = [t_K, theta, z, b, w]``: the marker-side translation
+`handeye.calib.result`, and ``u = [t_K, theta, z, b, w]``: the marker-side translation
 (``T_flange_marker`` / ``T_base_marker``), the camera parameters
-(`calib.model.CAMERA_PARAMS`), the robot's kinematic error shared by all
+(`handeye.calib.model.CAMERA_PARAMS`), the robot's kinematic error shared by all
 samples (P parameters, unit variance), each stop's own error (``b``: 3 per
 slot of `STOP_SLOTS`, the marker point's offset in the camera frame) and the
 camera's walk since the calibration in use (6, measured by no sample: the
@@ -16,7 +16,7 @@ A stop's own error is what every visit of it repeats and no parameter of the
 model explains: the arm's error beyond its kinematic model (thermal growth,
 deflection under load; all of the kinematic error for a source without
 joints) and the camera's at that view. Its prior is the robot's noise level of
-the arming at that pose plus `calib.monitor.MonitorSettings.stop_error_mm`.
+the arming at that pose plus `handeye.calib.monitor.MonitorSettings.stop_error_mm`.
 As a state it saturates what repeated visits tell: a thousand visits of four
 stops determine the camera no better than four measurements with that error
 allow, and the parameters they cannot separate stay near the arming's values
@@ -24,8 +24,8 @@ allow, and the parameters they cannot separate stay near the arming's values
 Each visit adds only the point noise.
 
 The fast path runs on tuples of floats (numpy's per-call cost would be most
-of a sample's cost on 3-vectors); `calib.monitor.kernels.sample_floats` is
-tested against `calib.model.point_jacobians`, the model ``auto`` and the
+of a sample's cost on 3-vectors); `handeye.calib.monitor.kernels.sample_floats` is
+tested against `handeye.calib.model.point_jacobians`, the model ``auto`` and the
 arming use.
 """
 
@@ -36,8 +36,8 @@ from typing import NamedTuple
 
 import numpy as np
 
-from calib.model import NoiseLevels
-from calib.monitor.kernels import inv_sym3, inv_sym3_floats, matmul3, parts, sample_floats, so3_exp_scalar, sym3
+from handeye.calib.model import NoiseLevels
+from handeye.calib.monitor.kernels import inv_sym3, inv_sym3_floats, matmul3, parts, sample_floats, so3_exp_scalar, sym3
 
 #: Stops whose own error the state holds (the most recently visited): a new stop beyond them takes the slot of the
 #: least recently visited one, whose error is marginalised.
@@ -153,7 +153,7 @@ class FilterState(NamedTuple):
     scale : float
         The noise levels' scale: the arming's levels times this are the samples' noise.
     parts : tuple
-        ``C`` as floats (`calib.monitor.kernels.parts`), for the fast path.
+        ``C`` as floats (`handeye.calib.monitor.kernels.parts`), for the fast path.
     slots : tuple
         Per slot of `STOP_SLOTS`: the flange pose of the stop whose own error it holds (``T_base_flange[:3]``
         flat, 12 floats), or None (free).
@@ -277,7 +277,7 @@ def innovate(state: FilterState, pose, point, shape_upper, factor, model: Sample
 
 def fuse(state: FilterState, PHt: np.ndarray, S_inv: np.ndarray, r) -> FilterState:
     """The Kalman update from ``PHt = P H^T`` (n, 3), the inverse innovation covariance (3, 3) and the innovation
-    ``r`` (3,); the camera transform moves on the left (`calib.result`)."""
+    ``r`` (3,); the camera transform moves on the left (`handeye.calib.result`)."""
     # ndarray.dot: the same BLAS products as @, with less call overhead on these small arrays.
     K = PHt.dot(S_inv)
     P = state.P - K.dot(PHt.T)
@@ -303,7 +303,7 @@ def fuse_linear(state: FilterState, r, H: np.ndarray, R: np.ndarray) -> FilterSt
 def linearize(state: FilterState, sample, model: SampleModel, slot: int | None):
     """Innovation ``r`` (3,), Jacobian ``H`` (3, n) over the whole state (the identity on the stop's error in
     ``slot``, zero on the other slots and the walk states; ``slot`` None: zero on every slot) and the noises
-    (3, 3) of a sample (`calib.monitor.stops.Stop`) at ``state``, as arrays: what each visit adds and what a
+    (3, 3) of a sample (`handeye.calib.monitor.stops.Stop`) at ``state``, as arrays: what each visit adds and what a
     comparison of two visits allows (`noise`)."""
     h, H_model, cof = prediction(state, sample.pose, sample.factor, model)
     H = np.zeros((3, model.layout.size))

@@ -2,9 +2,9 @@
 
 One sample is a few 3x3 products: as numpy arrays each costs more in call overhead than in
 arithmetic, so the engine's hot path runs them on tuples of floats. `sample_floats` is the
-reference model `calib.model.point_jacobians` (with `calib.model.robot_cofactor`) for one sample,
+reference model `handeye.calib.model.point_jacobians` (with `handeye.calib.model.robot_cofactor`) for one sample,
 written out on floats (tested against it on random states); `so3_exp_scalar` is
-`calib.transforms.so3_exp` for one rotation, with the same formula. `plain_transform`, `plain_point`
+`handeye.calib.transforms.so3_exp` for one rotation, with the same formula. `plain_transform`, `plain_point`
 and `plain_cov` check a sample's arrays on the floats they read and return them."""
 
 from __future__ import annotations
@@ -13,14 +13,14 @@ import math
 
 import numpy as np
 
-from calib import model
-from calib import transforms as tf
-from calib.setup import Setup
+from handeye.calib import model
+from handeye.calib import transforms as tf
+from handeye.calib.setup import Setup
 
 
 
 I3 = np.eye(3)
-#: `calib.model.ROBOT_ROTATION_PER_M` squared (the robot cofactor's lever weight).
+#: `handeye.calib.model.ROBOT_ROTATION_PER_M` squared (the robot cofactor's lever weight).
 ROBOT_RHO2 = model.ROBOT_ROTATION_PER_M ** 2
 
 
@@ -39,7 +39,7 @@ def matmul3(M, N):
 
 
 def so3_exp_scalar(a0: float, a1: float, a2: float):
-    """`calib.transforms.so3_exp` of one rotation vector (rad), as rows of floats (same formula and series)."""
+    """`handeye.calib.transforms.so3_exp` of one rotation vector (rad), as rows of floats (same formula and series)."""
     th2 = a0 * a0 + a1 * a1 + a2 * a2
     if th2 < 1e-8:
         a, b = 1.0 - th2 / 6.0 + th2 * th2 / 120.0, 0.5 - th2 / 24.0 + th2 * th2 / 720.0
@@ -78,7 +78,7 @@ def sym3(upper) -> np.ndarray:
 
 
 def is_plain(a, shape) -> bool:
-    """``a`` is a float64 array of ``shape``, finite and within `calib.transforms.MAX_MAGNITUDE`: the common case,
+    """``a`` is a float64 array of ``shape``, finite and within `handeye.calib.transforms.MAX_MAGNITUDE`: the common case,
     which the general validators would return unchanged (anything else goes to them for their checks and message)."""
     # A sum of squares within the bound's square bounds every entry; NaN and inf fail the comparison.
     return (type(a) is np.ndarray and a.dtype == np.float64 and a.shape == shape
@@ -104,7 +104,7 @@ def plain_point(p):
 
 def plain_transform(T):
     """The first three rows of ``T`` flat (12 floats) when it `is_plain` and is a rigid transform within
-    `calib.transforms.check_transform`'s tolerances, else None."""
+    `handeye.calib.transforms.check_transform`'s tolerances, else None."""
     if not _is_float64(T, (4, 4)):
         return None
     (a, b, c, x), (d, e, f, y), (g, h, i, z), (p, q, r, w) = T.tolist()
@@ -123,7 +123,7 @@ def plain_transform(T):
 
 def plain_cov(S):
     """The upper triangle ``(xx, xy, xz, yy, yz, zz)`` of ``S`` when it `is_plain` of shape (3, 3) and is
-    symmetric within `calib.model.check_point_cov`'s tolerance, else None."""
+    symmetric within `handeye.calib.model.check_point_cov`'s tolerance, else None."""
     if not _is_float64(S, (3, 3)):
         return None
     (a, b, c), (d, e, f), (g, h, i) = S.tolist()
@@ -135,7 +135,7 @@ def plain_cov(S):
 
 def sample_floats(C, t_K, pose, theta, eye_to_hand: bool, factor=None, z=None):
     """One sample's predicted measured marker point, its Jacobian w.r.t. the engine's state, and its robot
-    cofactor: `calib.model.point_jacobians` and `calib.model.robot_cofactor` for one sample, on floats.
+    cofactor: `handeye.calib.model.point_jacobians` and `handeye.calib.model.robot_cofactor` for one sample, on floats.
 
     At the flange pose ``A Exp(factor z)`` when the state carries the
     robot's kinematic error ``z``. Eye-to-hand ``C = T_base_cam`` and the
@@ -150,7 +150,7 @@ def sample_floats(C, t_K, pose, theta, eye_to_hand: bool, factor=None, z=None):
     pose : 12 floats
         ``T_base_flange[:3]`` flat, as the robot reports it.
     theta : 3 floats
-        Camera parameters (`calib.model.CAMERA_PARAMS`).
+        Camera parameters (`handeye.calib.model.CAMERA_PARAMS`).
     eye_to_hand : bool
     factor, z : ndarray (6, P) and (P,), optional
         The kinematic-error factor at the sample's joints and the error.
@@ -161,7 +161,13 @@ def sample_floats(C, t_K, pose, theta, eye_to_hand: bool, factor=None, z=None):
     H : ndarray (3, 12 + P)
         W.r.t. ``[dC, tC, t_K, theta, z]``.
     cofactor : 6 floats
-        Upper triangle ``(xx, xy, xz, yy, yz, zz)`` of `calib.model.robot_cofactor`.
+        Upper triangle ``(xx, xy, xz, yy, yz, zz)`` of `handeye.calib.model.robot_cofactor`.
+
+    Notes
+    -----
+    Longer than the project's 80 lines on purpose: the engine calls it for every sample of a months-long
+    run, and split into helpers it would pay a Python call per step and build the same intermediates twice;
+    tests hold it to the vectorised model (tests/calib/test_monitor_engine.py).
     """
     # Written out on floats (no helper calls): the same products and sums as the 3x3 kernels above.
     (c0, c1, c2), (c3, c4, c5), (c6, c7, c8) = C[0]

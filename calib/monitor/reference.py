@@ -8,14 +8,14 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from calib import model
-from calib import transforms as tf
-from calib.auto import CONSIDER_SIGMA
-from calib.errors import CalibrationError
-from calib.problem import CalibrationProblem
-from calib.result import CalibrationResult
-from calib.setup import Setup
-from calib.monitor.kernels import I3
+from handeye.calib import model
+from handeye.calib import transforms as tf
+from handeye.calib.auto import CONSIDER_SIGMA
+from handeye.calib.errors import CalibrationError
+from handeye.calib.problem import CalibrationProblem
+from handeye.calib.result import CalibrationResult
+from handeye.calib.setup import Setup
+from handeye.calib.monitor.kernels import I3
 
 
 #: Workspace points kept from the arming samples (the drift and accuracy figures are RMS over them).
@@ -36,7 +36,7 @@ class Reference:
     K : ndarray (4, 4)
         Marker-side transform (``T_flange_marker`` / ``T_base_marker``) of the arming result.
     theta : ndarray (3,)
-        Its camera correction (`calib.model.CAMERA_PARAMS`).
+        Its camera correction (`handeye.calib.model.CAMERA_PARAMS`).
     noise : NoiseLevels
         Noise levels of the arming result.
     workspace : ndarray (W, 3)
@@ -103,13 +103,13 @@ def arm_reference(result: CalibrationResult, problem: CalibrationProblem, *,
     """The calibration in use and the covariance of the engine's state, from a result and its samples.
 
     The state is ``[dC, tC, t_K, theta, z]``: the camera transform (left
-    perturbation, `calib.result`), the marker-side translation, the camera
-    parameters (`calib.model.CAMERA_PARAMS`) and, with the problem's
+    perturbation, `handeye.calib.result`), the marker-side translation, the camera
+    parameters (`handeye.calib.model.CAMERA_PARAMS`) and, with the problem's
     ``robot_shared_error``, the P kinematic-error parameters all samples share (unit variance). Its
     covariance is the inverse information of ``auto``'s extended model at the
-    result (`calib.model.point_jacobians`, the result's noise levels), camera
+    result (`handeye.calib.model.point_jacobians`, the result's noise levels), camera
     parameters that ``auto`` left at nominal held to their typical error
-    (``consider_theta``, default `calib.auto.CONSIDER_SIGMA`), and the
+    (``consider_theta``, default `handeye.calib.auto.CONSIDER_SIGMA`), and the
     estimate's sensitivity to ``z`` as their cross covariance.
 
     Parameters
@@ -122,7 +122,7 @@ def arm_reference(result: CalibrationResult, problem: CalibrationProblem, *,
     problem : CalibrationProblem
         The samples it was solved from: flange poses, marker centres in the
         camera frame as measured, their covariance shapes (default:
-        `calib.noise`'s depth model) and, when set, the kinematic-error factor
+        `handeye.calib.noise`'s depth model) and, when set, the kinematic-error factor
         at their joints (``robot_shared_error``, (N, 6, P)).
 
     Returns

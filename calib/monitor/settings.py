@@ -3,14 +3,14 @@ state and alarm levels (`EngineState`, `AlarmLevel`)."""
 
 from __future__ import annotations
 
-from enum import StrEnum
+from handeye.calib.compat import StrEnum
 from typing import Annotated, NamedTuple
 
 import numpy as np
 from pydantic import Field
 
-from calib.change import DetectorConfig
-from calib.params import NonNegativeFloat, Params, PositiveFloat
+from handeye.calib.change import DetectorConfig
+from handeye.calib.params import NonNegativeFloat, Params, PositiveFloat
 
 
 class EngineState(StrEnum):
@@ -64,7 +64,7 @@ class MonitorSettings(Params):
         marker's tilt) and the arm's that its kinematic model leaves
         (thermal growth, deflection under load). It bounds what repeated
         visits of the same stops can teach the live estimate
-        (`calib.monitor.filter`).
+        (`handeye.calib.monitor.filter`).
     relearn_samples : int
         Samples held for a re-learn (the newest).
     min_spread_m : float
@@ -117,7 +117,7 @@ class MonitorUpdate(NamedTuple):
     camera_transform : ndarray (4, 4)
         Live ``T_base_cam`` (eye-to-hand) or ``T_flange_cam`` (eye-in-hand).
     cov : ndarray (6, 6)
-        Its covariance (`calib.result` convention), consider terms included.
+        Its covariance (`handeye.calib.result` convention), consider terms included.
     innovation : ndarray (3,)
         Measured minus predicted marker point in the camera frame, m, before fusing.
     nis : float

@@ -10,7 +10,7 @@ before any bump. What a run learns about the program's stops (their
 baselines) is not carried: the next run tests its first samples against the
 model, and a camera knocked in between is a move.
 
-Frames as in `calib.monitor`: eye-to-hand the camera transform is
+Frames as in `handeye.calib.monitor`: eye-to-hand the camera transform is
 ``T_base_cam`` and the marker-side transform ``T_flange_marker``;
 eye-in-hand ``T_flange_cam`` and ``T_base_marker``.
 """
@@ -23,13 +23,13 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from calib import model
-from calib import transforms as tf
-from calib.errors import CalibrationError
-from calib.monitor.filter import STOP_SLOTS, FilterState, Layout, NoiseTrack, filter_state
-from calib.monitor.reference import InUse, Reference
-from calib.result import AutoDetails, CalibrationResult, CameraParameter, Residuals
-from calib.setup import Setup
+from handeye.calib import model
+from handeye.calib import transforms as tf
+from handeye.calib.errors import CalibrationError
+from handeye.calib.monitor.filter import STOP_SLOTS, FilterState, Layout, NoiseTrack, filter_state
+from handeye.calib.monitor.reference import InUse, Reference
+from handeye.calib.result import AutoDetails, CalibrationResult, CameraParameter, Residuals
+from handeye.calib.setup import Setup
 
 #: Version of `snapshot_to_dict`'s layout.
 SCHEMA = "handeye/monitor-state/1"
@@ -37,7 +37,7 @@ SCHEMA = "handeye/monitor-state/1"
 
 @dataclass(frozen=True)
 class Snapshot:
-    """The engine between two runs (`calib.monitor.MonitorEngine.snapshot`, ``resume``).
+    """The engine between two runs (`handeye.calib.monitor.MonitorEngine.snapshot`, ``resume``).
 
     Attributes
     ----------

@@ -29,7 +29,7 @@ class Stop:
     the per-sample model, ``pose`` is ``A[:3]`` flat (also the stop lookup's key), ``point`` is ``p`` and
     ``shape_upper`` the shape's upper triangle ``(xx, xy, xz, yy, yz, zz)``; ``stop`` is the lookup's memo
     (`Stops.lookup`); ``walk_t`` the random walk's clock at the sample
-    (`calib.monitor.filter.FilterState.walk_t`); ``w`` the filter's walk states then (6 floats: how far the
+    (`handeye.calib.monitor.filter.FilterState.walk_t`); ``w`` the filter's walk states then (6 floats: how far the
     camera had walked since the calibration in use, as the filter saw it before this sample)."""
 
     A: np.ndarray
@@ -46,7 +46,7 @@ class Stop:
 
 
 class Visit(NamedTuple):
-    """A sample in the detector's window, the filter state (`calib.monitor.filter.FilterState`) before it was
+    """A sample in the detector's window, the filter state (`handeye.calib.monitor.filter.FilterState`) before it was
     fused, its test statistic (chi-square, 3 dof, against that state or its stop's earlier visits), and the key
     of the stop it was compared with (`Stops.ids`; None: against the model)."""
 

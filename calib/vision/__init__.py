@@ -4,9 +4,9 @@ The per-frame entry is `extract(color, depth, intrinsics, target) -> MarkerMeasu
 (`try_extract` returns ``(None, reason)`` for a bad frame instead of raising).
 """
 
-from calib.vision.extract import MarkerMeasurement, TargetConfig, extract, try_extract
-from calib.vision.lift import DepthNoiseModel
-from calib.vision.markers import BoardSpec, Detection, detect_charuco, detect_chessboard, detect_markers
+from handeye.calib.vision.extract import MarkerMeasurement, TargetConfig, extract, try_extract
+from handeye.calib.vision.lift import DepthNoiseModel
+from handeye.calib.vision.markers import BoardSpec, Detection, detect_charuco, detect_chessboard, detect_markers
 
 __all__ = [
     "BoardSpec",

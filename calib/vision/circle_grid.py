@@ -5,12 +5,12 @@ The target of ros-industrial's industrial_calibration ``ModifiedCircleGridTarget
 larger than the rest. The large dot fixes the origin, so the grid's pose is
 unambiguous although the dot pattern itself is symmetric.
 
-Target frame (same orientation rule as `calib.vision.markers`): origin at the
+Target frame (same orientation rule as `handeye.calib.vision.markers`): origin at the
 center of the large dot, x along its row, y along its column, z out of the
 printed face towards the viewer; dot ``(r, c)`` is at ``(c, r, 0) * spacing``.
 Which of the two grid edges at the origin is "x" follows from that
 right-handedness as seen by the camera, so the frame is the same in every
-image. The result is a `calib.vision.markers.Detection` (``kind="circle_grid"``)
+image. The result is a `handeye.calib.vision.markers.Detection` (``kind="circle_grid"``)
 so that one PnP path serves all targets; it is valid for both setups (the
 target is ``marker`` in ``T_cam_marker``).
 """
@@ -24,9 +24,9 @@ import cv2
 import numpy as np
 from pydantic import ConfigDict, Field, model_validator
 
-from calib.errors import MarkerNotFoundError
-from calib.params import Fraction, Int, Params, PositiveFloat
-from calib.vision.markers import Detection, check_gray
+from handeye.calib.errors import MarkerNotFoundError
+from handeye.calib.params import Fraction, Int, Params, PositiveFloat
+from handeye.calib.vision.markers import Detection, check_gray
 
 # A corner dot counts as the origin dot if its blob is this much larger than
 # the next largest corner dot (industrial_calibration's big dot is 2x the

@@ -21,8 +21,8 @@ import cv2
 import numpy as np
 from pydantic import ConfigDict, Field, model_validator
 
-from calib.errors import DepthError, ExtractionError, MarkerNotFoundError
-from calib.params import (
+from handeye.calib.errors import DepthError, ExtractionError, MarkerNotFoundError
+from handeye.calib.params import (
     Bool,
     Fraction,
     Int,
@@ -34,8 +34,8 @@ from calib.params import (
     Str,
     Vector3,
 )
-from calib.transforms import skew
-from calib.vision.lift import (
+from handeye.calib.transforms import skew
+from handeye.calib.vision.lift import (
     DepthNoiseModel,
     fit_plane,
     intersect_ray,
@@ -45,7 +45,7 @@ from calib.vision.lift import (
     refine_pose_with_depth,
     solve_pnp,
 )
-from calib.vision.markers import (
+from handeye.calib.vision.markers import (
     BoardSpec,
     check_gray,
     detect_charuco,
@@ -88,14 +88,14 @@ class TargetConfig(Params):
         The depth pixels used lie in the target polygon shrunk by this factor
         about its centroid (keeps off the plate edge's flying pixels).
     min_depth_pixels, min_valid_fraction, max_chi2_ratio, min_inlier_fraction
-        Plane-fit rejection thresholds (see `calib.vision.lift.fit_plane`).
+        Plane-fit rejection thresholds (see `handeye.calib.vision.lift.fit_plane`).
     depth_noise : DepthNoiseModel
         Per-pixel depth noise; a dict with its fields is accepted.
     offset_m : tuple of 3 float, optional
         Where the marker is, when known, m: eye-to-hand its centre in the
         flange frame (``t_flange_marker``, e.g. a measured TCP), eye-in-hand
         the static marker's centre in the base frame (``t_base_marker``).
-        ``auto`` holds it (`calib.problem.CalibrationProblem.marker_offset`):
+        ``auto`` holds it (`handeye.calib.problem.CalibrationProblem.marker_offset`):
         it completes a recording whose tool never turned about two axes.
     offset_sigma_m : float
         Its 1-sigma per axis, m (0: held as given).
@@ -214,7 +214,7 @@ def extract(color, depth, intrinsics, target: TargetConfig) -> MarkerMeasurement
     depth : ndarray, shape (H, W), float, m, registered to ``color``; 0 / NaN
         where there is no reading. May be None when ``target.use_depth`` is False.
     intrinsics : object with ``K`` (3, 3) and ``dist`` (OpenCV coefficients)
-        E.g. `drivers.camera.base.CameraIntrinsics`.
+        E.g. `handeye.drivers.camera.base.CameraIntrinsics`.
     target : TargetConfig
 
     Returns

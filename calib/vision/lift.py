@@ -12,7 +12,7 @@ noise (``sigma_z ~ z^2``, i.e. constant in disparity ~ ``1/z``) makes the
 weights almost uniform. The center's ray then meets the plane at
 ``z_c = 1 / (a x_c + b y_c + c)``.
 
-Covariance convention (as `calib.result`): a pose perturbation is the
+Covariance convention (as `handeye.calib.result`): a pose perturbation is the
 6-vector ``[delta_rotvec (rad), delta_t (m)]`` with
 ``R_true = Exp(delta_rotvec) @ R_est`` and ``t_true = t_est + delta_t``.
 """
@@ -26,9 +26,9 @@ import cv2
 import numpy as np
 from pydantic import ConfigDict, Field, model_validator
 
-from calib import transforms as tf
-from calib.errors import DepthError, MarkerNotFoundError
-from calib.params import Float, NonNegativeFloat, Params
+from handeye.calib import transforms as tf
+from handeye.calib.errors import DepthError, MarkerNotFoundError
+from handeye.calib.params import Float, NonNegativeFloat, Params
 
 
 def _rotvec_to_matrix(rv) -> np.ndarray:

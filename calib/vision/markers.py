@@ -3,7 +3,7 @@
 Pure functions over images (numpy arrays); no device I/O. Every detector
 returns subpixel image corners together with the matching 3D points in the
 target's own frame (metres, target plane ``z = 0``), so that one PnP / depth
-lifting path (`calib.vision.lift`) serves all target kinds.
+lifting path (`handeye.calib.vision.lift`) serves all target kinds.
 
 Target frames follow OpenCV: a marker's origin is its center, x to the right,
 y up on the printed bitmap, z out of the face towards the viewer; corners are
@@ -22,8 +22,8 @@ import cv2
 import numpy as np
 from pydantic import ConfigDict, Field, model_validator
 
-from calib.errors import MarkerNotFoundError, ParameterError
-from calib.params import Int, NonNegativeFloat, Params, PositiveFloat, Str
+from handeye.calib.errors import MarkerNotFoundError, ParameterError
+from handeye.calib.params import Int, NonNegativeFloat, Params, PositiveFloat, Str
 
 
 @dataclass(frozen=True)

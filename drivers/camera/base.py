@@ -8,7 +8,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from drivers.device import Device
+from handeye.drivers.device import Device
 
 
 @dataclass(frozen=True)

@@ -1,6 +1,6 @@
 """Depth images: 16-bit millimetres (OpenNI2 streams, recorded sequences, session frames) <-> float32 metres.
 
-`drivers.camera.base.RGBDFrame.depth` is float32 metres with 0 where the
+`handeye.drivers.camera.base.RGBDFrame.depth` is float32 metres with 0 where the
 sensor has no reading; on the wire and on disk depth is a 16-bit
 single-channel image with one count per millimetre (OpenNI2's
 ``PIXEL_FORMAT_DEPTH_1_MM``), 0 likewise meaning no reading, so at most

@@ -22,9 +22,9 @@ from pathlib import Path
 import yaml
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator
 
-from calib.errors import ParameterError
-from calib.params import Float, PinholeParams, PositiveInt, describe
-from drivers.camera.base import CameraIntrinsics
+from handeye.calib.errors import ParameterError
+from handeye.calib.params import Float, PinholeParams, PositiveInt, describe
+from handeye.drivers.camera.base import CameraIntrinsics
 
 #: Lengths of the OpenCV distortion vectors (k1 k2 p1 p2 [k3 [k4 k5 k6 [s1..s4 [tx ty]]]]).
 DIST_LENGTHS = (4, 5, 8, 12, 14)

@@ -25,13 +25,13 @@ from pathlib import Path
 import numpy as np
 from pydantic import field_validator
 
-from calib.errors import ParameterError
-from calib.params import Bool, Params, PositiveFloat, PositiveInt, Str
-from drivers.errors import ConnectionLostError, DeviceError
-from drivers.camera.base import Camera, CameraIntrinsics, RGBDFrame
-from drivers.camera.depth import depth_from_mm
-from drivers.camera.registry import CAMERAS
-from drivers.camera.intrinsics import load_intrinsics
+from handeye.calib.errors import ParameterError
+from handeye.calib.params import Bool, Params, PositiveFloat, PositiveInt, Str
+from handeye.drivers.errors import ConnectionLostError, DeviceError
+from handeye.drivers.camera.base import Camera, CameraIntrinsics, RGBDFrame
+from handeye.drivers.camera.depth import depth_from_mm
+from handeye.drivers.camera.registry import CAMERAS
+from handeye.drivers.camera.intrinsics import load_intrinsics
 
 log = logging.getLogger(__name__)
 
@@ -59,7 +59,7 @@ class OpenNI2CameraConfig(Params):
     max_skew_ms : float
         Largest accepted device-timestamp difference between the paired frames.
     intrinsics_file : str
-        YAML with the color intrinsics (`drivers.camera.intrinsics`); ``""``
+        YAML with the color intrinsics (`handeye.drivers.camera.intrinsics`); ``""``
         derives a distortion-free pinhole from the device's field of view.
     library_dir : str
         Directory of ``libOpenNI2.so`` (or ``.so.0``) with its ``OpenNI2/Drivers``;

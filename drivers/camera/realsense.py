@@ -16,7 +16,7 @@ without root). What the backend does with the device:
   ``global_time_enabled``), the clock `Robot.pose_at` takes; a frame in
   another domain gets the host time at arrival (``meta["timestamp_domain"]``).
 
-Typed errors (`drivers.errors`): no device attached, no device with the
+Typed errors (`handeye.drivers.errors`): no device attached, no device with the
 serial (the ones attached are listed), a USB 2 link (D400 depth + colour at
 640x480@30 needs USB 3; ``allow_usb2`` accepts it), a frame that does not
 arrive within ``timeout_s`` (`ConnectionLostError`: an outage).
@@ -40,10 +40,10 @@ from typing import Literal
 import numpy as np
 from pydantic import field_validator
 
-from calib.params import Bool, Params, PositiveFloat, PositiveInt, Str
-from drivers.camera.base import Camera, CameraIntrinsics, RGBDFrame
-from drivers.camera.registry import CAMERAS
-from drivers.errors import ConnectionLostError, DeviceError
+from handeye.calib.params import Bool, Params, PositiveFloat, PositiveInt, Str
+from handeye.drivers.camera.base import Camera, CameraIntrinsics, RGBDFrame
+from handeye.drivers.camera.registry import CAMERAS
+from handeye.drivers.errors import ConnectionLostError, DeviceError
 
 log = logging.getLogger(__name__)
 

@@ -3,7 +3,7 @@
 ``[camera] backend = "ros2"``. In a production cell the camera belongs to the
 vision software, and a RealSense, an Orbbec or a Zivid opens for one process
 at a time; its ROS 2 driver publishes what handeye needs, so handeye
-subscribes (`drivers.ros2`: rclpy, imported at connect) to:
+subscribes (`handeye.drivers.ros2`: rclpy, imported at connect) to:
 
 - the colour image (``color_topic``: ``sensor_msgs/Image``, or
   ``sensor_msgs/CompressedImage`` when the name ends in ``/compressed``);
@@ -14,20 +14,20 @@ subscribes (`drivers.ros2`: rclpy, imported at connect) to:
 
 The defaults are realsense2_camera's (4.54 on: ``/camera/camera/...``; older
 versions publish ``/camera/...``). Images are decoded as the bag importer
-decodes them (`drivers.camera.ros_messages`), and only for the frames `read`
+decodes them (`handeye.drivers.camera.ros_messages`), and only for the frames `read`
 returns: the callbacks keep the newest ``queue_size`` messages per topic
 (memory bounded however fast a publisher floods). `read` pairs the newest
 colour image not yet returned with the depth image nearest its stamp (within
 ``max_skew_s``); the frame time is the colour image's header stamp, at which
 the robot's poses are interpolated.
 
-Typed errors (`drivers.errors`; in ``monitor`` each is an outage, ridden out
+Typed errors (`handeye.drivers.errors`; in ``monitor`` each is an outage, ridden out
 by reconnecting): no publisher on a topic, nothing within ``timeout_s``
 (`ConnectionLostError`); depth that is not registered to the colour image
 (another ``frame_id`` or size); colour and depth stamps that never pair; a
 stamp further than ``max_clock_offset_s`` from this host's clock (another
 clock, ``use_sim_time``). A message whose stamp is not after the previous
-one's on its topic is a logged skip (`drivers.ros2.SkipLog`).
+one's on its topic is a logged skip (`handeye.drivers.ros2.SkipLog`).
 """
 
 from __future__ import annotations
@@ -43,12 +43,12 @@ import cv2
 import numpy as np
 from pydantic import Field
 
-from calib.params import Int, Params, PositiveFloat
-from drivers.camera.base import Camera, CameraIntrinsics, RGBDFrame
-from drivers.camera.registry import CAMERAS
-from drivers.camera.ros_messages import MAX_SKEW_S, camera_intrinsics, color_image, depth_image
-from drivers.errors import ConnectionLostError, DeviceError
-from drivers.ros2 import NodeDevice, NodeName, SkipLog, TopicName, messages, stamp_seconds
+from handeye.calib.params import Int, Params, PositiveFloat
+from handeye.drivers.camera.base import Camera, CameraIntrinsics, RGBDFrame
+from handeye.drivers.camera.registry import CAMERAS
+from handeye.drivers.camera.ros_messages import MAX_SKEW_S, camera_intrinsics, color_image, depth_image
+from handeye.drivers.errors import ConnectionLostError, DeviceError
+from handeye.drivers.ros2 import NodeDevice, NodeName, SkipLog, TopicName, messages, stamp_seconds
 
 log = logging.getLogger(__name__)
 

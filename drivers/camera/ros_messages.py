@@ -1,8 +1,8 @@
 """``sensor_msgs`` images and camera info -> arrays and `CameraIntrinsics`, for every ROS 2 source.
 
 One reading of ROS 2's image messages, shared by the live camera
-(`drivers.camera.ros2`, rclpy messages) and the bag importer
-(`app.formats.ros2_bag`, rosbags' messages): both have the same fields, and
+(`handeye.drivers.camera.ros2`, rclpy messages) and the bag importer
+(`handeye.app.formats.ros2_bag`, rosbags' messages): both have the same fields, and
 nothing here imports either library.
 
 - ``sensor_msgs/Image`` colour: ``bgr8 rgb8 bgra8 rgba8 mono8`` -> BGR (or gray) uint8;
@@ -14,7 +14,7 @@ nothing here imports either library.
   ``rational_polynomial`` (8) model, OpenCV's coefficient order.
 
 Each function raises the error class it is given (``error``: the importer's
-`app.errors.SessionError`, the camera's `drivers.errors.DeviceError`) with
+`handeye.app.errors.SessionError`, the camera's `handeye.drivers.errors.DeviceError`) with
 ``where`` (topic and message) in front of what is wrong.
 """
 
@@ -25,7 +25,7 @@ from types import SimpleNamespace
 import cv2
 import numpy as np
 
-from drivers.camera.base import CameraIntrinsics
+from handeye.drivers.camera.base import CameraIntrinsics
 
 #: Largest image side (px).
 MAX_IMAGE_SIDE = 16384

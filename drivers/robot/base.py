@@ -16,8 +16,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from drivers.device import Device
-from drivers.errors import DeviceError
+from handeye.drivers.device import Device
+from handeye.drivers.errors import DeviceError
 
 
 @dataclass(frozen=True)
@@ -91,14 +91,14 @@ class KinematicModel(abc.ABC):
 
     def shared_error_factor(self, q) -> np.ndarray | None:
         """The flange-pose error all samples at joints ``q`` (N, 6) share (the parameters' error), as
-        `calib.auto.solve_auto`'s ``robot_shared_error`` factor (N, 6, P); None: the model has none."""
+        `handeye.calib.auto.solve_auto`'s ``robot_shared_error`` factor (N, 6, P); None: the model has none."""
         return None
 
 
 class Robot(Device):
     """A robot arm. Use as a context manager: ``with ROBOTS.create(cfg) as robot: ...``.
 
-    ``config`` is the backend's config model (registered with it in `drivers.robot.registry.ROBOTS`).
+    ``config`` is the backend's config model (registered with it in `handeye.drivers.robot.registry.ROBOTS`).
     """
 
     config: object

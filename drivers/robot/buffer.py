@@ -14,8 +14,8 @@ import threading
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from drivers.errors import DeviceError, PoseTimeError
-from drivers.robot.base import RobotState
+from handeye.drivers.errors import DeviceError, PoseTimeError
+from handeye.drivers.robot.base import RobotState
 
 
 class ClockMapper:

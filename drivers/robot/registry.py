@@ -1,15 +1,15 @@
 """The robot backends by name (``[robot] type``): ``ROBOTS.create(config)`` builds one.
 
 Backends register with ``@ROBOTS.register(name, ConfigClass)`` on their robot
-class (`drivers.robot.ur`: ``"ur"``; the simulator `mocks.ur_sim.robot`:
+class (`handeye.drivers.robot.ur`: ``"ur"``; the simulator `handeye.mocks.ur_sim.robot`:
 ``"ur_sim"``). A table without ``type`` means ``"ur"``. `robot_limits` and
 `kinematic_model` answer from a config alone, without building a driver.
 """
 
 from __future__ import annotations
 
-from drivers.registry import Registry
-from drivers.robot.base import KinematicModel, RobotLimits
+from handeye.drivers.registry import Registry
+from handeye.drivers.robot.base import KinematicModel, RobotLimits
 
 ROBOTS = Registry("robot", "type", default="ur")
 

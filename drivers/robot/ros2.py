@@ -1,7 +1,7 @@
 """A UR arm read from ROS 2 topics, read-only, beside ``ur_robot_driver`` (``[robot] type = "ros2"``).
 
 In a cell that runs ROS 2, ``ur_robot_driver`` owns the controller's External
-Control program and publishes what handeye reads here (`drivers.ros2`:
+Control program and publishes what handeye reads here (`handeye.drivers.ros2`:
 rclpy, imported at connect):
 
 - ``source = "pose"`` (default): the flange pose from the TCP pose
@@ -11,14 +11,14 @@ rclpy, imported at connect):
   pendant's active TCP; its zero is the flange, ROS's ``tool0``); the joints
   from ``/joint_states``;
 - ``source = "joints"``: the flange pose from ``/joint_states`` through the UR
-  kinematics (`drivers.robot.ur_kinematics`, nominal DH of ``model``).
+  kinematics (`handeye.drivers.robot.ur_kinematics`, nominal DH of ``model``).
 
 Either way every state carries the joints and their speeds (``velocity``, or
 the difference of two positions when a publisher leaves it empty), and the
-robot stands still as `drivers.robot.base.RobotState.is_still` says for the RTDE
+robot stands still as `handeye.drivers.robot.base.RobotState.is_still` says for the RTDE
 driver (every joint slower than 1e-3 rad/s). States are stamped with the
 messages' header stamps (ROS time = the host's ``time.time()`` clock) into the
-pose buffer `pose_at` interpolates (`drivers.robot.buffer.StateBuffer`); a
+pose buffer `pose_at` interpolates (`handeye.drivers.robot.buffer.StateBuffer`); a
 message whose stamp is not after the previous one's is a logged skip.
 
 Read-only: `move_to`, `stop` and `check_target` refuse (``calibrate`` moves a
@@ -39,15 +39,15 @@ from typing import Literal
 import numpy as np
 from pydantic import field_validator, model_validator
 
-from calib.params import Params, PositiveFloat, Str, Vector6
-from calib.transforms import from_ur_pose, from_xyz_quat, invert
-from drivers.errors import ConnectionLostError, DeviceError, LimitViolationError
-from drivers.robot import ur_kinematics as kin
-from drivers.robot.base import Robot, RobotLimits, RobotState
-from drivers.robot.buffer import StateBuffer
-from drivers.robot.registry import ROBOTS
-from drivers.robot.ur import URKinematicError, URKinematics
-from drivers.ros2 import NodeDevice, NodeName, SkipLog, TopicName, messages, stamp_seconds
+from handeye.calib.params import Params, PositiveFloat, Str, Vector6
+from handeye.calib.transforms import from_ur_pose, from_xyz_quat, invert
+from handeye.drivers.errors import ConnectionLostError, DeviceError, LimitViolationError
+from handeye.drivers.robot import ur_kinematics as kin
+from handeye.drivers.robot.base import Robot, RobotLimits, RobotState
+from handeye.drivers.robot.buffer import StateBuffer
+from handeye.drivers.robot.registry import ROBOTS
+from handeye.drivers.robot.ur import URKinematicError, URKinematics
+from handeye.drivers.ros2 import NodeDevice, NodeName, SkipLog, TopicName, messages, stamp_seconds
 
 log = logging.getLogger(__name__)
 

@@ -7,7 +7,7 @@ moveL / moveJ after checking every target, and the path to it, against the
 configured workspace box, tilt cone and joint limits.
 
 Which kinematics checks the limits: this module's own UR kinematics
-(`drivers.robot.ur_kinematics`, nominal DH parameters) — nothing is sent to
+(`handeye.drivers.robot.ur_kinematics`, nominal DH parameters) — nothing is sent to
 the controller before a target passed, not even an IK query. A real robot's
 factory calibration shifts the flange by a few mm against the nominal model;
 that is far inside any sensible safety margin, and the pose used for
@@ -18,7 +18,7 @@ The TCP offset comes from the control interface (``getTCPOffset()``). ur_rtde
 (which never opens the control interface) it must be configured
 (``tcp_offset``), or `connect` fails.
 
-ur_rtde itself runs in a child process (`drivers.robot.ur_client`, which says
+ur_rtde itself runs in a child process (`handeye.drivers.robot.ur_client`, which says
 why): this module sees states and call results, never a ur_rtde object.
 """
 
@@ -35,16 +35,16 @@ from typing import Annotated, Literal
 import numpy as np
 from pydantic import Field, field_validator, model_validator
 
-from calib.errors import ParameterError
-from calib.params import Bool, Float, NonEmptyStr, Params, PositiveFloat, Str, Vector3, Vector6
-from drivers.errors import ConnectionLostError, DeviceError, LimitViolationError, RobotStoppedError
-from calib.robot_error import UR_ALPHA, ur_dh_error_factor
-from calib.transforms import from_ur_pose, invert, pose_error, to_ur_pose
-from drivers.robot import ur_kinematics as kin
-from drivers.robot.base import KinematicModel, Robot, RobotLimits, RobotState
-from drivers.robot.registry import ROBOTS
-from drivers.robot.buffer import ClockMapper, StateBuffer, pose_path
-from drivers.robot.ur_client import ClientDied, RTDEClient
+from handeye.calib.errors import ParameterError
+from handeye.calib.params import Bool, Float, NonEmptyStr, Params, PositiveFloat, Str, Vector3, Vector6
+from handeye.drivers.errors import ConnectionLostError, DeviceError, LimitViolationError, RobotStoppedError
+from handeye.calib.robot_error import UR_ALPHA, ur_dh_error_factor
+from handeye.calib.transforms import from_ur_pose, invert, pose_error, to_ur_pose
+from handeye.drivers.robot import ur_kinematics as kin
+from handeye.drivers.robot.base import KinematicModel, Robot, RobotLimits, RobotState
+from handeye.drivers.robot.registry import ROBOTS
+from handeye.drivers.robot.buffer import ClockMapper, StateBuffer, pose_path
+from handeye.drivers.robot.ur_client import ClientDied, RTDEClient
 
 log = logging.getLogger(__name__)
 
@@ -93,7 +93,7 @@ class URKinematicError(Params):
 
 
 class URRobotConfig(Params):
-    """Configuration of a UR arm reached over RTDE (real robot or ``mocks.ur_sim``).
+    """Configuration of a UR arm reached over RTDE (real robot or ``handeye.mocks.ur_sim``).
 
     Units: SI (m, s, rad) except ``max_tilt_deg`` (degrees, labelled).
 
@@ -184,7 +184,7 @@ class URRobotConfig(Params):
     connect_timeout: PositiveFloat = 5.0
     move_timeout: PositiveFloat = 60.0
     buffer_seconds: PositiveFloat = 5.0
-    # Finer than 1 mm (1 mrad) only costs time (docs/benchmarks-history.md, drivers.robot.ur); coarser
+    # Finer than 1 mm (1 mrad) only costs time (docs/benchmarks-history.md, handeye.drivers.robot.ur); coarser
     # than 5 cm could step over a limit or a singular region between two checks.
     path_step: Annotated[Float, Field(ge=1e-3, le=0.05)] = 0.01
     kinematic_error: URKinematicError | None = None
@@ -248,7 +248,7 @@ def _ur_pose_text(pose) -> str:
 
 @dataclass(frozen=True)
 class URKinematics(KinematicModel):
-    """A UR model's nominal kinematics (`drivers.robot.ur_kinematics`) and the 1-sigma of its DH parameters.
+    """A UR model's nominal kinematics (`handeye.drivers.robot.ur_kinematics`) and the 1-sigma of its DH parameters.
 
     Attributes
     ----------
@@ -269,7 +269,7 @@ class URKinematics(KinematicModel):
 
     def shared_error_factor(self, q) -> np.ndarray | None:
         """The flange-pose error of joints ``q`` (N, 6) that ``kinematic_error`` causes: the factor
-        (N, 6, 24) of `calib.auto.solve_auto`'s ``robot_shared_error``; None when not configured."""
+        (N, 6, 24) of `handeye.calib.auto.solve_auto`'s ``robot_shared_error``; None when not configured."""
         err = self.kinematic_error
         if err is None:
             return None
@@ -423,7 +423,7 @@ class URRobot(Robot):
         """Stop the control script and close both interfaces (idempotent).
 
         On a stale or dropped stream the client process is killed instead:
-        see `drivers.robot.ur_client` for why no ur_rtde teardown may run then.
+        see `handeye.drivers.robot.ur_client` for why no ur_rtde teardown may run then.
         """
         self._close_interfaces()
 

@@ -1,4 +1,4 @@
-"""The RTDE client process: the only place where ur_rtde runs (see `drivers.robot.ur`).
+"""The RTDE client process: the only place where ur_rtde runs (see `handeye.drivers.robot.ur`).
 
 Why a separate process. ur_rtde 1.6.5's ``RTDEControlInterface`` repairs
 itself from its own receive thread: when a read waits 2.5 s without data (a
@@ -31,7 +31,7 @@ Parent -> child: ``("call", id, name, args)`` with a name from `CALLS`,
 ``("close",)``.
 
 This module imports nothing from the project at module level, so that
-``python -m drivers.robot.ur_client`` starts fast.
+``python -m handeye.drivers.robot.ur_client`` starts fast.
 """
 
 from __future__ import annotations
@@ -203,7 +203,7 @@ class RTDEClient:
         ours, theirs = socket.socketpair()
         try:
             self.proc = subprocess.Popen(
-                [sys.executable, "-m", "drivers.robot.ur_client", str(theirs.fileno()), self._spec],
+                [sys.executable, "-m", "handeye.drivers.robot.ur_client", str(theirs.fileno()), self._spec],
                 pass_fds=(theirs.fileno(),), stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL,
                 stderr=subprocess.PIPE, text=True, start_new_session=True)
         finally:

@@ -2,7 +2,7 @@
 
 Pure numpy, no I/O: the UR driver uses it to check joint limits and the path
 of a motion *before* anything is sent, and the simulated controller
-(``mocks.ur_sim``) uses it to move. Poses are ``T_base_flange`` (4x4, m): the
+(``handeye.mocks.ur_sim``) uses it to move. Poses are ``T_base_flange`` (4x4, m): the
 flange (tool0) in the robot base frame, TCP offset NOT included.
 
 The DH parameters are Universal Robots' published nominal values (standard
@@ -23,9 +23,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from calib.errors import ParameterError
-from calib.robot_error import UR10_DH, UR_ALPHA, ur_forward
-from drivers.errors import DeviceError
+from handeye.calib.errors import ParameterError
+from handeye.calib.robot_error import UR10_DH, UR_ALPHA, ur_forward
+from handeye.drivers.errors import DeviceError
 
 _ALPHA_T = tuple(UR_ALPHA.tolist())
 
@@ -51,7 +51,7 @@ class URGeometry:
 
     @classmethod
     def from_dh(cls, dh: dict) -> "URGeometry":
-        """The lengths of a standard-DH table (``d``, ``a`` (6,) each, as `calib.robot_error.UR10_DH`)."""
+        """The lengths of a standard-DH table (``d``, ``a`` (6,) each, as `handeye.calib.robot_error.UR10_DH`)."""
         d, a = dh["d"], dh["a"]
         return cls(float(d[0]), float(a[1]), float(a[2]), float(d[3]), float(d[4]), float(d[5]))
 
@@ -116,7 +116,7 @@ def forward_one(q, model: str | URGeometry) -> np.ndarray:
 
 # Scalar affine algebra on row-major 3x4 tuples (the top rows of a 4x4 transform): the IK runs
 # at every control tick of the simulator and at every sample of a path check, where numpy's
-# per-call overhead on 4x4 arrays outweighs the arithmetic (docs/benchmarks-history.md, drivers.robot.ur_kinematics).
+# per-call overhead on 4x4 arrays outweighs the arithmetic (docs/benchmarks-history.md, handeye.drivers.robot.ur_kinematics).
 def _dh1(theta: float, d: float, a: float, alpha: float) -> tuple:
     ct, st = math.cos(theta), math.sin(theta)
     ca, sa = math.cos(alpha), math.sin(alpha)

@@ -10,7 +10,7 @@ mounting the calibration should recover:
 
 Every ``read()`` asks ``flange_pose_source()`` for the current
 ``T_base_flange`` (the app wires it to the robot driver), renders there with
-`mocks.render.scene.MarkerSceneRenderer`, and puts the truth
+`handeye.mocks.render.scene.MarkerSceneRenderer`, and puts the truth
 (``T_cam_marker``, ``point_cam``, ``T_base_flange``, ``X``, ``Y``, ``setup``)
 in ``RGBDFrame.truth``.
 
@@ -30,16 +30,16 @@ import numpy as np
 from pydantic import Field, field_validator, model_validator
 from scipy.spatial.transform import Rotation
 
-from calib import transforms as tf
-from calib.errors import CalibrationError, ParameterError
-from drivers.errors import DeviceError
-from calib.params import (Bool, Float, Int, NonNegativeFloat, NonNegativeInt, Params, PositiveFloat, PositiveInt, Str,
+from handeye.calib import transforms as tf
+from handeye.calib.errors import CalibrationError, ParameterError
+from handeye.drivers.errors import DeviceError
+from handeye.calib.params import (Bool, Float, Int, NonNegativeFloat, NonNegativeInt, Params, PositiveFloat, PositiveInt, Str,
                           Transform, Vector3)
-from calib.setup import Setup
-from calib.vision.markers import get_dictionary
-from drivers.camera.registry import CAMERAS
-from drivers.camera.base import Camera, CameraIntrinsics, RGBDFrame
-from mocks.render.scene import MarkerSceneRenderer, RenderNoise
+from handeye.calib.setup import Setup
+from handeye.calib.vision.markers import get_dictionary
+from handeye.drivers.camera.registry import CAMERAS
+from handeye.drivers.camera.base import Camera, CameraIntrinsics, RGBDFrame
+from handeye.mocks.render.scene import MarkerSceneRenderer, RenderNoise
 
 
 def _look_at(eye, target, up=(0.0, 0.0, 1.0)) -> np.ndarray:
@@ -51,7 +51,7 @@ def _look_at(eye, target, up=(0.0, 0.0, 1.0)) -> np.ndarray:
     return tf.make_transform(np.column_stack([x, np.cross(z, x), z]), eye)
 
 
-# Default cell = calib.simulate.realistic_cell: flange start 0.9 m in front of the
+# Default cell = handeye.calib.simulate.realistic_cell: flange start 0.9 m in front of the
 # base, camera 0.7 m to the side and above, looking at it.
 _P0 = np.array([0.9, 0.1, 0.5])
 _DEFAULT_T_BASE_CAM = _look_at(_P0 + [-0.2, -0.7, 0.35], _P0)
@@ -176,7 +176,7 @@ class RenderedCameraConfig(Params):
     width, height, fx, fy, cx, cy
         Pinhole intrinsics (Xtion-like VGA by default), no distortion.
     noise : RenderNoise
-        Sensor model; see `mocks.render.scene.RenderNoise`.
+        Sensor model; see `handeye.mocks.render.scene.RenderNoise`.
     seed : int
         Seed of the per-frame noise.
     draw_flange, draw_floor : bool

@@ -24,10 +24,10 @@ import cv2
 import numpy as np
 from pydantic import AfterValidator, Field, field_validator
 
-from calib import transforms as tf
-from calib.errors import ParameterError
-from calib.params import Float, NonNegativeFloat, Params, PositiveFloat
-from calib.vision.markers import get_dictionary
+from handeye.calib import transforms as tf
+from handeye.calib.errors import ParameterError
+from handeye.calib.params import Float, NonNegativeFloat, Params, PositiveFloat
+from handeye.calib.vision.markers import get_dictionary
 
 if TYPE_CHECKING:
     import open3d as o3d
@@ -61,7 +61,7 @@ class RenderNoise(Params):
     depth_scale, depth_offset_m : float
         Fixed systematic error of the sensor, ``z -> (1 + depth_scale) z + depth_offset_m``
         before the disparity (an uncorrected structured-light camera: 1-2%, a few mm;
-        the ``realistic`` demo config, `calib.model.CameraCorrection`).
+        the ``realistic`` demo config, `handeye.calib.model.CameraCorrection`).
     edge_jump_m : float
         Depth jump between neighbours that leaves a hole, m.
     dropout : float

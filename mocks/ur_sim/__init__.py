@@ -2,9 +2,9 @@
 
 Run it in the foreground (until SIGINT/SIGTERM)::
 
-    python -m mocks.ur_sim --host 127.0.0.2 --model ur10 --controller 5.11
+    python -m handeye.mocks.ur_sim --host 127.0.0.2 --model ur10 --controller 5.11
 
-and point the UR driver (``drivers.robot.ur.URRobot``) or any ur_rtde client
+and point the UR driver (``handeye.drivers.robot.ur.URRobot``) or any ur_rtde client
 at ``127.0.0.2``. It has to be a separate process: ur_rtde's constructors
 hold the GIL while they wait for the controller's answers.
 
@@ -14,7 +14,7 @@ the ports accept connections::
     with launch("127.0.0.2", model="ur10", controller="5.11") as sim:
         ...                       # drive it with ur_rtde / URRobot
         sim.state()["T_base_flange"]   # ground truth
-        sim.protective_stop()     # fault injection, see mocks.ur_sim.server
+        sim.protective_stop()     # fault injection, see handeye.mocks.ur_sim.server
 """
 
 from __future__ import annotations
@@ -35,7 +35,7 @@ from pathlib import Path
 
 import numpy as np
 
-from drivers.errors import DeviceError
+from handeye.drivers.errors import DeviceError
 
 __all__ = ["main", "add_arguments", "run", "launch", "SimProcess", "PortsTakenError", "dashboard"]
 
@@ -46,7 +46,7 @@ class PortsTakenError(DeviceError):
 
 def main(argv: list[str] | None = None) -> int:
     """Command line entry: run one simulated controller in the foreground; returns the exit code."""
-    ap = argparse.ArgumentParser(prog="python -m mocks.ur_sim", description=__doc__.splitlines()[0])
+    ap = argparse.ArgumentParser(prog="python -m handeye.mocks.ur_sim", description=__doc__.splitlines()[0])
     add_arguments(ap)
     ap.add_argument("-v", "--verbose", action="store_true")
     return run(ap.parse_args(argv))
@@ -62,8 +62,8 @@ def add_arguments(ap: argparse.ArgumentParser) -> None:
                     help="active TCP in the flange frame: x y z (m) rx ry rz (rad)")
     ap.add_argument("--robot-error", metavar="JSON",
                     help="the arm's true kinematics differ from the nominal ones "
-                    "(JSON of mocks.ur_sim.truth.SimRobotError)")
-    ap.add_argument("--program", help="JSON file: a looping production program to run (mocks.ur_sim.program)")
+                    "(JSON of handeye.mocks.ur_sim.truth.SimRobotError)")
+    ap.add_argument("--program", help="JSON file: a looping production program to run (handeye.mocks.ur_sim.program)")
     ap.add_argument("--parent-pid", type=int, metavar="PID",
                     help="stop as soon as this process is no longer our parent (it died); SIGINT is then "
                     "ignored (the parent stops the simulator with SIGTERM)")
@@ -72,14 +72,14 @@ def add_arguments(ap: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     """Run one simulated controller in the foreground with the options of `add_arguments` (and ``verbose``)
     until SIGINT or SIGTERM; returns the exit code."""
-    from mocks.ur_sim.controller import SimController
-    from mocks.ur_sim.server import SimServer
+    from handeye.mocks.ur_sim.controller import SimController
+    from handeye.mocks.ur_sim.server import SimServer
 
     logging.basicConfig(level=logging.INFO if args.verbose else logging.WARNING, format="ur_sim: %(message)s")
     try:
         robot_error = None
         if args.robot_error:
-            from mocks.ur_sim.truth import SimRobotError
+            from handeye.mocks.ur_sim.truth import SimRobotError
 
             robot_error = SimRobotError.model_validate(json.loads(args.robot_error))
         ctl = SimController(args.model, args.controller, args.initial_q, args.tcp_offset, robot_error)
@@ -87,7 +87,7 @@ def run(args: argparse.Namespace) -> int:
         print(f"ur_sim: {exc}", file=sys.stderr)
         return 2
     if args.program:
-        from mocks.ur_sim.program import Program
+        from handeye.mocks.ur_sim.program import Program
 
         try:
             with open(args.program) as f:
@@ -197,7 +197,7 @@ class SimProcess:
         self.command("sim set_q " + " ".join(f"{x:.12g}" for x in q))
 
     def start_program(self, program: dict) -> None:
-        """Run a looping production program (JSON form of `mocks.ur_sim.program`) until `stop_program`."""
+        """Run a looping production program (JSON form of `handeye.mocks.ur_sim.program`) until `stop_program`."""
         reply = self.command("sim program " + json.dumps(program))
         if reply != "ok":
             raise DeviceError(f"simulated controller refused the production program: {reply}")
@@ -224,6 +224,34 @@ class SimProcess:
         return False
 
 
+def ports_free(host: str) -> bool:
+    """Whether the simulator's ports (`handeye.mocks.ur_sim.server`'s dashboard, script and RTDE) can be
+    bound on ``host`` now."""
+    from handeye.mocks.ur_sim.server import PORT_DASHBOARD, PORT_RTDE, PORT_SCRIPT
+
+    for port in (PORT_DASHBOARD, PORT_SCRIPT, PORT_RTDE):
+        with socket.socket() as s:
+            try:
+                s.bind((host, port))
+            except OSError:
+                return False
+    return True
+
+
+def free_loopback(taken: str, tries: int = 64) -> str | None:
+    """A loopback address other than ``taken`` whose simulator ports are free, or None.
+
+    The candidates start in a /24 derived from this process's pid, so two runs started at once look in
+    different places first instead of racing for the same next address."""
+    pid = os.getpid()
+    for k in range(tries):
+        n = pid + 7919 * k
+        host = f"127.{(n >> 16) % 250 + 1}.{(n >> 8) % 256}.{n % 250 + 2}"
+        if host != taken and ports_free(host):
+            return host
+    return None
+
+
 def ports_holder(host: str) -> str:
     """Who holds the simulator's ports on ``host``: the run that launched a simulator there (its pid and command
     line), a simulator started by hand, or another program."""
@@ -248,9 +276,9 @@ def ports_holder(host: str) -> str:
 
 def launch(host: str = "127.0.0.1", model: str = "ur10", controller: str = "5.11", initial_q=None,
            tcp_offset=None, timeout: float = 15.0, robot_error: dict | None = None) -> SimProcess:
-    """Start ``python -m mocks.ur_sim`` and wait until its ports accept connections.
+    """Start ``python -m handeye.mocks.ur_sim`` and wait until its ports accept connections.
 
-    ``robot_error``: fields of `mocks.ur_sim.truth.SimRobotError` (true DH parameters off the nominal ones,
+    ``robot_error``: fields of `handeye.mocks.ur_sim.truth.SimRobotError` (true DH parameters off the nominal ones,
     repeatability); None: the arm is exactly its nominal model.
 
     Raises
@@ -263,7 +291,7 @@ def launch(host: str = "127.0.0.1", model: str = "ur10", controller: str = "5.11
     # The simulator watches this process (--parent-pid) and stops when it dies, even by SIGKILL.
     # Not PR_SET_PDEATHSIG: that fires when the launching *thread* exits (one signal per thread of
     # a dying many-threaded parent), and a preexec_fn may deadlock a forking many-threaded parent.
-    cmd = [sys.executable, "-m", "mocks.ur_sim", "--host", host, "--model", model, "--controller", controller,
+    cmd = [sys.executable, "-m", "handeye.mocks.ur_sim", "--host", host, "--model", model, "--controller", controller,
            "--parent-pid", str(os.getpid())]
     if initial_q is not None:
         cmd += ["--initial-q", *[f"{x:.12g}" for x in initial_q]]

@@ -1,7 +1,7 @@
-"""``python -m mocks.ur_sim --host 127.0.0.x [--model ur10] [--controller 5.11]``."""
+"""``python -m handeye.mocks.ur_sim --host 127.0.0.x [--model ur10] [--controller 5.11]``."""
 
 import sys
 
-from mocks.ur_sim import main
+from handeye.mocks.ur_sim import main
 
 sys.exit(main())

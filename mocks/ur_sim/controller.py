@@ -1,6 +1,6 @@
 """State of the simulated UR controller: arm, safety, registers, script protocol.
 
-No sockets here (see `mocks.ur_sim.server`). The server calls `tick` once per
+No sockets here (see `handeye.mocks.ur_sim.server`). The server calls `tick` once per
 control cycle (125 Hz CB3, 500 Hz e-Series) and reads `snapshot` values for
 the RTDE output recipes; the RTDE input packages of the clients land in the
 input registers via `write_inputs`.
@@ -26,10 +26,10 @@ from enum import IntEnum
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from calib.transforms import from_ur_pose, invert, to_ur_pose
-from drivers.robot import ur_kinematics as kin
-from mocks.ur_sim.motion import BrakeMotion, JointMotion, LinearMotion
-from mocks.ur_sim.truth import SimRobotError, TrueArm
+from handeye.calib.transforms import from_ur_pose, invert, to_ur_pose
+from handeye.drivers.robot import ur_kinematics as kin
+from handeye.mocks.ur_sim.motion import BrakeMotion, JointMotion, LinearMotion
+from handeye.mocks.ur_sim.truth import SimRobotError, TrueArm
 
 # UR enumerations (RTDE guide).
 ROBOT_MODE_RUNNING = 7
@@ -102,7 +102,7 @@ class SimController:
     Parameters
     ----------
     model : str
-        UR model name (``ur10``, ``ur5e`` ...), see `drivers.robot.ur_kinematics.UR_MODELS`.
+        UR model name (``ur10``, ``ur5e`` ...), see `handeye.drivers.robot.ur_kinematics.UR_MODELS`.
     controller : str
         PolyScope version, e.g. ``"5.11"`` (e-Series, 500 Hz) or ``"3.15"`` (CB3, 125 Hz).
     initial_q : array_like, shape (6,)
@@ -111,7 +111,7 @@ class SimController:
         Active TCP as a UR pose ``[x, y, z, rx, ry, rz]`` in the flange frame (m, rad).
     robot_error : SimRobotError, optional
         The arm's true kinematics differ from the nominal ones it reports
-        through (`mocks.ur_sim.truth`); None: the nominal model is exact.
+        through (`handeye.mocks.ur_sim.truth`); None: the nominal model is exact.
     """
 
     def __init__(self, model="ur10", controller="5.11", initial_q=None, tcp_offset=(0.0, 0.0, 0.1, 0.0, 0.0, 0.0),
@@ -141,7 +141,7 @@ class SimController:
         self.log: list[dict] = []
         self.motion = None
         self.motion_t0 = 0.0
-        # A looping production program (mocks.ur_sim.program.Program) the controller runs by itself.
+        # A looping production program (handeye.mocks.ur_sim.program.Program) the controller runs by itself.
         self.program = None
         self.motion_async = False
         self.executing = False

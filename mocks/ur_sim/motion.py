@@ -13,7 +13,7 @@ import math
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from drivers.robot import ur_kinematics as kin
+from handeye.drivers.robot import ur_kinematics as kin
 
 # How far a point 0.1 m off the rotation axis travels counts as path length
 # for moveL, so that pure reorientations also get a finite duration.
@@ -89,7 +89,7 @@ class LinearMotion:
     configuration, and are interpolated linearly in between (the TCP then
     leaves the line by micrometres). `q_at` returns None when the path
     leaves the reachable set or the joint limits, or comes closer to a
-    singularity than `drivers.robot.ur_kinematics.SINGULARITY_STOP` (a real
+    singularity than `handeye.drivers.robot.ur_kinematics.SINGULARITY_STOP` (a real
     controller cannot keep the line there either); `failure` says which, and
     the controller raises a protective stop, as a real one does.
     """

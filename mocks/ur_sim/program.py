@@ -8,8 +8,8 @@ next, around the loop until stopped. The passive monitor samples during the
 stops.
 
 Started over the dashboard port (``sim program <json>``, see
-`mocks.ur_sim.server`), from Python (`mocks.ur_sim.SimProcess.start_program`)
-or at start-up (``python -m mocks.ur_sim --program FILE.json``). JSON::
+`handeye.mocks.ur_sim.server`), from Python (`handeye.mocks.ur_sim.SimProcess.start_program`)
+or at start-up (``python -m handeye.mocks.ur_sim --program FILE.json``). JSON::
 
     {"waypoints": [{"q": [6 joint angles, rad], "pause_s": 0.8, "tool": "glue"}, ...],
      "speed": 1.0, "acceleration": 4.0}
@@ -26,9 +26,9 @@ from typing import Annotated
 import numpy as np
 from pydantic import Field, ValidationError
 
-from calib.errors import ParameterError
-from calib.params import NonNegativeFloat, Params, PositiveFloat, Str, Vector6, describe
-from mocks.ur_sim.motion import JointMotion
+from handeye.calib.errors import ParameterError
+from handeye.calib.params import NonNegativeFloat, Params, PositiveFloat, Str, Vector6, describe
+from handeye.mocks.ur_sim.motion import JointMotion
 
 
 class Waypoint(Params):
@@ -73,7 +73,7 @@ class Program:
 
     @classmethod
     def from_dict(cls, data) -> "Program":
-        """From the JSON form of the module docstring (`calib.errors.ParameterError`, a ValueError, names the field)."""
+        """From the JSON form of the module docstring (`handeye.calib.errors.ParameterError`, a ValueError, names the field)."""
         try:
             return cls(ProgramSpec.model_validate(data))
         except ValidationError as e:

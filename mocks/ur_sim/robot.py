@@ -1,25 +1,28 @@
 """A UR robot backed by a simulated controller it starts itself (``type = "ur_sim"``).
 
-The real driver (`drivers.robot.ur.URRobot`, ur_rtde over loopback) talks to
-a `mocks.ur_sim` subprocess that `connect` launches on ``host`` and
+The real driver (`handeye.drivers.robot.ur.URRobot`, ur_rtde over loopback) talks to
+a `handeye.mocks.ur_sim` subprocess that `connect` launches on ``host`` and
 `disconnect` stops, so the demo and the app exercise exactly the production
 code path.
 """
 
 from __future__ import annotations
 
+import logging
 from typing import Literal
 
 import numpy as np
 from pydantic import field_validator
 
-from calib.params import Str, Vector6
-from drivers.errors import DeviceError
-from drivers.robot.registry import ROBOTS
-from drivers.robot.ur import URRobot, URRobotConfig
-from mocks.ur_sim import PortsTakenError, SimProcess, launch
-from mocks.ur_sim.controller import parse_version
-from mocks.ur_sim.truth import SimRobotError
+from handeye.calib.params import Str, Vector6
+from handeye.drivers.errors import DeviceError
+from handeye.drivers.robot.registry import ROBOTS
+from handeye.drivers.robot.ur import URRobot, URRobotConfig
+from handeye.mocks.ur_sim import PortsTakenError, SimProcess, free_loopback, launch, ports_holder
+from handeye.mocks.ur_sim.controller import parse_version
+from handeye.mocks.ur_sim.truth import SimRobotError
+
+log = logging.getLogger(__name__)
 
 
 class URSimRobotConfig(URRobotConfig):
@@ -36,7 +39,7 @@ class URSimRobotConfig(URRobotConfig):
     sim_robot_error : SimRobotError or None
         The simulated arm's true DH parameters differ from the nominal ones it
         reports through, and each stop has a repeatability error
-        (`mocks.ur_sim.truth`); the rendered camera sees the true flange.
+        (`handeye.mocks.ur_sim.truth`); the rendered camera sees the true flange.
         None (default): the nominal model is exact.
     """
 
@@ -76,9 +79,18 @@ class URSimRobot(URRobot):
                 self.sim = launch(cfg.host, cfg.model, cfg.controller, cfg.initial_q, cfg.sim_tcp_offset,
                                   robot_error=error)
             except PortsTakenError as e:
-                raise PortsTakenError(f"{e}; stop that run, or give this one another loopback address "
-                                      "(127.x.y.z) as [robot] host in its config (-c; the demo's cell is "
-                                      "config/sim.toml)") from None
+                # Another run (a second user, a CI job) holds the address: a simulated cell is this process's
+                # own, so it moves to a free loopback address rather than fail.
+                host = free_loopback(cfg.host) if cfg.host.startswith("127.") else None
+                if host is None:
+                    raise PortsTakenError(f"{e}; stop that run, or give this one another loopback address "
+                                          "(127.x.y.z) as [robot] host in its config (-c; the demo's cell is "
+                                          "config/sim.toml)") from None
+                log.warning("robot: %s is taken (%s); the simulated controller runs on %s", cfg.host,
+                            ports_holder(cfg.host), host)
+                self.config = cfg.model_copy(update={"host": host})
+                self.sim = launch(host, cfg.model, cfg.controller, cfg.initial_q, cfg.sim_tcp_offset,
+                                  robot_error=error)
         return self.sim
 
     def true_flange_pose(self) -> np.ndarray:
@@ -92,7 +104,7 @@ class URSimRobot(URRobot):
         return self.sim.true_flange_pose()
 
     def start_program(self, program: dict) -> None:
-        """Have the simulated controller loop ``program`` (JSON form of `mocks.ur_sim.program`)."""
+        """Have the simulated controller loop ``program`` (JSON form of `handeye.mocks.ur_sim.program`)."""
         if self.sim is None:
             raise DeviceError("the simulated robot is not connected: no controller to run a program")
         self.sim.start_program(program)

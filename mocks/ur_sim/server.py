@@ -19,7 +19,7 @@ line each, answered with one line:
 ``sim drop <seconds>``        close every client connection and refuse new ones for <seconds>
 ``sim freeze <seconds>``      keep connections open but send no RTDE data for <seconds>
 ``sim set_q q1 ... q6``       teleport the idle arm (rad)
-``sim program <json>``        run a looping production program (`mocks.ur_sim.program`)
+``sim program <json>``        run a looping production program (`handeye.mocks.ur_sim.program`)
 ``sim program stop``          end it (the arm finishes its current motion)
 ``sim owner``                 JSON ``{"pid": ..., "parent_pid": ...}``: this simulator and the process that launched
                               it (``--parent-pid``; null when started by hand), for a second run that finds its
@@ -38,7 +38,7 @@ import threading
 import time
 from enum import IntEnum
 
-from mocks.ur_sim.controller import SimController
+from handeye.mocks.ur_sim.controller import SimController
 
 log = logging.getLogger("ur_sim")
 
@@ -303,7 +303,7 @@ class SimServer:
         self.input_owner: dict[str, Connection] = {}
         self.freeze_until = 0.0
         self.refuse_until = 0.0
-        # Set by the signal handler of `mocks.ur_sim.main`: a plain attribute store is all a
+        # Set by the signal handler of `handeye.mocks.ur_sim.main`: a plain attribute store is all a
         # handler may do (an Event.set() there deadlocks when a second signal interrupts the first
         # handler inside the Event's lock, e.g. one SIGTERM per exiting thread of a dying parent).
         self.stopping = False
@@ -473,7 +473,7 @@ class SimServer:
         return f"error: unknown sim command {cmd!r}", None
 
     def _program_command(self, arg: str) -> str:
-        from mocks.ur_sim.program import Program
+        from handeye.mocks.ur_sim.program import Program
 
         ctl = self.controller
         if arg == "stop":
@@ -510,7 +510,7 @@ class SimServer:
 
     # ---------------------------------------------------------- control loop
     def run(self) -> None:
-        """Tick until `stopping` is set (SIGINT/SIGTERM in `mocks.ur_sim.main`) or, when
+        """Tick until `stopping` is set (SIGINT/SIGTERM in `handeye.mocks.ur_sim.main`) or, when
         ``parent_pid`` is set, until that process is no longer our parent (it died: we were
         re-parented), so that no simulator outlives the test run or app that started it.
 

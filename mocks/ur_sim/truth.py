@@ -9,7 +9,7 @@ uncalibrated UR10), and each stop lands with a small random error the
 encoders do not see (the datasheet repeatability, UR10 +-0.1 mm).
 
 `SimRobotError` is the configuration (off unless given; the default
-magnitudes are `calib.simulate.RealisticProfile`'s). `TrueArm` draws the
+magnitudes are `handeye.calib.simulate.RealisticProfile`'s). `TrueArm` draws the
 true DH parameters once per simulated cell from its seed and the per-stop
 error from its own generator; the controller reports nominal poses and
 exposes the true one (``sim truth`` on the dashboard port) for the rendered
@@ -20,10 +20,10 @@ from __future__ import annotations
 
 import numpy as np
 
-from calib import transforms as tf
-from calib.params import Int, NonNegativeFloat, Params
-from calib.robot_error import UR_ALPHA, ur_forward
-from drivers.robot import ur_kinematics as kin
+from handeye.calib import transforms as tf
+from handeye.calib.params import Int, NonNegativeFloat, Params
+from handeye.calib.robot_error import UR_ALPHA, ur_forward
+from handeye.drivers.robot import ur_kinematics as kin
 
 
 class SimRobotError(Params):
@@ -64,7 +64,7 @@ class TrueArm:
     Attributes
     ----------
     d, a, alpha, offsets : ndarray, shape (6,)
-        True standard-DH parameters (`calib.robot_error.ur_forward`), m and rad.
+        True standard-DH parameters (`handeye.calib.robot_error.ur_forward`), m and rad.
     T_stop : ndarray, shape (4, 4)
         Flange-frame error of the current stop (identity before the first stop).
     """

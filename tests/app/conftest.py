@@ -10,7 +10,7 @@ from pathlib import Path
 
 import pytest
 
-from app.config import Config, load_config
+from handeye.app.config import Config, load_config
 
 # The simulated robot of the tests moves about 3x faster than the shipped config's (a run's time is mostly
 # motion: the demo takes 17 s instead of 36 s). Nothing a test asserts depends on the speed; the shipped
@@ -122,10 +122,10 @@ def mqtt_inbox():
 
 @pytest.fixture
 def engine_update():
-    """A `calib.monitor.MonitorUpdate` as the engine hands it to the publisher: ``(index, T, cov, alarm)``."""
+    """A `handeye.calib.monitor.MonitorUpdate` as the engine hands it to the publisher: ``(index, T, cov, alarm)``."""
     import numpy as np
 
-    from calib.monitor import MonitorUpdate
+    from handeye.calib.monitor import MonitorUpdate
 
     def make(index, T, cov, alarm: bool):
         kind = "moved" if alarm else ""

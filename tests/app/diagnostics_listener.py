@@ -10,7 +10,7 @@ import sys
 import threading
 import time
 
-from drivers.ros2 import Ros2Node, messages
+from handeye.drivers.ros2 import Ros2Node, messages
 
 
 def main(out: str, seconds: float) -> int:

@@ -6,10 +6,10 @@ import time
 
 import numpy as np
 
-from app.runs.monitor import CAPTURE_GUARD_S, left_standstill
-from calib import transforms as tf
-from drivers.robot.ur import URRobot, URRobotConfig
-from mocks.ur_sim import launch
+from handeye.app.runs.monitor import CAPTURE_GUARD_S, left_standstill
+from handeye.calib import transforms as tf
+from handeye.drivers.robot.ur import URRobot, URRobotConfig
+from handeye.mocks.ur_sim import launch
 from tests.simulated_ur import START_Q
 
 

@@ -4,9 +4,9 @@ import io
 
 import pytest
 
-from app.cli import main
-from app.commands.common import confirm_motion
-from calib.errors import HandeyeError
+from handeye.app.cli import main
+from handeye.app.commands.common import confirm_motion
+from handeye.calib.errors import HandeyeError
 
 
 def _one_line_error(capsys, rc):
@@ -59,7 +59,7 @@ def test_calibrate_connects_before_it_asks(capsys, monkeypatch, tmp_path, loopba
     from pathlib import Path
 
     asked = []
-    monkeypatch.setattr("app.commands.calibrate.confirm_motion", lambda yes_move: asked.append(yes_move))
+    monkeypatch.setattr("handeye.app.commands.calibrate.confirm_motion", lambda yes_move: asked.append(yes_move))
     p = tmp_path / "c.toml"
     p.write_text(Path("config/ur10_xtion_eye_to_hand.toml").read_text().replace('"192.168.1.10"',
                                                                                 f'"{loopback(69)}"'))
@@ -101,7 +101,7 @@ def test_wrong_marker_id_skips_every_frame_with_reason(tmp_path, capsys, loopbac
     assert main(["calibrate", "--yes-move", "-c", str(p), "--session-root", str(tmp_path), "--no-viz"]) == 1
     out = capsys.readouterr().out
     assert "3x marker 7 of DICT_4X4_50 not found" in out and "no calibration: 0 samples" in out
-    from app.session import read_session
+    from handeye.app.session import read_session
 
     session = read_session(next(tmp_path.glob("*_eye_to_hand")))
     assert len(session.skipped) == 3 and not session.observations
@@ -120,14 +120,14 @@ def test_resume_command_is_the_runs_own_with_its_session(argv, expected):
     import argparse
     from pathlib import Path
 
-    from app.commands.common import command_with
+    from handeye.app.commands.common import command_with
 
     assert command_with(argparse.Namespace(argv=argv), "--resume", Path("my sessions/s1")) == expected
 
 
 def test_demo_resume_refusals(tmp_path, capsys):
     """demo --resume continues only a simulated cell's calibration session, and not with --monitor."""
-    from app.session import SessionWriter
+    from handeye.app.session import SessionWriter
 
     assert "--resume continues a calibration" in _one_line_error(
         capsys, main(["demo", "--monitor", "--resume", str(tmp_path)]))
@@ -141,8 +141,8 @@ def test_ctrl_c_while_the_program_starts_or_inside_a_c_extensions_import_is_a_st
     # Ctrl-C in the first second (numpy, scipy, OpenCV loading) was a KeyboardInterrupt traceback; during
     # open3d's first import at the simulator's first render it came out as "ImportError: initialization
     # failed" (exit 1, traceback). Both are the terminal's stop: one line, exit 130. Another ImportError is a bug.
-    import app.cli as cli
-    from app.commands import replay
+    import handeye.app.cli as cli
+    from handeye.app.commands import replay
 
     def interrupted():
         raise KeyboardInterrupt

@@ -13,11 +13,11 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from app import devices
-from app.cli import main
-from app.config import load_config
-from app.errors import ConfigError
-from calib.errors import HandeyeError
+from handeye.app import devices
+from handeye.app.cli import main
+from handeye.app.config import load_config
+from handeye.app.errors import ConfigError
+from handeye.calib.errors import HandeyeError
 
 SIM = Path(__file__).resolve().parents[2] / "config" / "sim.toml"
 SIM_LINES = SIM.read_text().splitlines()
@@ -76,7 +76,7 @@ def test_method_aliases_are_normalised(tmp_path):
 def test_a_partial_detector_table_keeps_the_default_false_alarm_rate(tmp_path):
     """``detector = { window = 30 }`` changes the window only: the *moved* test's rate stays the engine's
     (it once fell to another default, ten times stricter)."""
-    from calib.change import FALSE_ALARM_RATE
+    from handeye.calib.change import FALSE_ALARM_RATE
 
     assert load_config(_edit(tmp_path, "engine = {}", "engine = { detector = { window = 30 } }")) \
         .monitor.engine.detector.false_alarm_rate == FALSE_ALARM_RATE == load_config(None).monitor.engine \
@@ -101,7 +101,7 @@ def test_unreadable_files_are_one_line(tmp_path, capsys, make, match):
 
 
 def test_hook_parsed_at_load_and_kept_as_argv():
-    from app.config import hook_argv
+    from handeye.app.config import hook_argv
 
     assert hook_argv("touch '/tmp/a b'") == ["touch", "/tmp/a b"]
     assert hook_argv("  ") == []
@@ -156,8 +156,8 @@ def test_byte_damage_is_loaded_or_a_config_error(tmp_path, pos, junk, cut):
 def test_the_monitors_hook_options_override_the_config(tmp_path):
     """--hook and --calibration-hook replace [monitor] alarm_hook and calibration_hook; a program that is not
     there is the same one-line error naming the field as in the file."""
-    from app.cli import build_parser
-    from app.commands.common import load_config_args
+    from handeye.app.cli import build_parser
+    from handeye.app.commands.common import load_config_args
 
     parser, _ = build_parser()
     args = parser.parse_args(["monitor", "--hook", "touch a", "--calibration-hook", "touch 'b c'"])

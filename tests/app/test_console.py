@@ -6,7 +6,7 @@ import sys
 
 import pytest
 
-from app.progress import LineProgress, progress_bar, show_monitor
+from handeye.app.progress import LineProgress, progress_bar, show_monitor
 
 
 def test_line_progress_prints_a_status_line_every_n_samples_and_a_last_one():
@@ -47,7 +47,7 @@ def test_monitor_to_a_pipe_writes_lines_of_bounded_size(tmp_path, loopback):
     config = tmp_path / "cell.toml"
     config.write_text(text.replace("\nstatus_every = 20 ", "\nstatus_every = 5 "))
     env = {**os.environ, "PYTHONPATH": os.getcwd()}
-    done = subprocess.run([sys.executable, "-m", "app.cli", "monitor", "-c", str(config), "--max-samples", "12",
+    done = subprocess.run([sys.executable, "-m", "handeye.app.cli", "monitor", "-c", str(config), "--max-samples", "12",
                            "--no-frames", "--no-viz", "--session-root", str(tmp_path / "s")],
                           capture_output=True, text=True, timeout=240, env=env)
     assert done.returncode == 0, done.stdout + done.stderr

@@ -12,15 +12,15 @@ import threading
 import numpy as np
 import pytest
 
-from app import devices
-from app.cli import main
-from app.runs.monitor import run_monitor
-from app.session import SessionWriter, read_session
-from app.viz import Viz
-from calib import simulate
-from calib.observation import Observation
-from calib.setup import Setup
-from drivers.errors import DeviceError
+from handeye.app import devices
+from handeye.app.cli import main
+from handeye.app.runs.monitor import run_monitor
+from handeye.app.session import SessionWriter, read_session
+from handeye.app.viz import Viz
+from handeye.calib import simulate
+from handeye.calib.observation import Observation
+from handeye.calib.setup import Setup
+from handeye.drivers.errors import DeviceError
 
 SIM_TOML = open("config/sim.toml").read()
 
@@ -83,10 +83,10 @@ def test_frames_kept_only_for_the_last_samples(tmp_path):
 
 
 def test_monitor_drops_the_frames_of_samples_its_bounded_set_drops(tmp_path):
-    from app.runs import monitor as mon
-    from app.config import MonitorConfig
+    from handeye.app.runs import monitor as mon
+    from handeye.app.config import MonitorConfig
 
-    from calib.monitor import MonitorEngine
+    from handeye.calib.monitor import MonitorEngine
 
     d = simulate.realistic_cell(7, np.random.default_rng(3))
     img = np.zeros((8, 8, 3), np.uint8)

@@ -6,14 +6,14 @@ import numpy as np
 import pytest
 import yaml
 
-from app import devices
-from app.planning import random_pose
-from app.runs.monitor import run_monitor
-from app.config import Config
-from app.session import SessionWriter, read_session
-from calib import transforms as tf
-from drivers.errors import DeviceError
-from drivers.robot import ur_kinematics as kin
+from handeye.app import devices
+from handeye.app.planning import random_pose
+from handeye.app.runs.monitor import run_monitor
+from handeye.app.config import Config
+from handeye.app.session import SessionWriter, read_session
+from handeye.calib import transforms as tf
+from handeye.drivers.errors import DeviceError
+from handeye.drivers.robot import ur_kinematics as kin
 
 pytestmark = pytest.mark.slow
 
@@ -112,7 +112,7 @@ class _StillRobot:
     def read(self):
         import time
 
-        from drivers.robot.base import RobotState
+        from handeye.drivers.robot.base import RobotState
 
         T = self.pose()
         self.n += 1
@@ -124,8 +124,8 @@ class _StillRobot:
 
 def _refusing_engine():
     """An armed monitoring engine that refuses every sample (as `MonitorEngine.update` does a malformed one)."""
-    from app.benchmarks.shift import armed_cell
-    from calib.errors import CalibrationError
+    from bench.shift import armed_cell
+    from handeye.calib.errors import CalibrationError
 
     engine = armed_cell(0)[2]
 
@@ -138,9 +138,9 @@ def _refusing_engine():
 
 def test_a_sample_the_engine_refuses_is_a_recorded_skip_and_the_run_goes_on(tmp_path):
     """`run_monitor` records the engine's refusal as a skip and keeps sampling (no alarm, nothing fused)."""
-    from app.config import load_config
-    from app.viz import Viz
-    from drivers.camera.registry import CAMERAS
+    from handeye.app.config import load_config
+    from handeye.app.viz import Viz
+    from handeye.drivers.camera.registry import CAMERAS
 
     cfg = load_config(None)
     c = cfg.camera
@@ -191,11 +191,11 @@ def test_an_unexpected_error_ends_the_run_with_its_sample_and_alarm_kept(tmp_pat
     was raised: the run ends with `MonitorError` (one line, exit 1: a service restarts it), the sample, the alarm
     and the error are in the session, the alarm was published and its hook ran, the error was told
     (``on_error``: MQTT), and the calibration in use was kept for the next run."""
-    from app import calibration_in_use
-    from app.config import load_config
-    from app.errors import MonitorError
-    from app.viz import Viz
-    from drivers.camera.registry import CAMERAS
+    from handeye.app import calibration_in_use
+    from handeye.app.config import load_config
+    from handeye.app.errors import MonitorError
+    from handeye.app.viz import Viz
+    from handeye.drivers.camera.registry import CAMERAS
 
     cfg = load_config(None)
     poses, rng = _poses_in_view(cfg), np.random.default_rng(3)
@@ -245,10 +245,10 @@ def test_an_unexpected_error_ends_the_run_with_its_sample_and_alarm_kept(tmp_pat
 def test_a_ctrl_c_in_the_alarm_hook_ends_the_run_with_the_alarm_published(tmp_path, monkeypatch):
     """Ctrl-C while the moved alarm's hook runs: the run's normal end (the session's interrupted and sample_set
     events), and the alarm reaches what publishes it (MQTT) before it ends: it is not only in the session."""
-    import app.runs.monitor as runs_monitor
-    from app.config import load_config
-    from app.viz import Viz
-    from drivers.camera.registry import CAMERAS
+    import handeye.app.runs.monitor as runs_monitor
+    from handeye.app.config import load_config
+    from handeye.app.viz import Viz
+    from handeye.drivers.camera.registry import CAMERAS
 
     cfg = load_config(None)
     rng = np.random.default_rng(3)
@@ -281,9 +281,9 @@ def test_the_next_run_carries_the_relearnt_camera_over(sim_config, loopback):
     continues from the first's calibration_in_use.yaml: it says so, raises no moved alarm, and its estimate is
     the moved camera; the first run armed itself from its own samples, the second's simulated camera starts
     knocked as the first left it."""
-    from app import calibration_in_use
-    from app.production import Bump
-    from app.runs.demo import demo_monitor
+    from handeye.app import calibration_in_use
+    from handeye.app.production import Bump
+    from handeye.app.runs.demo import demo_monitor
 
     cfg = sim_config(loopback(31))
     data = cfg.model_dump()
@@ -293,7 +293,7 @@ def test_the_next_run_carries_the_relearnt_camera_over(sim_config, loopback):
     kept = calibration_in_use.find(first.session)
     assert kept is not None and calibration_in_use.latest(first.session.parent, cfg.setup) == kept
     told = []
-    import app.runs.monitor as runs_monitor
+    import handeye.app.runs.monitor as runs_monitor
 
     real_say = runs_monitor.say
     runs_monitor.say = lambda text: (told.append(text), real_say(text))
@@ -302,7 +302,7 @@ def test_the_next_run_carries_the_relearnt_camera_over(sim_config, loopback):
     finally:
         runs_monitor.say = real_say
     assert any(text.startswith(f"continuing from {kept}") for text in told), told
-    # The simulated camera stays where the bump left it (`app.production.carried_knocks`).
+    # The simulated camera stays where the bump left it (`handeye.app.production.carried_knocks`).
     assert f"simulated camera: knocked as {kept} left it (1 knock)" in told, told
     np.testing.assert_allclose(second.truth, first.truth, atol=1e-12)
     assert not second.moved_alarms, [a.info["message"] for a in second.alarms]

@@ -9,16 +9,16 @@ from pathlib import Path
 
 import numpy as np
 
-from app.benchmarks.shift import armed_cell
-from app.calibration_in_use import FILE_NAME
-from app.commands.common import command_with
-from app.commands.monitor import print_monitor_summary
-from app.commands.replay import monitor_next_steps as replay_next_steps
-from app.runs.monitor import MonitorReport
-from app.shift_record import ShiftRecord
-from calib import simulate
-from calib.monitor import AlarmLevel, EngineState
-from calib.setup import Setup
+from bench.shift import armed_cell
+from handeye.app.calibration_in_use import FILE_NAME
+from handeye.app.commands.common import command_with
+from handeye.app.commands.monitor import print_monitor_summary
+from handeye.app.commands.replay import monitor_next_steps as replay_next_steps
+from handeye.app.runs.monitor import MonitorReport
+from handeye.app.shift_record import ShiftRecord
+from handeye.calib import simulate
+from handeye.calib.monitor import AlarmLevel, EngineState
+from handeye.calib.setup import Setup
 
 VERIFY = "handeye verify -c 'my cell.toml'"
 CALIBRATE = "handeye calibrate -c 'my cell.toml' --yes-move"
@@ -108,9 +108,9 @@ def test_a_slow_hook_is_told_to_background_its_work(caplog):
     no sample is taken meanwhile; a quick one is not."""
     import logging
 
-    from app.runs.monitor import HOOK_SLOW_S, run_hook
+    from handeye.app.runs.monitor import HOOK_SLOW_S, run_hook
 
-    with caplog.at_level(logging.WARNING, logger="app.runs.monitor"):
+    with caplog.at_level(logging.WARNING, logger="handeye.app.runs.monitor"):
         run_hook("true", {}, "monitor.calibration_hook")
         assert not caplog.records
         run_hook(f"sleep {HOOK_SLOW_S + 0.2}", {}, "monitor.calibration_hook")

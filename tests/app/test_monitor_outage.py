@@ -1,5 +1,5 @@
 """monitor() rides out a dropped robot connection, an unplugged camera and a broker restart mid-run: the simulated
-UR controller (mocks.ur_sim through the real ur_rtde client) runs its production program, the rendered camera
+UR controller (handeye.mocks.ur_sim through the real ur_rtde client) runs its production program, the rendered camera
 follows it, and the outages go to the session and to a real mosquitto broker. Eye-to-hand (``Y = T_base_cam``)."""
 
 import threading
@@ -7,12 +7,12 @@ import time
 
 import pytest
 
-from app import devices
-from app.config import Config
-from app.runs import monitor as mon
-from app.session import read_session
+from handeye.app import devices
+from handeye.app.config import Config
+from handeye.app.runs import monitor as mon
+from handeye.app.session import read_session
 
-from drivers.errors import ConnectionLostError
+from handeye.drivers.errors import ConnectionLostError
 
 from tests.app.test_mqtt_outage import Broker, subscriber
 

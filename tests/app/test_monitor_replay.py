@@ -9,13 +9,13 @@ from pathlib import Path
 import numpy as np
 import yaml
 
-from app.cli import main
-from app.monitor_replay import TRACE_COLUMNS
-from app.monitoring import reference_observations
-from app.session import SessionWriter, read_session
-from calib import simulate
-from calib.api import solve_observations
-from calib.observation import Observation
+from handeye.app.cli import main
+from handeye.app.monitor_replay import TRACE_COLUMNS
+from handeye.app.monitoring import reference_observations
+from handeye.app.session import SessionWriter, read_session
+from handeye.calib import simulate
+from handeye.calib.api import solve_observations
+from handeye.calib.observation import Observation
 
 #: The columns the issue asks of the trace (it has more).
 ISSUE_COLUMNS = ("index", "t", "alarm", "x_mm", "y_mm", "z_mm", "qx", "qy", "qz", "qw", "depth_scale",
@@ -163,11 +163,11 @@ def test_the_shared_error_the_moved_test_allows_for_is_said():
     poses (no blocked folds) it says nothing."""
     from pathlib import Path
 
-    from app.formats import load
-    from app.monitoring import shared_error_note
-    from calib import solve
-    from calib.monitor import MonitorEngine
-    from calib.problem import CalibrationProblem
+    from handeye.app.formats import load
+    from handeye.app.monitoring import shared_error_note
+    from handeye.calib import solve
+    from handeye.calib.monitor import MonitorEngine
+    from handeye.calib.problem import CalibrationProblem
 
     obs = load(Path(__file__).parents[1] / "data" / "ethz" / "robot_arm").observations[:843]
     problem = CalibrationProblem.from_observations(obs, "eye_in_hand")
@@ -186,7 +186,7 @@ def test_replay_monitor_of_a_recorded_shift_gives_the_benchmarked_engines_estima
     # with the cell's kinematic-error config. Every row of the trace is the in-process engine's live estimate (to
     # the trace's precision) and the moved alarm is the same sample: what the benchmark measures is what a user
     # who replays a recording gets.
-    from app.benchmarks import shift as bench
+    from bench import shift as bench
 
     shift = dataclasses.replace(simulate.Shift(), hours=1.5, bumps=((0.75, 5.0, 0.3),))
     cell = bench.seed_cell(3, shift, bench.MonitorSettings())

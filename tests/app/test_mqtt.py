@@ -6,12 +6,12 @@ import time
 import numpy as np
 import pytest
 
-from app.config import config_from_dict
-from app.errors import ConfigError
-from app.runs.monitor import Alarm, MonitorReport
-from app.mqtt import PASSWORD_ENV, USERNAME_ENV, MqttConfig, MqttPublisher
-from calib import transforms as tf
-from calib.observation import Observation
+from handeye.app.config import config_from_dict
+from handeye.app.errors import ConfigError
+from handeye.app.runs.monitor import Alarm, MonitorReport
+from handeye.app.mqtt import PASSWORD_ENV, USERNAME_ENV, MqttConfig, MqttPublisher
+from handeye.calib import transforms as tf
+from handeye.calib.observation import Observation
 
 FRAMES = {"base": "base_link", "flange": "tool0", "camera": "cam_optical", "marker": "marker"}
 

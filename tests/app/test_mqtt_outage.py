@@ -9,11 +9,11 @@ import time
 import numpy as np
 import pytest
 
-from app.runs.monitor import Alarm, MonitorReport
-from app.mqtt import MqttConfig, MqttPublisher
-from app.outage import OutageEvent
-from calib import transforms as tf
-from calib.observation import Observation
+from handeye.app.runs.monitor import Alarm, MonitorReport
+from handeye.app.mqtt import MqttConfig, MqttPublisher
+from handeye.app.outage import OutageEvent
+from handeye.calib import transforms as tf
+from handeye.calib.observation import Observation
 
 from tests.app.conftest import MOSQUITTO
 
@@ -172,7 +172,7 @@ def test_an_alarm_raised_as_the_broker_goes_is_published_after_the_outages_start
                 _sample(pub, tmp_path, 2, alarm=True, engine_update=engine_update)
 
     handler = AlarmAtTheLoss()
-    logging.getLogger("app.mqtt").addHandler(handler)
+    logging.getLogger("handeye.app.mqtt").addHandler(handler)
     try:
         with MqttPublisher(cfg, "eye_to_hand", FRAMES, environ={}) as pub:
             _sample(pub, tmp_path, 1, alarm=True, engine_update=engine_update)
@@ -182,7 +182,7 @@ def test_an_alarm_raised_as_the_broker_goes_is_published_after_the_outages_start
             broker.start()
             assert _wait(lambda: any(t == "cell/outage" and m["event"] == "outage_end" for t, m, _ in inbox))
     finally:
-        logging.getLogger("app.mqtt").removeHandler(handler)
+        logging.getLogger("handeye.app.mqtt").removeHandler(handler)
         sub.disconnect()
         sub.loop_stop()
     order = [(m["device"], m["event"]) if t == "cell/outage" else m["sample"] for t, m, _ in inbox

@@ -6,15 +6,15 @@ import time
 import numpy as np
 import pytest
 
-from app.acquire import pose_at_frame
-from app.errors import OutageError
-from app.outage import ReconnectConfig, Reconnecting
-from calib import transforms as tf
-from drivers.camera.registry import CAMERAS
-from drivers.errors import ConnectionLostError, PoseTimeError
-from drivers.robot import ur_kinematics as kin
-from drivers.robot.ur import URRobot, URRobotConfig
-from mocks.ur_sim import launch
+from handeye.app.acquire import pose_at_frame
+from handeye.app.errors import OutageError
+from handeye.app.outage import ReconnectConfig, Reconnecting
+from handeye.calib import transforms as tf
+from handeye.drivers.camera.registry import CAMERAS
+from handeye.drivers.errors import ConnectionLostError, PoseTimeError
+from handeye.drivers.robot import ur_kinematics as kin
+from handeye.drivers.robot.ur import URRobot, URRobotConfig
+from handeye.mocks.ur_sim import launch
 from tests.simulated_ur import START_Q
 FAST = ReconnectConfig(initial_s=0.1, factor=2.0, max_s=0.4)
 
@@ -178,7 +178,7 @@ def test_a_camera_following_a_wrapped_robot_rides_out_the_robots_outage(loopback
                             frozen_timeout=0.3)
         with Reconnecting("robot", URRobot(cfg), FAST, on_event=events.append) as robot:
             cam = CAMERAS.create({"backend": "rendered"})
-            cam.follow(lambda: robot.read().T_base_flange)    # as app.devices.open_camera(cfg, robot) does
+            cam.follow(lambda: robot.read().T_base_flange)    # as handeye.app.devices.open_camera(cfg, robot) does
             with Reconnecting("camera", cam, FAST, on_event=events.append) as camera:
                 assert robot.config.host == sim.host           # the device's attributes show through
                 camera.read()

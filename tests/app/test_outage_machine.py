@@ -1,4 +1,4 @@
-"""`app.outage.Reconnecting` driven through arbitrary sequences (hypothesis state machine): devices that go down
+"""`handeye.app.outage.Reconnecting` driven through arbitrary sequences (hypothesis state machine): devices that go down
 for any number of calls, refuse any number of reopens, answer "no pose at that time", a stop during an outage,
 and a limit on an outage's length. The clock and the waits are the test's, so a sequence runs in microseconds.
 
@@ -14,9 +14,9 @@ from hypothesis import settings
 from hypothesis import strategies as st
 from hypothesis.stateful import RuleBasedStateMachine, initialize, invariant, rule
 
-from app.errors import OutageError
-from app.outage import ReconnectConfig, Reconnecting
-from drivers.errors import ConnectionLostError, PoseTimeError
+from handeye.app.errors import OutageError
+from handeye.app.outage import ReconnectConfig, Reconnecting
+from handeye.drivers.errors import ConnectionLostError, PoseTimeError
 
 
 class Device:

@@ -6,15 +6,15 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from app import devices, planning
-from app.cli import main
-from app.config import load_config
-from app.runs.calibrate import calibrate
-from app.session import read_session
-from calib import planner as pl
-from calib import transforms as tf
-from app.errors import SessionError
-from drivers.camera.base import CameraIntrinsics
+from handeye.app import devices, planning
+from handeye.app.cli import main
+from handeye.app.config import load_config
+from handeye.app.runs.calibrate import calibrate
+from handeye.app.session import read_session
+from handeye.calib import planner as pl
+from handeye.calib import transforms as tf
+from handeye.app.errors import SessionError
+from handeye.drivers.camera.base import CameraIntrinsics
 
 pytestmark = pytest.mark.slow
 
@@ -83,7 +83,7 @@ def test_plan_writes_a_plan_that_calibrate_replays(tmp_path, loopback, capsys):
     doc = json.loads(out.read_text())
     assert doc["format"] == "handeye-plan" and doc["setup"] == "eye_to_hand" and len(doc["poses"]) == 10
     assert doc["poses"][0]["kind"] == "start" and all(len(p["q"]) == 6 for p in doc["poses"])
-    assert doc["noise_model"].startswith("calib.noise.anchored_point_cov")  # measured where the robot stands
+    assert doc["noise_model"].startswith("handeye.calib.noise.anchored_point_cov")  # measured where the robot stands
     # auto's covariance below 12 samples: the camera corrections at nominal, widened by their typical errors.
     sig = [p["expected_sigma_mm"] for p in doc["poses"]]
     assert sig[-1] < 0.02 * sig[0] and 2.0 < sig[-1] < 20.0

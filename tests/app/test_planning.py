@@ -1,25 +1,25 @@
-"""app.planning without devices: the optimal pose source's stages, and plan files."""
+"""handeye.app.planning without devices: the optimal pose source's stages, and plan files."""
 
 import json
 
 import numpy as np
 import pytest
 
-from app import planning
-from app.config import load_config
-from app.errors import SessionError
-from calib import transforms as tf
-from calib.observation import Observation
-from calib.planner import PlannerConfig, PosePlanner
-from drivers.camera.base import CameraIntrinsics
-from drivers.robot import ur_kinematics as kin
-from drivers.robot.base import RobotState
+from handeye.app import planning
+from handeye.app.config import load_config
+from handeye.app.errors import SessionError
+from handeye.calib import transforms as tf
+from handeye.calib.observation import Observation
+from handeye.calib.planner import PlannerConfig, PosePlanner
+from handeye.drivers.camera.base import CameraIntrinsics
+from handeye.drivers.robot import ur_kinematics as kin
+from handeye.drivers.robot.base import RobotState
 
 INTR = CameraIntrinsics(640, 480, 570.0, 570.0, 319.5, 239.5)
 
 
 def _cell():
-    from mocks.render.camera import RenderedCameraConfig
+    from handeye.mocks.render.camera import RenderedCameraConfig
 
     cfg = load_config(None)
     cam = RenderedCameraConfig(setup="eye_to_hand")
@@ -90,8 +90,8 @@ def test_view_angle_bound_covers_the_error_of_the_measured_orientation():
 def test_auto_runs_plan_for_the_camera_corrections_auto_estimates_or_considers():
     from types import SimpleNamespace
 
-    from calib.auto import CONSIDER_SIGMA
-    from calib.result import CameraParameter
+    from handeye.calib.auto import CONSIDER_SIGMA
+    from handeye.calib.result import CameraParameter
 
     assert planning.camera_correction("YKronT'", None) is None
     theta, free, sigma = planning.camera_correction("auto", None)

@@ -7,17 +7,17 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from app.planning import random_pose
-from app.cli import main
-from app.config import load_config
-from app.errors import SessionError
-from app.production import carried_knocks
-from app.session import SessionWriter, read_session
-from calib import transforms as tf
-from calib.observation import Observation
-from mocks.render.camera import RenderedCameraConfig
-from drivers.robot import ur_kinematics as kin
-from mocks.ur_sim import launch
+from handeye.app.planning import random_pose
+from handeye.app.cli import main
+from handeye.app.config import load_config
+from handeye.app.errors import SessionError
+from handeye.app.production import carried_knocks
+from handeye.app.session import SessionWriter, read_session
+from handeye.calib import transforms as tf
+from handeye.calib.observation import Observation
+from handeye.mocks.render.camera import RenderedCameraConfig
+from handeye.drivers.robot import ur_kinematics as kin
+from handeye.mocks.ur_sim import launch
 
 pytestmark = pytest.mark.slow
 

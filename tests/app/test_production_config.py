@@ -5,13 +5,13 @@ import time
 import numpy as np
 import pytest
 
-from app.config import CalibrateConfig, ProductionConfig, config_from_dict
-from app.errors import ConfigError
-from app.production import program_from_config
-from calib import transforms as tf
-from drivers.robot import ur_kinematics as kin
-from drivers.robot.ur import URKinematics
-from mocks.ur_sim import launch
+from handeye.app.config import CalibrateConfig, ProductionConfig, config_from_dict
+from handeye.app.errors import ConfigError
+from handeye.app.production import program_from_config
+from handeye.calib import transforms as tf
+from handeye.drivers.robot import ur_kinematics as kin
+from handeye.drivers.robot.ur import URKinematics
+from handeye.mocks.ur_sim import launch
 
 # The shipped simulated cell's start joints (config/sim.toml).
 Q0 = np.array([0.367792, -3.559685, 1.448735, -1.704477, -0.767569, 0.521542])
@@ -99,8 +99,8 @@ def test_a_three_stop_pick_and_place_loops_those_three_stops_on_the_simulated_co
 
 @pytest.mark.parametrize("setup", ["eye_to_hand", "eye_in_hand"])
 def test_the_demo_bump_moves_the_camera_by_exactly_its_mm_and_deg_through_the_mount_schedule(setup):
-    from app.production import Bump
-    from drivers.camera.registry import CAMERAS
+    from handeye.app.production import Bump
+    from handeye.drivers.camera.registry import CAMERAS
 
     cam = CAMERAS.create({"backend": "rendered", "setup": setup})
     cam.follow(lambda: T0)
@@ -117,8 +117,8 @@ def test_the_demo_bump_moves_the_camera_by_exactly_its_mm_and_deg_through_the_mo
 
 @pytest.mark.slow
 def test_the_shift_config_monitors_a_four_stop_pick_and_place(tmp_path, loopback, capsys):
-    from app.cli import main
-    from app.session import read_session
+    from handeye.app.cli import main
+    from handeye.app.session import read_session
 
     text = open("config/sim_shift.toml").read().replace('host = "127.0.0.2"', f'host = "{loopback(48)}"')
     config = tmp_path / "shift.toml"

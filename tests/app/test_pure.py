@@ -5,15 +5,15 @@ import dataclasses
 import numpy as np
 import pytest
 
-from app.planning import random_pose
-from app.config import CalibrateConfig, Config, config_from_dict
-from app.runs.monitor import is_diverse
-from calib import transforms as tf
-from app.errors import ConfigError
-from calib.predict import predicted_pixel, predicted_point
-from calib.result import CalibrationResult, Residuals
-from calib.simulate import realistic_cell
-from drivers.camera.base import CameraIntrinsics
+from handeye.app.planning import random_pose
+from handeye.app.config import CalibrateConfig, Config, config_from_dict
+from handeye.app.runs.monitor import is_diverse
+from handeye.calib import transforms as tf
+from handeye.app.errors import ConfigError
+from handeye.calib.predict import predicted_pixel, predicted_point
+from handeye.calib.result import CalibrationResult, Residuals
+from handeye.calib.simulate import realistic_cell
+from handeye.drivers.camera.base import CameraIntrinsics
 
 
 def test_random_pose_within_box_and_tilt():
@@ -101,7 +101,7 @@ def test_config_sections_roundtrip():
 
 
 def test_stop_on_predicted_uncertainty():
-    from app.runs.calibrate import precise_enough
+    from handeye.app.runs.calibrate import precise_enough
 
     cov = np.diag([np.deg2rad(0.03) ** 2] * 3 + [(0.4e-3) ** 2] * 3)
     res = CalibrationResult("YKronT'", "eye_to_hand", np.eye(4), np.eye(4), 10, Residuals(np.zeros(10)), cov=cov)
@@ -113,7 +113,7 @@ def test_stop_on_predicted_uncertainty():
 
 def test_realistic_demo_config_has_the_camera_depth_error():
     """config/sim_realistic.toml: the simulated cell with a 1.5% / 3 mm depth error in the rendered camera."""
-    from app.config import load_config
+    from handeye.app.config import load_config
 
     cfg = load_config("config/sim_realistic.toml")
     assert cfg.camera.noise.depth_scale == 0.015 and cfg.camera.noise.depth_offset_m == 0.003
@@ -126,11 +126,11 @@ def test_recorded_joints_are_checked_before_the_robot_model_uses_them(tmp_path, 
     sample, and the robot model gets them for auto only, when every sample has them."""
     import json
 
-    from app import devices
-    from app.errors import SessionError
-    from app.session import SessionWriter, read_session
-    from calib.observation import Observation
-    from calib.simulate import realistic_profile
+    from handeye.app import devices
+    from handeye.app.errors import SessionError
+    from handeye.app.session import SessionWriter, read_session
+    from handeye.calib.observation import Observation
+    from handeye.calib.simulate import realistic_profile
 
     real = realistic_profile(12, np.random.default_rng(0))
     d = real.data
@@ -153,10 +153,10 @@ def test_recorded_joints_are_checked_before_the_robot_model_uses_them(tmp_path, 
 
 
 def test_the_configured_marker_offset_reaches_auto():
-    """``[marker] offset_m`` is what calibrate's solve (`app.devices.make_solve`) holds with ``auto``: a grid
+    """``[marker] offset_m`` is what calibrate's solve (`handeye.app.devices.make_solve`) holds with ``auto``: a grid
     (the tool never turned) is then complete; another method is not given it (it would refuse it)."""
-    from app import devices
-    from calib.observation import Observation
+    from handeye.app import devices
+    from handeye.calib.observation import Observation
 
     d = realistic_cell(30, np.random.default_rng(11), angle_range=0.0)
     obs = [Observation(i, float(i), d.A[i], d.points[i], d.point_cov[i]) for i in range(30)]

@@ -3,12 +3,12 @@
 import numpy as np
 import pytest
 
-from app import exit_status
-from app.cli import main
-from app.runs.replay import format_table, replay
-from app.session import SessionWriter, read_session
-from calib.observation import Observation
-from calib.simulate import realistic_cell
+from handeye.app import exit_status
+from handeye.app.cli import main
+from handeye.app.runs.replay import format_table, replay
+from handeye.app.session import SessionWriter, read_session
+from handeye.calib.observation import Observation
+from handeye.calib.simulate import realistic_cell
 from tests.app.verdict_status import printed_status
 
 

@@ -4,9 +4,9 @@ refined rows, a verdict per result (few samples, inconsistent residuals)."""
 import numpy as np
 import pytest
 
-from app.runs.replay import advice, format_table, recommended, replay
-from calib import simulate
-from calib.observation import Observation
+from handeye.app.runs.replay import advice, format_table, recommended, replay
+from handeye.calib import simulate
+from handeye.calib.observation import Observation
 
 POINT_METHODS = ["YKronT'"]
 POSE_METHODS = ["YQuatT'", "YKronRT", "YQuatR*"]
@@ -61,7 +61,7 @@ def test_each_row_is_judged_few_samples_and_outliers_are_reasons():
 
 
 def test_recommendation_by_held_out_error():
-    pytest.importorskip("calib.crossval")
+    pytest.importorskip("handeye.calib.crossval")
     d = simulate.realistic_cell(15, np.random.default_rng(33))
     obs = _observations(d)
     rows = replay(obs, "eye_to_hand", ["YQuatT'", "YKronRT"] + POINT_METHODS, rng=np.random.default_rng(0))

@@ -1,4 +1,4 @@
-"""``handeye replay`` accepts every import format (app.cli -> app.commands.replay -> app.runs.replay -> app.formats.load)."""
+"""``handeye replay`` accepts every import format (handeye.app.cli -> handeye.app.commands.replay -> handeye.app.runs.replay -> handeye.app.formats.load)."""
 
 from pathlib import Path
 
@@ -6,9 +6,9 @@ import numpy as np
 import pytest
 import yaml
 
-from app.cli import main
-from calib import simulate
-from calib import transforms as tf
+from handeye.app.cli import main
+from handeye.calib import simulate
+from handeye.calib import transforms as tf
 from tests.app.verdict_status import printed_status
 
 DATA = Path(__file__).parents[1] / "data"

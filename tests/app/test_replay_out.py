@@ -6,16 +6,16 @@ import numpy as np
 import pytest
 import yaml
 
-from app import exit_status
-from app.benchmarks.fuzz import IMPORT_MAIN, write_import_seed
-from app.cli import main
-from app.devices import RESULT_FILES
-from calib import transforms as tf
+from handeye.app import exit_status
+from bench.fuzz import IMPORT_MAIN, write_import_seed
+from handeye.app.cli import main
+from handeye.app.devices import RESULT_FILES
+from handeye.calib import transforms as tf
 from tests.app.verdict_status import printed_status
 
 DATA = Path(__file__).parents[1] / "data"
 
-#: Importers whose seed (app.benchmarks.fuzz) has enough samples to solve; industrial_calibration and
+#: Importers whose seed (bench.fuzz) has enough samples to solve; industrial_calibration and
 #: pose_csv take the real recordings in tests/data, image_folder is rendered in test_formats_people_bring.
 SEEDED = ["easy_handeye2", "easy_handeye", "visp", "opencv_storage", "moveit_calibration"]
 

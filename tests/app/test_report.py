@@ -8,10 +8,10 @@ from pathlib import Path
 import pytest
 import yaml
 
-from app.cli import main
-from app.config import load_config
-from app.provenance import marker_description
-from calib.vision.extract import TargetConfig
+from handeye.app.cli import main
+from handeye.app.config import load_config
+from handeye.app.provenance import marker_description
+from handeye.calib.vision.extract import TargetConfig
 
 DATA = Path(__file__).resolve().parents[1] / "data"
 #: The statisticians' words that belong in the appendix only.

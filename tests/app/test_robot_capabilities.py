@@ -1,16 +1,16 @@
-"""The app asks a robot only what `drivers.robot.base.Robot` declares: limits and the limit check for planning,
+"""The app asks a robot only what `handeye.drivers.robot.base.Robot` declares: limits and the limit check for planning,
 ``simulated``/``kinematics``/``start_program`` for the production program, ``true_flange_pose`` for the camera."""
 
 import numpy as np
 
-from app import devices, planning
-from app.config import load_config
-from app.production import start_production
-from calib import transforms as tf
-from drivers.errors import LimitViolationError
-from drivers.robot import ur_kinematics as kin
-from drivers.robot.base import Robot, RobotLimits, RobotState
-from drivers.robot.ur import URKinematics
+from handeye.app import devices, planning
+from handeye.app.config import load_config
+from handeye.app.production import start_production
+from handeye.calib import transforms as tf
+from handeye.drivers.errors import LimitViolationError
+from handeye.drivers.robot import ur_kinematics as kin
+from handeye.drivers.robot.base import Robot, RobotLimits, RobotState
+from handeye.drivers.robot.ur import URKinematics
 
 
 class FakeRobot(Robot):

@@ -9,14 +9,14 @@ import time
 import numpy as np
 import pytest
 
-from app.config import config_from_dict, load_config
-from app.production import Bump
-from app.runs.calibrate import calibrate
-from app.runs.demo import demo_monitor
-from app.session import read_session
-from calib import transforms as tf
-from calib.vision.extract import extract
-from mocks.render.camera import RenderedCamera
+from handeye.app.config import config_from_dict, load_config
+from handeye.app.production import Bump
+from handeye.app.runs.calibrate import calibrate
+from handeye.app.runs.demo import demo_monitor
+from handeye.app.session import read_session
+from handeye.calib import transforms as tf
+from handeye.calib.vision.extract import extract
+from handeye.mocks.render.camera import RenderedCamera
 from tests.simulated_ur import process_net
 
 pytestmark = pytest.mark.slow
@@ -92,7 +92,7 @@ def test_monitor_from_ros2_turns_diagnostics_to_error_for_another_process(calibr
 
 
 def _report(n: int, estimate=None, alarms=()):
-    from app.runs.monitor import MonitorReport
+    from handeye.app.runs.monitor import MonitorReport
 
     return MonitorReport(session="s", n_samples=n, n_skipped=0, alarms=list(alarms), estimate=estimate,
                          samples_until_armed=0 if estimate is not None else 4)
@@ -104,9 +104,9 @@ def test_the_diagnostics_level_says_quiet_drifting_moved_or_away(engine_update):
     published before `open`)."""
     from types import SimpleNamespace
 
-    from app.outage import OutageEvent
-    from app.ros2 import ERROR, OK, WARN, DiagnosticsPublisher, Ros2Config
-    from app.runs.monitor import Alarm
+    from handeye.app.outage import OutageEvent
+    from handeye.app.ros2 import ERROR, OK, WARN, DiagnosticsPublisher, Ros2Config
+    from handeye.app.runs.monitor import Alarm
 
     pub = DiagnosticsPublisher(Ros2Config(diagnostics=True), "eye_to_hand", load_config(None).frames.model_dump())
     assert pub.status()[0] == WARN  # no sample yet

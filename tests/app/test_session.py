@@ -3,10 +3,10 @@ import json
 import numpy as np
 import pytest
 
-from app.session import FORMAT_NAME, SessionWriter, read_session
-from calib import transforms as tf
-from app.errors import SessionError
-from calib.observation import Observation
+from handeye.app.session import FORMAT_NAME, SessionWriter, read_session
+from handeye.calib import transforms as tf
+from handeye.app.errors import SessionError
+from handeye.calib.observation import Observation
 
 
 def _obs(rng, i=0, with_pose=True):

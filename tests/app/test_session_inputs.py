@@ -12,10 +12,10 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from app.session import SessionWriter, read_session
-from calib import simulate
-from app.errors import SessionError
-from calib.observation import Observation
+from handeye.app.session import SessionWriter, read_session
+from handeye.calib import simulate
+from handeye.app.errors import SessionError
+from handeye.calib.observation import Observation
 
 SETTINGS = settings(max_examples=60, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
 

@@ -1,4 +1,4 @@
-"""The shift record's files survive a Ctrl-C that lands while they are written (app.files.uninterrupted)."""
+"""The shift record's files survive a Ctrl-C that lands while they are written (handeye.app.files.uninterrupted)."""
 
 import os
 import re
@@ -6,9 +6,9 @@ import signal
 
 import pytest
 
-from app.files import uninterrupted
-from app.shift_record import ShiftRecord
-from calib.setup import Setup
+from handeye.app.files import uninterrupted
+from handeye.app.shift_record import ShiftRecord
+from handeye.calib.setup import Setup
 
 
 def test_a_signal_inside_the_block_waits_for_its_end():

@@ -7,16 +7,16 @@ import numpy as np
 import pytest
 import yaml
 
-from app import exit_status
-from app import verify as av
-from app.cli import main
-from app.errors import SessionError
-from app.report import PLOT_CLASS
-from app.session import SessionWriter
-from calib import simulate
-from calib import transforms as tf
-from calib import verify as cv
-from calib.observation import Observation
+from handeye.app import exit_status
+from handeye.app import verify as av
+from handeye.app.cli import main
+from handeye.app.errors import SessionError
+from handeye.app.report import PLOT_CLASS
+from handeye.app.session import SessionWriter
+from handeye.calib import simulate
+from handeye.calib import transforms as tf
+from handeye.calib import verify as cv
+from handeye.calib.observation import Observation
 
 
 @pytest.fixture
@@ -188,8 +188,8 @@ RESULT_PATHS = [("setup",), ("camera_transform",), ("camera_transform", "matrix"
 @pytest.fixture(scope="module")
 def result_doc(tmp_path_factory):
     """A result.yaml of auto with a camera correction and a noise model (every field load_result reads)."""
-    from app.formats import write_result
-    from calib import solve
+    from handeye.app.formats import write_result
+    from handeye.calib import solve
 
     d = simulate.realistic_cell(30, np.random.default_rng(5))
     path = write_result(solve("auto", d.A, d.points * 1.02), tmp_path_factory.mktemp("res") / "result.yaml")
@@ -244,7 +244,7 @@ def test_verify_connects_before_it_asks(two_sessions, tmp_path, capsys, monkeypa
     main(["replay", str(s0), "--out", str(s0)])
     capsys.readouterr()
     asked = []
-    monkeypatch.setattr("app.commands.verify.confirm_motion", lambda yes_move: asked.append(yes_move))
+    monkeypatch.setattr("handeye.app.commands.verify.confirm_motion", lambda yes_move: asked.append(yes_move))
     p = tmp_path / "c.toml"
     p.write_text(Path("config/ur10_xtion_eye_to_hand.toml").read_text().replace('"192.168.1.10"',
                                                                                 f'"{loopback(70)}"'))

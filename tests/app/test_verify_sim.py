@@ -7,12 +7,12 @@ import numpy as np
 import pytest
 import yaml
 
-from app import verify as av
-from app.cli import main
-from app.runs.demo import demo
-from app.report import PLOT_CLASS
-from app.session import read_session
-from calib import verify as cv
+from handeye.app import verify as av
+from handeye.app.cli import main
+from handeye.app.runs.demo import demo
+from handeye.app.report import PLOT_CLASS
+from handeye.app.session import read_session
+from handeye.calib import verify as cv
 
 pytestmark = pytest.mark.slow
 

@@ -11,9 +11,9 @@ import sys
 import numpy as np
 import pytest
 
-from app import viz as viz_mod
-from app.cli import main
-from app.viz import Viz
+from handeye.app import viz as viz_mod
+from handeye.app.cli import main
+from handeye.app.viz import Viz
 from tests.app.verdict_status import printed_status
 
 REAL_VIEWER = viz_mod.viewer_command()

@@ -1,9 +1,9 @@
-"""The exit status a command's printed verdict calls for (`app.exit_status`), to hold its exit status to."""
+"""The exit status a command's printed verdict calls for (`handeye.app.exit_status`), to hold its exit status to."""
 
-from app import exit_status
+from handeye.app import exit_status
 
 
 def printed_status(out: str) -> int:
-    """`app.exit_status.of_verdict` of the first ``PASS:`` / ``WARN:`` / ``FAIL:`` line of ``out``."""
+    """`handeye.app.exit_status.of_verdict` of the first ``PASS:`` / ``WARN:`` / ``FAIL:`` line of ``out``."""
     level = next(line.split(":")[0] for line in out.splitlines() if line.startswith(("PASS:", "WARN:", "FAIL:")))
     return exit_status.of_verdict(level.lower())

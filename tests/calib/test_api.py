@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from calib import (
+from handeye.calib import (
     METHODS,
     CalibrationError,
     DegenerateMotionError,
@@ -14,8 +14,8 @@ from calib import (
     simulate,
     solve,
 )
-from calib import transforms as tf
-from calib.api import closed_form, resolve_method
+from handeye.calib import transforms as tf
+from handeye.calib.api import closed_form, resolve_method
 
 ALL = list(METHODS)
 
@@ -177,7 +177,7 @@ def test_degenerate_motion_is_detected(method, kind, match, setup):
 @pytest.mark.parametrize("kind", ["one_axis", "pure_translation"])
 def test_auto_answers_what_a_degenerate_motion_determines(setup, points, kind):
     """Where the closed forms refuse, ``auto`` gives what the motions determine and names the rest with the
-    motion that closes it (`calib.auto.determined`); motions that determine nothing stay a typed refusal."""
+    motion that closes it (`handeye.calib.auto.determined`); motions that determine nothing stay a typed refusal."""
     A, B = motion_set(kind, setup, np.random.default_rng(1))
     res = solve("auto", A, B[:, :3, 3] if points else B, setup=setup)
     assert len(res.undetermined) == 1 and "not separated" in res.undetermined[0]

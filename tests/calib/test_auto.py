@@ -3,15 +3,15 @@
 import numpy as np
 import pytest
 
-from calib import model, solve
-from calib.diagnostics import self_check
-from calib.problem import CalibrationProblem
-from calib import transforms as tf
-from calib.errors import CalibrationError
-from calib.refine import error_vector
-from calib import robot_error, simulate
-from calib.refine import nees
-from calib.simulate import realistic_cell, with_gross_outliers
+from handeye.calib import model, solve
+from handeye.calib.diagnostics import self_check
+from handeye.calib.problem import CalibrationProblem
+from handeye.calib import transforms as tf
+from handeye.calib.errors import CalibrationError
+from handeye.calib.refine import error_vector
+from handeye.calib import robot_error, simulate
+from handeye.calib.refine import nees
+from handeye.calib.simulate import realistic_cell, with_gross_outliers
 
 
 def _trans_err(T, T_true):
@@ -192,8 +192,8 @@ def test_ur_dh_error_factor_is_the_flange_motion_of_each_dh_parameter():
 
 
 def test_solve_observations_passes_the_shared_robot_error_of_the_samples_it_uses():
-    from calib.api import solve_observations
-    from calib.observation import Observation
+    from handeye.calib.api import solve_observations
+    from handeye.calib.observation import Observation
 
     real = simulate.realistic_profile(20, np.random.default_rng(8))
     d = real.data
@@ -249,7 +249,7 @@ def test_the_transform_for_uncorrected_points_eye_in_hand():
 
 
 def test_blocked_folds_are_contiguous_stretches_covering_every_sample():
-    from calib.auto import blocked_folds
+    from handeye.calib.auto import blocked_folds
 
     for n in (12, 29, 30, 1001):
         folds = blocked_folds(n)
@@ -265,8 +265,8 @@ def test_a_correction_that_does_not_carry_across_stretches_is_not_kept():
     (2026-12-01; was 1.61 mm, the best closed form 1.11 mm)."""
     from pathlib import Path
 
-    from app.benchmarks.crosssession import prediction_rms
-    from app.formats import load
+    from bench.crosssession import prediction_rms
+    from handeye.app.formats import load
 
     imp = load(Path(__file__).parents[1] / "data" / "ethz" / "robot_arm_sim")
     A, B, n = imp.A, imp.B, len(imp.A)
@@ -300,8 +300,8 @@ def test_the_closed_form_start_is_reported_when_it_carries_better():
     form, which predicts the second half as well as YKronT' itself (4.15 mm; the fit gave 4.24 mm)."""
     from pathlib import Path
 
-    from app.benchmarks.crosssession import prediction_rms
-    from app.formats import load
+    from bench.crosssession import prediction_rms
+    from handeye.app.formats import load
 
     imp = load(Path(__file__).parents[1] / "data" / "ethz" / "robot_arm")
     A, B, n = imp.A, imp.B, len(imp.A)

@@ -1,10 +1,10 @@
-"""The moved test of the monitoring engine: the windowed GLR change detector (calib.change)."""
+"""The moved test of the monitoring engine: the windowed GLR change detector (handeye.calib.change)."""
 
 import numpy as np
 import pytest
 
-from calib.change import ChangeDetector, DetectorConfig
-from calib.errors import ParameterError
+from handeye.calib.change import ChangeDetector, DetectorConfig
+from handeye.calib.errors import ParameterError
 
 
 def test_config_validation_names_the_field():
@@ -129,7 +129,7 @@ def test_detection_power_matches_a_simulated_glr_with_known_noise():
     baselines' means, noise known) whose GLR statistic exceeds the threshold."""
     from scipy.stats import chi2
 
-    from calib.change import detection_power, move_information
+    from handeye.calib.change import detection_power, move_information
 
     rng = np.random.default_rng(52)
     S = 4
@@ -161,8 +161,8 @@ def test_detection_power_matches_a_simulated_glr_with_known_noise():
 
 
 def test_detection_limit_inputs_are_checked():
-    from calib.change import detection_power, move_information
-    from calib.errors import CalibrationError
+    from handeye.calib.change import detection_power, move_information
+    from handeye.calib.errors import CalibrationError
 
     with pytest.raises(CalibrationError, match="H \\(S, 3, 6\\)"):
         move_information(np.zeros((2, 3, 5)), np.zeros((2, 3, 3)), [1, 1], [1, 1])

@@ -3,10 +3,10 @@
 import numpy as np
 import pytest
 
-from calib import api, simulate, solvers
-from calib.api import solve
-from calib.refine import covariance, error_vector, kron_t_prime_covariance, nees
-from calib.problem import CalibrationProblem
+from handeye.calib import api, simulate, solvers
+from handeye.calib.api import solve
+from handeye.calib.refine import covariance, error_vector, kron_t_prime_covariance, nees
+from handeye.calib.problem import CalibrationProblem
 
 
 @pytest.mark.parametrize("setup", ["eye_to_hand", "eye_in_hand"])

@@ -1,11 +1,11 @@
-"""calib.crossval.cross_validate: held-out prediction error, observed vs predicted."""
+"""handeye.calib.crossval.cross_validate: held-out prediction error, observed vs predicted."""
 
 import numpy as np
 import pytest
 
-from calib.crossval import CrossValidation, cross_validate
-from calib.errors import CalibrationError, InsufficientDataError
-from calib.simulate import realistic_cell
+from handeye.calib.crossval import CrossValidation, cross_validate
+from handeye.calib.errors import CalibrationError, InsufficientDataError
+from handeye.calib.simulate import realistic_cell
 
 
 def test_leave_one_out_observed_matches_predicted_on_the_plain_cell():

@@ -1,14 +1,14 @@
-"""calib.model: the shared measurement model (Jacobians, camera correction, noise levels, LOO)."""
+"""handeye.calib.model: the shared measurement model (Jacobians, camera correction, noise levels, LOO)."""
 
 import numpy as np
 import pytest
 
-from calib import model
-from calib import transforms as tf
-from calib.api import closed_form
-from calib.refine import refine
-from calib.simulate import realistic_cell
-from calib.problem import CalibrationProblem
+from handeye.calib import model
+from handeye.calib import transforms as tf
+from handeye.calib.api import closed_form
+from handeye.calib.refine import refine
+from handeye.calib.simulate import realistic_cell
+from handeye.calib.problem import CalibrationProblem
 
 
 def _numeric_jacobian(problem, C, K, theta, eps=1e-7):

@@ -1,11 +1,11 @@
 """The monitoring engine through arbitrary interleavings of arming, programs, moves and bad samples (a bounded run
-of app.benchmarks.monitor_campaign's state machine; ``handeye bench --fuzz --only monitor`` runs a long one)."""
+of bench.monitor_campaign's state machine; ``python -m bench --fuzz --only monitor`` runs a long one)."""
 
 import os
 
 from hypothesis import HealthCheck, settings
 
-from app.benchmarks.monitor_campaign import engine_machine
+from bench.monitor_campaign import engine_machine
 
 EngineMachine = engine_machine()
 

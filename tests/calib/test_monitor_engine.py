@@ -1,4 +1,4 @@
-"""calib.monitor: the monitoring engine over simulated production shifts (calib.simulate.shift_stream)."""
+"""handeye.calib.monitor: the monitoring engine over simulated production shifts (handeye.calib.simulate.shift_stream)."""
 
 import dataclasses
 
@@ -7,14 +7,14 @@ import pytest
 from hypothesis import assume, given, settings
 from hypothesis import strategies as st
 
-from app.benchmarks import shift as bench_shift
-from calib import model, simulate, solve
-from calib import transforms as tf
-from calib.errors import CalibrationError
-from calib.monitor import MonitorEngine, MonitorSettings, WorkspaceMoments, workspace_distance, workspace_sigma
-from calib.monitor.kernels import parts, sample_floats
-from calib.problem import CalibrationProblem
-from calib.setup import Setup
+from bench import shift as bench_shift
+from handeye.calib import model, simulate, solve
+from handeye.calib import transforms as tf
+from handeye.calib.errors import CalibrationError
+from handeye.calib.monitor import MonitorEngine, MonitorSettings, WorkspaceMoments, workspace_distance, workspace_sigma
+from handeye.calib.monitor.kernels import parts, sample_floats
+from handeye.calib.problem import CalibrationProblem
+from handeye.calib.setup import Setup
 
 PROFILE = simulate.RealisticProfile()
 
@@ -65,7 +65,7 @@ def sample_model(C, t_K, A, theta, setup, factor=None, z=None):
 @given(setup=st.sampled_from([Setup.EYE_TO_HAND, Setup.EYE_IN_HAND]), seed=st.integers(0, 2**32 - 1),
        n_factor=st.sampled_from([0, 1, 24]))
 def test_the_fast_path_is_the_reference_model(setup, seed, n_factor):
-    """The engine's per-sample model on floats equals `calib.model`'s (the reference that ``auto`` and the arming
+    """The engine's per-sample model on floats equals `handeye.calib.model`'s (the reference that ``auto`` and the arming
     use) on random states: prediction, Jacobian and robot cofactor, kinematic error included."""
     rng = np.random.default_rng(seed)
     C = tf.from_rotvec_translation(rng.normal(size=3), rng.normal(size=3) * 0.5 + [0.0, 0.0, 0.9])
@@ -179,7 +179,7 @@ def test_repeated_visits_of_the_same_stops_do_not_make_the_estimate_overconfiden
     day. The stated 1-sigma keeps covering the live error over the workspace (mean (error / sigma)^2 near 1, not
     the 5-80 of a filter that takes each visit as independent news), and the camera correction, which four stops
     cannot separate from the camera's pose, stays within 3 sigma of the arming's."""
-    from calib.simulate_month import Month, month_stream
+    from handeye.calib.simulate_month import Month, month_stream
 
     rng = np.random.default_rng([7, int(setup == Setup.EYE_TO_HAND)])
     prof = dataclasses.replace(PROFILE, pose_error_m=0.4e-3)
@@ -417,8 +417,8 @@ def _real_stream_alarms(shared: bool) -> tuple[list, float]:
     stops would be). Returns its *moved* alarms and the arming's shared error variance (m^2 per axis)."""
     from pathlib import Path
 
-    from app.benchmarks.crosssession import spaced
-    from app.formats import load
+    from bench.crosssession import spaced
+    from handeye.app.formats import load
 
     obs = load(Path(__file__).parents[1] / "data" / "ethz" / "robot_arm").observations
     first, second = obs[:len(obs) // 2], obs[len(obs) // 2:]
@@ -450,7 +450,7 @@ def test_a_run_continued_from_the_last_raises_no_alarm_for_a_bump_it_has_relearn
     the live estimate within the bound; armed again from the original calibration, what it sees at once is the
     camera away from that calibration (a moved or, as the filter takes the first samples for its refinement, a
     drifting alarm) and its error over the workspace is larger."""
-    from calib.monitor.snapshot import snapshot_from_dict, snapshot_to_dict
+    from handeye.calib.monitor.snapshot import snapshot_from_dict, snapshot_to_dict
 
     shift = dataclasses.replace(simulate.Shift(), hours=4.0, bumps=((1.0, 5.0, 0.3),))
     real, res, engine = _armed(3)
@@ -501,7 +501,7 @@ def test_more_stops_than_slots_reuse_the_least_recently_visited_and_the_state_st
     """A program of 24 stops (more than `STOP_SLOTS`) visited in turn: each new stop takes the slot of the least
     recently visited one, whose error is marginalised; the state stays sound, the stops' errors in the free slots
     are zero, and no moved alarm is raised on a still camera."""
-    from calib.monitor.filter import STOP_SLOTS, is_sound
+    from handeye.calib.monitor.filter import STOP_SLOTS, is_sound
 
     real, res, engine = _armed(2)
     stream = simulate.shift_stream(real, dataclasses.replace(simulate.Shift(), hours=1.0, bumps=(), stops=24,
@@ -525,8 +525,8 @@ def test_more_stops_than_slots_reuse_the_least_recently_visited_and_the_state_st
 def test_a_snapshot_carries_no_stop_errors_and_the_next_run_learns_them_again():
     """The stops' own errors are marginalised in the snapshot (its file form keeps its layout), and a run resumed
     from it holds none until it visits the stops again."""
-    from calib.monitor.filter import Layout
-    from calib.monitor.snapshot import snapshot_from_dict, snapshot_to_dict
+    from handeye.calib.monitor.filter import Layout
+    from handeye.calib.monitor.snapshot import snapshot_from_dict, snapshot_to_dict
 
     real, res, engine = _armed(1)
     stream = simulate.shift_stream(real, dataclasses.replace(simulate.Shift(), hours=0.5, bumps=()),
@@ -555,7 +555,7 @@ def test_the_walk_is_followed_only_where_the_stops_observe_it():
     """`observed_walk`: with stops that observe every direction well the walk is the whole random walk; where one
     visit of each stop tells nothing of a direction (here: a turn about the line of sight traded against a shift),
     the walk has no variance along it."""
-    from calib.monitor.filter import observed_walk
+    from handeye.calib.monitor.filter import observed_walk
 
     q = np.array([1e-10] * 3 + [1e-10] * 3)
     strong = np.eye(6) * 1e12

@@ -1,12 +1,12 @@
-"""calib.planner: screening, information ordering, bootstrap safety, both setups."""
+"""handeye.calib.planner: screening, information ordering, bootstrap safety, both setups."""
 
 import numpy as np
 import pytest
 
-from calib import transforms as tf
-from calib.errors import CalibrationError, ParameterError
-from calib.noise import default_point_cov
-from calib.planner import (
+from handeye.calib import transforms as tf
+from handeye.calib.errors import CalibrationError, ParameterError
+from handeye.calib.noise import default_point_cov
+from handeye.calib.planner import (
     CameraView,
     KeepOut,
     PlannerConfig,
@@ -17,14 +17,14 @@ from calib.planner import (
     marker_rotation,
     travel_time,
 )
-from calib.simulate import realistic_cell
+from handeye.calib.simulate import realistic_cell
 
 VIEW = CameraView(width=640, height=480, fx=570.0, fy=570.0, cx=319.5, cy=239.5, margin_px=40, depth_min_m=0.4, depth_max_m=2.0,
                   max_view_angle_deg=60.0, marker_size_m=0.05)
 
 
 def _cell(setup, seed=0):
-    """True X, Y of `calib.simulate.realistic_cell` and its start pose (marker and camera facing at 0.7 m)."""
+    """True X, Y of `handeye.calib.simulate.realistic_cell` and its start pose (marker and camera facing at 0.7 m)."""
     from scipy.spatial.transform import Rotation
 
     d = realistic_cell(1, np.random.default_rng(seed), setup=setup)
@@ -293,13 +293,13 @@ def test_camera_correction_is_planned_for_when_it_is_estimated():
 
 @pytest.mark.parametrize("n", [8, 16])
 def test_predicted_covariance_is_what_auto_reports(n):
-    """With the camera corrections as unknowns with calib.auto's typical errors as priors, the planner predicts
+    """With the camera corrections as unknowns with handeye.calib.auto's typical errors as priors, the planner predicts
     the camera 1-sigma solve("auto") reports: below MIN_SAMPLES_CAMERA the consider covariance (corrections
     at nominal), from it on the estimated one (synthetic samples at planned poses, 0.3 mm along the ray)."""
-    from calib.api import solve
-    from calib.auto import CONSIDER_SIGMA, MIN_SAMPLES_CAMERA
-    from calib.model import CAMERA_PARAMS
-    from calib.result import worst_axis_sigma
+    from handeye.calib.api import solve
+    from handeye.calib.auto import CONSIDER_SIGMA, MIN_SAMPLES_CAMERA
+    from handeye.calib.model import CAMERA_PARAMS
+    from handeye.calib.result import worst_axis_sigma
 
     def quiet(p):
         return 0.01 * default_point_cov(p)
@@ -323,7 +323,7 @@ def test_predicted_covariance_is_what_auto_reports(n):
 
 
 def test_anchored_noise_model_keeps_the_default_depth_law_at_the_measured_level():
-    from calib.noise import anchored_point_cov
+    from handeye.calib.noise import anchored_point_cov
 
     p0 = np.array([0.1, -0.05, 0.7])
     S0 = default_point_cov(p0[None])[0]

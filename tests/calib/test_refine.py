@@ -1,16 +1,16 @@
-"""ML refinement (calib.refine): convergence, Cramér-Rao efficiency, both setups, bad input."""
+"""ML refinement (handeye.calib.refine): convergence, Cramér-Rao efficiency, both setups, bad input."""
 
 import dataclasses
 
 import numpy as np
 import pytest
 
-from calib import simulate
-from calib import transforms as tf
-from calib.api import closed_form, solve
-from calib.errors import CalibrationError, DegenerateMotionError, InsufficientDataError
-from calib.refine import cramer_rao_bound, error_vector, refine, residuals
-from calib.problem import CalibrationProblem
+from handeye.calib import simulate
+from handeye.calib import transforms as tf
+from handeye.calib.api import closed_form, solve
+from handeye.calib.errors import CalibrationError, DegenerateMotionError, InsufficientDataError
+from handeye.calib.refine import cramer_rao_bound, error_vector, refine, residuals
+from handeye.calib.problem import CalibrationProblem
 
 SETUPS = ["eye_to_hand", "eye_in_hand"]
 

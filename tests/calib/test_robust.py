@@ -1,14 +1,14 @@
-"""Outlier-robust calibration (calib.robust) through solve(..., robust=True)."""
+"""Outlier-robust calibration (handeye.calib.robust) through solve(..., robust=True)."""
 
 import numpy as np
 import pytest
 
-from calib import simulate
-from calib import transforms as tf
-from calib.api import closed_form, solve
-from calib.errors import CalibrationError, InsufficientDataError
-from calib.robust import robust_solve
-from calib.problem import CalibrationProblem
+from handeye.calib import simulate
+from handeye.calib import transforms as tf
+from handeye.calib.api import closed_form, solve
+from handeye.calib.errors import CalibrationError, InsufficientDataError
+from handeye.calib.robust import robust_solve
+from handeye.calib.problem import CalibrationProblem
 
 
 @pytest.mark.parametrize("setup,fraction", [("eye_to_hand", 0.3), ("eye_in_hand", 0.3), ("eye_to_hand", 0.1)])

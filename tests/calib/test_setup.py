@@ -1,9 +1,9 @@
 import pytest
 
-from app.errors import ConfigError, SessionError
-from calib.errors import CalibrationError, HandeyeError, ParameterError
-from calib.setup import Setup, check_setup
-from drivers.errors import ConnectionLostError, DeviceError, LimitViolationError, RobotStoppedError
+from handeye.app.errors import ConfigError, SessionError
+from handeye.calib.errors import CalibrationError, HandeyeError, ParameterError
+from handeye.calib.setup import Setup, check_setup
+from handeye.drivers.errors import ConnectionLostError, DeviceError, LimitViolationError, RobotStoppedError
 
 
 def test_setup_names_the_frames_of_x_y_and_the_camera():

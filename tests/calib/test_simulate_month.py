@@ -1,4 +1,4 @@
-"""The month simulation (`calib.simulate_month`): what it adds to the shift's is what the monitor is judged against
+"""The month simulation (`handeye.calib.simulate_month`): what it adds to the shift's is what the monitor is judged against
 over a month, so each part is checked against the truth it returns."""
 
 import dataclasses
@@ -6,11 +6,11 @@ import dataclasses
 import numpy as np
 import pytest
 
-from calib import simulate
-from calib import transforms as tf
-from calib.robot_error import ur_forward
-from calib.setup import Setup
-from calib.simulate_month import DAY_S, Month, month_stream
+from handeye.calib import simulate
+from handeye.calib import transforms as tf
+from handeye.calib.robot_error import ur_forward
+from handeye.calib.setup import Setup
+from handeye.calib.simulate_month import DAY_S, Month, month_stream
 
 QUIET = simulate.RealisticProfile(depth_scale=0.0, depth_offset=0.0, focal_scale=0.0, misregistration_px=0.0)
 

@@ -12,13 +12,13 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 from hypothesis.extra import numpy as hnp
 
-from calib import METHODS, CalibrationError, simulate, solve
-from calib import solvers
-from calib import transforms as tf
-from calib.api import closed_form
-from calib.refine import refine
-from calib.robust import robust_solve
-from calib.problem import CalibrationProblem
+from handeye.calib import METHODS, CalibrationError, simulate, solve
+from handeye.calib import solvers
+from handeye.calib import transforms as tf
+from handeye.calib.api import closed_form
+from handeye.calib.refine import refine
+from handeye.calib.robust import robust_solve
+from handeye.calib.problem import CalibrationProblem
 
 FAST = settings(max_examples=40, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 

@@ -4,9 +4,9 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from calib import METHODS, simulate, solvers
-from calib import transforms as tf
-from calib.api import closed_form
+from handeye.calib import METHODS, simulate, solvers
+from handeye.calib import transforms as tf
+from handeye.calib.api import closed_form
 
 ALL = list(METHODS)
 POSE_METHODS = [m for m, info in METHODS.items() if info.needs == "poses"]

@@ -1,11 +1,11 @@
-"""calib.timesync on synthetic eye-in-hand streams with a known clock offset."""
+"""handeye.calib.timesync on synthetic eye-in-hand streams with a known clock offset."""
 
 import numpy as np
 import pytest
 
-from calib import timesync as ts
-from calib import transforms as tf
-from calib.errors import CalibrationError, InsufficientDataError
+from handeye.calib import timesync as ts
+from handeye.calib import transforms as tf
+from handeye.calib.errors import CalibrationError, InsufficientDataError
 
 
 def _streams(rng, offset, *, noise_rad=0.0):

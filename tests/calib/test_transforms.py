@@ -1,8 +1,8 @@
 import numpy as np
 import pytest
 
-from calib import CalibrationError
-from calib import transforms as tf
+from handeye.calib import CalibrationError
+from handeye.calib import transforms as tf
 
 
 @pytest.fixture

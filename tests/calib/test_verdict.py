@@ -1,4 +1,4 @@
-"""calib.verdict: the predicted error over the workspace is honest, and the verdict follows the tolerance, the
+"""handeye.calib.verdict: the predicted error over the workspace is honest, and the verdict follows the tolerance, the
 residuals' consistency, the coverage and what the motions leave open; a verification's verdict too."""
 
 import dataclasses
@@ -6,12 +6,12 @@ import dataclasses
 import numpy as np
 import pytest
 
-from calib import simulate, solve
-from calib import verify as cv
-from calib.errors import CalibrationError
-from calib.problem import CalibrationProblem
-from calib.setup import Setup
-from calib.verdict import bounded, judge, judge_verification, per_pose_phrase, workspace_accuracy
+from handeye.calib import simulate, solve
+from handeye.calib import verify as cv
+from handeye.calib.errors import CalibrationError
+from handeye.calib.problem import CalibrationProblem
+from handeye.calib.setup import Setup
+from handeye.calib.verdict import bounded, judge, judge_verification, per_pose_phrase, workspace_accuracy
 
 
 def _problem(d, points=None):

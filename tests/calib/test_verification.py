@@ -1,14 +1,14 @@
-"""calib.verify: a result judged on samples it did not see (base frame), the frame-safety check."""
+"""handeye.calib.verify: a result judged on samples it did not see (base frame), the frame-safety check."""
 
 import numpy as np
 import pytest
 
-from calib import simulate
-from calib import transforms as tf
-from calib import verify as cv
-from calib.errors import CalibrationError, InsufficientDataError
-from calib.model import CameraCorrection
-from calib.setup import Setup
+from handeye.calib import simulate
+from handeye.calib import transforms as tf
+from handeye.calib import verify as cv
+from handeye.calib.errors import CalibrationError, InsufficientDataError
+from handeye.calib.model import CameraCorrection
+from handeye.calib.setup import Setup
 
 
 def _cell(setup, seed=0, n=40):
@@ -119,7 +119,7 @@ def test_bad_inputs_are_typed_errors():
 
 
 def test_spread_poses_keep_clear_of_the_calibration_poses():
-    from calib.planner import CameraView, PlannerConfig, PosePlanner
+    from handeye.calib.planner import CameraView, PlannerConfig, PosePlanner
 
     d = _cell(Setup.EYE_TO_HAND)
     view = CameraView(width=640, height=480, fx=570, fy=570, cx=319.5, cy=239.5, margin_px=20, depth_min_m=0.3,

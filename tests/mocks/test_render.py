@@ -4,14 +4,14 @@ import cv2
 import numpy as np
 import pytest
 
-from calib import transforms as tf
-from calib.errors import ParameterError
-from calib.vision.extract import TargetConfig, extract
-from drivers.camera.base import CameraIntrinsics
-from drivers.camera.registry import CAMERAS
-from mocks.recorded import RecordingWriter
-from mocks.render.camera import RenderedCameraConfig
-from mocks.render.scene import MarkerSceneRenderer, RenderNoise
+from handeye.calib import transforms as tf
+from handeye.calib.errors import ParameterError
+from handeye.calib.vision.extract import TargetConfig, extract
+from handeye.drivers.camera.base import CameraIntrinsics
+from handeye.drivers.camera.registry import CAMERAS
+from handeye.mocks.recorded import RecordingWriter
+from handeye.mocks.render.camera import RenderedCameraConfig
+from handeye.mocks.render.scene import MarkerSceneRenderer, RenderNoise
 
 INTR = CameraIntrinsics(640, 480, 570.0, 570.0, 319.5, 239.5)
 FACING = np.diag([1.0, -1.0, -1.0])
@@ -93,7 +93,7 @@ def test_extract_chessboard_and_charuco_with_flat_depth():
                         board[rr * sq_px:(rr + 1) * sq_px, cc * sq_px:(cc + 1) * sq_px] = 0
             target = TargetConfig(kind="chessboard", squares=(7, 5), square_size=0.04)
         else:
-            from calib.vision.markers import get_dictionary
+            from handeye.calib.vision.markers import get_dictionary
 
             board = cv2.aruco.CharucoBoard((7, 5), 0.04, 0.03, get_dictionary("DICT_6X6_250")).generateImage(
                 (7 * sq_px, 5 * sq_px))

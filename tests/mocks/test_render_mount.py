@@ -3,11 +3,11 @@
 import numpy as np
 import pytest
 
-from calib import transforms as tf
-from calib.errors import ParameterError
-from calib.setup import Setup
-from drivers.camera.registry import CAMERAS
-from mocks.render.camera import RenderedCameraConfig
+from handeye.calib import transforms as tf
+from handeye.calib.errors import ParameterError
+from handeye.calib.setup import Setup
+from handeye.drivers.camera.registry import CAMERAS
+from handeye.mocks.render.camera import RenderedCameraConfig
 
 # The default cell's start flange pose: the marker is in view of the default camera.
 FLANGE = tf.make_transform(np.eye(3), [0.9, 0.1, 0.5])

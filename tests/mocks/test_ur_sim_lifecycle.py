@@ -9,8 +9,8 @@ import time
 
 import pytest
 
-from app.benchmarks.faults import PARENT, ports_free, process_alive
-from mocks.ur_sim import launch
+from bench.faults import PARENT, ports_free, process_alive
+from handeye.mocks.ur_sim import launch
 from tests.simulated_ur import free_host
 
 

@@ -7,9 +7,9 @@ import struct
 import numpy as np
 import pytest
 
-from drivers.robot import ur_kinematics as kin
-from mocks.ur_sim.controller import SimController
-from mocks.ur_sim.motion import trapezoid_duration
+from handeye.drivers.robot import ur_kinematics as kin
+from handeye.mocks.ur_sim.controller import SimController
+from handeye.mocks.ur_sim.motion import trapezoid_duration
 
 
 

@@ -3,11 +3,11 @@
 import numpy as np
 import pytest
 
-from drivers.errors import DeviceError
-from drivers.robot import ur_kinematics as kin
-from drivers.robot.registry import ROBOTS
-from drivers.robot.ur import URKinematics
-from mocks.ur_sim.robot import URSimRobot, URSimRobotConfig
+from handeye.drivers.errors import DeviceError
+from handeye.drivers.robot import ur_kinematics as kin
+from handeye.drivers.robot.registry import ROBOTS
+from handeye.drivers.robot.ur import URKinematics
+from handeye.mocks.ur_sim.robot import URSimRobot, URSimRobotConfig
 
 from tests.simulated_ur import START_Q, free_host
 

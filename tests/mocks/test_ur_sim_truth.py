@@ -2,15 +2,15 @@
 
 import numpy as np
 
-from app import devices
-from app.config import Config
-from calib import transforms as tf
-from calib.vision.extract import TargetConfig, extract
-from drivers.robot import ur_kinematics as kin
-from drivers.robot.registry import ROBOTS
-from mocks.ur_sim.controller import SimController
-from mocks.ur_sim.program import Program
-from mocks.ur_sim.truth import SimRobotError, TrueArm
+from handeye.app import devices
+from handeye.app.config import Config
+from handeye.calib import transforms as tf
+from handeye.calib.vision.extract import TargetConfig, extract
+from handeye.drivers.robot import ur_kinematics as kin
+from handeye.drivers.robot.registry import ROBOTS
+from handeye.mocks.ur_sim.controller import SimController
+from handeye.mocks.ur_sim.program import Program
+from handeye.mocks.ur_sim.truth import SimRobotError, TrueArm
 
 from tests.simulated_ur import START_Q, free_host
 
@@ -27,7 +27,7 @@ def test_realistic_dh_error_moves_the_true_flange_by_a_fraction_of_a_mm_to_a_few
         arm = TrueArm("ur10", err.model_copy(update={"seed": seed}))
         dist += [np.linalg.norm(arm.flange(qi)[:3, 3] - kin.forward(qi, "ur10")[:3, 3]) for qi in q]
     dist = np.array(dist) * 1e3
-    # RealisticProfile's magnitudes give 1-3 mm at the flange of an uncalibrated UR10 (calib.simulate).
+    # RealisticProfile's magnitudes give 1-3 mm at the flange of an uncalibrated UR10 (handeye.calib.simulate).
     assert 0.2 < np.median(dist) < 4.0, np.median(dist)
     assert dist.max() < 8.0
 

@@ -1,4 +1,4 @@
-"""Regression on real recordings, through app.formats.load and the replay path.
+"""Regression on real recordings, through handeye.app.formats.load and the replay path.
 
 Measured figures (2026-11-22, this code, 2-core box) are written beside each
 assertion; bounds leave a margin for numerical noise and OpenCV versions, not
@@ -12,10 +12,10 @@ import cv2
 import numpy as np
 import pytest
 
-from app.formats import load
-from calib.api import solve_observations
-from app.runs.replay import format_table, replay
-from calib import transforms as tf
+from handeye.app.formats import load
+from handeye.calib.api import solve_observations
+from handeye.app.runs.replay import format_table, replay
+from handeye.calib import transforms as tf
 
 DATA = Path(__file__).parents[1] / "data"
 
@@ -138,7 +138,7 @@ def test_circle_grid_exports_carry_the_camera_correction(circle_grid):
     """auto finds a +2.2% depth scale on this set (nominal intrinsics, planar-PnP depth): leave one out,
     the rigid-only export predicts the held-out raw points far better than T_flange_cam without its
     correction (2026-12-01: 12.85 vs 22.39 mm RMS; the correction applied: 11.48 mm)."""
-    from app.benchmarks.model import uncorrected_heldout
+    from bench.model import uncorrected_heldout
 
     imp = circle_grid
     res = solve_observations("auto", imp.observations, imp.setup)

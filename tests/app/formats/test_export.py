@@ -11,12 +11,12 @@ import pytest
 import yaml
 from scipy.spatial.transform import Rotation
 
-from app.formats import EXPORT_FORMATS, result_to_dict, write_result
-from calib import simulate
-from calib import transforms as tf
-from calib.api import solve
-from app.errors import ConfigError
-from calib.errors import CalibrationError
+from handeye.app.formats import EXPORT_FORMATS, result_to_dict, write_result
+from handeye.calib import simulate
+from handeye.calib import transforms as tf
+from handeye.calib.api import solve
+from handeye.app.errors import ConfigError
+from handeye.calib.errors import CalibrationError
 
 FRAMES = {"base": "base_link", "flange": "tool0", "camera": "cam_optical", "marker": "target"}
 

@@ -9,14 +9,14 @@ import cv2
 import numpy as np
 import pytest
 
-from app.cli import main
-from app.errors import SessionError
-from app.formats import detect_format, load
-from app.formats.moveit import write_moveit
-from app.formats.opencv_storage import write_opencv_storage
-from app.formats.visp import write_visp
-from calib import simulate
-from calib import transforms as tf
+from handeye.app.cli import main
+from handeye.app.errors import SessionError
+from handeye.app.formats import detect_format, load
+from handeye.app.formats.moveit import write_moveit
+from handeye.app.formats.opencv_storage import write_opencv_storage
+from handeye.app.formats.visp import write_visp
+from handeye.calib import simulate
+from handeye.calib import transforms as tf
 from tests.app.verdict_status import printed_status
 
 
@@ -97,10 +97,10 @@ def test_moveit_calibration_samples(cell, tmp_path, capsys):
 def test_image_folder(tmp_path, capsys, poses_format):
     """Rendered images of the simulated cell's marker, a pose per image, the intrinsics: the
     importer measures each image (depth-lifted center) and replay recovers the camera."""
-    from app.planning import random_pose
-    from app.config import load_config
-    from drivers.robot import ur_kinematics as kin
-    from mocks.render.camera import RenderedCamera, RenderedCameraConfig
+    from handeye.app.planning import random_pose
+    from handeye.app.config import load_config
+    from handeye.drivers.robot import ur_kinematics as kin
+    from handeye.mocks.render.camera import RenderedCamera, RenderedCameraConfig
 
     cfg = load_config(None)
     cam_cfg = RenderedCameraConfig(setup="eye_to_hand", seed=5)

@@ -6,13 +6,13 @@ import numpy as np
 import pytest
 import yaml
 
-from app import devices
-from app.config import config_from_dict, load_config
-from app.errors import ConfigError
-from app.formats.export import T_LINK_OPTICAL
-from calib import simulate
-from calib import transforms as tf
-from calib.api import solve
+from handeye.app import devices
+from handeye.app.config import config_from_dict, load_config
+from handeye.app.errors import ConfigError
+from handeye.app.formats.export import T_LINK_OPTICAL
+from handeye.calib import simulate
+from handeye.calib import transforms as tf
+from handeye.calib.api import solve
 
 FRAMES = {"base": "base_link", "flange": "tool0", "camera": "cam_color_optical_frame", "marker": "aruco_0"}
 

@@ -4,12 +4,12 @@ import numpy as np
 import pytest
 import yaml
 
-from app.formats import detect_format, load
-from app.formats.pose_csv import read_pose_csv
-from calib import simulate
-from calib import transforms as tf
-from calib.api import solve
-from app.errors import ConfigError, SessionError
+from handeye.app.formats import detect_format, load
+from handeye.app.formats.pose_csv import read_pose_csv
+from handeye.calib import simulate
+from handeye.calib import transforms as tf
+from handeye.calib.api import solve
+from handeye.app.errors import ConfigError, SessionError
 
 
 def _msg(T):

@@ -17,12 +17,12 @@ import yaml
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from app.benchmarks.fuzz import IMPORT_MAIN, write_import_seed
-from app.formats import load
-from calib import simulate
-from calib import transforms as tf
-from app.errors import ConfigError, SessionError
-from calib.errors import HandeyeError
+from bench.fuzz import IMPORT_MAIN, write_import_seed
+from handeye.app.formats import load
+from handeye.calib import simulate
+from handeye.calib import transforms as tf
+from handeye.app.errors import ConfigError, SessionError
+from handeye.calib.errors import HandeyeError
 
 SETTINGS = settings(max_examples=25, deadline=None,
                     suppress_health_check=[HealthCheck.function_scoped_fixture, HealthCheck.too_slow])
@@ -236,7 +236,7 @@ def test_opencv_storage_fifo_is_refused_not_waited_on(tmp_path):
 
 
 # ------------------------------------------------ ViSP, image folder, OpenCV FileStorage, MoveIt
-# Seeded from the fuzz campaign's own valid file sets (app.benchmarks.fuzz.write_import_seed), damaged
+# Seeded from the fuzz campaign's own valid file sets (bench.fuzz.write_import_seed), damaged
 # here by hypothesis; each load runs under an audit hook (conftest.OutsideReads) that catches any file
 # opened outside the set.
 

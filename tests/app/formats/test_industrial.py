@@ -10,8 +10,8 @@ import numpy as np
 import pytest
 import yaml
 
-from app.formats import detect_format, load
-from app.errors import ConfigError, SessionError
+from handeye.app.formats import detect_format, load
+from handeye.app.errors import ConfigError, SessionError
 
 SRC = Path(__file__).parents[2] / "data" / "circle_grid"
 
@@ -81,7 +81,7 @@ def test_errors_name_the_field_or_file(small_set):
 
 
 def test_formats_import_neither_rerun_nor_drivers():
-    code = ("import sys, app.formats, app.formats.industrial, app.formats.pose_csv, app.formats.easy_handeye; "
+    code = ("import sys, handeye.app.formats, handeye.app.formats.industrial, handeye.app.formats.pose_csv, handeye.app.formats.easy_handeye; "
             "print(sorted({m.split('.')[0] for m in sys.modules} & {'rerun', 'drivers', 'mocks'}))")
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout
     assert out.strip() == "[]"

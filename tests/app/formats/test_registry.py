@@ -3,9 +3,9 @@
 import numpy as np
 import pytest
 
-from app.errors import SessionError
-from app.formats import ImportedSamples, detect_format, import_formats, load, register_import
-from calib.observation import Observation
+from handeye.app.errors import SessionError
+from handeye.app.formats import ImportedSamples, detect_format, import_formats, load, register_import
+from handeye.calib.observation import Observation
 
 
 def _is_toy(path, document) -> bool:

@@ -1,6 +1,6 @@
 """ROS 2 bags (rosbag2, sqlite3 and MCAP) of the rendered demo, written by rosbags, imported by handeye.
 
-The bags are written here from the simulator and renderer (`mocks.ros2_bag`), with the equivalent
+The bags are written here from the simulator and renderer (`handeye.mocks.ros2_bag`), with the equivalent
 session beside them: the frame a live run takes at each stop, its exact flange pose and pixels.
 """
 
@@ -12,15 +12,15 @@ import pytest
 
 pytest.importorskip("rosbags")
 
-from app.cli import main  # noqa: E402
-from app.errors import SessionError  # noqa: E402
-from app.formats import detect_format, load  # noqa: E402
-from app.formats import ros2_bag  # noqa: E402
-from calib import transforms as tf  # noqa: E402
-from calib.api import solve_observations  # noqa: E402
-from calib.observation import Observation  # noqa: E402
-from calib.vision.extract import TargetConfig, extract  # noqa: E402
-from mocks.ros2_bag import T_BASE_LINK_BASE, T_WRIST3_FLANGE, session_frames, write_demo_bag  # noqa: E402
+from handeye.app.cli import main  # noqa: E402
+from handeye.app.errors import SessionError  # noqa: E402
+from handeye.app.formats import detect_format, load  # noqa: E402
+from handeye.app.formats import ros2_bag  # noqa: E402
+from handeye.calib import transforms as tf  # noqa: E402
+from handeye.calib.api import solve_observations  # noqa: E402
+from handeye.calib.observation import Observation  # noqa: E402
+from handeye.calib.vision.extract import TargetConfig, extract  # noqa: E402
+from handeye.mocks.ros2_bag import T_BASE_LINK_BASE, T_WRIST3_FLANGE, session_frames, write_demo_bag  # noqa: E402
 
 N_POSES = 12
 
@@ -125,7 +125,7 @@ def _copy_topics(src, dst, keep):
 
 
 def _marker_mount():
-    from mocks.render.camera import RenderedCameraConfig
+    from handeye.mocks.render.camera import RenderedCameraConfig
 
     return RenderedCameraConfig().T_flange_marker
 
@@ -217,7 +217,7 @@ def test_no_camera_info_is_named(tmp_path):
 def test_parse_pairs_names_the_bad_part():
     assert ros2_bag.parse_pairs("base=base_link, flange=tool0", "--frames", ("base", "flange")) == \
         {"base": "base_link", "flange": "tool0"}
-    from app.errors import ConfigError
+    from handeye.app.errors import ConfigError
 
     with pytest.raises(ConfigError, match="'tool=tool0' is not KEY=NAME"):
         ros2_bag.parse_pairs("tool=tool0", "--frames", ("base", "flange"))
@@ -247,8 +247,8 @@ def test_use_it_in_ros2_from_the_bag_to_a_launch_file(demo_bag, tmp_path):
     """docs/formats.md "Use it in ROS 2": the frames of the bag, the driver's camera_link, one launch file."""
     import ast
 
-    from app.formats import write_result
-    from mocks.ros2_bag import COLOR_FRAME, T_CAMERA_LINK_OPTICAL
+    from handeye.app.formats import write_result
+    from handeye.mocks.ros2_bag import COLOR_FRAME, T_CAMERA_LINK_OPTICAL
 
     imported = load(demo_bag.path, frames={"base": "base_link", "flange": "flange"})
     assert imported.meta["frames"]["camera"] == COLOR_FRAME  # the image's optical frame

@@ -1,15 +1,15 @@
-"""calib.auto.determined: what a recording whose tool never turns (or turns about one axis) determines."""
+"""handeye.calib.auto.determined: what a recording whose tool never turns (or turns about one axis) determines."""
 
 import numpy as np
 import pytest
 
-from calib import model, solve
-from calib import transforms as tf
-from calib.auto.determined import held_equivalent, motion_prior
-from calib.errors import CalibrationError, DegenerateMotionError
-from calib.problem import CalibrationProblem
-from calib.refine import error_vector
-from calib.simulate import realistic_cell, with_gross_outliers
+from handeye.calib import model, solve
+from handeye.calib import transforms as tf
+from handeye.calib.auto.determined import held_equivalent, motion_prior
+from handeye.calib.errors import CalibrationError, DegenerateMotionError
+from handeye.calib.problem import CalibrationProblem
+from handeye.calib.refine import error_vector
+from handeye.calib.simulate import realistic_cell, with_gross_outliers
 
 #: The camera's systematic error of the cells here: ``auto`` must determine it from a grid too.
 CAMERA = model.CameraCorrection(depth_scale=0.015, depth_offset=0.003)
@@ -145,7 +145,7 @@ def test_marker_offset_is_checked():
 
 
 def test_the_prior_is_part_of_the_linearization():
-    """`calib.model.Linearization` with a `TranslationPrior`: its cost, gradient and normal matrix include it
+    """`handeye.calib.model.Linearization` with a `TranslationPrior`: its cost, gradient and normal matrix include it
     (the gradient against central differences of the cost along the marker-side translation)."""
     d = realistic_cell(20, np.random.default_rng(9))
     C, K, M = model.split(d.X, d.Y, d.A, "eye_to_hand")

@@ -11,10 +11,10 @@ import cv2
 import numpy as np
 import yaml
 
-import calib
-from calib import transforms as tf
-from calib.vision.extract import TargetConfig, extract
-from drivers.camera.base import CameraIntrinsics
+from handeye import calib
+from handeye.calib import transforms as tf
+from handeye.calib.vision.extract import TargetConfig, extract
+from handeye.drivers.camera.base import CameraIntrinsics
 
 DATA = Path(__file__).parents[2] / "data" / "charuco"
 

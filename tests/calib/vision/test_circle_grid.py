@@ -1,4 +1,4 @@
-"""calib.vision.circle_grid on a real 10x10 image (tests/data/circle_grid) and on doctored copies."""
+"""handeye.calib.vision.circle_grid on a real 10x10 image (tests/data/circle_grid) and on doctored copies."""
 
 from pathlib import Path
 
@@ -6,8 +6,8 @@ import cv2
 import numpy as np
 import pytest
 
-from calib.errors import MarkerNotFoundError, ParameterError
-from calib.vision.circle_grid import CircleGridSpec, detect_circle_grid
+from handeye.calib.errors import MarkerNotFoundError, ParameterError
+from handeye.calib.vision.circle_grid import CircleGridSpec, detect_circle_grid
 
 IMAGE = Path(__file__).parents[2] / "data" / "circle_grid" / "images" / "0.png"
 K = np.array([[550.0, 0, 320], [0, 550.0, 240], [0, 0, 1]])

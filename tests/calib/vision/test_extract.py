@@ -5,11 +5,11 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from calib import transforms as tf
-from calib.errors import DepthError, MarkerNotFoundError, ParameterError
-from calib.vision.extract import TargetConfig, extract, try_extract
-from drivers.camera.base import CameraIntrinsics
-from mocks.render.scene import MarkerSceneRenderer, RenderNoise
+from handeye.calib import transforms as tf
+from handeye.calib.errors import DepthError, MarkerNotFoundError, ParameterError
+from handeye.calib.vision.extract import TargetConfig, extract, try_extract
+from handeye.drivers.camera.base import CameraIntrinsics
+from handeye.mocks.render.scene import MarkerSceneRenderer, RenderNoise
 
 INTR = CameraIntrinsics(640, 480, 570.0, 570.0, 319.5, 239.5)
 FACING = np.diag([1.0, -1.0, -1.0])  # marker z axis back at the camera
@@ -58,7 +58,7 @@ def test_depth_refined_pose_beats_pnp_rotation(rendered_results):
         rot_p.append(tf.pose_error(m.T_cam_marker_pnp, T)[0])
         assert m.pose_cov.shape == (6, 6) and m.pose_cov_pnp.shape == (6, 6)
         assert np.all(np.linalg.eigvalsh(m.pose_cov) > 0)
-        # Covariance convention of calib.result: R_true = Exp(d) R_est, t_true = t_est + dt.
+        # Covariance convention of handeye.calib.result: R_true = Exp(d) R_est, t_true = t_est + dt.
         d = cv2.Rodrigues(T[:3, :3] @ m.T_cam_marker[:3, :3].T)[0].ravel()
         e = np.r_[d, T[:3, 3] - m.T_cam_marker[:3, 3]]
         pose_nees.append(e @ np.linalg.solve(m.pose_cov, e))

@@ -4,8 +4,8 @@ import cv2
 import numpy as np
 import pytest
 
-from calib.errors import MarkerNotFoundError, ParameterError
-from calib.vision.markers import BoardSpec, detect_charuco, detect_chessboard, detect_markers, get_dictionary
+from handeye.calib.errors import MarkerNotFoundError, ParameterError
+from handeye.calib.vision.markers import BoardSpec, detect_charuco, detect_chessboard, detect_markers, get_dictionary
 
 
 def _marker_image(dictionary: str, marker_id: int, side: int = 120, pad: int = 60) -> np.ndarray:

@@ -9,17 +9,17 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from calib import transforms as tf
-from calib.errors import ParameterError
-from drivers.errors import ConnectionLostError, DeviceError
-from calib.vision.extract import TargetConfig, extract
-from drivers.camera.base import CameraIntrinsics, RGBDFrame
-from drivers.camera.registry import CAMERAS
-from drivers.camera.intrinsics import load_intrinsics
-from mocks.recorded import RecordingWriter
-from mocks.render.camera import RenderedCameraConfig
+from handeye.calib import transforms as tf
+from handeye.calib.errors import ParameterError
+from handeye.drivers.errors import ConnectionLostError, DeviceError
+from handeye.calib.vision.extract import TargetConfig, extract
+from handeye.drivers.camera.base import CameraIntrinsics, RGBDFrame
+from handeye.drivers.camera.registry import CAMERAS
+from handeye.drivers.camera.intrinsics import load_intrinsics
+from handeye.mocks.recorded import RecordingWriter
+from handeye.mocks.render.camera import RenderedCameraConfig
 
-# The default rendered cell's flange start pose (mocks.render.camera): marker facing the camera.
+# The default rendered cell's flange start pose (handeye.mocks.render.camera): marker facing the camera.
 P0 = np.array([0.9, 0.1, 0.5])
 
 
@@ -147,7 +147,7 @@ def _openni2_available() -> bool:
         import openni  # noqa: F401
     except ImportError:
         return False
-    from drivers.camera.openni2 import OpenNI2CameraConfig, library_dirs, loadable_dir
+    from handeye.drivers.camera.openni2 import OpenNI2CameraConfig, library_dirs, loadable_dir
 
     return any(loadable_dir(d) for d in library_dirs(OpenNI2CameraConfig()))
 
@@ -157,11 +157,11 @@ def _openni2_available() -> bool:
 # take the whole pytest session down. The child reports and leaves with os._exit.
 _DUMMY_SCRIPT = r"""
 import json, os, sys
-from drivers.errors import DeviceError
-from drivers.camera.base import CameraIntrinsics
-from drivers.camera.registry import CAMERAS
-from drivers.camera import openni2  # registers "openni2"
-from drivers.camera.intrinsics import save_intrinsics
+from handeye.drivers.errors import DeviceError
+from handeye.drivers.camera.base import CameraIntrinsics
+from handeye.drivers.camera.registry import CAMERAS
+from handeye.drivers.camera import openni2  # registers "openni2"
+from handeye.drivers.camera.intrinsics import save_intrinsics
 
 out = {}
 base = {"backend": "openni2", "uri": "Dummy", "width": 320, "height": 240}
@@ -212,9 +212,9 @@ def test_openni2_dummy_device(tmp_path):
 # In a child process, as the dummy device above: OpenNI2 initialised in the test process would stay so.
 _NO_DEVICE_SCRIPT = r"""
 import os, sys
-from app.cli import main
+from handeye.app.cli import main
 from openni import openni2
-from drivers.camera.openni2 import OpenNI2CameraConfig, library_dirs, loadable_dir
+from handeye.drivers.camera.openni2 import OpenNI2CameraConfig, library_dirs, loadable_dir
 
 openni2.initialize([d for d in (loadable_dir(x) for x in library_dirs(OpenNI2CameraConfig())) if d])
 if openni2.Device.enumerate_uris():
@@ -232,7 +232,7 @@ def test_no_openni2_device_attached_is_one_line_naming_the_device_and_the_fix(tm
     b'DeviceOpen using default: no devices found', None))."""
     text = Path("config/ur10_xtion_eye_to_hand.toml").read_text()
     sim = Path("config/sim.toml").read_text().replace('host = "127.0.0.2"', f'host = "{loopback(66)}"')
-    start, end = text.index("[robot]"), text.index("# drivers.camera.openni2")
+    start, end = text.index("[robot]"), text.index("# handeye.drivers.camera.openni2")
     config = tmp_path / "c.toml"
     config.write_text(text[:start] + sim[sim.index("[robot]"):sim.index("[camera]")] + text[end:])
     proc = subprocess.run([sys.executable, "-c", _NO_DEVICE_SCRIPT, "calibrate", "--yes-move", "-c", str(config),

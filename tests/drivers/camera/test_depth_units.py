@@ -1,8 +1,8 @@
-"""drivers.camera.depth: the one m <-> 16-bit mm conversion used by OpenNI2, recordings and sessions."""
+"""handeye.drivers.camera.depth: the one m <-> 16-bit mm conversion used by OpenNI2, recordings and sessions."""
 
 import numpy as np
 
-from drivers.camera.depth import depth_from_mm, depth_to_mm
+from handeye.drivers.camera.depth import depth_from_mm, depth_to_mm
 
 
 def test_round_trip_to_the_millimetre():

@@ -8,8 +8,8 @@ import types
 import numpy as np
 import pytest
 
-from drivers.errors import ConnectionLostError, DeviceError
-from drivers.camera.registry import CAMERAS
+from handeye.drivers.errors import ConnectionLostError, DeviceError
+from handeye.drivers.camera.registry import CAMERAS
 
 
 class _Mode:

@@ -17,10 +17,10 @@ SYSTEM = Path("/usr/lib/x86_64-linux-gnu")
 # A child process, as in test_cameras: OpenNI2's dummy driver corrupts the heap once its color stream ran.
 _SCRIPT = r"""
 import json, os, sys
-from drivers.camera.base import CameraIntrinsics
-from drivers.camera.intrinsics import save_intrinsics
-from drivers.camera.registry import CAMERAS
-from drivers.camera import openni2  # registers "openni2"
+from handeye.drivers.camera.base import CameraIntrinsics
+from handeye.drivers.camera.intrinsics import save_intrinsics
+from handeye.drivers.camera.registry import CAMERAS
+from handeye.drivers.camera import openni2  # registers "openni2"
 from openni import openni2 as ni
 
 save_intrinsics(sys.argv[2], CameraIntrinsics(320, 240, 285.0, 285.0, 159.5, 119.5))

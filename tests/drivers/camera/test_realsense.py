@@ -1,5 +1,5 @@
 """The RealSense backend through the real SDK without hardware: librealsense's software device
-(mocks.realsense) fed with the rendered camera's frames, rs.align, the SDK's recorder and playback."""
+(handeye.mocks.realsense) fed with the rendered camera's frames, rs.align, the SDK's recorder and playback."""
 
 import gc
 import time
@@ -9,15 +9,15 @@ import pytest
 
 rs = pytest.importorskip("pyrealsense2")
 
-from calib import simulate  # noqa: E402
-from calib.vision.extract import TargetConfig, extract  # noqa: E402
-from drivers.camera.base import CameraIntrinsics  # noqa: E402
-from drivers.camera.realsense import RealSenseCamera, RealSenseCameraConfig, select_device  # noqa: E402
-from drivers.camera.registry import CAMERAS  # noqa: E402
-from drivers.errors import ConnectionLostError, DeviceError  # noqa: E402
-from mocks.realsense import SERIAL, DepthModel, SoftwareRealSense  # noqa: E402
-from mocks.render.camera import RenderedCameraConfig  # noqa: E402
-from mocks.render.scene import RenderNoise  # noqa: E402
+from handeye.calib import simulate  # noqa: E402
+from handeye.calib.vision.extract import TargetConfig, extract  # noqa: E402
+from handeye.drivers.camera.base import CameraIntrinsics  # noqa: E402
+from handeye.drivers.camera.realsense import RealSenseCamera, RealSenseCameraConfig, select_device  # noqa: E402
+from handeye.drivers.camera.registry import CAMERAS  # noqa: E402
+from handeye.drivers.errors import ConnectionLostError, DeviceError  # noqa: E402
+from handeye.mocks.realsense import SERIAL, DepthModel, SoftwareRealSense  # noqa: E402
+from handeye.mocks.render.camera import RenderedCameraConfig  # noqa: E402
+from handeye.mocks.render.scene import RenderNoise  # noqa: E402
 
 TARGET = TargetConfig()
 #: Depth camera = colour camera geometry: the SDK's alignment maps depth onto itself.
@@ -152,12 +152,12 @@ def test_device_selection_by_serial():
 def test_no_device_attached_is_one_line_naming_the_realsense(tmp_path, capsys, loopback):
     if len(rs.context().query_devices()):
         pytest.skip("a RealSense is attached")
-    from app.cli import main
+    from handeye.app.cli import main
 
     text = open("config/realsense_eye_to_hand.toml").read()
     sim = open("config/sim.toml").read().replace('host = "127.0.0.2"', f'host = "{loopback(61)}"')
     robot = sim[sim.index("[robot]"):sim.index("[camera]")]
-    start, end = text.index("[robot]"), text.index("# drivers.camera.realsense")
+    start, end = text.index("[robot]"), text.index("# handeye.drivers.camera.realsense")
     p = tmp_path / "c.toml"
     p.write_text(text[:start] + robot + text[end:])
     rc = main(["calibrate", "--yes-move", "-c", str(p), "--session-root", str(tmp_path), "--no-viz"])
@@ -167,7 +167,7 @@ def test_no_device_attached_is_one_line_naming_the_realsense(tmp_path, capsys, l
 
 
 def test_colour_distortion_other_than_opencvs_is_refused():
-    from drivers.camera.realsense import intrinsics_from_rs
+    from handeye.drivers.camera.realsense import intrinsics_from_rs
 
     i = rs.intrinsics()
     i.width, i.height, i.fx, i.fy, i.ppx, i.ppy = 640, 480, 600.0, 600.0, 320.0, 240.0

@@ -10,10 +10,10 @@ import pytest
 from hypothesis import strategies as st
 from hypothesis.stateful import RuleBasedStateMachine, invariant, rule
 
-from app.outage import ReconnectConfig, Reconnecting
-from drivers.camera.ros2 import FramePairer, Ros2Camera, Ros2CameraConfig
-from drivers.errors import ConnectionLostError, DeviceError
-from drivers.ros2 import SkipLog, import_rclpy
+from handeye.app.outage import ReconnectConfig, Reconnecting
+from handeye.drivers.camera.ros2 import FramePairer, Ros2Camera, Ros2CameraConfig
+from handeye.drivers.errors import ConnectionLostError, DeviceError
+from handeye.drivers.ros2 import SkipLog, import_rclpy
 
 PREFIX = "/cam_test"
 SIZE, SKEW = 4, 0.02
@@ -102,7 +102,7 @@ def test_a_flood_of_out_of_order_stamps_is_skipped_and_logged_in_bounded_memory(
     """100 Hz with every third stamp 0.2 s back: those are logged skips, frames come in stamp order, the
     queues never hold more than queue_size messages, nothing raises."""
     cam = camera(queue_size=5)
-    caplog.set_level(logging.WARNING, logger="drivers.ros2")
+    caplog.set_level(logging.WARNING, logger="handeye.drivers.ros2")
     with streaming(publisher, n=200, rate=100, shuffle=True), cam:
         frames = [cam.read() for _ in range(20)]
         held = max(len(q) for q in cam.queues())

@@ -6,12 +6,12 @@ import math
 import numpy as np
 import pytest
 
-from calib.robot_error import UR_ALPHA, ur_dh_error_factor
-from drivers.errors import DeviceError
-from drivers.robot import ur_kinematics as kin
-from drivers.robot.base import Robot, RobotLimits, RobotState
-from drivers.robot.registry import kinematic_model, robot_limits
-from drivers.robot.ur import URKinematics, URKinematicError, URRobotConfig
+from handeye.calib.robot_error import UR_ALPHA, ur_dh_error_factor
+from handeye.drivers.errors import DeviceError
+from handeye.drivers.robot import ur_kinematics as kin
+from handeye.drivers.robot.base import Robot, RobotLimits, RobotState
+from handeye.drivers.robot.registry import kinematic_model, robot_limits
+from handeye.drivers.robot.ur import URKinematics, URKinematicError, URRobotConfig
 
 POSE = np.eye(4)
 

@@ -6,13 +6,13 @@ import time
 import numpy as np
 import pytest
 
-from calib import transforms as tf
-from app.outage import ReconnectConfig, Reconnecting
-from drivers.errors import ConnectionLostError, DeviceError, LimitViolationError, PoseTimeError
-from drivers.robot import ur_kinematics as kin
-from drivers.robot.ros2 import UR_JOINTS, Ros2Robot, Ros2RobotConfig
+from handeye.calib import transforms as tf
+from handeye.app.outage import ReconnectConfig, Reconnecting
+from handeye.drivers.errors import ConnectionLostError, DeviceError, LimitViolationError, PoseTimeError
+from handeye.drivers.robot import ur_kinematics as kin
+from handeye.drivers.robot.ros2 import UR_JOINTS, Ros2Robot, Ros2RobotConfig
 
-pytestmark = pytest.mark.slow
+pytestmark = [pytest.mark.slow, pytest.mark.every_python]  # the ROS 2 path on every Python (make test-other)
 PREFIX = "/robot_test"
 Q = [0.3, -1.9, 1.5, -1.2, -1.4, 0.4]
 TCP = (0.01, -0.02, 0.15, 0.1, -0.2, 0.3)  # an unusual TCP: forgetting to remove it shows in every pose

@@ -2,10 +2,10 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from drivers.errors import DeviceError
-from calib.transforms import make_transform
-from drivers.robot.base import RobotState
-from drivers.robot.buffer import ClockMapper, StateBuffer
+from handeye.drivers.errors import DeviceError
+from handeye.calib.transforms import make_transform
+from handeye.drivers.robot.base import RobotState
+from handeye.drivers.robot.buffer import ClockMapper, StateBuffer
 
 
 def _state(t, T):

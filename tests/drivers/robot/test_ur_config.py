@@ -1,11 +1,11 @@
 import pytest
 
-from calib.errors import ParameterError
-from drivers.errors import DeviceError
-from drivers.robot.registry import ROBOTS
-from drivers.robot.ur import URRobot, URRobotConfig
-from mocks.ur_sim import main as sim_main
-from mocks.ur_sim.robot import URSimRobot
+from handeye.calib.errors import ParameterError
+from handeye.drivers.errors import DeviceError
+from handeye.drivers.robot.registry import ROBOTS
+from handeye.drivers.robot.ur import URRobot, URRobotConfig
+from handeye.mocks.ur_sim import main as sim_main
+from handeye.mocks.ur_sim.robot import URSimRobot
 
 BOX = dict(workspace_min=(-1, -1, 0), workspace_max=(1, 1, 1))
 
@@ -71,7 +71,7 @@ def test_simulator_cli_rejects_bad_arguments(capsys, loopback):
 def test_shared_error_factor_is_the_configured_dh_error_of_the_model():
     import numpy as np
 
-    from calib.robot_error import ur_dh_error_factor
+    from handeye.calib.robot_error import ur_dh_error_factor
 
     q = np.random.default_rng(2).uniform(-3, 3, size=(5, 6))
     assert URRobot(URRobotConfig(host="10.0.0.2", **BOX)).shared_error_factor(q) is None

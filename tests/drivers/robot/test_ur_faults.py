@@ -9,7 +9,7 @@ import time
 import numpy as np
 import pytest
 
-from drivers.errors import ConnectionLostError, DeviceError, RobotStoppedError
+from handeye.drivers.errors import ConnectionLostError, DeviceError, RobotStoppedError
 from tests.simulated_ur import START_Q, connect_robot, robot_config
 
 
@@ -129,7 +129,7 @@ def _client_pid(host: str) -> int:
                 ppid = int(f.read().rsplit(")", 1)[1].split()[1])
         except OSError:
             continue
-        if ppid == os.getpid() and b"drivers.robot.ur_client" in cmd and host.encode() in b" ".join(cmd):
+        if ppid == os.getpid() and b"handeye.drivers.robot.ur_client" in cmd and host.encode() in b" ".join(cmd):
             return int(entry)
     raise AssertionError(f"no RTDE client process for {host}")
 

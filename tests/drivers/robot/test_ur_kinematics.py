@@ -1,8 +1,8 @@
 import numpy as np
 import pytest
 
-from calib.errors import ParameterError
-from drivers.robot import ur_kinematics as kin
+from handeye.calib.errors import ParameterError
+from handeye.drivers.robot import ur_kinematics as kin
 
 
 def test_ur10_zero_pose_is_the_published_stretched_out_arm():

@@ -3,10 +3,10 @@
 import numpy as np
 import pytest
 
-from drivers.errors import LimitViolationError
-from calib.transforms import from_ur_pose
-from drivers.robot import ur_kinematics as kin
-from drivers.robot.ur import URRobot, URRobotConfig
+from handeye.drivers.errors import LimitViolationError
+from handeye.calib.transforms import from_ur_pose
+from handeye.drivers.robot import ur_kinematics as kin
+from handeye.drivers.robot.ur import URRobot, URRobotConfig
 
 Q0 = np.array([0.0, -1.2, 1.6, -1.97, -1.5708, 0.0])  # flange at (-0.86, -0.16, 0.38), z down
 T0 = kin.forward(Q0, "ur10")

@@ -7,9 +7,9 @@ import time
 import numpy as np
 import pytest
 
-from drivers.errors import DeviceError, LimitViolationError
-from calib.transforms import from_ur_pose, make_transform, pose_error
-from drivers.robot import ur_kinematics as kin
+from handeye.drivers.errors import DeviceError, LimitViolationError
+from handeye.calib.transforms import from_ur_pose, make_transform, pose_error
+from handeye.drivers.robot import ur_kinematics as kin
 from tests.simulated_ur import SIM_TCP, controller_stamps, START_Q, connect_robot, robot_config, truth_flange
 
 

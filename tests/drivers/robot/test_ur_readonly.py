@@ -6,7 +6,7 @@ import time
 import numpy as np
 import pytest
 
-from drivers.errors import DeviceError
+from handeye.drivers.errors import DeviceError
 from tests.simulated_ur import SIM_TCP, controller_stamps, connect_robot, robot_config, truth_flange
 
 
@@ -52,7 +52,7 @@ def test_passive_monitoring_follows_motion_commanded_elsewhere(robot, sim):
 def test_a_configured_tcp_offset_that_is_not_the_controllers_is_named_as_such(sim, caplog):
     """Read-only with tcp_offset 0 while the controller uses SIM_TCP (15 cm out, turned): the warning names the
     TCP offset, the one the controller uses and the one configured (it asked 'wrong model?')."""
-    with caplog.at_level("WARNING", logger="drivers.robot.ur"):
+    with caplog.at_level("WARNING", logger="handeye.drivers.robot.ur"):
         r = connect_robot(robot_config(sim.host, read_only=True, tcp_offset=[0.0] * 6))
         r.disconnect()
     (line,) = [rec.getMessage() for rec in caplog.records if "kinematics" in rec.getMessage()]

@@ -4,10 +4,10 @@ with what the simulated controller executes (it protective-stops on such paths).
 import numpy as np
 import pytest
 
-from drivers.errors import LimitViolationError
-from drivers.robot import ur_kinematics as kin
-from drivers.robot.ur import URRobot
-from mocks.ur_sim.motion import LinearMotion
+from handeye.drivers.errors import LimitViolationError
+from handeye.drivers.robot import ur_kinematics as kin
+from handeye.drivers.robot.ur import URRobot
+from handeye.mocks.ur_sim.motion import LinearMotion
 from tests.simulated_ur import START_Q, robot_config
 
 WIDE = dict(workspace_min=(-1.5, -1.5, -0.5), workspace_max=(1.5, 1.5, 1.5), max_tilt_deg=180.0)

@@ -1,13 +1,13 @@
-"""app.benchmarks.faults: the target campaign's oracle (the simulator's own execution) and its table row."""
+"""bench.faults: the target campaign's oracle (the simulator's own execution) and its table row."""
 
 import math
 
 import numpy as np
 
-from app.benchmarks.faults import format_row, random_valid_start, run_kills, run_targets, sim_path_violation
-from drivers.robot import ur_kinematics as kin
-from drivers.robot.ur import URRobot
-from mocks.ur_sim.motion import JointMotion, LinearMotion
+from bench.faults import format_row, random_valid_start, run_kills, run_targets, sim_path_violation
+from handeye.drivers.robot import ur_kinematics as kin
+from handeye.drivers.robot.ur import URRobot
+from handeye.mocks.ur_sim.motion import JointMotion, LinearMotion
 from tests.simulated_ur import START_Q, robot_config
 
 

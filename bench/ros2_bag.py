@@ -1,10 +1,10 @@
 """ROS 2 bag import: time of a long recording of the demo, and its calibration against the session's.
 
-Run ``python -m app.benchmarks.ros2_bag [--minutes 2] [--fps 30] [--storage mcap sqlite3] [--out out/bench]``.
-Writes a bag of the rendered demo (`mocks.ros2_bag.write_demo_bag`: stop-and-go through
-`calib.simulate.realistic_cell` poses, tf at 125 Hz, 640x480 ``rgb8`` colour, ``16UC1`` depth
-registered to it, ``CameraInfo``) for each storage, imports it with `app.formats.load`
-(`app.formats.ros2_bag`) and prints a markdown table (also ``<out>/ros2_bag.md``):
+Run ``python -m bench.ros2_bag [--minutes 2] [--fps 30] [--storage mcap sqlite3] [--out out/bench]``.
+Writes a bag of the rendered demo (`handeye.mocks.ros2_bag.write_demo_bag`: stop-and-go through
+`handeye.calib.simulate.realistic_cell` poses, tf at 125 Hz, 640x480 ``rgb8`` colour, ``16UC1`` depth
+registered to it, ``CameraInfo``) for each storage, imports it with `handeye.app.formats.load`
+(`handeye.app.formats.ros2_bag`) and prints a markdown table (also ``<out>/ros2_bag.md``):
 
 - import time: the whole ``load`` (both passes over the bag, tf composition, standstill
   detection, decoding and marker extraction of the chosen frames);
@@ -27,17 +27,17 @@ from pathlib import Path
 
 import numpy as np
 
-from calib import transforms as tf
-from calib.api import solve_observations
-from calib.observation import Observation
+from handeye.calib import transforms as tf
+from handeye.calib.api import solve_observations
+from handeye.calib.observation import Observation
 
 METHODS = ("YKronT'", "YQuatT'")
 
 
 def _session(bag) -> tuple[list[int], list[Observation]]:
-    """The equivalent session's messages and samples (`mocks.ros2_bag.session_frames`, the app's extraction)."""
-    from calib.vision.extract import TargetConfig, extract
-    from mocks.ros2_bag import session_frames
+    """The equivalent session's messages and samples (`handeye.mocks.ros2_bag.session_frames`, the app's extraction)."""
+    from handeye.calib.vision.extract import TargetConfig, extract
+    from handeye.mocks.ros2_bag import session_frames
 
     target = TargetConfig()
     taken = session_frames(bag, lambda c: extract(c.color, c.depth, bag.intrinsics, target))
@@ -47,8 +47,8 @@ def _session(bag) -> tuple[list[int], list[Observation]]:
 
 def run(storage: str, minutes: float, fps: float, work: Path) -> dict:
     """Write, import and compare one bag; returns the table row's figures."""
-    from app.formats import load
-    from mocks.ros2_bag import write_demo_bag
+    from handeye.app.formats import load
+    from handeye.mocks.ros2_bag import write_demo_bag
 
     stop_s, move_s = 1.5, 1.5
     n_poses = max(2, int(round(minutes * 60 / (stop_s + move_s))))
@@ -93,7 +93,7 @@ def format_table(rows: list[dict]) -> str:
 
 
 def main(argv=None) -> int:
-    ap = argparse.ArgumentParser(prog="python -m app.benchmarks.ros2_bag", description=__doc__.split("\n")[0])
+    ap = argparse.ArgumentParser(prog="python -m bench.ros2_bag", description=__doc__.split("\n")[0])
     ap.add_argument("--minutes", type=float, default=2.0)
     ap.add_argument("--fps", type=float, default=30.0)
     ap.add_argument("--storage", nargs="+", default=["mcap", "sqlite3"], choices=["mcap", "sqlite3"])

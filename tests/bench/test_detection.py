@@ -1,6 +1,6 @@
-"""``handeye bench --detection``: the engine's detection curve beside the derived limit (app.benchmarks.detection)."""
+"""``python -m bench --detection``: the engine's detection curve beside the derived limit (bench.detection)."""
 
-from app.benchmarks import detection
+from bench import detection
 
 
 def test_the_table_puts_the_engine_beside_the_limit(tmp_path, capsys):

@@ -5,9 +5,9 @@ import dataclasses
 import numpy as np
 import pytest
 
-from app.benchmarks import model as bench_model
-from calib import model, simulate, solve
-from calib import transforms as tf
+from bench import model as bench_model
+from handeye.calib import model, simulate, solve
+from handeye.calib import transforms as tf
 
 
 def test_model_benchmark_sections_run():

@@ -1,9 +1,9 @@
-"""app.benchmarks.plan: the fixed 17-pose baseline and the report table."""
+"""bench.plan: the fixed 17-pose baseline and the report table."""
 
 import numpy as np
 
-from app.benchmarks.plan import fixed_pattern, format_report
-from calib import transforms as tf
+from bench.plan import fixed_pattern, format_report
+from handeye.calib import transforms as tf
 
 
 def test_fixed_pattern_is_17_distinct_poses_within_the_ranges():

@@ -1,15 +1,15 @@
 """Input fuzzing: the solver API, the config loader, the session reader and the importers.
 
-Run ``python -m app.benchmarks.fuzz [--solver-cases N] [--file-cases N] [--bag-cases N] [--only CAMPAIGN]
+Run ``python -m bench.fuzz [--solver-cases N] [--file-cases N] [--bag-cases N] [--only CAMPAIGN]
 [--seed S] [--out out/bench]``
-(also ``handeye bench --fuzz``). Prints a markdown table and writes
+(also ``python -m bench --fuzz``). Prints a markdown table and writes
 ``<out>/fuzz.md``.
 
 What counts as a failure:
 
-- solver API (`calib.solve`, `calib.api.closed_form`, `calib.refine.refine`,
-  `calib.robust.robust_solve` and the public solvers of `calib.solvers`): an
-  exception that is not a `calib.errors.HandeyeError`, a warning (e.g. complex
+- solver API (`calib.solve`, `handeye.calib.api.closed_form`, `handeye.calib.refine.refine`,
+  `handeye.calib.robust.robust_solve` and the public solvers of `handeye.calib.solvers`): an
+  exception that is not a `handeye.calib.errors.HandeyeError`, a warning (e.g. complex
   inputs silently cast), or a result carrying NaN/inf (X, Y, residuals, cov);
 - files (TOML configs, session directories, import files: easy_handeye,
   easy_handeye2, industrial_calibration, pose-stream CSV manifests, ViSP
@@ -19,7 +19,7 @@ What counts as a failure:
   return within ``HANG_S`` seconds, or a file opened outside the data
   directory (seen by an audit hook on ``open``).
 
-- the monitoring engine (``--only monitor``, `app.benchmarks.monitor_campaign`):
+- the monitoring engine (``--only monitor``, `bench.monitor_campaign`):
   its state machine (``--monitor-examples`` runs), composed production programs
   (``--monitor-runs``) and the same through ``replay --monitor`` armed from a
   session, a result.yaml and a previous run (``--monitor-replays`` each):
@@ -49,16 +49,16 @@ from pathlib import Path  # noqa: E402
 
 import numpy as np  # noqa: E402
 
-from calib import simulate, solvers  # noqa: E402
-from calib import transforms as tf  # noqa: E402
-from calib.api import METHODS, closed_form, solve  # noqa: E402
-from calib.errors import HandeyeError  # noqa: E402
-from calib.problem import CalibrationProblem  # noqa: E402
-from calib.refine import refine  # noqa: E402
-from calib.robust import robust_solve  # noqa: E402
-from calib.setup import Setup  # noqa: E402
+from handeye.calib import simulate, solvers  # noqa: E402
+from handeye.calib import transforms as tf  # noqa: E402
+from handeye.calib.api import METHODS, closed_form, solve  # noqa: E402
+from handeye.calib.errors import HandeyeError  # noqa: E402
+from handeye.calib.problem import CalibrationProblem  # noqa: E402
+from handeye.calib.refine import refine  # noqa: E402
+from handeye.calib.robust import robust_solve  # noqa: E402
+from handeye.calib.setup import Setup  # noqa: E402
 
-#: Public solver functions of `calib.solvers` taking ``(A, B)`` pose stacks.
+#: Public solver functions of `handeye.calib.solvers` taking ``(A, B)`` pose stacks.
 POSE_SOLVERS = {
     "x_axis_rx": solvers.x_axis_rx,
     "x_quat_r_star": solvers.x_quat_r_star,
@@ -235,7 +235,7 @@ def solver_case(rng: np.random.Generator):
     target = rng.choice(["solve", "solve", "solve", "closed_form", "solver_fn", "kron_t_prime", "refine", "robust"])
     method = str(rng.choice(list(METHODS)))
     if rng.random() < 0.05:
-        method = "auto"  # calib.auto: the extended model on points or poses
+        method = "auto"  # handeye.calib.auto: the extended model on points or poses
     elif rng.random() < 0.03:
         method = rng.choice(["bogus", "", "YKRONT''", None, 5])
     uses_points = (method == "auto" or METHODS.get(method) is not None and METHODS[method].needs == "points") \
@@ -524,13 +524,13 @@ def _fs_mutation(path: Path, rng: np.random.Generator, canary: Path) -> str:
     return kind
 
 
-#: Import formats of the "import" file campaign (`app.formats` names), in rotation order.
+#: Import formats of the "import" file campaign (`handeye.app.formats` names), in rotation order.
 IMPORT_KINDS = ("easy_handeye2", "easy_handeye", "industrial_calibration", "pose_csv", "visp", "image_folder",
                 "opencv_storage", "moveit_calibration", "ros2_bag")
 #: Seeds of the bag campaign (``--bag-cases``): the same recording in both rosbag2 storages.
 BAG_KINDS = ("ros2_bag", "ros2_bag_sqlite3")
 
-#: The file each import kind hands to `app.formats.load` (the others load their directory).
+#: The file each import kind hands to `handeye.app.formats.load` (the others load their directory).
 IMPORT_MAIN = {"easy_handeye2": "cell.samples", "easy_handeye": "samples.yaml", "opencv_storage": "pairs.yaml",
                "moveit_calibration": "pose_samples.json"}
 
@@ -568,8 +568,8 @@ def _write_image_folder(folder: Path, d) -> None:
 def _write_bag(out: Path, storage: str, rng: np.random.Generator) -> None:
     """Three stops of the rendered demo at 480x360 and 5 fps, near the start pose (every marker found),
     moving frames not rendered (to keep a case fast)."""
-    from mocks.render.camera import RenderedCameraConfig
-    from mocks.ros2_bag import write_demo_bag
+    from handeye.mocks.render.camera import RenderedCameraConfig
+    from handeye.mocks.ros2_bag import write_demo_bag
 
     out.rmdir()  # rosbags creates the bag directory itself
     small = RenderedCameraConfig(width=480, height=360, fx=427.5, fy=427.5, cx=239.5, cy=179.5)
@@ -580,18 +580,18 @@ def _write_bag(out: Path, storage: str, rng: np.random.Generator) -> None:
 def write_import_seed(kind: str, seeds: Path, rng: np.random.Generator) -> Path:
     """A valid file set of importer ``kind`` (`IMPORT_KINDS`) in ``seeds / kind``, from simulated data.
 
-    Returns the directory; `app.formats.load` takes it, or its `IMPORT_MAIN` file.
+    Returns the directory; `handeye.app.formats.load` takes it, or its `IMPORT_MAIN` file.
     The industrial_calibration seed copies three views of the shared data set
-    (`app.benchmarks.datasets.datasets_dir`); `SystemExit` if it is missing.
+    (`bench.datasets.datasets_dir`); `SystemExit` if it is missing.
     """
     import shutil
 
     import yaml
 
-    from app.benchmarks.datasets import datasets_dir
-    from app.formats.moveit import write_moveit
-    from app.formats.opencv_storage import write_opencv_storage
-    from app.formats.visp import write_visp
+    from bench.datasets import datasets_dir
+    from handeye.app.formats.moveit import write_moveit
+    from handeye.app.formats.opencv_storage import write_opencv_storage
+    from handeye.app.formats.visp import write_visp
 
     out = seeds / kind
     out.mkdir(parents=True)
@@ -648,13 +648,13 @@ def _seed_files(work: Path, kind: str, rng: np.random.Generator) -> dict[str, Pa
     """Valid inputs to damage for campaign ``kind``: a config, a session with frames, or one file set per importer."""
     import shutil
 
-    from app.session import SessionWriter
-    from calib.observation import Observation
+    from handeye.app.session import SessionWriter
+    from handeye.calib.observation import Observation
 
     seeds = work / "seeds"
     seeds.mkdir(parents=True)
     if kind == "config":
-        shutil.copy(Path(__file__).resolve().parents[2] / "config" / "sim.toml", seeds / "config.toml")
+        shutil.copy(Path(__file__).resolve().parents[1] / "config" / "sim.toml", seeds / "config.toml")
         return {"config": seeds / "config.toml"}
     if kind in ("import", "bags"):
         return {name: write_import_seed(name, seeds, rng) for name in (IMPORT_KINDS if kind == "import" else BAG_KINDS)}
@@ -693,10 +693,10 @@ def run_file_campaign(kind: str, n_cases: int, rng: np.random.Generator, work: P
     """
     import shutil
 
-    from app import devices
-    from app.config import load_config
-    from app.formats import load
-    from app.session import SessionWriter, read_session
+    from handeye.app import devices
+    from handeye.app.config import load_config
+    from handeye.app.formats import load
+    from handeye.app.session import SessionWriter, read_session
 
     seeds = _seed_files(work / kind, kind, rng)
     outside = work / kind / "cases" / "outside"
@@ -768,7 +768,7 @@ def format_table(rows: dict[str, Tally], elapsed: float) -> str:
 
 def main(argv=None) -> int:
     """Run the campaign; returns 1 if any case failed, else 0."""
-    ap = argparse.ArgumentParser(prog="python -m app.benchmarks.fuzz", description=__doc__.split("\n")[0])
+    ap = argparse.ArgumentParser(prog="python -m bench.fuzz", description=__doc__.split("\n")[0])
     ap.add_argument("--solver-cases", type=int, default=10_000)
     ap.add_argument("--file-cases", type=int, default=500, help="cases for each of configs, sessions, imports")
     ap.add_argument("--bag-cases", type=int, default=500, help="damaged ROS 2 bags (MCAP and sqlite3)")
@@ -790,7 +790,7 @@ def main(argv=None) -> int:
     rows = {"solver API": run_solver_campaign(args.solver_cases, rng)} if "solver" in only else {}
     monitor_text, monitor_failed = "", False
     if "monitor" in only:
-        from app.benchmarks import monitor_campaign
+        from bench import monitor_campaign
 
         monitor_text = monitor_campaign.report(args.monitor_examples, args.monitor_runs, args.monitor_replays,
                                                args.seed)

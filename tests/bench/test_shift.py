@@ -1,12 +1,12 @@
-"""bench --shift: how it counts alarms (`app.benchmarks.shift.classify_alarms`) and its second-knock section
-(`app.benchmarks.shift.section_second_knock`)."""
+"""bench --shift: how it counts alarms (`bench.shift.classify_alarms`) and its second-knock section
+(`bench.shift.section_second_knock`)."""
 
 from hypothesis import given
 from hypothesis import strategies as st
 
-from app.benchmarks import shift as bench_shift
-from calib import simulate
-from calib.monitor import MonitorSettings
+from bench import shift as bench_shift
+from handeye.calib import simulate
+from handeye.calib.monitor import MonitorSettings
 
 
 def test_the_second_knock_section_counts_a_knock_while_the_relearnt_camera_settles():

@@ -1,11 +1,11 @@
 """Cross-session prediction on the shared real recordings (issue 21): does a calibration hold on other data?
 
-Each real set (`app.benchmarks.datasets.real_sets`) is split into separate
+Each real set (`bench.datasets.real_sets`) is split into separate
 "sessions": the first half against the second half of each ETH stream (both
 directions), three contiguous blocks of the 15-sample sets (each predicted
 from the other two). A solver calibrates on one part; its result predicts the
 marker point of every sample of the other part from the robot pose (the
-result's camera correction applied, `calib.model.predict_points`), and the RMS
+result's camera correction applied, `handeye.calib.model.predict_points`), and the RMS
 of the misses is the cross-session error (mm). ``auto`` beside its own closed-
 form start (as ``auto`` used it: after its outlier search, the closed form of
 the samples it kept), our best closed form and OpenCV's best.
@@ -15,14 +15,14 @@ The monitoring engine over the same splits (`monitor_rows`): armed by
 second or per 3 s (the robot moves continuously in these recordings; a
 production monitor samples standstills, poses apart), with and without the
 calibration's shared error in the *moved* test
-(`calib.monitor.shared_error_var`). The camera never moved, so every *moved*
+(`handeye.calib.monitor.shared_error_var`). The camera never moved, so every *moved*
 alarm is false; the live verification (each sample's prediction before it
 is fused) beside the arming calibration's error on the same samples. Then
 the same streams with the camera bumped a third of the way in (5 mm and
 0.3 deg in random directions, the measured points moved accordingly): how
 many of 5 bumps the engine flags, and after how many samples.
 
-Run: ``handeye bench --cross-session`` (or ``python -m app.benchmarks.crosssession``).
+Run: ``python -m bench --cross-session`` (or ``python -m bench.crosssession``).
 """
 
 from __future__ import annotations
@@ -35,13 +35,13 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from app.benchmarks.datasets import datasets_dir, real_sets
-from calib import model, solve
-from calib import transforms as tf
-from calib.errors import CalibrationError
-from calib.monitor import MonitorEngine
-from calib.problem import CalibrationProblem
-from calib.setup import Setup
+from bench.datasets import datasets_dir, real_sets
+from handeye.calib import model, solve
+from handeye.calib import transforms as tf
+from handeye.calib.errors import CalibrationError
+from handeye.calib.monitor import MonitorEngine
+from handeye.calib.problem import CalibrationProblem
+from handeye.calib.setup import Setup
 from bench.tables import markdown_table
 
 OURS = ["YKronT'", "YQuatT'", "YKronRT", "YQuatR*", "YAxisR", "XKronRT"]
@@ -226,7 +226,7 @@ def monitor_rows(sets, rng: np.random.Generator) -> list[list]:
 
 
 def main(argv=None) -> int:
-    argparse.ArgumentParser(prog="handeye bench --cross-session").parse_args(argv)
+    argparse.ArgumentParser(prog="python -m bench --cross-session").parse_args(argv)
     with tempfile.TemporaryDirectory(prefix="handeye-bench-") as work:
         rows = cross_session_rows(real_sets(Path(work)))
         mon = monitor_rows(real_sets(Path(work)), np.random.default_rng(0))

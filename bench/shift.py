@@ -1,16 +1,16 @@
-"""Benchmark of continuous calibration over a production shift (issue 20): ``handeye bench --shift``.
+"""Benchmark of continuous calibration over a production shift (issue 20): ``python -m bench --shift``.
 
-Each seed is a realistic cell (`calib.simulate.realistic_profile`: UR10 DH
+Each seed is a realistic cell (`handeye.calib.simulate.realistic_profile`: UR10 DH
 error, 1.5 % depth scale, 3 mm depth offset, 1 % focal, 2 px
 misregistration) calibrated with ``auto`` from 30 poses, as ``calibrate``
-does, with the robot's kinematic error in its covariance. `calib.monitor.
+does, with the robot's kinematic error in its covariance. `handeye.calib.monitor.
 MonitorEngine` is armed from that result and fed an 8-hour shift
-(`calib.simulate.shift_stream`): a 4-stop program (tool tilt <= 10 deg), a
+(`handeye.calib.simulate.shift_stream`): a 4-stop program (tool tilt <= 10 deg), a
 sample every 30 s, the camera mount drifting 0.5 mm/h, bumps of 5 mm /
 0.3 deg at hours 2, 4.5 and 7. Eye-to-hand: the live ``T_base_cam`` is
 judged where it is used, on 200 held-out marker poses of the cell's
 workspace seen by the drifted camera (the workspace error of
-`app.benchmarks.model`).
+`bench.model`).
 
 Figures per seed: false *moved* alarms (any but a bump's first alarm, and
 those within the 20 samples after a bump), samples from each bump to its
@@ -18,7 +18,7 @@ alarm (``late N``: flagged N > 20 samples after it, before the next bump),
 the live estimate's workspace error (p95 outside the 40 samples after each
 bump) against the bound ``max(1 mm, 1.5 x the arming calibration's own)``,
 samples until it is back within that bound after each bump, NEES of the
-live covariance, and the time per update. Run: ``handeye bench --shift [--seeds 10] [--hours 8]``
+live covariance, and the time per update. Run: ``python -m bench --shift [--seeds 10] [--hours 8]``
 (``--replay``: also through ``handeye replay --monitor``; ``--second-knock``: two knocks
 10-20 samples apart);
 tables on stdout and out/bench/shift.md, a plot in out/bench/shift.png.
@@ -40,13 +40,13 @@ from pathlib import Path  # noqa: E402
 
 import numpy as np  # noqa: E402
 
-from calib import simulate, solve  # noqa: E402
-from calib import transforms as tf  # noqa: E402
-from calib.model import CameraCorrection  # noqa: E402
-from calib.monitor import MonitorEngine, MonitorSettings  # noqa: E402
-from calib.monitor.snapshot import snapshot_from_dict, snapshot_to_dict  # noqa: E402
-from calib.problem import CalibrationProblem  # noqa: E402
-from calib.setup import Setup  # noqa: E402
+from handeye.calib import simulate, solve  # noqa: E402
+from handeye.calib import transforms as tf  # noqa: E402
+from handeye.calib.model import CameraCorrection  # noqa: E402
+from handeye.calib.monitor import MonitorEngine, MonitorSettings  # noqa: E402
+from handeye.calib.monitor.snapshot import snapshot_from_dict, snapshot_to_dict  # noqa: E402
+from handeye.calib.problem import CalibrationProblem  # noqa: E402
+from handeye.calib.setup import Setup  # noqa: E402
 
 #: Held-out workspace poses per cell.
 WORKSPACE_POINTS = 200
@@ -81,7 +81,7 @@ def workspace_error(C, correction, camera, Y_true, P) -> float:
 
 
 def camera_nees(update, camera_true) -> float:
-    """NEES of an update's live camera transform against the true one (6 dof, the `calib.result` convention)."""
+    """NEES of an update's live camera transform against the true one (6 dof, the `handeye.calib.result` convention)."""
     C = update.camera_transform
     e = np.r_[tf.so3_log(C[:3, :3] @ camera_true[:3, :3].T), C[:3, 3] - camera_true[:3, 3]]
     return float(e @ np.linalg.solve(update.cov, e))
@@ -135,7 +135,7 @@ def run_cell(seed: int, cell: SeedCell, *, split_h: float | None = None) -> Seed
     """Run ``cell``'s shift through its engine, scoring every update against the truth.
 
     ``split_h``: the shift is two runs, the second started at that hour from the first's snapshot through its
-    file form (`calib.monitor.snapshot`), as a restarted service or the next shift's run would."""
+    file form (`handeye.calib.monitor.snapshot`), as a restarted service or the next shift's run would."""
     real, res, engine, stream, P = cell.real, cell.result, cell.engine, cell.stream, cell.P
     F_stream = cell.profile.dh_error_factor(stream.q)
     arming = workspace_error(res.Y, res.camera_correction, real.camera, real.data.Y, P) * 1e3
@@ -228,7 +228,7 @@ def section_second_knock(seeds: list[int], shift: simulate.Shift, settings: Moni
 def section_oracle(seeds: list[int], shift: simulate.Shift, settings: MonitorSettings,
                    after=(40, 100, 200)) -> str:
     """After each bump, the engine's live workspace error against an oracle's: the camera registered
-    (`calib.transforms.register_points`) from the samples since the bump, the bump's time known, the arming
+    (`handeye.calib.transforms.register_points`) from the samples since the bump, the bump's time known, the arming
     calibration's marker mount and camera correction held (what issue 32 names as the information in the
     stream). Both judged at the same sample, ``k`` samples after the bump, like `run_seed`."""
     rows, ratio = [], {k: [] for k in after}
@@ -276,8 +276,8 @@ def replay_trace(cell: SeedCell, root: Path) -> tuple[list, list, list]:
 
     import yaml
 
-    from app.benchmarks.monitor_campaign import write_session
-    from app.cli import main
+    from bench.monitor_campaign import write_session
+    from handeye.app.cli import main
 
     def write(name, A, points, cov, q, t):
         samples = [simulate.CellSample(*sample, None, joints) for *sample, joints in zip(A, points, cov, q)]
@@ -382,7 +382,7 @@ def summarize(run: SeedRun) -> dict:
 
 
 def eye_in_hand_armed(seed: int, settings: MonitorSettings):
-    """An eye-in-hand `calib.simulate.realistic_cell` of 34 poses, ``auto`` from the first 30, and the engine armed
+    """An eye-in-hand `handeye.calib.simulate.realistic_cell` of 34 poses, ``auto`` from the first 30, and the engine armed
     from it: ``(cell, result, engine, rng)`` (``rng`` goes on to draw the shift)."""
     rng = np.random.default_rng([seed, 3])
     cell = simulate.realistic_cell(34, rng, setup="eye_in_hand")
@@ -395,8 +395,8 @@ def eye_in_hand_armed(seed: int, settings: MonitorSettings):
 
 
 def section_eye_in_hand(seeds: list[int], shift: simulate.Shift, settings: MonitorSettings) -> str:
-    """Eye-in-hand: `calib.simulate.realistic_cell` (point noise, exact robot and camera), ``auto`` from 30
-    poses, then `calib.simulate.eye_in_hand_shift` over 4 of the cell's other poses; the camera slips on the
+    """Eye-in-hand: `handeye.calib.simulate.realistic_cell` (point noise, exact robot and camera), ``auto`` from 30
+    poses, then `handeye.calib.simulate.eye_in_hand_shift` over 4 of the cell's other poses; the camera slips on the
     flange. Error where the camera is used, as `workspace_error`: the arming samples' points, corrected with the
     live camera correction and put in the flange frame by the live ``T_flange_cam``, against where the true
     (ideal) camera puts them."""
@@ -496,7 +496,7 @@ def plot(runs: list[SeedRun], seeds: list[int], path: Path) -> None:
 
 
 def main(argv=None) -> int:
-    ap = argparse.ArgumentParser(prog="handeye bench --shift", description=__doc__.split("\n")[0])
+    ap = argparse.ArgumentParser(prog="python -m bench --shift", description=__doc__.split("\n")[0])
     ap.add_argument("--seeds", type=int, default=10)
     ap.add_argument("--first-seed", type=int, default=0, help="seeds first-seed .. first-seed + seeds - 1 (fresh "
                     "cells beyond the 10 the defaults were measured on)")

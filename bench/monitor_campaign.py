@@ -1,6 +1,6 @@
 """The monitoring engine driven as users compose it: a stateful property campaign and composed production programs.
 
-Two campaigns over `calib.monitor.MonitorEngine` on simulated cells (`calib.simulate.production_cell`), both
+Two campaigns over `handeye.calib.monitor.MonitorEngine` on simulated cells (`handeye.calib.simulate.production_cell`), both
 setups:
 
 - `EngineMachine`, a hypothesis state machine: arming from a calibration of
@@ -11,11 +11,11 @@ setups:
   (the first sample included); slow drift; bad samples (outliers, NaN and inf,
   duplicate and back-stepping timestamps, hour- to day-long gaps, covariances
   that are not one); disarming and arming again. After every step: only
-  `calib.errors.HandeyeError` escapes, the state is finite with a symmetric
+  `handeye.calib.errors.HandeyeError` escapes, the state is finite with a symmetric
   positive semi-definite covariance, the memory is bounded, a bump that
   moves the marker by 5 mm or more at the stops is flagged within
   `DETECT_WITHIN` samples once three stops not on one line have been seen,
-  and ``calibration_in_use.yaml`` (`app.calibration_in_use.InUseFile`, as the
+  and ``calibration_in_use.yaml`` (`handeye.app.calibration_in_use.InUseFile`, as the
   monitor keeps it) is written for each new calibration in use, so that it
   holds the current one whenever the engine is not re-learning or settling;
   when the calibration hook is told, the file holds the engine's live
@@ -28,7 +28,7 @@ setups:
   bumps, false *moved* alarms.
 
 The suite runs a bounded campaign (tests/calib/test_monitor_campaign.py);
-``handeye bench --fuzz --only monitor`` runs a long one and prints the tables
+``python -m bench --fuzz --only monitor`` runs a long one and prints the tables
 (docs/benchmarks.md).
 """
 
@@ -47,15 +47,15 @@ from pathlib import Path
 import numpy as np
 import yaml
 
-from app import calibration_in_use
-from calib import simulate, solve
-from calib import transforms as tf
-from calib.errors import HandeyeError
-from calib.monitor import AlarmLevel, EngineState, MonitorEngine, MonitorSettings
-from calib.monitor.filter import is_sound
-from calib.problem import CalibrationProblem
-from calib.robot_error import UR10_DH, ur_forward
-from calib.setup import Setup
+from handeye.app import calibration_in_use
+from handeye.calib import simulate, solve
+from handeye.calib import transforms as tf
+from handeye.calib.errors import HandeyeError
+from handeye.calib.monitor import AlarmLevel, EngineState, MonitorEngine, MonitorSettings
+from handeye.calib.monitor.filter import is_sound
+from handeye.calib.problem import CalibrationProblem
+from handeye.calib.robot_error import UR10_DH, ur_forward
+from handeye.calib.setup import Setup
 
 #: A bump must be flagged within this many samples (issue 20's figure).
 DETECT_WITHIN = 20
@@ -104,7 +104,7 @@ class BumpWatch:
 
 
 class ProgramDriver:
-    """A production program on a `calib.simulate.ProductionCell` feeding an engine, with the truth it knows: the
+    """A production program on a `handeye.calib.simulate.ProductionCell` feeding an engine, with the truth it knows: the
     true camera transform (bumped and drifted), the clock, and the bumps not flagged yet. Shared by the state
     machine and the composed runs."""
 
@@ -556,9 +556,9 @@ REFERENCES = ("session", "result.yaml", "previous run")
 
 
 def write_session(root, name: str, setup: Setup, samples, times, source: str = "monitor campaign") -> object:
-    """A handeye session of ``samples`` (`calib.simulate.CellSample`) at ``times`` (s), written by ``source``."""
-    from app.session import SessionWriter
-    from calib.observation import Observation
+    """A handeye session of ``samples`` (`handeye.calib.simulate.CellSample`) at ``times`` (s), written by ``source``."""
+    from handeye.app.session import SessionWriter
+    from handeye.calib.observation import Observation
 
     with SessionWriter.create(root, setup, name=name, source=source) as w:
         for i, (s, t) in enumerate(zip(samples, times)):
@@ -578,8 +578,8 @@ def replay_run(comp: Composition, reference: str, root) -> ComposedOutcome:
 
     import yaml
 
-    from app.cli import main
-    from app.formats.export import write_result
+    from handeye.app.cli import main
+    from handeye.app.formats.export import write_result
 
     out = ComposedOutcome(comp)
     root = Path(root)
@@ -675,7 +675,7 @@ def failed(text: str) -> bool:
 
 
 def report(examples: int, composed: int, replays: int, seed: int = 0) -> str:
-    """The campaign's tables (``handeye bench --fuzz --only monitor``)."""
+    """The campaign's tables (``python -m bench --fuzz --only monitor``)."""
     t0 = time.perf_counter()
     n, failure = engine_campaign(examples)
     text = ["### The monitoring engine as users compose it", "",

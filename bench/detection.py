@@ -1,13 +1,13 @@
 """The smallest bump the *moved* test flags, beside the detection limit the noise model implies (issue 32):
-``handeye bench --detection``.
+``python -m bench --detection``.
 
-For each program (the realistic eye-to-hand cell of `app.benchmarks.shift`
+For each program (the realistic eye-to-hand cell of `bench.shift`
 with 4 and with 14 stops, and its eye-in-hand shift) and each bump size
 (0.5-5 mm, 0.06 deg per mm, random directions, three per 8-hour shift),
 the share of bumps the engine flags within `shift.DETECT_WITHIN` samples,
 against the share the best test could flag.
 
-The limit (`calib.change.move_information`, `calib.change.detection_power`):
+The limit (`handeye.calib.change.move_information`, `handeye.calib.change.detection_power`):
 the camera's move as a rigid 6-dof motion, its onset known, the noise known
 (the simulator's: the marker point's covariance and, eye-to-hand, the robot's
 repeatability), and each stop's marker point over the 20 samples after the
@@ -20,7 +20,7 @@ camera drift between the baselines and the bump is left out of the limit.
 Per bump the limit is the probability that this test flags that bump; the
 table gives its mean over the bumps beside the engine's share.
 
-Run: ``handeye bench --detection [--seeds 20] [--first-seed 0] [--programs 4,14,eih]``;
+Run: ``python -m bench --detection [--seeds 20] [--first-seed 0] [--programs 4,14,eih]``;
 a table on stdout and in out/bench/detection.md.
 """
 
@@ -39,13 +39,13 @@ from pathlib import Path  # noqa: E402
 
 import numpy as np  # noqa: E402
 
-from app.benchmarks import shift as shiftbench  # noqa: E402
-from calib import simulate  # noqa: E402
-from calib import transforms as tf  # noqa: E402
-from calib.change import ChangeDetector, detection_power, move_information  # noqa: E402
-from calib.model import point_jacobians  # noqa: E402
-from calib.monitor import MonitorSettings  # noqa: E402
-from calib.setup import Setup  # noqa: E402
+from bench import shift as shiftbench  # noqa: E402
+from handeye.calib import simulate  # noqa: E402
+from handeye.calib import transforms as tf  # noqa: E402
+from handeye.calib.change import ChangeDetector, detection_power, move_information  # noqa: E402
+from handeye.calib.model import point_jacobians  # noqa: E402
+from handeye.calib.monitor import MonitorSettings  # noqa: E402
+from handeye.calib.setup import Setup  # noqa: E402
 
 SIZES_MM = (0.5, 1.0, 2.0, 3.0, 4.0, 5.0)
 DEG_PER_MM = 0.06
@@ -136,7 +136,7 @@ def program_rows(program: str, seeds: list[int], settings: MonitorSettings, size
 
 
 def main(argv=None) -> int:
-    ap = argparse.ArgumentParser(prog="handeye bench --detection", description=__doc__.split("\n")[0])
+    ap = argparse.ArgumentParser(prog="python -m bench --detection", description=__doc__.split("\n")[0])
     ap.add_argument("--seeds", type=int, default=20)
     ap.add_argument("--first-seed", type=int, default=0)
     ap.add_argument("--programs", default="4,14,eih", help="comma-separated: 4 and/or 14 (stops, eye-to-hand), eih")

@@ -1,9 +1,9 @@
-"""The month benchmark (`app.benchmarks.month`) on a short month: it scores against the truth it simulates."""
+"""The month benchmark (`bench.month`) on a short month: it scores against the truth it simulates."""
 
 import numpy as np
 
-from app.benchmarks import month
-from calib.setup import Setup
+from bench import month
+from handeye.calib.setup import Setup
 
 
 def test_a_short_month_is_scored_per_day_with_its_bumps_and_alarms():

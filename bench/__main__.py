@@ -1,39 +1,43 @@
-"""``handeye bench``: the benchmarks (markdown tables on stdout, PNGs in out/bench/)."""
+"""``python -m bench`` (or ``make bench``): the benchmarks (markdown tables on stdout, PNGs in out/bench/).
+
+They are not part of the installed product: they run from a checkout, on top of everything else (nothing
+in app/, calib/, drivers/ or mocks/ imports them). Arguments a benchmark's flag does not know go on to the
+benchmark it runs; with no flag, the solver benchmark (bench.solvers) runs.
+"""
 
 from __future__ import annotations
 
 import argparse
+import sys
 
-NAME = "bench"
-HELP = "run the benchmarks (markdown tables, PNGs in out/bench/); other arguments go to bench.solvers"
-PASSTHROUGH = True
-
+from handeye.app import exit_status
+from handeye.calib.errors import HandeyeError
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--vision", action="store_true", help="also run the vision benchmark")
     p.add_argument("--robot", action="store_true", help="also run the robot benchmark")
     p.add_argument("--faults", action="store_true",
-                   help="run only the fault campaign (app.benchmarks.faults: robot and simulator faults, minutes)")
+                   help="run only the fault campaign (bench.faults: robot and simulator faults, minutes)")
     p.add_argument("--fuzz", action="store_true",
-                   help="run only the input fuzz campaign (app.benchmarks.fuzz: solver API, configs, sessions, imports; minutes)")
-    p.add_argument("--plan", action="store_true", help="run only the pose-planning benchmark (app.benchmarks.plan; "
+                   help="run only the input fuzz campaign (bench.fuzz: solver API, configs, sessions, imports; minutes)")
+    p.add_argument("--plan", action="store_true", help="run only the pose-planning benchmark (bench.plan; "
                    "other arguments go to it)")
     p.add_argument("--shift", action="store_true",
-                   help="only the production-shift benchmark of the monitoring engine (app.benchmarks.shift; --seeds, --hours)")
+                   help="only the production-shift benchmark of the monitoring engine (bench.shift; --seeds, --hours)")
     p.add_argument("--month", action="store_true",
                    help="only the month-long benchmark of the monitoring engine: live error against its stated "
-                   "1-sigma day by day (app.benchmarks.month; --seeds, --days, --jobs; minutes)")
+                   "1-sigma day by day (bench.month; --seeds, --days, --jobs; minutes)")
     p.add_argument("--detection", action="store_true",
-                   help="only the smallest bump flagged beside the derived detection limit (app.benchmarks.detection; "
+                   help="only the smallest bump flagged beside the derived detection limit (bench.detection; "
                    "--seeds, --programs; minutes)")
     p.add_argument("--verify", action="store_true",
-                   help="only the handeye verify benchmark on the simulated cell (app.benchmarks.verify; about a minute)")
+                   help="only the handeye verify benchmark on the simulated cell (bench.verify; about a minute)")
     p.add_argument("--cross-session", action="store_true",
-                   help="only the cross-session prediction on the real recordings (app.benchmarks.crosssession)")
+                   help="only the cross-session prediction on the real recordings (bench.crosssession)")
     p.add_argument("--model", action="store_true",
-                   help="only the measurement-model / solve('auto') benchmark (app.benchmarks.model; --quick passes through)")
+                   help="only the measurement-model / solve('auto') benchmark (bench.model; --quick passes through)")
     p.add_argument("--bag", action="store_true",
-                   help="run only the ROS 2 bag import benchmark (app.benchmarks.ros2_bag: a 2-minute demo bag "
+                   help="run only the ROS 2 bag import benchmark (bench.ros2_bag: a 2-minute demo bag "
                    "per storage, 5.5 GB each, written and removed; other arguments go to it)")
     p.add_argument("--grids", action="store_true",
                    help="only the benchmark of recordings that leave part of the answer open (bench.grids: a grid "
@@ -45,44 +49,45 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def run(args) -> int:
+    """Run the benchmark the flags choose, with ``args.extra`` as its arguments; its exit status."""
     if args.fuzz:
-        from app.benchmarks import fuzz
+        from bench import fuzz
 
         return int(fuzz.main(args.extra) or 0)
     if args.faults:
-        from app.benchmarks import faults
+        from bench import faults
 
         return int(faults.main(args.extra) or 0)
     if args.plan:
-        from app.benchmarks import plan
+        from bench import plan
 
         return int(plan.main(args.extra) or 0)
     if args.shift:
-        from app.benchmarks import shift
+        from bench import shift
 
         return int(shift.main(args.extra) or 0)
     if args.month:
-        from app.benchmarks import month
+        from bench import month
 
         return int(month.main(args.extra) or 0)
     if args.detection:
-        from app.benchmarks import detection
+        from bench import detection
 
         return int(detection.main(args.extra) or 0)
     if args.cross_session:
-        from app.benchmarks import crosssession
+        from bench import crosssession
 
         return int(crosssession.main(args.extra) or 0)
     if args.verify:
-        from app.benchmarks import verify
+        from bench import verify
 
         return int(verify.main(args.extra) or 0)
     if args.model:
-        from app.benchmarks import model
+        from bench import model
 
         return int(model.main(args.extra) or 0)
     if args.bag:
-        from app.benchmarks import ros2_bag
+        from bench import ros2_bag
 
         return int(ros2_bag.main(args.extra) or 0)
     if args.grids:
@@ -111,3 +116,23 @@ def run(args) -> int:
 
         rc = rc or int(robot.main([]) or 0)
     return rc
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(prog="python -m bench", description=__doc__.splitlines()[0],
+                                     epilog=exit_status.help_text(),
+                                     formatter_class=argparse.RawDescriptionHelpFormatter)
+    add_arguments(parser)
+    args, args.extra = parser.parse_known_args(argv)
+    try:
+        return run(args)
+    except HandeyeError as e:
+        print(f"bench: error: {e}", file=sys.stderr)
+        return exit_status.ERROR
+    except KeyboardInterrupt:
+        print("bench: interrupted", file=sys.stderr)
+        return exit_status.INTERRUPTED
+
+
+if __name__ == "__main__":
+    sys.exit(main())

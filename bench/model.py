@@ -2,7 +2,7 @@
 
 Sections:
 
-1. Realistic profile (`calib.simulate.realistic_profile`: UR10 DH error, 1.5% depth
+1. Realistic profile (`handeye.calib.simulate.realistic_profile`: UR10 DH error, 1.5% depth
    scale, 3 mm depth offset, 1% focal, 2 px misregistration), N = 30: error of
    ``auto`` vs the Cramér-Rao bound of the extended model, vs the bound of the
    model that generated the data (`generating_bound`) and vs ``auto`` on the
@@ -11,13 +11,13 @@ Sections:
 2. Eight poses of a board with good orientations: ``auto`` vs every pose-based
    solver, ours and OpenCV's.
 3. Symmetric board: 30% of the marker poses flipped by a half turn.
-4. Every real set in the shared datasets (`app.benchmarks.datasets`): held-out (leave-one-out,
+4. Every real set in the shared datasets (`bench.datasets`): held-out (leave-one-out,
    10-fold above 60 samples) prediction error of the marker point, ``auto`` vs
    every closed form and the paper's refinement; predicted vs observed.
 5. Plain cell: the paper's refined YKronT' vs the Cramér-Rao bound.
 6. Speed at N = 1000 (one thread).
 
-Run: ``handeye bench --model`` or ``python -m app.benchmarks.model [--quick]``.
+Run: ``python -m bench --model`` or ``python -m bench.model [--quick]``.
 """
 
 from __future__ import annotations
@@ -36,16 +36,16 @@ from pathlib import Path  # noqa: E402
 import cv2  # noqa: E402
 import numpy as np  # noqa: E402
 
-from app.benchmarks.datasets import datasets_dir, real_sets  # noqa: E402
+from bench.datasets import datasets_dir, real_sets  # noqa: E402
 from bench.solvers import OPENCV_HAND_EYE, OPENCV_ROBOT_WORLD, run_solver  # noqa: E402
-from calib import model, solve, solvers  # noqa: E402
-from calib import robot_error, simulate  # noqa: E402
-from calib import transforms as tf  # noqa: E402
-from calib.api import METHODS, closed_form  # noqa: E402
-from calib.crossval import cross_validate, fold_indices  # noqa: E402
-from calib.errors import CalibrationError  # noqa: E402
-from calib.refine import cramer_rao_bound, error_vector, nees  # noqa: E402
-from calib.setup import Setup  # noqa: E402
+from handeye.calib import model, solve, solvers  # noqa: E402
+from handeye.calib import robot_error, simulate  # noqa: E402
+from handeye.calib import transforms as tf  # noqa: E402
+from handeye.calib.api import METHODS, closed_form  # noqa: E402
+from handeye.calib.crossval import cross_validate, fold_indices  # noqa: E402
+from handeye.calib.errors import CalibrationError  # noqa: E402
+from handeye.calib.refine import cramer_rao_bound, error_vector, nees  # noqa: E402
+from handeye.calib.setup import Setup  # noqa: E402
 from bench.tables import markdown_table  # noqa: E402
 
 POSE_METHODS = [m for m, i in METHODS.items() if i.needs == "poses"]
@@ -65,7 +65,7 @@ def extended_cov(d: simulate.SimulatedData, robot_rms: float, orientation_sigma:
     marker translation (3) (+ rotation with ``orientation_sigma``), and the
     camera parameters in ``free``. Noise: the
     true point covariance plus the robot error propagated through the lever
-    arm (`calib.model.robot_cofactor`) at ``robot_rms`` per axis, treated as
+    arm (`handeye.calib.model.robot_cofactor`) at ``robot_rms`` per axis, treated as
     white (the simulated kinematic error is systematic, so this is the bound
     of an idealised robot with the same error level).
     """
@@ -98,7 +98,7 @@ def workspace_jacobian(Y, points_cam) -> np.ndarray:
     """Jacobian (m, 3, 9) of the base-frame point the calibrated camera reports, at an exact calibration.
 
     A camera point ``c`` is reported in the base frame as ``Y correct(h(c))``
-    (`calib.model.CameraCorrection`); its derivative w.r.t. the parameters of
+    (`handeye.calib.model.CameraCorrection`); its derivative w.r.t. the parameters of
     `extended_cov` (camera rotation and translation, depth scale, offset,
     focal scale) at the truth, for true camera-frame points ``points_cam`` (m, 3).
     """
@@ -142,7 +142,7 @@ def generating_cov(real: simulate.RealisticData, prof: simulate.RealisticProfile
     bound sees the robot error as what it is (a few parameters shared by all
     samples), not as white noise. Marker points only (eye-to-hand).
     """
-    from calib.noise import FOCAL_PX
+    from handeye.calib.noise import FOCAL_PX
 
     d, kin = real.data, real.kinematics
     base = np.array([prof.depth_scale, prof.depth_offset, prof.focal_scale])
@@ -303,7 +303,7 @@ def section_realistic(rng, trials: int, n: int = 30) -> str:
         "and offset free. "
         f"NEES of `auto (points)`: mean {np.mean(nees_auto):.2f} ± {np.std(nees_auto) / np.sqrt(len(nees_auto)):.2f} "
         f"(standard error; 6 if honest), median {np.median(nees_auto):.2f}. With the joint angles, the DH error "
-        "given to `auto` as an error shared by all samples (`robot_shared_error=calib.robot_error.ur_dh_error_factor(q, ...)`, "
+        "given to `auto` as an error shared by all samples (`robot_shared_error=handeye.calib.robot_error.ur_dh_error_factor(q, ...)`, "
         "the profile's magnitudes): NEES "
         + ", ".join(f"{k} {np.mean(v):.2f} ± {np.std(v) / np.sqrt(len(v)):.2f}" for k, v in nees_shared.items())
         + f". Camera parameters estimated: {chosen}.",
@@ -520,7 +520,7 @@ def section_speed(rng, repeats: int, n: int = 1000) -> str:
     d = simulate.realistic_cell(n, rng)
     p = d.points * 1.015
     cases = [
-        ("YKronT' closed form (calib.solvers.y_kron_t_prime)", lambda: solvers.y_kron_t_prime(d.A, p)),
+        ("YKronT' closed form (handeye.calib.solvers.y_kron_t_prime)", lambda: solvers.y_kron_t_prime(d.A, p)),
         ("solve(\"YKronT'\") with covariance and self-check", lambda: solve("YKronT'", d.A, p)),
         ("solve(\"auto\") points, with covariance and self-check", lambda: solve("auto", d.A, p)),
         ("solve(\"auto\") points and their covariances (as the app passes them)",
@@ -534,7 +534,7 @@ def section_speed(rng, repeats: int, n: int = 1000) -> str:
 
 
 def main(argv=None) -> int:
-    ap = argparse.ArgumentParser(prog="python -m app.benchmarks.model", description=__doc__.split("\n")[0])
+    ap = argparse.ArgumentParser(prog="python -m bench.model", description=__doc__.split("\n")[0])
     ap.add_argument("--quick", action="store_true", help="few trials, small real sets only")
     ap.add_argument("--out", default="out/bench")
     ap.add_argument("--seed", type=int, default=0)
@@ -543,7 +543,7 @@ def main(argv=None) -> int:
     t = 3 if args.quick else 1
     t0 = time.perf_counter()
     parts = [
-        "## Measurement model and solve(\"auto\") (`handeye bench --model`)",
+        "## Measurement model and solve(\"auto\") (`python -m bench --model`)",
         # 200 cells: the bias-free ratio is a ratio of two noisy RMS values (+-3% at 200, +-8% at 40).
         section_realistic(rng, 200 // t // (2 if args.quick else 1)),
         # Its own stream, so the cells of the sections after it are those of runs without it.

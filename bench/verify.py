@@ -3,14 +3,14 @@
 1. The demo calibrates the simulated cell (rendered camera, UR10 simulator);
    ``verify`` then moves to fresh planned poses and measures the marker there.
 2. On those same verification samples, results off by a known amount are
-   judged (`calib.verify.perturbed`: 3 mm, 0.3 deg across the view, both, both
+   judged (`handeye.calib.verify.perturbed`: 3 mm, 0.3 deg across the view, both, both
    in random directions): the reported calibration error (noise removed)
    against the true error of each result over the same poses (the simulator
    knows the truth), and the verdict at the 2 mm tolerance.
 3. The frame-safety check with a tape-measure prior 5 cm off: the result, and its inverse.
 4. The report's size.
 
-Run: ``handeye bench --verify [--host 127.0.0.2] [--poses 12]``.
+Run: ``python -m bench --verify [--host 127.0.0.2] [--poses 12]``.
 """
 
 from __future__ import annotations
@@ -21,17 +21,17 @@ from pathlib import Path
 
 import numpy as np
 
-from app import verify as av
-from app.runs.demo import demo
-from app.config import load_config
-from calib import transforms as tf
-from calib import verify as cv
-from app.session import read_session
+from handeye.app import verify as av
+from handeye.app.runs.demo import demo
+from handeye.app.config import load_config
+from handeye.calib import transforms as tf
+from handeye.calib import verify as cv
+from handeye.app.session import read_session
 from bench.tables import markdown_table
 
 
 def main(argv=None) -> int:
-    ap = argparse.ArgumentParser(prog="handeye bench --verify")
+    ap = argparse.ArgumentParser(prog="python -m bench --verify")
     ap.add_argument("--host", default="127.0.0.2", help="loopback address of the UR simulator")
     ap.add_argument("--poses", type=int, default=12, help="verification poses")
     ap.add_argument("--seeds", type=int, default=5, help="random directions per perturbed row")
@@ -92,7 +92,7 @@ def main(argv=None) -> int:
                 (f.warnings[0][:60] + "...") if f.warnings else "none"] for n, f in fs]))
     sizes = [["demo (calibrate)", f"{(out.report.session / 'report.html').stat().st_size / 1e3:.0f}"]]
     calib = read_session(out.report.session).observations
-    from app.report import write_report
+    from handeye.app.report import write_report
 
     doc = av.verify_document(loaded, "active", run.session,
                              cv.verify(av.pose_errors(loaded.model, obs), rng=np.random.default_rng(0), **tol),

@@ -1,6 +1,6 @@
 """bench --fuzz --only monitor: the monitoring engine's campaigns, bounded (the long run is in docs/benchmarks.md)."""
 
-from app.benchmarks.monitor_campaign import failed, report
+from bench.monitor_campaign import failed, report
 
 
 def test_the_campaign_tables_count_no_traceback_missed_bump_or_false_alarm():

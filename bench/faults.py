@@ -1,7 +1,7 @@
 """Fault campaign for the robot side: repeat each controller/simulator fault many times, count the outcomes.
 
-Run ``python -m app.benchmarks.faults [--quick | --full] [--freeze N] [--faults N] [--app-freezes N]
-[--parent-deaths N] [--kills N] [--targets N] [--seed S]`` or ``handeye bench --faults``. Prints a
+Run ``python -m bench.faults [--quick | --full] [--freeze N] [--faults N] [--app-freezes N]
+[--parent-deaths N] [--kills N] [--targets N] [--seed S]`` or ``python -m bench --faults``. Prints a
 markdown table:
 fault, runs, clean errors, crashes (native signals), hangs, samples lost, and the slowest
 detection. Everything runs on this process's own loopback /24 (``127.a.b.x``).
@@ -13,7 +13,7 @@ detection. Everything runs on this process's own loopback /24 (``127.a.b.x``).
 - **Drop, protective stop, e-stop** (``--faults`` runs each): same move, the fault instead.
   Clean = `ConnectionLostError` / `RobotStoppedError`; then recover (unlock, release) and move.
 - Each of these runs in a worker process through the real ur_rtde client (`URRobot`) against
-  `mocks.ur_sim`. A worker killed by a signal counts a crash (the worker is restarted), a run
+  `handeye.mocks.ur_sim`. A worker killed by a signal counts a crash (the worker is restarted), a run
   with no answer within 60 s a hang.
 - **calibrate with a frozen stream** (``--app-freezes``): ``handeye calibrate`` on the simulated
   cell, the stream frozen for 60 s after 1-4 samples. Clean = exit 1 with one line naming the frozen stream; the detection column
@@ -31,7 +31,7 @@ detection. Everything runs on this process's own loopback /24 (``127.a.b.x``).
 - **Targets vs the simulator's execution** (``--targets``): random moveL/moveJ targets from
   random start joints, 30 % aimed at the wrist/elbow singularities, checked by
   `URRobot.check_target` offline; every accepted one is executed by the simulator's own motion
-  model (`mocks.ur_sim.motion`) at the CB3 control rate and must neither protective-stop nor
+  model (`handeye.mocks.ur_sim.motion`) at the CB3 control rate and must neither protective-stop nor
   leave the workspace box, the tilt cone or the joint limits at any tick.
 
 The robot only supplies ``T_base_flange`` (A_i): the figures hold for eye-to-hand and eye-in-hand.
@@ -58,9 +58,9 @@ from pathlib import Path
 
 import numpy as np
 
-from app import exit_status
-from calib.errors import HandeyeError
-from drivers.errors import ConnectionLostError, LimitViolationError, RobotStoppedError
+from handeye.app import exit_status
+from handeye.calib.errors import HandeyeError
+from handeye.drivers.errors import ConnectionLostError, LimitViolationError, RobotStoppedError
 
 START_Q = (0.0, -1.2, 1.6, -1.97, -1.5708, 0.0)
 SIM_TCP = (0.01, -0.02, 0.15, 0.1, -0.2, 0.3)
@@ -77,7 +77,7 @@ QUICK = dict(freeze=2, faults=1, app_freezes=1, parent_deaths=3, kills=1, target
 FULL = dict(freeze=25, faults=10, app_freezes=10, parent_deaths=50, kills=100, targets=10000)
 #: --resume runs per killed session while each ends with a clean one-line error.
 RESUME_ATTEMPTS = 3
-#: The exit statuses of a calibration that ran to its verdict (`app.exit_status`): whatever the verdict, the
+#: The exit statuses of a calibration that ran to its verdict (`handeye.app.exit_status`): whatever the verdict, the
 #: resume completed (8 samples often judge WARN, exit 5).
 COMPLETED = (exit_status.PASS, exit_status.WARN, exit_status.FAIL)
 
@@ -89,7 +89,7 @@ def _net() -> str:
 
 
 def _robot_config(host: str):
-    from drivers.robot.ur import URRobotConfig
+    from handeye.drivers.robot.ur import URRobotConfig
 
     return URRobotConfig(host=host, model="ur10", speed=0.25, acceleration=1.2, workspace_min=(-1.3, -1.0, 0.0),
                          workspace_max=(1.3, 1.0, 1.2), max_tilt_deg=45.0)
@@ -127,8 +127,8 @@ def _recover(robot, sim, fault: str, t_inject: float) -> None:
 
 def worker(fault: str, host: str, runs: int, seed: int) -> int:
     """One worker process: ``runs`` runs of ``fault``, one JSON line each on stdout."""
-    from drivers.robot.ur import URRobot
-    from mocks.ur_sim import launch
+    from handeye.drivers.robot.ur import URRobot
+    from handeye.mocks.ur_sim import launch
 
     expected, words = ROBOT_FAULTS[fault]
     rng = random.Random(seed)
@@ -172,7 +172,7 @@ def run_robot_fault(fault: str, runs: int, slots, seed: int) -> dict:
     while row["runs"] < runs:
         host = f"{_net()}.{next(slots)}"
         # Own session: a hung worker is killed with its simulator and RTDE client.
-        proc = subprocess.Popen([sys.executable, "-m", "app.benchmarks.faults", "--worker", fault, host,
+        proc = subprocess.Popen([sys.executable, "-m", "bench.faults", "--worker", fault, host,
                                  str(runs - row["runs"]), str(seed + row["runs"])],
                                 stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, start_new_session=True)
         lines: queue.Queue = queue.Queue()
@@ -217,7 +217,7 @@ def run_robot_fault(fault: str, runs: int, slots, seed: int) -> dict:
 # exits (PR_SET_PDEATHSIG would fire here), and 31 more threads are alive when it dies.
 PARENT = """
 import sys, threading, time
-from mocks.ur_sim import launch
+from handeye.mocks.ur_sim import launch
 box = []
 t = threading.Thread(target=lambda: box.append(launch(sys.argv[1])))
 t.start(); t.join()
@@ -286,7 +286,7 @@ def run_parent_deaths(runs: int, slots) -> dict:
 # ------------------------------------------------------------ kill -9 + resume
 def _sample_indices(session: Path) -> tuple[set[int], int]:
     """Indices of the samples readable in ``session`` and how many of them miss a frame file."""
-    from app.session import read_session
+    from handeye.app.session import read_session
 
     s = read_session(session)
     missing = sum(1 for o in s.observations for k in ("color", "depth")
@@ -296,7 +296,7 @@ def _sample_indices(session: Path) -> tuple[set[int], int]:
 
 def _sim_config(path: Path, host: str) -> Path:
     """The shipped simulated-cell config with its controller on ``host``, written to ``path``."""
-    base = Path(__file__).resolve().parents[2] / "config" / "sim.toml"
+    base = Path(__file__).resolve().parents[1] / "config" / "sim.toml"
     path.write_text(base.read_text().replace('host = "127.0.0.2"', f'host = "{host}"'))
     return path
 
@@ -310,7 +310,7 @@ def run_kills(runs: int, slots, seed: int, samples: int = 8) -> dict:
         for i in range(runs):
             cfg = _sim_config(tmp / f"sim{i}.toml", f"{_net()}.{next(slots)}")
             root = tmp / f"sessions{i}"
-            cmd = [sys.executable, "-m", "app.cli", "calibrate", "--yes-move", "-c", str(cfg), "--session-root",
+            cmd = [sys.executable, "-m", "handeye.app.cli", "calibrate", "--yes-move", "-c", str(cfg), "--session-root",
                    str(root), "--no-viz", "--samples", str(samples), "--seed", str(i)]
             row["runs"] += 1
             proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
@@ -386,7 +386,7 @@ def run_app_freezes(runs: int, slots, seed: int, seconds: float = 60.0) -> dict:
             cfg = _sim_config(tmp / f"sim{i}.toml", host)
             root = tmp / f"sessions{i}"
             row["runs"] += 1
-            proc = subprocess.Popen([sys.executable, "-m", "app.cli", "calibrate", "--yes-move", "-c", str(cfg),
+            proc = subprocess.Popen([sys.executable, "-m", "handeye.app.cli", "calibrate", "--yes-move", "-c", str(cfg),
                                      "--session-root", str(root), "--no-viz", "--samples", "30", "--seed", str(i)],
                                     stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
             want = rng.randint(1, 4)
@@ -439,7 +439,7 @@ def random_valid_start(rng: np.random.Generator, robot) -> np.ndarray:
 
     Starts outside the cone made the oracle flag motions that only brought the arm back in.
     """
-    from drivers.robot import ur_kinematics as kin
+    from handeye.drivers.robot import ur_kinematics as kin
 
     while True:
         q = np.array(START_Q) + rng.uniform(-1.0, 1.0, 6) * [1.5, 0.8, 1.0, 1.5, 1.5, 2.0]
@@ -452,7 +452,7 @@ def random_valid_start(rng: np.random.Generator, robot) -> np.ndarray:
 
 def sim_path_violation(motion, robot, limits, tick: float) -> str | None:
     """Execute ``motion`` as the simulator does (one ``q_at`` per control tick); first problem or None."""
-    from drivers.robot import ur_kinematics as kin
+    from handeye.drivers.robot import ur_kinematics as kin
 
     cfg = robot.config
     lo, hi = np.asarray(cfg.workspace_min), np.asarray(cfg.workspace_max)
@@ -474,9 +474,9 @@ def sim_path_violation(motion, robot, limits, tick: float) -> str | None:
 
 
 def run_targets(n: int, seed: int) -> dict:
-    from drivers.robot import ur_kinematics as kin
-    from drivers.robot.ur import URRobot
-    from mocks.ur_sim.motion import JointMotion, LinearMotion
+    from handeye.drivers.robot import ur_kinematics as kin
+    from handeye.drivers.robot.ur import URRobot
+    from handeye.mocks.ur_sim.motion import JointMotion, LinearMotion
 
     # Offline (check_target with explicit start joints); a wide box and tilt cone, so that the
     # joint limits and singularities, not the box, decide most targets.
@@ -526,7 +526,7 @@ def format_row(row: dict) -> str:
 
 
 def main(argv: list[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(prog="python -m app.benchmarks.faults", description=__doc__.splitlines()[0])
+    ap = argparse.ArgumentParser(prog="python -m bench.faults", description=__doc__.splitlines()[0])
     ap.add_argument("--worker", nargs=4, metavar=("FAULT", "HOST", "RUNS", "SEED"), help=argparse.SUPPRESS)
     size = ap.add_mutually_exclusive_group()
     size.add_argument("--quick", action="store_true", help=f"smoke-test counts {QUICK}")

@@ -1,13 +1,13 @@
 """A month left alone (issue 42): the monitoring engine over 30 days of a realistic cell, against the truth.
 
-Run ``handeye bench --month [--seeds 5] [--first-seed 0] [--days 30] [--stops 4] [--jobs 2]``.
+Run ``python -m bench --month [--seeds 5] [--first-seed 0] [--days 30] [--stops 4] [--jobs 2]``.
 Prints the tables (also ``<out>/month.md``) and plots the live error and its stated 1-sigma day by day
 (``<out>/month.png``).
 
 Each seed gives four cells: eye-to-hand and eye-in-hand, each with the robot's joints (the engine holds its
 kinematic error) and without (a pose-only source: ROS 2 ``PoseStamped``, another tool's recording). A cell is
-`calib.simulate.realistic_profile` (UR10 DH error, 1.5 % depth scale, 3 mm depth offset, 1 % focal, 2 px
-misregistration) calibrated with ``auto`` from 30 poses, then `calib.simulate_month.month_stream`: a sample every
+`handeye.calib.simulate.realistic_profile` (UR10 DH error, 1.5 % depth scale, 3 mm depth offset, 1 % focal, 2 px
+misregistration) calibrated with ``auto`` from 30 poses, then `handeye.calib.simulate_month.month_stream`: a sample every
 30 s at the program's stops; each stop with its own fixed error beyond the DH error (0.1-0.5 mm, drawn per cell);
 the mount breathing a daily cycle of 0.5-2 mm (and 0.01 deg) beside a 0.05 mm/sqrt(h) walk; four 5 mm / 0.3 deg
 bumps at random hours, one in each week.
@@ -36,13 +36,13 @@ from pathlib import Path  # noqa: E402
 
 import numpy as np  # noqa: E402
 
-from app.benchmarks.shift import RECOVER_WITHIN, classify_alarms, workspace_error  # noqa: E402
+from bench.shift import RECOVER_WITHIN, classify_alarms, workspace_error  # noqa: E402
 from bench.tables import markdown_table  # noqa: E402
-from calib import simulate, solve  # noqa: E402
-from calib.monitor import MonitorEngine, MonitorSettings  # noqa: E402
-from calib.problem import CalibrationProblem  # noqa: E402
-from calib.setup import Setup  # noqa: E402
-from calib.simulate_month import DAY_S, Month, month_stream  # noqa: E402
+from handeye.calib import simulate, solve  # noqa: E402
+from handeye.calib.monitor import MonitorEngine, MonitorSettings  # noqa: E402
+from handeye.calib.problem import CalibrationProblem  # noqa: E402
+from handeye.calib.setup import Setup  # noqa: E402
+from handeye.calib.simulate_month import DAY_S, Month, month_stream  # noqa: E402
 
 #: Held-out workspace poses per cell.
 WORKSPACE_POINTS = 200
@@ -235,7 +235,7 @@ def specs(seeds: list[int], days: float, stops: int, distance: float) -> list[Ce
 
 
 def main(argv=None) -> int:
-    ap = argparse.ArgumentParser(prog="handeye bench --month", description=__doc__.split("\n")[0])
+    ap = argparse.ArgumentParser(prog="python -m bench --month", description=__doc__.split("\n")[0])
     ap.add_argument("--seeds", type=int, default=5, help="four cells per seed (both setups, with and without joints)")
     ap.add_argument("--first-seed", type=int, default=0)
     ap.add_argument("--days", type=float, default=30.0)
@@ -255,7 +255,7 @@ def main(argv=None) -> int:
     else:
         runs = [run_cell(c) for c in cells]
     text = (f"### A month left alone: {args.days:g} days, {args.stops} stops, seeds {seeds[0]}-{seeds[-1]} "
-            f"(`handeye bench --month --seeds {args.seeds} --first-seed {args.first_seed} --days {args.days:g} "
+            f"(`python -m bench --month --seeds {args.seeds} --first-seed {args.first_seed} --days {args.days:g} "
             f"--stops {args.stops}`)\n\n" + summary(runs) + "\n\n"
             + markdown_table(CELL_HEADERS, [cell_row(r) for r in runs])
             + "\n\nPer day, over the cells:\n\n" + markdown_table(DAY_HEADERS, day_rows(runs))

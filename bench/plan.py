@@ -1,18 +1,18 @@
 """Pose-planning benchmark: how many motions to a trusted result, and are the planned motions valid.
 
-Run ``python -m app.benchmarks.plan [--seeds N] [--validity-poses N] [--out DIR]`` (also
-``handeye bench --plan``). Prints markdown and writes ``<out>/plan.md`` and
+Run ``python -m bench.plan [--seeds N] [--validity-poses N] [--out DIR]`` (also
+``python -m bench --plan``). Prints markdown and writes ``<out>/plan.md`` and
 ``<out>/plan.png``.
 
 1. **Motions to target** on the simulated cells of ``config/sim.toml``
    (eye-to-hand) and ``config/eye_in_hand.toml`` (eye-in-hand), through the
-   real driver (ur_rtde client against `mocks.ur_sim`) and the rendered
+   real driver (ur_rtde client against `handeye.mocks.ur_sim`) and the rendered
    camera, one full ``calibrate`` run per strategy and seed (the seed drives
    the pose candidates and the camera noise): robot motions until the
    predicted 1-sigma of the camera transform (``T_base_cam`` eye-to-hand,
    ``T_flange_cam`` eye-in-hand; the cell's configured solver, ``auto``, as
    ``calibrate`` runs it) is below 1 mm and 0.1 deg (first check after 5
-   samples; at most 80 samples, so that `random` gets there too). Strategies: ``optimal`` (`calib.planner`),
+   samples; at most 80 samples, so that `random` gets there too). Strategies: ``optimal`` (`handeye.calib.planner`),
    ``random`` (uniform in the same box and tilt), ``fixed17``: a 17-pose
    pattern of the kind ROS tools ship (start, +-tilt about the flange x, y, z,
    +-offset along base x, y, z, four combined), at 2/3 of the same ranges,
@@ -23,7 +23,7 @@ Run ``python -m app.benchmarks.plan [--seeds N] [--validity-poses N] [--out DIR]
 2. **Validity**: the planning loop without rendering: cells with random true
    mountings (marker within 10 cm of the flange, turned up to 30 deg; eye-in-
    hand camera within 10 cm, marker anywhere in view), synthetic measurements
-   from the truth with the `calib.noise` depth model, the estimate re-solved
+   from the truth with the `handeye.calib.noise` depth model, the estimate re-solved
    (the cell's solver, ``auto``) after every sample. Every planned pose (bootstrap
    and optimal) is checked independently: `URRobot.check_target` of the
    simulated cell's driver from the previous joints (joint limits, workspace
@@ -49,15 +49,15 @@ from pathlib import Path  # noqa: E402
 
 import numpy as np  # noqa: E402
 
-from app import devices, planning  # noqa: E402
-from app.config import load_config  # noqa: E402
-from calib import planner as pl  # noqa: E402
-from calib import transforms as tf  # noqa: E402
-from calib.api import solve_observations  # noqa: E402
-from calib.errors import CalibrationError, HandeyeError  # noqa: E402
-from calib.noise import default_point_cov  # noqa: E402
-from calib.setup import Setup  # noqa: E402
-from drivers.camera.base import CameraIntrinsics  # noqa: E402
+from handeye.app import devices, planning  # noqa: E402
+from handeye.app.config import load_config  # noqa: E402
+from handeye.calib import planner as pl  # noqa: E402
+from handeye.calib import transforms as tf  # noqa: E402
+from handeye.calib.api import solve_observations  # noqa: E402
+from handeye.calib.errors import CalibrationError, HandeyeError  # noqa: E402
+from handeye.calib.noise import default_point_cov  # noqa: E402
+from handeye.calib.setup import Setup  # noqa: E402
+from handeye.drivers.camera.base import CameraIntrinsics  # noqa: E402
 
 CELLS = {Setup.EYE_TO_HAND: "config/sim.toml", Setup.EYE_IN_HAND: "config/eye_in_hand.toml"}
 TARGET_MM, TARGET_DEG = 1.0, 0.1
@@ -103,13 +103,13 @@ def _cell_config(setup: str, seed: int, host: str, root: Path, poses: str):
 
 def run_strategy(setup: str, strategy: str, seed: int, host: str, root: Path) -> dict:
     """One full calibrate run on the simulated cell; motions, robot time and the outcome."""
-    from app.runs.calibrate import calibrate
-    from drivers.robot import ur_kinematics as kin
+    from handeye.app.runs.calibrate import calibrate
+    from handeye.drivers.robot import ur_kinematics as kin
 
     poses = strategy
     planned = None
     if strategy == "plan":
-        from app.runs.plan import plan
+        from handeye.app.runs.plan import plan
 
         planned = plan(_cell_config(setup, seed, host, root, "optimal"), root / f"plan_{setup}_{seed}.json").document
         poses = str(root / f"plan_{setup}_{seed}.json")
@@ -211,13 +211,13 @@ def _key(T, q) -> tuple:
 
 
 def validity_run(setup: str, cfg, robot, state, rng: np.random.Generator, max_poses: int, stats: dict) -> int:
-    """One simulated calibration driven by the app's own pose source (`app.planning.OptimalPoses`) on
+    """One simulated calibration driven by the app's own pose source (`handeye.app.planning.OptimalPoses`) on
     synthetic measurements; every pose it plans is checked. Returns the samples taken.
 
     The robot check of a pose is the driver's `check_target` from the joints the motion starts from: taken
     from the record of the planner's own callback when it made exactly that call, else run here."""
-    from calib.observation import Observation
-    from drivers.robot.base import RobotState
+    from handeye.calib.observation import Observation
+    from handeye.drivers.robot.base import RobotState
 
     X, Y = _random_cell(setup, cfg, state.T_base_flange, rng)
     truth_view = planning.camera_view(cfg.calibrate, INTR, cfg.marker).model_copy(update={"margin_px": 0.0})
@@ -284,7 +284,7 @@ def _median(values):
 
 
 def format_report(runs: list[dict], val: dict, elapsed: float) -> str:
-    lines = ["# Pose planning benchmark (`handeye bench --plan`)", "",
+    lines = ["# Pose planning benchmark (`python -m bench --plan`)", "",
              f"Target: predicted 1-sigma of the camera transform <= {TARGET_MM} mm and {TARGET_DEG} deg "
              f"(the cells' solver, `auto`, as `calibrate` runs it; first check after 5 samples, at most "
              f"{MAX_SAMPLES}). Simulated cells through the "
@@ -378,7 +378,7 @@ def plot(path: Path, runs: list[dict]) -> None:
 
 def main(argv=None) -> int:
     """Run the benchmark; returns 0. See the module docstring."""
-    ap = argparse.ArgumentParser(prog="python -m app.benchmarks.plan", description=__doc__.split("\n")[0])
+    ap = argparse.ArgumentParser(prog="python -m bench.plan", description=__doc__.split("\n")[0])
     ap.add_argument("--seeds", type=int, default=5, help="seeds per cell and strategy (full calibrate runs)")
     ap.add_argument("--validity-poses", type=int, default=10000, help="planned poses to check at least")
     ap.add_argument("--out", default="out/bench", help="output folder for plan.md and plan.png")

@@ -1,11 +1,11 @@
-"""app.benchmarks.datasets: the real sets are read from the upstream layout, missing ones left out."""
+"""bench.datasets: the real sets are read from the upstream layout, missing ones left out."""
 
 import gzip
 from pathlib import Path
 
-from app.benchmarks.datasets import real_sets
+from bench.datasets import real_sets
 
-DATA = Path(__file__).resolve().parents[2] / "data" / "ethz" / "robot_arm_sim"
+DATA = Path(__file__).resolve().parents[1] / "data" / "ethz" / "robot_arm_sim"
 
 
 def test_eth_streams_are_staged_with_a_manifest_and_loaded(tmp_path):

@@ -1,4 +1,4 @@
-"""app.benchmarks.fuzz: every import seed is a valid file set before the campaign damages it."""
+"""bench.fuzz: every import seed is a valid file set before the campaign damages it."""
 
 import shutil
 from pathlib import Path
@@ -6,10 +6,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from app.benchmarks.fuzz import BAG_KINDS, IMPORT_KINDS, IMPORT_MAIN, write_import_seed
-from app.formats import detect_format, load
+from bench.fuzz import BAG_KINDS, IMPORT_KINDS, IMPORT_MAIN, write_import_seed
+from handeye.app.formats import detect_format, load
 
-CIRCLE_GRID = Path(__file__).resolve().parents[2] / "data" / "circle_grid"
+CIRCLE_GRID = Path(__file__).resolve().parents[1] / "data" / "circle_grid"
 
 
 @pytest.mark.parametrize("kind", IMPORT_KINDS + BAG_KINDS[1:])
