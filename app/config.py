@@ -21,9 +21,14 @@ from __future__ import annotations
 
 import shlex
 import shutil
-import tomllib
+import sys
 from pathlib import Path
 from typing import Annotated, Any, Literal, Union
+
+if sys.version_info >= (3, 11):
+    import tomllib
+else:       # Python 3.10 (ROS 2 Humble): the same parser, before it joined the standard library
+    import tomli as tomllib
 
 from pydantic import AfterValidator, Discriminator, Field, Tag, ValidationError, model_validator
 
@@ -523,6 +528,19 @@ def _depth(value, limit: int, level: int = 0) -> int:
     return level
 
 
+#: The configs the package ships (``config/`` of the repository, ``handeye/config/`` of an installed wheel).
+SHIPPED_CONFIGS = Path(__file__).resolve().parents[1] / "config"
+
+
+def shipped_config(path: Path) -> Path:
+    """``path`` as given; a shipped config named the way the docs do (``config/sim.toml``) or by its file name
+    that is not found from the current directory comes from the installed package."""
+    if path.exists() or path.parent not in (Path("config"), Path(".")):
+        return path
+    shipped = SHIPPED_CONFIGS / path.name
+    return shipped if shipped.is_file() else path
+
+
 def load_config(path: str | Path | None = None) -> Config:
     """Load and validate a TOML config; ``None`` gives the embedded simulated cell.
 
@@ -535,7 +553,7 @@ def load_config(path: str | Path | None = None) -> Config:
     """
     if path is None:
         return Config()
-    path = Path(path)
+    path = shipped_config(Path(path))
     try:
         text = read_text_file(path, ConfigError, max_bytes=MAX_CONFIG_BYTES)
     except ConfigError as e:

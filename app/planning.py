@@ -1,6 +1,6 @@
 """Where the active run moves next: optimal (`handeye.calib.planner`), random, or a file (``plan.json``).
 
-Each pose source hands `app.calibrate.run_calibration` one `Target` at a
+Each pose source hands `handeye.app.runs.calibrate.run_calibration` one `Target` at a
 time. Validity is checked twice before a motion: by the planner (marker in
 view with a margin, depth range, view angle, keep-out boxes) and by the robot
 driver's own limit check (`reachable`, the same `check_target` that

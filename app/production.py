@@ -52,7 +52,7 @@ def production_program(T_start: np.ndarray, q_start, kinematics: KinematicModel,
                        acceleration: float = 8.0) -> dict:
     """A looping program (JSON form of `handeye.mocks.ur_sim.program`) through random poses around ``T_start``.
 
-    Poses are drawn like the active calibration's (`app.calibrate.random_pose`,
+    Poses are drawn like the active calibration's (`handeye.app.planning.random_pose`,
     ``cal.translation_range_m`` and ``cal.tilt_deg``), so the marker stays in
     view. More waypoints than the monitor's diversity window keeps each
     lap's poses worth sampling again.

@@ -1,7 +1,7 @@
 """Recordings that leave part of the answer open: a grid at one tool orientation, rotations about one axis.
 
 Run ``python -m bench.grids [--cells 100] [--n 100] [--seed 0] [--out out/bench]``
-(also ``handeye bench --grids``). Prints markdown, writes ``<out>/grids.md``.
+(also ``python -m bench --grids``). Prints markdown, writes ``<out>/grids.md``.
 
 Per setup (eye-to-hand ``X = T_flange_marker``, ``Y = T_base_cam``; eye-in-hand
 ``X = T_flange_cam``, ``Y = T_base_marker``) and per motion, on ``--cells``

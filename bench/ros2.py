@@ -1,6 +1,6 @@
 """Latency of the ROS 2 camera path: a frame published -> a sample (the marker measured), 640x480 at 30 Hz.
 
-Run ``python -m bench.ros2 [--frames N] [--out DIR]`` (``handeye bench --ros2``). A publisher process
+Run ``python -m bench.ros2 [--frames N] [--out DIR]`` (``python -m bench --ros2``). A publisher process
 (this module with ``--publish``, as realsense2_camera would be) sends rendered frames of the demo cell
 (`handeye.mocks.render.camera`, rendered beforehand) at 30 Hz through real DDS on loopback (ROS_DOMAIN_ID and
 ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST as set here unless given), stamped when published (colour rgb8,

@@ -1,6 +1,6 @@
 """Solver benchmark: the paper's sec. V in simulation, next to OpenCV, plus refinement, robustness, timings.
 
-Run ``handeye bench [--quick | --tiny] [--out out/bench] [--seed S]``
+Run ``python -m bench [--quick | --tiny] [--out out/bench] [--seed S]``
 (or ``python -m bench.solvers`` with the same options). Writes ``<out>/solvers.md`` and PNG plots, prints the
 markdown. All data are eye-to-hand (static camera, marker on the flange:
 ``X = T_flange_marker``, ``Y = T_base_cam``) unless a table says eye-in-hand
@@ -22,7 +22,7 @@ Experiments
 4b. Honesty of ``cov`` per method of Table I, closed form and refined: NEES
    on the realistic cell (``cov_kind`` says how each was computed).
 5. Robustness to 0-30% gross outliers; 6. timings (with the monitoring engine's update; its shift
-benchmark is ``handeye bench --shift``).
+benchmark is ``python -m bench --shift``).
 
 Errors are those of ``Y = T_base_cam``: rotation angle (deg) and translation
 (mm). The reprojection error follows the paper: the marker point (origin of
@@ -495,7 +495,7 @@ def _command(cfg) -> str:
     """The command line that prints this report, as a user types it."""
     size = " --tiny" if cfg["tiny"] else " --quick" if cfg["quick"] else ""
     seed = f" --seed {cfg['seed']}" if cfg["seed"] else ""
-    return f"handeye bench{size}{seed}"
+    return f"python -m bench{size}{seed}"
 
 
 def _config(quick: bool, tiny: bool, seed: int) -> dict:
@@ -521,7 +521,7 @@ def _config(quick: bool, tiny: bool, seed: int) -> dict:
 
 def main(argv=None) -> int:
     """Run the benchmark; returns 0. See the module docstring."""
-    ap = argparse.ArgumentParser(prog="handeye bench", description=__doc__.split("\n")[0])
+    ap = argparse.ArgumentParser(prog="python -m bench", description=__doc__.split("\n")[0])
     ap.add_argument("--quick", action="store_true", help="small smoke run (< 1 min)")
     ap.add_argument("--out", default="out/bench", help="output folder for solvers.md and the PNG plots")
     ap.add_argument("--tiny", action="store_true", help="one round of everything at tiny sizes (smoke test)")

@@ -16,7 +16,7 @@ is written to JSON as that string.
 
 from __future__ import annotations
 
-from enum import StrEnum
+from handeye.calib.compat import StrEnum
 
 from handeye.calib.errors import CalibrationError, HandeyeError
 

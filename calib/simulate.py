@@ -200,21 +200,27 @@ def realistic_cell(
 
     points_true = B_true[:, :3, 3]
     cov = point_covariance(points_true, sigma_lateral, sigma_depth)
-    # Split white noise into its along-ray and across-ray parts (no Cholesky: sigmas may be zero).
-    ray = points_true / np.linalg.norm(points_true, axis=1, keepdims=True)
-    white = rng.normal(size=(n, 3))
-    along = np.sum(white * ray, axis=1, keepdims=True) * ray
-    points = points_true + sigma_depth * along + sigma_lateral * (white - along)
-
-    def gaussian_noise(sig):
-        rv = rng.normal(scale=sig[0], size=(n, 3)) if sig[0] > 0 else np.zeros((n, 3))
-        t = rng.normal(scale=sig[1], size=(n, 3)) if sig[1] > 0 else np.zeros((n, 3))
-        return tf.from_rotvec_translation(rv, t)
-
-    B = B_true @ gaussian_noise(pose_noise)
+    points = ray_noise(points_true, sigma_lateral, sigma_depth, rng)
+    B = B_true @ pose_noise_transforms(n, pose_noise, rng)
     B[:, :3, 3] = points                              # one translation noise model for poses and points
-    A = A_true @ gaussian_noise(robot_noise)
+    A = A_true @ pose_noise_transforms(n, robot_noise, rng)
     return SimulatedData(A, B, points, cov, X, Y, A_true, B_true, setup)
+
+
+def ray_noise(points: np.ndarray, sigma_lateral: float, sigma_depth: float, rng: np.random.Generator) -> np.ndarray:
+    """``points`` (N, 3) in the camera frame with Gaussian noise of ``sigma_depth`` along each viewing ray and
+    ``sigma_lateral`` across it (m); white noise split into the two parts, no Cholesky: a sigma may be zero."""
+    ray = points / np.linalg.norm(points, axis=1, keepdims=True)
+    white = rng.normal(size=points.shape)
+    along = np.sum(white * ray, axis=1, keepdims=True) * ray
+    return points + sigma_depth * along + sigma_lateral * (white - along)
+
+
+def pose_noise_transforms(n: int, sigma: tuple[float, float], rng: np.random.Generator) -> np.ndarray:
+    """``n`` transforms (n, 4, 4) of Gaussian pose noise, ``sigma`` = (rad, m) standard deviation per axis."""
+    rv = rng.normal(scale=sigma[0], size=(n, 3)) if sigma[0] > 0 else np.zeros((n, 3))
+    t = rng.normal(scale=sigma[1], size=(n, 3)) if sigma[1] > 0 else np.zeros((n, 3))
+    return tf.from_rotvec_translation(rv, t)
 
 
 def with_gross_outliers(points: np.ndarray, fraction: float, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:

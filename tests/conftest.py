@@ -19,7 +19,7 @@ settings.load_profile("handeye")
 if signal.getsignal(signal.SIGINT) is signal.SIG_IGN:
     signal.signal(signal.SIGINT, signal.default_int_handler)
 
-import app.backends  # noqa: F401  every robot and camera backend registered by name, as in the app
+import handeye.app.backends  # noqa: F401  every robot and camera backend registered by name, as in the app
 from handeye.drivers.errors import DeviceError
 from handeye.mocks.ur_sim import launch
 from tests.simulated_ur import SIM_TCP, START_Q, free_host, process_net

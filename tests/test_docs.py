@@ -12,9 +12,12 @@ import pytest
 
 from handeye.app.cli import build_parser
 
+import bench.__main__ as bench_main
+
 ROOT = Path(__file__).resolve().parents[1]
 DOCS = ("README.md", "docs/usage.md", "docs/benchmarks.md")
 PROGRAMS = ("handeye", ".venv/bin/handeye")
+BENCH = [".venv/bin/python", "-m", "bench"]
 
 
 def fenced_lines(text: str) -> list[tuple[int, str]]:
@@ -49,6 +52,8 @@ def command_lines() -> list[tuple[str, str, bool]]:
                 # (an inline `handeye verify` names a command; with arguments it is a command line)
                 if words and words[0] in PROGRAMS and len(words) > (1 if fenced else 2):
                     found.append((f"{doc}:{n}", code, fenced))
+                elif words[:3] in (BENCH, ["python", "-m", "bench"]) and (fenced or len(words) > 3):
+                    found.append((f"{doc}:{n}", code, fenced))
     return found
 
 
@@ -65,6 +70,9 @@ def test_every_command_line_parses(where, command, fenced):
     (``.venv/bin/handeye``) and parses: known command, known options, values of the right type, nothing
     left over."""
     words = shlex.split(command, comments=True)
+    if words[1:3] == ["-m", "bench"]:      # test_every_bench_command_line_parses_in_its_benchmark
+        assert words[:3] == BENCH, f"{where}: `python` is not the project's after make demo"
+        return
     assert words[0] == ".venv/bin/handeye", f"{where}: bare `handeye` is not on the PATH after make demo"
     parser, commands = build_parser()
     try:
@@ -80,20 +88,18 @@ class _Parsed(Exception):
 
 
 def bench_refuses(command: str, monkeypatch) -> bool:
-    """Whether the benchmark a ``handeye bench`` line runs (bench.solvers, bench.shift, ...) refuses
-    the arguments handeye hands on to it. The benchmark stops once its parser has them."""
+    """Whether the benchmark a ``python -m bench`` line runs (bench.solvers, bench.shift, ...) refuses
+    the arguments ``python -m bench`` hands on to it. The benchmark stops once its parser has them."""
     parse_args = argparse.ArgumentParser.parse_args
 
     def parse_only(self, args=None, namespace=None):
         parse_args(self, args, namespace)       # SystemExit on an option the benchmark does not have
         raise _Parsed
 
-    parser, commands = build_parser()
-    args, args.extra = parser.parse_known_args(shlex.split(command, comments=True)[1:])
     with monkeypatch.context() as patch:
         patch.setattr(argparse.ArgumentParser, "parse_args", parse_only)
         try:
-            commands["bench"].run(args)
+            bench_main.main(shlex.split(command, comments=True)[3:])
         except SystemExit:
             return True
         except _Parsed:
@@ -102,20 +108,20 @@ def bench_refuses(command: str, monkeypatch) -> bool:
 
 
 BENCH_COMMANDS = [(where, command) for where, command, _ in COMMANDS
-                  if shlex.split(command, comments=True)[1:2] == ["bench"]]
+                  if shlex.split(command, comments=True)[1:3] == ["-m", "bench"]]
 
 
 @pytest.mark.parametrize("where, command", BENCH_COMMANDS, ids=[w for w, _ in BENCH_COMMANDS])
 def test_every_bench_command_line_parses_in_its_benchmark(where, command, monkeypatch):
-    """``handeye bench`` takes any argument on to the benchmark it runs: each one the docs show is the
+    """``python -m bench`` takes any argument on to the benchmark it runs: each one the docs show is the
     benchmark's own."""
     assert not bench_refuses(command, monkeypatch), f"{where}: the benchmark refuses its arguments: {command}"
 
 
 def test_the_bench_check_catches_an_option_the_benchmark_lacks(monkeypatch):
-    assert bench_refuses(".venv/bin/handeye bench --month --hours 8", monkeypatch)    # the shift's option
-    assert bench_refuses(".venv/bin/handeye bench --quik", monkeypatch)
-    assert not bench_refuses(".venv/bin/handeye bench --shift --hours 8", monkeypatch)
+    assert bench_refuses(".venv/bin/python -m bench --month --hours 8", monkeypatch)    # the shift's option
+    assert bench_refuses(".venv/bin/python -m bench --quik", monkeypatch)
+    assert not bench_refuses(".venv/bin/python -m bench --shift --hours 8", monkeypatch)
 
 
 def test_the_check_catches_a_bad_command():

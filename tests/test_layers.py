@@ -1,8 +1,8 @@
 """The layering, read from the code: no module imports a layer above its own.
 
-calib < drivers < mocks < app; bench (library and device benchmarks) may import calib, drivers and
-mocks, the end-to-end benchmarks live in app/benchmarks;
-production code never imports tests nor reads its data. Every import
+calib < drivers < mocks < app, each imported as ``handeye.<layer>`` (one namespace; a bare ``calib`` would
+be a second copy of the module, outside the wheel); bench (the benchmarks, not shipped) on top, imported by
+nothing of the product; production code never imports tests nor reads its data. Every import
 statement counts, also the ones inside functions (a lazy import is still a
 dependency). Within the project, no two modules import each other, directly or
 round a longer cycle, and no module takes a private name (``_x``) from another.
@@ -18,10 +18,22 @@ ALLOWED = {
     "calib": {"calib"},
     "drivers": {"calib", "drivers"},
     "mocks": {"calib", "drivers", "mocks"},
-    "app": {"calib", "drivers", "mocks", "app", "bench"},
-    "bench": {"calib", "drivers", "mocks", "bench"},
+    "app": {"calib", "drivers", "mocks", "app"},
+    "bench": {"calib", "drivers", "mocks", "app", "bench"},
 }
+PRODUCT = ("calib", "drivers", "mocks", "app")      # the parts of the `handeye` namespace
 PROJECT = set(ALLOWED) | {"tests"}
+
+
+def layer_of(module: str) -> str | None:
+    """The project layer a dotted module name belongs to (``handeye.calib.x`` -> ``calib``); a product part
+    imported without ``handeye.`` comes back as ``bare <name>``, which no layer allows."""
+    parts = module.split(".")
+    if parts[0] == "handeye" and len(parts) > 1 and parts[1] in PRODUCT:
+        return parts[1]
+    if parts[0] in PRODUCT:
+        return f"bare {parts[0]}"
+    return parts[0] if parts[0] in PROJECT else None
 
 
 def imported_packages(path: Path) -> set[tuple[str, int]]:
@@ -35,7 +47,7 @@ def imported_packages(path: Path) -> set[tuple[str, int]]:
             names = [node.module]
         else:
             continue
-        found |= {(n.split(".")[0], node.lineno) for n in names if n.split(".")[0] in PROJECT}
+        found |= {(layer_of(n), node.lineno) for n in names if layer_of(n)}
     return found
 
 
@@ -84,7 +96,8 @@ def test_the_check_sees_a_path_into_tests(tmp_path):
 def module_name(path: Path, root: Path) -> str:
     """Dotted name of a project file (a package's ``__init__.py`` is the package)."""
     parts = path.relative_to(root).with_suffix("").parts
-    return ".".join(parts[:-1] if parts[-1] == "__init__" else parts)
+    name = ".".join(parts[:-1] if parts[-1] == "__init__" else parts)
+    return f"handeye.{name}" if parts[0] in PRODUCT else name
 
 
 def project_modules(root: Path, packages) -> dict[str, Path]:
@@ -196,7 +209,7 @@ def test_the_check_sees_an_import_cycle(tmp_path):
 @pytest.mark.parametrize("layer", sorted(PROJECT))
 def test_no_private_name_taken_from_another_module(layer):
     known = project_modules(ROOT, PROJECT)
-    wrong = [f"{p.relative_to(ROOT)}:{use}" for m, p in known.items() if m.split(".")[0] == layer
+    wrong = [f"{p.relative_to(ROOT)}:{use}" for m, p in known.items() if layer_of(m) == layer
              for use in private_uses(p, m, known)]
     assert not wrong, "\n".join(wrong)
 

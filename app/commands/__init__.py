@@ -15,7 +15,7 @@ import importlib
 from types import ModuleType
 
 #: Command modules, in the order ``handeye --help`` lists them.
-COMMANDS = ("calibrate", "plan", "monitor", "status", "approve", "replay", "verify", "demo", "sim_robot", "bench")
+COMMANDS = ("calibrate", "plan", "monitor", "status", "approve", "replay", "verify", "demo", "sim_robot")
 
 
 def command_modules() -> list[ModuleType]:

@@ -32,10 +32,15 @@ import gzip
 import io
 import logging
 import re
-import tomllib
+import sys
 import zlib
 from pathlib import Path
 from typing import Literal
+
+if sys.version_info >= (3, 11):
+    import tomllib
+else:       # Python 3.10 (ROS 2 Humble): the same parser, before it joined the standard library
+    import tomli as tomllib
 
 import numpy as np
 from pydantic import Field, ValidationError

@@ -162,6 +162,12 @@ def sample_floats(C, t_K, pose, theta, eye_to_hand: bool, factor=None, z=None):
         W.r.t. ``[dC, tC, t_K, theta, z]``.
     cofactor : 6 floats
         Upper triangle ``(xx, xy, xz, yy, yz, zz)`` of `handeye.calib.model.robot_cofactor`.
+
+    Notes
+    -----
+    Longer than the project's 80 lines on purpose: the engine calls it for every sample of a months-long
+    run, and split into helpers it would pay a Python call per step and build the same intermediates twice;
+    tests hold it to the vectorised model (tests/calib/test_monitor_engine.py).
     """
     # Written out on floats (no helper calls): the same products and sums as the 3x3 kernels above.
     (c0, c1, c2), (c3, c4, c5), (c6, c7, c8) = C[0]

@@ -3,7 +3,7 @@ state and alarm levels (`EngineState`, `AlarmLevel`)."""
 
 from __future__ import annotations
 
-from enum import StrEnum
+from handeye.calib.compat import StrEnum
 from typing import Annotated, NamedTuple
 
 import numpy as np

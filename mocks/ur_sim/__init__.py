@@ -224,6 +224,34 @@ class SimProcess:
         return False
 
 
+def ports_free(host: str) -> bool:
+    """Whether the simulator's ports (`handeye.mocks.ur_sim.server`'s dashboard, script and RTDE) can be
+    bound on ``host`` now."""
+    from handeye.mocks.ur_sim.server import PORT_DASHBOARD, PORT_RTDE, PORT_SCRIPT
+
+    for port in (PORT_DASHBOARD, PORT_SCRIPT, PORT_RTDE):
+        with socket.socket() as s:
+            try:
+                s.bind((host, port))
+            except OSError:
+                return False
+    return True
+
+
+def free_loopback(taken: str, tries: int = 64) -> str | None:
+    """A loopback address other than ``taken`` whose simulator ports are free, or None.
+
+    The candidates start in a /24 derived from this process's pid, so two runs started at once look in
+    different places first instead of racing for the same next address."""
+    pid = os.getpid()
+    for k in range(tries):
+        n = pid + 7919 * k
+        host = f"127.{(n >> 16) % 250 + 1}.{(n >> 8) % 256}.{n % 250 + 2}"
+        if host != taken and ports_free(host):
+            return host
+    return None
+
+
 def ports_holder(host: str) -> str:
     """Who holds the simulator's ports on ``host``: the run that launched a simulator there (its pid and command
     line), a simulator started by hand, or another program."""

@@ -8,6 +8,7 @@ code path.
 
 from __future__ import annotations
 
+import logging
 from typing import Literal
 
 import numpy as np
@@ -17,9 +18,11 @@ from handeye.calib.params import Str, Vector6
 from handeye.drivers.errors import DeviceError
 from handeye.drivers.robot.registry import ROBOTS
 from handeye.drivers.robot.ur import URRobot, URRobotConfig
-from handeye.mocks.ur_sim import PortsTakenError, SimProcess, launch
+from handeye.mocks.ur_sim import PortsTakenError, SimProcess, free_loopback, launch, ports_holder
 from handeye.mocks.ur_sim.controller import parse_version
 from handeye.mocks.ur_sim.truth import SimRobotError
+
+log = logging.getLogger(__name__)
 
 
 class URSimRobotConfig(URRobotConfig):
@@ -76,9 +79,18 @@ class URSimRobot(URRobot):
                 self.sim = launch(cfg.host, cfg.model, cfg.controller, cfg.initial_q, cfg.sim_tcp_offset,
                                   robot_error=error)
             except PortsTakenError as e:
-                raise PortsTakenError(f"{e}; stop that run, or give this one another loopback address "
-                                      "(127.x.y.z) as [robot] host in its config (-c; the demo's cell is "
-                                      "config/sim.toml)") from None
+                # Another run (a second user, a CI job) holds the address: a simulated cell is this process's
+                # own, so it moves to a free loopback address rather than fail.
+                host = free_loopback(cfg.host) if cfg.host.startswith("127.") else None
+                if host is None:
+                    raise PortsTakenError(f"{e}; stop that run, or give this one another loopback address "
+                                          "(127.x.y.z) as [robot] host in its config (-c; the demo's cell is "
+                                          "config/sim.toml)") from None
+                log.warning("robot: %s is taken (%s); the simulated controller runs on %s", cfg.host,
+                            ports_holder(cfg.host), host)
+                self.config = cfg.model_copy(update={"host": host})
+                self.sim = launch(host, cfg.model, cfg.controller, cfg.initial_q, cfg.sim_tcp_offset,
+                                  robot_error=error)
         return self.sim
 
     def true_flange_pose(self) -> np.ndarray:

@@ -17,6 +17,8 @@ from handeye.app.session import read_session
 from handeye.drivers.robot import ur_kinematics as kin
 from handeye.drivers.robot.ur import URKinematicError, URRobot
 from handeye.calib import transforms as tf
+from handeye.mocks.ur_sim import PortsTakenError, launch
+from handeye.mocks.ur_sim import robot as sim_robot
 from handeye.app.errors import ConfigError
 from tests.test_docs import check_demo_printout
 
@@ -78,6 +80,29 @@ def test_demo_recovers_true_camera_pose(sim_config, loopback, capsys):
     capsys.readouterr()
     print_calibration_summary(out)
     check_demo_printout(capsys.readouterr().out)
+
+
+def test_a_demo_whose_address_another_run_holds_moves_to_a_free_one(sim_config, loopback, caplog):
+    """Another run holds the cell's loopback address (a second user's demo, a CI job): the simulated controller
+    moves to a free loopback address, the log says where and who holds the first one, and the demo passes."""
+    host = loopback(9)
+    with launch(host, model="ur10") as other, caplog.at_level("WARNING", logger="handeye.mocks.ur_sim.robot"):
+        out = demo(sim_config(host, samples=6, min_samples=5, target_sigma_mm=0.0), progress=False)
+        assert other.proc.poll() is None
+    assert out.report.n_samples == 6
+    moved = [r.getMessage() for r in caplog.records if "is taken" in r.getMessage()]
+    assert len(moved) == 1 and f"robot: {host} is taken (held by " in moved[0], moved
+    elsewhere = moved[0].rsplit(" runs on ", 1)[1]
+    assert elsewhere.startswith("127.") and elsewhere != host
+
+
+def test_a_taken_address_that_is_not_loopback_names_who_holds_it_and_the_setting(sim_config, loopback, monkeypatch):
+    """Where no free loopback address is found, the error says who holds the address and which setting to change."""
+    host = loopback(10)
+    monkeypatch.setattr(sim_robot, "free_loopback", lambda taken: None)
+    with launch(host, model="ur10"):
+        with pytest.raises(PortsTakenError, match=r"held by the simulated controller of process.*\[robot\] host"):
+            demo(sim_config(host, samples=6, min_samples=5), progress=False)
 
 
 def test_demo_refuses_hardware_config():

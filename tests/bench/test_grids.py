@@ -1,10 +1,10 @@
-"""bench.grids runs end to end (two cells) through ``handeye bench --grids`` and writes its table."""
+"""bench.grids runs end to end (two cells) through ``python -m bench --grids`` and writes its table."""
 
-from handeye.app.cli import main
+from bench.__main__ import main
 
 
 def test_bench_grids_table(tmp_path, capsys):
-    assert main(["bench", "--grids", "--cells", "2", "--n", "40", "--out", str(tmp_path)]) == 0
+    assert main(["--grids", "--cells", "2", "--n", "40", "--out", str(tmp_path)]) == 0
     out = capsys.readouterr().out
     text = (tmp_path / "grids.md").read_text()
     assert text.strip() == out.strip()

@@ -6,7 +6,7 @@ from bench import solvers as bench_solvers
 def test_quick_benchmark_writes_table_and_plots(tmp_path):
     assert bench_solvers.main(["--tiny", "--out", str(tmp_path)]) == 0
     report = (tmp_path / "solvers.md").read_text()
-    assert "`handeye bench --tiny` — seed 0," in report  # the command a user types (it named python -m ...)
+    assert "`python -m bench --tiny` — seed 0," in report  # the command a user types (it named python -m ...)
     for needle in ("Experiment 1", "Experiment 2", "Realistic cell", "Cramér-Rao", "cv2.TSAI", "cv2.SHAH",
                    "YKronT'+ML", "outliers", "monitoring engine update", "Timing"):
         assert needle in report

@@ -1,4 +1,4 @@
-"""`handeye bench` console: stage lines as it goes, each table printed as soon as it is ready, and the
+"""`python -m bench` console: stage lines as it goes, each table printed as soon as it is ready, and the
 finished sections kept (printed and written) on Ctrl-C."""
 
 import signal

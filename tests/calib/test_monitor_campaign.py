@@ -1,5 +1,5 @@
 """The monitoring engine through arbitrary interleavings of arming, programs, moves and bad samples (a bounded run
-of bench.monitor_campaign's state machine; ``handeye bench --fuzz --only monitor`` runs a long one)."""
+of bench.monitor_campaign's state machine; ``python -m bench --fuzz --only monitor`` runs a long one)."""
 
 import os
 

@@ -12,7 +12,7 @@ from handeye.drivers.errors import ConnectionLostError, DeviceError, LimitViolat
 from handeye.drivers.robot import ur_kinematics as kin
 from handeye.drivers.robot.ros2 import UR_JOINTS, Ros2Robot, Ros2RobotConfig
 
-pytestmark = pytest.mark.slow
+pytestmark = [pytest.mark.slow, pytest.mark.every_python]  # the ROS 2 path on every Python (make test-other)
 PREFIX = "/robot_test"
 Q = [0.3, -1.9, 1.5, -1.2, -1.4, 0.4]
 TCP = (0.01, -0.02, 0.15, 0.1, -0.2, 0.3)  # an unusual TCP: forgetting to remove it shows in every pose

@@ -1,4 +1,4 @@
-"""``handeye bench --detection``: the engine's detection curve beside the derived limit (bench.detection)."""
+"""``python -m bench --detection``: the engine's detection curve beside the derived limit (bench.detection)."""
 
 from bench import detection
 

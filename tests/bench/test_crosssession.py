@@ -8,8 +8,8 @@ import numpy as np
 from bench.crosssession import MONITOR_BUMPS, MONITOR_SPACING_S, cross_session_rows, monitor_rows
 from handeye.app.formats import load
 
-DATA = Path(__file__).resolve().parents[2] / "data" / "ethz" / "robot_arm_sim"
-CIRCLES = Path(__file__).resolve().parents[2] / "data" / "circle_grid" / "cal_data.yaml"
+DATA = Path(__file__).resolve().parents[1] / "data" / "ethz" / "robot_arm_sim"
+CIRCLES = Path(__file__).resolve().parents[1] / "data" / "circle_grid" / "cal_data.yaml"
 
 
 def test_monitor_rows_arm_from_one_half_and_judge_the_other():

@@ -26,7 +26,7 @@ def datasets_dir() -> Path:
     if env:
         return Path(env)
     # The nearest ``shared/datasets`` above the checkout, so a git worktree nested deeper finds it too.
-    beside = [p / "shared" / "datasets" for p in Path(__file__).resolve().parents[3:]]
+    beside = [p / "shared" / "datasets" for p in Path(__file__).resolve().parents[2:]]
     return next((d for d in beside if d.is_dir()), beside[0])
 
 

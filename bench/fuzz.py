@@ -2,7 +2,7 @@
 
 Run ``python -m bench.fuzz [--solver-cases N] [--file-cases N] [--bag-cases N] [--only CAMPAIGN]
 [--seed S] [--out out/bench]``
-(also ``handeye bench --fuzz``). Prints a markdown table and writes
+(also ``python -m bench --fuzz``). Prints a markdown table and writes
 ``<out>/fuzz.md``.
 
 What counts as a failure:
@@ -654,7 +654,7 @@ def _seed_files(work: Path, kind: str, rng: np.random.Generator) -> dict[str, Pa
     seeds = work / "seeds"
     seeds.mkdir(parents=True)
     if kind == "config":
-        shutil.copy(Path(__file__).resolve().parents[2] / "config" / "sim.toml", seeds / "config.toml")
+        shutil.copy(Path(__file__).resolve().parents[1] / "config" / "sim.toml", seeds / "config.toml")
         return {"config": seeds / "config.toml"}
     if kind in ("import", "bags"):
         return {name: write_import_seed(name, seeds, rng) for name in (IMPORT_KINDS if kind == "import" else BAG_KINDS)}

@@ -22,7 +22,7 @@ the same streams with the camera bumped a third of the way in (5 mm and
 0.3 deg in random directions, the measured points moved accordingly): how
 many of 5 bumps the engine flags, and after how many samples.
 
-Run: ``handeye bench --cross-session`` (or ``python -m bench.crosssession``).
+Run: ``python -m bench --cross-session`` (or ``python -m bench.crosssession``).
 """
 
 from __future__ import annotations
@@ -226,7 +226,7 @@ def monitor_rows(sets, rng: np.random.Generator) -> list[list]:
 
 
 def main(argv=None) -> int:
-    argparse.ArgumentParser(prog="handeye bench --cross-session").parse_args(argv)
+    argparse.ArgumentParser(prog="python -m bench --cross-session").parse_args(argv)
     with tempfile.TemporaryDirectory(prefix="handeye-bench-") as work:
         rows = cross_session_rows(real_sets(Path(work)))
         mon = monitor_rows(real_sets(Path(work)), np.random.default_rng(0))

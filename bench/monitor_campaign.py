@@ -37,7 +37,7 @@ setups:
   bumps, false *moved* alarms.
 
 The suite runs a bounded campaign (tests/calib/test_monitor_campaign.py);
-``handeye bench --fuzz --only monitor`` runs a long one and prints the tables
+``python -m bench --fuzz --only monitor`` runs a long one and prints the tables
 (docs/benchmarks.md).
 """
 
@@ -798,7 +798,7 @@ def failed(text: str) -> bool:
 
 
 def report(examples: int, composed: int, replays: int, seed: int = 0) -> str:
-    """The campaign's tables (``handeye bench --fuzz --only monitor``)."""
+    """The campaign's tables (``python -m bench --fuzz --only monitor``)."""
     t0 = time.perf_counter()
     n, failure = engine_campaign(examples)
     text = ["### The monitoring engine as users compose it", "",

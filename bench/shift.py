@@ -1,4 +1,4 @@
-"""Benchmark of continuous calibration over a production shift (issue 20): ``handeye bench --shift``.
+"""Benchmark of continuous calibration over a production shift (issue 20): ``python -m bench --shift``.
 
 Each seed is a realistic cell (`handeye.calib.simulate.realistic_profile`: UR10 DH
 error, 1.5 % depth scale, 3 mm depth offset, 1 % focal, 2 px
@@ -18,7 +18,7 @@ alarm (``late N``: flagged N > 20 samples after it, before the next bump),
 the live estimate's workspace error (p95 outside the 40 samples after each
 bump) against the bound ``max(1 mm, 1.5 x the arming calibration's own)``,
 samples until it is back within that bound after each bump, NEES of the
-live covariance, and the time per update. Run: ``handeye bench --shift [--seeds 10] [--hours 8]``
+live covariance, and the time per update. Run: ``python -m bench --shift [--seeds 10] [--hours 8]``
 (``--replay``: also through ``handeye replay --monitor``; ``--second-knock``: two knocks
 10-20 samples apart);
 tables on stdout and out/bench/shift.md, a plot in out/bench/shift.png.
@@ -496,7 +496,7 @@ def plot(runs: list[SeedRun], seeds: list[int], path: Path) -> None:
 
 
 def main(argv=None) -> int:
-    ap = argparse.ArgumentParser(prog="handeye bench --shift", description=__doc__.split("\n")[0])
+    ap = argparse.ArgumentParser(prog="python -m bench --shift", description=__doc__.split("\n")[0])
     ap.add_argument("--seeds", type=int, default=10)
     ap.add_argument("--first-seed", type=int, default=0, help="seeds first-seed .. first-seed + seeds - 1 (fresh "
                     "cells beyond the 10 the defaults were measured on)")

@@ -1,5 +1,5 @@
 """The smallest bump the *moved* test flags, beside the detection limit the noise model implies (issue 32):
-``handeye bench --detection``.
+``python -m bench --detection``.
 
 For each program (the realistic eye-to-hand cell of `bench.shift`
 with 4 and with 14 stops, and its eye-in-hand shift) and each bump size
@@ -20,7 +20,7 @@ camera drift between the baselines and the bump is left out of the limit.
 Per bump the limit is the probability that this test flags that bump; the
 table gives its mean over the bumps beside the engine's share.
 
-Run: ``handeye bench --detection [--seeds 20] [--first-seed 0] [--programs 4,14,eih]``;
+Run: ``python -m bench --detection [--seeds 20] [--first-seed 0] [--programs 4,14,eih]``;
 a table on stdout and in out/bench/detection.md.
 """
 
@@ -136,7 +136,7 @@ def program_rows(program: str, seeds: list[int], settings: MonitorSettings, size
 
 
 def main(argv=None) -> int:
-    ap = argparse.ArgumentParser(prog="handeye bench --detection", description=__doc__.split("\n")[0])
+    ap = argparse.ArgumentParser(prog="python -m bench --detection", description=__doc__.split("\n")[0])
     ap.add_argument("--seeds", type=int, default=20)
     ap.add_argument("--first-seed", type=int, default=0)
     ap.add_argument("--programs", default="4,14,eih", help="comma-separated: 4 and/or 14 (stops, eye-to-hand), eih")

@@ -1,13 +1,17 @@
-"""``handeye bench``: the benchmarks (markdown tables on stdout, PNGs in out/bench/)."""
+"""``python -m bench`` (or ``make bench``): the benchmarks (markdown tables on stdout, PNGs in out/bench/).
+
+They are not part of the installed product: they run from a checkout, on top of everything else (nothing
+in app/, calib/, drivers/ or mocks/ imports them). Arguments a benchmark's flag does not know go on to the
+benchmark it runs; with no flag, the solver benchmark (bench.solvers) runs.
+"""
 
 from __future__ import annotations
 
 import argparse
+import sys
 
-NAME = "bench"
-HELP = "run the benchmarks (markdown tables, PNGs in out/bench/); other arguments go to bench.solvers"
-PASSTHROUGH = True
-
+from handeye.app import exit_status
+from handeye.calib.errors import HandeyeError
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--vision", action="store_true", help="also run the vision benchmark")
@@ -45,6 +49,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def run(args) -> int:
+    """Run the benchmark the flags choose, with ``args.extra`` as its arguments; its exit status."""
     if args.fuzz:
         from bench import fuzz
 
@@ -111,3 +116,23 @@ def run(args) -> int:
 
         rc = rc or int(robot.main([]) or 0)
     return rc
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(prog="python -m bench", description=__doc__.splitlines()[0],
+                                     epilog=exit_status.help_text(),
+                                     formatter_class=argparse.RawDescriptionHelpFormatter)
+    add_arguments(parser)
+    args, args.extra = parser.parse_known_args(argv)
+    try:
+        return run(args)
+    except HandeyeError as e:
+        print(f"bench: error: {e}", file=sys.stderr)
+        return exit_status.ERROR
+    except KeyboardInterrupt:
+        print("bench: interrupted", file=sys.stderr)
+        return exit_status.INTERRUPTED
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -17,7 +17,7 @@ Sections:
 5. Plain cell: the paper's refined YKronT' vs the Cramér-Rao bound.
 6. Speed at N = 1000 (one thread).
 
-Run: ``handeye bench --model`` or ``python -m bench.model [--quick]``.
+Run: ``python -m bench --model`` or ``python -m bench.model [--quick]``.
 """
 
 from __future__ import annotations
@@ -543,7 +543,7 @@ def main(argv=None) -> int:
     t = 3 if args.quick else 1
     t0 = time.perf_counter()
     parts = [
-        "## Measurement model and solve(\"auto\") (`handeye bench --model`)",
+        "## Measurement model and solve(\"auto\") (`python -m bench --model`)",
         # 200 cells: the bias-free ratio is a ratio of two noisy RMS values (+-3% at 200, +-8% at 40).
         section_realistic(rng, 200 // t // (2 if args.quick else 1)),
         # Its own stream, so the cells of the sections after it are those of runs without it.

@@ -10,7 +10,7 @@
 3. The frame-safety check with a tape-measure prior 5 cm off: the result, and its inverse.
 4. The report's size.
 
-Run: ``handeye bench --verify [--host 127.0.0.2] [--poses 12]``.
+Run: ``python -m bench --verify [--host 127.0.0.2] [--poses 12]``.
 """
 
 from __future__ import annotations
@@ -31,7 +31,7 @@ from bench.tables import markdown_table
 
 
 def main(argv=None) -> int:
-    ap = argparse.ArgumentParser(prog="handeye bench --verify")
+    ap = argparse.ArgumentParser(prog="python -m bench --verify")
     ap.add_argument("--host", default="127.0.0.2", help="loopback address of the UR simulator")
     ap.add_argument("--poses", type=int, default=12, help="verification poses")
     ap.add_argument("--seeds", type=int, default=5, help="random directions per perturbed row")

@@ -1,7 +1,7 @@
 """Fault campaign for the robot side: repeat each controller/simulator fault many times, count the outcomes.
 
 Run ``python -m bench.faults [--quick | --full] [--freeze N] [--faults N] [--app-freezes N]
-[--parent-deaths N] [--kills N] [--targets N] [--seed S]`` or ``handeye bench --faults``. Prints a
+[--parent-deaths N] [--kills N] [--targets N] [--seed S]`` or ``python -m bench --faults``. Prints a
 markdown table:
 fault, runs, clean errors, crashes (native signals), hangs, samples lost, and the slowest
 detection. Everything runs on this process's own loopback /24 (``127.a.b.x``).
@@ -296,7 +296,7 @@ def _sample_indices(session: Path) -> tuple[set[int], int]:
 
 def _sim_config(path: Path, host: str) -> Path:
     """The shipped simulated-cell config with its controller on ``host``, written to ``path``."""
-    base = Path(__file__).resolve().parents[2] / "config" / "sim.toml"
+    base = Path(__file__).resolve().parents[1] / "config" / "sim.toml"
     path.write_text(base.read_text().replace('host = "127.0.0.2"', f'host = "{host}"'))
     return path
 

@@ -1,6 +1,6 @@
 """A month left alone (issue 42): the monitoring engine over 30 days of a realistic cell, against the truth.
 
-Run ``handeye bench --month [--seeds 5] [--first-seed 0] [--days 30] [--stops 4] [--jobs 2]``.
+Run ``python -m bench --month [--seeds 5] [--first-seed 0] [--days 30] [--stops 4] [--jobs 2]``.
 Prints the tables (also ``<out>/month.md``) and plots the live error and its stated 1-sigma day by day
 (``<out>/month.png``).
 
@@ -235,7 +235,7 @@ def specs(seeds: list[int], days: float, stops: int, distance: float) -> list[Ce
 
 
 def main(argv=None) -> int:
-    ap = argparse.ArgumentParser(prog="handeye bench --month", description=__doc__.split("\n")[0])
+    ap = argparse.ArgumentParser(prog="python -m bench --month", description=__doc__.split("\n")[0])
     ap.add_argument("--seeds", type=int, default=5, help="four cells per seed (both setups, with and without joints)")
     ap.add_argument("--first-seed", type=int, default=0)
     ap.add_argument("--days", type=float, default=30.0)
@@ -255,7 +255,7 @@ def main(argv=None) -> int:
     else:
         runs = [run_cell(c) for c in cells]
     text = (f"### A month left alone: {args.days:g} days, {args.stops} stops, seeds {seeds[0]}-{seeds[-1]} "
-            f"(`handeye bench --month --seeds {args.seeds} --first-seed {args.first_seed} --days {args.days:g} "
+            f"(`python -m bench --month --seeds {args.seeds} --first-seed {args.first_seed} --days {args.days:g} "
             f"--stops {args.stops}`)\n\n" + summary(runs) + "\n\n"
             + markdown_table(CELL_HEADERS, [cell_row(r) for r in runs])
             + "\n\nPer day, over the cells:\n\n" + markdown_table(DAY_HEADERS, day_rows(runs))

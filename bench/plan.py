@@ -1,7 +1,7 @@
 """Pose-planning benchmark: how many motions to a trusted result, and are the planned motions valid.
 
 Run ``python -m bench.plan [--seeds N] [--validity-poses N] [--out DIR]`` (also
-``handeye bench --plan``). Prints markdown and writes ``<out>/plan.md`` and
+``python -m bench --plan``). Prints markdown and writes ``<out>/plan.md`` and
 ``<out>/plan.png``.
 
 1. **Motions to target** on the simulated cells of ``config/sim.toml``
@@ -284,7 +284,7 @@ def _median(values):
 
 
 def format_report(runs: list[dict], val: dict, elapsed: float) -> str:
-    lines = ["# Pose planning benchmark (`handeye bench --plan`)", "",
+    lines = ["# Pose planning benchmark (`python -m bench --plan`)", "",
              f"Target: predicted 1-sigma of the camera transform <= {TARGET_MM} mm and {TARGET_DEG} deg "
              f"(the cells' solver, `auto`, as `calibrate` runs it; first check after 5 samples, at most "
              f"{MAX_SAMPLES}). Simulated cells through the "

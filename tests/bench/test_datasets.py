@@ -5,7 +5,7 @@ from pathlib import Path
 
 from bench.datasets import real_sets
 
-DATA = Path(__file__).resolve().parents[2] / "data" / "ethz" / "robot_arm_sim"
+DATA = Path(__file__).resolve().parents[1] / "data" / "ethz" / "robot_arm_sim"
 
 
 def test_eth_streams_are_staged_with_a_manifest_and_loaded(tmp_path):

@@ -9,7 +9,7 @@ import pytest
 from bench.fuzz import BAG_KINDS, IMPORT_KINDS, IMPORT_MAIN, write_import_seed
 from handeye.app.formats import detect_format, load
 
-CIRCLE_GRID = Path(__file__).resolve().parents[2] / "data" / "circle_grid"
+CIRCLE_GRID = Path(__file__).resolve().parents[1] / "data" / "circle_grid"
 
 
 @pytest.mark.parametrize("kind", IMPORT_KINDS + BAG_KINDS[1:])
