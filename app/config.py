@@ -488,6 +488,9 @@ class Config(Params):
             if "setup" in part.model_fields_set and part.setup != self.setup:
                 raise ValueError(f"{name}.setup ({part.setup.value!r}) must match setup ({self.setup.value!r})")
             part.setup = self.setup
+        if self.consumers.robot_program and getattr(self.robot, "host", None) is None:
+            raise ValueError(f"consumers.robot_program: the robot program takes the calibration over RTDE, and "
+                             f"robot.type {self.robot.type!r} has no host: use a ur robot, or robot_program = false")
         return self
 
     def to_dict(self) -> dict:

@@ -24,6 +24,7 @@ import logging
 import math
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Callable
 
 import numpy as np
 
@@ -64,13 +65,19 @@ class RobotProgram(Consumer):
 
     name = "robot program"
 
-    def __init__(self, host: str):
-        self.registers = URCalibrationRegisters(host)
+    def __init__(self, host: str | Callable[[], str]):
+        # A callable: the controller's address as the robot connection has it now (a simulated controller
+        # may have moved to a free loopback address).
+        self.host_of = host if callable(host) else (lambda: host)
+        self.registers = URCalibrationRegisters(self.host_of())
 
     def open(self) -> None:
         self.registers.connect()
 
     def give(self, version: Version) -> None:
+        if self.registers.host != self.host_of():
+            self.registers.close()
+            self.registers = URCalibrationRegisters(self.host_of())
         if not self.registers.is_connected:
             self.registers.connect()
         self.registers.write(version.number, tf.to_ur_pose(np.array(version.camera_transform)))

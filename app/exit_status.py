@@ -18,13 +18,16 @@ INTERRUPTED = 130
 
 #: ``(status, outcome, meaning)``, in the order of the table.
 TABLE = (
-    (PASS, "pass", "the result or verification is within the tolerance; monitor: the camera did not move"),
+    (PASS, "pass", "the result or verification is within the tolerance; monitor: the calibration in use is "
+                   "where the camera is and every consumer has it"),
     (ERROR, "error", "one line on stderr says what: a config field, a device, a session, too few samples"),
     (USAGE, "usage", "an unknown option or a bad value on the command line"),
-    (ALARM, "alarm", "monitor, demo --monitor, replay --monitor: the camera moved (the summary says whether it "
-                     "was re-learnt)"),
+    (ALARM, "alarm", "monitor, demo --monitor, status: the camera moved and its re-learnt calibration is not in "
+                     "use everywhere yet (re-learning, waiting for approval, a consumer behind); replay --monitor: "
+                     "the camera moved"),
     (FAIL, "fail", "calibrate, demo, replay, verify: do not use the result (its reasons say why)"),
-    (WARN, "warn", "calibrate, demo, replay, verify: usable once the reasons printed are checked"),
+    (WARN, "warn", "calibrate, demo, replay, verify: usable once the reasons printed are checked; monitor, "
+                   "status: a consumer has not confirmed the calibration in use"),
     (INTERRUPTED, "interrupted", "Ctrl-C stopped calibrate, demo or verify before its end: what was measured is "
                                  "kept, judged and summarised; monitor's Ctrl-C is its normal end (0 or 3)"),
 )

@@ -176,29 +176,25 @@ def monitor(cfg: Config, *, reference: Path | None = None, stop=None, progress: 
     outage_sinks = [p.outage for p in (publisher, diagnostics) if p is not None]
     stop = stop or threading.Event()
     outages = _OutageLog(publish=(lambda e: [sink(e) for sink in outage_sinks]) if outage_sinks else None)
-    loop = make_loop(cfg)
     # A device that goes away mid-shift is an outage and a reconnect with backoff (`handeye.app.outage`), not an exit.
     with Reconnecting("robot", devices.open_robot(cfg, read_only=True), cfg.reconnect, on_event=outages,
                       stop=stop) as robot, \
             Reconnecting("camera", devices.open_camera(cfg, robot), cfg.reconnect, on_event=outages,
                          stop=stop) as camera, \
             (publisher or contextlib.nullcontext()), (diagnostics or contextlib.nullcontext()), \
-            contextlib.closing(loop):
+            contextlib.closing(make_loop(cfg, robot)) as loop:
         cell = _Cell(cfg, robot, camera, devices.make_engine(cfg), np.random.default_rng(cfg.calibrate.seed),
                      publisher, diagnostics, publish or publisher, outages, loop)
         cell.start(carried_over(cfg) or reference, knocks_from, production)
         return cell.watch(stop, bump, progress)
 
 
-def make_loop(cfg: Config) -> CalibrationLoop:
-    """The versions (``[monitor] apply``) and the consumers of ``[consumers]`` (`handeye.app.consumers`)."""
+def make_loop(cfg: Config, robot: Robot | None = None) -> CalibrationLoop:
+    """The versions (``[monitor] apply``) and the consumers of ``[consumers]`` (`handeye.app.consumers`): the
+    robot program at the address ``robot`` is connected to (default: the config's)."""
     consumers = []
-    if cfg.consumers.robot_program:
-        host = getattr(cfg.robot, "host", None)
-        if host is None:
-            raise ConfigError(f"consumers.robot_program: the robot program is reached over RTDE, and robot.type "
-                              f"{cfg.robot.type!r} has no host: use a ur robot, or set robot_program = false")
-        consumers.append(RobotProgram(host))
+    if cfg.consumers.robot_program:       # a robot with a host (`handeye.app.config.Config` checked it)
+        consumers.append(RobotProgram(cfg.robot.host if robot is None else (lambda: robot.config.host)))
     return CalibrationLoop.of(History(cfg.monitor.apply), consumers, ack_timeout_s=cfg.consumers.ack_timeout_s)
 
 
@@ -537,7 +533,9 @@ def _in_use_file(writer: SessionWriter, cfg: MonitorConfig, frames: dict | None,
     use, the loop's events into the session, approvals read from the run's directory (and the one it continues)."""
 
     def new_calibration(path: Path, why: str, t: float) -> None:
+        version = loop.history.in_use
         run_hook(cfg.calibration_hook, {"HANDEYE_EVENT": "calibration_in_use", "HANDEYE_REASON": why,
+                                        "HANDEYE_VERSION": str(version.number if version is not None else 0),
                                         "HANDEYE_CALIBRATION": str(path.absolute()),
                                         "HANDEYE_SESSION": str(writer.path.absolute()),
                                         "HANDEYE_TIME": calibration_in_use.local_time(t)}, "monitor.calibration_hook")
