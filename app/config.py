@@ -312,10 +312,13 @@ class ProductionConfig(Params):
 class ConsumersConfig(Params):
     """``[consumers]``: what is given the calibration in use and reports the version it has taken
     (`handeye.app.consumers`). ``robot_program``: the UR program over RTDE registers (a ``ur`` or ``ur_sim`` robot;
-    the URScript snippet in docs/monitor-service.md). A consumer that has not reported the version in use
+    the URScript snippet in docs/monitor-service.md). ``mqtt``: the names of the consumers that take it from
+    ``<prefix>/calibration`` and acknowledge on ``<prefix>/calibration/ack`` (needs ``[mqtt] enabled``). A
+    consumer that has not reported the version in use
     ``ack_timeout_s`` after it was given is a warning with its name."""
 
     robot_program: Bool = False
+    mqtt: list[NonEmptyStr] = Field(default_factory=list)
     ack_timeout_s: PositiveFloat = 60.0
 
 
@@ -488,6 +491,8 @@ class Config(Params):
             if "setup" in part.model_fields_set and part.setup != self.setup:
                 raise ValueError(f"{name}.setup ({part.setup.value!r}) must match setup ({self.setup.value!r})")
             part.setup = self.setup
+        if self.consumers.mqtt and not self.mqtt.enabled:
+            raise ValueError("consumers.mqtt: the MQTT consumers need [mqtt] enabled = true")
         if self.consumers.robot_program and getattr(self.robot, "host", None) is None:
             raise ValueError(f"consumers.robot_program: the robot program takes the calibration over RTDE, and "
                              f"robot.type {self.robot.type!r} has no host: use a ur robot, or robot_program = false")

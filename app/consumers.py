@@ -31,6 +31,7 @@ import numpy as np
 from handeye.app.calibration_versions import Approvals, History, Version
 from handeye.calib import transforms as tf
 from handeye.calib.errors import HandeyeError
+from handeye.drivers.errors import ConnectionLostError
 from handeye.drivers.robot.ur_registers import URCalibrationRegisters
 
 log = logging.getLogger(__name__)
@@ -87,6 +88,25 @@ class RobotProgram(Consumer):
 
     def close(self) -> None:
         self.registers.close()
+
+
+class MqttConsumer(Consumer):
+    """A consumer over MQTT named ``name``: given the version in use on ``<prefix>/calibration`` (retained), it
+    acknowledges ``{"consumer": name, "version": n}`` on ``<prefix>/calibration/ack`` (`handeye.app.mqtt`)."""
+
+    def __init__(self, publisher, name: str):
+        self.publisher, self.name = publisher, name
+        publisher.listen()
+
+    def give(self, version: Version) -> None:
+        # Held while the broker is away and sent on its return: a given version is never lost.
+        self.publisher.publish_calibration(version.number, version.camera_transform, version.error_mm,
+                                           version.applied or 0.0, version.applied_by or "")
+
+    def taken(self) -> int | None:
+        if not self.publisher.connected.is_set():
+            raise ConnectionLostError("the MQTT broker is away")
+        return self.publisher.acks.get(self.name)
 
 
 @dataclass

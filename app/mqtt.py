@@ -8,7 +8,9 @@ Topics (``<prefix>`` = ``topic_prefix``, each overridable in ``[mqtt.topics]``)
 and messages, every one a JSON object with ``schema`` naming it (the full
 schema is in docs/mqtt.md)::
 
-    <prefix>/status    retained  {"schema": "handeye/status/1", "state": "online" | "offline", ...}
+    <prefix>/status    retained  {"schema": "handeye/status/1", "state": "online" | "offline", "level": "ok" |
+                                  "moved" | "warn" | "drifting", "message", "calibration_version", "in_use_by",
+                                  "pending", ...} (the cell's status: republished when it changes)
     <prefix>/estimate  retained  {"schema": "handeye/estimate/1", "translation_m", "quaternion_xyzw", "sigma_mm", ...}
     <prefix>/drift               {"schema": "handeye/drift/1", "translation_mm", "rotation_deg", ...}
     <prefix>/alarm               {"schema": "handeye/alarm/1", "event": "camera_moved", "sample", "statistic", ...}
@@ -41,12 +43,14 @@ import os
 import socket
 import threading
 import time
+from pathlib import Path
 from typing import Annotated, Literal
 
 import numpy as np
 from pydantic import AfterValidator, Field, ValidationError, model_validator
 
 from handeye.app.errors import ConfigError
+from handeye.app.calibration_versions import write_approval
 from handeye.app.outage import OutageEvent
 from handeye.calib.params import Bool, Float, Int, NonEmptyStr, Params, Str, describe
 from handeye.calib import transforms as tf
@@ -57,7 +61,7 @@ log = logging.getLogger(__name__)
 USERNAME_ENV = "HANDEYE_MQTT_USERNAME"
 PASSWORD_ENV = "HANDEYE_MQTT_PASSWORD"
 SCHEMA_VERSION = 1
-TOPICS = ("status", "estimate", "drift", "alarm", "outage")
+TOPICS = ("status", "estimate", "drift", "alarm", "outage", "calibration", "calibration_ack", "calibration_approve")
 #: Topics whose every message is held for an absent broker (the others are coalesced to the newest).
 KEPT = ("alarm", "outage")
 #: Outage messages held for an absent broker at most (a device flapping for hours); the oldest go first.
@@ -148,7 +152,7 @@ class MqttConfig(Params):
             raise ConfigError(describe(e, "mqtt", model=cls)) from None
 
     def topic(self, kind: str) -> str:
-        return self.topics.get(kind) or f"{self.topic_prefix}/{kind}"
+        return self.topics.get(kind) or f"{self.topic_prefix}/{kind.replace('_', '/')}"
 
 
 class MqttPublisher:
@@ -170,6 +174,12 @@ class MqttPublisher:
         self.connected = threading.Event()
         self.client = None
         self.session: str | None = None
+        #: The cell's status last published (`publish_cell_status`).
+        self.cell: dict = {}
+        #: The calibration consumers' acknowledgements (``calibration_ack``: consumer -> version), once
+        #: `listen` was called; approvals (``calibration_approve``) go into the run's approvals file.
+        self.acks: dict[str, int] = {}
+        self.listening = False
         self._last_error = ""
         # Held while the broker is away (see the module docstring): (kind, payload) of every alarm and
         # outage in order, the newest of the rest.
@@ -225,6 +235,8 @@ class MqttPublisher:
         if reason_code.is_failure:
             self._last_error = str(reason_code)
             return
+        if self.listening:     # again at every (re)connect: a clean session forgets subscriptions
+            client.subscribe([(self.config.topic("calibration_ack"), 1), (self.config.topic("calibration_approve"), 1)])
         back = None
         # Under the lock with the state change, so that a message published meanwhile goes after the outage's end
         # and never between the held ones and it.
@@ -310,6 +322,40 @@ class MqttPublisher:
         self.close()
         return False
 
+    # -------------------------------------------------------------- the calibration in use
+    def listen(self) -> None:
+        """Take the calibration consumers' acknowledgements and approvals (`handeye.app.consumers.MqttConsumer`)."""
+        self.listening = True
+        self.client.on_message = self._on_message
+        if self.connected.is_set():
+            self.client.subscribe([(self.config.topic("calibration_ack"), 1),
+                                   (self.config.topic("calibration_approve"), 1)])
+
+    def publish_calibration(self, number: int, T, error_mm: float, applied: float, applied_by: str) -> None:
+        """The version in use on ``<prefix>/calibration`` (retained; held for an absent broker and sent on its
+        return): its number, the camera transform as the estimate is, its predicted error, since when, by whom."""
+        xyz, q = tf.to_xyz_quat(np.asarray(T, dtype=float))
+        parent = self.frames["flange"] if self.setup.camera_on_flange else self.frames["base"]
+        self.publish("calibration", {**self._base("calibration"), "calibration_version": int(number),
+                                     "transform": self.setup.camera_name, "parent_frame": parent,
+                                     "child_frame": self.frames["camera"], "translation_m": xyz.tolist(),
+                                     "quaternion_xyzw": q.tolist(), "predicted_error_mm": float(error_mm),
+                                     "applied": float(applied), "applied_by": applied_by,
+                                     "acknowledge_on": self.config.topic("calibration_ack")}, retain=True)
+
+    def _on_message(self, client, userdata, message) -> None:
+        """An acknowledgement ``{"consumer": name, "version": n}`` or an approval ``{"version": n, "by": who}``
+        (paho's thread); anything else is logged and dropped."""
+        try:
+            data = json.loads(message.payload)
+            version = int(data["version"])
+            if message.topic == self.config.topic("calibration_ack"):
+                self.acks[str(data.get("consumer", "mqtt"))] = version
+            elif self.session is not None:
+                write_approval(Path(self.session), version, f"{data.get('by', 'unknown')} (mqtt)", time.time())
+        except (ValueError, KeyError, TypeError, OSError) as e:
+            log.warning("MQTT %s: a message not taken (%s): %r", message.topic, e, message.payload[:200])
+
     # -------------------------------------------------------------- messages
     def publish(self, kind: str, payload: dict, *, retain: bool = False):
         """Publish one JSON message on the topic of ``kind``; returns paho's MQTTMessageInfo, or None when the
@@ -356,7 +402,23 @@ class MqttPublisher:
                 "session": self.session}
 
     def _status(self, state: str) -> dict:
-        return {**self._base("status"), "state": state}
+        return {**self._base("status"), "state": state, **self.cell}
+
+    def publish_cell_status(self, report) -> None:
+        """The cell's status on the retained status topic when it changes: ``level`` (ok, moved, warn, drifting),
+        ``message``, ``calibration_version``, ``in_use_by`` and ``pending`` (`handeye.app.shift_record`)."""
+        loop = getattr(report, "loop", None)
+        record = getattr(report, "record", None)
+        if loop is None or record is None or loop.history.in_use is None:
+            return
+        level, message = record.status(time.time())
+        pending = loop.history.pending
+        cell = {"level": level, "message": message, "calibration_version": loop.history.in_use.number,
+                "in_use_by": loop.in_use_by(),
+                "pending": None if pending is None else {"version": pending.number, "state": pending.state}}
+        if cell != self.cell:
+            self.cell = cell
+            self.publish("status", self._status("online"), retain=True)
 
     def _outage_payload(self, event: OutageEvent, message: str) -> dict:
         """An outage message: the event's fields, ``t`` the time it happened, ``since`` the outage's start."""
@@ -375,8 +437,10 @@ class MqttPublisher:
         self.publish("alarm", {**self._base("alarm"), "event": "monitor_error", "sample": sample, "message": message})
 
     def __call__(self, obs, update, report) -> None:
-        """`handeye.app.runs.monitor.run_monitor`'s ``on_update``: estimate (retained), drift, and the alarm if one fired."""
+        """`handeye.app.runs.monitor.run_monitor`'s ``on_update``: the status (retained, when it changes),
+        estimate (retained), drift, and the alarm if one fired."""
         self.session = str(report.session)
+        self.publish_cell_status(report)
         if report.estimate is not None:
             xyz, q = tf.to_xyz_quat(report.estimate)
             parent = self.frames["flange"] if self.setup.camera_on_flange else self.frames["base"]

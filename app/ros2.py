@@ -9,10 +9,13 @@ publishes:
   ``DiagnosticStatus`` named ``handeye: camera calibration``, ``hardware_id``
   the camera frame, its level
 
-  - ``OK``: calibrated and quiet,
-  - ``WARN``: drifting (the predicted error heads for the tolerance), or not
-    calibrated yet (collecting the first samples),
-  - ``ERROR``: the camera moved (until it is re-learnt) or a device is away,
+  - ``OK``: calibrated and quiet, the version in use taken by every consumer,
+  - ``WARN``: drifting (the predicted error heads for the tolerance), not
+    calibrated yet (collecting the first samples), or a consumer that has
+    not confirmed the version in use,
+  - ``ERROR``: the camera moved (until its re-learnt version is approved where
+    ``[monitor] apply`` asks for it and in use by every consumer), or a device
+    is away,
   - ``STALE``: the monitor stopped (its last message);
 
   its message the verdict and its reason in words, and key-value pairs:
@@ -167,6 +170,10 @@ class DiagnosticsPublisher:
             return ERROR, f"{device} away: {error}", values
         if upd is not None and (upd.level == "moved" or upd.state == "relearning"):  # until it is re-learnt
             return ERROR, f"camera moved: {self._moved}; re-learning it from the next stops", values
+        said = cell_status(report)
+        if said is not None and said[0] in ("moved", "warn"):
+            # Re-learnt, until the version is approved where that is required and in use by every consumer.
+            return (ERROR if said[0] == "moved" else WARN), said[1], values
         if upd is not None and upd.level == "drifting":
             return WARN, f"camera drifting: {upd.message or 'predicted error ' + values['error_mm'] + ' mm'}", values
         if report is None:
@@ -197,6 +204,7 @@ class DiagnosticsPublisher:
             "samples": str(0 if report is None else report.n_samples),
             "last_relearn": self._relearnt or "none",
             "outage": ", ".join(f"{d}: {e}" for d, e in (outages or {}).items()) or "none",
+            **version_values(report),
         }
 
     def publish_status(self) -> None:
@@ -226,6 +234,27 @@ class DiagnosticsPublisher:
         tr.x, tr.y, tr.z = (float(v) for v in xyz)
         rot.x, rot.y, rot.z, rot.w = (float(v) for v in q)
         self.transform.publish(msg)
+
+
+def cell_status(report) -> tuple[str, str] | None:
+    """``(level, sentence)`` of the cell (`handeye.app.shift_record.ShiftRecord.status`) once a run has versions of
+    its calibration (`handeye.app.consumers`), else None."""
+    record = getattr(report, "record", None)
+    if record is None or getattr(record, "loop", None) is None or record.loop.history.in_use is None:
+        return None
+    return record.status(time.time())
+
+
+def version_values(report) -> dict:
+    """``calibration_version``, ``in_use_by`` and ``pending`` as key-values (empty before versions)."""
+    loop = getattr(report, "loop", None)
+    in_use = None if loop is None else loop.history.in_use
+    if in_use is None:
+        return {}
+    pending = loop.history.pending
+    return {"calibration_version": str(in_use.number),
+            "in_use_by": ", ".join(f"{name}: {v or 'none'}" for name, v in loop.in_use_by().items()) or "none",
+            "pending": "none" if pending is None else f"version {pending.number} ({pending.state})"}
 
 
 def make_diagnostics(config: Ros2Config, setup: Setup, frames: dict) -> DiagnosticsPublisher | None:

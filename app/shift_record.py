@@ -29,6 +29,7 @@ import numpy as np
 import yaml
 
 from handeye.app.calibration_in_use import local_time
+from handeye.app.consumers import approve_command
 from handeye.app.files import uninterrupted
 from handeye.app.page import REPORT_STYLE, figure, svg_of, table
 from handeye.calib.monitor import AlarmLevel, EngineState, MonitorEngine, MonitorUpdate
@@ -158,6 +159,13 @@ class ShiftRecord:
                          "transform (the robot program, a ROS tf) is off by about the move; let the monitor run on"
                          + (" (below)" if continue_with else "") + " to re-learn it from the stops"
                          + (f", or recalibrate when the cell is free: {calibrate}" if calibrate else ""))
+        elif moved and self.loop is not None and self.loop.history.pending is not None:
+            lines += self._pending_steps()
+        elif moved and self.loop is not None and self.loop.links and not self.loop.behind():
+            names = ", ".join("the " + link.name for link in self.loop.links)
+            lines.append(f"  the camera moved and was re-learnt: version {self.loop.history.in_use.number} is in use "
+                         f"by {names}; anything else that holds a camera transform (a ROS tf, a vision PC) takes "
+                         f"it from {in_use}")
         elif moved and in_use.exists():
             times = "once" if len(moved) == 1 else f"{len(moved)} times"
             lines.append(f"  the camera moved {times} and was re-learnt (the alarm lines above say how far; it is "
@@ -174,6 +182,16 @@ class ShiftRecord:
         if continue_with:
             lines.append(f"  go on monitoring from this calibration in use: {continue_with}")
         return ["next:", *lines] if lines else []
+
+    def _pending_steps(self) -> list[str]:
+        """What to do about a version pending: approve it (the command), or let it settle."""
+        pending = self.loop.history.pending
+        if pending.state == "settled" and self.loop.history.policy == "approve":
+            return [f"  version {pending.number} (the re-learnt camera, predicted error {pending.error_mm:.2f} mm) "
+                    f"waits for approval; check the move it was re-learnt from (handeye status), then: "
+                    f"{approve_command(self.loop.run)}"]
+        return [f"  version {pending.number} (the re-learnt camera) is settling: let the monitor run on; it is put in "
+                "use once settled" + (" and approved" if self.loop.history.policy == "approve" else "")]
 
     def alarms_document(self) -> dict:
         level, sentence = self.status()
@@ -200,6 +218,19 @@ class ShiftRecord:
             fig = self._figure()
             fig.savefig(directory / PLOT_FILE, dpi=100)
             (directory / REPORT_FILE).write_text(self._report(svg_of(fig)), encoding="utf-8")
+
+    def _version_parts(self) -> list[str]:
+        """The report's calibration history: every version, and who uses which."""
+        loop = self.loop
+        if loop is None or not loop.history.versions:
+            return []
+        users = [[name, f"version {v}" if v else "no version reported"] for name, v in loop.in_use_by().items()]
+        return ["<h2>Calibration versions</h2>",
+                table(["version", "state", "why", "predicted error [mm]", "in use since", "by"],
+                      _version_rows(loop), "log"),
+                table(["consumer", "uses"], users, "log") if users else
+                "<p>no consumer is configured ([consumers]): calibration_in_use.yaml is handed on by hand or by the "
+                "calibration hook</p>"]
 
     def _figure(self):
         """The timeline, drawn once per write: the PNG beside the report and the report's SVG."""
@@ -258,6 +289,7 @@ class ShiftRecord:
             rows.append([a["time"], a["sample"], a["alarm"], _what(a), outcome])
         parts += ["<h2>Alarms</h2>", table(["time", "sample", "alarm", "what", "then"], rows, "log") if rows
                   else "<p>none</p>"]
+        parts += self._version_parts()
         stats = [[a["time"], a["sample"], a["message"]] for a in self.alarms]
         outages = [[o["time"], o["device"], o["event"].replace("_", " "), o["message"]] for o in self.outages]
         parts += ["<h2>Device outages</h2>", table(["time", "device", "event", "message"], outages, "log") if outages
@@ -287,6 +319,13 @@ class ShiftRecord:
         return ("<!DOCTYPE html><html lang=\"en\"><head><meta charset=\"utf-8\">"
                 f"<title>{title}</title><style>{REPORT_STYLE}</style></head><body>" + "".join(parts)
                 + "</body></html>\n")
+
+
+def _version_rows(loop) -> list[list]:
+    return [[v.number, v.state.replace("_", " "), v.why, f"{v.error_mm:.2f}",
+             local_time(v.applied) if v.applied is not None else "",
+             v.applied_by or (f"approved by {v.approved_by}" if v.approved_by else "")]
+            for v in loop.history.versions]
 
 
 def time_axis_label(t0: float, t1: float) -> str:

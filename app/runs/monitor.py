@@ -36,7 +36,7 @@ from handeye.app import calibration_in_use, devices, stopping
 from handeye.app.acquire import pose_at_frame, take_sample
 from handeye.app.calibration_versions import Approvals, History
 from handeye.app.config import Config, MonitorConfig, hook_argv
-from handeye.app.consumers import CalibrationLoop, RobotProgram
+from handeye.app.consumers import CalibrationLoop, MqttConsumer, RobotProgram
 from handeye.app.errors import ConfigError, MonitorError, OutageError
 from handeye.app.monitoring import arm_from, arm_from_path, sample_factor
 from handeye.app.outage import OutageEvent, Reconnecting
@@ -182,19 +182,22 @@ def monitor(cfg: Config, *, reference: Path | None = None, stop=None, progress: 
             Reconnecting("camera", devices.open_camera(cfg, robot), cfg.reconnect, on_event=outages,
                          stop=stop) as camera, \
             (publisher or contextlib.nullcontext()), (diagnostics or contextlib.nullcontext()), \
-            contextlib.closing(make_loop(cfg, robot)) as loop:
+            contextlib.closing(make_loop(cfg, robot, publisher)) as loop:
         cell = _Cell(cfg, robot, camera, devices.make_engine(cfg), np.random.default_rng(cfg.calibrate.seed),
                      publisher, diagnostics, publish or publisher, outages, loop)
         cell.start(carried_over(cfg) or reference, knocks_from, production)
         return cell.watch(stop, bump, progress)
 
 
-def make_loop(cfg: Config, robot: Robot | None = None) -> CalibrationLoop:
+def make_loop(cfg: Config, robot: Robot | None = None, publisher=None) -> CalibrationLoop:
     """The versions (``[monitor] apply``) and the consumers of ``[consumers]`` (`handeye.app.consumers`): the
-    robot program at the address ``robot`` is connected to (default: the config's)."""
+    robot program at the address ``robot`` is connected to (default: the config's), those over MQTT through
+    ``publisher``."""
     consumers = []
     if cfg.consumers.robot_program:       # a robot with a host (`handeye.app.config.Config` checked it)
         consumers.append(RobotProgram(cfg.robot.host if robot is None else (lambda: robot.config.host)))
+    if publisher is not None:
+        consumers += [MqttConsumer(publisher, name) for name in cfg.consumers.mqtt]
     return CalibrationLoop.of(History(cfg.monitor.apply), consumers, ack_timeout_s=cfg.consumers.ack_timeout_s)
 
 
@@ -502,6 +505,14 @@ def run_monitor(
                       say, shared_error, report, in_use, on_error)
     report.samples_until_armed = _until_armed(engine, run.kept, cfg)
     say(f"monitoring engine: {_engine_state(engine, run.kept, cfg)}")
+    _run_until_stopped(run, stop, t0)
+    return _end_run(run, t0)
+
+
+def _run_until_stopped(run: "_PassiveRun", stop: threading.Event | None, t0: float) -> None:
+    """`run_monitor`'s loop: a step at a time until it should stop; a Ctrl-C, or a stop while a device is away,
+    is its normal end, a device error or an outage given up on is recorded and raised."""
+    report, engine, writer, viz, cfg = run.report, run.engine, run.writer, run.viz, run.cfg
     try:
         if engine.armed:      # the camera it watches, also if the run ends before its first sample
             report.estimate, report.estimate_cov = engine.camera_transform, engine.cov
@@ -524,7 +535,6 @@ def run_monitor(
             writer.add_event(time.time(), "gave_up", error=str(e), n_samples=report.n_samples)
             raise
         # Stopped while waiting for a device: a normal end, every sample kept.
-    return _end_run(run, t0)
 
 
 def _in_use_file(writer: SessionWriter, cfg: MonitorConfig, frames: dict | None, loop: CalibrationLoop | None,
