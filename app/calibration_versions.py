@@ -130,17 +130,17 @@ class History:
             return self._apply(v, t, f"approved by {v.approved_by}")
         return None
 
-    def approve(self, number: int, by: str, t: float) -> Version | None:
-        """A person approved version ``number``: in use now if settled, else once settled. Returns the version
-        put in use, or None. An approval of a version that is not pending (in use already, superseded, unknown)
-        changes nothing and is logged."""
+    def approve(self, number: int, by: str, t: float, now: float | None = None) -> Version | None:
+        """A person approved version ``number`` at ``t``: in use from ``now`` (default ``t``) if settled, else once
+        settled. Returns the version put in use, or None. An approval of a version that is not pending (in use
+        already, superseded, unknown) changes nothing and is logged."""
         v = self.version(number)
         if v is None or v.state not in ("settling", "settled"):
             log.info("approval of version %d by %s: nothing to do, it is %s", number, by,
-                        "unknown" if v is None else v.state.replace("_", " "))
+                     "unknown" if v is None else v.state.replace("_", " "))
             return None
         v.approved_by, v.approved = by, float(t)
-        return self._apply(v, t, f"approved by {by}") if v.state == "settled" else None
+        return self._apply(v, t if now is None else now, f"approved by {by}") if v.state == "settled" else None
 
     def _new(self, camera_transform, error_mm, t, why, evidence) -> Version:
         number = self.versions[-1].number + 1 if self.versions else 1

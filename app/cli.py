@@ -74,6 +74,10 @@ def main(argv: list[str] | None = None) -> int:
     except KeyboardInterrupt:
         print(f"handeye {args.command}: interrupted", file=sys.stderr)
         return exit_status.INTERRUPTED
+    except BrokenPipeError:
+        # The reader went away (`handeye status | head`): what it wanted was printed; no traceback at exit either.
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+        return exit_status.PASS
     except ImportError as e:
         # A Ctrl-C inside a C extension's first import (open3d at the simulator's first render, a vendor SDK at
         # connect) comes out as "initialization failed" from that import: it was the stop.

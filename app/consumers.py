@@ -184,7 +184,7 @@ class CalibrationLoop:
         """An approval of version ``number`` (`History.approve`), recorded; the version given out if in use now."""
         version = self.history.version(number)
         before = None if version is None else version.approved
-        applied = self.history.approve(number, by, approved_t)
+        applied = self.history.approve(number, by, approved_t, t)
         if version is not None and version.approved != before:
             self.event(t, "calibration_approved", version=number, by=by)
         self.applied(applied, t)

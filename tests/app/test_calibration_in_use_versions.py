@@ -77,3 +77,42 @@ def test_a_restart_in_the_middle_of_an_approval_keeps_the_version_and_the_approv
     np.testing.assert_allclose(doc["camera_transform"]["matrix"], h.in_use.camera_transform, atol=1e-12)
     assert [v["state"] for v in doc["calibration_history"]["versions"]] == ["replaced", "in_use"]
     assert engine.state in (EngineState.ARMED, EngineState.WARMING)
+
+
+def test_status_and_approve_on_the_command_line(tmp_path, capsys):
+    """``handeye status`` answers for a run (and for a cell config: its newest run), ``handeye approve`` refuses a
+    version that is not pending, approves the one that is, and status then says who approved it."""
+    from handeye.app.cli import main
+
+    c = cell(*KEY)
+    result, problem = calibration(*KEY)
+    d = ProgramDriver(c, MonitorEngine(), np.random.default_rng(3))
+    d.engine.arm(result, problem)
+    run = tmp_path / "sessions" / "20261206-010203-000000_eye_to_hand"
+    run.mkdir(parents=True)
+    in_use = _run(run, ScriptedConsumer("prompt"))
+    d.on_update = lambda upd: (in_use.update(d.engine, upd, d.t), in_use.poll(d.engine, d.t))
+    in_use.status = lambda: in_use.loop.status(d.t) or ("ok", "calibrated and quiet")
+    in_use.armed(d.engine, d.t)
+    for i in range(30):
+        d.visit(i % 8, 30.0)
+    d.C = c.moved(d.C, np.array([0.0, np.deg2rad(0.5), 0.0]), np.array([0.01, 0.0, 0.0]))
+    for i in range(30, 90):
+        d.visit(i % 8, 30.0)
+        if in_use.loop.history.waiting_for_approval is not None:
+            break
+    in_use.end(d.engine, d.t)
+    config = tmp_path / "cell.toml"
+    config.write_text(f'[session]\nroot = "{tmp_path / "sessions"}"\n')
+    for target in (str(run), str(config)):
+        assert main(["status", target]) == 3
+        out = capsys.readouterr().out
+        assert out.startswith("MOVED: camera moved") and "waiting for approval" in out
+        assert "in use by: prompt consumer: version 1" in out and "pending: version 2" in out
+    assert main(["approve", str(run), "--version", "3"]) == 1
+    assert "version 3 is not pending; version 2 is" in capsys.readouterr().err
+    assert main(["approve", str(run), "--by", "ann"]) == 0
+    assert "approved version 2" in capsys.readouterr().out
+    main(["status", str(run)])
+    assert "approved by ann at" in capsys.readouterr().out
+    assert main(["status", str(tmp_path / "nothing")]) == 1
