@@ -313,12 +313,15 @@ class ConsumersConfig(Params):
     """``[consumers]``: what is given the calibration in use and reports the version it has taken
     (`handeye.app.consumers`). ``robot_program``: the UR program over RTDE registers (a ``ur`` or ``ur_sim`` robot;
     the URScript snippet in docs/monitor-service.md). ``mqtt``: the names of the consumers that take it from
-    ``<prefix>/calibration`` and acknowledge on ``<prefix>/calibration/ack`` (needs ``[mqtt] enabled``). A
+    ``<prefix>/calibration`` and acknowledge on ``<prefix>/calibration/ack`` (needs ``[mqtt] enabled``);
+    ``ros2``: those that take it from ``/handeye/calibration`` and acknowledge on ``/handeye/calibration_ack``
+    (needs ``[ros2] diagnostics``). A
     consumer that has not reported the version in use
     ``ack_timeout_s`` after it was given is a warning with its name."""
 
     robot_program: Bool = False
     mqtt: list[NonEmptyStr] = Field(default_factory=list)
+    ros2: list[NonEmptyStr] = Field(default_factory=list)
     ack_timeout_s: PositiveFloat = 60.0
 
 
@@ -491,6 +494,8 @@ class Config(Params):
             if "setup" in part.model_fields_set and part.setup != self.setup:
                 raise ValueError(f"{name}.setup ({part.setup.value!r}) must match setup ({self.setup.value!r})")
             part.setup = self.setup
+        if self.consumers.ros2 and not self.ros2.diagnostics:
+            raise ValueError("consumers.ros2: the ROS 2 consumers need [ros2] diagnostics = true (its node)")
         if self.consumers.mqtt and not self.mqtt.enabled:
             raise ValueError("consumers.mqtt: the MQTT consumers need [mqtt] enabled = true")
         if self.consumers.robot_program and getattr(self.robot, "host", None) is None:

@@ -109,6 +109,21 @@ class MqttConsumer(Consumer):
         return self.publisher.acks.get(self.name)
 
 
+class Ros2Consumer(Consumer):
+    """A ROS 2 consumer named ``name``: given the version in use on ``/handeye/calibration`` (TransformStamped)
+    and ``/handeye/calibration_version`` (UInt32), both latched, it acknowledges on
+    ``/handeye/calibration_ack`` (KeyValue ``key`` its name, ``value`` the version) (`handeye.app.ros2`)."""
+
+    def __init__(self, diagnostics, name: str):
+        self.diagnostics, self.name = diagnostics, name
+
+    def give(self, version: Version) -> None:
+        self.diagnostics.publish_calibration(version.number, version.camera_transform, version.applied or 0.0)
+
+    def taken(self) -> int | None:
+        return self.diagnostics.acks.get(self.name)
+
+
 @dataclass
 class Link:
     """What the loop knows of one consumer: the version given, when, the version it reported, why it is out of

@@ -46,12 +46,15 @@ from handeye.app.outage import OutageEvent
 from handeye.calib import transforms as tf
 from handeye.calib.params import Bool, Params, PositiveFloat, Str
 from handeye.calib.setup import Setup
+from handeye.drivers.errors import ConnectionLostError
 from handeye.drivers.ros2 import NodeName, Ros2Node, messages, set_stamp
 
 log = logging.getLogger(__name__)
 
 STATUS_NAME = "handeye: camera calibration"
 TRANSFORM_TOPIC = "~/camera_transform"
+#: The calibration in use for ROS 2 consumers (`DiagnosticsPublisher.listen_calibration`).
+CALIBRATION_TOPIC = "~/calibration"
 #: ``diagnostic_msgs/DiagnosticStatus`` levels.
 OK, WARN, ERROR, STALE = 0, 1, 2, 3
 LEVEL_NAMES = {OK: "OK", WARN: "WARN", ERROR: "ERROR", STALE: "STALE"}
@@ -115,6 +118,36 @@ class DiagnosticsPublisher:
         self.timer = self.node.timer(self.config.period_s, self.publish_status)
         self.publish_status()
         return self
+
+    def listen_calibration(self) -> None:
+        """The calibration in use for ROS 2 consumers: ``~/calibration`` (TransformStamped) and
+        ``~/calibration_version`` (std_msgs/Header: ``frame_id`` the version's number, ``stamp`` the stamp of its
+        transform, which pairs them: DDS does not order two topics), both latched, and their acknowledgements on
+        ``~/calibration_ack`` (diagnostic_msgs/KeyValue: ``key`` the consumer's name, ``value`` the version it
+        has taken) into `acks`."""
+        (self.Header,) = messages("std_msgs", "Header")
+        self.calibration = self.node.publisher(self.TransformStamped, CALIBRATION_TOPIC, depth=1, latched=True)
+        self.calibration_version = self.node.publisher(self.Header, CALIBRATION_TOPIC + "_version", depth=1,
+                                                       latched=True)
+        self.acks: dict[str, int] = {}
+        self.node.subscribe(self.KeyValue, CALIBRATION_TOPIC + "_ack", self._on_ack, depth=50)
+
+    def _on_ack(self, msg) -> None:
+        try:
+            self.acks[msg.key] = int(msg.value)
+        except ValueError:
+            log.warning("%s_ack: %r is not a version (from %r)", CALIBRATION_TOPIC, msg.value, msg.key)
+
+    def publish_calibration(self, number: int, T, t: float) -> None:
+        """Version ``number`` of the calibration in use (``t``: when it was put in use, its stamp): its transform
+        and its version (latched)."""
+        if self.node.node is None:
+            raise ConnectionLostError("the ROS 2 node is not open")
+        msg = self._transform_message(np.asarray(T, dtype=float), t)
+        version = self.Header(frame_id=str(int(number)))
+        version.stamp = msg.header.stamp
+        self.calibration.publish(msg)
+        self.calibration_version.publish(version)
 
     def close(self) -> None:
         """The last status (``STALE``: the monitor stopped), then the node goes."""
@@ -225,6 +258,9 @@ class DiagnosticsPublisher:
     def _publish_transform(self, T: np.ndarray, t: float) -> None:
         if self.node.node is None:
             return
+        self.transform.publish(self._transform_message(T, t))
+
+    def _transform_message(self, T: np.ndarray, t: float):
         msg = self.TransformStamped()
         set_stamp(msg.header, t)
         msg.header.frame_id = self.frames["flange"] if self.setup.camera_on_flange else self.frames["base"]
@@ -233,7 +269,7 @@ class DiagnosticsPublisher:
         tr, rot = msg.transform.translation, msg.transform.rotation
         tr.x, tr.y, tr.z = (float(v) for v in xyz)
         rot.x, rot.y, rot.z, rot.w = (float(v) for v in q)
-        self.transform.publish(msg)
+        return msg
 
 
 def cell_status(report) -> tuple[str, str] | None:

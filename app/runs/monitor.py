@@ -36,7 +36,7 @@ from handeye.app import calibration_in_use, devices, stopping
 from handeye.app.acquire import pose_at_frame, take_sample
 from handeye.app.calibration_versions import Approvals, History
 from handeye.app.config import Config, MonitorConfig, hook_argv
-from handeye.app.consumers import CalibrationLoop, MqttConsumer, RobotProgram
+from handeye.app.consumers import CalibrationLoop, MqttConsumer, RobotProgram, Ros2Consumer
 from handeye.app.errors import ConfigError, MonitorError, OutageError
 from handeye.app.monitoring import arm_from, arm_from_path, sample_factor
 from handeye.app.outage import OutageEvent, Reconnecting
@@ -182,22 +182,25 @@ def monitor(cfg: Config, *, reference: Path | None = None, stop=None, progress: 
             Reconnecting("camera", devices.open_camera(cfg, robot), cfg.reconnect, on_event=outages,
                          stop=stop) as camera, \
             (publisher or contextlib.nullcontext()), (diagnostics or contextlib.nullcontext()), \
-            contextlib.closing(make_loop(cfg, robot, publisher)) as loop:
+            contextlib.closing(make_loop(cfg, robot, publisher, diagnostics)) as loop:
         cell = _Cell(cfg, robot, camera, devices.make_engine(cfg), np.random.default_rng(cfg.calibrate.seed),
                      publisher, diagnostics, publish or publisher, outages, loop)
         cell.start(carried_over(cfg) or reference, knocks_from, production)
         return cell.watch(stop, bump, progress)
 
 
-def make_loop(cfg: Config, robot: Robot | None = None, publisher=None) -> CalibrationLoop:
+def make_loop(cfg: Config, robot: Robot | None = None, publisher=None, diagnostics=None) -> CalibrationLoop:
     """The versions (``[monitor] apply``) and the consumers of ``[consumers]`` (`handeye.app.consumers`): the
     robot program at the address ``robot`` is connected to (default: the config's), those over MQTT through
-    ``publisher``."""
+    ``publisher`` and over ROS 2 through ``diagnostics``'s node."""
     consumers = []
     if cfg.consumers.robot_program:       # a robot with a host (`handeye.app.config.Config` checked it)
         consumers.append(RobotProgram(cfg.robot.host if robot is None else (lambda: robot.config.host)))
     if publisher is not None:
         consumers += [MqttConsumer(publisher, name) for name in cfg.consumers.mqtt]
+    if diagnostics is not None and cfg.consumers.ros2:
+        diagnostics.listen_calibration()
+        consumers += [Ros2Consumer(diagnostics, name) for name in cfg.consumers.ros2]
     return CalibrationLoop.of(History(cfg.monitor.apply), consumers, ack_timeout_s=cfg.consumers.ack_timeout_s)
 
 
