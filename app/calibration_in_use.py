@@ -122,6 +122,22 @@ def write(directory: Path, engine: MonitorEngine, frames: dict | None, *, why: s
     return path
 
 
+PENDING_FILE = "calibration_pending.yaml"
+
+
+def write_pending(directory: Path, result: dict | None) -> None:
+    """``directory/calibration_pending.yaml``: the version pending as a result (``handeye verify --result`` checks
+    it on fresh poses before it is approved), written atomically; removed when nothing is pending."""
+    path = Path(directory) / PENDING_FILE
+    if result is None:
+        path.unlink(missing_ok=True)
+        return
+    tmp = path.with_name(f".{PENDING_FILE}.tmp")
+    tmp.write_text("# handeye: the re-learnt calibration pending (not in use yet); calibration_in_use.yaml holds the "
+                   "version in use.\n" + yaml.safe_dump(result, sort_keys=False, width=1000))
+    os.replace(tmp, path)
+
+
 def find(path: Path) -> Path | None:
     """The ``calibration_in_use.yaml`` that ``path`` names: the file, or the one in the directory; else None."""
     path = Path(path)
@@ -211,6 +227,7 @@ class InUseFile:
         try:
             path = write(self.directory, engine, self.frames, why=why, t=t, loop=self.loop, result=self.result,
                          pending=self.pending, status=None if self.status is None else self.status())
+            write_pending(self.directory, self.pending if self.loop.history.pending is not None else None)
         except OSError as e:
             log.error("%s not written (%s); the next run cannot continue from this one",
                       FILE_NAME, e.strerror or e)

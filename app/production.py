@@ -175,6 +175,8 @@ def carried_knocks(reference: Path | None) -> list[Bump]:
     SessionError
         That run's session cannot be read (named).
     """
+    if reference is not None and Path(reference).name == calibration_in_use.PENDING_FILE:
+        reference = Path(reference).parent      # a run's pending version: that run's knocks
     found = calibration_in_use.find(reference) if reference is not None else None
     if found is None:
         return []

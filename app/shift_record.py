@@ -28,7 +28,7 @@ from pathlib import Path
 import numpy as np
 import yaml
 
-from handeye.app.calibration_in_use import local_time
+from handeye.app.calibration_in_use import PENDING_FILE, local_time
 from handeye.app.consumers import approve_command
 from handeye.app.files import uninterrupted
 from handeye.app.page import REPORT_STYLE, figure, svg_of, table
@@ -160,12 +160,15 @@ class ShiftRecord:
                          + (" (below)" if continue_with else "") + " to re-learn it from the stops"
                          + (f", or recalibrate when the cell is free: {calibrate}" if calibrate else ""))
         elif moved and self.loop is not None and self.loop.history.pending is not None:
-            lines += self._pending_steps()
+            lines += self._pending_steps(verify_with)
         elif moved and self.loop is not None and self.loop.links and not self.loop.behind():
             names = ", ".join("the " + link.name for link in self.loop.links)
             lines.append(f"  the camera moved and was re-learnt: version {self.loop.history.in_use.number} is in use "
                          f"by {names}; anything else that holds a camera transform (a ROS tf, a vision PC) takes "
                          f"it from {in_use}")
+            if verify_with:
+                lines.append(f"  check it on fresh poses when the cell is free: {verify_with} --result "
+                             f"{shlex.quote(str(in_use))} --yes-move")
         elif moved and in_use.exists():
             times = "once" if len(moved) == 1 else f"{len(moved)} times"
             lines.append(f"  the camera moved {times} and was re-learnt (the alarm lines above say how far; it is "
@@ -183,15 +186,22 @@ class ShiftRecord:
             lines.append(f"  go on monitoring from this calibration in use: {continue_with}")
         return ["next:", *lines] if lines else []
 
-    def _pending_steps(self) -> list[str]:
-        """What to do about a version pending: approve it (the command), or let it settle."""
+    def _pending_steps(self, verify_with: str | None) -> list[str]:
+        """What to do about a version pending: approve it (the command), or let it settle; check it on fresh poses
+        first (``verify_with``)."""
         pending = self.loop.history.pending
         if pending.state == "settled" and self.loop.history.policy == "approve":
-            return [f"  version {pending.number} (the re-learnt camera, predicted error {pending.error_mm:.2f} mm) "
-                    f"waits for approval; check the move it was re-learnt from (handeye status), then: "
-                    f"{approve_command(self.loop.run)}"]
-        return [f"  version {pending.number} (the re-learnt camera) is settling: let the monitor run on; it is put in "
-                "use once settled" + (" and approved" if self.loop.history.policy == "approve" else "")]
+            lines = [f"  version {pending.number} (the re-learnt camera, predicted error {pending.error_mm:.2f} mm) "
+                     f"waits for approval; check the move it was re-learnt from (handeye status), then: "
+                     f"{approve_command(self.loop.run)}"]
+        else:
+            lines = [f"  version {pending.number} (the re-learnt camera) is settling: let the monitor run on; it is put "
+                     "in use once settled" + (" and approved" if self.loop.history.policy == "approve" else "")]
+        pending_file = None if self.loop.run is None else Path(self.loop.run) / PENDING_FILE
+        if verify_with and pending_file is not None and pending_file.exists():
+            lines.append(f"  check it on fresh poses when the cell is free: {verify_with} --result "
+                         f"{shlex.quote(str(pending_file))} --yes-move")
+        return lines
 
     def alarms_document(self) -> dict:
         level, sentence = self.status()

@@ -275,8 +275,9 @@ class ScriptedConsumer(Consumer):
 
 # ------------------------------------------------------------------ the state machine
 
-def engine_machine():
-    """The `EngineMachine` class (built on first use: hypothesis is a test dependency)."""
+def engine_machine(versions: bool = False):
+    """The `EngineMachine` class, or with ``versions`` its `VersionsMachine` (built on first use: hypothesis is a
+    test dependency)."""
     from hypothesis import strategies as st
     from hypothesis.stateful import RuleBasedStateMachine, initialize, invariant, precondition, rule
 
@@ -290,9 +291,8 @@ def engine_machine():
         @initialize(setup=st.sampled_from([Setup.EYE_TO_HAND, Setup.EYE_IN_HAND]), seed=st.sampled_from(CELL_SEEDS),
                     n_calibration=st.sampled_from([3, 4, 6, 12, 30]), n_stops=st.sampled_from([1, 2, 3, 4, 8, 20]),
                     joints=st.booleans(), arming=st.sampled_from(["calibration", "self"]),
-                    settings=st.sampled_from(["default", "compressed"]), policy=st.sampled_from(["auto", "approve"]),
-                    consumer=st.sampled_from(["prompt", "late", "stuck", "flaky"]))
-        def start(self, setup, seed, n_calibration, n_stops, joints, arming, settings, policy, consumer):
+                    settings=st.sampled_from(["default", "compressed"]))
+        def start(self, setup, seed, n_calibration, n_stops, joints, arming, settings):
             self.key = (Setup(setup), seed, n_calibration, n_stops, joints and setup == Setup.EYE_TO_HAND)
             c = cell(*self.key)
             cfg = MonitorSettings() if settings == "default" else MonitorSettings(time_scale=30.0)
@@ -301,8 +301,10 @@ def engine_machine():
             self.next_stop = 0
             self.directory = tempfile.TemporaryDirectory(prefix="handeye-campaign-")
             self.runs = 0
-            self.consumer = ScriptedConsumer(consumer)
-            self.policy = policy
+            # `VersionsMachine` draws other policies and consumers; here the versions follow with "auto" and a
+            # consumer that takes each version at once (no draw: this machine explores the engine as it did).
+            self.consumer = ScriptedConsumer("prompt")
+            self.policy = "auto"
             self.approved: list[int] = []          # versions approved while settled: in use from then on
             self.in_use = self.new_run()
             self.handed_over: list[str] = []
@@ -376,35 +378,6 @@ def engine_machine():
                 if not np.allclose(T, ref, atol=1e-9):
                     self.mishandled.append(f"{why}: {what} is {tf.pose_error(T, ref)} (rad, m) off; "
                                            "the last steps:\n" + "\n".join(self.driver.history))
-
-        @rule()
-        def approve(self):
-            """A person approves the version pending (``handeye approve``): in use at the next poll if settled."""
-            loop = self.in_use.loop
-            pending = loop.history.pending
-            if pending is None:
-                return
-            if pending.state == "settled":
-                self.approved.append(pending.number)
-            write_approval(loop.run, pending.number, "tester", self.driver.t)
-            loop.polled_t = -math.inf
-            self.in_use.poll(self.driver.engine, self.driver.t)
-            self.driver.history.append(f"approve version {pending.number} ({pending.state})")
-
-        @precondition(lambda self: self.driver.engine.armed)
-        @rule()
-        def restart(self):
-            """The run ends and a new one continues from its file (a restart, a reboot), mid-approval or not."""
-            d = self.driver
-            self.in_use.end(d.engine, d.t)
-            engine = MonitorEngine(d.engine.settings)
-            engine.resume(calibration_in_use.read(self.in_use.directory / calibration_in_use.FILE_NAME,
-                                                  d.engine.reference.setup))
-            d.engine = engine
-            self.in_use = self.new_run()
-            self.in_use.armed(engine, d.t)
-            self.in_use.poll(engine, d.t)
-            d.history.append(f"restart: run {self.runs} continues")
 
         @rule(visits=st.integers(1, 40), order=st.sampled_from(["cycle", "random"]),
               jitter_deg=st.sampled_from([0.0, 0.0, 0.5]), dt=st.sampled_from([1.0, 30.0, 120.0]))
@@ -537,7 +510,61 @@ def engine_machine():
         def teardown(self):
             self.directory.cleanup()
 
-    return EngineMachine
+    class VersionsMachine(EngineMachine):
+        """`EngineMachine` with the versions of the calibration in use drawn too: the policy and the consumer
+        (re)configured at any time, approvals, restarts in the middle of anything. Its invariants are the
+        versions' (and the engine's soundness); whether each bump is flagged is `EngineMachine`'s to check."""
+
+        @rule(policy=st.sampled_from(["auto", "approve"]), consumer=st.sampled_from(["prompt", "late", "stuck",
+                                                                                    "flaky"]))
+        def configure(self, policy, consumer):
+            """The cell's policy and consumer change; the next run (continuing from this one) has them."""
+            self.policy, self.consumer = policy, ScriptedConsumer(consumer)
+            if self.driver.engine.armed:
+                self.restart()
+            else:
+                self.in_use = self.new_run(continues=False)
+                self.approved = []
+            self.driver.history.append(f"configure: apply {policy}, a {consumer} consumer")
+
+        @rule()
+        def approve(self):
+            """A person approves the version pending (``handeye approve``): in use at the next poll if settled."""
+            loop = self.in_use.loop
+            pending = loop.history.pending
+            if pending is None:
+                return
+            if pending.state == "settled":
+                self.approved.append(pending.number)
+            write_approval(loop.run, pending.number, "tester", self.driver.t)
+            loop.polled_t = -math.inf
+            self.in_use.poll(self.driver.engine, self.driver.t)
+            self.driver.history.append(f"approve version {pending.number} ({pending.state})")
+
+        @precondition(lambda self: self.driver.engine.armed)
+        @rule()
+        def restart(self):
+            """The run ends and a new one continues from its file (a restart, a reboot), mid-approval or not."""
+            d = self.driver
+            self.in_use.end(d.engine, d.t)
+            engine = MonitorEngine(d.engine.settings)
+            engine.resume(calibration_in_use.read(self.in_use.directory / calibration_in_use.FILE_NAME,
+                                                  d.engine.reference.setup))
+            d.engine = engine
+            self.in_use = self.new_run()
+            self.in_use.armed(engine, d.t)
+            self.in_use.poll(engine, d.t)
+            d.history.append(f"restart: run {self.runs} continues")
+
+        @invariant()
+        def bumps_flagged(self):
+            """Not checked here (`EngineMachine` does)."""
+
+        @invariant()
+        def relearns_done(self):
+            """Not checked here (`EngineMachine` does)."""
+
+    return VersionsMachine if versions else EngineMachine
 
 
 # ------------------------------------------------------------------ composed programs
