@@ -120,10 +120,18 @@ def run(args) -> int:
 
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="python -m bench", description=__doc__.splitlines()[0],
-                                     epilog=exit_status.help_text(),
+                                     epilog=exit_status.help_text(), add_help=False,
                                      formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("-h", "--help", action="store_true",
+                        help="this help; after a benchmark's flag (--month --help), that benchmark's own options")
     add_arguments(parser)
     args, args.extra = parser.parse_known_args(argv)
+    if args.help:
+        chosen = [a for a in vars(args) if a not in ("help", "extra", "vision", "robot") and getattr(args, a)]
+        if not chosen:
+            parser.print_help()
+            return exit_status.PASS
+        args.extra = ["--help", *args.extra]
     try:
         return run(args)
     except HandeyeError as e:
