@@ -21,7 +21,7 @@ from handeye.calib.result import CalibrationResult, CameraParameter, Residuals
 from handeye.calib.setup import Setup
 from handeye.calib.monitor.filter import (STOP_SLOTS, FilterState, Layout, NoiseTrack, SampleModel, Walk, clear_slots,
                                   filter_state, find_slot, follow_noise, fuse, fuse_linear, innovate, linearize, noise,
-                                  observed_walk, open_slot, predict, prediction, restart_walk, visit_slot)
+                                  observed_walk, open_slot, predict, prediction, relinearize, restart_walk, visit_slot)
 from handeye.calib.monitor.settings import AlarmLevel, EngineState, MonitorSettings, MonitorUpdate
 from handeye.calib.monitor.kernels import (inv_sym3_floats, is_plain, is_positive_definite3, parts, plain_cov,
                                    plain_point, plain_transform, sym3)
@@ -388,11 +388,11 @@ class MonitorEngine:
         return EngineState.ARMED if self.detector.count >= 3 else EngineState.WARMING
 
     def _use_estimate(self) -> None:
-        """The live estimate becomes the calibration in use: no walk since it."""
+        """The live estimate becomes the calibration in use: no walk since it, the Jacobians taken at it."""
         f = self.filter
         theta = f.u[3:6].copy()
         self.in_use = InUse(f.C.copy(), theta, self.workspace.sigma(f.C, theta, f.P) * 1e3)
-        self.filter = restart_walk(f)
+        self.filter = relinearize(restart_walk(f))
 
     def _sample(self, t, T_base_flange, point_cam, point_cov, robot_factor) -> Stop:
         if not self.armed:

@@ -23,6 +23,15 @@ allow, and the parameters they cannot separate stay near the arming's values
 (within 4.3 of its sigma over a month on the month benchmark's 20 cells).
 Each visit adds only the point noise.
 
+The Jacobians are taken at a fixed point, `FilterState.lin` (the first-estimates Jacobian of EKF-SLAM: Huang,
+Mourikis and Roumeliotis, 2008), the predictions at the estimate. The stops cannot tell the camera transform, the
+marker-side translation and the camera parameters from their own errors: each such trade is a direction no
+sample informs. Jacobians re-taken at every new estimate turn those directions a little from one visit of a stop
+to the next, and the filter reads information into them that no sample gave: on a still eye-in-hand cell the
+estimate then walked 0.1-0.2 mm a day along them while its stated 1-sigma held still. With each stop's visits
+linearised at one point those directions stay uninformed. The point is taken anew where that breaks nothing: when
+no stop's error is held (`clear_slots`) and when the estimate becomes the calibration in use (`relinearize`).
+
 The fast path runs on tuples of floats (numpy's per-call cost would be most
 of a sample's cost on 3-vectors); `handeye.calib.monitor.kernels.sample_floats` is
 tested against `handeye.calib.model.point_jacobians`, the model ``auto`` and the
@@ -159,6 +168,9 @@ class FilterState(NamedTuple):
         flat, 12 floats), or None (free).
     last : tuple
         Per slot: ``walk_t`` at its stop's last visit (the least recent is reused first).
+    lin : tuple
+        Where the Jacobians are taken (module docstring): ``(parts, model)``, the camera transform as `parts` and
+        ``[t_K, theta, z]`` (ndarray).
     """
 
     C: np.ndarray
@@ -170,6 +182,7 @@ class FilterState(NamedTuple):
     parts: tuple
     slots: tuple
     last: tuple
+    lin: tuple
 
 
 FREE_SLOTS = (None,) * STOP_SLOTS
@@ -177,8 +190,13 @@ FREE_SLOTS = (None,) * STOP_SLOTS
 
 def filter_state(C, u, P, t: float, walk_t: float = 0.0, scale: float = 1.0, slots: tuple = FREE_SLOTS,
                  last: tuple = (0.0,) * STOP_SLOTS) -> FilterState:
-    """A `FilterState` (``parts`` from ``C``)."""
-    return FilterState(C, u, P, float(t), float(walk_t), scale, parts(C), tuple(slots), tuple(last))
+    """A `FilterState` (``parts`` from ``C``), linearised at it."""
+    return relinearize(FilterState(C, u, P, float(t), float(walk_t), scale, parts(C), tuple(slots), tuple(last), ()))
+
+
+def relinearize(state: FilterState) -> FilterState:
+    """The state with its Jacobians taken at its estimate from now on (`FilterState.lin`)."""
+    return state._replace(lin=(state.parts, state.u[:len(state.u) - 3 * STOP_SLOTS - 6].copy()))
 
 
 def predict(state: FilterState, t: float, walk: Walk) -> FilterState:
@@ -192,7 +210,7 @@ def predict(state: FilterState, t: float, walk: Walk) -> FilterState:
         P.reshape(-1)[walk.flat] += walk.per_s * dt
         walk_t += dt
     return FilterState(state.C, state.u, P, max(float(t), state.t), walk_t, state.scale, state.parts,
-                       state.slots, state.last)
+                       state.slots, state.last, state.lin)
 
 
 class Innovation(NamedTuple):
@@ -232,12 +250,16 @@ class Innovation(NamedTuple):
 
 
 def prediction(state: FilterState, pose, factor, model: SampleModel):
-    """`sample_floats` at the state for a flange pose (``T_base_flange[:3]`` flat, 12 floats) and kinematic-error
-    factor (6, P) or None: ``(h, H, cofactor)``."""
+    """`sample_floats` for a flange pose (``T_base_flange[:3]`` flat, 12 floats) and kinematic-error factor (6, P)
+    or None: ``(h, H, cofactor)``, ``h`` at the estimate, ``H`` and ``cofactor`` at `FilterState.lin`."""
     u = state.u
     k0, k1, k2, s0, s1, s2 = u[:6].tolist()
-    return sample_floats(state.parts, (k0, k1, k2), pose, (s0, s1, s2), model.eye_to_hand, factor,
-                         u[6:model.layout.model - 6])
+    h, _, _ = sample_floats(state.parts, (k0, k1, k2), pose, (s0, s1, s2), model.eye_to_hand, factor,
+                            u[6:model.layout.model - 6])
+    C, v = state.lin
+    k0, k1, k2, s0, s1, s2 = v[:6].tolist()
+    _, H, cof = sample_floats(C, (k0, k1, k2), pose, (s0, s1, s2), model.eye_to_hand, factor, v[6:])
+    return h, H, cof
 
 
 def noise(state: FilterState, shape_upper, cofactor, model: SampleModel) -> tuple[tuple, tuple]:
@@ -290,7 +312,7 @@ def fuse(state: FilterState, PHt: np.ndarray, S_inv: np.ndarray, r) -> FilterSta
     t = (x + d3, y + d4, z + d5)
     C = np.array(r0 + t[:1] + r1 + t[1:2] + r2 + t[2:] + (0.0, 0.0, 0.0, 1.0)).reshape(4, 4)
     return FilterState(C, state.u + d[6:], P, state.t, state.walk_t, state.scale, ((r0, r1, r2), t),
-                       state.slots, state.last)
+                       state.slots, state.last, state.lin)
 
 
 def fuse_linear(state: FilterState, r, H: np.ndarray, R: np.ndarray) -> FilterState:
@@ -349,12 +371,13 @@ def open_slot(state: FilterState, pose, prior: np.ndarray, layout: Layout) -> tu
 
 def clear_slots(state: FilterState, layout: Layout) -> FilterState:
     """No stop's error held (every slot free, its state and covariance zero): after the camera transform is
-    started afresh, the stops' errors learnt against the old one would carry its error over as knowledge."""
+    started afresh, the stops' errors learnt against the old one would carry its error over as knowledge. The
+    Jacobians are taken at the estimate from here (no stop's visits to keep on one point)."""
     u, P = state.u.copy(), state.P.copy()
     u[layout.model - 6:layout.walk - 6] = 0.0
     P[layout.model:layout.walk] = 0.0
     P[:, layout.model:layout.walk] = 0.0
-    return state._replace(u=u, P=P, slots=FREE_SLOTS, last=(0.0,) * STOP_SLOTS)
+    return relinearize(state._replace(u=u, P=P, slots=FREE_SLOTS, last=(0.0,) * STOP_SLOTS))
 
 
 def restart_walk(state: FilterState) -> FilterState:
