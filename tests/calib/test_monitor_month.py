@@ -5,16 +5,16 @@ that only the engine's handling of them is judged)."""
 import numpy as np
 import pytest
 
-from app.benchmarks.shift import workspace_error
-from calib import simulate, solve
-from calib.model import CameraCorrection
-from calib.monitor import MonitorEngine, MonitorSettings
-from calib.monitor.kernels import parts, sample_floats
-from calib.noise import default_point_cov
-from calib.problem import CalibrationProblem
-from calib.robot_error import UR10_DH, ur_forward
-from calib.setup import Setup
-from calib.simulate_month import DAY_S
+from bench.shift import workspace_error
+from handeye.calib import simulate, solve
+from handeye.calib.model import CameraCorrection
+from handeye.calib.monitor import MonitorEngine, MonitorSettings
+from handeye.calib.monitor.kernels import parts, sample_floats
+from handeye.calib.noise import default_point_cov
+from handeye.calib.problem import CalibrationProblem
+from handeye.calib.robot_error import UR10_DH, ur_forward
+from handeye.calib.setup import Setup
+from handeye.calib.simulate_month import DAY_S
 
 SAMPLE_S = 30.0
 
