@@ -20,7 +20,7 @@ the arming at that pose plus `handeye.calib.monitor.MonitorSettings.stop_error_m
 As a state it saturates what repeated visits tell: a thousand visits of four
 stops determine the camera no better than four measurements with that error
 allow, and the parameters they cannot separate stay near the arming's values
-(within 4.3 of its sigma over a month on the month benchmark's 20 cells).
+(within 1.9 of its sigma over a month on the month benchmark's 20 cells).
 Each visit adds only the point noise.
 
 The Jacobians are taken at a fixed point, `FilterState.lin` (the first-estimates Jacobian of EKF-SLAM: Huang,
@@ -29,8 +29,9 @@ marker-side translation and the camera parameters from their own errors: each su
 sample informs. Jacobians re-taken at every new estimate turn those directions a little from one visit of a stop
 to the next, and the filter reads information into them that no sample gave: on a still eye-in-hand cell the
 estimate then walked 0.1-0.2 mm a day along them while its stated 1-sigma held still. With each stop's visits
-linearised at one point those directions stay uninformed. The point is taken anew where that breaks nothing: when
-no stop's error is held (`clear_slots`) and when the estimate becomes the calibration in use (`relinearize`).
+linearised at one point those directions stay uninformed (a still cell's error then holds, within its stated
+1-sigma, for weeks). The point is taken anew when no stop's error is held (`clear_slots`), and when the estimate
+becomes the calibration in use (`relinearize`: a re-learn and the samples that settle it, a few dozen a move).
 
 The fast path runs on tuples of floats (numpy's per-call cost would be most
 of a sample's cost on 3-vectors); `handeye.calib.monitor.kernels.sample_floats` is
