@@ -29,6 +29,10 @@ from handeye.calib.monitor.reference import InUse, Reference, WorkspaceMoments, 
 from handeye.calib.monitor.snapshot import Snapshot
 from handeye.calib.monitor.stops import HOUR_S, Rate, Stop, Stops, Visit
 
+#: Hours of the camera's world over which a predicted drift crossing must also hold as a trend, and a raised drift
+#: must stay quiet before it clears (`MonitorEngine`'s drift figures): one day, a mount's thermal cycle.
+TREND_H = 24.0
+
 
 #: Visits of a stop before the detector compares its marker point with the stop's earlier ones.
 MIN_BASELINE = 3
@@ -184,12 +188,14 @@ class MonitorEngine:
         self.workspace = WorkspaceMoments(ref.workspace)
         self.stops = Stops(cfg.stop_translation_m, np.deg2rad(cfg.stop_rotation_deg))
         self.rate = Rate(cfg.rate_window_h * self.hour_s, self.hour_s)
+        self.trend = Rate(TREND_H * self.hour_s, self.hour_s)
         self._count = 0
         self._window: collections.deque[Visit] = collections.deque()
         self._window_visits: collections.Counter[int] = collections.Counter()   # per stop key, its visits in it
         self._relearn_set: list[Stop] = []
         self._settle = snap.settle
         self._drifting = False
+        self._quiet_since: float | None = None     # since when a raised drift has been back under the line
         self._drift_factor: tuple[InUse | None, np.ndarray | None] = (None, None)
         self._alarms: collections.deque[tuple[int, float, AlarmLevel]] = collections.deque(maxlen=MAX_ALARMS)
         self.state = EngineState.SETTLING if snap.settle else EngineState.WARMING
@@ -524,6 +530,7 @@ class MonitorEngine:
         self._use_estimate()
         self.relearns += 1
         self.rate.reset()
+        self.trend.reset()
         self._settle = self.settings.detector.window
         self.state = EngineState.SETTLING
         self._relearn_set = []
@@ -702,20 +709,33 @@ class MonitorEngine:
         if state == EngineState.ARMED:
             # The workspace points' displacement is linear in the drift: its slope gives the drift rate.
             self.rate.add(s.t, moved + (drift_deg, drift_m))
-            slope = self.rate.slope()
+            self.trend.add(s.t, (drift_m,))
+            slope, trend = self.rate.slope(), self.trend.slope()
             if slope is not None:
                 rate_mm = math.hypot(*slope[:12]) * 1e3
                 rate_deg = abs(slope[12])
                 growth = slope[13] * 1e3
                 if growth > 0 and drift_m * 1e3 < cfg.tolerance_mm:
                     hours = (cfg.tolerance_mm - drift_m * 1e3) / growth
+                    if trend is not None:
+                        # A day of samples: the rise must hold over the day too. A mount's daily thermal cycle
+                        # rises for half a day and falls back (bounded: no crossing ahead); a drift rises all day.
+                        day = trend[0] * 1e3
+                        hours = max(hours, (cfg.tolerance_mm - drift_m * 1e3) / day) if day > 0 else None
         # Drifting: the camera has moved from the calibration in use by the tolerance, or will within the
         # horizon at the current rate (the calibration's own uncertainty is in error_mm, not an alarm).
-        # Once raised it holds until the drift is back under half the tolerance and not heading there within
-        # twice the horizon: a drift hovering at the line is one alarm, not one per crossing.
+        # Once raised it holds until the drift has stayed under half the tolerance, and not heading there within
+        # twice the horizon, for a day: a drift hovering at the line, or a mount's daily cycle touching it every
+        # day, is one alarm, not one per crossing.
         held = 0.5 if self._drifting else 1.0
-        drifting = state == EngineState.ARMED and (drift_m * 1e3 >= held * cfg.tolerance_mm
-                                                   or (hours is not None and hours <= cfg.horizon_h / held))
+        over = state == EngineState.ARMED and (drift_m * 1e3 >= held * cfg.tolerance_mm
+                                               or (hours is not None and hours <= cfg.horizon_h / held))
+        if over or not self._drifting:
+            self._quiet_since = None
+        elif self._quiet_since is None:
+            self._quiet_since = s.t
+        drifting = over or (self._drifting and state == EngineState.ARMED
+                            and s.t - self._quiet_since < TREND_H * self.hour_s)
         if drifting and not self._drifting and not alarm:
             alarm = AlarmLevel.DRIFTING
             when = "now" if hours is None else f"in {hours:.1f} h at {rate_mm:.2f} mm/h"
