@@ -13,7 +13,7 @@ from scipy.stats import chi2
 
 from handeye.calib import model
 from handeye.calib import transforms as tf
-from handeye.calib.errors import CalibrationError
+from handeye.calib.errors import CalibrationError, FilterDivergedError
 from handeye.calib.noise import default_point_cov
 from handeye.calib.change import ChangeDetector
 from handeye.calib.problem import CalibrationProblem
@@ -674,9 +674,12 @@ class MonitorEngine:
             P[:, :6] = 0.0
             P[:6, :6] = np.diag([sr * sr] * 3 + [st * st] * 3)
             f = clear_slots(f._replace(P=P), layout)
-            for s in samples:
-                f, k = self._slot(f, s)
-                f = fuse_linear(f, *linearize(f, s, self.model, k)[:3])
+            try:
+                for s in samples:
+                    f, k = self._slot(f, s)
+                    f = fuse_linear(f, *linearize(f, s, self.model, k)[:3])
+            except FilterDivergedError:
+                return Fit(saved, "registered", False)    # these samples do not hold together: drop the oldest
         chi = 0.0
         for s in samples:
             r, H, R, _ = linearize(f, s, self.model, self._held(f, s))

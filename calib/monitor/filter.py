@@ -46,6 +46,7 @@ from typing import NamedTuple
 
 import numpy as np
 
+from handeye.calib.errors import FilterDivergedError
 from handeye.calib.model import NoiseLevels
 from handeye.calib.monitor.kernels import inv_sym3, inv_sym3_floats, matmul3, parts, sample_floats, so3_exp_scalar, sym3
 
@@ -308,6 +309,8 @@ def fuse(state: FilterState, PHt: np.ndarray, S_inv: np.ndarray, r) -> FilterSta
     P *= 0.5
     d = K.dot(r)
     d0, d1, d2, d3, d4, d5 = d[:6].tolist()
+    if not math.isfinite(d0 + d1 + d2 + d3 + d4 + d5):
+        raise FilterDivergedError("the monitoring update diverged (an increment that is not finite); sample skipped")
     R, (x, y, z) = state.parts
     r0, r1, r2 = matmul3(so3_exp_scalar(d0, d1, d2), R)
     t = (x + d3, y + d4, z + d5)
