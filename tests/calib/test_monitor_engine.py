@@ -566,3 +566,21 @@ def test_the_walk_is_followed_only_where_the_stops_observe_it():
     assert abs(blind @ Q @ blind) < 1e-6 * q[0]
     assert np.linalg.matrix_rank(Q, tol=1e-6 * q[0]) == 5
     assert not observed_walk(q, np.zeros((6, 6)), 3600.0).any()
+
+
+def test_an_update_that_diverges_is_a_typed_error_and_the_state_is_kept():
+    """An increment that is not finite (a sample far outside what the linearised model holds) raises
+    `FilterDivergedError`, a `CalibrationError` the run loops log as a skipped sample, not a ValueError traceback
+    from the rotation's exponential; the engine's state is what it was."""
+    from handeye.calib.errors import FilterDivergedError
+    from handeye.calib.monitor.filter import fuse
+
+    real, res, engine = _armed(1)
+    before = engine.filter
+    n = before.P.shape[0]
+    PHt = np.zeros((n, 3))
+    PHt[0, 0] = 1.0
+    with pytest.raises(FilterDivergedError) as e, np.errstate(all="ignore"):   # (inf x 0 in the gain's product)
+        fuse(before, PHt, np.eye(3), np.array([np.inf, 0.0, 0.0]))
+    assert isinstance(e.value, CalibrationError) and "sample skipped" in str(e.value)
+    assert engine.filter is before and np.all(np.isfinite(before.C))
