@@ -335,7 +335,7 @@ class MonitorEngine:
             # has the variance of m samples each of (1 + m / n) times the noise, not (1 + 1 / n).
             stop_id = stops.ids[i]
             k = 1.0 + (self._window_visits[stop_id] + 1) / stops.n[i]
-            R = inn.R_compare
+            R = inn.R
             (a, b, c), (_, d, e), (_, _, f) = (Hc * offset_var).dot(Hc.T).tolist()
             test_inv = inv_sym3_floats(a + k * R[0], b + k * R[1], c + k * R[2], d + k * R[3], e + k * R[4],
                                        f + k * R[5])
@@ -464,7 +464,7 @@ class MonitorEngine:
             f, k = open_slot(f, s.pose, self.stop_prior(cof), self.model.layout)
         else:
             f = visit_slot(f, k)
-        self._info[f.slots[k]] = Hc.T.dot(np.linalg.solve(sym3(noise(f, s.shape_upper, cof, self.model)[0]), Hc))
+        self._info[f.slots[k]] = Hc.T.dot(np.linalg.solve(sym3(noise(f, s.shape_upper, cof, self.model)), Hc))
         return f, k
 
     def _walk_for(self, slots: tuple) -> None:
@@ -591,7 +591,7 @@ class MonitorEngine:
         rows = []
         for k, i in measured:
             s = samples[k]
-            r, H, _, R = linearize(self.filter, s, self.model, None)
+            r, H, R = linearize(self.filter, s, self.model, None)
             rows.append((k, np.array(self._against_stop(i, s, self.filter, H[:, :6], r)), H[:, :6],
                          np.linalg.inv(R * (1.0 + visits[i] / stops.n[i]))))
         return rows, short
@@ -677,12 +677,12 @@ class MonitorEngine:
             try:
                 for s in samples:
                     f, k = self._slot(f, s)
-                    f = fuse_linear(f, *linearize(f, s, self.model, k)[:3])
+                    f = fuse_linear(f, *linearize(f, s, self.model, k))
             except FilterDivergedError:
                 return Fit(saved, "registered", False)    # these samples do not hold together: drop the oldest
         chi = 0.0
         for s in samples:
-            r, H, R, _ = linearize(f, s, self.model, self._held(f, s))
+            r, H, R = linearize(f, s, self.model, self._held(f, s))
             chi += float(r @ np.linalg.solve(R + H[:, 6:] @ f.P[6:, 6:] @ H[:, 6:].T, r))
         dof = 3 * len(samples) - 6
         consistent = dof <= 0 or chi <= chi2.ppf(RELEARN_QUANTILE, dof)
