@@ -367,8 +367,8 @@ def make_plan(cfg: Config, X, Y, T_start, q_start, intrinsics, robot, rng: np.ra
         point_cov = anchored_point_cov(*start_measurement)
         S, p = np.asarray(start_measurement[1]), np.asarray(start_measurement[0])
         r = p / np.linalg.norm(p)
-        noise = (f"handeye.calib.noise.anchored_point_cov: the default depth dependence at the levels measured at the start "
-                 f"({np.sqrt(r @ S @ r) * 1e3:.2f} mm along the ray at {p[2]:.2f} m)")
+        noise = (f"handeye.calib.noise.anchored_point_cov: the default depth dependence at the levels measured at "
+                 f"the start ({np.sqrt(r @ S @ r) * 1e3:.2f} mm along the ray at {p[2]:.2f} m)")
     planner = pl.PosePlanner(cfg.setup, X, Y, view, planner_config(cfg, uncertainty_k=0.0), point_cov=point_cov,
                              correction=camera_correction(cal.method, None))
     start_ok = planner.screen(np.asarray(T_start)[None])[0][0]

@@ -148,8 +148,8 @@ def load_result(path: Path) -> LoadedResult:
 
 
 def models_of(doc: dict, path) -> tuple[cv.VerifiedModel, cv.VerifiedModel | None]:
-    """The `handeye.calib.verify.VerifiedModel` of a result document (`handeye.app.formats.result_to_dict`), and its rigid
-    export's (None without ``camera_transform_raw_points``); `SessionError` naming ``path`` and the field."""
+    """The `handeye.calib.verify.VerifiedModel` of a result document (`handeye.app.formats.result_to_dict`), and
+    its rigid export's (None without ``camera_transform_raw_points``); `SessionError` naming ``path`` and the field."""
     try:
         setup = Setup(_get(doc, "setup", path))
     except ValueError:

@@ -433,8 +433,8 @@ class Viz:
         self._log("events", self._rr.TextLog(text, level=level))
 
     def plan(self, poses, X: np.ndarray, Y: np.ndarray, intrinsics, marker_size_m: float) -> None:
-        """Planned poses (`handeye.calib.planner.PlannedPose`) of a dry run, one step of the ``plan_pose`` timeline each:
-        flange axes, the camera frustum and what the camera would see (predicted marker outline and center).
+        """Planned poses (`handeye.calib.planner.PlannedPose`) of a dry run, one step of the ``plan_pose`` timeline
+        each: flange axes, the camera frustum and what the camera would see (predicted marker outline and center).
 
         Eye-to-hand: ``X = T_flange_marker``, ``Y = T_base_cam``; eye-in-hand:
         ``X = T_flange_cam``, ``Y = T_base_marker``.

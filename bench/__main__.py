@@ -8,6 +8,7 @@ benchmark it runs; with no flag, the solver benchmark (bench.solvers) runs.
 from __future__ import annotations
 
 import argparse
+import importlib
 import sys
 
 from handeye.app import exit_status
@@ -48,60 +49,22 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="run only the ROS 2 camera latency benchmark (bench.ros2: a publisher process, real DDS)")
 
 
+#: The flags that run one benchmark alone (``args.<flag>`` -> ``bench.<module>``), in the order they are checked.
+ALONE = {"fuzz": "fuzz", "faults": "faults", "plan": "plan", "shift": "shift", "month": "month",
+         "detection": "detection", "cross_session": "crosssession", "verify": "verify", "model": "model",
+         "bag": "ros2_bag", "grids": "grids", "realsense": "realsense", "ros2": "ros2"}
+
+
+def chosen(args) -> str | None:
+    """The module of the benchmark a flag runs alone, or None (the solver benchmark, maybe with vision/robot)."""
+    return next((module for flag, module in ALONE.items() if getattr(args, flag)), None)
+
+
 def run(args) -> int:
     """Run the benchmark the flags choose, with ``args.extra`` as its arguments; its exit status."""
-    if args.fuzz:
-        from bench import fuzz
-
-        return int(fuzz.main(args.extra) or 0)
-    if args.faults:
-        from bench import faults
-
-        return int(faults.main(args.extra) or 0)
-    if args.plan:
-        from bench import plan
-
-        return int(plan.main(args.extra) or 0)
-    if args.shift:
-        from bench import shift
-
-        return int(shift.main(args.extra) or 0)
-    if args.month:
-        from bench import month
-
-        return int(month.main(args.extra) or 0)
-    if args.detection:
-        from bench import detection
-
-        return int(detection.main(args.extra) or 0)
-    if args.cross_session:
-        from bench import crosssession
-
-        return int(crosssession.main(args.extra) or 0)
-    if args.verify:
-        from bench import verify
-
-        return int(verify.main(args.extra) or 0)
-    if args.model:
-        from bench import model
-
-        return int(model.main(args.extra) or 0)
-    if args.bag:
-        from bench import ros2_bag
-
-        return int(ros2_bag.main(args.extra) or 0)
-    if args.grids:
-        from bench import grids
-
-        return int(grids.main(args.extra) or 0)
-    if args.realsense:
-        from bench import realsense
-
-        return int(realsense.main(args.extra) or 0)
-    if args.ros2:
-        from bench import ros2
-
-        return int(ros2.main(args.extra) or 0)
+    alone = chosen(args)
+    if alone is not None:
+        return int(importlib.import_module(f"bench.{alone}").main(args.extra) or 0)
     from bench import solvers
 
     rc = int(solvers.main(args.extra) or 0)
@@ -120,10 +83,17 @@ def run(args) -> int:
 
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="python -m bench", description=__doc__.splitlines()[0],
-                                     epilog=exit_status.help_text(),
+                                     epilog=exit_status.help_text(), add_help=False,
                                      formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("-h", "--help", action="store_true",
+                        help="this help; after a benchmark's flag (--month --help), that benchmark's own options")
     add_arguments(parser)
     args, args.extra = parser.parse_known_args(argv)
+    if args.help:
+        if chosen(args) is None:
+            parser.print_help()
+            return exit_status.PASS
+        args.extra = ["--help", *args.extra]
     try:
         return run(args)
     except HandeyeError as e:

@@ -52,7 +52,8 @@ MOTIONS = (("grid", {"angle_range": 0.0}), ("grid +-0.25 m", {"angle_range": 0.0
 
 
 def cell(n: int, seed: int, setup: Setup, **motion) -> tuple[simulate.SimulatedData, np.ndarray]:
-    """A simulated cell (`handeye.calib.simulate.realistic_cell`) seen through `CAMERA`, and its measured points (n, 3)."""
+    """A simulated cell (`handeye.calib.simulate.realistic_cell`) seen through `CAMERA`, and its measured points
+    (n, 3)."""
     d = simulate.realistic_cell(n, np.random.default_rng(seed), setup=setup, **motion)
     return d, CAMERA.measure(d.points)
 

@@ -382,8 +382,8 @@ def summarize(run: SeedRun) -> dict:
 
 
 def eye_in_hand_armed(seed: int, settings: MonitorSettings):
-    """An eye-in-hand `handeye.calib.simulate.realistic_cell` of 34 poses, ``auto`` from the first 30, and the engine armed
-    from it: ``(cell, result, engine, rng)`` (``rng`` goes on to draw the shift)."""
+    """An eye-in-hand `handeye.calib.simulate.realistic_cell` of 34 poses, ``auto`` from the first 30, and the engine
+    armed from it: ``(cell, result, engine, rng)`` (``rng`` goes on to draw the shift)."""
     rng = np.random.default_rng([seed, 3])
     cell = simulate.realistic_cell(34, rng, setup="eye_in_hand")
     problem = CalibrationProblem.from_arrays(cell.A[:30], cell.points[:30], setup="eye_in_hand",

@@ -24,6 +24,11 @@ class CalibrationError(HandeyeError, ValueError):
     """Input to a solver is malformed: bad shape, NaN/inf, not a rigid transform."""
 
 
+class FilterDivergedError(CalibrationError):
+    """A monitoring update whose increment is not finite: the sample is far outside what the linearised model holds
+    (the engine keeps its state and skips it)."""
+
+
 class InsufficientDataError(CalibrationError):
     """Too few samples for the chosen method."""
 

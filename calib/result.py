@@ -331,7 +331,8 @@ class CalibrationResult:
 
     @property
     def camera_correction(self) -> CameraCorrection:
-        """The camera's systematic error the solver estimated (`handeye.calib.model.CameraCorrection`; all zero if none).
+        """The camera's systematic error the solver estimated (`handeye.calib.model.CameraCorrection`; all zero if
+        none).
 
         ``auto`` estimates it (``auto.camera_correction``); the paper's methods do not.
         """

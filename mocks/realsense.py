@@ -46,7 +46,8 @@ class DepthModel:
 
 
 class SoftwareRealSense:
-    """An ``rs.software_device`` D435 showing `handeye.mocks.render.camera.RenderedCamera`'s cell (eye-to-hand or -in-hand).
+    """An ``rs.software_device`` D435 showing `handeye.mocks.render.camera.RenderedCamera`'s cell (eye-to-hand or
+    -in-hand).
 
     Parameters
     ----------

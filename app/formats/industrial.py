@@ -34,7 +34,8 @@ from handeye.calib.vision.circle_grid import CircleGridSpec, detect_circle_grid
 from handeye.calib.vision.lift import pnp_covariance, solve_pnp
 from handeye.calib.vision.markers import BoardSpec, Detection, detect_charuco
 
-from handeye.app.formats.common import ImportedSamples, observations_from_poses, read_yaml, transform_from_xyz_quat_fields
+from handeye.app.formats.common import (ImportedSamples, observations_from_poses, read_yaml,
+                                        transform_from_xyz_quat_fields)
 from handeye.app.formats.registry import register_import
 
 log = logging.getLogger(__name__)

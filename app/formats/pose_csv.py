@@ -62,7 +62,8 @@ log = logging.getLogger(__name__)
 # Commas (ETH), semicolons or whitespace (TUM trajectory files) between fields.
 _SEPARATORS = re.compile(r"\s*[,;]\s*|\s+")
 
-# Below this peak correlation the offset estimate is doubtful (docs/benchmarks-history.md, handeye.app.formats.pose_csv).
+# Below this peak correlation the offset estimate is doubtful (docs/benchmarks-history.md,
+# handeye.app.formats.pose_csv).
 LOW_CORRELATION = 0.5
 
 # Pairs used per residual evaluation while refining the offset: enough to

@@ -40,7 +40,8 @@ eye-in-hand ``X = T_flange_cam``, ``Y = T_base_marker``; paper eq. 1):
    inside every ``solve``).
 
 Modules: `handeye.calib.auto.pipeline` (``solve_auto``, the stages), `handeye.calib.auto.fit`,
-`handeye.calib.auto.camera`, `handeye.calib.auto.consider`, `handeye.calib.auto.blocked`, `handeye.calib.auto.determined`.
+`handeye.calib.auto.camera`, `handeye.calib.auto.consider`, `handeye.calib.auto.blocked`,
+`handeye.calib.auto.determined`.
 """
 
 

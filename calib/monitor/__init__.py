@@ -36,8 +36,10 @@ Per sample (fixed work and memory, independent of the shift's length):
    repeated stops share (the robot's kinematic error, the camera model, and
    the error each stop repeats at every visit beyond them) is state, not
    white noise, so a program that returns to the same few stops cannot make
-   the estimate over-confident (`handeye.calib.monitor.filter`). The noise levels'
-   scale follows the innovations; it weighs what each visit adds.
+   the estimate over-confident (`handeye.calib.monitor.filter`); the
+   Jacobians are taken at the calibration in use, so that what the stops
+   cannot separate stays as uncertain as the arming left it. The noise
+   levels' scale follows the innovations; it weighs what each visit adds.
 5. **Drift.** How far the camera has walked since the calibration in use
    (the arming one, or the last re-learnt one): six states that the random
    walk moves with the camera transform, so that what the samples refine of

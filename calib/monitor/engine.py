@@ -13,7 +13,7 @@ from scipy.stats import chi2
 
 from handeye.calib import model
 from handeye.calib import transforms as tf
-from handeye.calib.errors import CalibrationError
+from handeye.calib.errors import CalibrationError, FilterDivergedError
 from handeye.calib.noise import default_point_cov
 from handeye.calib.change import ChangeDetector
 from handeye.calib.problem import CalibrationProblem
@@ -21,13 +21,17 @@ from handeye.calib.result import CalibrationResult, CameraParameter, Residuals
 from handeye.calib.setup import Setup
 from handeye.calib.monitor.filter import (STOP_SLOTS, FilterState, Layout, NoiseTrack, SampleModel, Walk, clear_slots,
                                   filter_state, find_slot, follow_noise, fuse, fuse_linear, innovate, linearize, noise,
-                                  observed_walk, open_slot, predict, prediction, restart_walk, visit_slot)
+                                  observed_walk, open_slot, predict, prediction, relinearize, restart_walk, visit_slot)
 from handeye.calib.monitor.settings import AlarmLevel, EngineState, MonitorSettings, MonitorUpdate
 from handeye.calib.monitor.kernels import (inv_sym3_floats, is_plain, is_positive_definite3, parts, plain_cov,
                                    plain_point, plain_transform, sym3)
 from handeye.calib.monitor.reference import InUse, Reference, WorkspaceMoments, arm_reference, workspace_distance
 from handeye.calib.monitor.snapshot import Snapshot
 from handeye.calib.monitor.stops import HOUR_S, Rate, Stop, Stops, Visit
+
+#: Hours of the camera's world over which a predicted drift crossing must also hold as a trend, and a raised drift
+#: must stay quiet before it clears (`MonitorEngine`'s drift figures): one day, a mount's thermal cycle.
+TREND_H = 24.0
 
 
 #: Visits of a stop before the detector compares its marker point with the stop's earlier ones.
@@ -184,12 +188,14 @@ class MonitorEngine:
         self.workspace = WorkspaceMoments(ref.workspace)
         self.stops = Stops(cfg.stop_translation_m, np.deg2rad(cfg.stop_rotation_deg))
         self.rate = Rate(cfg.rate_window_h * self.hour_s, self.hour_s)
+        self.trend = Rate(TREND_H * self.hour_s, self.hour_s)
         self._count = 0
         self._window: collections.deque[Visit] = collections.deque()
         self._window_visits: collections.Counter[int] = collections.Counter()   # per stop key, its visits in it
         self._relearn_set: list[Stop] = []
         self._settle = snap.settle
         self._drifting = False
+        self._quiet_since: float | None = None     # since when a raised drift has been back under the line
         self._drift_factor: tuple[InUse | None, np.ndarray | None] = (None, None)
         self._alarms: collections.deque[tuple[int, float, AlarmLevel]] = collections.deque(maxlen=MAX_ALARMS)
         self.state = EngineState.SETTLING if snap.settle else EngineState.WARMING
@@ -329,7 +335,7 @@ class MonitorEngine:
             # has the variance of m samples each of (1 + m / n) times the noise, not (1 + 1 / n).
             stop_id = stops.ids[i]
             k = 1.0 + (self._window_visits[stop_id] + 1) / stops.n[i]
-            R = inn.R_compare
+            R = inn.R
             (a, b, c), (_, d, e), (_, _, f) = (Hc * offset_var).dot(Hc.T).tolist()
             test_inv = inv_sym3_floats(a + k * R[0], b + k * R[1], c + k * R[2], d + k * R[3], e + k * R[4],
                                        f + k * R[5])
@@ -388,11 +394,11 @@ class MonitorEngine:
         return EngineState.ARMED if self.detector.count >= 3 else EngineState.WARMING
 
     def _use_estimate(self) -> None:
-        """The live estimate becomes the calibration in use: no walk since it."""
+        """The live estimate becomes the calibration in use: no walk since it, the Jacobians taken at it."""
         f = self.filter
         theta = f.u[3:6].copy()
         self.in_use = InUse(f.C.copy(), theta, self.workspace.sigma(f.C, theta, f.P) * 1e3)
-        self.filter = restart_walk(f)
+        self.filter = relinearize(restart_walk(f))
 
     def _sample(self, t, T_base_flange, point_cam, point_cov, robot_factor) -> Stop:
         if not self.armed:
@@ -458,7 +464,7 @@ class MonitorEngine:
             f, k = open_slot(f, s.pose, self.stop_prior(cof), self.model.layout)
         else:
             f = visit_slot(f, k)
-        self._info[f.slots[k]] = Hc.T.dot(np.linalg.solve(sym3(noise(f, s.shape_upper, cof, self.model)[0]), Hc))
+        self._info[f.slots[k]] = Hc.T.dot(np.linalg.solve(sym3(noise(f, s.shape_upper, cof, self.model)), Hc))
         return f, k
 
     def _walk_for(self, slots: tuple) -> None:
@@ -524,6 +530,7 @@ class MonitorEngine:
         self._use_estimate()
         self.relearns += 1
         self.rate.reset()
+        self.trend.reset()
         self._settle = self.settings.detector.window
         self.state = EngineState.SETTLING
         self._relearn_set = []
@@ -584,7 +591,7 @@ class MonitorEngine:
         rows = []
         for k, i in measured:
             s = samples[k]
-            r, H, _, R = linearize(self.filter, s, self.model, None)
+            r, H, R = linearize(self.filter, s, self.model, None)
             rows.append((k, np.array(self._against_stop(i, s, self.filter, H[:, :6], r)), H[:, :6],
                          np.linalg.inv(R * (1.0 + visits[i] / stops.n[i]))))
         return rows, short
@@ -667,12 +674,15 @@ class MonitorEngine:
             P[:, :6] = 0.0
             P[:6, :6] = np.diag([sr * sr] * 3 + [st * st] * 3)
             f = clear_slots(f._replace(P=P), layout)
-            for s in samples:
-                f, k = self._slot(f, s)
-                f = fuse_linear(f, *linearize(f, s, self.model, k)[:3])
+            try:
+                for s in samples:
+                    f, k = self._slot(f, s)
+                    f = fuse_linear(f, *linearize(f, s, self.model, k))
+            except FilterDivergedError:
+                return Fit(saved, "registered", False)    # these samples do not hold together: drop the oldest
         chi = 0.0
         for s in samples:
-            r, H, R, _ = linearize(f, s, self.model, self._held(f, s))
+            r, H, R = linearize(f, s, self.model, self._held(f, s))
             chi += float(r @ np.linalg.solve(R + H[:, 6:] @ f.P[6:, 6:] @ H[:, 6:].T, r))
         dof = 3 * len(samples) - 6
         consistent = dof <= 0 or chi <= chi2.ppf(RELEARN_QUANTILE, dof)
@@ -702,20 +712,33 @@ class MonitorEngine:
         if state == EngineState.ARMED:
             # The workspace points' displacement is linear in the drift: its slope gives the drift rate.
             self.rate.add(s.t, moved + (drift_deg, drift_m))
-            slope = self.rate.slope()
+            self.trend.add(s.t, (drift_m,))
+            slope, trend = self.rate.slope(), self.trend.slope()
             if slope is not None:
                 rate_mm = math.hypot(*slope[:12]) * 1e3
                 rate_deg = abs(slope[12])
                 growth = slope[13] * 1e3
                 if growth > 0 and drift_m * 1e3 < cfg.tolerance_mm:
                     hours = (cfg.tolerance_mm - drift_m * 1e3) / growth
+                    if trend is not None:
+                        # A day of samples: the rise must hold over the day too. A mount's daily thermal cycle
+                        # rises for half a day and falls back (bounded: no crossing ahead); a drift rises all day.
+                        day = trend[0] * 1e3
+                        hours = max(hours, (cfg.tolerance_mm - drift_m * 1e3) / day) if day > 0 else None
         # Drifting: the camera has moved from the calibration in use by the tolerance, or will within the
         # horizon at the current rate (the calibration's own uncertainty is in error_mm, not an alarm).
-        # Once raised it holds until the drift is back under half the tolerance and not heading there within
-        # twice the horizon: a drift hovering at the line is one alarm, not one per crossing.
+        # Once raised it holds until the drift has stayed under half the tolerance, and not heading there within
+        # twice the horizon, for a day: a drift hovering at the line, or a mount's daily cycle touching it every
+        # day, is one alarm, not one per crossing.
         held = 0.5 if self._drifting else 1.0
-        drifting = state == EngineState.ARMED and (drift_m * 1e3 >= held * cfg.tolerance_mm
-                                                   or (hours is not None and hours <= cfg.horizon_h / held))
+        over = state == EngineState.ARMED and (drift_m * 1e3 >= held * cfg.tolerance_mm
+                                               or (hours is not None and hours <= cfg.horizon_h / held))
+        if over or not self._drifting:
+            self._quiet_since = None
+        elif self._quiet_since is None:
+            self._quiet_since = s.t
+        drifting = over or (self._drifting and state == EngineState.ARMED
+                            and s.t - self._quiet_since < TREND_H * self.hour_s)
         if drifting and not self._drifting and not alarm:
             alarm = AlarmLevel.DRIFTING
             when = "now" if hours is None else f"in {hours:.1f} h at {rate_mm:.2f} mm/h"

@@ -26,7 +26,7 @@ import numpy as np
 from handeye.calib import model
 from handeye.calib import transforms as tf
 from handeye.calib.errors import CalibrationError
-from handeye.calib.monitor.filter import STOP_SLOTS, FilterState, Layout, NoiseTrack, filter_state
+from handeye.calib.monitor.filter import STOP_SLOTS, FilterState, Layout, NoiseTrack, filter_state, relinearize
 from handeye.calib.monitor.reference import InUse, Reference
 from handeye.calib.result import AutoDetails, CalibrationResult, CameraParameter, Residuals
 from handeye.calib.setup import Setup
@@ -79,7 +79,7 @@ class Snapshot:
         f = self.filter
         keep = np.r_[0:12, 12 + n:len(f.P)]
         u = np.r_[f.u[:6], f.u[6 + n:]]
-        return dataclasses.replace(self, filter=f._replace(u=u, P=f.P[np.ix_(keep, keep)]))
+        return dataclasses.replace(self, filter=relinearize(f._replace(u=u, P=f.P[np.ix_(keep, keep)])))
 
 
 def _matrix(x) -> list:

@@ -116,7 +116,8 @@ def forward_one(q, model: str | URGeometry) -> np.ndarray:
 
 # Scalar affine algebra on row-major 3x4 tuples (the top rows of a 4x4 transform): the IK runs
 # at every control tick of the simulator and at every sample of a path check, where numpy's
-# per-call overhead on 4x4 arrays outweighs the arithmetic (docs/benchmarks-history.md, handeye.drivers.robot.ur_kinematics).
+# per-call overhead on 4x4 arrays outweighs the arithmetic (docs/benchmarks-history.md,
+# handeye.drivers.robot.ur_kinematics).
 def _dh1(theta: float, d: float, a: float, alpha: float) -> tuple:
     ct, st = math.cos(theta), math.sin(theta)
     ca, sa = math.cos(alpha), math.sin(alpha)

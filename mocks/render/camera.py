@@ -33,8 +33,8 @@ from scipy.spatial.transform import Rotation
 from handeye.calib import transforms as tf
 from handeye.calib.errors import CalibrationError, ParameterError
 from handeye.drivers.errors import DeviceError
-from handeye.calib.params import (Bool, Float, Int, NonNegativeFloat, NonNegativeInt, Params, PositiveFloat, PositiveInt, Str,
-                          Transform, Vector3)
+from handeye.calib.params import (Bool, Float, Int, NonNegativeFloat, NonNegativeInt, Params, PositiveFloat,
+                                  PositiveInt, Str, Transform, Vector3)
 from handeye.calib.setup import Setup
 from handeye.calib.vision.markers import get_dictionary
 from handeye.drivers.camera.registry import CAMERAS

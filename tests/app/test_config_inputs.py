@@ -15,7 +15,7 @@ from hypothesis import strategies as st
 
 from handeye.app import devices
 from handeye.app.cli import main
-from handeye.app.config import load_config
+from handeye.app.config import Config, load_config
 from handeye.app.errors import ConfigError
 from handeye.calib.errors import HandeyeError
 
@@ -184,3 +184,16 @@ def test_every_bad_field_reads_the_same_and_an_unknown_key_names_the_close_one(t
         "camera.registration: must be true or false, got 1", "calibrate.sampels: unknown key (did you mean samples?)",
         "calibrate.tilt_deg: must be at most 90, got 120", "frames.bsae: unknown key (did you mean base?)",
         "mqtt.enabeld: unknown key (did you mean enabled?)"]), parts
+
+
+def test_a_shipped_config_is_found_from_any_directory_and_a_local_file_comes_first(tmp_path, monkeypatch):
+    """``-c config/sim.toml`` from outside the clone (an installed wheel) is the package's; a file of that name
+    in the current directory is the user's and wins."""
+    monkeypatch.chdir(tmp_path)
+    assert load_config("config/sim.toml") == Config()
+    assert load_config("sim_ros2.toml").robot.type == "ros2_sim"
+    (tmp_path / "config").mkdir()
+    (tmp_path / "config" / "sim.toml").write_text('setup = "eye_in_hand"\n')
+    assert str(load_config("config/sim.toml").setup) == "eye_in_hand"
+    with pytest.raises(ConfigError, match="not found"):
+        load_config("config/nope.toml")

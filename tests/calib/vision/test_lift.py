@@ -5,7 +5,8 @@ import pytest
 
 from handeye.calib import transforms as tf
 from handeye.calib.errors import DepthError, MarkerNotFoundError
-from handeye.calib.vision.lift import DepthNoiseModel, fit_plane, intersect_ray, pnp_covariance, polygon_pixels, solve_pnp
+from handeye.calib.vision.lift import (DepthNoiseModel, fit_plane, intersect_ray, pnp_covariance, polygon_pixels,
+                                      solve_pnp)
 from handeye.calib.vision.markers import marker_object_points
 
 K = np.array([[570.0, 0, 319.5], [0, 570.0, 239.5], [0, 0, 1]])
