@@ -252,9 +252,7 @@ def long_functions(path: Path) -> list[str]:
             and LONG_ON_PURPOSE not in (ast.get_docstring(node) or "")]
 
 
-# app/runs/monitor.py's monitor and run_monitor (107 and 101 lines) are split on branch i39 (issue 39's work, not
-# landed yet); app joins the check with it.
-@pytest.mark.parametrize("layer", ["calib"])
+@pytest.mark.parametrize("layer", ["calib", "app"])
 def test_no_function_over_80_lines_without_a_reason(layer):
     wrong = [f for p in modules(layer) for f in long_functions(p)]
     assert not wrong, "\n".join(wrong)
