@@ -38,10 +38,12 @@ from __future__ import annotations
 import logging
 import threading
 import time
+from pathlib import Path
 
 import numpy as np
 
 from handeye.app.calibration_in_use import local_time
+from handeye.app.calibration_versions import write_approval
 from handeye.app.outage import OutageEvent
 from handeye.calib import transforms as tf
 from handeye.calib.params import Bool, Params, PositiveFloat, Str
@@ -131,6 +133,28 @@ class DiagnosticsPublisher:
                                                        latched=True)
         self.acks: dict[str, int] = {}
         self.node.subscribe(self.KeyValue, CALIBRATION_TOPIC + "_ack", self._on_ack, depth=50)
+
+    def listen_approvals(self) -> None:
+        """Approvals of a pending version on ``~/calibration_approve`` (diagnostic_msgs/KeyValue: ``key`` who
+        approves, ``value`` the version), appended to the run's approvals file as ``handeye approve`` does (`session`:
+        the run's directory, set once it exists; before that an approval is logged and dropped)."""
+        self.session: str | None = None
+        self.node.subscribe(self.KeyValue, CALIBRATION_TOPIC + "_approve", self._on_approve, depth=10)
+
+    def _on_approve(self, msg) -> None:
+        try:
+            version = int(msg.value)
+        except ValueError:
+            log.warning("%s_approve: %r is not a version (from %r)", CALIBRATION_TOPIC, msg.value, msg.key)
+            return
+        if self.session is None:
+            log.warning("%s_approve: version %d from %r before the run's session exists: not taken",
+                        CALIBRATION_TOPIC, version, msg.key)
+            return
+        try:
+            write_approval(Path(self.session), version, f"{msg.key or 'unknown'} (ros2)", time.time())
+        except OSError as e:
+            log.warning("%s_approve: version %d from %r not recorded (%s)", CALIBRATION_TOPIC, version, msg.key, e)
 
     def _on_ack(self, msg) -> None:
         try:

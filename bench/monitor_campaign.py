@@ -44,6 +44,7 @@ The suite runs a bounded campaign (tests/calib/test_monitor_campaign.py);
 from __future__ import annotations
 
 import collections
+import copy
 import dataclasses
 import functools
 import math
@@ -83,17 +84,27 @@ MAX_STATE_FLOATS = 200_000
 CELL_SEEDS = (0, 1, 2)
 
 
-@functools.lru_cache(maxsize=64)
 def cell(setup: Setup, seed: int, n_calibration: int, n_stops: int, joints: bool) -> simulate.ProductionCell:
-    """A production cell (cached: the state machine draws the same few many times)."""
+    """A production cell (built once per process: the state machine draws the same few many times; each caller
+    gets its own copy, so that nothing one test does to it reaches the next)."""
+    return copy.deepcopy(built_cell(setup, seed, n_calibration, n_stops, joints))
+
+
+@functools.lru_cache(maxsize=64)
+def built_cell(setup: Setup, seed: int, n_calibration: int, n_stops: int, joints: bool) -> simulate.ProductionCell:
     return simulate.production_cell(setup, n_calibration, n_stops, np.random.default_rng([seed, n_calibration,
                                                                                           n_stops]), joints=joints)
 
 
-@functools.lru_cache(maxsize=64)
 def calibration(setup: Setup, seed: int, n_calibration: int, n_stops: int, joints: bool):
-    """``(result, problem)`` of ``auto`` on the cell's calibration samples, or the `HandeyeError` it raised."""
-    c = cell(setup, seed, n_calibration, n_stops, joints)
+    """``(result, problem)`` of ``auto`` on the cell's calibration samples, or the `HandeyeError` it raised (solved
+    once per process, a copy to each caller)."""
+    return copy.deepcopy(solved_cell(setup, seed, n_calibration, n_stops, joints))
+
+
+@functools.lru_cache(maxsize=64)
+def solved_cell(setup: Setup, seed: int, n_calibration: int, n_stops: int, joints: bool):
+    c = built_cell(setup, seed, n_calibration, n_stops, joints)
     try:
         problem = CalibrationProblem.from_arrays(c.A, c.points, setup=setup, point_cov=c.point_cov,
                                                  robot_shared_error=c.factor)

@@ -198,6 +198,8 @@ def make_loop(cfg: Config, robot: Robot | None = None, publisher=None, diagnosti
         consumers.append(RobotProgram(cfg.robot.host if robot is None else (lambda: robot.config.host)))
     if publisher is not None:
         consumers += [MqttConsumer(publisher, name) for name in cfg.consumers.mqtt]
+    if diagnostics is not None:
+        diagnostics.listen_approvals()
     if diagnostics is not None and cfg.consumers.ros2:
         diagnostics.listen_calibration()
         consumers += [Ros2Consumer(diagnostics, name) for name in cfg.consumers.ros2]
@@ -246,8 +248,9 @@ class _Cell:
                                       source="handeye monitor", keep_frames=cfg.monitor.keep_frames)
         solve = devices.make_solve(cfg.calibrate.model_copy(update={"method": "auto"}), cfg.setup, self.rng,
                                    self.robot.shared_error_factor)
-        if self.publisher is not None:
-            self.publisher.session = str(writer.path)
+        for approvals in (self.publisher, self.diagnostics):
+            if approvals is not None:
+                approvals.session = str(writer.path)
         with writer, devices.make_viz(cfg, writer.path) as viz, progress_bar(enabled=progress) as bar:
             outages.writer, outages.viz = writer, viz
             outages.shift = ShiftRecord(cfg.setup, str(writer.path), str(self.reference or ""))

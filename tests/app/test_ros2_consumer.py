@@ -100,3 +100,38 @@ def test_ros2_consumers_take_the_version_in_use_and_a_stuck_one_keeps_the_cell_m
         for c in consumers:
             c.close()
         diagnostics.close()
+
+
+def test_a_pending_version_approved_over_ros2_goes_into_use_with_who_approved_it(ros2_graph, tmp_path):
+    """apply = "approve": version 2 waits; a KeyValue (who, version) on ~/calibration_approve is recorded in the
+    run's approvals file as ``handeye approve`` records it, and the loop puts version 2 in use, approved by that
+    name; a malformed one is logged and dropped."""
+    from handeye.app.calibration_versions import Approvals
+
+    diagnostics = DiagnosticsPublisher(Ros2Config(diagnostics=True, node_name=NODE), Setup.EYE_TO_HAND,
+                                       FRAMES).open()
+    operator = Ros2Node("operator").open()
+    try:
+        diagnostics.listen_approvals()
+        diagnostics.session = str(tmp_path)
+        loop = CalibrationLoop.of(History("approve"), [], run=tmp_path, approvals=Approvals([tmp_path]))
+        T1 = tf.from_rotvec_translation([2.0, -0.4, 0.3], [0.7, -0.6, 0.85])
+        loop.applied(loop.history.first(T1, 0.4, time.time(), "armed"), time.time())
+        T2 = tf.from_rotvec_translation([0.0, 0.01, 0.0], [0.01, 0.0, 0.0]) @ T1
+        loop.history.propose(T2, 0.5, time.time(), "re-learnt after the move at sample 29", {})
+        loop.applied(loop.history.settle(T2, 0.4, time.time()), time.time())
+        assert loop.history.in_use.number == 1
+        (KeyValue,) = messages("diagnostic_msgs", "KeyValue")
+        approve = operator.publisher(KeyValue, f"/{NODE}/calibration_approve", depth=10)
+        deadline = time.monotonic() + 15.0
+        while loop.history.in_use.number != 2:
+            assert time.monotonic() < deadline, loop.history.in_use
+            approve.publish(KeyValue(key="shift lead", value="two"))
+            approve.publish(KeyValue(key="shift lead", value="2"))
+            time.sleep(0.2)
+            loop.polled_t = -np.inf
+            loop.poll(time.time())
+        assert loop.history.in_use.approved_by == "shift lead (ros2)"
+    finally:
+        operator.close()
+        diagnostics.close()
