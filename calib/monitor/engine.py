@@ -19,9 +19,10 @@ from handeye.calib.change import ChangeDetector
 from handeye.calib.problem import CalibrationProblem
 from handeye.calib.result import CalibrationResult, CameraParameter, Residuals
 from handeye.calib.setup import Setup
-from handeye.calib.monitor.filter import (STOP_SLOTS, FilterState, Layout, NoiseTrack, SampleModel, Walk, clear_slots,
-                                  filter_state, find_slot, follow_noise, fuse, fuse_linear, innovate, linearize, noise,
-                                  observed_walk, open_slot, predict, prediction, relinearize, restart_walk, visit_slot)
+from handeye.calib.monitor.filter import (GROSS_NIS, STOP_SLOTS, FilterState, Layout, NoiseTrack, SampleModel, Walk,
+                                          clear_slots, filter_state, find_slot, follow_noise, fuse, fuse_linear,
+                                          innovate, linearize, noise, observed_walk, open_slot, predict, prediction,
+                                          relinearize, restart_walk, visit_slot)
 from handeye.calib.monitor.settings import AlarmLevel, EngineState, MonitorSettings, MonitorUpdate
 from handeye.calib.monitor.kernels import (inv_sym3_floats, is_plain, is_positive_definite3, parts, plain_cov,
                                    plain_point, plain_transform, sym3)
@@ -58,6 +59,13 @@ JUMP_PRIOR = (0.01, np.deg2rad(1.0))
 REGISTRATION_SAMPLES = 6
 #: Alarms the engine remembers (`MonitorEngine.alarms`): the newest; months of drifting alarms stay bounded.
 MAX_ALARMS = 1000
+
+
+def wild_point(nis: float) -> str:
+    """Why a sample is not re-learnt from: its marker point is `GROSS_NIS` or more off the camera before the move."""
+    return (f"re-learning: a sample skipped, its marker point {math.sqrt(nis):.0f} sigma off the camera before the "
+            "move (a glitch; if every sample is, the camera moved too far to re-learn from the stops: calibrate "
+            "again)")
 
 
 class Waiting(NamedTuple):
@@ -193,6 +201,7 @@ class MonitorEngine:
         self._window: collections.deque[Visit] = collections.deque()
         self._window_visits: collections.Counter[int] = collections.Counter()   # per stop key, its visits in it
         self._relearn_set: list[Stop] = []
+        self._before_alarm: set[int] = set()     # ids of the re-learn's samples from before its alarm
         self._settle = snap.settle
         self._drifting = False
         self._quiet_since: float | None = None     # since when a raised drift has been back under the line
@@ -268,10 +277,14 @@ class MonitorEngine:
         self.filter = f
         r0, r1, r2 = inn.r
         verify = math.sqrt(r0 * r0 + r1 * r1 + r2 * r2) * 1e3   # |R_C r|: the prediction error in C's parent frame
-        if relearning:
+        if relearning and inn.nis > GROSS_NIS:
+            alarm, statistic, message = AlarmLevel.NONE, 0.0, wild_point(inn.nis)
+        elif relearning:
             self._relearn_set.append(s)
             del self._relearn_set[:-self.settings.relearn_samples]
-            alarm, statistic, message = AlarmLevel.NONE, 0.0, self._relearn()
+            message = self._relearn()
+            alarm = AlarmLevel.MOVED if message.startswith("camera moved again") else AlarmLevel.NONE
+            statistic = 0.0
         else:
             alarm, statistic, message = self._test(s, inn)
         self.state = self._next_state()
@@ -349,10 +362,11 @@ class MonitorEngine:
         nis = ((r0 * i0 + r1 * i1 + r2 * i2) * r0 + (r0 * i1 + r1 * i3 + r2 * i4) * r1
                + (r0 * i2 + r1 * i4 + r2 * i5) * r2)
         if not fired:
+            fused = fuse(self.filter, inn.PHt, S_inv, inn.r)
             self._window.append(Visit(s, self.filter, nis, stop_id))
             if stop_id is not None:
                 self._window_visits[stop_id] += 1
-            self.filter = fuse(self.filter, inn.PHt, S_inv, inn.r)
+            self.filter = fused
             if len(self._window) > self.settings.detector.window:
                 old = self._window.popleft()
                 if old.stop_id is not None:
@@ -375,7 +389,10 @@ class MonitorEngine:
             self.filter = window[before].state._replace(t=now.t, walk_t=now.walk_t, scale=now.scale)
         for v in window[:before]:
             stops.add(v.sample)
-        self._relearn_set = [v.sample for v in window[before:]] + [s]
+        # A point a thousand sigma off is a glitch that fired the test, or a move too large to re-learn: either
+        # way no sample to re-learn from.
+        self._relearn_set = [v.sample for v in window[before:]] + ([s] if nis <= GROSS_NIS else [])
+        self._before_alarm = {id(v.sample) for v in window[before:]}
         self._window.clear()
         self._window_visits.clear()
         self.state = EngineState.RELEARNING
@@ -512,6 +529,13 @@ class MonitorEngine:
             if fit.consistent:
                 break
             samples = samples[1:]         # the oldest is from before the move
+        again = ""
+        if any(id(s) not in self._before_alarm for s in self._relearn_set[:len(self._relearn_set) - len(samples)]):
+            # Samples taken after the alarm do not fit the camera the newer ones show: it moved again (a second
+            # knock while the first was re-learnt). Its own alarm; the re-learn goes on from the newer samples.
+            again = (f"camera moved again while re-learning (the {len(self._relearn_set) - len(samples)} oldest "
+                     f"of {len(self._relearn_set)} samples since the move do not fit the newer ones); ")
+            self._relearn_set, self._before_alarm = samples, set()
         f = fit.state
         sigma_mm = self.workspace.sigma(f.C, f.u[3:6], f.P) * 1e3
         # A registration from a few stops may not yet determine the camera to what a plant can use: the tolerance,
@@ -519,9 +543,9 @@ class MonitorEngine:
         # correction are held, so the re-learnt camera cannot be better than they allow).
         enough = max(self.settings.tolerance_mm, 1.5 * self.reference.sigma_mm)
         if fit.how == "registered" and sigma_mm > enough and not self._saturated(samples):
-            return (f"re-learning: registered from {len(samples)} samples, but its 1-sigma over the workspace is "
-                    f"{sigma_mm:.1f} mm (it must be within {enough:.1f} mm): waiting for more stops, spread across "
-                    "the workspace")
+            return again + (f"re-learning: registered from {len(samples)} samples, but its 1-sigma over the "
+                            f"workspace is {sigma_mm:.1f} mm (it must be within {enough:.1f} mm): waiting for more "
+                            "stops, spread across the workspace")
         before = self.filter.C
         moved_mm = workspace_distance(f.C, before, self.reference.workspace) * 1e3
         moved_deg = float(np.rad2deg(tf.rotation_angle(f.C[:3, :3] @ before[:3, :3].T)))
@@ -538,8 +562,9 @@ class MonitorEngine:
         short = (f"; its 1-sigma over the workspace is {sigma_mm:.1f} mm, more than the {enough:.1f} mm the cell "
                  "needs, and the program's stops cannot determine it better: calibrate again"
                  if sigma_mm > enough else "")
-        return (f"re-learnt the camera ({fit.how} {len(self._distinct(samples))} production stops, {len(samples)} "
-                f"samples): it moved {moved_mm:.1f} mm over the workspace and {moved_deg:.2f} deg" + short)
+        return again + (f"re-learnt the camera ({fit.how} {len(self._distinct(samples))} production stops, "
+                        f"{len(samples)} samples): it moved {moved_mm:.1f} mm over the workspace and {moved_deg:.2f} "
+                        "deg" + short)
 
     def _fit(self, samples) -> Fit | Waiting:
         """The camera from ``samples``: the move measured at stops with a baseline (`_jump`), else registered

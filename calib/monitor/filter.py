@@ -63,6 +63,10 @@ NOISE_SCALE_PRIOR = 10.0
 NOISE_SCALE_RANGE = (0.25, 16.0)
 #: The smallest share of the innovation covariance the noise scale is estimated from (`follow_noise`).
 NOISE_SHARE_MIN = 0.2
+#: A sample whose NIS is beyond this (1000 sigma) is not fused (`fuse`): its increment would carry the state far
+#: outside where the model is linear (a marker point 50x too far drove the kinematic error to 1e13 sigma, and the
+#: next Jacobian to a singular noise).
+GROSS_NIS = 1e6
 
 
 class Layout(NamedTuple):
@@ -305,6 +309,8 @@ def fuse(state: FilterState, PHt: np.ndarray, S_inv: np.ndarray, r) -> FilterSta
     """The Kalman update from ``PHt = P H^T`` (n, 3), the inverse innovation covariance (3, 3) and the innovation
     ``r`` (3,); the camera transform moves on the left (`handeye.calib.result`)."""
     # ndarray.dot: the same BLAS products as @, with less call overhead on these small arrays.
+    if float(np.dot(r, S_inv.dot(r))) > GROSS_NIS:
+        raise FilterDivergedError("a sample a thousand sigma or more off the estimate (a wild point) is not fused")
     K = PHt.dot(S_inv)
     P = state.P - K.dot(PHt.T)
     P += P.T
