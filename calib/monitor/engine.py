@@ -529,13 +529,15 @@ class MonitorEngine:
             if fit.consistent:
                 break
             samples = samples[1:]         # the oldest is from before the move
-        again = ""
-        if any(id(s) not in self._before_alarm for s in self._relearn_set[:len(self._relearn_set) - len(samples)]):
+        dropped = len(self._relearn_set) - len(samples)
+        if any(id(s) not in self._before_alarm for s in self._relearn_set[:dropped]):
             # Samples taken after the alarm do not fit the camera the newer ones show: it moved again (a second
-            # knock while the first was re-learnt). Its own alarm; the re-learn goes on from the newer samples.
-            again = (f"camera moved again while re-learning (the {len(self._relearn_set) - len(samples)} oldest "
-                     f"of {len(self._relearn_set)} samples since the move do not fit the newer ones); ")
-            self._relearn_set, self._before_alarm = samples, set()
+            # knock while the first was re-learnt). Its own alarm; where between them it moved is not known, so the
+            # re-learn starts again from the newest sample (a fit that kept one from before the knock was off by
+            # the knock, and a third alarm followed).
+            self._relearn_set, self._before_alarm = self._relearn_set[-1:], set()
+            return (f"camera moved again while re-learning (the {dropped} oldest of {dropped + len(samples)} "
+                    "samples since the move do not fit the newer ones); re-learning it from the next stops")
         f = fit.state
         sigma_mm = self.workspace.sigma(f.C, f.u[3:6], f.P) * 1e3
         # A registration from a few stops may not yet determine the camera to what a plant can use: the tolerance,
@@ -543,9 +545,9 @@ class MonitorEngine:
         # correction are held, so the re-learnt camera cannot be better than they allow).
         enough = max(self.settings.tolerance_mm, 1.5 * self.reference.sigma_mm)
         if fit.how == "registered" and sigma_mm > enough and not self._saturated(samples):
-            return again + (f"re-learning: registered from {len(samples)} samples, but its 1-sigma over the "
-                            f"workspace is {sigma_mm:.1f} mm (it must be within {enough:.1f} mm): waiting for more "
-                            "stops, spread across the workspace")
+            return (f"re-learning: registered from {len(samples)} samples, but its 1-sigma over the workspace is "
+                    f"{sigma_mm:.1f} mm (it must be within {enough:.1f} mm): waiting for more stops, spread across "
+                    "the workspace")
         before = self.filter.C
         moved_mm = workspace_distance(f.C, before, self.reference.workspace) * 1e3
         moved_deg = float(np.rad2deg(tf.rotation_angle(f.C[:3, :3] @ before[:3, :3].T)))
@@ -562,9 +564,8 @@ class MonitorEngine:
         short = (f"; its 1-sigma over the workspace is {sigma_mm:.1f} mm, more than the {enough:.1f} mm the cell "
                  "needs, and the program's stops cannot determine it better: calibrate again"
                  if sigma_mm > enough else "")
-        return again + (f"re-learnt the camera ({fit.how} {len(self._distinct(samples))} production stops, "
-                        f"{len(samples)} samples): it moved {moved_mm:.1f} mm over the workspace and {moved_deg:.2f} "
-                        "deg" + short)
+        return (f"re-learnt the camera ({fit.how} {len(self._distinct(samples))} production stops, {len(samples)} "
+                f"samples): it moved {moved_mm:.1f} mm over the workspace and {moved_deg:.2f} deg" + short)
 
     def _fit(self, samples) -> Fit | Waiting:
         """The camera from ``samples``: the move measured at stops with a baseline (`_jump`), else registered
