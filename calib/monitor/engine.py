@@ -282,9 +282,8 @@ class MonitorEngine:
         elif relearning:
             self._relearn_set.append(s)
             del self._relearn_set[:-self.settings.relearn_samples]
-            message = self._relearn()
-            alarm = AlarmLevel.MOVED if message.startswith("camera moved again") else AlarmLevel.NONE
-            statistic = 0.0
+            message, again = self._relearn()
+            alarm, statistic = (AlarmLevel.MOVED if again else AlarmLevel.NONE), 0.0
         else:
             alarm, statistic, message = self._test(s, inn)
         self.state = self._next_state()
@@ -397,7 +396,7 @@ class MonitorEngine:
         self._window_visits.clear()
         self.state = EngineState.RELEARNING
         self._drifting = False
-        return AlarmLevel.MOVED, statistic, message + "; " + self._relearn()
+        return AlarmLevel.MOVED, statistic, message + "; " + self._relearn()[0]
 
     def _next_state(self) -> EngineState:
         """The engine's state after a sample; counts the settling window down."""
@@ -508,9 +507,10 @@ class MonitorEngine:
 
     # ------------------------------------------------------------------ re-learning
 
-    def _relearn(self) -> str:
+    def _relearn(self) -> tuple[str, bool]:
         """Estimate the move from the samples since it; when the stops determine it, the filter goes on from
-        there and re-arms. Returns what happened or what is missing, in plain words.
+        there and re-arms. Returns what happened or what is missing, in plain words, and whether the camera moved
+        again since the alarm (its own alarm).
 
         Stops visited `MIN_BASELINE` times before the
         move (three of them, not on one line) give the move itself: their
@@ -525,7 +525,7 @@ class MonitorEngine:
         while True:
             fit = self._fit(samples)
             if isinstance(fit, Waiting):
-                return fit.reason
+                return fit.reason, False
             if fit.consistent:
                 break
             samples = samples[1:]         # the oldest is from before the move
@@ -537,7 +537,7 @@ class MonitorEngine:
             # the knock, and a third alarm followed).
             self._relearn_set, self._before_alarm = self._relearn_set[-1:], set()
             return (f"camera moved again while re-learning (the {dropped} oldest of {dropped + len(samples)} "
-                    "samples since the move do not fit the newer ones); re-learning it from the next stops")
+                    "samples since the move do not fit the newer ones); re-learning it from the next stops"), True
         f = fit.state
         sigma_mm = self.workspace.sigma(f.C, f.u[3:6], f.P) * 1e3
         # A registration from a few stops may not yet determine the camera to what a plant can use: the tolerance,
@@ -547,7 +547,7 @@ class MonitorEngine:
         if fit.how == "registered" and sigma_mm > enough and not self._saturated(samples):
             return (f"re-learning: registered from {len(samples)} samples, but its 1-sigma over the workspace is "
                     f"{sigma_mm:.1f} mm (it must be within {enough:.1f} mm): waiting for more stops, spread across "
-                    "the workspace")
+                    "the workspace"), False
         before = self.filter.C
         moved_mm = workspace_distance(f.C, before, self.reference.workspace) * 1e3
         moved_deg = float(np.rad2deg(tf.rotation_angle(f.C[:3, :3] @ before[:3, :3].T)))
@@ -565,7 +565,7 @@ class MonitorEngine:
                  "needs, and the program's stops cannot determine it better: calibrate again"
                  if sigma_mm > enough else "")
         return (f"re-learnt the camera ({fit.how} {len(self._distinct(samples))} production stops, {len(samples)} "
-                f"samples): it moved {moved_mm:.1f} mm over the workspace and {moved_deg:.2f} deg" + short)
+                f"samples): it moved {moved_mm:.1f} mm over the workspace and {moved_deg:.2f} deg" + short), False
 
     def _fit(self, samples) -> Fit | Waiting:
         """The camera from ``samples``: the move measured at stops with a baseline (`_jump`), else registered
