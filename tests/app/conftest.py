@@ -6,6 +6,7 @@ tests never collide on the RTDE/dashboard ports.
 
 import shutil
 import subprocess
+import time
 from pathlib import Path
 
 import pytest
@@ -181,3 +182,17 @@ def render_pdf(tmp_path):
         return pdf, text
 
     return render
+
+
+@pytest.fixture
+def poll_until():
+    """``poll_until(loop, what, timeout=15.0)``: poll a `handeye.app.consumers.CalibrationLoop` at once (not after
+    its poll period) until ``what()`` holds; past the timeout the test fails with who uses which version."""
+    def poll(loop, what, timeout=15.0):
+        deadline = time.monotonic() + timeout
+        while not what():
+            assert time.monotonic() < deadline, loop.in_use_by()
+            loop.polled_t = float("-inf")
+            loop.poll(time.time())
+            time.sleep(0.05)
+    return poll

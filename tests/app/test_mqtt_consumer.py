@@ -42,17 +42,8 @@ class VisionPC:
         self.client.disconnect()
 
 
-def _poll_until(loop, what, timeout=10.0):
-    deadline = time.monotonic() + timeout
-    while not what():
-        assert time.monotonic() < deadline, loop.in_use_by()
-        loop.polled_t = -np.inf
-        loop.poll(time.time())
-        time.sleep(0.05)
-
-
 def test_mqtt_consumers_take_each_version_an_mqtt_approval_applies_it_and_a_stuck_one_keeps_the_cell_moved(
-        mosquitto, tmp_path):
+        mosquitto, tmp_path, poll_until):
     port = mosquitto()
     publisher = MqttPublisher(MqttConfig(enabled=True, port=port, topic_prefix="cell1", qos=1), Setup.EYE_TO_HAND,
                               FRAMES).connect()
@@ -63,7 +54,7 @@ def test_mqtt_consumers_take_each_version_an_mqtt_approval_applies_it_and_a_stuc
     try:
         T1 = tf.from_rotvec_translation([2.0, -0.4, 0.3], [0.7, -0.6, 0.85])
         loop.applied(loop.history.first(T1, 0.4, time.time(), "armed"), time.time())
-        _poll_until(loop, lambda: loop.in_use_by() == {"vision-pc": 1, "plc": 1})
+        poll_until(loop, lambda: loop.in_use_by() == {"vision-pc": 1, "plc": 1})
         assert loop.status(time.time()) is None
         np.testing.assert_allclose(pcs[0].seen[-1]["translation_m"], T1[:3, 3])
         T2 = tf.from_rotvec_translation([0.0, 0.01, 0.0], [0.01, 0.0, 0.0]) @ T1
@@ -77,9 +68,9 @@ def test_mqtt_consumers_take_each_version_an_mqtt_approval_applies_it_and_a_stuc
         approver.publish("cell1/calibration/approve", "not json", qos=1).wait_for_publish(5)      # dropped, logged
         approver.loop_stop()
         approver.disconnect()
-        _poll_until(loop, lambda: loop.history.in_use.number == 2)
+        poll_until(loop, lambda: loop.history.in_use.number == 2)
         assert loop.history.in_use.applied_by == "approved by ann (mqtt)"
-        _poll_until(loop, lambda: loop.in_use_by()["vision-pc"] == 2)
+        poll_until(loop, lambda: loop.in_use_by()["vision-pc"] == 2)
         time.sleep(0.5)
         loop.poll(time.time() + 10)
         assert loop.in_use_by() == {"vision-pc": 2, "plc": 1}

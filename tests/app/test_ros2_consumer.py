@@ -63,16 +63,7 @@ def _latched_qos():
     return QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.TRANSIENT_LOCAL)
 
 
-def _poll_until(loop, what, timeout=15.0):
-    deadline = time.monotonic() + timeout
-    while not what():
-        assert time.monotonic() < deadline, loop.in_use_by()
-        loop.polled_t = -np.inf
-        loop.poll(time.time())
-        time.sleep(0.05)
-
-
-def test_ros2_consumers_take_the_version_in_use_and_a_stuck_one_keeps_the_cell_moved(ros2_graph):
+def test_ros2_consumers_take_the_version_in_use_and_a_stuck_one_keeps_the_cell_moved(ros2_graph, poll_until):
     diagnostics = DiagnosticsPublisher(Ros2Config(diagnostics=True, node_name=NODE), Setup.EYE_TO_HAND,
                                        FRAMES).open()
     consumers = [RosConsumer("vision"), RosConsumer("planner", stuck=True)]
@@ -81,19 +72,19 @@ def test_ros2_consumers_take_the_version_in_use_and_a_stuck_one_keeps_the_cell_m
         loop = CalibrationLoop.of(History("auto"), [Ros2Consumer(diagnostics, c.name) for c in consumers])
         T1 = tf.from_rotvec_translation([2.0, -0.4, 0.3], [0.7, -0.6, 0.85])
         loop.applied(loop.history.first(T1, 0.4, time.time(), "armed"), time.time())
-        _poll_until(loop, lambda: loop.in_use_by() == {"vision": 1, "planner": 1})
+        poll_until(loop, lambda: loop.in_use_by() == {"vision": 1, "planner": 1})
         t = consumers[0].transform.transform.translation
         np.testing.assert_allclose([t.x, t.y, t.z], T1[:3, 3], atol=1e-12)
         assert consumers[0].transform.header.frame_id == "base" and consumers[0].transform.child_frame_id == "camera"
         T2 = tf.from_rotvec_translation([0.0, 0.01, 0.0], [0.01, 0.0, 0.0]) @ T1
         loop.history.propose(T2, 0.5, time.time(), "re-learnt after the move at sample 29", {})
         loop.applied(loop.history.settle(T2, 0.4, time.time()), time.time())
-        _poll_until(loop, lambda: loop.in_use_by()["vision"] == 2)
+        poll_until(loop, lambda: loop.in_use_by()["vision"] == 2)
         level, sentence = loop.status(time.time())
         assert level == "moved" and "the planner still uses version 1" in sentence
         late = RosConsumer("late")          # joins now: the latched version in use reaches it
         try:
-            _poll_until(loop, lambda: late.taken == 2)
+            poll_until(loop, lambda: late.taken == 2)
         finally:
             late.close()
     finally:
