@@ -304,29 +304,32 @@ def verify_active(cfg: Config, loaded: LoadedResult, *, rng: np.random.Generator
                                       intrinsics=dataclasses.asdict(camera.intrinsics), truth=truth,
                                       source="handeye verify",
                                       devices=provenance.device_identity(cfg, robot, camera))
-        with writer, devices.make_viz(cfg, writer.path) as viz:
-            record_knocks(writer, carried, time.time())
+        # The session exists from here: a Ctrl-C anywhere after it (the viewer starting, the knocks recorded, the
+        # first motion) is the run's stop, with its event, not a bare KeyboardInterrupt.
+        with writer:
             try:
-                for k, T in enumerate(poses):
-                    try:
-                        state = robot.move_to(T)
-                    except LimitViolationError as e:
-                        log.info("verify pose %d skipped: %s", k, e)
-                        writer.add_skip(time.time(), f"limit: {e}", T_base_flange=T)
-                        n_skipped += 1
-                        continue
-                    time.sleep(cfg.calibrate.settle_s)
-                    not_before = state.t_host + cfg.calibrate.settle_s
-                    for _ in range(cfg.verify.frames_per_pose):
-                        obs = take_sample(robot, camera, measure, writer, viz, not_before=not_before,
-                                          save_frames=cfg.session.save_frames, pose_kind="verify")
-                        if obs is None:
+                with devices.make_viz(cfg, writer.path) as viz:
+                    record_knocks(writer, carried, time.time())
+                    for k, T in enumerate(poses):
+                        try:
+                            state = robot.move_to(T)
+                        except LimitViolationError as e:
+                            log.info("verify pose %d skipped: %s", k, e)
+                            writer.add_skip(time.time(), f"limit: {e}", T_base_flange=T)
                             n_skipped += 1
                             continue
-                        observations.append(obs)
-                        groups.append(k)
-                        not_before = obs.t + 1e-6
-                robot.move_to(start.T_base_flange)
+                        time.sleep(cfg.calibrate.settle_s)
+                        not_before = state.t_host + cfg.calibrate.settle_s
+                        for _ in range(cfg.verify.frames_per_pose):
+                            obs = take_sample(robot, camera, measure, writer, viz, not_before=not_before,
+                                              save_frames=cfg.session.save_frames, pose_kind="verify")
+                            if obs is None:
+                                n_skipped += 1
+                                continue
+                            observations.append(obs)
+                            groups.append(k)
+                            not_before = obs.t + 1e-6
+                    robot.move_to(start.T_base_flange)
             except DeviceError as e:
                 writer.add_event(time.time(), "device_error", error=str(e), n_samples=len(observations))
                 raise
