@@ -14,8 +14,10 @@ bumps at random hours, one in each week.
 
 Per cell-day: the live workspace error against the truth (RMS over 200 held-out marker poses, where the camera is
 used; eye-in-hand in the flange frame), the stated 1-sigma over the workspace, and the mean of (error / sigma)^2
-(1 when honest). The bound is ``max(1 mm, 1.5 x the arming calibration's realised or stated error)``; the 40
-samples after each bump (the re-learn) are left out of the accuracy figures. The camera correction's wander is
+(1 when honest). The bound is ``max(1 mm, 1.5 x the arming calibration's realised or stated error)``; after a
+re-learn a day is also within when its p95 is within 1.5x an oracle's, the camera registered from every sample since
+the bump with its time known (`oracle_errors`): a bump can leave the camera where the program's stops determine it
+less well than the arming did. The 40 samples after each bump (the re-learn) are left out of the accuracy figures. The camera correction's wander is
 its largest distance from the arming's value in the arming's 1-sigma.
 """
 
@@ -39,6 +41,7 @@ import numpy as np  # noqa: E402
 from bench.shift import RECOVER_WITHIN, classify_alarms, workspace_error  # noqa: E402
 from bench.tables import markdown_table  # noqa: E402
 from handeye.calib import simulate, solve  # noqa: E402
+from handeye.calib import transforms as tf  # noqa: E402
 from handeye.calib.monitor import MonitorEngine, MonitorSettings  # noqa: E402
 from handeye.calib.problem import CalibrationProblem  # noqa: E402
 from handeye.calib.setup import Setup  # noqa: E402
@@ -88,10 +91,20 @@ class CellRun:
     stated_mm: float
     wander_sigma: np.ndarray      # (3,) the camera correction's largest distance from the arming's, in its 1-sigma
     seconds: float
+    oracle_mm: np.ndarray         # per scored sample after the first bump the oracle's error (`oracle_errors`), else nan
 
     @property
     def bound_mm(self) -> float:
         return max(1.0, 1.5 * max(self.arming_mm, self.stated_mm))
+
+    def within(self, d: int) -> bool:
+        """Day ``d``'s p95 is within the bound or, on a day after a re-learn, within 1.5x the oracle's p95 over the
+        same samples (the issue's two criteria)."""
+        keep = (self.day == d) & self.settled
+        p95 = float(np.percentile(self.error_mm[keep], 95))
+        oracle = self.oracle_mm[keep]
+        after = not np.isnan(oracle).any()
+        return p95 <= self.bound_mm or (after and p95 <= 1.5 * float(np.percentile(oracle, 95)))
 
 
 def month_of(spec: CellSpec, rng: np.random.Generator) -> Month:
@@ -100,6 +113,36 @@ def month_of(spec: CellSpec, rng: np.random.Generator) -> Month:
     bumps = tuple(((k + rng.uniform(0.1, 0.9)) * week, 5.0, 0.3) for k in range(4))
     return Month(days=spec.days, stops=spec.stops, stop_error_m=rng.uniform(0.1e-3, 0.5e-3),
                  thermal_mm=rng.uniform(0.5, 2.0), bumps=bumps)
+
+
+def oracle_errors(real, result, stream, P, scored: np.ndarray) -> np.ndarray:
+    """The oracle's live workspace error (mm) at the ``scored`` samples: the camera transform registered from every
+    sample since the last bump (its time known; `handeye.calib.transforms.register_points` on running sums), the
+    arming's marker mount and camera correction held; nan before the first bump (there is nothing to re-learn).
+
+    Eye-to-hand it registers the corrected camera points to the marker's points in the base frame
+    (``T_base_flange @ X``), giving ``T_base_cam``; eye-in-hand to the marker's points in the flange frame
+    (``inv(T_base_flange) @ Y``), giving ``T_flange_cam``.
+    """
+    eye_to_hand = real.data.setup == Setup.EYE_TO_HAND
+    mount = (result.X if eye_to_hand else result.Y)[:3, 3]
+    A = stream.A_stops[stream.stop]
+    parent = tf.transform_points(A if eye_to_hand else tf.invert(A), mount)
+    seen = result.camera_correction.correct(stream.points)
+    out = np.full(len(scored), np.nan)
+    ends = list(stream.bumped[1:]) + [len(stream.t)]
+    for b, end in zip(stream.bumped, ends):
+        at = np.flatnonzero((scored >= b + 2) & (scored < end))      # three samples or more since the bump
+        i = scored[at]
+        n = (i - b + 1)[:, None]
+        sp, sq = np.cumsum(seen[b:end], axis=0)[i - b], np.cumsum(parent[b:end], axis=0)[i - b]
+        sqp = np.cumsum(parent[b:end, :, None] * seen[b:end, None, :], axis=0)[i - b]
+        R = tf.project_to_so3(sqp - sq[:, :, None] * sp[:, None, :] / n[:, :, None])
+        t = (sq - np.einsum("kij,kj->ki", R, sp)) / n
+        for k, j in enumerate(at):
+            C = tf.make_transform(R[k], t[k])
+            out[j] = workspace_error(C, result.camera_correction, real.camera, stream.C[i[k]], P) * 1e3
+    return out
 
 
 def run_cell(spec: CellSpec, settings: MonitorSettings | None = None) -> CellRun:
@@ -147,26 +190,28 @@ def run_cell(spec: CellSpec, settings: MonitorSettings | None = None) -> CellRun
     print(f"  {spec.name}: {seconds:.0f} s", file=sys.stderr, flush=True)
     return CellRun(spec, month.stop_error_m * 1e3, month.thermal_mm, np.floor(stream.t[scored] / DAY_S).astype(int),
                    err, sig, settled[scored], moved, drifting, [int(b) for b in stream.bumped], arming,
-                   reference.sigma_mm, wander, seconds)
+                   reference.sigma_mm, wander, seconds, oracle_errors(real, result, stream, P, scored))
 
 
 def cell_row(run: CellRun) -> list:
     """One row of the cells table."""
     days = np.unique(run.day)
     p95 = np.array([np.percentile(run.error_mm[(run.day == d) & run.settled], 95) for d in days])
+    within = sum(run.within(d) for d in days)
     ratio = (run.error_mm[run.settled] / run.sigma_mm[run.settled]) ** 2
     delays, late, false = classify_alarms(run.moved, run.bumped)
     flagged = sum(d is not None for d in delays)
     return [run.spec.name, f"{run.stop_error_mm:.2f}", f"{run.thermal_mm:.2f}",
             f"{run.arming_mm:.2f} / {run.stated_mm:.2f}", f"{run.bound_mm:.2f}", f"{p95.max():.2f}",
-            f"{int((p95 <= run.bound_mm).sum())}/{len(days)}",
+            f"{within}/{len(days)} ({int((p95 <= run.bound_mm).sum())})",
             f"{np.median(run.sigma_mm[run.settled]):.2f}", f"{ratio.mean():.2f}",
             " / ".join(f"{w:.1f}" for w in run.wander_sigma), false, f"{flagged}/{len(run.bumped)}", run.drifting,
             f"{run.seconds:.0f}"]
 
 
 CELL_HEADERS = ["cell", "stop error [mm]", "daily cycle [mm]", "arming realised / stated [mm]", "bound [mm]",
-                "worst day p95 [mm]", "days within bound", "stated 1-sigma median [mm]", "mean (error/sigma)^2",
+                "worst day p95 [mm]",
+                "days within bound or 1.5x the oracle after a re-learn (the bound alone)", "stated 1-sigma median [mm]", "mean (error/sigma)^2",
                 "camera correction wander [sigma] (scale / offset / focal)", "false moved", "bumps flagged within 20",
                 "drifting alarms", "time [s]"]
 
@@ -181,7 +226,7 @@ def day_rows(runs: list[CellRun]) -> list:
             keep = (r.day == d) & r.settled
             err.append(r.error_mm[keep])
             sig.append(r.sigma_mm[keep])
-            within += bool(np.percentile(r.error_mm[keep], 95) <= r.bound_mm)
+            within += r.within(d)
         e, s = np.concatenate(err), np.concatenate(sig)
         rows.append([int(d), f"{np.median(e):.2f}", f"{np.percentile(e, 95):.2f}", f"{np.median(s):.2f}",
                      f"{np.mean((e / s) ** 2):.2f}", f"{within}/{len(runs)}"])
@@ -195,14 +240,13 @@ DAY_HEADERS = ["day", "live error median [mm]", "live error p95 [mm]", "stated 1
 def summary(runs: list[CellRun]) -> str:
     """The issue's targets in one paragraph."""
     ratios = np.array([np.mean((r.error_mm[r.settled] / r.sigma_mm[r.settled]) ** 2) for r in runs])
-    within = sum(all(np.percentile(r.error_mm[(r.day == d) & r.settled], 95) <= r.bound_mm for d in np.unique(r.day))
-                 for r in runs)
+    within = sum(all(r.within(d) for d in np.unique(r.day)) for r in runs)
     classified = [classify_alarms(r.moved, r.bumped) for r in runs]
     false = sum(c[2] for c in classified)
     flagged = sum(sum(d is not None for d in c[0]) for c in classified)
     bumps = sum(len(r.bumped) for r in runs)
     wander = max(float(r.wander_sigma.max()) for r in runs)
-    return (f"{len(runs)} cells: {within} within their bound every day; mean (error/sigma)^2 {ratios.mean():.2f} over "
+    return (f"{len(runs)} cells: {within} within their bound (after a re-learn, or 1.5x the oracle) every day; mean (error/sigma)^2 {ratios.mean():.2f} over "
             f"the cells (largest {ratios.max():.2f}, target 0.5-2, at most 4); camera correction within "
             f"{wander:.1f} sigma of the arming's; {false} false moved alarms; {flagged}/{bumps} bumps flagged within "
             "20 samples.")

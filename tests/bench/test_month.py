@@ -1,8 +1,13 @@
 """The month benchmark (`bench.month`) on a short month: it scores against the truth it simulates."""
 
 import numpy as np
+import pytest
 
 from bench import month
+from bench.shift import workspace_error
+from handeye.calib import simulate, solve
+from handeye.calib import transforms as tf
+from handeye.calib.problem import CalibrationProblem
 from handeye.calib.setup import Setup
 
 
@@ -21,3 +26,29 @@ def test_a_short_month_is_scored_per_day_with_its_bumps_and_alarms():
     days = month.day_rows([run])
     assert [d[0] for d in days] == [0, 1]
     assert "1 cells" in month.summary([run])
+
+
+def test_the_oracle_registers_every_sample_since_the_last_bump():
+    spec = month.CellSpec(1, Setup.EYE_IN_HAND, False, 1.0, 4, 0.8)
+    rng = np.random.default_rng(7)
+    m = month.month_of(spec, rng)
+    prof = simulate.RealisticProfile(pose_error_m=m.stop_error_m)
+    real = simulate.realistic_profile(month.CALIBRATION_POSES, rng, prof, distance=0.8, setup=spec.setup)
+    d = real.data
+    problem = CalibrationProblem.from_arrays(d.A, d.points, setup=spec.setup, point_cov=d.point_cov)
+    result = solve("auto", problem, rng=rng)
+    stream = month.month_stream(real, m, rng, prof)
+    P = simulate.workspace_points(real, 50, rng)
+    first, second = stream.bumped[:2]
+    scored = np.array([5, first - 1, first + 9, second - 1, second + 30])
+    got = month.oracle_errors(real, result, stream, P, scored)
+    assert np.isnan(got[:2]).all()       # nothing to re-learn before the first bump
+    for k, (b, i) in zip((2, 3, 4), ((first, first + 9), (first, second - 1), (second, second + 30))):
+        # eye-in-hand: the camera points registered to the marker's in the flange frame give T_flange_cam
+        A = np.linalg.inv(stream.A_stops[stream.stop[b:i + 1]])
+        parent = A[:, :3, :3] @ result.Y[:3, 3] + A[:, :3, 3]
+        C = tf.register_points(result.camera_correction.correct(stream.points[b:i + 1]), parent)
+        want = workspace_error(C, result.camera_correction, real.camera, stream.C[i], P) * 1e3
+        assert got[k] == pytest.approx(want, rel=1e-6)
+    # and a late oracle knows the camera: within a few mm of the truth, far from its error before the bump
+    assert got[4] < 5.0
