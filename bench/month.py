@@ -1,6 +1,7 @@
 """A month left alone (issue 42): the monitoring engine over 30 days of a realistic cell, against the truth.
 
-Run ``python -m bench --month [--seeds 5] [--first-seed 0] [--days 30] [--stops 4] [--jobs 2]``.
+Run ``python -m bench --month [--seeds 5] [--first-seed 0] [--days 30] [--stops 4] [--distance 0.8] [--programs 1]
+[--jobs 2]``; ``--programs N`` composes the production of N programs, one per 8 h shift drawn at random.
 Prints the tables (also ``<out>/month.md``) and plots the live error and its stated 1-sigma day by day
 (``<out>/month.png``).
 
@@ -65,6 +66,7 @@ class CellSpec:
     days: float
     stops: int
     distance: float
+    programs: int = 1
 
     @property
     def name(self) -> str:
@@ -111,7 +113,7 @@ def month_of(spec: CellSpec, rng: np.random.Generator) -> Month:
     """The cell's month: its stops' error (0.1-0.5 mm), its mount's daily cycle (0.5-2 mm), a bump in each week."""
     week = spec.days / 4.0
     bumps = tuple(((k + rng.uniform(0.1, 0.9)) * week, 5.0, 0.3) for k in range(4))
-    return Month(days=spec.days, stops=spec.stops, stop_error_m=rng.uniform(0.1e-3, 0.5e-3),
+    return Month(days=spec.days, stops=spec.stops, programs=spec.programs, stop_error_m=rng.uniform(0.1e-3, 0.5e-3),
                  thermal_mm=rng.uniform(0.5, 2.0), bumps=bumps)
 
 
@@ -163,7 +165,7 @@ def run_cell(spec: CellSpec, settings: MonitorSettings | None = None) -> CellRun
     stream = month_stream(real, month, rng, prof)
     P = simulate.workspace_points(real, WORKSPACE_POINTS, rng)
     arming = workspace_error(arming_C, result.camera_correction, real.camera, stream.C[0], P) * 1e3
-    factors = prof.dh_error_factor(stream.q_stops) if spec.joints else [None] * spec.stops
+    factors = prof.dh_error_factor(stream.q_stops) if spec.joints else [None] * len(stream.q_stops)
     settled = np.ones(len(stream.t), dtype=bool)
     for b in stream.bumped:
         settled[b:b + RECOVER_WITHIN] = False
@@ -273,8 +275,8 @@ def plot(runs: list[CellRun], path: Path) -> None:
     plt.close(fig)
 
 
-def specs(seeds: list[int], days: float, stops: int, distance: float) -> list[CellSpec]:
-    return [CellSpec(seed, setup, joints, days, stops, distance)
+def specs(seeds: list[int], days: float, stops: int, distance: float, programs: int = 1) -> list[CellSpec]:
+    return [CellSpec(seed, setup, joints, days, stops, distance, programs)
             for seed in seeds for setup in (Setup.EYE_TO_HAND, Setup.EYE_IN_HAND) for joints in (True, False)]
 
 
@@ -285,11 +287,13 @@ def main(argv=None) -> int:
     ap.add_argument("--days", type=float, default=30.0)
     ap.add_argument("--stops", type=int, default=4)
     ap.add_argument("--distance", type=float, default=0.8, help="camera to marker at the calibration, m")
+    ap.add_argument("--programs", type=int, default=1,
+                    help="programs of --stops stops each, one per 8 h shift drawn at random (composed production)")
     ap.add_argument("--jobs", type=int, default=1, help="cells run at once")
     ap.add_argument("--out", type=Path, default=Path("out/bench"))
     args = ap.parse_args(argv)
     seeds = list(range(args.first_seed, args.first_seed + args.seeds))
-    cells = specs(seeds, args.days, args.stops, args.distance)
+    cells = specs(seeds, args.days, args.stops, args.distance, args.programs)
     t0 = time.monotonic()
     if args.jobs > 1:
         # The workers leave Ctrl-C to this process, which ends them (leaving the pool terminates it).
@@ -298,9 +302,10 @@ def main(argv=None) -> int:
             runs = pool.map(run_cell, cells)
     else:
         runs = [run_cell(c) for c in cells]
-    text = (f"### A month left alone: {args.days:g} days, {args.stops} stops, seeds {seeds[0]}-{seeds[-1]} "
+    programs = f", {args.programs} programs of them" if args.programs > 1 else ""
+    text = (f"### A month left alone: {args.days:g} days, {args.stops} stops{programs}, seeds {seeds[0]}-{seeds[-1]} "
             f"(`python -m bench --month --seeds {args.seeds} --first-seed {args.first_seed} --days {args.days:g} "
-            f"--stops {args.stops}`)\n\n" + summary(runs) + "\n\n"
+            f"--stops {args.stops} --distance {args.distance:g} --programs {args.programs}`)\n\n" + summary(runs) + "\n\n"
             + markdown_table(CELL_HEADERS, [cell_row(r) for r in runs])
             + "\n\nPer day, over the cells:\n\n" + markdown_table(DAY_HEADERS, day_rows(runs))
             + f"\n\n({time.monotonic() - t0:.0f} s)")

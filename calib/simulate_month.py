@@ -39,7 +39,10 @@ DAY_S = 86400.0
 class Month:
     """A month of production (`month_stream`).
 
-    ``stops`` tool stops visited in turn, one sample every ``sample_s``.
+    ``stops`` tool stops visited in turn, one sample every ``sample_s``. With
+    ``programs`` > 1 the cell runs one of that many programs per shift of
+    ``program_h`` hours, drawn at random, each its own ``stops`` stops (a
+    composed production: new stops at each change, old ones back later).
     ``stop_error_m``: 1-sigma per axis of each stop's fixed flange position
     error beyond the DH error. The camera mount follows a daily cycle of
     amplitude ``thermal_mm`` (translation, along a random direction) and
@@ -51,6 +54,8 @@ class Month:
     days: float = 30.0
     sample_s: float = 30.0
     stops: int = 4
+    programs: int = 1
+    program_h: float = 8.0
     max_tilt_deg: float = 10.0
     stop_error_m: float = 0.3e-3
     thermal_mm: float = 1.0
@@ -103,6 +108,19 @@ def mount_motion(t: np.ndarray, month: Month, rng: np.random.Generator) -> tuple
     return rotation, translation, bumped
 
 
+def program_schedule(t: np.ndarray, month: Month, rng: np.random.Generator) -> np.ndarray:
+    """The stop (an index into the programs' stops, ``stops`` per program) of each sample at times ``t`` (n,) s:
+    one program per shift of ``program_h`` hours, drawn at random, its stops visited in turn from the shift's
+    start; a single program's stops in turn."""
+    k = np.arange(len(t))
+    if month.programs == 1:
+        return k % month.stops
+    shift = np.floor(t / (month.program_h * 3600.0)).astype(int)
+    program = rng.integers(month.programs, size=shift[-1] + 1)[shift]
+    first = np.searchsorted(shift, shift)          # each sample's shift's first sample
+    return program * month.stops + (k - first) % month.stops
+
+
 def month_stream(real: RealisticData, month: Month, rng: np.random.Generator,
                  profile: RealisticProfile | None = None) -> MonthData:
     """A month of production samples on ``real``'s cell (either setup): its robot's DH error, each stop's own
@@ -110,13 +128,13 @@ def month_stream(real: RealisticData, month: Month, rng: np.random.Generator,
     mount's motion (`mount_motion`)."""
     prof = profile if profile is not None else RealisticProfile()
     dh, kin, d = UR10_DH, real.kinematics, real.data
-    q_stops = production_stops(real, month.stops, month.max_tilt_deg, rng)
+    q_stops = np.vstack([production_stops(real, month.stops, month.max_tilt_deg, rng) for _ in range(month.programs)])
     A_stops = ur_forward(q_stops, dh["d"], dh["a"], dh["alpha"], np.zeros(6))
     A_true_stops = ur_forward(q_stops, kin["d"], kin["a"], kin["alpha"], kin["offsets"])
-    A_true_stops[:, :3, 3] += rng.normal(scale=month.stop_error_m, size=(month.stops, 3))
+    A_true_stops[:, :3, 3] += rng.normal(scale=month.stop_error_m, size=(len(q_stops), 3))
     n = int(month.days * DAY_S / month.sample_s)
     t = np.arange(n) * month.sample_s
-    stop = np.arange(n) % month.stops
+    stop = program_schedule(t, month, rng)
     A_true = A_true_stops[stop] @ tf.from_rotvec_translation(rng.normal(scale=prof.repeatability_rad, size=(n, 3)),
                                                              rng.normal(scale=prof.repeatability_m, size=(n, 3)))
     rotation, translation, bumped = mount_motion(t, month, rng)

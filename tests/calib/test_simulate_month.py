@@ -77,3 +77,27 @@ def test_the_eye_in_hand_profile_has_the_realistic_robot_and_camera_errors():
     np.testing.assert_allclose(real.camera.measure(again.data.points), real.data.points, atol=1e-9)
     assert np.all(d.B_true[:, 2, 3] > 0.3)
     np.testing.assert_allclose(d.A_true @ d.X @ d.B_true, np.broadcast_to(d.Y, d.B_true.shape), atol=1e-9)
+
+
+def test_a_composed_production_runs_one_program_per_shift_each_with_its_own_stops():
+    month = Month(days=3.0, stops=3, programs=4, program_h=8.0, thermal_mm=0.0, thermal_deg=0.0,
+                  walk_mm_per_sqrt_h=0.0, bumps=())
+    real, m = month_of(Setup.EYE_TO_HAND, month)
+    assert len(m.A_stops) == len(m.q_stops) == 12
+    per_shift = int(8 * 3600 / month.sample_s)
+    programs = []
+    for k in range(9):
+        stops = m.stop[k * per_shift:(k + 1) * per_shift]
+        program = stops[0] // 3
+        # one program a shift, its stops in turn from the shift's start
+        assert np.array_equal(stops, program * 3 + np.arange(per_shift) % 3)
+        programs.append(program)
+    assert len(set(programs)) > 1
+    # the samples are where their stop is: the marker point follows the stop, not the sample's index
+    first, again = np.flatnonzero(m.stop == m.stop[-1])[[0, -1]]
+    assert np.linalg.norm(m.points[first] - m.points[again]) < 0.02
+
+
+def test_a_single_program_visits_its_stops_in_turn():
+    _, m = month_of(Setup.EYE_TO_HAND, Month(days=0.5, stops=5, bumps=()))
+    assert np.array_equal(m.stop, np.arange(len(m.t)) % 5)
