@@ -18,8 +18,8 @@ used; eye-in-hand in the flange frame), the stated 1-sigma over the workspace, a
 (1 when honest). The bound is ``max(1 mm, 1.5 x the arming calibration's realised or stated error)``; after a
 re-learn a day is also within when its p95 is within 1.5x an oracle's, the camera registered from every sample since
 the bump with its time known (`oracle_errors`): a bump can leave the camera where the program's stops determine it
-less well than the arming did. The 40 samples after each bump (the re-learn) are left out of the accuracy figures. The camera correction's wander is
-its largest distance from the arming's value in the arming's 1-sigma.
+less well than the arming did. The 40 samples after each bump (the re-learn) are left out of the accuracy figures.
+The camera correction's wander is its largest distance from the arming's value in the arming's 1-sigma.
 """
 
 from __future__ import annotations
@@ -93,7 +93,7 @@ class CellRun:
     stated_mm: float
     wander_sigma: np.ndarray      # (3,) the camera correction's largest distance from the arming's, in its 1-sigma
     seconds: float
-    oracle_mm: np.ndarray         # per scored sample after the first bump the oracle's error (`oracle_errors`), else nan
+    oracle_mm: np.ndarray         # per scored sample the oracle's error (`oracle_errors`); nan before a bump
 
     @property
     def bound_mm(self) -> float:
@@ -212,8 +212,8 @@ def cell_row(run: CellRun) -> list:
 
 
 CELL_HEADERS = ["cell", "stop error [mm]", "daily cycle [mm]", "arming realised / stated [mm]", "bound [mm]",
-                "worst day p95 [mm]",
-                "days within bound or 1.5x the oracle after a re-learn (the bound alone)", "stated 1-sigma median [mm]", "mean (error/sigma)^2",
+                "worst day p95 [mm]", "days within bound or 1.5x the oracle after a re-learn (the bound alone)",
+                "stated 1-sigma median [mm]", "mean (error/sigma)^2",
                 "camera correction wander [sigma] (scale / offset / focal)", "false moved", "bumps flagged within 20",
                 "drifting alarms", "time [s]"]
 
@@ -248,10 +248,10 @@ def summary(runs: list[CellRun]) -> str:
     flagged = sum(sum(d is not None for d in c[0]) for c in classified)
     bumps = sum(len(r.bumped) for r in runs)
     wander = max(float(r.wander_sigma.max()) for r in runs)
-    return (f"{len(runs)} cells: {within} within their bound (after a re-learn, or 1.5x the oracle) every day; mean (error/sigma)^2 {ratios.mean():.2f} over "
-            f"the cells (largest {ratios.max():.2f}, target 0.5-2, at most 4); camera correction within "
-            f"{wander:.1f} sigma of the arming's; {false} false moved alarms; {flagged}/{bumps} bumps flagged within "
-            "20 samples.")
+    return (f"{len(runs)} cells: {within} within their bound (after a re-learn, or 1.5x the oracle) every day; "
+            f"mean (error/sigma)^2 {ratios.mean():.2f} over the cells (largest {ratios.max():.2f}, target 0.5-2, at "
+            f"most 4); camera correction within {wander:.1f} sigma of the arming's; {false} false moved alarms; "
+            f"{flagged}/{bumps} bumps flagged within 20 samples.")
 
 
 def plot(runs: list[CellRun], path: Path) -> None:
@@ -305,7 +305,8 @@ def main(argv=None) -> int:
     programs = f", {args.programs} programs of them" if args.programs > 1 else ""
     text = (f"### A month left alone: {args.days:g} days, {args.stops} stops{programs}, seeds {seeds[0]}-{seeds[-1]} "
             f"(`python -m bench --month --seeds {args.seeds} --first-seed {args.first_seed} --days {args.days:g} "
-            f"--stops {args.stops} --distance {args.distance:g} --programs {args.programs}`)\n\n" + summary(runs) + "\n\n"
+            f"--stops {args.stops} --distance {args.distance:g} --programs {args.programs}`)\n\n"
+            + summary(runs) + "\n\n"
             + markdown_table(CELL_HEADERS, [cell_row(r) for r in runs])
             + "\n\nPer day, over the cells:\n\n" + markdown_table(DAY_HEADERS, day_rows(runs))
             + f"\n\n({time.monotonic() - t0:.0f} s)")
