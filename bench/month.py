@@ -99,12 +99,15 @@ class CellRun:
     def bound_mm(self) -> float:
         return max(1.0, 1.5 * max(self.arming_mm, self.stated_mm))
 
+    def day_p95(self, d: int) -> float:
+        """The live error's p95 on day ``d``, mm (its settled samples)."""
+        return float(np.percentile(self.error_mm[(self.day == d) & self.settled], 95))
+
     def within(self, d: int) -> bool:
         """Day ``d``'s p95 is within the bound or, on a day after a re-learn, within 1.5x the oracle's p95 over the
         same samples (the issue's two criteria)."""
-        keep = (self.day == d) & self.settled
-        p95 = float(np.percentile(self.error_mm[keep], 95))
-        oracle = self.oracle_mm[keep]
+        p95 = self.day_p95(d)
+        oracle = self.oracle_mm[(self.day == d) & self.settled]
         after = not np.isnan(oracle).any()
         return p95 <= self.bound_mm or (after and p95 <= 1.5 * float(np.percentile(oracle, 95)))
 
@@ -198,7 +201,7 @@ def run_cell(spec: CellSpec, settings: MonitorSettings | None = None) -> CellRun
 def cell_row(run: CellRun) -> list:
     """One row of the cells table."""
     days = np.unique(run.day)
-    p95 = np.array([np.percentile(run.error_mm[(run.day == d) & run.settled], 95) for d in days])
+    p95 = np.array([run.day_p95(d) for d in days])
     within = sum(run.within(d) for d in days)
     ratio = (run.error_mm[run.settled] / run.sigma_mm[run.settled]) ** 2
     delays, late, false = classify_alarms(run.moved, run.bumped)
