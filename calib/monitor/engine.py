@@ -201,7 +201,7 @@ class MonitorEngine:
         self._window: collections.deque[Visit] = collections.deque()
         self._window_visits: collections.Counter[int] = collections.Counter()   # per stop key, its visits in it
         self._relearn_set: list[Stop] = []
-        self._before_alarm: set[int] = set()     # ids of the re-learn's samples from before its alarm
+        self._before_alarm = 0                   # the re-learn's first samples that are from before its alarm
         self._settle = snap.settle
         self._drifting = False
         self._quiet_since: float | None = None     # since when a raised drift has been back under the line
@@ -281,7 +281,9 @@ class MonitorEngine:
             alarm, statistic, message = AlarmLevel.NONE, 0.0, wild_point(inn.nis)
         elif relearning:
             self._relearn_set.append(s)
-            del self._relearn_set[:-self.settings.relearn_samples]
+            trimmed = max(len(self._relearn_set) - self.settings.relearn_samples, 0)
+            del self._relearn_set[:trimmed]
+            self._before_alarm = max(self._before_alarm - trimmed, 0)
             message, again = self._relearn()
             alarm, statistic = (AlarmLevel.MOVED if again else AlarmLevel.NONE), 0.0
         else:
@@ -391,7 +393,9 @@ class MonitorEngine:
         # A point a thousand sigma off is a glitch that fired the test, or a move too large to re-learn: either
         # way no sample to re-learn from.
         self._relearn_set = [v.sample for v in window[before:]] + ([s] if nis <= GROSS_NIS else [])
-        self._before_alarm = {id(v.sample) for v in window[before:]}
+        # A count, not the samples' ids: a trimmed sample's id is free for a later one, which then passed as from
+        # before the alarm (the state machine's outcome followed what the process had allocated before it).
+        self._before_alarm = len(window) - before
         self._window.clear()
         self._window_visits.clear()
         self.state = EngineState.RELEARNING
@@ -530,12 +534,12 @@ class MonitorEngine:
                 break
             samples = samples[1:]         # the oldest is from before the move
         dropped = len(self._relearn_set) - len(samples)
-        if any(id(s) not in self._before_alarm for s in self._relearn_set[:dropped]):
+        if dropped > self._before_alarm:
             # Samples taken after the alarm do not fit the camera the newer ones show: it moved again (a second
             # knock while the first was re-learnt). Its own alarm; where between them it moved is not known, so the
             # re-learn starts again from the newest sample (a fit that kept one from before the knock was off by
             # the knock, and a third alarm followed).
-            self._relearn_set, self._before_alarm = self._relearn_set[-1:], set()
+            self._relearn_set, self._before_alarm = self._relearn_set[-1:], 0
             return (f"camera moved again while re-learning (the {dropped} oldest of {dropped + len(samples)} "
                     "samples since the move do not fit the newer ones); re-learning it from the next stops"), True
         f = fit.state
@@ -559,7 +563,7 @@ class MonitorEngine:
         self.trend.reset()
         self._settle = self.settings.detector.window
         self.state = EngineState.SETTLING
-        self._relearn_set = []
+        self._relearn_set, self._before_alarm = [], 0
         self.detector.reset()
         short = (f"; its 1-sigma over the workspace is {sigma_mm:.1f} mm, more than the {enough:.1f} mm the cell "
                  "needs, and the program's stops cannot determine it better: calibrate again"
