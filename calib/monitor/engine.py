@@ -19,7 +19,7 @@ from handeye.calib.change import ChangeDetector
 from handeye.calib.problem import CalibrationProblem
 from handeye.calib.result import CalibrationResult, CameraParameter, Residuals
 from handeye.calib.setup import Setup
-from handeye.calib.monitor.filter import (GROSS_NIS, STOP_SLOTS, FilterState, Layout, NoiseTrack, SampleModel, Walk,
+from handeye.calib.monitor.filter import (GROSS_NIS, FilterState, Layout, NoiseTrack, SampleModel, Walk,
                                           clear_slots, filter_state, find_slot, follow_noise, fuse, fuse_linear,
                                           innovate, linearize, noise, observed_walk, open_slot, predict, prediction,
                                           relinearize, restart_walk, visit_slot)
@@ -145,7 +145,7 @@ class MonitorEngine:
         # After the camera transform: marker translation, camera correction, kinematic error, the stops' own
         # errors (none held yet), and the camera's random walk since the calibration in use (the drift, told apart
         # from what the samples refine).
-        u = np.r_[ref.K[:3, 3], ref.theta, np.zeros(layout.n_factor + 3 * STOP_SLOTS + 6)]
+        u = np.r_[ref.K[:3, 3], ref.theta, np.zeros(layout.n_factor + 6)]
         in_use = InUse(ref.C.copy(), ref.theta.copy(), ref.sigma_mm)
         self._start(Snapshot(ref, in_use, in_use, filter_state(ref.C.copy(), u, P, t), NoiseTrack()))
         return ref
@@ -163,7 +163,7 @@ class MonitorEngine:
         if t is not None and t < snapshot.filter.t:
             snapshot = dataclasses.replace(snapshot, filter=snapshot.filter._replace(t=float(t)))
         # The stops' own errors are learnt again, with their baselines.
-        snapshot = dataclasses.replace(snapshot, filter=clear_slots(snapshot.filter, Layout(snapshot.n_factor)))
+        snapshot = dataclasses.replace(snapshot, filter=clear_slots(snapshot.filter))
         self._start(snapshot)
         return snapshot.reference
 
@@ -183,7 +183,7 @@ class MonitorEngine:
     def _start(self, snap: Snapshot) -> None:
         cfg, ref = self.settings, snap.reference
         self.reference, self.origin, self.in_use, self.filter = ref, snap.origin, snap.in_use, snap.filter
-        self.model = SampleModel.of(ref.setup == Setup.EYE_TO_HAND, len(snap.filter.P) - Layout(0).size, ref.noise)
+        self.model = SampleModel.of(ref.setup == Setup.EYE_TO_HAND, snap.n_factor, ref.noise)
         self.noise_track = snap.noise_track
         self.relearns = snap.relearns
         # An hour of the camera's world on the samples' clock.
@@ -265,6 +265,8 @@ class MonitorEngine:
         """
         s = self._sample(t, T_base_flange, point_cam, point_cov, robot_factor)
         self._count += 1
+        if self.filter.slots is not self._walk_slots:     # a re-learn, or a return to the state before a move
+            self._walk_for(self.filter.slots)
         f, slot = self._slot(predict(self.filter, s.t, self.walk), s)
         if f.slots is not self._walk_slots:
             self._walk_for(f.slots)
@@ -481,7 +483,7 @@ class MonitorEngine:
         _, H, cof = prediction(f, s.pose, s.factor, self.model)
         Hc = H[:, :6]
         if k is None:
-            f, k = open_slot(f, s.pose, self.stop_prior(cof), self.model.layout)
+            f, k = open_slot(f, s.pose, self.stop_prior(cof))
         else:
             f = visit_slot(f, k)
         self._info[f.slots[k]] = Hc.T.dot(np.linalg.solve(sym3(noise(f, s.shape_upper, cof, self.model)), Hc))
@@ -491,7 +493,7 @@ class MonitorEngine:
         """The camera's walk in the directions one visit of each held stop observes (`observed_walk`)."""
         self._info = {pose: self._info[pose] for pose in slots if pose in self._info}
         info = sum(self._info.values(), np.zeros((6, 6)))
-        self.walk = Walk.of(self.model.layout, self._q, observed_walk(self._q, info, self.hour_s),
+        self.walk = Walk.of(Layout(self.model.layout.n_factor, len(slots)), self._q, observed_walk(self._q, info, self.hour_s),
                             self.settings.walk_max_gap_h * self.hour_s)
         self._walk_slots = slots
 
@@ -695,15 +697,14 @@ class MonitorEngine:
         the stops' own errors, which start again at their priors.
         """
         st, sr = RELEARN_PRIOR
-        layout = self.model.layout
         saved = self.filter
         f = saved._replace(C=C, parts=parts(C))
+        P = clear_slots(saved).P
+        P[:6] = 0.0
+        P[:, :6] = 0.0
+        P[:6, :6] = np.diag([sr * sr] * 3 + [st * st] * 3)
         for _ in range(2):            # once more from the first pass's estimate: the registration is unweighted
-            P = saved.P.copy()
-            P[:6] = 0.0
-            P[:, :6] = 0.0
-            P[:6, :6] = np.diag([sr * sr] * 3 + [st * st] * 3)
-            f = clear_slots(f._replace(P=P), layout)
+            f = clear_slots(f)._replace(P=P)
             try:
                 for s in samples:
                     f, k = self._slot(f, s)

@@ -26,7 +26,7 @@ import numpy as np
 from handeye.calib import model
 from handeye.calib import transforms as tf
 from handeye.calib.errors import CalibrationError
-from handeye.calib.monitor.filter import STOP_SLOTS, FilterState, Layout, NoiseTrack, filter_state, relinearize
+from handeye.calib.monitor.filter import FilterState, NoiseTrack, filter_state, layout_of, relinearize
 from handeye.calib.monitor.reference import InUse, Reference
 from handeye.calib.result import AutoDetails, CalibrationResult, CameraParameter, Residuals
 from handeye.calib.setup import Setup
@@ -68,7 +68,7 @@ class Snapshot:
     @property
     def n_factor(self) -> int:
         """Robot kinematic-error parameters in the state."""
-        return len(self.filter.P) - Layout(0).size
+        return layout_of(self.filter).n_factor
 
     def without_factor(self) -> Snapshot:
         """The same without the robot's kinematic error in the state (marginalised: its rows and columns
@@ -94,7 +94,7 @@ def snapshot_to_dict(snapshot: Snapshot) -> dict:
     """Plain data (lists, floats, strings) of a snapshot, for YAML or JSON; `snapshot_from_dict` reads it back."""
     ref, f = snapshot.reference, snapshot.filter
     # The stops' own errors are not carried (marginalised), as their baselines are not: the next run learns them.
-    layout = Layout(snapshot.n_factor)
+    layout = layout_of(f)
     held = np.arange(layout.model, layout.walk)
     kept = np.setdiff1d(np.arange(layout.size), held)
     auto = ref.result.auto
@@ -202,7 +202,7 @@ def snapshot_from_dict(doc) -> Snapshot:
             0.5 * (P + P.T)).min() < -1e-9 * max(np.abs(P).max(), 1e-300):
         raise CalibrationError("monitor state: filter.covariance is not symmetric positive semi-definite")
     # Engines before the stops' own errors scaled the covariance with the noise level, with a change still to apply.
-    u, P = with_free_slots(u, P * _float(doc, "filter.pending_scale", positive=True))
+    P = P * _float(doc, "filter.pending_scale", positive=True)
     C = _transform(doc, "filter.camera_transform")
     f = filter_state(C, u, 0.5 * (P + P.T), _float(doc, "filter.t"), _float(doc, "filter.walk_t"),
                      _float(doc, "filter.noise_scale", positive=True))
@@ -225,13 +225,6 @@ def snapshot_from_dict(doc) -> Snapshot:
     track = NoiseTrack(_float(doc, "noise_track.total"), _float(doc, "noise_track.n"))
     relearns, settle = _count(doc, "relearns"), _count(doc, "settle")
     return Snapshot(ref, _in_use(doc, "origin"), _in_use(doc, "in_use"), f, track, relearns, settle)
-
-
-def with_free_slots(u: np.ndarray, P: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """A state and covariance without the stops' own errors, with every slot free: zeros before the walk states."""
-    at = len(P) - 6
-    where = np.full(3 * STOP_SLOTS, at)
-    return np.insert(u, where - 6, 0.0), np.insert(np.insert(P, where, 0.0, axis=0), where, 0.0, axis=1)
 
 
 def _count(doc, path: str) -> int:
