@@ -21,8 +21,8 @@ from handeye.calib.result import CalibrationResult, CameraParameter, Residuals
 from handeye.calib.setup import Setup
 from handeye.calib.monitor.filter import (GROSS_NIS, FilterState, Layout, NoiseTrack, SampleModel, Walk,
                                           clear_slots, filter_state, find_slot, follow_noise, fuse, fuse_linear,
-                                          innovate, linearize, noise, observed_walk, open_slot, predict, prediction,
-                                          relinearize, restart_walk, visit_slot)
+                                          innovate, linearize, next_slot, noise, observed_walk, open_slot, predict,
+                                          prediction, relinearize, restart_walk, visit_slot)
 from handeye.calib.monitor.settings import AlarmLevel, EngineState, MonitorSettings, MonitorUpdate
 from handeye.calib.monitor.kernels import (inv_sym3_floats, is_plain, is_positive_definite3, parts, plain_cov,
                                    plain_point, plain_transform, sym3)
@@ -59,6 +59,10 @@ JUMP_PRIOR = (0.01, np.deg2rad(1.0))
 REGISTRATION_SAMPLES = 6
 #: Alarms the engine remembers (`MonitorEngine.alarms`): the newest; months of drifting alarms stay bounded.
 MAX_ALARMS = 1000
+#: Two stops this far apart share about 61 % of a pose-only source's robot error
+#: (`MonitorSettings.robot_accuracy_mm`; squared exponential in the flange positions): the error of a kinematic
+#: model varies smoothly with the pose, and a program's stops lie within a few decimetres of each other.
+SHARED_ERROR_LENGTH_M = 0.3
 
 
 def wild_point(nis: float) -> str:
@@ -191,6 +195,7 @@ class MonitorEngine:
         sr, st = np.deg2rad(cfg.walk_deg_per_sqrt_h), cfg.walk_mm_per_sqrt_h * 1e-3
         self._q = np.array([sr * sr] * 3 + [st * st] * 3) / self.hour_s
         self._info: dict[tuple, np.ndarray] = {}     # per held stop's pose: what one visit tells of the camera
+        self._priors: dict[tuple, tuple] = {}        # per held stop's pose: its prior, flange position and Q (`_open`)
         self._walk_slots: tuple | None = None         # the slots `walk` was made for
         self._walk_for(snap.filter.slots)
         self.workspace = WorkspaceMoments(ref.workspace)
@@ -483,18 +488,63 @@ class MonitorEngine:
         _, H, cof = prediction(f, s.pose, s.factor, self.model)
         Hc = H[:, :6]
         if k is None:
-            f, k = open_slot(f, s.pose, self.stop_prior(cof))
+            f, k = self._open(f, s, cof)
         else:
             f = visit_slot(f, k)
         self._info[f.slots[k]] = Hc.T.dot(np.linalg.solve(sym3(noise(f, s.shape_upper, cof, self.model)), Hc))
         return f, k
 
+    def _open(self, f: FilterState, s: Stop, cof) -> tuple[FilterState, int]:
+        """`open_slot` for ``s``'s new stop: its own error at `stop_prior`, and for a source without joints the
+        robot's error it shares with the held stops (`MonitorSettings.robot_accuracy_mm`).
+
+        That shared error is a field over the flange positions, 1-sigma ``a`` per axis in the base frame with
+        correlation ``exp(-d^2 / 2 L^2)`` (`SHARED_ERROR_LENGTH_M`); a stop sees it in the camera frame through
+        ``Q`` (3, 3): ``R_C^T`` eye-to-hand, ``-R_C^T R_A^T`` eye-in-hand. The prior of two stops' errors is then
+        ``a^2 k_ij Q_i Q_j^T`` off the diagonal and their own plus ``a^2 I`` on it, and the new one is regressed on
+        the held ones (`open_slot`): a program's stops, visited a thousand times, tell the camera no more than
+        one robot error they share allows, and a stop that comes back after its slot was taken starts from what
+        its neighbours know."""
+        a2 = (self.settings.robot_accuracy_mm * 1e-3) ** 2 if self.n_factor == 0 else 0.0
+        R_C = f.C[:3, :3]
+        Q = R_C.T if self.model.eye_to_hand else -R_C.T.dot(s.A[:3, :3].T)
+        prior = self.stop_prior(cof) + a2 * np.eye(3)
+        here = (prior, s.A[:3, 3].copy(), Q)
+        k = next_slot(f)
+        held = [j for j, pose in enumerate(f.slots) if j != k and pose in self._priors]
+        shared = None
+        if a2 > 0.0 and held:
+            K = np.zeros((3 * len(held),) * 2)
+            K_new = np.zeros((3, 3 * len(held)))
+            known = [self._priors[f.slots[j]] for j in held]
+            for i, (S_i, p_i, Q_i) in enumerate(known):
+                K[3 * i:3 * i + 3, 3 * i:3 * i + 3] = S_i
+                for j in range(i + 1, len(known)):
+                    _, p_j, Q_j = known[j]
+                    block = a2 * self._shared(p_i, p_j) * Q_i.dot(Q_j.T)
+                    K[3 * i:3 * i + 3, 3 * j:3 * j + 3] = block
+                    K[3 * j:3 * j + 3, 3 * i:3 * i + 3] = block.T
+                K_new[:, 3 * i:3 * i + 3] = a2 * self._shared(here[1], p_i) * Q.dot(Q_i.T)
+            G = np.linalg.solve(K, K_new.T).T
+            rest = prior - G.dot(K_new.T)
+            shared, prior = (G, held), 0.5 * (rest + rest.T)
+        f, k = open_slot(f, s.pose, prior, shared)
+        self._priors[f.slots[k]] = here
+        return f, k
+
+    @staticmethod
+    def _shared(p_i, p_j) -> float:
+        """The share of the robot's error two stops at flange positions ``p_i``, ``p_j`` (3,) have in common."""
+        d = p_i - p_j
+        return math.exp(-0.5 * float(d.dot(d)) / SHARED_ERROR_LENGTH_M ** 2)
+
     def _walk_for(self, slots: tuple) -> None:
         """The camera's walk in the directions one visit of each held stop observes (`observed_walk`)."""
         self._info = {pose: self._info[pose] for pose in slots if pose in self._info}
+        self._priors = {pose: self._priors[pose] for pose in slots if pose in self._priors}
         info = sum(self._info.values(), np.zeros((6, 6)))
-        self.walk = Walk.of(Layout(self.model.layout.n_factor, len(slots)), self._q, observed_walk(self._q, info, self.hour_s),
-                            self.settings.walk_max_gap_h * self.hour_s)
+        self.walk = Walk.of(Layout(self.model.layout.n_factor, len(slots)), self._q,
+                            observed_walk(self._q, info, self.hour_s), self.settings.walk_max_gap_h * self.hour_s)
         self._walk_slots = slots
 
     def stop_prior(self, cofactor) -> np.ndarray:

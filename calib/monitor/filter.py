@@ -367,27 +367,47 @@ def visit_slot(state: FilterState, slot: int) -> FilterState:
     return state._replace(last=tuple(last))
 
 
-def open_slot(state: FilterState, pose, prior: np.ndarray) -> tuple[FilterState, int]:
-    """A slot for a new stop at flange ``pose`` (12 floats) whose own error has covariance ``prior`` (3, 3),
-    independent of the rest: a new slot (3 rows before the walk's) while fewer than `STOP_SLOTS` are held, else
-    the least recently visited one (its stop's error marginalised: its rows and columns dropped). Returns the
-    state and the slot."""
+def next_slot(state: FilterState) -> int:
+    """The slot a new stop takes (`open_slot`): a new one while fewer than `STOP_SLOTS` are held, else the least
+    recently visited."""
+    n = len(state.slots)
+    return n if n < STOP_SLOTS else min(range(n), key=state.last.__getitem__)
+
+
+def open_slot(state: FilterState, pose, prior: np.ndarray, shared=None) -> tuple[FilterState, int]:
+    """A slot for a new stop at flange ``pose`` (12 floats): a new slot (3 rows before the walk's) while fewer than
+    `STOP_SLOTS` are held, else the least recently visited one (its stop's error marginalised: its rows and
+    columns dropped). Returns the state and the slot (`next_slot`).
+
+    The new stop's error is ``b = G b_held + w``, ``w`` of covariance ``prior`` (3, 3) independent of the rest:
+    ``shared`` is ``(G, held)``, ``G`` (3, 3 m) the regression of its prior on the prior of the errors of the
+    ``m`` held stops in slots ``held`` (not `next_slot`'s), or None (``b = w``). So the state takes ``u_b = G
+    u_held``, ``P_b. = G P_held.`` and ``P_bb = G P_held,held G^T + prior``.
+    """
     layout, slots, last = layout_of(state), list(state.slots), list(state.last)
-    if len(slots) < STOP_SLOTS:
-        k = len(slots)
+    k = next_slot(state)
+    if k == len(slots):
         b = layout.walk
         u = np.insert(state.u, [b - 6] * 3, 0.0)
         P = np.insert(np.insert(state.P, [b] * 3, 0.0, axis=0), [b] * 3, 0.0, axis=1)
         slots.append(None)
         last.append(0.0)
     else:
-        k = min(range(len(slots)), key=last.__getitem__)
         b = layout.slot(k)
         u, P = state.u.copy(), state.P.copy()
         u[b - 6:b - 3] = 0.0
         P[b:b + 3] = 0.0
         P[:, b:b + 3] = 0.0
-    P[b:b + 3, b:b + 3] = prior
+    if shared is None:
+        P[b:b + 3, b:b + 3] = prior
+    else:
+        G, held = shared
+        rows = np.concatenate([layout.slot(j) + np.arange(3) for j in held])
+        u[b - 6:b - 3] = G.dot(u[rows - 6])
+        cross = G.dot(P[rows])
+        P[b:b + 3] = cross
+        P[:, b:b + 3] = cross.T
+        P[b:b + 3, b:b + 3] = G.dot(cross[:, rows].T) + prior
     slots[k] = tuple(pose)
     return visit_slot(state._replace(u=u, P=P, slots=tuple(slots), last=tuple(last)), k), k
 

@@ -69,6 +69,16 @@ class MonitorSettings(Params):
         misregistration reads a tilted marker's depth up to 0.5 mm off at
         a metre; with 0.3 the month benchmark's stops pulled the camera
         until its error was 1.5-2x its stated 1-sigma (docs/benchmarks.md).
+    robot_accuracy_mm : float
+        1-sigma per axis, mm, of the robot's pose error that nearby stops
+        share, for a source without joints (with joints the state holds the
+        robot's kinematic error): the arm's absolute accuracy. The
+        calibration cannot see it (it shifts the camera it solves for), and a
+        program's stops, all off by about the same, cannot tell it from the
+        camera; taken as each stop's own, the stops pulled a pose-only
+        camera up to 5 mm off while its stated 1-sigma said 2.5 (mean
+        (error/sigma)^2 4.95 over a month). 1.0: a UR10's DH error puts a
+        program's stops 0.5-2.3 mm off in common. 0: none.
     relearn_samples : int
         Samples held for a re-learn (the newest).
     min_spread_m : float
@@ -96,6 +106,7 @@ class MonitorSettings(Params):
     stop_translation_m: NonNegativeFloat = 0.03
     stop_rotation_deg: NonNegativeFloat = 5.0
     stop_error_mm: NonNegativeFloat = 0.5
+    robot_accuracy_mm: NonNegativeFloat = 1.0
     relearn_samples: Annotated[int, Field(strict=True, ge=3)] = 40
     min_spread_m: PositiveFloat = 0.02
     detector: DetectorConfig = Field(default_factory=DetectorConfig)

@@ -599,7 +599,10 @@ def test_the_demo_cell_is_one_moved_alarm_for_its_one_bump(run):
     turn), the engine armed from its first 12 samples as the demo arms itself. Their noise split put the noise on
     the robot (a 0.04 point scale, 0.17 mm on an exact arm); when a visit added the point noise alone, the stops of
     the re-learnt camera, visited again, read NIS 16-29 and raised two false moved alarms (run1, samples 34 and 44);
-    when the noise scale followed samples the state dominates in full, it fell to 0.28 and run2 raised one at 36."""
+    when the noise scale followed samples the state dominates in full, it fell to 0.28 and run2 raised one at 36.
+    The alarm comes at the first or second sample after the bump: the demo's robot error is not in the state (its
+    arming has no kinematic error), so each stop's prior holds a shared 1 mm robot error, and run1's stops tell
+    the knock at sample 17 (16 before that prior)."""
     from pathlib import Path
 
     from handeye.app.monitoring import arm_engine
@@ -611,7 +614,7 @@ def test_the_demo_cell_is_one_moved_alarm_for_its_one_bump(run):
     arm_engine(engine, obs[:12], Setup(session.setup), t=obs[11].t)
     assert engine.reference.noise.point_scale < 0.1
     updates = [(o.index, engine.update(o.t, o.T_base_flange, o.point_cam, o.point_cov)) for o in obs[12:]]
-    assert [i for i, u in updates if u.alarm == "moved"] == [16]
+    assert [i for i, u in updates if u.alarm == "moved"] in ([16], [17])
     relearnt = [i for i, u in updates if u.message.startswith("re-learnt")]
     assert len(relearnt) == 1 and relearnt[0] <= 21
     assert updates[-1][1].state == EngineState.ARMED
@@ -678,3 +681,57 @@ def test_a_wild_point_while_re_learning_is_dropped_not_a_traceback(n_stops):
         alarms += [k] * (upd.alarm == "moved")
     assert wild is not None and len(alarms) == 1 and alarms[0] < wild
     assert upd.state == EngineState.ARMED and np.all(np.isfinite(engine.filter.P))
+
+
+def test_a_stop_opened_beside_held_ones_takes_its_share_of_their_prior(monkeypatch):
+    """`open_slot` with ``shared``: three stops whose errors have a joint prior ``K`` (9, 9), opened one after the
+    other, each regressed on those held before it and no sample in between, give the state exactly ``K`` over
+    their slots and leave the rest alone. With two slots, the third takes the least recently visited one and is
+    regressed on the other: the state holds that pair's prior."""
+    from handeye.calib.monitor import filter as mf
+
+    rng = np.random.default_rng(5)
+    layout = mf.Layout(0)
+    L = rng.normal(size=(layout.size, layout.size))
+    P0 = 1e-6 * L.dot(L.T)
+    start = mf.filter_state(np.eye(4), rng.normal(size=layout.size - 6), P0, 0.0)
+    M = rng.normal(size=(9, 9))
+    K = 1e-6 * (M.dot(M.T) + np.eye(9))
+    poses = [tuple(float(x) for x in rng.normal(size=12)) for _ in range(3)]
+
+    def opened(state, n, held, slots):
+        """The state with stop ``n`` opened, regressed on the stops ``held``, in ``slots``."""
+        if not held:
+            return mf.open_slot(state, poses[n], K[3 * n:3 * n + 3, 3 * n:3 * n + 3])
+        cols = np.concatenate([3 * h + np.arange(3) for h in held])
+        K_hh, K_nh = K[np.ix_(cols, cols)], K[3 * n:3 * n + 3, cols]
+        G = np.linalg.solve(K_hh, K_nh.T).T
+        return mf.open_slot(state, poses[n], K[3 * n:3 * n + 3, 3 * n:3 * n + 3] - G.dot(K_nh.T),
+                            (G, slots))
+
+    state = start
+    for n in range(3):
+        state, k = opened(state, n, list(range(n)), list(range(n)))
+        assert k == n
+        state = mf.visit_slot(state._replace(walk_t=float(n + 1)), k)
+    held = mf.layout_of(state)
+    b = slice(held.model, held.walk)
+    np.testing.assert_allclose(state.P[b, b], K, rtol=1e-9, atol=1e-18)
+    assert not state.P[b, :held.model].any() and not state.P[b, held.walk:].any()
+    rest = np.r_[0:held.model, held.walk:held.size]
+    np.testing.assert_allclose(state.P[np.ix_(rest, rest)], P0)
+    assert mf.is_sound(state)
+
+    monkeypatch.setattr(mf, "STOP_SLOTS", 2)
+    state = start
+    for n in range(2):
+        state, _ = opened(state, n, list(range(n)), list(range(n)))
+        state = mf.visit_slot(state._replace(walk_t=float(n + 1)), n)
+    assert mf.next_slot(state) == 0
+    state, k = opened(state, 2, [1], [1])
+    assert k == 0 and state.slots == (poses[2], poses[1])
+    held = mf.layout_of(state)
+    b = slice(held.model, held.walk)
+    pair = np.r_[6:9, 3:6]
+    np.testing.assert_allclose(state.P[b, b], K[np.ix_(pair, pair)], rtol=1e-9, atol=1e-18)
+    assert mf.is_sound(state)

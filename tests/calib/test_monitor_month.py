@@ -102,3 +102,30 @@ def test_a_mount_that_breathes_to_the_tolerance_every_day_is_one_drifting_alarm(
     assert [a for a in alarms if a[1] == "moved"] == []
     drifting = [a for a in alarms if a[1] == "drifting"]
     assert len(drifting) == 1, [(i, round(mm, 2)) for i, _, mm, _ in drifting]
+
+
+@pytest.mark.parametrize("seed, setup, stops, distance, programs", [
+    (103, Setup.EYE_IN_HAND, 6, 1.0, 1),      # one program (issue 42: 4.95 over its month)
+    (4, Setup.EYE_TO_HAND, 5, 0.8, 4),        # four programs of five stops, one per shift (10.8 over its month)
+])
+def test_a_pose_only_source_s_robot_error_shared_by_the_stops_stays_in_the_stated_sigma(seed, setup, stops, distance,
+                                                                                       programs):
+    """Samples without joints: the UR10's DH error puts a program's stops 0.5-2.3 mm off in common, which no
+    number of visits tells from the camera. Taken as each stop's own error, the stops pulled the camera off while
+    its stated 1-sigma shrank; held as one error field the stops share (`robot_accuracy_mm`), the error stays
+    within its bound every day and within what the stated 1-sigma says (3 days of `bench.month`, 4 bumps).
+    Measured: (error/sigma)^2 2.48 / 2.39 against 8.17 / 5.34 without it, median error 4.8 / 2.2 mm against
+    7.2 / 2.5."""
+    from bench import month
+
+    spec = month.CellSpec(seed, setup, False, 3.0, stops, distance, programs)
+    shared = month.run_cell(spec)
+    own = month.run_cell(spec, MonitorSettings(robot_accuracy_mm=0.0))
+
+    def nees(run):
+        return float(np.mean((run.error_mm / run.sigma_mm)[run.settled] ** 2))
+
+    assert all(shared.within(d) for d in range(3))
+    assert nees(shared) < 4.0 < nees(own)
+    assert np.median(shared.error_mm) < np.median(own.error_mm)
+    assert len(shared.moved) >= len(shared.bumped)
