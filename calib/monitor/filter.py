@@ -100,7 +100,7 @@ class Layout(NamedTuple):
 
 class SampleModel(NamedTuple):
     """What the measurement model needs besides the state: the setup and the arming's noise levels (the robot's
-    as a variance). Its ``layout`` holds no slot: `FilterState.layout` is the state's own."""
+    as a variance). Its ``layout`` holds no slot: `layout_of` gives a state's own."""
 
     eye_to_hand: bool
     layout: Layout

@@ -26,7 +26,7 @@ import numpy as np
 from handeye.calib import model
 from handeye.calib import transforms as tf
 from handeye.calib.errors import CalibrationError
-from handeye.calib.monitor.filter import FilterState, NoiseTrack, filter_state, layout_of, relinearize
+from handeye.calib.monitor.filter import FilterState, NoiseTrack, clear_slots, filter_state, layout_of, relinearize
 from handeye.calib.monitor.reference import InUse, Reference
 from handeye.calib.result import AutoDetails, CalibrationResult, CameraParameter, Residuals
 from handeye.calib.setup import Setup
@@ -94,9 +94,7 @@ def snapshot_to_dict(snapshot: Snapshot) -> dict:
     """Plain data (lists, floats, strings) of a snapshot, for YAML or JSON; `snapshot_from_dict` reads it back."""
     ref, f = snapshot.reference, snapshot.filter
     # The stops' own errors are not carried (marginalised), as their baselines are not: the next run learns them.
-    layout = layout_of(f)
-    held = np.arange(layout.model, layout.walk)
-    kept = np.setdiff1d(np.arange(layout.size), held)
+    kept = clear_slots(f)
     auto = ref.result.auto
     correction = auto.camera_correction if auto is not None else {}
     points = auto.correction_points if auto is not None else None
@@ -116,8 +114,8 @@ def snapshot_to_dict(snapshot: Snapshot) -> dict:
         },
         "origin": _in_use_dict(snapshot.origin),
         "in_use": _in_use_dict(snapshot.in_use),
-        "filter": {"camera_transform": _matrix(f.C), "state": _matrix(np.delete(f.u, held - 6)),
-                   "covariance": _matrix(f.P[np.ix_(kept, kept)]), "t": f.t, "walk_t": f.walk_t,
+        "filter": {"camera_transform": _matrix(f.C), "state": _matrix(kept.u), "covariance": _matrix(kept.P),
+                   "t": f.t, "walk_t": f.walk_t,
                    "noise_scale": f.scale, "pending_scale": 1.0},
         "noise_track": {"total": snapshot.noise_track.total, "n": snapshot.noise_track.n},
         "relearns": int(snapshot.relearns),
