@@ -78,8 +78,15 @@ DETECT_WITHIN = 20
 RELEARN_WITHIN = 60
 #: The bumps the detection property holds for: moving the marker by at least this at the stops, m.
 FLAGGED_DISPLACEMENT_M = 5e-3
-#: Floats the engine may hold, whatever the stream (its state for 20 stops, the detector, its windows).
-MAX_STATE_FLOATS = 200_000
+#: ... and, when the engine has not seen its stops yet in this run (warming: armed or resumed a moment ago), by at
+#: least this many times its stated 1-sigma over the workspace: it has only the calibration to compare with, and a
+#: move within that calibration's own uncertainty is no move the samples can show (a camera armed from 8 samples,
+#: carried over at 13.9 mm 1-sigma and knocked 5.4 mm before the next run's first sample peaked at GLR 10).
+FLAGGED_WARMING_SIGMAS = 3.0
+#: Floats the engine may hold, whatever the stream: its state, the detector and its windows, which keep a state per
+#: sample (414,000 for `handeye.calib.monitor.filter.STOP_SLOTS` stops and a 24-parameter kinematic error; 231,000
+#: for 20 stops, the most this machine draws).
+MAX_STATE_FLOATS = 500_000
 #: Seeds of the cells the state machine draws (each cell is built and calibrated once per process).
 CELL_SEEDS = (0, 1, 2)
 
@@ -236,14 +243,19 @@ class ProgramDriver:
 
     def bump(self, mm: float, deg: float) -> None:
         """The camera is knocked: ``mm`` shift, ``deg`` turn, random directions. Watched when the engine is
-        testing (armed or warming) and the marker moves by `FLAGGED_DISPLACEMENT_M` or more at the stops."""
+        testing (armed or warming) and the marker moves by `FLAGGED_DISPLACEMENT_M` or more at the stops (warming:
+        and by `FLAGGED_WARMING_SIGMAS` times its 1-sigma)."""
         before = self.C
         self.C = self.cell.moved(before, np.deg2rad(deg) * random_direction(self.rng),
                                  mm * 1e-3 * random_direction(self.rng))
         moved = self.cell.displacement(before, self.C)
         self.history.append(f"bump {mm:.2f} mm {deg:.2f} deg: {moved * 1e3:.1f} mm at the stops, engine "
                             f"{self.engine.state if self.engine.armed else 'not armed'}")
-        testing = self.engine.armed and self.engine.state in (EngineState.ARMED, EngineState.WARMING)
+        e = self.engine
+        testing = e.armed and e.state in (EngineState.ARMED, EngineState.WARMING)
+        if testing and e.state == EngineState.WARMING:
+            f = e.filter
+            testing = moved >= FLAGGED_WARMING_SIGMAS * e.workspace.sigma(f.C, f.u[3:6], f.P)
         if testing and moved >= FLAGGED_DISPLACEMENT_M and self.watch is None:
             self.watch = BumpWatch(moved)
 
