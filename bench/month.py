@@ -19,7 +19,10 @@ used; eye-in-hand in the flange frame), the stated 1-sigma over the workspace, a
 re-learn a day is also within when its p95 is within 1.5x an oracle's, the camera registered from every sample since
 the bump with its time known (`oracle_errors`): a bump can leave the camera where the program's stops determine it
 less well than the arming did. The 40 samples after each bump (the re-learn) are left out of the accuracy figures.
-The camera correction's wander is its largest distance from the arming's value in the arming's 1-sigma.
+The camera correction's wander is its largest distance from the arming's value in the arming's 1-sigma. Beside
+the bumps flagged within 20 samples, the number the best test would flag (`bench.detection.bump_limits`: the
+bump's time and the noise known, each stop's 20 samples after it against its visits since the previous re-learn),
+and for each bump flagged later or never, that test's probability of flagging it within 20.
 """
 
 from __future__ import annotations
@@ -36,9 +39,11 @@ import sys  # noqa: E402
 import time  # noqa: E402
 from dataclasses import dataclass  # noqa: E402
 from pathlib import Path  # noqa: E402
+from types import SimpleNamespace  # noqa: E402
 
 import numpy as np  # noqa: E402
 
+from bench.detection import bump_limits  # noqa: E402
 from bench.shift import RECOVER_WITHIN, classify_alarms, workspace_error  # noqa: E402
 from bench.tables import markdown_table  # noqa: E402
 from handeye.calib import simulate, solve  # noqa: E402
@@ -94,6 +99,7 @@ class CellRun:
     wander_sigma: np.ndarray      # (3,) the camera correction's largest distance from the arming's, in its 1-sigma
     seconds: float
     oracle_mm: np.ndarray         # per scored sample the oracle's error (`oracle_errors`); nan before a bump
+    limits: list                  # per bump the probability that the best test flags it within 20 samples
 
     @property
     def bound_mm(self) -> float:
@@ -169,6 +175,13 @@ def run_cell(spec: CellSpec, settings: MonitorSettings | None = None) -> CellRun
     P = simulate.workspace_points(real, WORKSPACE_POINTS, rng)
     arming = workspace_error(arming_C, result.camera_correction, real.camera, stream.C[0], P) * 1e3
     factors = prof.dh_error_factor(stream.q_stops) if spec.joints else [None] * len(stream.q_stops)
+    # The detection limit (`bench.detection.bump_limits`): the marker side is T_flange_marker eye-to-hand,
+    # T_base_marker eye-in-hand; the robot's repeatability at every visit.
+    seen = SimpleNamespace(bumped=stream.bumped, t=stream.t, Y=stream.C, stop=stream.stop,
+                           A=stream.A_true_stops[stream.stop], point_cov=stream.point_cov)
+    robot_cov = np.diag([prof.repeatability_rad**2] * 3 + [prof.repeatability_m**2] * 3)
+    limits = bump_limits(seen, d.X if spec.setup == Setup.EYE_TO_HAND else d.Y, spec.setup, robot_cov,
+                         engine.detector.threshold)
     settled = np.ones(len(stream.t), dtype=bool)
     for b in stream.bumped:
         settled[b:b + RECOVER_WITHIN] = False
@@ -195,7 +208,7 @@ def run_cell(spec: CellSpec, settings: MonitorSettings | None = None) -> CellRun
     print(f"  {spec.name}: {seconds:.0f} s", file=sys.stderr, flush=True)
     return CellRun(spec, month.stop_error_m * 1e3, month.thermal_mm, np.floor(stream.t[scored] / DAY_S).astype(int),
                    err, sig, settled[scored], moved, drifting, [int(b) for b in stream.bumped], arming,
-                   reference.sigma_mm, wander, seconds, oracle_errors(real, result, stream, P, scored))
+                   reference.sigma_mm, wander, seconds, oracle_errors(real, result, stream, P, scored), limits)
 
 
 def cell_row(run: CellRun) -> list:
@@ -210,15 +223,24 @@ def cell_row(run: CellRun) -> list:
             f"{run.arming_mm:.2f} / {run.stated_mm:.2f}", f"{run.bound_mm:.2f}", f"{p95.max():.2f}",
             f"{within}/{len(days)} ({int((p95 <= run.bound_mm).sum())})",
             f"{np.median(run.sigma_mm[run.settled]):.2f}", f"{ratio.mean():.2f}",
-            " / ".join(f"{w:.1f}" for w in run.wander_sigma), false, f"{flagged}/{len(run.bumped)}", run.drifting,
+            " / ".join(f"{w:.1f}" for w in run.wander_sigma), false,
+            f"{flagged}/{len(run.bumped)} ({sum(run.limits):.1f})", late_text(delays, late, run.limits), run.drifting,
             f"{run.seconds:.0f}"]
 
 
 CELL_HEADERS = ["cell", "stop error [mm]", "daily cycle [mm]", "arming realised / stated [mm]", "bound [mm]",
                 "worst day p95 [mm]", "days within bound or 1.5x the oracle after a re-learn (the bound alone)",
                 "stated 1-sigma median [mm]", "mean (error/sigma)^2",
-                "camera correction wander [sigma] (scale / offset / focal)", "false moved", "bumps flagged within 20",
+                "camera correction wander [sigma] (scale / offset / focal)", "false moved",
+                "bumps flagged within 20 (the limit expects)", "the others: flagged after [samples] (the limit's power)",
                 "drifting alarms", "time [s]"]
+
+
+def late_text(delays, late, limits) -> str:
+    """The bumps not flagged within 20 samples: when they were (or never, before the next bump), and how likely
+    the limit was to flag each within 20."""
+    out = [f"{'never' if lt is None else lt} ({p:.0%})" for d, lt, p in zip(delays, late, limits) if d is None]
+    return ", ".join(out) or "-"
 
 
 def day_rows(runs: list[CellRun]) -> list:
@@ -250,11 +272,13 @@ def summary(runs: list[CellRun]) -> str:
     false = sum(c[2] for c in classified)
     flagged = sum(sum(d is not None for d in c[0]) for c in classified)
     bumps = sum(len(r.bumped) for r in runs)
+    limit = sum(sum(r.limits) for r in runs)
     wander = max(float(r.wander_sigma.max()) for r in runs)
     return (f"{len(runs)} cells: {within} within their bound (after a re-learn, or 1.5x the oracle) every day; "
             f"mean (error/sigma)^2 {ratios.mean():.2f} over the cells (largest {ratios.max():.2f}, target 0.5-2, at "
             f"most 4); camera correction within {wander:.1f} sigma of the arming's; {false} false moved alarms; "
-            f"{flagged}/{bumps} bumps flagged within 20 samples.")
+            f"{flagged}/{bumps} bumps flagged within 20 samples, where the best test (the bump's time and the noise "
+            f"known) would flag {limit:.1f}.")
 
 
 def plot(runs: list[CellRun], path: Path) -> None:

@@ -18,7 +18,9 @@ def test_a_short_month_is_scored_per_day_with_its_bumps_and_alarms():
     assert len(run.bumped) == 4 and len(run.moved) >= 4
     row = month.cell_row(run)
     assert row[0] == "eye-to-hand, poses only, seed 0"
-    assert row[-4] == 0 and row[-3] == "4/4"
+    assert row[-5] == 0 and row[-4] == f"4/4 ({sum(run.limits):.1f})" and row[-3] == "-"
+    # the best test's chance of flagging each bump within 20 samples: these bumps it flags almost surely
+    assert len(run.limits) == 4 and all(0.5 < p <= 1.0 for p in run.limits), run.limits
     assert set(np.unique(run.day)) == {0, 1}
     # the settled mask leaves out the 40 samples after each bump (scored every SCORE_EVERY)
     assert (~run.settled).sum() == 4 * 40 // month.SCORE_EVERY
@@ -26,6 +28,11 @@ def test_a_short_month_is_scored_per_day_with_its_bumps_and_alarms():
     days = month.day_rows([run])
     assert [d[0] for d in days] == [0, 1]
     assert "1 cells" in month.summary([run])
+
+
+def test_the_bumps_flagged_late_or_never_are_listed_with_the_limits_chance():
+    assert month.late_text([3, None, None, 7], [None, 66, None, None], [0.9, 0.2, 0.1, 0.8]) == "66 (20%), never (10%)"
+    assert month.late_text([3], [None], [0.9]) == "-"
 
 
 def test_the_oracle_registers_every_sample_since_the_last_bump():
