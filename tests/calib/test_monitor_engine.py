@@ -600,9 +600,10 @@ def test_the_demo_cell_is_one_moved_alarm_for_its_one_bump(run):
     the robot (a 0.04 point scale, 0.17 mm on an exact arm); when a visit added the point noise alone, the stops of
     the re-learnt camera, visited again, read NIS 16-29 and raised two false moved alarms (run1, samples 34 and 44);
     when the noise scale followed samples the state dominates in full, it fell to 0.28 and run2 raised one at 36.
-    The alarm comes at the first or second sample after the bump: the demo's robot error is not in the state (its
-    arming has no kinematic error), so each stop's prior holds a shared 1 mm robot error, and run1's stops tell
-    the knock at sample 17 (16 before that prior)."""
+    The alarm comes within the first three samples after the bump: the demo's robot error is not in the state (its
+    arming has no kinematic error), so each stop's prior holds a shared 1 mm robot error, and its stops, all new,
+    are tested against the model with what their neighbours told of their error allowed for: run1's tell the
+    knock at sample 18 (17 without that allowance, 16 before that prior)."""
     from pathlib import Path
 
     from handeye.app.monitoring import arm_engine
@@ -614,7 +615,7 @@ def test_the_demo_cell_is_one_moved_alarm_for_its_one_bump(run):
     arm_engine(engine, obs[:12], Setup(session.setup), t=obs[11].t)
     assert engine.reference.noise.point_scale < 0.1
     updates = [(o.index, engine.update(o.t, o.T_base_flange, o.point_cam, o.point_cov)) for o in obs[12:]]
-    assert [i for i, u in updates if u.alarm == "moved"] in ([16], [17])
+    assert [i for i, u in updates if u.alarm == "moved"] in ([16], [17], [18])
     relearnt = [i for i, u in updates if u.message.startswith("re-learnt")]
     assert len(relearnt) == 1 and relearnt[0] <= 21
     assert updates[-1][1].state == EngineState.ARMED
