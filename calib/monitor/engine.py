@@ -364,16 +364,7 @@ class MonitorEngine:
                                        f + k * R[5])
             S_test_inv = sym3(test_inv)
         elif held in self._carried:
-            # A new stop of a source without joints, against the model: its error as its neighbours' errors told it
-            # when its slot opened is added back (with that estimate's variance). Right after a knock those
-            # neighbours have taken part of it in as the robot's error, which would carry it into this prediction
-            # and out of the test (the ETH recordings' knocks flagged: 6/20 and 9/20 with it, 12/20 and 14/20
-            # without; docs/benchmarks.md).
-            (m0, m1, m2), V = self._carried[held]
-            r0, r1, r2 = inn.r
-            r_test = r0 + m0, r1 + m1, r2 + m2
-            (a, b, c), (_, d, e), (_, _, f) = (np.linalg.inv(S_inv) + V).tolist()
-            test_inv = inv_sym3_floats(a, b, c, d, e, f)
+            r_test, test_inv = self._without_carried(inn, *self._carried[held])
             S_test_inv = sym3(test_inv)
         # While a re-learnt camera settles, its stops have no baselines yet: the test is against the model, whose
         # innovation covariance holds the re-learnt camera's, so the stops refining it are no move; a second
@@ -422,6 +413,18 @@ class MonitorEngine:
         self.state = EngineState.RELEARNING
         self._drifting = False
         return AlarmLevel.MOVED, statistic, message + "; " + self._relearn()[0]
+
+    @staticmethod
+    def _without_carried(inn, carried, V) -> tuple:
+        """A new stop of a source without joints, tested against the model: its innovation with the error its
+        neighbours' errors told of it when its slot opened (``carried`` (3,), `_open`) added back, and the inverse
+        of its covariance with that estimate's variance ``V`` (3, 3) allowed for (upper triangle). Right after a
+        knock those neighbours have taken part of it in as the robot's error, which would carry it into this
+        prediction and out of the test: the ETH recordings' knocks flagged, 6/20 and 9/20 with it, 12/20 and 16/20
+        without (docs/benchmarks.md)."""
+        (m0, m1, m2), (r0, r1, r2) = carried, inn.r
+        (a, b, c), (_, d, e), (_, _, f) = (np.linalg.inv(sym3(inn.S_inv)) + V).tolist()
+        return (r0 + m0, r1 + m1, r2 + m2), inv_sym3_floats(a, b, c, d, e, f)
 
     def _next_state(self) -> EngineState:
         """The engine's state after a sample; counts the settling window down."""
