@@ -22,8 +22,7 @@ from handeye.calib.setup import Setup
 from handeye.calib.monitor.filter import (GROSS_NIS, FilterState, Layout, NoiseTrack, SampleModel, Walk,
                                           clear_slots, filter_state, find_slot, follow_noise, fuse, fuse_linear,
                                           innovate, layout_of, linearize, next_slot, noise, observed_walk, open_slot,
-                                          predict,
-                                          prediction, relinearize, restart_walk, visit_slot)
+                                          predict, prediction, relinearize, restart_walk, visit_slot)
 from handeye.calib.monitor.settings import AlarmLevel, EngineState, MonitorSettings, MonitorUpdate
 from handeye.calib.monitor.kernels import (inv_sym3_floats, is_plain, is_positive_definite3, parts, plain_cov,
                                    plain_point, plain_transform, sym3)
@@ -196,8 +195,8 @@ class MonitorEngine:
         sr, st = np.deg2rad(cfg.walk_deg_per_sqrt_h), cfg.walk_mm_per_sqrt_h * 1e-3
         self._q = np.array([sr * sr] * 3 + [st * st] * 3) / self.hour_s
         self._info: dict[tuple, np.ndarray] = {}     # per held stop's pose: what one visit tells of the camera
-        self._priors: dict[tuple, tuple] = {}        # per held stop's pose: its prior, flange position and Q (`_open`)
-        self._carried: dict[tuple, tuple] = {}       # per held stop's pose: its error as its neighbours told it (`_open`)
+        # per held stop's pose: its prior, flange position, Q and its error as its neighbours told it or None (`_open`)
+        self._priors: dict[tuple, tuple] = {}
         self._walk_slots: tuple | None = None         # the slots `walk` was made for
         self._walk_for(snap.filter.slots)
         self.workspace = WorkspaceMoments(ref.workspace)
@@ -363,8 +362,8 @@ class MonitorEngine:
             test_inv = inv_sym3_floats(a + k * R[0], b + k * R[1], c + k * R[2], d + k * R[3], e + k * R[4],
                                        f + k * R[5])
             S_test_inv = sym3(test_inv)
-        elif held in self._carried:
-            r_test, test_inv = self._without_carried(inn, *self._carried[held])
+        elif (carried := self._priors.get(held, (None,) * 4)[3]) is not None:
+            r_test, test_inv = self._without_carried(inn, *carried)
             S_test_inv = sym3(test_inv)
         # While a re-learnt camera settles, its stops have no baselines yet: the test is against the model, whose
         # innovation covariance holds the re-learnt camera's, so the stops refining it are no move; a second
@@ -534,10 +533,10 @@ class MonitorEngine:
             K = np.zeros((3 * len(held),) * 2)
             K_new = np.zeros((3, 3 * len(held)))
             known = [self._priors[f.slots[j]] for j in held]
-            for i, (S_i, p_i, Q_i) in enumerate(known):
+            for i, (S_i, p_i, Q_i, _) in enumerate(known):
                 K[3 * i:3 * i + 3, 3 * i:3 * i + 3] = S_i
                 for j in range(i + 1, len(known)):
-                    _, p_j, Q_j = known[j]
+                    _, p_j, Q_j, _ = known[j]
                     block = a2 * self._shared(p_i, p_j) * Q_i.dot(Q_j.T)
                     K[3 * i:3 * i + 3, 3 * j:3 * j + 3] = block
                     K[3 * j:3 * j + 3, 3 * i:3 * i + 3] = block.T
@@ -551,11 +550,7 @@ class MonitorEngine:
             V = G.dot(K_new.T) - G.dot(f.P[np.ix_(rows, rows)]).dot(G.T)
             carried = G.dot(f.u[rows - 6]), 0.5 * (V + V.T)
         f, k = open_slot(f, s.pose, prior, shared)
-        self._priors[f.slots[k]] = here
-        if carried is None:
-            self._carried.pop(f.slots[k], None)
-        else:
-            self._carried[f.slots[k]] = carried
+        self._priors[f.slots[k]] = here + (carried,)
         return f, k
 
     @staticmethod
@@ -568,7 +563,6 @@ class MonitorEngine:
         """The camera's walk in the directions one visit of each held stop observes (`observed_walk`)."""
         self._info = {pose: self._info[pose] for pose in slots if pose in self._info}
         self._priors = {pose: self._priors[pose] for pose in slots if pose in self._priors}
-        self._carried = {pose: self._carried[pose] for pose in slots if pose in self._carried}
         info = sum(self._info.values(), np.zeros((6, 6)))
         self.walk = Walk.of(Layout(self.model.layout.n_factor, len(slots)), self._q,
                             observed_walk(self._q, info, self.hour_s), self.settings.walk_max_gap_h * self.hour_s)
