@@ -28,10 +28,11 @@ from handeye.calib.params import Float, Int, Params
 #: The detector's long window is tested every this many samples.
 LONG_STRIDE = 4
 #: Per-sample false-alarm rate of the *moved* test. A production program gives a sample at every standstill,
-#: thousands a day: at 1e-5 a still camera raised a false *moved* alarm every 2-4 weeks per cell (17 in 300
-#: simulated cell-days, a sample every 30 s); at 1e-6, 1 in 300, for 0-10 points less of the 1-2 mm bumps
-#: flagged within 20 samples (docs/benchmarks.md, "False alarms on a still camera").
-FALSE_ALARM_RATE = 1e-6
+#: thousands a day: at 1e-5 a still camera raised a false *moved* alarm every 2-4 weeks per cell; at 1e-6 about
+#: one a year (8 in 2,400 simulated cell-days, each starting a re-learn of a move that did not happen: "moved
+#: 2.3 mm and 0.67 deg", the live error from 2.9 to 4.2 mm); at 1e-7 none, for 4 of 320 knocks flagged after 20
+#: samples instead of within, knocks the program's stops barely see (docs/benchmarks.md, "A month left alone").
+FALSE_ALARM_RATE = 1e-7
 
 _EYE3 = np.eye(3)
 
