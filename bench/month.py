@@ -1,9 +1,11 @@
 """A month left alone (issue 42): the monitoring engine over 30 days of a realistic cell, against the truth.
 
 Run ``python -m bench --month [--seeds 5] [--first-seed 0] [--days 30] [--stops 4] [--distance 0.8] [--programs 1]
-[--jobs 2]``; ``--programs N`` composes the production of N programs, one per 8 h shift drawn at random.
-Prints the tables (also ``<out>/month.md``) and plots the live error and its stated 1-sigma day by day
-(``<out>/month.png``).
+[--jobs 2] [--sessions DIR]``; ``--programs N`` composes the production of N programs, one per 8 h shift drawn at
+random. Prints the tables (also ``<out>/month.md``) and plots the live error and its stated 1-sigma day by day
+(``<out>/month.png``). ``--sessions DIR`` also writes each cell as two handeye sessions, its arming calibration
+and its month (`write_sessions`), for ``handeye replay DIR/<cell>/month --monitor --reference
+DIR/<cell>/calibration``.
 
 Each seed gives four cells: eye-to-hand and eye-in-hand, each with the robot's joints (the engine holds its
 kinematic error) and without (a pose-only source: ROS 2 ``PoseStamped``, another tool's recording). A cell is
@@ -33,6 +35,7 @@ os.environ.setdefault("OMP_NUM_THREADS", "1")
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
 import argparse  # noqa: E402
+import functools  # noqa: E402
 import multiprocessing  # noqa: E402
 import signal  # noqa: E402
 import sys  # noqa: E402
@@ -53,6 +56,8 @@ from handeye.calib.problem import CalibrationProblem  # noqa: E402
 from handeye.calib.setup import Setup  # noqa: E402
 from handeye.calib.simulate_month import DAY_S, Month, month_stream  # noqa: E402
 
+#: Where a cell's month starts in the sessions `write_sessions` writes (2026-01-05 06:00 UTC), s since the epoch.
+SESSION_EPOCH = 1_767_592_800.0
 #: Held-out workspace poses per cell.
 WORKSPACE_POINTS = 200
 #: The live estimate is scored at every this many samples (the month's figures are per day).
@@ -156,8 +161,32 @@ def oracle_errors(real, result, stream, P, scored: np.ndarray) -> np.ndarray:
     return out
 
 
-def run_cell(spec: CellSpec, settings: MonitorSettings | None = None) -> CellRun:
-    """Calibrate the cell, arm the engine, run its month and score it (module docstring)."""
+def write_sessions(root: Path, spec: CellSpec, real, stream, joints) -> Path:
+    """The cell as two handeye sessions under ``root/<cell>/``: ``calibration`` (the arming's 30 samples, an hour
+    before the month) and ``month`` (a sample at each stop of the month, with its joints when the cell has them;
+    ``joints`` (S, 6) or None per stop). Eye-to-hand ``T_base_flange`` and the marker centre in the camera frame,
+    eye-in-hand the same pair; the camera transform they determine is ``T_base_cam`` / ``T_flange_cam``. Returns
+    the cell's directory."""
+    from handeye.app.session import SessionWriter
+    from handeye.calib.observation import Observation
+
+    cell = root / spec.name.replace(", ", "_").replace(" ", "-")
+    d = real.data
+    q = real.q if spec.joints else [None] * len(d.A)
+    start = SESSION_EPOCH - 3600.0 - 10.0 * len(d.A)
+    with SessionWriter.create(cell, spec.setup, name="calibration", source="bench.month") as w:
+        for i in range(len(d.A)):
+            w.add_sample(Observation(i, start + 10.0 * i, d.A[i], d.points[i], d.point_cov[i], joints=q[i]))
+    with SessionWriter.create(cell, spec.setup, name="month", source="bench.month") as w:
+        for i, s in enumerate(stream.stop):
+            w.add_sample(Observation(i, SESSION_EPOCH + float(stream.t[i]), stream.A_stops[s], stream.points[i],
+                                     stream.point_cov[i], joints=None if joints is None else joints[s]))
+    return cell
+
+
+def run_cell(spec: CellSpec, settings: MonitorSettings | None = None, sessions: Path | None = None) -> CellRun:
+    """Calibrate the cell, arm the engine, run its month and score it (module docstring); with ``sessions``, write
+    the cell's sessions there first (`write_sessions`)."""
     rng = np.random.default_rng([spec.seed, 42, spec.setup == Setup.EYE_TO_HAND, spec.joints])
     month = month_of(spec, rng)
     prof = simulate.RealisticProfile(pose_error_m=month.stop_error_m)
@@ -175,6 +204,8 @@ def run_cell(spec: CellSpec, settings: MonitorSettings | None = None) -> CellRun
     P = simulate.workspace_points(real, WORKSPACE_POINTS, rng)
     arming = workspace_error(arming_C, result.camera_correction, real.camera, stream.C[0], P) * 1e3
     factors = prof.dh_error_factor(stream.q_stops) if spec.joints else [None] * len(stream.q_stops)
+    if sessions is not None:
+        write_sessions(sessions, spec, real, stream, stream.q_stops if spec.joints else None)
     # The detection limit (`bench.detection.bump_limits`): the marker side is T_flange_marker eye-to-hand,
     # T_base_marker eye-in-hand; the robot's repeatability at every visit.
     seen = SimpleNamespace(bumped=stream.bumped, t=stream.t, Y=stream.C, stop=stream.stop,
@@ -318,6 +349,9 @@ def main(argv=None) -> int:
                     help="programs of --stops stops each, one per 8 h shift drawn at random (composed production)")
     ap.add_argument("--jobs", type=int, default=1, help="cells run at once")
     ap.add_argument("--out", type=Path, default=Path("out/bench"))
+    ap.add_argument("--sessions", type=Path, default=None,
+                    help="also write each cell as handeye sessions here (<cell>/calibration, <cell>/month: about "
+                         "60 MB a cell-month), for handeye replay --monitor")
     args = ap.parse_args(argv)
     seeds = list(range(args.first_seed, args.first_seed + args.seeds))
     cells = specs(seeds, args.days, args.stops, args.distance, args.programs)
@@ -326,9 +360,9 @@ def main(argv=None) -> int:
         # The workers leave Ctrl-C to this process, which ends them (leaving the pool terminates it).
         with multiprocessing.get_context("spawn").Pool(args.jobs, signal.signal, (signal.SIGINT, signal.SIG_IGN)) \
                 as pool:
-            runs = pool.map(run_cell, cells)
+            runs = pool.map(functools.partial(run_cell, sessions=args.sessions), cells)
     else:
-        runs = [run_cell(c) for c in cells]
+        runs = [run_cell(c, sessions=args.sessions) for c in cells]
     programs = f", {args.programs} programs of them" if args.programs > 1 else ""
     text = (f"### A month left alone: {args.days:g} days, {args.stops} stops{programs}, seeds {seeds[0]}-{seeds[-1]} "
             f"(`python -m bench --month --seeds {args.seeds} --first-seed {args.first_seed} --days {args.days:g} "

@@ -2,9 +2,12 @@
 
 import numpy as np
 import pytest
+import yaml
 
 from bench import month
 from bench.shift import workspace_error
+from handeye.app.cli import main
+from handeye.app.session import read_session
 from handeye.calib import simulate, solve
 from handeye.calib import transforms as tf
 from handeye.calib.problem import CalibrationProblem
@@ -59,3 +62,25 @@ def test_the_oracle_registers_every_sample_since_the_last_bump():
         assert got[k] == pytest.approx(want, rel=1e-6)
     # and a late oracle knows the camera: within a few mm of the truth, far from its error before the bump
     assert got[4] < 5.0
+
+
+@pytest.mark.parametrize("setup, joints", [(Setup.EYE_TO_HAND, True), (Setup.EYE_IN_HAND, False)])
+def test_a_cells_sessions_replay_through_the_monitor_as_the_benchmark_ran_it(tmp_path, capsys, setup, joints):
+    spec = month.CellSpec(0, setup, joints, 0.5, 4, 0.8)
+    run = month.run_cell(spec, sessions=tmp_path)
+    cell = tmp_path / spec.name.replace(", ", "_").replace(" ", "-")
+    calibration, samples = read_session(cell / "calibration"), read_session(cell / "month")
+    assert len(calibration.observations) == month.CALIBRATION_POSES and len(samples.observations) == 1440
+    assert all((o.joints is not None) == joints for o in samples.observations[:10] + calibration.observations[:10])
+    assert samples.observations[0].t > calibration.observations[-1].t + 3000.0
+    out = tmp_path / "replay"
+    assert main(["replay", str(cell / "month"), "--monitor", "--reference", str(cell / "calibration"), "--out",
+                 str(out)]) == 3
+    alarms = yaml.safe_load((out / "alarms.yaml").read_text())
+    moved = [a["sample"] for a in alarms["alarms"] if a["alarm"] == "moved"]
+    # The replay arms from its own solve of the calibration session: each bump the benchmark's engine flagged
+    # within 20 samples the replay flags within 20 too, and it raises no other moved alarm.
+    flagged = [b for b in run.bumped if any(0 <= m - b <= 20 for m in run.moved)]
+    assert flagged and all(any(0 <= m - b <= 20 for m in moved) for b in flagged), (run.bumped, run.moved, moved)
+    assert len(moved) == len(run.moved), (run.moved, moved)
+    capsys.readouterr()
