@@ -67,10 +67,13 @@ def register_import(name: str, detect: Callable[[Path, Callable[[], object]], bo
 
 
 def import_formats() -> dict[str, ImportFormat]:
-    """Every registered import format by name (importing the importer modules on first use)."""
+    """Every registered import format by name, in the order of `IMPORTER_MODULES` (importing the importer modules
+    on first use). The order is that list's whatever imported a format's module before: `detect_format` tries
+    them in it, and ``opencv_storage`` tried after a detector that parses YAML loses its files."""
     for module in IMPORTER_MODULES:
         importlib.import_module(f"handeye.app.formats.{module}")
-    return dict(_FORMATS)
+    rank = {f"handeye.app.formats.{module}": i for i, module in enumerate(IMPORTER_MODULES)}
+    return dict(sorted(_FORMATS.items(), key=lambda item: rank.get(item[1].load.__module__, len(rank))))
 
 
 def detect_format(path) -> str:

@@ -34,3 +34,11 @@ def test_unknown_files_and_formats_name_the_known_ones(tmp_path):
         detect_format(p)
     with pytest.raises(SessionError, match="unknown import format 'nope'"):
         load(p, "nope")
+
+
+def test_the_formats_are_tried_in_the_listed_order_whatever_was_imported_first():
+    # conftest imports every module, easy_handeye's before opencv_storage's: the order is still the list's, so
+    # an OpenCV FileStorage file (%YAML:1.0, not YAML) reaches its detector before one that parses YAML.
+    assert list(import_formats()) == ["opencv_storage", "pose_csv", "easy_handeye2", "easy_handeye",
+                                      "industrial_calibration", "visp", "image_folder", "moveit_calibration",
+                                      "ros2_bag", "toy"]
