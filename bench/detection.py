@@ -42,7 +42,7 @@ import numpy as np  # noqa: E402
 from bench import shift as shiftbench  # noqa: E402
 from handeye.calib import simulate  # noqa: E402
 from handeye.calib import transforms as tf  # noqa: E402
-from handeye.calib.change import ChangeDetector, detection_power, move_information  # noqa: E402
+from handeye.calib.change import ChangeDetector, window_power  # noqa: E402
 from handeye.calib.model import point_jacobians  # noqa: E402
 from handeye.calib.monitor import MonitorSettings  # noqa: E402
 from handeye.calib.setup import Setup  # noqa: E402
@@ -53,30 +53,18 @@ DEG_PER_MM = 0.06
 
 def bump_limits(stream: simulate.ShiftData, K: np.ndarray, setup: Setup, robot_cov: np.ndarray | None,
                 threshold: float) -> list[float]:
-    """The limit's probability of flagging each bump of ``stream`` within `shift.DETECT_WITHIN` samples.
-
-    ``K`` is the marker-side transform (eye-to-hand the true ``T_flange_marker``,
-    eye-in-hand ``T_base_marker``); ``robot_cov`` (6, 6) the flange twist's
-    covariance per visit (repeatability; None: an exact robot).
-    """
+    """The limit's probability of flagging each bump of ``stream`` within `shift.DETECT_WITHIN` samples
+    (`handeye.calib.change.window_power`: ``K`` and ``robot_cov`` as there)."""
     out = []
     for k, b in enumerate(stream.bumped):
         start = 0 if k == 0 else stream.bumped[k - 1] + shiftbench.RECOVER_WITHIN
         end = min(b + shiftbench.DETECT_WITHIN, len(stream.t))
-        C = stream.Y[b - 1]
         stops = np.unique(stream.stop[b:end])
         first = [b + int(np.argmax(stream.stop[b:end] == j)) for j in stops]
-        M = stream.A[first] if setup == Setup.EYE_TO_HAND else tf.invert(stream.A[first])
-        _, H, _, _, H_xi = point_jacobians(C, K, M, None, setup)
-        R = stream.point_cov[first]
-        if robot_cov is not None:
-            R = R + H_xi @ robot_cov @ H_xi.transpose(0, 2, 1)
         visits = [int(np.sum(stream.stop[b:end] == j)) for j in stops]
         baseline = [int(np.sum(stream.stop[start:b] == j)) for j in stops]
-        N = move_information(H, R, visits, baseline)
-        after = stream.Y[b]
-        delta = np.r_[tf.so3_log(after[:3, :3] @ C[:3, :3].T), after[:3, 3] - C[:3, 3]]
-        out.append(detection_power(N, delta, threshold))
+        out.append(window_power(stream.Y[b - 1], stream.Y[b], K, stream.A[first], stream.point_cov[first], visits,
+                                baseline, setup, robot_cov, threshold))
     return out
 
 
@@ -108,7 +96,7 @@ def program_rows(program: str, seeds: list[int], settings: MonitorSettings, size
         else:
             prof = simulate.RealisticProfile()
             real, _, armed = shiftbench.armed_cell(seed, settings, prof)
-            robot_cov = np.diag([prof.repeatability_rad**2] * 3 + [prof.repeatability_m**2] * 3)
+            robot_cov = prof.repeatability_cov()
         for mm in sizes:
             shift = dataclasses.replace(simulate.Shift(), stops=4 if program == "eih" else int(program),
                                         bumps=tuple((h, mm, mm * DEG_PER_MM) for h, _, _ in simulate.Shift().bumps))

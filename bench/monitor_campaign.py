@@ -15,7 +15,8 @@ setups:
   positive semi-definite covariance, the memory is bounded, a bump that
   moves the marker by 5 mm or more at the stops is flagged within
   `DETECT_WITHIN` samples once three stops not on one line have been seen
-  when the best test would flag it there (`REQUIRED_POWER`), and ``calibration_in_use.yaml`` (`handeye.app.calibration_in_use.InUseFile`, as the
+  when the best test would flag it there (`REQUIRED_POWER`), and
+  ``calibration_in_use.yaml`` (`handeye.app.calibration_in_use.InUseFile`, as the
   monitor keeps it) is written for each new calibration in use, so that it
   holds the current one whenever the engine is not re-learning or settling;
   when the calibration hook is told, the file holds the version put in use,
@@ -63,19 +64,18 @@ from handeye.app.calibration_versions import Approvals, History, write_approval
 from handeye.app.consumers import CalibrationLoop, Consumer
 from handeye.calib import simulate, solve
 from handeye.calib import transforms as tf
-from handeye.calib.change import detection_power, move_information
+from handeye.calib.change import window_power
 from handeye.calib.errors import HandeyeError
 from handeye.drivers.errors import ConnectionLostError
 from handeye.calib.monitor import AlarmLevel, EngineState, MonitorEngine, MonitorSettings
 from handeye.calib.monitor.filter import is_sound
-from handeye.calib.model.residuals import point_jacobians
 from handeye.calib.problem import CalibrationProblem
 from handeye.calib.robot_error import UR10_DH, ur_forward
 from handeye.calib.setup import Setup
 
 #: A bump must be flagged within this many samples (issue 20's figure).
 DETECT_WITHIN = 20
-#: ... when the best test (the move's onset and the noise known: `handeye.calib.change.detection_power` over the
+#: ... when the best test (the move's onset and the noise known: `handeye.calib.change.window_power` over the
 #: stops seen since the bump, each against its visits before) would flag it in that window with at least this
 #: probability. Below it a late flag is the price of the detector's false-alarm rate, not a defect: a knock of
 #: 5.4 mm at the stops, mostly along the line of sight, was flagged on its 21st sample at a rate of 1e-7.
@@ -232,21 +232,15 @@ class ProgramDriver:
             self.watch = None
 
     def best_power(self, w: BumpWatch) -> float:
-        """The probability that the best test (`handeye.calib.change.detection_power`) flags the watched bump
-        from the samples since it, each stop against its visits before it (the sample's point covariance, and
-        eye-to-hand the robot's repeatability, as noise)."""
+        """The probability that the best test (`handeye.calib.change.window_power`) flags the watched bump from the
+        samples since it, each stop against its visits before it (the sample's point covariance, and eye-to-hand
+        the robot's repeatability, as noise)."""
         c, stops = self.cell, sorted(w.stops)
         A = np.array([self.flange_pose(s) for s in stops])
-        M = A if c.setup == Setup.EYE_TO_HAND else tf.invert(A)
-        _, H, _, _, H_xi = point_jacobians(w.before, c.marker, M, None, c.setup)
         R = np.array([self.point_cov[s] for s in stops])
-        if c.setup == Setup.EYE_TO_HAND:
-            prof = c.profile
-            robot_cov = np.diag([prof.repeatability_rad ** 2] * 3 + [prof.repeatability_m ** 2] * 3)
-            R = R + H_xi @ robot_cov @ H_xi.transpose(0, 2, 1)
-        N = move_information(H, R, [w.stops[s] for s in stops], [w.baseline[s] for s in stops])
-        delta = np.r_[tf.so3_log(w.after[:3, :3] @ w.before[:3, :3].T), w.after[:3, 3] - w.before[:3, 3]]
-        return detection_power(N, delta, self.engine.detector.threshold)
+        robot_cov = c.profile.repeatability_cov() if c.setup == Setup.EYE_TO_HAND else None
+        return window_power(w.before, w.after, c.marker, A, R, [w.stops[s] for s in stops],
+                            [w.baseline[s] for s in stops], c.setup, robot_cov, self.engine.detector.threshold)
 
     def determined(self, stops) -> bool:
         """Three of these stops, not on one line, would determine the camera (as the engine's re-learn asks: stops

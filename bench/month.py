@@ -83,6 +83,11 @@ class CellSpec:
         side = "eye-to-hand" if self.setup == Setup.EYE_TO_HAND else "eye-in-hand"
         return f"{side}, {'joints' if self.joints else 'poses only'}, seed {self.seed}"
 
+    @property
+    def directory(self) -> str:
+        """The name as a directory (`write_sessions`): ``eye-to-hand_poses-only_seed-0``."""
+        return self.name.replace(", ", "_").replace(" ", "-")
+
 
 @dataclass
 class CellRun:
@@ -170,7 +175,7 @@ def write_sessions(root: Path, spec: CellSpec, real, stream, joints) -> Path:
     from handeye.app.session import SessionWriter
     from handeye.calib.observation import Observation
 
-    cell = root / spec.name.replace(", ", "_").replace(" ", "-")
+    cell = root / spec.directory
     d = real.data
     q = real.q if spec.joints else [None] * len(d.A)
     start = SESSION_EPOCH - 3600.0 - 10.0 * len(d.A)
@@ -210,7 +215,7 @@ def run_cell(spec: CellSpec, settings: MonitorSettings | None = None, sessions: 
     # T_base_marker eye-in-hand; the robot's repeatability at every visit.
     seen = SimpleNamespace(bumped=stream.bumped, t=stream.t, Y=stream.C, stop=stream.stop,
                            A=stream.A_true_stops[stream.stop], point_cov=stream.point_cov)
-    robot_cov = np.diag([prof.repeatability_rad**2] * 3 + [prof.repeatability_m**2] * 3)
+    robot_cov = prof.repeatability_cov()
     limits = bump_limits(seen, d.X if spec.setup == Setup.EYE_TO_HAND else d.Y, spec.setup, robot_cov,
                          engine.detector.threshold)
     settled = np.ones(len(stream.t), dtype=bool)

@@ -22,8 +22,11 @@ from pydantic import Field, model_validator
 from scipy.linalg.lapack import dposv
 from scipy.stats import chi2, ncx2
 
+from handeye.calib import transforms as tf
 from handeye.calib.errors import CalibrationError
+from handeye.calib.model import point_jacobians
 from handeye.calib.params import Float, Int, Params
+from handeye.calib.setup import Setup, check_setup
 
 #: The detector's long window is tested every this many samples.
 LONG_STRIDE = 4
@@ -226,6 +229,40 @@ def move_information(H, R, visits, baseline) -> np.ndarray:
     for Hj, Rj, mj, nj in zip(H[used], R[used], m[used], n[used]):
         N += Hj.T @ np.linalg.solve(Rj * (1.0 / mj + 1.0 / nj), Hj)
     return N
+
+
+def window_power(C, after, K, A, R, visits, baseline, setup: str, robot_cov, threshold: float) -> float:
+    """Probability that the best test flags the camera's move from ``C`` to ``after`` from a window of samples at
+    repeated stops, each stop against its visits before the move (`move_information`, `detection_power`).
+
+    Parameters
+    ----------
+    C, after : array_like, shape (4, 4)
+        The camera transform before and after the move (eye-to-hand ``T_base_cam``, eye-in-hand ``T_flange_cam``).
+    K : array_like, shape (4, 4)
+        The marker-side transform (eye-to-hand ``T_flange_marker``, eye-in-hand ``T_base_marker``).
+    A : array_like, shape (S, 4, 4)
+        The stops' flange poses ``T_base_flange``.
+    R : array_like, shape (S, 3, 3)
+        One sample's point covariance at each stop, m^2.
+    visits, baseline : array_like of int, shape (S,)
+        Samples of each stop in the window, and before the move.
+    setup : str
+    robot_cov : array_like, shape (6, 6), or None
+        The flange twist's covariance per visit (rad^2, m^2; the robot's repeatability), added to ``R`` through the
+        point's Jacobian; None: an exact robot.
+    threshold : float
+        The GLR threshold.
+    """
+    A = np.asarray(A, dtype=float)
+    C, after = np.asarray(C, dtype=float), np.asarray(after, dtype=float)
+    M = A if check_setup(setup) == Setup.EYE_TO_HAND else tf.invert(A)
+    _, H, _, _, H_xi = point_jacobians(C, np.asarray(K, dtype=float), M, None, setup)
+    R = np.asarray(R, dtype=float)
+    if robot_cov is not None:
+        R = R + H_xi @ np.asarray(robot_cov, dtype=float) @ H_xi.transpose(0, 2, 1)
+    delta = np.r_[tf.so3_log(after[:3, :3] @ C[:3, :3].T), after[:3, 3] - C[:3, 3]]
+    return detection_power(move_information(H, R, visits, baseline), delta, threshold)
 
 
 def detection_power(N, delta, threshold: float) -> float:

@@ -285,6 +285,10 @@ class RealisticProfile:
         """`handeye.calib.robot_error.ur_dh_error_factor` of joints ``q`` (N, 6) at this profile's DH magnitudes."""
         return ur_dh_error_factor(q, np.deg2rad(self.joint_offset_deg), self.link_length_m, np.deg2rad(self.twist_deg))
 
+    def repeatability_cov(self) -> np.ndarray:
+        """The flange twist's covariance per visit (6, 6), ``[rotation, translation]`` (rad^2, m^2)."""
+        return np.diag([self.repeatability_rad**2] * 3 + [self.repeatability_m**2] * 3)
+
     def bias_free(self) -> "RealisticProfile":
         """The same cell without systematic errors: exact kinematics and an ideal camera (random noise kept)."""
         return dataclasses.replace(self, joint_offset_deg=0.0, link_length_m=0.0, twist_deg=0.0, depth_scale=0.0,

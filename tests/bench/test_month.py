@@ -68,7 +68,8 @@ def test_the_oracle_registers_every_sample_since_the_last_bump():
 def test_a_cells_sessions_replay_through_the_monitor_as_the_benchmark_ran_it(tmp_path, capsys, setup, joints):
     spec = month.CellSpec(0, setup, joints, 0.5, 4, 0.8)
     run = month.run_cell(spec, sessions=tmp_path)
-    cell = tmp_path / spec.name.replace(", ", "_").replace(" ", "-")
+    cell = tmp_path / spec.directory
+    assert spec.directory == ("eye-to-hand_joints_seed-0" if joints else "eye-in-hand_poses-only_seed-0")
     calibration, samples = read_session(cell / "calibration"), read_session(cell / "month")
     assert len(calibration.observations) == month.CALIBRATION_POSES and len(samples.observations) == 1440
     assert all((o.joints is not None) == joints for o in samples.observations[:10] + calibration.observations[:10])

@@ -170,3 +170,32 @@ def test_detection_limit_inputs_are_checked():
         move_information(np.zeros((1, 3, 6)), np.eye(3)[None], [-1], [1])
     with pytest.raises(CalibrationError, match="threshold"):
         detection_power(np.eye(6), np.zeros(6), 0.0)
+
+
+def test_window_power_of_a_move_seen_at_stops_grows_with_its_size_and_the_visits():
+    """`window_power`: a camera 0.8 m above four stops, looking down, moved across its line of sight and along
+    it; no move is the false-alarm rate, a move along the line of sight (depth noise 3 mm) is harder to see than
+    across it (1 mm), more visits see it better and the robot's repeatability worse."""
+    from scipy.stats import chi2
+
+    from handeye.calib import transforms as tf
+    from handeye.calib.change import window_power
+    from handeye.calib.simulate import point_covariance
+
+    C = tf.make_transform(np.diag([1.0, -1.0, -1.0]), [0.0, 0.0, 0.8])     # optical axis along the base's -z
+    K = tf.make_transform(np.eye(3), [0.0, 0.0, 0.1])
+    A = np.array([tf.make_transform(np.eye(3), [x, y, 0.0])
+                  for x, y in ((0.1, 0.1), (-0.1, 0.1), (0.1, -0.1), (-0.15, -0.05))])
+    R = point_covariance((tf.invert(C) @ A @ K)[:, :3, 3], 0.001, 0.003)
+    threshold = float(chi2.ppf(1 - 1e-7, 6))
+
+    def power(shift, visits=(5, 5, 5, 5), robot=None):
+        after = C.copy()
+        after[:3, 3] += shift
+        return window_power(C, after, K, A, R, list(visits), [50] * 4, "eye_to_hand", robot, threshold)
+
+    assert power(np.zeros(3)) == pytest.approx(1e-7, rel=1e-3)
+    across, along = power([0.004, 0.0, 0.0]), power([0.0, 0.0, 0.004])
+    assert along < across and across > 0.99
+    assert power([0.0, 0.0, 0.004], visits=(10, 10, 10, 10)) > along
+    assert power([0.0, 0.0, 0.004], robot=np.diag([np.deg2rad(0.01) ** 2] * 3 + [0.001 ** 2] * 3)) < along
