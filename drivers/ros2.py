@@ -96,6 +96,28 @@ def set_stamp(header, t: float) -> None:
     header.stamp.nanosec = min(int(round((t - sec) * 1e9)), 999_999_999)
 
 
+def spin_until_shutdown(executor) -> None:
+    """Spin ``executor`` until it or its context shuts down.
+
+    A node closed from another thread while the executor builds its wait set
+    leaves a destroyed entity in that set: rclpy allows for it where it takes a
+    message, not where it waits on a subscription's event handlers, and raises
+    ``InvalidHandle``. That wait is dropped and the next one is built without
+    the entity; ending the thread instead would leave every node of the process
+    unspun (a loaded CI host: no message on any topic afterwards)."""
+    from rclpy.exceptions import InvalidHandle
+    from rclpy.executors import ExternalShutdownException
+
+    while True:
+        try:
+            executor.spin()
+            return
+        except ExternalShutdownException:
+            return
+        except InvalidHandle:
+            continue
+
+
 class _Context:
     """The process's rclpy context and the executor thread spinning its nodes (reference-counted)."""
 
@@ -119,20 +141,11 @@ class _Context:
                 except Exception as e:  # rclpy's own RCLError and friends: a broken middleware setup
                     raise DeviceError(f"ROS 2: rclpy.init failed: {e}") from None
                 cls.context, cls.executor = context, SingleThreadedExecutor(context=context)
-                cls.thread = threading.Thread(target=cls._spin, args=(cls.executor,), name="ros2-executor",
-                                              daemon=True)
+                cls.thread = threading.Thread(target=spin_until_shutdown, args=(cls.executor,),
+                                              name="ros2-executor", daemon=True)
                 cls.thread.start()
             cls.users += 1
             return cls.context, cls.executor
-
-    @staticmethod
-    def _spin(executor) -> None:
-        from rclpy.executors import ExternalShutdownException
-
-        try:
-            executor.spin()
-        except ExternalShutdownException:
-            pass
 
     @classmethod
     def release(cls) -> None:
